@@ -1,0 +1,1 @@
+"""Concrete Actuator/DAQ implementations that talk to real servo controllers."""

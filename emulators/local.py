@@ -1,0 +1,140 @@
+"""In-process binding: the emulated controller behind hsio's Actuator interface, no protocol.
+
+In lockstep the experiment's clock steps the controller; in real time the controller runs its
+own loop in a thread (:class:`RealTimeLoop`) and the experiment only writes and reads.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from urllib.parse import parse_qsl, urlsplit
+
+from emulators.servo import ServoConfig, ServoController
+from hsio.clock import Clock
+from hsio.errors import ConfigError, InterlockError
+from hsio.interfaces import Actuator, Channel, ControlMode, DAQ, Feedback, Limits
+from hsio.specimens import make_specimen
+
+
+class RealTimeLoop:
+    """Steps a controller at its own rate in a daemon thread until stopped."""
+
+    def __init__(self, controller: ServoController, lock: threading.Lock):
+        self.controller = controller
+        self.lock = lock
+        self.overruns = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="servo-emulator", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        period = self.controller.dt
+        start = time.perf_counter()
+        k = 0
+        while not self._stop.is_set():
+            with self.lock:
+                self.controller.step()
+            k += 1
+            delay = start + k * period - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            elif -delay > period:
+                self.overruns += 1
+
+
+class EmulatedActuator(Actuator, DAQ):
+    """An emulated controller channel as an Actuator (and its DAQ channels)."""
+
+    def __init__(self, name: str, controller: ServoController, clock: Clock | None = None):
+        self.name = name
+        self.controller = controller
+        cfg = controller.config
+        self.limits = Limits(cfg.stroke_mm, cfg.force_limit_kN, cfg.velocity_limit_mm_s)
+        self._lock = threading.Lock()
+        self._loop: RealTimeLoop | None = None
+        if clock is not None and getattr(clock, "lockstep", False):
+            clock.attach(controller)
+        else:
+            self._loop = RealTimeLoop(controller, self._lock)
+            self._loop.start()
+
+    @property
+    def mode(self) -> ControlMode:
+        return self.controller.mode
+
+    def set_mode(self, mode: ControlMode) -> None:
+        with self._lock:
+            self._raise_if_tripped()
+            self.controller.set_mode(mode)
+
+    def _send(self, value: float) -> None:
+        with self._lock:
+            self._raise_if_tripped()
+            self.controller.set_command(value)
+
+    def feedback(self) -> Feedback:
+        with self._lock:
+            c = self.controller
+            return Feedback(c.measured_displacement, c.measured_force, c.time_s)
+
+    def hold(self) -> None:
+        with self._lock:
+            self.controller.hold()
+
+    def close(self) -> None:
+        self.hold()
+        if self._loop is not None:
+            self._loop.stop()
+            self._loop = None
+
+    def _raise_if_tripped(self) -> None:
+        if self.controller.tripped:
+            raise InterlockError(f"actuator {self.name!r}: interlock tripped: {self.controller.tripped}; holding")
+
+    # DAQ
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        return (Channel(f"{self.name}.displacement", "mm"), Channel(f"{self.name}.force", "kN"))
+
+    def read(self) -> dict[str, float]:
+        fb = self.feedback()
+        return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}
+
+
+def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:
+    """Open ``emulator://`` with one emulated controller per experimental element.
+
+    ``options`` is the [emulator] table of the configuration (ServoConfig fields); query
+    parameters of the URL override it, e.g. ``emulator://?lag_s=0.03&noise_mm=0``.
+    Each controller gets its own noise seed (seed + index).
+    """
+    parts = urlsplit(url)
+    if parts.scheme != "emulator":
+        raise ConfigError(f"{url!r} is not an emulator:// URL")
+    table = dict(options or {})
+    for key, value in parse_qsl(parts.query):
+        table[key] = _parse_value(value)
+    actuators = []
+    for index, element in enumerate(elements):
+        cfg = ServoConfig.from_dict({**table, "seed": int(table.get("seed", 0)) + index})
+        controller = ServoController(make_specimen(element.specimen), cfg)
+        actuators.append(EmulatedActuator(element.name, controller, clock))
+    return actuators
+
+
+def _parse_value(text: str):
+    if text.lower() in ("none", "null"):
+        return None
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text

@@ -1,0 +1,241 @@
+"""An emulated servo-hydraulic controller for one actuator, stepped at the controller rate.
+
+Physics per period dt = 1/rate (explicit, one tick at a time):
+
+* Displacement control: the servo-valve opens in proportion to the loop output; the actuator
+  velocity is proportional to the valve flow (velocity-proportional lag):
+
+      v = K_p e + K_i sum(e) dt + clip(v_c, -a, a),   e = d_c(t - t_delay) - d_rod,  K_p = 1 / lag
+
+  so a ramp at velocity v lags by lag * (|v| - a) beyond the feed-forward threshold a (the
+  hockey stick of METHOD.md eq. 1 with b d_max = lag). The flow limit saturates |v|.
+* Force control: the loop is closed on the load cell, v = K_f (F_c - F_m), with K_f tuned on the
+  specimen's initial stiffness so that the force follows with ``force_lag_s``.
+* Load train: the specimen sees the rod through a backlash gap and a compliance
+  (d_spec = backlash(d_rod) - compliance F); the displacement transducer on the specimen reads
+  gain * d_spec. Sensors add Gaussian noise and quantise to their resolution.
+* Interlocks: a measured displacement beyond the stroke or force beyond the capacity trips the
+  controller, which then holds its position and refuses commands until reset.
+
+Every effect is off or neutral by default except the lag, the limits and the sensors.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+from hsio.clock import CONTROLLER_RATE_HZ
+from hsio.errors import ConfigError
+from hsio.interfaces import ControlMode
+from hsio.specimens import Specimen
+
+
+@dataclass
+class ServoConfig:
+    """Parameters of the emulated controller, actuator, load train and sensors (kN, mm, s)."""
+
+    rate_hz: float = CONTROLLER_RATE_HZ
+    lag_s: float = 0.020  # displacement-loop lag when extending (b d_max of METHOD.md eq. 1)
+    lag_retract_s: float | None = None  # lag when retracting (asymmetric lag); None: same
+    ki_per_s2: float = 0.0  # integral gain of the displacement loop
+    velocity_threshold_mm_s: float = 0.0  # a: velocity feed-forward up to this speed
+    transport_delay_s: float = 0.0  # pure delay of the command inside the loop
+    force_lag_s: float = 0.020  # force-loop lag on the specimen's initial stiffness
+    stroke_mm: float = 254.0  # total stroke, centred on zero
+    force_limit_kN: float = 250.0
+    velocity_limit_mm_s: float = 500.0  # servo-valve flow limit
+    backlash_mm: float = 0.0  # total slop of the load train
+    compliance_mm_per_kN: float = 0.0  # load-train compliance
+    displacement_gain: float = 1.0  # transducer gain (1 = exact)
+    resolution_mm: float = 0.025
+    noise_mm: float = 0.01  # standard deviation
+    force_resolution_kN: float = 0.001
+    force_noise_kN: float = 0.002
+    seed: int = 0
+
+    def __post_init__(self):
+        positive = ("rate_hz", "lag_s", "force_lag_s", "stroke_mm", "force_limit_kN", "velocity_limit_mm_s")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"emulator: {name} must be positive, got {getattr(self, name)!r}")
+        non_negative = ("ki_per_s2", "velocity_threshold_mm_s", "transport_delay_s", "backlash_mm",
+                        "compliance_mm_per_kN", "resolution_mm", "noise_mm", "force_resolution_kN", "force_noise_kN")
+        for name in non_negative:
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"emulator: {name} must be zero or positive, got {getattr(self, name)!r}")
+        if self.lag_retract_s is not None and not self.lag_retract_s > 0:
+            raise ConfigError(f"emulator: lag_retract_s must be positive, got {self.lag_retract_s!r}")
+
+    @classmethod
+    def from_dict(cls, table: dict) -> "ServoConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(table) - known)
+        if unknown:
+            raise ConfigError(f"emulator: unknown setting(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+        return cls(**table)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def quantise(value: float, resolution: float) -> float:
+    return round(value / resolution) * resolution if resolution > 0 else value
+
+
+class ServoController:
+    """One emulated controller channel with its actuator and specimen.
+
+    :meth:`step` advances one controller period. Commands and reads go through
+    :meth:`set_command`, :meth:`set_mode`, :meth:`hold`; measurements are attributes.
+    """
+
+    NOISE_BLOCK = 4096
+
+    def __init__(self, specimen: Specimen, config: ServoConfig | None = None):
+        self.config = config or ServoConfig()
+        self.specimen = specimen
+        c = self.config
+        self.dt = 1.0 / c.rate_hz
+        self.kp_extend = 1.0 / c.lag_s
+        self.kp_retract = 1.0 / (c.lag_retract_s or c.lag_s)
+        self.kf = 1.0 / (c.force_lag_s * max(specimen.initial_stiffness, 1e-9))
+        self._rng = np.random.default_rng(c.seed)
+        self._delay = collections.deque(maxlen=max(int(round(c.transport_delay_s * c.rate_hz)), 0) + 1)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to rest at zero, in displacement control, interlocks cleared."""
+        self.specimen.reset()
+        self.mode = ControlMode.DISPLACEMENT
+        self.command = 0.0
+        self.ticks = 0
+        self.d_rod = 0.0
+        self.d_spec = 0.0
+        self.force = 0.0  # true specimen force
+        self._integral = 0.0
+        self._last_loop_cmd = 0.0
+        self._d_engaged = 0.0  # where the specimen side of the backlash gap stands
+        self._delay.clear()
+        self.tripped = ""
+        self.holding = False
+        self._noise_d = np.empty(0)
+        self._noise_f = np.empty(0)
+        self._noise_i = 0
+        self.measured_displacement = 0.0
+        self.measured_force = 0.0
+        self._measure()
+
+    @property
+    def time_s(self) -> float:
+        return self.ticks * self.dt
+
+    # -- commands ---------------------------------------------------------------------------
+    def set_command(self, value: float) -> None:
+        if self.tripped:
+            return
+        self.holding = False
+        self.command = float(value)
+
+    def set_mode(self, mode: ControlMode) -> None:
+        """Switch bumplessly: the command starts from the present measurement."""
+        if mode is self.mode:
+            return
+        self.mode = mode
+        self.command = self.measured_force if mode is ControlMode.FORCE else self.measured_displacement
+        self._delay.clear()
+        self._last_loop_cmd = self.command
+        self._integral = 0.0
+
+    def hold(self) -> None:
+        """Hold the present rod position in displacement control."""
+        self.mode = ControlMode.DISPLACEMENT
+        self.command = self.d_rod
+        self._delay.clear()
+        self._last_loop_cmd = self.d_rod
+        self._integral = 0.0
+        self.holding = True
+
+    def clear_trip(self) -> None:
+        self.tripped = ""
+
+    # -- physics ------------------------------------------------------------------------------
+    def advance(self, ticks: int) -> None:
+        for _ in range(ticks):
+            self.step()
+
+    def step(self) -> None:
+        """One controller period."""
+        c = self.config
+        dt = self.dt
+        self._delay.append(self.command)
+        loop_cmd = self._delay[0]
+        if self.mode is ControlMode.DISPLACEMENT:
+            error = loop_cmd - self._rod_feedback
+            self._integral += error * dt
+            kp = self.kp_extend if error >= 0.0 else self.kp_retract
+            v_cmd = (loop_cmd - self._last_loop_cmd) / dt
+            a = c.velocity_threshold_mm_s
+            v_ff = v_cmd if v_cmd <= a and v_cmd >= -a else math.copysign(a, v_cmd)
+            velocity = kp * error + c.ki_per_s2 * self._integral + v_ff
+        else:
+            velocity = self.kf * (loop_cmd - self.measured_force)
+        self._last_loop_cmd = loop_cmd
+        vmax = c.velocity_limit_mm_s
+        if velocity > vmax:
+            velocity = vmax
+        elif velocity < -vmax:
+            velocity = -vmax
+        self.d_rod += velocity * dt
+        self._load_train()
+        self.ticks += 1
+        self._measure()
+        self._check_interlocks()
+
+    def _load_train(self) -> None:
+        c = self.config
+        d = self.d_rod
+        if c.backlash_mm > 0.0:
+            # The rod moves freely inside the gap; the specimen follows once the gap is taken up.
+            half = 0.5 * c.backlash_mm
+            if d - self._d_engaged > half:
+                self._d_engaged = d - half
+            elif d - self._d_engaged < -half:
+                self._d_engaged = d + half
+            d = self._d_engaged
+        if c.compliance_mm_per_kN > 0.0:
+            d -= c.compliance_mm_per_kN * self.force
+        self.d_spec = d
+        self.force = self.specimen.force(d)
+
+    def _next_noise(self) -> tuple[float, float]:
+        if self._noise_i >= self._noise_d.size:
+            c = self.config
+            self._noise_d = self._rng.normal(0.0, c.noise_mm, self.NOISE_BLOCK) if c.noise_mm > 0 else np.zeros(self.NOISE_BLOCK)
+            self._noise_f = self._rng.normal(0.0, c.force_noise_kN, self.NOISE_BLOCK) if c.force_noise_kN > 0 else np.zeros(self.NOISE_BLOCK)
+            self._noise_i = 0
+        i = self._noise_i
+        self._noise_i += 1
+        return float(self._noise_d[i]), float(self._noise_f[i])
+
+    def _measure(self) -> None:
+        c = self.config
+        nd, nf = self._next_noise()
+        self.measured_displacement = quantise(c.displacement_gain * self.d_spec + nd, c.resolution_mm)
+        self.measured_force = quantise(self.force + nf, c.force_resolution_kN)
+        # The loop is closed on the rod's own transducer (same sensor quality).
+        self._rod_feedback = quantise(self.d_rod + nd, c.resolution_mm)
+
+    def _check_interlocks(self) -> None:
+        if self.tripped:
+            return
+        c = self.config
+        if abs(self.measured_displacement) > 0.5 * c.stroke_mm:
+            self.tripped = f"displacement {self.measured_displacement:.3f} mm beyond the stroke (+/-{0.5 * c.stroke_mm:.1f} mm)"
+        elif abs(self.measured_force) > c.force_limit_kN:
+            self.tripped = f"force {self.measured_force:.3f} kN beyond the capacity (+/-{c.force_limit_kN:.1f} kN)"
+        if self.tripped:
+            self.hold()

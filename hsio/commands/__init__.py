@@ -1,0 +1,1 @@
+"""Subcommands of `hsio`, one module each (registered in hsio.cli.LAZY_COMMANDS)."""

@@ -1,0 +1,110 @@
+"""Run configuration: a TOML file, checked key by key, with safe defaults.
+
+Every table and key is optional; an unknown table or key, a wrong type or a value out of range
+raises :class:`~hsio.errors.ConfigError` naming the file, the table and the key. See
+docs/config.md for the whole list.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hsio.errors import ConfigError
+
+DEFAULTS: dict[str, dict] = {
+    "structure": {"name": "validation"},
+    "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.45, "seed": 1994, "synthetic_duration_s": 20.0},
+    "integrator": {"alpha": -0.05},
+    "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
+    "hardware": {"url": "emulator://", "clock": "lockstep"},
+    "output": {"samples": True, "plots": True, "ns": True},
+}
+# The [emulator] table is passed to the emulated controller (emulators.servo.ServoConfig), which
+# checks its own keys; [drivers] likewise goes to the driver named by hardware.url.
+FREE_TABLES = ("emulator", "driver")
+
+
+@dataclass
+class RunConfig:
+    """A checked configuration: ``tables[table][key]``, defaults filled in."""
+
+    tables: dict = field(default_factory=dict)
+    source: str = "<defaults>"
+
+    def __getitem__(self, table: str) -> dict:
+        return self.tables[table]
+
+
+def _check_type(where: str, key: str, value, default):
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
+        return value
+    if isinstance(default, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: {key} must be finite, got {value!r}")
+        return type(default)(value) if isinstance(default, float) else value
+    if isinstance(default, str) and not isinstance(value, str):
+        raise ConfigError(f"{where}: {key} must be a string, got {value!r}")
+    return value
+
+
+def from_dict(data: dict, source: str = "<dict>") -> RunConfig:
+    tables = {name: dict(values) for name, values in DEFAULTS.items()}
+    for free in FREE_TABLES:
+        tables[free] = {}
+    for name, values in data.items():
+        if name not in tables:
+            raise ConfigError(f"{source}: unknown table [{name}]; known: {', '.join(sorted(tables))}")
+        if not isinstance(values, dict):
+            raise ConfigError(f"{source}: [{name}] must be a table, got {values!r}")
+        if name in FREE_TABLES:
+            tables[name].update(values)
+            continue
+        for key, value in values.items():
+            if key not in DEFAULTS[name]:
+                raise ConfigError(f"{source}: unknown key {key!r} in [{name}]; known: {', '.join(DEFAULTS[name])}")
+            tables[name][key] = _check_type(f"{source}: [{name}]", key, value, DEFAULTS[name][key])
+    _check_ranges(tables, source)
+    return RunConfig(tables, source)
+
+
+def _check_ranges(t: dict, source: str) -> None:
+    alpha = t["integrator"]["alpha"]
+    if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
+        raise ConfigError(f"{source}: [integrator] alpha must be in [-1/3, 0], got {alpha}")
+    if not t["test"]["rate"] > 0:
+        raise ConfigError(f"{source}: [test] rate (TR) must be positive, got {t['test']['rate']}")
+    if not 0.0 <= t["test"]["hold_fraction"] < 1.0:
+        raise ConfigError(f"{source}: [test] hold_fraction must be in [0, 1), got {t['test']['hold_fraction']}")
+    if not t["test"]["n_avg"] >= 1:
+        raise ConfigError(f"{source}: [test] n_avg must be at least 1, got {t['test']['n_avg']}")
+    if t["hardware"]["clock"] not in ("lockstep", "realtime"):
+        raise ConfigError(f"{source}: [hardware] clock must be 'lockstep' or 'realtime', got {t['hardware']['clock']!r}")
+    if t["record"]["duration_s"] < 0:
+        raise ConfigError(f"{source}: [record] duration_s must not be negative")
+
+
+def load(path: str | Path | None) -> RunConfig:
+    """Read and check a TOML configuration; ``None`` gives the defaults."""
+    if path is None:
+        return from_dict({})
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read configuration: {exc.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    config = from_dict(data, str(path))
+    record_file = config["record"]["file"]
+    if record_file and not Path(record_file).is_absolute():
+        config["record"]["file"] = str((path.parent / record_file).resolve())
+    return config

@@ -1,0 +1,149 @@
+"""Ground-motion records: a reader for PEER .AT2 files and a synthetic default record.
+
+Accelerations are kept in g; :meth:`GroundMotion.acceleration_mm_s2` converts to mm/s^2 for the
+equations of motion (kN, mm, s), and :meth:`GroundMotion.resampled` interpolates to the
+integration time step.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hsio.errors import RecordError
+
+G_MM_S2 = 9806.65  # standard gravity in mm/s^2
+
+
+@dataclass(frozen=True)
+class GroundMotion:
+    """A uniformly sampled ground acceleration history, in g."""
+
+    name: str
+    dt: float
+    accel_g: np.ndarray
+
+    def __post_init__(self):
+        if not (self.dt > 0 and math.isfinite(self.dt)):
+            raise RecordError(f"{self.name}: time step must be positive, got {self.dt!r}")
+        accel = np.asarray(self.accel_g, dtype=float)
+        bad = np.flatnonzero(~np.isfinite(accel))
+        if bad.size:
+            raise RecordError(f"{self.name}: sample {bad[0]} (t = {bad[0] * self.dt:.3f} s) is {accel[bad[0]]!r}")
+        if accel.size < 2:
+            raise RecordError(f"{self.name}: needs at least 2 samples, has {accel.size}")
+        object.__setattr__(self, "accel_g", accel)
+
+    @property
+    def duration_s(self) -> float:
+        return (self.accel_g.size - 1) * self.dt
+
+    @property
+    def pga_g(self) -> float:
+        return float(np.max(np.abs(self.accel_g)))
+
+    def scaled(self, factor: float) -> "GroundMotion":
+        if not math.isfinite(factor):
+            raise RecordError(f"{self.name}: scale factor {factor!r} is not finite")
+        return GroundMotion(f"{self.name} x {factor:g}", self.dt, self.accel_g * factor)
+
+    def truncated(self, duration_s: float) -> "GroundMotion":
+        n = int(round(duration_s / self.dt)) + 1
+        return GroundMotion(self.name, self.dt, self.accel_g[: max(n, 2)])
+
+    def resampled(self, dt: float) -> "GroundMotion":
+        """Linear interpolation to time step ``dt`` over the same duration."""
+        if math.isclose(dt, self.dt, rel_tol=1e-12):
+            return self
+        n = int(math.floor(self.duration_s / dt + 1e-9)) + 1
+        t_new = np.arange(n) * dt
+        t_old = np.arange(self.accel_g.size) * self.dt
+        return GroundMotion(self.name, dt, np.interp(t_new, t_old, self.accel_g))
+
+    def acceleration_mm_s2(self) -> np.ndarray:
+        return self.accel_g * G_MM_S2
+
+
+_NPTS_DT_NAMED = re.compile(r"NPTS\s*=\s*(\d+)\s*,\s*DT\s*=\s*([0-9.Ee+-]+)", re.IGNORECASE)
+_NPTS_DT_PLAIN = re.compile(r"^\s*(\d+)\s+([0-9.Ee+-]+)\s+NPTS\s*,\s*DT", re.IGNORECASE)
+
+
+def read_at2(path: str | Path) -> GroundMotion:
+    """Read a PEER .AT2 file (NGA-West2 and older PEER headers), accelerations in g.
+
+    Header: 4 lines; the 4th gives NPTS and DT as ``NPTS= 2000, DT= .0200 SEC`` or as
+    ``4000  0.0100  NPTS, DT``. Then the values, several to a line. A broken header, a value that
+    is not a number, a NaN, or a count that differs from NPTS raises :class:`RecordError` naming
+    the file and line.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="latin-1").splitlines()
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
+    if len(lines) < 5:
+        raise RecordError(f"{path}: too short for an AT2 file ({len(lines)} lines; the header alone has 4)")
+    match = _NPTS_DT_NAMED.search(lines[3]) or _NPTS_DT_PLAIN.search(lines[3])
+    if match is None:
+        raise RecordError(
+            f"{path}:4: header line must give NPTS and DT ('NPTS= 2000, DT= .0200 SEC' or "
+            f"'4000 0.0100 NPTS, DT'), got {lines[3].strip()!r}"
+        )
+    npts = int(match.group(1))
+    try:
+        dt = float(match.group(2))
+    except ValueError:
+        raise RecordError(f"{path}:4: DT {match.group(2)!r} is not a number") from None
+    if not (dt > 0 and math.isfinite(dt)):
+        raise RecordError(f"{path}:4: DT must be positive, got {dt!r}")
+    values: list[float] = []
+    for lineno, line in enumerate(lines[4:], start=5):
+        for word in line.split():
+            try:
+                value = float(word)
+            except ValueError:
+                raise RecordError(f"{path}:{lineno}: {word!r} is not a number") from None
+            if not math.isfinite(value):
+                raise RecordError(f"{path}:{lineno}: value {word!r} is not finite")
+            values.append(value)
+    if len(values) != npts:
+        raise RecordError(f"{path}: header says NPTS = {npts}, file holds {len(values)} values")
+    return GroundMotion(name=path.name, dt=dt, accel_g=np.array(values))
+
+
+def synthetic_record(
+    duration_s: float = 20.0,
+    dt: float = 0.01,
+    pga_g: float = 0.3,
+    seed: int = 1994,
+    f_g_hz: float = 2.5,
+    zeta_g: float = 0.6,
+) -> GroundMotion:
+    """A reproducible synthetic earthquake: Kanai-Tajimi filtered white noise, enveloped.
+
+    White noise passes through the Kanai-Tajimi ground filter (frequency f_g, damping zeta_g)
+    and a Saragoni-Hart-like envelope (build-up, strong motion, decay); a 0.1 Hz high-pass
+    removes drift; the result is scaled to ``pga_g``. Generated in code, so a default run needs
+    no data file.
+    """
+    from scipy import signal
+
+    n = int(round(duration_s / dt)) + 1
+    rng = np.random.default_rng(seed)
+    noise = rng.standard_normal(n)
+    w_g = 2 * math.pi * f_g_hz
+    # Kanai-Tajimi: H(s) = (2 zeta w s + w^2) / (s^2 + 2 zeta w s + w^2), discretised (bilinear).
+    b, a = signal.bilinear([2 * zeta_g * w_g, w_g**2], [1.0, 2 * zeta_g * w_g, w_g**2], fs=1.0 / dt)
+    accel = signal.lfilter(b, a, noise)
+    t = np.arange(n) * dt
+    t_peak = 0.2 * duration_s
+    envelope = (t / t_peak) ** 2 * np.exp(2.0 * (1.0 - t / t_peak))
+    accel *= envelope
+    sos = signal.butter(2, 0.1, btype="highpass", fs=1.0 / dt, output="sos")
+    accel = signal.sosfiltfilt(sos, accel)
+    accel *= pga_g / np.max(np.abs(accel))
+    return GroundMotion(f"synthetic (Kanai-Tajimi, seed {seed})", dt, accel)

@@ -1,0 +1,45 @@
+"""Hardware by URL: ``emulator://``, ``modbus+tcp://host:port``, ``modbus+rtu:///dev/tty``,
+``canopen+virtual://channel/node``.
+
+A scheme names a module function ``open_url(url, elements, clock, options) -> [Actuator]``.
+The built-in schemes are listed here; other packages add theirs through the ``hsio.hardware``
+entry-point group, in the manner of python-can's interfaces. Driver modules are imported only
+when their scheme is used.
+"""
+
+from __future__ import annotations
+
+import importlib
+from importlib.metadata import entry_points
+from urllib.parse import urlsplit
+
+from hsio.errors import ConfigError
+
+BUILT_IN = {
+    "emulator": "emulators.local:open_url",
+    "modbus+tcp": "drivers.modbus:open_url",
+    "modbus+rtu": "drivers.modbus:open_url",
+    "canopen+virtual": "drivers.canopen:open_url",
+    "canopen+socketcan": "drivers.canopen:open_url",
+}
+
+
+def schemes() -> dict[str, str]:
+    found = dict(BUILT_IN)
+    for ep in entry_points(group="hsio.hardware"):
+        found.setdefault(ep.name, ep.value)
+    return found
+
+
+def open_hardware(url: str, elements, clock, options: dict | None = None):
+    """One Actuator per experimental element, from the driver that ``url``'s scheme names."""
+    scheme = urlsplit(url).scheme
+    target = schemes().get(scheme)
+    if target is None:
+        raise ConfigError(f"hardware URL {url!r}: unknown scheme {scheme!r}; known: {', '.join(sorted(schemes()))}")
+    module_name, _, func = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(f"hardware URL {url!r}: driver module {module_name!r} is not available ({exc})") from None
+    return getattr(module, func)(url, elements, clock, options or {})

@@ -1,0 +1,6 @@
+"""Time integrators: plain numerical code, no I/O, no sleeps, no globals."""
+
+from hsio.integrators.alpha_os import AlphaOS, AlphaOSState
+from hsio.integrators.newmark import newmark_average_acceleration
+
+__all__ = ["AlphaOS", "AlphaOSState", "newmark_average_acceleration"]

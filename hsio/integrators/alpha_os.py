@@ -1,0 +1,119 @@
+"""The alpha-OS method in displacement control (METHOD.md section 2, eqs. 3-6).
+
+Operator splitting: the specimen is driven to the predicted displacement u~_{i+1}, its restoring
+force R~_{i+1} is measured, and the correction uses the implicit stiffness K_I (the experimental
+initial stiffness K^EI plus the numerical initial stiffness), with no iteration on the specimen:
+
+    M^ a_{i+1} = P^_{i+1}                                                          (4)
+    M^ = M + gamma dt (1+alpha) C + beta dt^2 (1+alpha) K_I                        (5)
+    P^_{i+1} = (1+alpha) P_{i+1} - alpha P_i - (1+alpha) C v~_{i+1} + alpha C v~_i
+               - (1+alpha) R~_{i+1} + alpha R~_i + alpha (gamma dt C + beta dt^2 K_I) a_i   (6)
+
+with alpha in [-1/3, 0], beta = (1-alpha)^2/4, gamma = 1/2 - alpha, predictors
+u~_{i+1} = u_i + dt v_i + dt^2 (1/2 - beta) a_i,  v~_{i+1} = v_i + dt (1 - gamma) a_i,
+and correctors u_{i+1} = u~_{i+1} + dt^2 beta a_{i+1},  v_{i+1} = v~_{i+1} + dt gamma a_{i+1}.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+import scipy.linalg
+
+from hsio.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class AlphaOSState:
+    """The state after step i: displacement, velocity, acceleration, and the step's predictors."""
+
+    i: int
+    u: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    u_pred: np.ndarray  # u~_i
+    v_pred: np.ndarray  # v~_i
+    R_pred: np.ndarray  # R~_i, the restoring force measured at u~_i
+    P: np.ndarray  # P_i
+
+
+class AlphaOS:
+    """alpha-OS integrator for M, C and implicit stiffness K_I, with time step dt."""
+
+    def __init__(self, M, C, K_I, dt: float, alpha: float = -0.05):
+        if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
+            raise ConfigError(f"alpha-OS: alpha must be in [-1/3, 0], got {alpha!r}")
+        if not dt > 0:
+            raise ConfigError(f"alpha-OS: dt must be positive, got {dt!r}")
+        self.M = np.atleast_2d(np.asarray(M, dtype=float))
+        self.C = np.atleast_2d(np.asarray(C, dtype=float))
+        self.K_I = np.atleast_2d(np.asarray(K_I, dtype=float))
+        self.dt = float(dt)
+        self.alpha = float(alpha)
+        self.beta = (1.0 - alpha) ** 2 / 4.0
+        self.gamma = 0.5 - alpha
+        a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
+        self.M_hat = self.M + g * h * (1 + a) * self.C + b * h**2 * (1 + a) * self.K_I  # eq. (5)
+        self._M_hat_lu = scipy.linalg.lu_factor(self.M_hat)
+        self.state: AlphaOSState | None = None
+
+    @property
+    def n_dof(self) -> int:
+        return self.M.shape[0]
+
+    def start(self, P0, u0=None, v0=None, R0=None) -> AlphaOSState:
+        """Initial state: a_0 from M a_0 = P_0 - C v_0 - R_0."""
+        n = self.n_dof
+        u0 = np.zeros(n) if u0 is None else np.asarray(u0, dtype=float)
+        v0 = np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)
+        R0 = np.zeros(n) if R0 is None else np.asarray(R0, dtype=float)
+        P0 = np.asarray(P0, dtype=float)
+        a0 = np.linalg.solve(self.M, P0 - self.C @ v0 - R0)
+        self.state = AlphaOSState(0, u0, v0, a0, u0.copy(), v0.copy(), R0.copy(), P0.copy())
+        return self.state
+
+    def predict(self) -> tuple[np.ndarray, np.ndarray]:
+        """Predictors u~_{i+1} and v~_{i+1} from the present state."""
+        s = self._require_state()
+        h = self.dt
+        u_pred = s.u + h * s.v + h**2 * (0.5 - self.beta) * s.a
+        v_pred = s.v + h * (1.0 - self.gamma) * s.a
+        return u_pred, v_pred
+
+    def correct(self, R_pred, P_next) -> AlphaOSState:
+        """Solve eq. (4) with R~_{i+1} measured at u~_{i+1}, correct, and advance to step i+1."""
+        s = self._require_state()
+        a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
+        u_pred, v_pred = self.predict()
+        R_pred = np.asarray(R_pred, dtype=float)
+        P_next = np.asarray(P_next, dtype=float)
+        P_hat = (  # eq. (6)
+            (1 + a) * P_next
+            - a * s.P
+            - (1 + a) * self.C @ v_pred
+            + a * self.C @ s.v_pred
+            - (1 + a) * R_pred
+            + a * s.R_pred
+            + a * (g * h * self.C + b * h**2 * self.K_I) @ s.a
+        )
+        acc = scipy.linalg.lu_solve(self._M_hat_lu, P_hat)
+        u = u_pred + h**2 * b * acc
+        v = v_pred + h * g * acc
+        self.state = AlphaOSState(s.i + 1, u, v, acc, u_pred, v_pred, R_pred.copy(), P_next.copy())
+        return self.state
+
+    def step(self, P_next, restoring_force: Callable[[np.ndarray], np.ndarray]) -> AlphaOSState:
+        """One step: predict, ask the substructure for R~ at u~_{i+1}, correct."""
+        u_pred, _ = self.predict()
+        return self.correct(restoring_force(u_pred), P_next)
+
+    def restore(self, state: AlphaOSState) -> None:
+        """Continue from a saved state (e.g. a run resumed from its record)."""
+        self.state = replace(state)
+
+    def _require_state(self) -> AlphaOSState:
+        if self.state is None:
+            raise RuntimeError("alpha-OS: call start() before stepping")
+        return self.state

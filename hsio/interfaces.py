@@ -1,0 +1,137 @@
+"""The narrow interfaces between the experiment and the hardware.
+
+An :class:`Actuator` takes one command sample per controller period, in displacement (mm) or
+force (kN) control, and reports measured displacement and force. A :class:`DAQ` reports named
+channels with units. Both are implemented by the in-process emulator (``emulators.local``) and by
+the drivers (``drivers.modbus``, ``drivers.canopen``), so the experiment does not know which it
+drives.
+
+Limits are checked here, before anything is sent: a command beyond a limit raises
+:class:`~hsio.errors.LimitError` and is not sent, so the actuator keeps holding its last command.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+from hsio.errors import LimitError
+
+
+class ControlMode(enum.Enum):
+    """What an actuator's command means."""
+
+    DISPLACEMENT = "displacement"
+    FORCE = "force"
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Actuator limits. The stroke is centred on zero: |displacement| <= stroke_mm / 2."""
+
+    stroke_mm: float = 254.0
+    force_kN: float = 250.0
+    velocity_mm_s: float = 500.0
+
+    @property
+    def half_stroke_mm(self) -> float:
+        return self.stroke_mm / 2.0
+
+    def check_displacement(self, value: float, where: str) -> None:
+        """Refuse a displacement command beyond the stroke or not finite (no clamping)."""
+        if not math.isfinite(value):
+            raise LimitError(f"{where}: displacement command {value!r} is not a finite number")
+        if abs(value) > self.half_stroke_mm:
+            raise LimitError(
+                f"{where}: displacement command {value:.3f} mm is beyond the stroke "
+                f"(+/-{self.half_stroke_mm:.1f} mm); not sent, the actuator holds"
+            )
+
+    def check_force(self, value: float, where: str) -> None:
+        """Refuse a force command beyond the force capacity or not finite (no clamping)."""
+        if not math.isfinite(value):
+            raise LimitError(f"{where}: force command {value!r} is not a finite number")
+        if abs(value) > self.force_kN:
+            raise LimitError(
+                f"{where}: force command {value:.3f} kN is beyond the capacity "
+                f"(+/-{self.force_kN:.1f} kN); not sent, the actuator holds"
+            )
+
+    def check(self, mode: ControlMode, value: float, where: str) -> None:
+        if mode is ControlMode.DISPLACEMENT:
+            self.check_displacement(value, where)
+        else:
+            self.check_force(value, where)
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """One controller-period sample of an actuator's measured response."""
+
+    displacement_mm: float
+    force_kN: float
+    time_s: float
+
+
+class Actuator(ABC):
+    """One servo-controlled actuator (one control channel).
+
+    The experiment calls :meth:`command` once per controller period and :meth:`feedback` after
+    the clock ticked. :meth:`hold` freezes the actuator at its present position (displacement
+    control) whatever it was doing; it must be safe to call at any time, also after an error.
+    """
+
+    name: str
+    limits: Limits
+
+    @property
+    @abstractmethod
+    def mode(self) -> ControlMode:
+        """The present control mode."""
+
+    @abstractmethod
+    def set_mode(self, mode: ControlMode) -> None:
+        """Switch control mode bumplessly: the new command starts at the present measurement."""
+
+    def command(self, value: float) -> None:
+        """Send one command sample (mm or kN by mode). Refused beyond the limits, unsent."""
+        self.limits.check(self.mode, value, f"actuator {self.name!r}")
+        self._send(value)
+
+    @abstractmethod
+    def _send(self, value: float) -> None:
+        """Send a command already checked against the limits."""
+
+    @abstractmethod
+    def feedback(self) -> Feedback:
+        """The latest measured displacement and force."""
+
+    @abstractmethod
+    def hold(self) -> None:
+        """Hold the present position in displacement control."""
+
+    def close(self) -> None:
+        """Release the connection. The actuator is left holding."""
+
+
+@dataclass(frozen=True)
+class Channel:
+    """A DAQ channel: its name and engineering unit."""
+
+    name: str
+    unit: str
+
+
+class DAQ(ABC):
+    """A data acquisition device: named channels with units, read together."""
+
+    @property
+    @abstractmethod
+    def channels(self) -> tuple[Channel, ...]:
+        """The channels this DAQ reads."""
+
+    @abstractmethod
+    def read(self) -> dict[str, float]:
+        """One reading of every channel, by name, in the channel's unit."""
