@@ -100,8 +100,10 @@ class ServoController:
         self.specimen = specimen
         c = self.config
         self.dt = 1.0 / c.rate_hz
-        self.kp_extend = 1.0 / c.lag_s
-        self.kp_retract = 1.0 / (c.lag_retract_s or c.lag_s)
+        # The loop sees the position of the previous period, so K_p = 1 / (lag + dt) makes a ramp
+        # lag by exactly lag_s between a command and the measurement that follows it.
+        self.kp_extend = 1.0 / (c.lag_s + self.dt)
+        self.kp_retract = 1.0 / ((c.lag_retract_s or c.lag_s) + self.dt)
         self.kf = 1.0 / (c.force_lag_s * max(specimen.initial_stiffness, 1e-9))
         self._rng = np.random.default_rng(c.seed)
         self._delay = collections.deque(maxlen=max(int(round(c.transport_delay_s * c.rate_hz)), 0) + 1)

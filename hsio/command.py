@@ -43,7 +43,7 @@ class PredictorCorrector:
     """
 
     def __init__(self, t_d: float, period: float, initial: float = 0.0,
-                 slow_after: float = 0.5, slow_tau: float = 0.1, hold_after: float = 1.5,
+                 slow_after: float = 0.5, slow_tau: float = 0.25, hold_after: float = 2.0,
                  hold_fraction: float = 0.0):
         if not t_d > 0 or not period > 0:
             raise ValueError(f"t_d and period must be positive, got {t_d!r}, {period!r}")
@@ -77,13 +77,15 @@ class PredictorCorrector:
     def new_target(self, target: float) -> None:
         """Start moving to ``target``: it is reached at the end of the step."""
         target = float(target)
-        if self.phase in (Phase.SLOW, Phase.HOLD) and self.dwell_samples == 0:
+        if self.dwell_samples:
+            # Ramp-hold: the integrator computes while the actuator dwells; the ramp keeps its length.
+            n = max(self.samples_per_step - self.dwell_samples, 1)
+        elif self.phase in (Phase.SLOW, Phase.HOLD):
             n = self.samples_per_step
             if self._started:
                 self.late_steps += 1
         else:
             n = max(self.samples_per_step - self._k, self.samples_per_step // 2, 1)
-        n = max(n - self.dwell_samples, 1)
         self.history = [self.history[1], self.history[2], target]
         _, v_end = self._extrapolation(0.0)
         if self.dwell_samples:

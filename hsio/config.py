@@ -16,7 +16,7 @@ from hsio.errors import ConfigError
 
 DEFAULTS: dict[str, dict] = {
     "structure": {"name": "validation"},
-    "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.45, "seed": 1994, "synthetic_duration_s": 20.0},
+    "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.6, "seed": 1994, "synthetic_duration_s": 20.0},
     "integrator": {"alpha": -0.05},
     "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
     "hardware": {"url": "emulator://", "clock": "lockstep"},

@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def displacement_histories(path: Path, t, u_hs, u_ns, dof_names, title: str = "") -> Path:
+def displacement_histories(path: Path, t, u_hs, t_ns, u_ns, dof_names, title: str = "") -> Path:
     """Displacement of each DOF, HS against NS, with the difference underneath."""
     n = len(dof_names)
     fig, axes = plt.subplots(2 * n, 1, figsize=(10, 3.2 * n + 1), sharex=True,
@@ -19,7 +19,7 @@ def displacement_histories(path: Path, t, u_hs, u_ns, dof_names, title: str = ""
     for k, name in enumerate(dof_names):
         ax, ax_err = axes[2 * k], axes[2 * k + 1]
         if u_ns is not None:
-            ax.plot(t[: len(u_ns)], u_ns[:, k], color="0.55", lw=2.2, label="NS (numerical)")
+            ax.plot(t_ns, u_ns[:, k], color="0.55", lw=2.2, label="NS (numerical)")
         ax.plot(t, u_hs[:, k], color="C0", lw=1.0, label="HS (hybrid)")
         ax.set_ylabel(f"{name} displacement (mm)")
         ax.legend(loc="upper right", fontsize=8)

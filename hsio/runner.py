@@ -120,7 +120,8 @@ def make_plots(out: Path, structure: Structure, hs: Result, ns: Result | None, c
         worst, _ = max_error_pct(hs.u, ns.u)
         title += f", max error {worst:.2f} % of peak"
     paths = [
-        plots.displacement_histories(out / "displacement.png", hs.t, hs.u, ns.u if ns is not None else None, structure.dof_names, title),
+        plots.displacement_histories(out / "displacement.png", hs.t, hs.u, ns.t if ns is not None else None,
+                                     ns.u if ns is not None else None, structure.dof_names, title),
         plots.hysteresis_loops(out / "hysteresis.png", hs.measured_displacement, hs.measured_force, actuators,
                                ns.measured_displacement if ns is not None else None, ns.measured_force if ns is not None else None),
         plots.tracking_error(out / "tracking.png", hs.t, hs.targets, hs.measured_displacement, actuators,

@@ -1,0 +1,107 @@
+"""Bad input gets a clear error that names it; out-of-range targets never reach an actuator."""
+
+import json
+import sqlite3
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hsio import config
+from hsio.errors import ConfigError, RecordError
+from hsio.ground_motion import GroundMotion, read_at2
+from hsio.structures import get_structure
+
+
+def hsio(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "hsio.cli", *args], capture_output=True, text=True, timeout=300, cwd=cwd)
+
+
+def test_unknown_structure_is_named(tmp_path):
+    with pytest.raises(ConfigError, match="'tower'.*known: validation"):
+        get_structure("tower")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[structure]\nname = "tower"\n')
+    proc = hsio("run", str(cfg), "--out", str(tmp_path / "o"))
+    assert proc.returncode == 2
+    assert "unknown structure 'tower'" in proc.stderr
+
+
+def test_malformed_toml_names_the_file_and_line(tmp_path):
+    cfg = tmp_path / "broken.toml"
+    cfg.write_text("[test]\nrate = = 3\n")
+    with pytest.raises(ConfigError, match=r"broken.toml: malformed TOML.*line 2"):
+        config.load(cfg)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("[tset]\nrate = 3\n", r"unknown table \[tset\]"),
+    ("[test]\nrat = 3\n", r"unknown key 'rat' in \[test\]"),
+    ("[test]\nrate = 'fast'\n", r"\[test\]: rate must be a number"),
+    ("[test]\nrate = -1\n", r"rate \(TR\) must be positive"),
+    ("[integrator]\nalpha = 0.2\n", r"alpha must be in \[-1/3, 0\]"),
+    ("[hardware]\nclock = 'sometimes'\n", r"clock must be 'lockstep' or 'realtime'"),
+])
+def test_config_errors_name_table_and_key(tmp_path, text, match):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(text)
+    with pytest.raises(ConfigError, match=match):
+        config.load(cfg)
+
+
+def write_at2(path, header4, values):
+    lines = ["PEER NGA STRONG MOTION DATABASE RECORD", "test record", "ACCELERATION TIME SERIES IN UNITS OF G", header4]
+    lines += ["  ".join(values[i:i + 5]) for i in range(0, len(values), 5)]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_at2_broken_header_is_named(tmp_path):
+    f = tmp_path / "bad.AT2"
+    write_at2(f, "NPTS is missing here", ["0.1"] * 10)
+    with pytest.raises(RecordError, match=r"bad.AT2:4: header line must give NPTS and DT"):
+        read_at2(f)
+
+
+def test_at2_nan_is_named_with_its_line(tmp_path):
+    f = tmp_path / "nan.AT2"
+    values = ["0.01"] * 12
+    values[7] = "NaN"
+    write_at2(f, "NPTS=   12, DT=   .0200 SEC", values)
+    with pytest.raises(RecordError, match=r"nan.AT2:6: value 'NaN' is not finite"):
+        read_at2(f)
+
+
+def test_at2_count_mismatch_and_garbage(tmp_path):
+    f = tmp_path / "short.AT2"
+    write_at2(f, "NPTS=   12, DT=   .0200 SEC", ["0.01"] * 10)
+    with pytest.raises(RecordError, match="NPTS = 12, file holds 10"):
+        read_at2(f)
+    g = tmp_path / "garbage.AT2"
+    write_at2(g, "4 0.01 NPTS, DT", ["0.01", "0.02", "x1", "0.0"])
+    with pytest.raises(RecordError, match=r"garbage.AT2:5: 'x1' is not a number"):
+        read_at2(g)
+
+
+def test_nan_in_a_record_array_is_refused():
+    with pytest.raises(RecordError, match="sample 3"):
+        GroundMotion("r", 0.01, np.array([0.0, 0.1, 0.2, np.nan, 0.0]))
+
+
+def test_target_beyond_stroke_stops_the_run_holding_and_keeps_the_record(tmp_path):
+    """A record scaled far too large: the first target beyond +/-127 mm is refused unsent."""
+    cfg = tmp_path / "big.toml"
+    cfg.write_text("[record]\nscale = 12.0\nsynthetic_duration_s = 8.0\n[test]\nrate = 6.25\n")
+    out = tmp_path / "o"
+    proc = hsio("run", str(cfg), "--out", str(out), "--json")
+    assert proc.returncode == 3, proc.stderr
+    assert "beyond the stroke" in proc.stderr and "not sent, the actuator holds" in proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stopped"]
+    db = sqlite3.connect(out / "run.sqlite")
+    n_steps = db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
+    assert n_steps == summary["steps"] > 0
+    max_cmd = db.execute("SELECT MAX(ABS(cmd_C1)), MAX(ABS(cmd_C2)) FROM samples").fetchone()
+    assert max(max_cmd) <= 127.0  # nothing beyond the stroke was ever sent
+    max_target = db.execute("SELECT MAX(ABS(target_C1)) FROM steps").fetchone()[0]
+    assert max_target <= 127.0
