@@ -106,8 +106,8 @@ def read_run(path: Path, t_d: float | None = None) -> StepData:
                         f"{(test['n_avg'] - 1) / 2:g} controller periods of averaging")
     if t_d is None:
         t_d = float(run.meta["test_rate"]) * float(run.meta["dt"])
-    commands = {a: run.actuator("command", a)[1:] for a in run.actuator_names}
-    measured = {a: run.actuator("disp", a)[1:] for a in run.actuator_names}
+    commands = {a: run.actuator("command", a) for a in run.actuator_names}  # steps 1..n
+    measured = {a: run.actuator("disp", a) for a in run.actuator_names}
     return StepData(commands, measured, t_d, warnings)
 
 
