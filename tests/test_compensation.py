@@ -244,3 +244,13 @@ def test_hs_vs_ns_error_of_structure_I_falls_with_compensation(tmp_path):
     assert results["offline"]["max_error_pct"] < 0.2 * results["off"]["max_error_pct"]
     assert results["online"]["max_error_pct"] < 0.2 * results["off"]["max_error_pct"]
     assert results["offline"]["rms_tracking_error_mm"][0] < 0.1 * results["off"]["rms_tracking_error_mm"][0]
+
+
+def test_online_starts_from_the_configured_guess():
+    guess = CompensationSettings(mode="online", a_mm_s=4.0, b_s_mm=6e-5)
+    stage = CompensationStage(["wall"], 0.2, guess)
+    assert stage.feedforward[0].a == 4.0 and stage.feedforward[0].lag == pytest.approx(6e-5 * 254.0)
+    nothing = CompensationStage(["wall"], 0.2, CompensationSettings(mode="online"))
+    assert nothing.feedforward[0].lag == 0.0
+    d_a = [nothing.adjust([x])[0] for x in (0.0, 2.0, 4.0)]
+    assert d_a == [0.0, 2.0, 4.0]  # nothing learnt yet: commands pass unchanged
