@@ -150,6 +150,7 @@ def fit(v, er, d_max_mm: float = D_MAX_MM, a_max: float | None = None) -> Hockey
     sol = scipy.optimize.least_squares(residuals, [a0, b0], jac=jacobian, bounds=([0.0, 0.0], [a_hi, np.inf]),
                                        x_scale=scale, method="trf")
     a, b = (float(x) for x in sol.x)
+    a = 0.0 if a < 1e-9 * max(top, 1.0) else a  # on the bound: no threshold
     r = sol.fun
     dof = max(n - 2, 1)
     s2 = float(r @ r) / dof
