@@ -34,6 +34,28 @@ from hsio.interfaces import ControlMode
 from hsio.specimens import Specimen
 
 
+# Hockey-stick actuators measured in the paper (METHOD.md section 4, eq. 1): velocity threshold a
+# (mm/s) and slope b (s/mm) of the execution error normalised by the stroke d_max = 254 mm.
+# Select one with ``preset = "structure_I"``; explicit settings override it.
+PRESETS: dict[str, dict] = {
+    "structure_I": {"a_mm_s": 5.18, "b_s_mm": 7.874e-5},
+    "structure_II": {"a_mm_s": 0.51, "b_s_mm": 1.181e-4},
+}
+
+
+def hockey_stick_settings(a_mm_s: float, b_s_mm: float, rate_hz: float = CONTROLLER_RATE_HZ,
+                          d_max_mm: float = 254.0) -> dict:
+    """lag_s and velocity_threshold_mm_s that give the measured error d_c - d_m = L (|v| - a) sign v.
+
+    The loop closes on the previous period's feedback, which shortens the apparent lag by one
+    period dt: the ramp error is (lag - dt) v - lag a'. So lag = L + dt and a' = L a / (L + dt),
+    with L = b d_max.
+    """
+    L = b_s_mm * d_max_mm
+    dt = 1.0 / rate_hz
+    return {"lag_s": L + dt, "velocity_threshold_mm_s": a_mm_s * L / (L + dt)}
+
+
 @dataclass
 class ServoConfig:
     """Parameters of the emulated controller, actuator, load train and sensors (kN, mm, s)."""
@@ -72,6 +94,13 @@ class ServoConfig:
 
     @classmethod
     def from_dict(cls, table: dict) -> "ServoConfig":
+        table = dict(table)
+        preset = table.pop("preset", None)
+        if preset is not None:
+            if preset not in PRESETS:
+                raise ConfigError(f"emulator: unknown preset {preset!r}; known: {', '.join(PRESETS)}")
+            rate = table.get("rate_hz", CONTROLLER_RATE_HZ)
+            table = {**hockey_stick_settings(**PRESETS[preset], rate_hz=rate), **table}
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(table) - known)
         if unknown:

@@ -27,7 +27,9 @@ class _Progress:
 
 
 # Subcommands that live in their own modules, imported only when used: name -> "module:function".
-LAZY_COMMANDS: dict[str, str] = {}
+LAZY_COMMANDS: dict[str, str] = {
+    "calibrate": "hsio.commands.calibrate:calibrate",
+}
 
 
 class LazyGroup(click.Group):
@@ -96,6 +98,11 @@ def _print_summary(s: dict) -> None:
     if "max_error_pct" in s:
         click.echo(f"max error      {s['max_error_pct']:.3f} % (HS vs NS)")
     click.echo(f"tracking RMS   {', '.join(f'{x:.4f}' for x in s['rms_tracking_error_mm'])} mm")
+    comp = s.get("compensation", {})
+    if comp.get("mode", "off") != "off":
+        used = ", ".join(f"{n} a = {c['a_mm_s']:.3g} mm/s, b d_max = {c['lag_s'] * 1e3:.1f} ms"
+                         for n, c in comp["actuators"].items() if c["enabled"])
+        click.echo(f"compensation   {comp['mode']} ({comp['form']}): {used}")
     click.echo(f"wall time      {s['wall_time_s']:.1f} s (the lab would take {s['test_time_s']:.1f} s)")
     click.echo(f"record file    {s['run_file']}")
     for p in s.get("plots", []):

@@ -21,6 +21,11 @@ DEFAULTS: dict[str, dict] = {
     "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
     "hardware": {"url": "emulator://", "clock": "lockstep"},
     "output": {"samples": True, "plots": True, "ns": True},
+    # Feed-forward error compensation (docs/compensation.md); estimator keys as in
+    # hsio.compensation.online.EstimatorSettings.
+    "compensation": {"mode": "off", "a_mm_s": 0.0, "b_s_mm": 0.0, "actuators": [], "form": "lead", "d_max_mm": 254.0,
+                     "window": 400, "update_every": 10, "min_samples": 40, "min_beyond": 20, "max_rel_std": 0.25,
+                     "lag_max_s": 0.1, "a_max_mm_s": 50.0, "lag_step_s": 0.005, "a_step_mm_s": 2.0},
 }
 # The [emulator] table is passed to the emulated controller (emulators.servo.ServoConfig), which
 # checks its own keys; [drivers] likewise goes to the driver named by hardware.url.
@@ -88,6 +93,10 @@ def _check_ranges(t: dict, source: str) -> None:
         raise ConfigError(f"{source}: [hardware] clock must be 'lockstep' or 'realtime', got {t['hardware']['clock']!r}")
     if t["record"]["duration_s"] < 0:
         raise ConfigError(f"{source}: [record] duration_s must not be negative")
+    if "compensation" in t:
+        from hsio.compensation.stage import CompensationSettings
+
+        CompensationSettings.from_table(t["compensation"], f"{source}: [compensation]")
 
 
 def load(path: str | Path | None) -> RunConfig:

@@ -10,6 +10,9 @@ One file per run (``run.sqlite``), readable by any SQLite tool, pandas or MATLAB
   ``disp_``, ``force_``.
 * ``ns``: the purely numerical simulation, per step ``u_`` per DOF.
 * ``summary``: key/value (JSON), written at the end.
+* ``compensation`` (when the run has a compensation stage): one row per step - per actuator
+  ``dc_``, ``da_`` (command and adjusted command, mm), ``v_`` (mm/s), ``er_cc_`` or ``er_ca_`` and
+  ``er_aa_`` (execution errors / d_max), ``a_``, ``b_`` (parameters used), see hsio.compensation.
 
 Each step is committed (WAL journal): a run that stops for any reason keeps every step it made.
 """
@@ -82,6 +85,15 @@ class Recorder:
         self.db.commit()
         self.steps_written += 1
 
+    def write_compensation(self, step: int, row: dict) -> None:
+        """One step of the compensation stage (committed with the step's row by write_step)."""
+        names = [_NAME.sub("_", k) for k in row]
+        if not getattr(self, "_compensation_cols", None):
+            self._compensation_cols = names
+            self.db.execute("CREATE TABLE compensation (step INTEGER PRIMARY KEY, " + ", ".join(f"{c} REAL" for c in names) + ")")
+        self.db.execute(f"INSERT INTO compensation VALUES ({', '.join('?' * (len(names) + 1))})",
+                        [step, *(None if x is None else float(x) for x in row.values())])
+
     def write_ns(self, t: np.ndarray, u: np.ndarray) -> None:
         self.db.executemany(self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
         self.db.commit()
@@ -141,6 +153,19 @@ class Run:
         cols = [c[0] for c in cur.description]
         data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
         return {c: data[:, i] for i, c in enumerate(cols)}
+
+    def compensation(self) -> dict[str, np.ndarray]:
+        """The compensation table (empty if the run had none); missing values are NaN."""
+        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+        try:
+            if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='compensation'").fetchone():
+                return {}
+            cur = db.execute("SELECT * FROM compensation ORDER BY step")
+            cols = [c[0] for c in cur.description]
+            data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
+            return {c: data[:, i] for i, c in enumerate(cols)}
+        finally:
+            db.close()
 
     def dof(self, prefix: str, name: str) -> np.ndarray:
         return self.steps[column(prefix, name)]

@@ -18,6 +18,7 @@ from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.hardware import open_hardware
 from hsio.recording import Recorder
 from hsio.structures import Structure, get_structure
+from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.substructure import Correction, ExperimentalSubstructure, NumericalSubstructure
 
 
@@ -39,8 +40,10 @@ def run_numerical(structure: Structure, ground: GroundMotion, alpha: float) -> R
     return simulate(structure, ground, NumericalSubstructure(structure), alpha)
 
 
-def run(config: RunConfig, out_dir: str | Path, progress=None) -> dict:
+def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMotion | None = None) -> dict:
     """Run a hybrid simulation as configured; write run.sqlite, plots and summary.json in out_dir.
+
+    ``ground`` replaces the configured [record] (a record built in code, e.g. a harmonic test).
 
     Returns the summary. Raises ExperimentStopped (after writing what was recorded) if the run
     stopped early.
@@ -48,24 +51,27 @@ def run(config: RunConfig, out_dir: str | Path, progress=None) -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     structure = get_structure(config["structure"]["name"])
-    ground = build_record(config, structure)
+    ground = ground if ground is not None else build_record(config, structure)
     alpha = config["integrator"]["alpha"]
     test = config["test"]
     hardware = config["hardware"]
 
     ns = run_numerical(structure, ground, alpha) if config["output"]["ns"] else None
+    compensation = CompensationStage([e.name for e in structure.experimental], test["rate"] * structure.dt,
+                                     CompensationSettings.from_table(config["compensation"]))
     clock = LockstepClock() if hardware["clock"] == "lockstep" else RealTimeClock()
     actuators = open_hardware(hardware["url"], structure.experimental, clock,
                               config["emulator"] if hardware["url"].startswith("emulator") else config["driver"])
     loop = ControlLoop(actuators, clock, structure.dt, test["rate"], n_avg=test["n_avg"],
                        keep_samples=config["output"]["samples"], hold_fraction=test["hold_fraction"])
-    substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]))
+    substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]), compensation)
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"],
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     recorder = Recorder(out / "run.sqlite", structure.dof_names, [a.name for a in actuators], meta)
+    compensation.sink = recorder.write_compensation
     stopped = None
     try:
         if ns is not None:
@@ -77,6 +83,7 @@ def run(config: RunConfig, out_dir: str | Path, progress=None) -> dict:
     finally:
         substructure.close()
     summary = summarise(structure, config, ground, hs, ns, out)
+    summary["compensation"] = compensation.summary()
     if config["output"]["plots"] and hs.steps > 0:
         summary["plots"] = make_plots(out, structure, hs, ns, config)
     recorder.write_summary(summary)

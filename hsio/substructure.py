@@ -51,7 +51,8 @@ class Correction:
 class ExperimentalSubstructure:
     """Actuators (one per experimental element, identity setup) driven step by step."""
 
-    def __init__(self, structure: Structure, loop: ControlLoop, correction: Correction | None = None):
+    def __init__(self, structure: Structure, loop: ControlLoop, correction: Correction | None = None,
+                 compensation=None):
         if len(loop.actuators) != len(structure.experimental):
             raise ValueError(f"{len(loop.actuators)} actuators for {len(structure.experimental)} experimental elements")
         self.structure = structure
@@ -59,10 +60,18 @@ class ExperimentalSubstructure:
         self.correction = correction or Correction()
         self.K_EI = np.array([e.K_EI for e in structure.experimental])
         self.last: StepFeedback | None = None
+        # Optional feed-forward stage d^c -> d^a (hsio.compensation.stage.CompensationStage).
+        self.compensation = compensation
 
     def restoring_force(self, u_pred: np.ndarray) -> np.ndarray:
         d = np.array([u_pred[e.dof] for e in self.structure.experimental])
-        fb = self.loop.execute(d)
+        if self.compensation is not None:
+            d_a = self.compensation.adjust(d)
+            fb = self.loop.execute(d_a)
+            self.compensation.observe(d, d_a, fb.displacement)
+            fb.targets = d.copy()  # the integrator's command; fb.commands holds the adjusted one
+        else:
+            fb = self.loop.execute(d)
         F = fb.force.copy()
         if self.correction.use_measured_displacement:
             F += self.K_EI * (d - fb.displacement)

@@ -1,0 +1,179 @@
+"""Calibration of the hockey stick (METHOD.md section 4, eq. 1) from a recorded run or a CSV file.
+
+Sources:
+
+* a run folder or its ``run.sqlite`` (:class:`hsio.recording.Run`): per step and actuator the
+  command sent (``command_``, the adjusted command d^a when the run was compensated) and the
+  measured displacement (``disp_``); t_d = TR dt from the run's metadata;
+* a CSV file with a header ``time_s,command_mm,measured_mm`` and one row per step. time_s is the
+  lab time of each step (t_d = the median step interval) unless ``test_rate`` says it is the
+  record's time (t_d = TR x interval); ``t_d`` given explicitly overrides both.
+
+The velocity of each step is the paper's v_i = (d_i - d_{i-1}) / t_d (``order=1``) or the
+end-of-step velocity (``order=2``, see :func:`hockey_stick.step_velocity`).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hsio.compensation import hockey_stick
+from hsio.compensation.hockey_stick import D_MAX_MM, HockeyStick
+from hsio.errors import HsioError, RecordError
+
+CSV_COLUMNS = ("time_s", "command_mm", "measured_mm")
+
+
+@dataclass
+class Calibration:
+    """One actuator's calibration: the fit and the points it was fitted to."""
+
+    actuator: str
+    fit: HockeyStick
+    velocity: np.ndarray  # mm/s
+    error: np.ndarray  # Er, fraction of d_max
+    t_d: float
+    warnings: list
+
+
+@dataclass
+class StepData:
+    """Per-step command and measurement of each actuator, and the lab duration of a step."""
+
+    commands: dict  # actuator -> array (mm)
+    measured: dict
+    t_d: float
+    warnings: list
+
+
+def read_csv(path: Path, t_d: float | None = None, test_rate: float | None = None) -> StepData:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        raise RecordError(f"{path}: empty file; expected a header {','.join(CSV_COLUMNS)}")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in CSV_COLUMNS if c not in header]
+    if missing:
+        raise RecordError(f"{path}:1: missing column(s) {', '.join(missing)}; the header must name {', '.join(CSV_COLUMNS)}")
+    idx = [header.index(c) for c in CSV_COLUMNS]
+    data = []
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or all(not x.strip() for x in row):
+            continue
+        values = []
+        for name, i in zip(CSV_COLUMNS, idx):
+            try:
+                x = float(row[i])
+            except (IndexError, ValueError):
+                raise RecordError(f"{path}:{lineno}: {name} {row[i] if i < len(row) else '(missing)'!r} is not a number") from None
+            if not math.isfinite(x):
+                raise RecordError(f"{path}:{lineno}: {name} is {x!r}")
+            values.append(x)
+        data.append(values)
+    if len(data) < 5:
+        raise RecordError(f"{path}: {len(data)} data rows; a calibration needs at least 5 steps")
+    arr = np.array(data)
+    steps = np.diff(arr[:, 0])
+    if np.any(steps <= 0):
+        bad = int(np.flatnonzero(steps <= 0)[0]) + 3
+        raise RecordError(f"{path}:{bad}: time_s does not increase")
+    if t_d is None:
+        t_d = float(np.median(steps)) * (test_rate if test_rate else 1.0)
+    return StepData({"actuator": arr[:, 1]}, {"actuator": arr[:, 2]}, float(t_d), [])
+
+
+def read_run(path: Path, t_d: float | None = None) -> StepData:
+    from hsio.recording import Run
+
+    run = Run(path)
+    warnings = []
+    config = run.meta.get("config", {})
+    test = config.get("test", {})
+    if test.get("hold_fraction", 0.0) > 0:
+        warnings.append(f"the run used ramp-hold (hold_fraction = {test['hold_fraction']}): the actuator settles "
+                        "before each measurement, so the error hardly depends on velocity; calibrate on a "
+                        "continuous run ([test] hold_fraction = 0)")
+    if test.get("n_avg", 1) > 1:
+        warnings.append(f"the run averaged the last {test['n_avg']} samples of each step: the fitted lag includes "
+                        f"{(test['n_avg'] - 1) / 2:g} controller periods of averaging")
+    if t_d is None:
+        t_d = float(run.meta["test_rate"]) * float(run.meta["dt"])
+    commands = {a: run.actuator("command", a) for a in run.actuator_names}  # steps 1..n
+    measured = {a: run.actuator("disp", a) for a in run.actuator_names}
+    return StepData(commands, measured, t_d, warnings)
+
+
+def load(source: str | Path, t_d: float | None = None, test_rate: float | None = None) -> StepData:
+    path = Path(source)
+    if path.is_dir():
+        path = path / "run.sqlite"
+    if not path.exists():
+        raise RecordError(f"{path}: no such run folder, run.sqlite or CSV file")
+    if path.suffix.lower() == ".csv":
+        return read_csv(path, t_d, test_rate)
+    with open(path, "rb") as fh:
+        magic = fh.read(16)
+    if magic.startswith(b"SQLite format 3"):
+        return read_run(path, t_d)
+    raise RecordError(f"{path}: neither a run (SQLite) nor a CSV file with {','.join(CSV_COLUMNS)}")
+
+
+def calibrate(source: str | Path, actuators: list[str] | None = None, t_d: float | None = None,
+              test_rate: float | None = None, d_max_mm: float = D_MAX_MM, order: int = 1) -> list[Calibration]:
+    """Fit eq. 1 to each actuator of a run (or the one of a CSV file)."""
+    data = load(source, t_d, test_rate)
+    if not data.t_d > 0:
+        raise HsioError(f"{source}: step duration t_d must be positive, got {data.t_d!r}")
+    names = list(data.commands)
+    if actuators:
+        unknown = [a for a in actuators if a not in data.commands]
+        if unknown:
+            raise HsioError(f"{source}: no actuator {', '.join(map(repr, unknown))}; the run has {', '.join(names)}")
+        names = list(actuators)
+    out = []
+    for name in names:
+        v, er = hockey_stick.from_steps(data.commands[name], data.measured[name], data.t_d, d_max_mm, order)
+        try:
+            fit = hockey_stick.fit(v, er, d_max_mm)
+        except hockey_stick.FitError as exc:
+            raise hockey_stick.FitError(f"{source}: actuator {name!r}: {exc}") from None
+        out.append(Calibration(name, fit, v, er, data.t_d, list(data.warnings)))
+    return out
+
+
+def plot(path: str | Path, calibrations: list[Calibration]) -> Path:
+    """Execution error against command velocity with the fitted hockey stick (the paper's Fig. 8)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(calibrations)
+    fig, axes = plt.subplots(1, n, figsize=(6.5 * n, 4.5), squeeze=False)
+    for ax, cal in zip(axes[0], calibrations):
+        f = cal.fit
+        ax.plot(cal.velocity, cal.error * 1e3, ".", ms=2.5, color="0.45", label="measured")
+        top = float(np.max(np.abs(cal.velocity))) if cal.velocity.size else 1.0
+        vv = np.linspace(-top, top, 801)
+        ax.plot(vv, f.error(vv) * 1e3, color="C3", lw=1.6,
+                label=f"eq. 1: a = {f.a_mm_s:.3g} mm/s, b = {f.b_s_mm:.4g} s/mm (b d_max = {f.lag_s * 1e3:.1f} ms)")
+        ax.axvspan(-f.a_mm_s, f.a_mm_s, color="C0", alpha=0.08)
+        ax.set_xlabel("command velocity v (mm/s)")
+        ax.set_ylabel("execution error Er = (d_c - d_m) / d_max  (x 1e-3)")
+        ax.set_title(f"{cal.actuator}: t_d = {cal.t_d:.4g} s, {f.n} steps")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -1,0 +1,179 @@
+"""The compensation stage between the integrator's commands and the actuators (METHOD.md section 4).
+
+Per step, for each actuator: the integrator's command d^c goes in, the adjusted command d^a
+(eq. 2, :mod:`~hsio.compensation.feedforward`) goes to the control loop, and after the step the
+measurement d^m comes back. The stage records, normalised by the stroke d_max,
+
+* without compensation: Er^cc = (d^c - d^m) / d_max;
+* with compensation: Er^ca = (d^c - d^m) / d_max (what is left of the error against the
+  integrator's command) and Er^aa = (d^a - d^m) / d_max (the actuator's own error on what it was
+  sent, which still follows the hockey stick and feeds the online estimator).
+
+Modes: ``off`` (record Er^cc only), ``offline`` (fixed a and b from a calibration), ``online``
+(a and b re-estimated during the test, :mod:`~hsio.compensation.online`). Each actuator can be
+left out of the compensation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Callable
+
+import numpy as np
+
+from hsio.compensation.feedforward import FORMS, FeedForward
+from hsio.compensation.hockey_stick import D_MAX_MM
+from hsio.compensation.online import EstimatorSettings, OnlineEstimator
+from hsio.errors import ConfigError
+
+MODES = ("off", "offline", "online")
+
+
+@dataclass
+class CompensationSettings:
+    """The [compensation] table of a run configuration."""
+
+    mode: str = "off"
+    a_mm_s: float = 0.0  # threshold a of eq. 1 (offline; the starting guess online)
+    b_s_mm: float = 0.0  # slope b of eq. 1 (offline; the starting guess online, 0 = from nothing)
+    actuators: list = field(default_factory=list)  # names of the compensated actuators; empty = all
+    form: str = "lead"
+    d_max_mm: float = D_MAX_MM
+    estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
+
+    @classmethod
+    def from_table(cls, table: dict, where: str = "[compensation]") -> "CompensationSettings":
+        table = dict(table)
+        est_keys = {f.name for f in fields(EstimatorSettings)}
+        est = {k: table.pop(k) for k in list(table) if k in est_keys}
+        known = {f.name for f in fields(cls)} - {"estimator"}
+        unknown = sorted(set(table) - known)
+        if unknown:
+            raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(known | est_keys))}")
+        s = cls(**table, estimator=EstimatorSettings(**est))
+        s.check(where)
+        return s
+
+    def check(self, where: str = "[compensation]") -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"{where}: mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.form not in FORMS:
+            raise ConfigError(f"{where}: form must be one of {', '.join(FORMS)}, got {self.form!r}")
+        for name in ("a_mm_s", "b_s_mm"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"{where}: {name} must be a number, zero or positive, got {value!r}")
+        if not (isinstance(self.d_max_mm, (int, float)) and self.d_max_mm > 0):
+            raise ConfigError(f"{where}: d_max_mm must be positive, got {self.d_max_mm!r}")
+        if self.mode == "offline" and not self.b_s_mm > 0:
+            raise ConfigError(f"{where}: mode = 'offline' needs the calibrated b_s_mm (and a_mm_s); "
+                              "run `hsio calibrate` on an uncompensated continuous run")
+        if not isinstance(self.actuators, list) or not all(isinstance(n, str) for n in self.actuators):
+            raise ConfigError(f"{where}: actuators must be a list of actuator names, got {self.actuators!r}")
+        e = self.estimator
+        for name in ("window", "update_every", "min_samples", "min_beyond"):
+            value = getattr(e, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"{where}: {name} must be a whole number of steps, at least 1, got {value!r}")
+        if e.min_samples > e.window:
+            raise ConfigError(f"{where}: min_samples ({e.min_samples}) must not exceed window ({e.window})")
+        for name in ("max_rel_std", "lag_max_s", "a_max_mm_s", "lag_step_s", "a_step_mm_s"):
+            value = getattr(e, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"{where}: {name} must be a positive number, got {value!r}")
+
+    @property
+    def lag_s(self) -> float:
+        return self.b_s_mm * self.d_max_mm
+
+
+class CompensationStage:
+    """Adjusts each step's commands (eq. 2) and records the execution errors, per actuator."""
+
+    def __init__(self, names, t_d: float, settings: CompensationSettings | None = None,
+                 sink: Callable[[int, dict], None] | None = None):
+        self.names = list(names)
+        self.t_d = float(t_d)
+        self.settings = s = settings or CompensationSettings()
+        unknown = [n for n in s.actuators if n not in self.names]
+        if unknown:
+            raise ConfigError(f"[compensation] actuators: unknown actuator(s) {', '.join(unknown)}; "
+                              f"known: {', '.join(self.names)}")
+        chosen = set(s.actuators) if s.actuators else set(self.names)
+        self.enabled = [s.mode != "off" and n in chosen for n in self.names]
+        lag_limit = 0.45 * self.t_d if s.form == "eq2" else math.inf
+        if s.mode == "offline" and s.form == "eq2" and s.lag_s >= 0.5 * self.t_d:
+            raise ConfigError(f"[compensation] form = 'eq2' is unstable here: b d_max = {s.lag_s:.4g} s >= "
+                              f"t_d / 2 = {0.5 * self.t_d:.4g} s (raise the test rate or use form = 'lead')")
+        self.feedforward: list[FeedForward] = []
+        self.estimators: list[OnlineEstimator | None] = []
+        for on in self.enabled:
+            est = None
+            a, lag = (s.a_mm_s, s.lag_s) if on else (0.0, 0.0)
+            if on and s.mode == "online":
+                est = OnlineEstimator(s.estimator, a, lag, lag_limit)
+                a, lag = est.a, est.lag
+            self.feedforward.append(FeedForward(self.t_d, a, lag, s.form))
+            self.estimators.append(est)
+        self.sink = sink
+        self.step = 0
+        self._sent: list[list[float]] = [[] for _ in self.names]  # last adjusted commands, per actuator
+        self._sq = np.zeros(len(self.names))
+
+    @property
+    def active(self) -> bool:
+        return any(self.enabled)
+
+    def adjust(self, d_c) -> np.ndarray:
+        """d^a for this step's commands d^c (unchanged for actuators not compensated)."""
+        d_c = np.asarray(d_c, dtype=float)
+        return np.array([ff.adjust(x) for ff, x in zip(self.feedforward, d_c)])  # lag 0 when not compensated
+
+    def _sent_velocity(self, j: int, d_a: float) -> float:
+        h = self._sent[j] = [*self._sent[j][-2:], d_a]
+        if len(h) == 1:
+            return 0.0
+        if self.settings.form == "eq2" or len(h) == 2:
+            return (h[-1] - h[-2]) / self.t_d
+        return (3.0 * h[2] - 4.0 * h[1] + h[0]) / (2.0 * self.t_d)
+
+    def observe(self, d_c, d_a, d_m) -> dict:
+        """After the step: record Er^cc or Er^ca/Er^aa, update the online estimates. Returns the row."""
+        self.step += 1
+        d_max = self.settings.d_max_mm
+        row: dict[str, float | None] = {}
+        for j, name in enumerate(self.names):
+            c, a, m = float(d_c[j]), float(d_a[j]), float(d_m[j])
+            ff = self.feedforward[j]
+            v_sent = self._sent_velocity(j, a)
+            on = self.enabled[j]
+            row[f"dc_{name}"] = c
+            row[f"da_{name}"] = a
+            row[f"v_{name}"] = ff.velocity
+            row[f"er_cc_{name}"] = None if on else (c - m) / d_max
+            row[f"er_ca_{name}"] = (c - m) / d_max if on else None
+            row[f"er_aa_{name}"] = (a - m) / d_max if on else None
+            est = self.estimators[j]
+            if est is not None and self.step > 2 and est.observe(v_sent, a - m):
+                ff.set_parameters(est.a, est.lag)
+            row[f"a_{name}"] = ff.a
+            row[f"b_{name}"] = ff.lag / d_max
+            self._sq[j] += (c - m) ** 2
+        if self.sink is not None:
+            self.sink(self.step, row)
+        return row
+
+    def summary(self) -> dict:
+        """The compensation used: mode, form and, per actuator, the parameters at the end."""
+        s = self.settings
+        out = {"mode": s.mode, "form": s.form, "d_max_mm": s.d_max_mm, "actuators": {}}
+        for j, name in enumerate(self.names):
+            ff, est = self.feedforward[j], self.estimators[j]
+            entry = {"enabled": self.enabled[j], "a_mm_s": ff.a, "b_s_mm": ff.lag / s.d_max_mm, "lag_s": ff.lag,
+                     "rms_error_mm": float(math.sqrt(self._sq[j] / self.step)) if self.step else None}
+            if est is not None:
+                entry.update(updates=est.updates, rejected=est.rejected,
+                             start={"a_mm_s": s.a_mm_s, "b_s_mm": s.b_s_mm})
+            out["actuators"][name] = entry
+        return out

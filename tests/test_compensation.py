@@ -1,0 +1,256 @@
+"""Feed-forward compensation of actuator error (METHOD.md section 4): model, fit, eq. 2, online
+estimation, and the whole loop on the emulated hockey-stick actuators of structures I and II."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from emulators.servo import PRESETS, ServoConfig, ServoController
+from hsio import config as config_mod
+from hsio import runner
+from hsio.compensation import hockey_stick
+from hsio.compensation.feedforward import FeedForward
+from hsio.compensation.online import EstimatorSettings, OnlineEstimator
+from hsio.compensation.stage import CompensationSettings, CompensationStage
+from hsio.errors import ConfigError
+from hsio.ground_motion import GroundMotion
+from hsio.recording import Run
+from hsio.specimens import make_specimen
+
+A_I, B_I = 5.18, 7.874e-5
+A_II, B_II = 0.51, 1.181e-4
+RESOLUTION = 0.025
+
+
+def harmonic(f_hz=2.0, pga_g=1.0, duration_s=4.0, dt=0.005) -> GroundMotion:
+    """A sine of the ground, ramped in over 1 s: drives structure I to about +/-85 mm."""
+    t = np.arange(0.0, duration_s + 1e-9, dt)
+    return GroundMotion(f"sine {f_hz} Hz", dt, pga_g * np.sin(2 * np.pi * f_hz * t) * np.minimum(t, 1.0))
+
+
+def run_structure_I(tmp_path, name, rate, compensation, ground=None, record=None):
+    cfg = config_mod.from_dict({
+        "structure": {"name": "structure_I"},
+        "record": record or {"pga_g": 1.0, "duration_s": 5.0},
+        "test": {"rate": rate, "hold_fraction": 0.0, "n_avg": 1},
+        "emulator": {"preset": "structure_I"},
+        "output": {"plots": False, "samples": False, "ns": False},
+        "compensation": compensation,
+    })
+    out = tmp_path / name
+    summary = runner.run(cfg, out, ground=ground)
+    return summary, Run(out / "run.sqlite")
+
+
+def execution_error(run: Run, actuator: str) -> np.ndarray:
+    """d^c - d^m at the end of each step (the integrator's command minus the measurement)."""
+    return run.actuator("target", actuator) - run.actuator("disp", actuator)
+
+
+def rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+# -- the emulated actuator ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("preset", ["structure_I", "structure_II"])
+def test_emulator_presets_follow_the_measured_hockey_stick(preset):
+    a, b = PRESETS[preset]["a_mm_s"], PRESETS[preset]["b_s_mm"]
+    cfg = ServoConfig.from_dict({"preset": preset, "noise_mm": 0.0, "resolution_mm": 0.0})
+    for v in (1.0, 8.0, 20.0, 60.0):
+        servo = ServoController(make_specimen({"kind": "linear", "k": 1.0}), cfg)
+        for k in range(2048):  # a 2 s ramp: steady state
+            servo.set_command(v * (k + 1) * servo.dt)
+            servo.step()
+        expected = 254.0 * b * max(v - a, 0.0)
+        assert servo.command - servo.d_rod == pytest.approx(expected, abs=0.006), v
+
+
+def test_emulator_preset_is_named_and_overridable():
+    with pytest.raises(ConfigError, match="unknown preset 'structure_III'"):
+        ServoConfig.from_dict({"preset": "structure_III"})
+    assert ServoConfig.from_dict({"preset": "structure_I", "lag_s": 0.05}).lag_s == 0.05
+
+
+# -- model, fit and eq. 2 ---------------------------------------------------------------------------
+
+def test_fit_finds_threshold_and_slope_with_uncertainties():
+    rng = np.random.default_rng(3)
+    v = rng.uniform(-60, 60, 800)
+    er = hockey_stick.error(v, 4.3, 9e-5) + rng.normal(0, 2e-5, v.size)
+    fit = hockey_stick.fit(v, er)
+    assert fit.a_mm_s == pytest.approx(4.3, rel=0.05)
+    assert fit.b_s_mm == pytest.approx(9e-5, rel=0.01)
+    assert abs(fit.a_mm_s - 4.3) < 4 * fit.a_std and abs(fit.b_s_mm - 9e-5) < 4 * fit.b_std
+    assert fit.lag_s == pytest.approx(9e-5 * 254.0, rel=0.01)
+    with pytest.raises(hockey_stick.FitError):
+        hockey_stick.fit(np.zeros(50), rng.normal(0, 1e-5, 50))
+
+
+@pytest.mark.parametrize("form", ["lead", "eq2"])
+def test_eq2_makes_the_model_land_on_the_command(form):
+    t_d, a, lag = 0.2, A_I, B_I * 254.0
+    ff = FeedForward(t_d, a, lag, form)
+    d_c = 12.0 * t_d * np.arange(40)  # a 12 mm/s ramp
+    d_a = np.array([ff.adjust(x) for x in d_c])
+    v_a = np.diff(d_a) / t_d
+    landed = d_a[1:] - lag * np.maximum(np.abs(v_a) - a, 0) * np.sign(v_a)
+    assert np.allclose(landed[5:], d_c[1:][5:], atol=1e-9)
+    below = FeedForward(t_d, a, lag, form)
+    assert [below.adjust(x) for x in (0.0, 0.5, 1.0)] == [0.0, 0.5, 1.0]  # 2.5 mm/s: below a
+
+
+def test_eq2_refuses_an_unstable_recursion():
+    with pytest.raises(ValueError, match="unstable"):
+        FeedForward(0.03125, A_I, B_I * 254.0, "eq2")  # TR 6.25: b d_max / t_d = 0.64
+    with pytest.raises(ConfigError, match="unstable"):
+        CompensationStage(["wall"], 0.03125, CompensationSettings(mode="offline", a_mm_s=A_I, b_s_mm=B_I, form="eq2"))
+
+
+def test_online_estimator_is_bounded_and_rate_limited():
+    settings = EstimatorSettings(window=200, update_every=10, min_samples=40, lag_max_s=0.05, lag_step_s=0.004)
+    est = OnlineEstimator(settings)
+    rng = np.random.default_rng(1)
+    lags = []
+    for _ in range(400):  # an absurd actuator: 1 s of lag
+        v = rng.uniform(-50, 50)
+        if est.observe(v, 1.0 * hockey_stick.excess_velocity(v, 2.0)):
+            lags.append(est.lag)
+    steps = np.diff([0.0, *lags])
+    assert max(lags) <= 0.05 + 1e-12 and np.all(np.abs(steps) <= 0.004 + 1e-12)
+    quiet = OnlineEstimator(settings)
+    for _ in range(400):  # noise only: nothing is learnt
+        quiet.observe(rng.uniform(-50, 50), rng.normal(0, 0.01))
+    assert quiet.updates == 0 and quiet.lag == 0.0 and quiet.rejected > 0
+
+
+# -- configuration -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("table, message", [
+    ({"mode": "sometimes"}, "mode must be one of"),
+    ({"mode": "offline"}, "needs the calibrated b_s_mm"),
+    ({"mode": "online", "a_mm_s": -1.0}, "a_mm_s must be"),
+    ({"mode": "online", "window": 10, "min_samples": 40}, "min_samples"),
+    ({"mode": "online", "actuators": "wall"}, "list of actuator names"),
+    ({"mode": "online", "forgetting": 0.99}, "unknown key"),
+])
+def test_bad_compensation_table_is_named(table, message):
+    with pytest.raises(ConfigError, match=message) as info:
+        config_mod.from_dict({"compensation": table}, "lab.toml")
+    assert "lab.toml" in str(info.value) and "[compensation]" in str(info.value)
+
+
+def test_unknown_actuator_is_refused_before_anything_moves(tmp_path):
+    cfg = config_mod.from_dict({"structure": {"name": "structure_I"}, "compensation": {"mode": "online", "actuators": ["BF"]}})
+    with pytest.raises(ConfigError, match="unknown actuator.*BF.*known: wall"):
+        runner.run(cfg, tmp_path / "x")
+
+
+# -- calibration on an emulated run -------------------------------------------------------------------
+
+def test_calibration_recovers_structure_I_within_5_percent(tmp_path):
+    summary, run = run_structure_I(tmp_path, "cal", 6.25, {"mode": "off"})
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "calibrate", str(tmp_path / "cal"), "--json",
+                           "--plot", str(tmp_path / "cal.png")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    fit = json.loads(proc.stdout)
+    assert set(fit) == {"a_mm_s", "b_s_mm", "lag_s", "a_std", "b_std", "n"}
+    assert fit["a_mm_s"] == pytest.approx(A_I, rel=0.05)
+    assert fit["b_s_mm"] == pytest.approx(B_I, rel=0.05)
+    assert fit["lag_s"] == pytest.approx(fit["b_s_mm"] * 254.0)
+    assert 0 < fit["a_std"] < 0.5 and 0 < fit["b_std"] < 5e-6 and fit["n"] > 900
+    assert (tmp_path / "cal.png").stat().st_size > 10_000
+    # The same steps as a CSV file (lab time per step) give the same fit.
+    c, m = run.actuator("command", "wall"), run.actuator("disp", "wall")
+    t = 0.03125 * np.arange(1, c.size + 1)
+    csv = tmp_path / "steps.csv"
+    csv.write_text("time_s,command_mm,measured_mm\n" + "".join(f"{a},{b},{d}\n" for a, b, d in zip(t, c, m)))
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "calibrate", str(csv), "--json"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["a_mm_s"] == pytest.approx(fit["a_mm_s"], rel=1e-6)
+    csv.write_text("time_s,command_mm,measured_mm\n0,0,0\n0.1,0.2,x\n")
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "calibrate", str(csv)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "steps.csv:3: measured_mm 'x' is not a number" in proc.stderr
+
+
+# -- compensation in the loop -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("rate", [6.25, 40.0])
+def test_compensation_removes_the_execution_error(tmp_path, rate):
+    ground = harmonic()
+    off, run_off = run_structure_I(tmp_path, "off", rate, {"mode": "off"}, ground)
+    offline, run_offline = run_structure_I(tmp_path, "offline", rate,
+                                           {"mode": "offline", "a_mm_s": A_I, "b_s_mm": B_I}, ground)
+    online, run_online = run_structure_I(tmp_path, "online", rate, {"mode": "online"}, ground)  # from nothing
+    e_off, e_offline, e_online = (execution_error(r, "wall") for r in (run_off, run_offline, run_online))
+    half = e_off.size // 2
+    assert rms(e_off) / rms(e_offline) >= 10.0
+    assert rms(e_offline) <= 2 * RESOLUTION
+    assert rms(e_off) / rms(e_online) >= 5.0
+    assert rms(e_off[half:]) / rms(e_online[half:]) >= 10.0
+    assert rms(e_online[half:]) <= 2 * RESOLUTION
+    # The summary reports what was used; the online estimate found the actuator by itself.
+    assert offline["compensation"]["actuators"]["wall"]["a_mm_s"] == A_I
+    learnt = online["compensation"]["actuators"]["wall"]
+    assert learnt["updates"] > 0 and learnt["lag_s"] == pytest.approx(B_I * 254.0, rel=0.1)
+    assert off["rms_tracking_error_mm"][0] == pytest.approx(rms(e_off))
+    # Per step: Er^cc without compensation, Er^ca and Er^aa with it.
+    table_off, table_on = run_off.compensation(), run_offline.compensation()
+    assert np.allclose(table_off["er_cc_wall"] * 254.0, e_off) and np.all(np.isnan(table_off["er_ca_wall"]))
+    assert np.allclose(table_on["er_ca_wall"] * 254.0, e_offline)
+    sent = run_offline.actuator("command", "wall")
+    assert np.allclose(table_on["er_aa_wall"] * 254.0, sent - run_offline.actuator("disp", "wall"))
+    assert rms(table_on["er_aa_wall"]) > 5 * rms(table_on["er_ca_wall"])  # the actuator still lags what it is sent
+
+
+def test_per_actuator_switch_structure_II(tmp_path):
+    cfg = config_mod.from_dict({
+        "structure": {"name": "structure_II"}, "record": {"pga_g": 0.3, "duration_s": 2.0},
+        "test": {"rate": 6.25, "hold_fraction": 0.0, "n_avg": 1}, "emulator": {"preset": "structure_II"},
+        "output": {"plots": False, "samples": False, "ns": False},
+        "compensation": {"mode": "offline", "a_mm_s": A_II, "b_s_mm": B_II, "actuators": ["BF"]},
+    })
+    summary = runner.run(cfg, tmp_path / "ii")
+    run = Run(tmp_path / "ii" / "run.sqlite")
+    table = run.compensation()
+    used = summary["compensation"]["actuators"]
+    assert used["BF"]["enabled"] and not used["IF"]["enabled"] and used["IF"]["lag_s"] == 0.0
+    assert np.all(np.isnan(table["er_cc_BF"])) and np.all(np.isfinite(table["er_cc_IF"]))
+    assert np.allclose(run.actuator("command", "IF"), run.actuator("target", "IF"))
+    e_bf, e_if = execution_error(run, "BF"), execution_error(run, "IF")
+    assert rms(e_bf) < 0.5 * rms(e_if)
+
+
+def test_hs_vs_ns_error_of_structure_I_falls_with_compensation(tmp_path):
+    base = ('[structure]\nname = "structure_I"\n[record]\npga_g = 1.0\nduration_s = 5.0\n'
+            '[test]\nrate = 6.25\nhold_fraction = 0.0\nn_avg = 1\n[emulator]\npreset = "structure_I"\n'
+            '[output]\nsamples = false\nplots = false\n')
+    results = {}
+    for mode, extra in (("off", ""), ("offline", f"a_mm_s = {A_I}\nb_s_mm = {B_I}\n"), ("online", "")):
+        path = tmp_path / f"{mode}.toml"
+        path.write_text(base + f'[compensation]\nmode = "{mode}"\n' + extra)
+        proc = subprocess.run([sys.executable, "-m", "hsio.cli", "run", str(path), "--out", str(tmp_path / mode), "--json"],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        results[mode] = json.loads(proc.stdout)
+    for s in results.values():
+        assert {"max_error_pct", "rms_tracking_error_mm", "compensation"} <= set(s)
+    assert results["offline"]["compensation"]["mode"] == "offline"
+    assert results["off"]["max_error_pct"] > 5.0  # the lag of the hockey-stick actuator shows
+    assert results["offline"]["max_error_pct"] < 0.2 * results["off"]["max_error_pct"]
+    assert results["online"]["max_error_pct"] < 0.2 * results["off"]["max_error_pct"]
+    assert results["offline"]["rms_tracking_error_mm"][0] < 0.1 * results["off"]["rms_tracking_error_mm"][0]
+
+
+def test_online_starts_from_the_configured_guess():
+    guess = CompensationSettings(mode="online", a_mm_s=4.0, b_s_mm=6e-5)
+    stage = CompensationStage(["wall"], 0.2, guess)
+    assert stage.feedforward[0].a == 4.0 and stage.feedforward[0].lag == pytest.approx(6e-5 * 254.0)
+    nothing = CompensationStage(["wall"], 0.2, CompensationSettings(mode="online"))
+    assert nothing.feedforward[0].lag == 0.0
+    d_a = [nothing.adjust([x])[0] for x in (0.0, 2.0, 4.0)]
+    assert d_a == [0.0, 2.0, 4.0]  # nothing learnt yet: commands pass unchanged
