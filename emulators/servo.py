@@ -43,17 +43,9 @@ PRESETS: dict[str, dict] = {
 }
 
 
-def hockey_stick_settings(a_mm_s: float, b_s_mm: float, rate_hz: float = CONTROLLER_RATE_HZ,
-                          d_max_mm: float = 254.0) -> dict:
-    """lag_s and velocity_threshold_mm_s that give the measured error d_c - d_m = L (|v| - a) sign v.
-
-    The loop closes on the previous period's feedback, which shortens the apparent lag by one
-    period dt: the ramp error is (lag - dt) v - lag a'. So lag = L + dt and a' = L a / (L + dt),
-    with L = b d_max.
-    """
-    L = b_s_mm * d_max_mm
-    dt = 1.0 / rate_hz
-    return {"lag_s": L + dt, "velocity_threshold_mm_s": a_mm_s * L / (L + dt)}
+def hockey_stick_settings(a_mm_s: float, b_s_mm: float, d_max_mm: float = 254.0) -> dict:
+    """Emulator settings whose execution error is eq. (1): d_c - d_m = b d_max (|v| - a) sign v."""
+    return {"lag_s": b_s_mm * d_max_mm, "velocity_threshold_mm_s": a_mm_s}
 
 
 @dataclass
@@ -99,8 +91,7 @@ class ServoConfig:
         if preset is not None:
             if preset not in PRESETS:
                 raise ConfigError(f"emulator: unknown preset {preset!r}; known: {', '.join(PRESETS)}")
-            rate = table.get("rate_hz", CONTROLLER_RATE_HZ)
-            table = {**hockey_stick_settings(**PRESETS[preset], rate_hz=rate), **table}
+            table = {**hockey_stick_settings(**PRESETS[preset]), **table}
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(table) - known)
         if unknown:
@@ -131,8 +122,11 @@ class ServoController:
         self.dt = 1.0 / c.rate_hz
         # The loop sees the position of the previous period, so K_p = 1 / (lag + dt) makes a ramp
         # lag by exactly lag_s between a command and the measurement that follows it.
+        # The feed-forward is scaled alike so that the ramp error is lag (|v| - a) beyond a.
         self.kp_extend = 1.0 / (c.lag_s + self.dt)
         self.kp_retract = 1.0 / ((c.lag_retract_s or c.lag_s) + self.dt)
+        self.a_extend = c.velocity_threshold_mm_s * c.lag_s * self.kp_extend
+        self.a_retract = c.velocity_threshold_mm_s * (c.lag_retract_s or c.lag_s) * self.kp_retract
         self.kf = 1.0 / (c.force_lag_s * max(specimen.initial_stiffness, 1e-9))
         self._rng = np.random.default_rng(c.seed)
         self._delay = collections.deque(maxlen=max(int(round(c.transport_delay_s * c.rate_hz)), 0) + 1)
@@ -209,7 +203,7 @@ class ServoController:
             self._integral += error * dt
             kp = self.kp_extend if error >= 0.0 else self.kp_retract
             v_cmd = (loop_cmd - self._last_loop_cmd) / dt
-            a = c.velocity_threshold_mm_s
+            a = self.a_extend if v_cmd >= 0.0 else self.a_retract
             v_ff = v_cmd if v_cmd <= a and v_cmd >= -a else math.copysign(a, v_cmd)
             velocity = kp * error + c.ki_per_s2 * self._integral + v_ff
         else:
