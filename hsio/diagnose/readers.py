@@ -203,6 +203,9 @@ def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
         raise RecordError(str(exc)) from None
     except Exception as exc:  # sqlite3.DatabaseError and friends: not an hsio run file
         raise RecordError(f"{path}: not an hsio recording: {exc}") from None
+    if run.meta.get("config", {}).get("hardware", {}).get("clock") == "realtime":
+        raise RecordError(f"{path}: a real-time run keeps the samples of each step only, with gaps between "
+                          "steps; diagnose needs a lockstep run or a continuous record")
     names = run.actuator_names
     name = actuator or names[0]
     if name not in names:
