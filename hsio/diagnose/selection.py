@@ -103,7 +103,7 @@ def _merged_starts(base: Fit, single: Fit) -> list[dict]:
 
 
 def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, margin: float = MARGIN,
-             effects: tuple[str, ...] | None = None, max_combination: int = 3) -> Diagnosis:
+             effects: tuple[str, ...] | None = None, max_combination: int = 4) -> Diagnosis:
     """Fit the baseline and every candidate effect; name the cause; grow the best combination."""
     t0 = time.perf_counter()
     if not 0.1 <= train_fraction <= 0.9:
