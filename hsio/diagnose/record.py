@@ -65,3 +65,11 @@ class ActuatorRecord:
         v[0] = 0.0
         v[1:] = np.diff(self.command_mm) / self.dt
         return v
+
+    def smoothed_velocity(self, width_s: float = 0.005) -> np.ndarray:
+        """Central difference of the command over about ``width_s`` (mm/s): readable where the
+        recorded command is a staircase (a controller updating it slower than the DAQ samples)."""
+        h = max(1, int(round(0.5 * width_s / self.dt)))
+        c = np.pad(self.command_mm, h, mode="edge")
+        return (c[2 * h:] - c[:-2 * h]) / (2 * h * self.dt)
+

@@ -110,7 +110,7 @@ def evidence(d: Diagnosis) -> dict:
     force, the worst second, and the frequency where the residual is largest."""
     rec = d.record
     before, _ = _residuals(d)
-    v = rec.command_velocity()
+    v = rec.smoothed_velocity()
 
     def corr(a, b):
         if np.std(a) == 0 or np.std(b) == 0:
@@ -213,7 +213,7 @@ def write_report(d: Diagnosis, out_dir: str | Path) -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = {"time": plot_time(d, out / "residual_time.png"),
-             "velocity": _scatter(d, d.record.command_velocity(), "command velocity (mm/s)",
+             "velocity": _scatter(d, d.record.smoothed_velocity(), "command velocity over 5 ms (mm/s)",
                                   "Residual against command velocity", out / "residual_velocity.png")}
     if d.record.force_kN is not None:
         files["force"] = _scatter(d, d.record.force_kN, "measured force (kN)", "Residual against force", out / "residual_force.png")
