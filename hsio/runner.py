@@ -65,7 +65,7 @@ def run(config: RunConfig, out_dir: str | Path, progress=None) -> dict:
     substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]))
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
-        "record": ground.name, "dt": structure.dt, "test_rate": test["rate"],
+        "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     recorder = Recorder(out / "run.sqlite", structure.dof_names, [a.name for a in actuators], meta)

@@ -7,7 +7,7 @@ the parameter means physically.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -47,7 +47,6 @@ class Effect:
     describe: Callable[[dict], str]
     needs_force: bool = False
     primary: str = ""  # the parameter that measures the effect's size
-    extra: dict = field(default_factory=dict)
 
 
 def _lag_param(ctx: Context, name: str = "lag_s") -> Param:

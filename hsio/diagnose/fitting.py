@@ -14,7 +14,7 @@ import numpy as np
 from scipy import optimize
 
 from hsio.diagnose.effects import BASELINE_PARAMS, EFFECTS, Context, Param
-from hsio.diagnose.model import simulate
+from hsio.diagnose.model import NEUTRAL, simulate
 from hsio.diagnose.record import ActuatorRecord
 
 TRAIN_FRACTION = 0.7
@@ -65,6 +65,15 @@ def evaluate(record: ActuatorRecord, effects: tuple[str, ...], params: dict, n_t
                pred, nfev)
 
 
+def _neutral(name: str, ctx: Context) -> float:
+    value = NEUTRAL.get(name)
+    if name == "lag_retract_s" or value is None:
+        return ctx.lag_s
+    if name == "velocity_limit_mm_s":
+        return 5.0 * max(ctx.v_cmd_peak, 1e-3)
+    return float(value)
+
+
 def fit(record: ActuatorRecord, effects: tuple[str, ...], ctx: Context, n_train: int, starts: list[dict],
         max_nfev: int = 60) -> Fit:
     """Fit lag_s and the effects' parameters on samples [0, n_train) from each start; keep the best."""
@@ -85,7 +94,8 @@ def fit(record: ActuatorRecord, effects: tuple[str, ...], ctx: Context, n_train:
 
     best, nfev = None, 0
     for start in starts:
-        x0 = np.array([start.get(name, ctx.lag_s) for name in names], dtype=float)
+        # A parameter a start leaves out begins at its neutral value (the effect absent).
+        x0 = np.array([start.get(name, ctx.lag_s if name == "lag_s" else _neutral(name, ctx)) for name in names], dtype=float)
         x0 = np.clip(x0, lower + 1e-9 * (upper - lower), upper - 1e-9 * (upper - lower))
         sol = optimize.least_squares(residual, x0 / scale, bounds=(lower / scale, upper / scale), method="trf",
                                      x_scale=1.0, max_nfev=max_nfev, xtol=1e-6, ftol=1e-8)

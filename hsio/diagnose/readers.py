@@ -216,7 +216,8 @@ def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
     samples = run.samples()
     if not samples or samples[column("cmd", name)].size == 0:
         raise RecordError(f"{path}: no controller samples recorded (run with [output] samples = true)")
-    rate = float(run.meta.get("config", {}).get("emulator", {}).get("rate_hz", CONTROLLER_RATE_HZ))
+    settings = run.meta.get("emulator_settings") or run.meta.get("config", {}).get("emulator", {})
+    rate = float(settings.get("rate_hz", CONTROLLER_RATE_HZ))
     return ActuatorRecord(f"{path}#{name}", 1.0 / rate, samples[column("cmd", name)], samples[column("disp", name)],
                           samples[column("force", name)])
 

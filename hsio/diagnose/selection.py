@@ -90,7 +90,8 @@ def estimate_lag(record: ActuatorRecord, n_train: int) -> float:
 
 def fit_baseline(record: ActuatorRecord, n_train: int) -> Fit:
     lag0 = estimate_lag(record, n_train)
-    ctx = Context(record, lag0, 0.0, 0.0, 0.0, 0.0, float(np.ptp(record.command_mm)), 0.0)
+    ctx = Context(record, lag_s=lag0, residual_rms_mm=0.0, v_cmd_peak=0.0, v_meas_peak=0.0, v_model_peak=0.0,
+                  stroke_mm=float(np.ptp(record.command_mm)), force_peak=0.0)
     return fit(record, (), ctx, n_train, [{"lag_s": f * lag0} for f in (0.5, 1.0, 2.0)], max_nfev=40)
 
 
@@ -113,7 +114,7 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
         raise RecordError(f"{record.source}: the command does not move in the training part")
     baseline = fit_baseline(record, n_train)
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
-    names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and record.force_kN is None)]
+    names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
     candidates = []
     for name in names:
         f = fit(record, (name,), ctx, n_train, EFFECTS[name].starts(ctx))
