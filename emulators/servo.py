@@ -5,10 +5,12 @@ Physics per period dt = 1/rate (explicit, one tick at a time):
 * Displacement control: the servo-valve opens in proportion to the loop output; the actuator
   velocity is proportional to the valve flow (velocity-proportional lag):
 
-      v = K_p e + K_i sum(e) dt + clip(v_c, -a, a),   e = d_c(t - t_delay) - d_rod,  K_p = 1 / lag
+      v = K_p e + K_i sum(e) dt + K_p lag clip(v_c, -a, a),   e = d_c(t - t_delay) - d_rod
 
-  so a ramp at velocity v lags by lag * (|v| - a) beyond the feed-forward threshold a (the
-  hockey stick of METHOD.md eq. 1 with b d_max = lag). The flow limit saturates |v|.
+  with K_p = 1 / (lag + dt) because the loop sees the rod position of the previous period. A
+  ramp at velocity v then lags by lag (|v| - a) beyond the feed-forward threshold a, and not at
+  all below it, between a command and the measurement that follows it: the hockey stick of
+  METHOD.md eq. 1 with b d_max = lag. The flow limit saturates |v|.
 * Force control: the loop is closed on the load cell, v = K_f (F_c - F_m), with K_f tuned on the
   specimen's initial stiffness so that the force follows with ``force_lag_s``.
 * Load train: the specimen sees the rod through a backlash gap and a compliance
@@ -125,8 +127,8 @@ class ServoController:
         # The feed-forward is scaled alike so that the ramp error is lag (|v| - a) beyond a.
         self.kp_extend = 1.0 / (c.lag_s + self.dt)
         self.kp_retract = 1.0 / ((c.lag_retract_s or c.lag_s) + self.dt)
-        self.a_extend = c.velocity_threshold_mm_s * c.lag_s * self.kp_extend
-        self.a_retract = c.velocity_threshold_mm_s * (c.lag_retract_s or c.lag_s) * self.kp_retract
+        self.ff_extend = c.lag_s * self.kp_extend
+        self.ff_retract = (c.lag_retract_s or c.lag_s) * self.kp_retract
         self.kf = 1.0 / (c.force_lag_s * max(specimen.initial_stiffness, 1e-9))
         self._rng = np.random.default_rng(c.seed)
         self._delay = collections.deque(maxlen=max(int(round(c.transport_delay_s * c.rate_hz)), 0) + 1)
@@ -203,8 +205,9 @@ class ServoController:
             self._integral += error * dt
             kp = self.kp_extend if error >= 0.0 else self.kp_retract
             v_cmd = (loop_cmd - self._last_loop_cmd) / dt
-            a = self.a_extend if v_cmd >= 0.0 else self.a_retract
+            a = c.velocity_threshold_mm_s
             v_ff = v_cmd if v_cmd <= a and v_cmd >= -a else math.copysign(a, v_cmd)
+            v_ff *= self.ff_extend if v_cmd >= 0.0 else self.ff_retract
             velocity = kp * error + c.ki_per_s2 * self._integral + v_ff
         else:
             velocity = self.kf * (loop_cmd - self.measured_force)

@@ -29,6 +29,7 @@ class _Progress:
 # Subcommands that live in their own modules, imported only when used: name -> "module:function".
 LAZY_COMMANDS: dict[str, str] = {
     "calibrate": "hsio.commands.calibrate:calibrate",
+    "diagnose": "hsio.commands.diagnose:diagnose",
 }
 
 

@@ -19,7 +19,7 @@ DEFAULTS: dict[str, dict] = {
     "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.6, "seed": 1994, "synthetic_duration_s": 20.0},
     "integrator": {"alpha": -0.05},
     "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
-    "hardware": {"url": "emulator://", "clock": "lockstep"},
+    "hardware": {"url": "emulator://", "clock": "lockstep", "actuator_model": ""},
     "output": {"samples": True, "plots": True, "ns": True},
     # Feed-forward error compensation (docs/compensation.md); estimator keys as in
     # hsio.compensation.online.EstimatorSettings.
@@ -116,4 +116,7 @@ def load(path: str | Path | None) -> RunConfig:
     record_file = config["record"]["file"]
     if record_file and not Path(record_file).is_absolute():
         config["record"]["file"] = str((path.parent / record_file).resolve())
+    model_file = config["hardware"]["actuator_model"]
+    if model_file and not Path(model_file).is_absolute():
+        config["hardware"]["actuator_model"] = str((path.parent / model_file).resolve())
     return config

@@ -13,6 +13,7 @@ from hsio import plots
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.config import RunConfig
 from hsio.control_loop import ControlLoop
+from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.experiment import ExperimentStopped, Result, max_error_pct, simulate
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.hardware import open_hardware
@@ -60,14 +61,16 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
     compensation = CompensationStage([e.name for e in structure.experimental], test["rate"] * structure.dt,
                                      CompensationSettings.from_table(config["compensation"]))
     clock = LockstepClock() if hardware["clock"] == "lockstep" else RealTimeClock()
+    # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
+    emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     actuators = open_hardware(hardware["url"], structure.experimental, clock,
-                              config["emulator"] if hardware["url"].startswith("emulator") else config["driver"])
+                              emulator if hardware["url"].startswith("emulator") else config["driver"])
     loop = ControlLoop(actuators, clock, structure.dt, test["rate"], n_avg=test["n_avg"],
                        keep_samples=config["output"]["samples"], hold_fraction=test["hold_fraction"])
     substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]), compensation)
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
-        "record": ground.name, "dt": structure.dt, "test_rate": test["rate"],
+        "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     recorder = Recorder(out / "run.sqlite", structure.dof_names, [a.name for a in actuators], meta)

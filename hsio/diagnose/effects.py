@@ -1,0 +1,156 @@
+"""The candidate causes: each a small extension of the baseline lag with physical parameters.
+
+Each effect names the model parameters it frees (ServoConfig fields of the emulator), their
+bounds and starting values (from the record and the baseline fit), and a sentence saying what
+the parameter means physically.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from hsio.diagnose.record import ActuatorRecord
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    lower: float
+    upper: float
+    scale: float  # typical size, for the optimiser's steps
+
+
+@dataclass(frozen=True)
+class Context:
+    """What starting values and bounds are derived from."""
+
+    record: ActuatorRecord
+    lag_s: float  # the baseline fit
+    residual_rms_mm: float  # of the baseline, on the training part
+    v_cmd_peak: float  # 99.9th percentile of |command velocity|, mm/s
+    v_meas_peak: float  # the same of the measured velocity (smoothed), mm/s
+    v_model_peak: float  # the same of the baseline model's velocity, mm/s
+    stroke_mm: float  # peak-to-peak command
+    force_peak: float  # peak-to-peak force, kN (0 without force)
+
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    title: str
+    cause: str  # the physical explanation, for the report
+    params: Callable[[Context], tuple[Param, ...]]
+    starts: Callable[[Context], list[dict]]  # initial values (effect parameters and lag_s)
+    describe: Callable[[dict], str]
+    needs_force: bool = False
+    primary: str = ""  # the parameter that measures the effect's size
+
+
+def _lag_param(ctx: Context, name: str = "lag_s") -> Param:
+    return Param(name, 2.0 * ctx.record.dt, 2.0, max(ctx.lag_s, 2.0 * ctx.record.dt))
+
+
+BASELINE_PARAMS = _lag_param
+
+EFFECTS: dict[str, Effect] = {}
+
+
+def _register(effect: Effect) -> Effect:
+    EFFECTS[effect.name] = effect
+    return effect
+
+
+_register(Effect(
+    "transport_delay", "transport delay",
+    "a pure delay in the loop (controller cycle, DAQ and communication latency, valve dead time): "
+    "the actuator answers a fixed time late at every frequency, so the phase error grows with frequency "
+    "faster than a first-order lag allows",
+    lambda c: (Param("transport_delay_s", 0.0, max(0.5, 4.0 * c.lag_s), max(0.3 * c.lag_s, c.record.dt)),),
+    lambda c: [{"transport_delay_s": f * c.lag_s, "lag_s": max((1.0 - f) * c.lag_s, 2.0 * c.record.dt)} for f in (0.3, 0.7)],
+    lambda p: f"transport delay {1e3 * p['transport_delay_s']:.2f} ms on top of a lag of {1e3 * p['lag_s']:.2f} ms",
+    primary="transport_delay_s",
+))
+
+_register(Effect(
+    "velocity_threshold", "velocity threshold (hockey stick)",
+    "velocity feed-forward up to a threshold speed a: below it the actuator follows the command with "
+    "no error, above it the error grows as lag (|v| - a) (METHOD.md eq. 1)",
+    lambda c: (Param("velocity_threshold_mm_s", 0.0, c.v_cmd_peak, max(0.05 * c.v_cmd_peak, 1e-3)),),
+    lambda c: [{"velocity_threshold_mm_s": f * c.v_cmd_peak, "lag_s": c.lag_s} for f in (0.02, 0.1, 0.3)],
+    lambda p: f"no error below {p['velocity_threshold_mm_s']:.3g} mm/s, then lag {1e3 * p['lag_s']:.2f} ms x (|v| - a)",
+    primary="velocity_threshold_mm_s",
+))
+
+_register(Effect(
+    "velocity_saturation", "velocity saturation",
+    "the servo-valve's flow limit: the actuator cannot move faster than a maximum velocity, so fast "
+    "parts of the command fall behind and the error grows where the commanded speed exceeds it",
+    lambda c: (Param("velocity_limit_mm_s", 0.05 * max(c.v_cmd_peak, 1e-3), 5.0 * max(c.v_cmd_peak, 1e-3),
+                     max(0.1 * c.v_meas_peak, 1e-3)),),
+    # The limit must bind on the baseline's own motion to be felt: start below its peak speed.
+    lambda c: [{"velocity_limit_mm_s": f * max(c.v_model_peak, 1e-3), "lag_s": c.lag_s} for f in (0.6, 0.9)],
+    lambda p: f"velocity limited to {p['velocity_limit_mm_s']:.4g} mm/s",
+    primary="velocity_limit_mm_s",
+))
+
+_register(Effect(
+    "backlash", "backlash",
+    "slop in the load train (clevises, pins, swivels): at each reversal the rod travels across a gap "
+    "before the specimen moves, so the measured displacement stalls after every change of direction",
+    lambda c: (Param("backlash_mm", 0.0, 0.5 * max(c.stroke_mm, 1e-6), max(c.residual_rms_mm, 1e-4)),),
+    lambda c: [{"backlash_mm": f * c.residual_rms_mm, "lag_s": c.lag_s} for f in (1.0, 3.0)],
+    lambda p: f"gap of {p['backlash_mm']:.4g} mm taken up at each reversal",
+    primary="backlash_mm",
+))
+
+_register(Effect(
+    "asymmetric_lag", "asymmetric lag",
+    "different lags extending and retracting: unequal piston areas of a single-ended actuator or an "
+    "asymmetric servo-valve, so the loop is faster one way than the other",
+    lambda c: (_lag_param(c, "lag_retract_s"),),
+    lambda c: [{"lag_retract_s": c.lag_s, "lag_s": c.lag_s}],
+    lambda p: f"lag {1e3 * p['lag_s']:.2f} ms extending, {1e3 * p['lag_retract_s']:.2f} ms retracting",
+    primary="lag_retract_s",
+))
+
+_register(Effect(
+    "force_coupling", "force coupling",
+    "an error proportional to the measured force: compliance of the load train and reaction frame "
+    "(control-structure interaction) lets the specimen's force push the measured displacement away "
+    "from the rod's",
+    lambda c: (Param("compliance_mm_per_kN", -10.0 * c.stroke_mm / max(c.force_peak, 1e-9),
+                     10.0 * c.stroke_mm / max(c.force_peak, 1e-9), max(c.residual_rms_mm / max(c.force_peak, 1e-9), 1e-9)),),
+    lambda c: [{"compliance_mm_per_kN": 0.0, "lag_s": c.lag_s}],
+    lambda p: f"compliance {p['compliance_mm_per_kN']:.4g} mm/kN",
+    needs_force=True,
+    primary="compliance_mm_per_kN",
+))
+
+_register(Effect(
+    "scale_error", "scale error",
+    "a transducer gain error (calibration of the displacement transducer or of the command scale): "
+    "the error is proportional to the displacement itself",
+    lambda c: (Param("displacement_gain", 0.5, 2.0, 0.01),),
+    lambda c: [{"displacement_gain": 1.0, "lag_s": c.lag_s}],
+    lambda p: f"transducer gain {p['displacement_gain']:.4f} ({100 * (p['displacement_gain'] - 1):+.2f} %)",
+    primary="displacement_gain",
+))
+
+NAMES = tuple(EFFECTS)
+
+
+def _speed(x: np.ndarray, dt: float) -> np.ndarray:
+    # Differences over 5 samples: sensor quantisation makes single differences noisy.
+    w = max(1, min(5, x.size // 20))
+    return np.abs(x[w:] - x[:-w]) / (w * dt)
+
+
+def context(record: ActuatorRecord, lag_s: float, residual_rms_mm: float, baseline_prediction: np.ndarray) -> Context:
+    v_cmd = np.abs(record.command_velocity())
+    force_peak = float(np.ptp(record.force_kN)) if record.force_kN is not None else 0.0
+    return Context(record, lag_s, residual_rms_mm, float(np.percentile(v_cmd, 99.9)),
+                   float(np.percentile(_speed(record.measured_mm, record.dt), 99.9)),
+                   float(np.percentile(_speed(baseline_prediction, record.dt), 99.9)), float(np.ptp(record.command_mm)), force_peak)

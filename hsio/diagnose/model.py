@@ -1,0 +1,121 @@
+"""The actuator model replayed against a command: the emulator's physics, vectorised where it can be.
+
+Per sample k (dt = 1 / rate), the same explicit step as emulators/servo.py:
+
+    c_d[k] = c(t_k - transport_delay)                                     (transport_delay_s)
+    v_ff   = clip((c_d[k] - c_d[k-1]) / dt, -a, a) K_p lag                (velocity_threshold_mm_s)
+    e      = c_d[k] - x[k-1];  K_p = 1 / (lag_s + dt) if e >= 0 else 1 / (lag_retract_s + dt)
+    x[k]   = x[k-1] + dt clip(K_p e + v_ff, -v_max, v_max)                (velocity_limit_mm_s)
+    y[k]   = backlash(x)[k]  (play operator, gap backlash_mm)
+    m[k]   = displacement_gain (y[k] - compliance F[k]) + offset_mm
+
+With a = 0 this is the first-order lag of the command: since the loop sees the previous
+period's position, K_p = 1 / (lag + dt) makes a ramp at velocity v lag by lag (|v| - a) between
+a command and the measurement that follows it, the hockey stick of METHOD.md eq. (1) with
+b d_max = lag_s. Without asymmetric lag and flow limit the state equation is linear,
+x[k] = (1 - K_p dt) x[k-1] +
+K_p dt c_d[k] + dt v_ff[k], and runs as one scipy.signal.lfilter call; otherwise it runs as a
+tight loop. The state starts at rest on the first command sample.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import signal
+
+# Every parameter of the model, with its neutral value (the effect is absent). Names are the
+# emulator's ServoConfig fields, so a fitted model configures the emulator directly.
+NEUTRAL: dict[str, float | None] = {
+    "lag_s": None,  # required
+    "transport_delay_s": 0.0,
+    "velocity_threshold_mm_s": 0.0,
+    "velocity_limit_mm_s": math.inf,
+    "backlash_mm": 0.0,
+    "lag_retract_s": None,  # None: the same as lag_s
+    "compliance_mm_per_kN": 0.0,
+    "displacement_gain": 1.0,
+    "offset_mm": 0.0,
+}
+
+
+def delayed(command: np.ndarray, delay_samples: float) -> np.ndarray:
+    """The command delayed by a (fractional) number of samples, linear interpolation; the
+    first value is held before the record starts."""
+    if delay_samples <= 0.0:
+        return command
+    k = np.arange(command.size, dtype=float)
+    return np.interp(k - delay_samples, k, command)
+
+
+def feed_forward(cd: np.ndarray, dt: float, a: float, gain_up: float, gain_down: float) -> np.ndarray:
+    """v_ff = clip(v_cmd, -a, a) K_p lag: the part of the command velocity the valve passes ahead
+    of the error (the gain is lag / (lag + dt), by direction of the command)."""
+    v = np.empty_like(cd)
+    v[0] = 0.0
+    np.subtract(cd[1:], cd[:-1], out=v[1:])
+    v /= dt
+    return np.clip(v, -a, a) * np.where(v >= 0.0, gain_up, gain_down)
+
+
+def _linear_lag(cd: np.ndarray, vff: np.ndarray | None, dt: float, lag: float) -> np.ndarray:
+    k = dt / (lag + dt)
+    u = k * cd if vff is None else k * cd + dt * vff
+    return signal.lfilter([1.0], [1.0, -(1.0 - k)], u, zi=[(1.0 - k) * cd[0]])[0]
+
+
+def _loop_lag(cd: np.ndarray, vff: np.ndarray | None, dt: float, lag: float, lag_retract: float, vmax: float) -> np.ndarray:
+    kp_e, kp_r = 1.0 / (lag + dt), 1.0 / (lag_retract + dt)
+    lo = -vmax
+    x = float(cd[0])
+    out = [0.0] * cd.size
+    ff = vff.tolist() if vff is not None else [0.0] * cd.size
+    for i, (c, f) in enumerate(zip(cd.tolist(), ff)):
+        e = c - x
+        v = (kp_e if e >= 0.0 else kp_r) * e + f
+        if v > vmax:
+            v = vmax
+        elif v < lo:
+            v = lo
+        x += v * dt
+        out[i] = x
+    return np.array(out)
+
+
+def play(x: np.ndarray, gap: float) -> np.ndarray:
+    """Backlash (play operator): the output follows x only once the gap is taken up."""
+    h = 0.5 * gap
+    y = float(x[0])
+    out = [0.0] * x.size
+    for i, xi in enumerate(x.tolist()):
+        if xi - y > h:
+            y = xi - h
+        elif xi - y < -h:
+            y = xi + h
+        out[i] = y
+    return np.array(out)
+
+
+def simulate(command: np.ndarray, dt: float, params: dict, force: np.ndarray | None = None,
+             n: int | None = None) -> np.ndarray:
+    """The measured displacement the model predicts for ``command`` (mm), first ``n`` samples."""
+    p = {**NEUTRAL, **params}
+    if n is not None:
+        command = command[:n]
+        force = force[:n] if force is not None else None
+    lag = float(p["lag_s"])
+    cd = delayed(np.asarray(command, dtype=float), p["transport_delay_s"] / dt)
+    a = p["velocity_threshold_mm_s"]
+    lag_retract = p["lag_retract_s"] if p["lag_retract_s"] is not None else lag
+    vff = feed_forward(cd, dt, a, lag / (lag + dt), lag_retract / (lag_retract + dt)) if a > 0.0 else None
+    vmax = p["velocity_limit_mm_s"]
+    if lag_retract == lag and not math.isfinite(vmax):
+        x = _linear_lag(cd, vff, dt, lag)
+    else:
+        x = _loop_lag(cd, vff, dt, lag, lag_retract, vmax if math.isfinite(vmax) else 1e300)
+    if p["backlash_mm"] > 0.0:
+        x = play(x, p["backlash_mm"])
+    if p["compliance_mm_per_kN"] != 0.0 and force is not None:
+        x = x - p["compliance_mm_per_kN"] * force
+    return p["displacement_gain"] * x + p["offset_mm"]

@@ -1,0 +1,254 @@
+"""Readers for measured actuator records.
+
+* CSV: a header row ``time_s,command_mm,measured_mm`` and optionally ``force_kN`` (any order),
+  one row per sample, uniform time step.
+* DAQ text export (../shared/data/actuator/SOURCES.md): ``Header Size: n`` header lines, the
+  last one the column names ``Sample Number, Date/Time, CHANNEL0, ...``, then rows of sample number,
+  date/time, channel values in volts and an optional trailing event text. Channels are mapped
+  and scaled to mm and kN by :class:`DaqChannels`.
+* hsio's own recordings (``run.sqlite``): the controller-period samples of one actuator.
+
+Bad input is refused with :class:`~hsio.errors.RecordError` naming the file and line: rows with
+the wrong number of fields, text where a number belongs, NaN or infinite values, time steps that
+are not uniform (gaps, repeats) and missing channels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hsio.diagnose.record import ActuatorRecord
+from hsio.errors import RecordError
+
+CSV_REQUIRED = ("time_s", "command_mm", "measured_mm")
+CSV_OPTIONAL = ("force_kN",)
+FORMATS = ("csv", "daq", "run")
+STEP_TOLERANCE = 0.05  # a time step may differ from the median by this fraction (rounding)
+
+
+def _number(text: str, path, lineno: int, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise RecordError(f"{path}:{lineno}: {what} {text.strip()!r} is not a number") from None
+    if not math.isfinite(value):
+        raise RecordError(f"{path}:{lineno}: {what} is {text.strip()!r} (not finite)")
+    return value
+
+
+def uniform_step(time_s: np.ndarray, lines: list[int], path) -> float:
+    """The sampling interval of a time column; refuses gaps, repeats and jitter with line numbers."""
+    if time_s.size < 2:
+        raise RecordError(f"{path}: needs at least 2 samples, has {time_s.size}")
+    steps = np.diff(time_s)
+    dt = float(np.median(steps))
+    if not dt > 0:
+        raise RecordError(f"{path}: time does not increase (median step {dt!r})")
+    bad = np.flatnonzero(np.abs(steps - dt) > STEP_TOLERANCE * dt)
+    if bad.size:
+        i = int(bad[0])
+        kind = "a gap" if steps[i] > dt else "a repeated or backward time"
+        raise RecordError(f"{path}:{lines[i + 1]}: {kind}: time steps from {time_s[i]:.6g} to {time_s[i + 1]:.6g} s "
+                          f"(the record's step is {dt:.6g} s)")
+    return (float(time_s[-1]) - float(time_s[0])) / (time_s.size - 1)
+
+
+def read_csv(path: str | Path) -> ActuatorRecord:
+    """A CSV record with the header ``time_s,command_mm,measured_mm[,force_kN]``."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
+    header = None
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        fields = [f.strip() for f in stripped.split(",")]
+        if header is None:
+            header = fields
+            missing = [c for c in CSV_REQUIRED if c not in header]
+            unknown = [c for c in header if c not in CSV_REQUIRED + CSV_OPTIONAL]
+            if missing or unknown or len(set(header)) != len(header):
+                raise RecordError(f"{path}:{lineno}: header must be {','.join(CSV_REQUIRED)}[,force_kN], got {stripped!r}")
+            continue
+        if len(fields) != len(header):
+            raise RecordError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {len(fields)}")
+        rows.append([_number(f, path, lineno, name) for f, name in zip(fields, header)])
+        lines.append(lineno)
+    if header is None:
+        raise RecordError(f"{path}: empty file (no header row {','.join(CSV_REQUIRED)})")
+    data = np.array(rows, dtype=float).reshape(-1, len(header))
+    col = {name: data[:, i] for i, name in enumerate(header)}
+    dt = uniform_step(col["time_s"], lines, path)
+    return ActuatorRecord(str(path), dt, col["command_mm"], col["measured_mm"], col.get("force_kN"))
+
+
+def write_csv(record: ActuatorRecord, path: str | Path) -> Path:
+    """Write a record in the CSV format :func:`read_csv` reads."""
+    path = Path(path)
+    columns = [record.time_s, record.command_mm, record.measured_mm]
+    header = "time_s,command_mm,measured_mm"
+    if record.force_kN is not None:
+        columns.append(record.force_kN)
+        header += ",force_kN"
+    np.savetxt(path, np.column_stack(columns), delimiter=",", header=header, comments="", fmt="%.9g")
+    return path
+
+
+@dataclass(frozen=True)
+class DaqChannels:
+    """Which DAQ channel is which, and its scale (mm per V, kN per V).
+
+    The defaults are the MTS test rig of ../shared/data/actuator: CHANNEL0 measured (10 mm/V),
+    CHANNEL2 command (10 mm/V), CHANNEL1 load cell (1 V = 1 tf = 9.80665 kN; uncertain by a
+    factor of 10, see SOURCES.md). ``force=""`` ignores the force channel.
+    """
+
+    command: str = "CHANNEL2"
+    measured: str = "CHANNEL0"
+    force: str = "CHANNEL1"
+    command_scale: float = 10.0
+    measured_scale: float = 10.0
+    force_scale: float = 9.80665
+
+
+def read_daq(path: str | Path, channels: DaqChannels | None = None) -> ActuatorRecord:
+    """A DAQ text export (SOURCES.md format): header, column names, sample rows with event text."""
+    path = Path(path)
+    ch = channels or DaqChannels()
+    try:
+        text = path.read_text(encoding="latin-1")
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
+    all_lines = text.splitlines()
+    if not all_lines or not all_lines[0].lower().startswith("header size"):
+        raise RecordError(f"{path}:1: not a DAQ export (expected 'Header Size: n', got {all_lines[0][:40] if all_lines else ''!r})")
+    header_size = int(_number(all_lines[0].split(":", 1)[1], path, 1, "Header Size"))
+    info = {}
+    # The header lines include the row of column names (the last one).
+    for lineno in range(2, header_size):
+        if lineno > len(all_lines):
+            raise RecordError(f"{path}:{lineno}: file ends inside the header")
+        key, _, value = all_lines[lineno - 1].partition(":")
+        info[key.strip().lower()] = (value.strip(), lineno)
+    if "sampling interval" not in info:
+        raise RecordError(f"{path}: header has no 'Sampling Interval'")
+    value, lineno = info["sampling interval"]
+    dt = _number(value, path, lineno, "Sampling Interval")
+    if not dt > 0:
+        raise RecordError(f"{path}:{lineno}: Sampling Interval must be positive, got {value!r}")
+    names_line = header_size
+    if names_line > len(all_lines):
+        raise RecordError(f"{path}:{names_line}: missing the row of column names")
+    names = [n.strip() for n in all_lines[names_line - 1].split(",")]
+    if len(names) < 3 or names[0].lower() != "sample number":
+        raise RecordError(f"{path}:{names_line}: expected 'Sample Number, Date/Time, CHANNEL...', got {all_lines[names_line - 1][:60]!r}")
+    channel_names = [n for n in names[2:] if n.lower() != "events"]
+    wanted = {"command": ch.command, "measured": ch.measured}
+    if ch.force:
+        wanted["force"] = ch.force
+    for role, name in wanted.items():
+        if name not in channel_names:
+            raise RecordError(f"{path}:{names_line}: no channel {name!r} for the {role}; channels: {', '.join(channel_names)}")
+    n_ch = len(channel_names)
+    values: list[list[float]] = []
+    numbers: list[float] = []
+    lines: list[int] = []
+    for lineno in range(names_line + 1, len(all_lines) + 1):
+        line = all_lines[lineno - 1].strip()
+        if not line:
+            continue
+        fields = [f.strip() for f in line.split(",")]
+        if len(fields) < 2 + n_ch:
+            raise RecordError(f"{path}:{lineno}: expected {2 + n_ch} fields (sample, date/time, {n_ch} channels), got {len(fields)}")
+        numbers.append(_number(fields[0], path, lineno, "sample number"))
+        values.append([_number(f, path, lineno, channel_names[i]) for i, f in enumerate(fields[2:2 + n_ch])])
+        # Anything after the channels is event text (DAQ Start, DAQ Pause, ...): not data.
+        lines.append(lineno)
+    if not values:
+        raise RecordError(f"{path}: no data rows")
+    data = np.array(values)
+    number = np.array(numbers)
+    jumps = np.flatnonzero(np.diff(number) != 1)
+    if jumps.size:
+        i = int(jumps[0])
+        raise RecordError(f"{path}:{lines[i + 1]}: sample number jumps from {number[i]:g} to {number[i + 1]:g} (a gap in the record)")
+    if "sample count" in info:
+        value, lineno = info["sample count"]
+        count = _number(value, path, lineno, "Sample Count")
+        if count != len(values):
+            raise RecordError(f"{path}:{lineno}: header says Sample Count {count:g}, file holds {len(values)} rows")
+    col = {name: data[:, i] for i, name in enumerate(channel_names)}
+    force = col[ch.force] * ch.force_scale if ch.force else None
+    return ActuatorRecord(str(path), dt, col[ch.command] * ch.command_scale, col[ch.measured] * ch.measured_scale, force)
+
+
+def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
+    """The controller-period samples of one actuator of an hsio recording (``run.sqlite``)."""
+    from hsio.clock import CONTROLLER_RATE_HZ
+    from hsio.recording import Run, column
+
+    path = Path(path)
+    try:
+        run = Run(path)
+    except FileNotFoundError as exc:
+        raise RecordError(str(exc)) from None
+    except Exception as exc:  # sqlite3.DatabaseError and friends: not an hsio run file
+        raise RecordError(f"{path}: not an hsio recording: {exc}") from None
+    if run.meta.get("config", {}).get("hardware", {}).get("clock") == "realtime":
+        raise RecordError(f"{path}: a real-time run keeps the samples of each step only, with gaps between "
+                          "steps; diagnose needs a lockstep run or a continuous record")
+    names = run.actuator_names
+    name = actuator or names[0]
+    if name not in names:
+        raise RecordError(f"{path}: no actuator {name!r}; actuators: {', '.join(names)}")
+    for key, modes in run.steps.items():
+        if key.startswith("mode_") and np.any(modes == "force"):
+            raise RecordError(f"{path}: steps in force control ({key}); diagnose needs displacement control throughout")
+    samples = run.samples()
+    if not samples or samples[column("cmd", name)].size == 0:
+        raise RecordError(f"{path}: no controller samples recorded (run with [output] samples = true)")
+    settings = run.meta.get("emulator_settings") or run.meta.get("config", {}).get("emulator", {})
+    rate = float(settings.get("rate_hz", CONTROLLER_RATE_HZ))
+    return ActuatorRecord(f"{path}#{name}", 1.0 / rate, samples[column("cmd", name)], samples[column("disp", name)],
+                          samples[column("force", name)])
+
+
+def detect_format(path: str | Path) -> str:
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return "csv"
+    if suffix in (".sqlite", ".db"):
+        return "run"
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(64)
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
+    if head.startswith(b"SQLite format 3"):
+        return "run"
+    if head.lower().startswith(b"header size"):
+        return "daq"
+    return "csv"
+
+
+def read_record(path: str | Path, fmt: str | None = None, channels: DaqChannels | None = None,
+                actuator: str | None = None) -> ActuatorRecord:
+    """Read a record in ``fmt`` (csv, daq or run; None: from the name and first bytes)."""
+    fmt = fmt or detect_format(path)
+    if fmt == "csv":
+        return read_csv(path)
+    if fmt == "daq":
+        return read_daq(path, channels)
+    if fmt == "run":
+        return read_run(path, actuator)
+    raise RecordError(f"{path}: unknown format {fmt!r}; known: {', '.join(FORMATS)}")

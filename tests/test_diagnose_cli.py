@@ -1,0 +1,41 @@
+"""`hsio diagnose` on a CSV record from the emulator, and its refusal of bad input."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import pytest
+
+from emulators.servo import ServoConfig
+from hsio.diagnose.readers import write_csv
+from hsio.diagnose.synth import chirp_command, emulate
+
+
+def _diagnose(*args):
+    return subprocess.run([sys.executable, "-m", "hsio.cli", "diagnose", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_csv_without_force(tmp_path):
+    record = emulate(chirp_command(12.0, 1000.0, amplitude_mm=4.0, f1_hz=5.0),
+                     ServoConfig(rate_hz=1000.0, lag_s=0.03, backlash_mm=0.15))
+    path = write_csv(dataclasses.replace(record, force_kN=None), tmp_path / "bench test.csv")
+    proc = _diagnose(path, "--json", "--model", tmp_path / "m.toml")
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert result["rate_hz"] == pytest.approx(1000.0)
+    assert result["cause"] == "backlash"
+    assert "force_coupling" not in {c["cause"] for c in result["candidates"]}  # no force channel
+    assert result["extended"]["params"]["backlash_mm"] == pytest.approx(0.15, rel=0.2)
+    assert "backlash_mm = " in (tmp_path / "m.toml").read_text()
+    proc = _diagnose(path)  # the human-readable summary
+    assert proc.returncode == 0 and "cause       backlash" in proc.stdout
+
+
+def test_bad_record_exits_with_the_line(tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_text("time_s,command_mm,measured_mm\n0,0,0\n0.001,0.1\n")
+    proc = _diagnose(path)
+    assert proc.returncode == 2
+    assert "bad.csv:3: expected 3 fields" in proc.stderr

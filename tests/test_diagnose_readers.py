@@ -1,0 +1,123 @@
+"""Readers of measured actuator records: CSV, the DAQ text export, hsio's own recordings; bad
+input refused with the file and line."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hsio.diagnose.readers import DaqChannels, read_csv, read_daq, read_record, write_csv
+from hsio.diagnose.record import ActuatorRecord
+from hsio.errors import RecordError
+
+HEADER = "time_s,command_mm,measured_mm"
+
+
+def _csv(tmp_path, rows, header=HEADER, name="r.csv"):
+    path = tmp_path / name
+    path.write_text("\n".join([header, *rows]) + "\n")
+    return path
+
+
+def _rows(n=200, dt=0.001, force=False):
+    out = []
+    for k in range(n):
+        c = math.sin(0.05 * k)
+        out.append(f"{k * dt:.6f},{c:.6f},{0.9 * c:.6f}" + (f",{2 * c:.4f}" if force else ""))
+    return out
+
+
+def test_csv_round_trip_with_and_without_force(tmp_path):
+    rec = read_csv(_csv(tmp_path, _rows(force=True), HEADER + ",force_kN"))
+    assert rec.n == 200 and rec.dt == pytest.approx(0.001)
+    assert rec.force_kN is not None and rec.force_kN[10] == pytest.approx(2 * math.sin(0.5), abs=1e-4)
+    again = read_csv(write_csv(rec, tmp_path / "again.csv"))
+    np.testing.assert_allclose(again.measured_mm, rec.measured_mm)
+    assert read_csv(_csv(tmp_path, _rows(), name="nf.csv")).force_kN is None
+    # Columns may come in any order.
+    swapped = ["{1},{0},{2}".format(*r.split(",")) for r in _rows()]
+    rec = read_csv(_csv(tmp_path, swapped, "command_mm,time_s,measured_mm", name="sw.csv"))
+    assert rec.dt == pytest.approx(0.001)
+
+
+@pytest.mark.parametrize("bad, line, words", [
+    (lambda rows: rows[:50] + ["0.05,1.0"] + rows[51:], 52, "expected 3 fields"),
+    (lambda rows: rows[:70] + ["0.07,nan,0.1"] + rows[71:], 72, "not finite"),
+    (lambda rows: rows[:80] + ["0.08,abc,0.1"] + rows[81:], 82, "not a number"),
+    (lambda rows: rows[:90] + rows[95:], 92, "gap"),
+    (lambda rows: rows + ["end of test"], 202, "expected 3 fields"),
+    (lambda rows: rows[:30] + [rows[29]] + rows[30:], 32, "repeated"),
+])
+def test_csv_refuses_bad_rows_with_the_line(tmp_path, bad, line, words):
+    path = _csv(tmp_path, bad(_rows()))
+    with pytest.raises(RecordError, match=f"r.csv:{line}: .*{words}"):
+        read_csv(path)
+
+
+def test_csv_refuses_a_wrong_header(tmp_path):
+    with pytest.raises(RecordError, match="r.csv:1: header must be"):
+        read_csv(_csv(tmp_path, _rows(), "t,cmd,meas"))
+
+
+DAQ_HEAD = ["Header Size:  7", "Version:  2", "Sampling Interval:  0.001", "Sampling Rate:  1000",
+            "Sample Count:  {n}", "Device Serial Number:  0", "Sample Number, Date/Time, CHANNEL0, CHANNEL1, CHANNEL2, Events"]
+
+
+def _daq(tmp_path, n=300, edit=None):
+    rows = []
+    for k in range(n):
+        cmd = 0.2 * math.sin(0.03 * k)
+        rows.append(f"{k + 1:>10},   06/29/2022 04:05:36.674 PM, {0.95 * cmd:.4f}, {0.01 * cmd:.4f}, {cmd:.4f}")
+    rows[0] += ", DAQ Start"
+    rows[-1] += ", DAQ Pause, DAQ Stop"
+    if edit:
+        rows = edit(rows)
+    path = tmp_path / "rec.txt"
+    path.write_bytes(("\r\n".join([h.format(n=len(rows)) for h in DAQ_HEAD] + rows) + "\r\n").encode())
+    return path
+
+
+def test_daq_export_maps_and_scales_channels(tmp_path):
+    rec = read_record(_daq(tmp_path))  # the format is recognised from the header
+    assert rec.n == 300 and rec.dt == pytest.approx(0.001)
+    k = 100
+    assert rec.command_mm[k] == pytest.approx(10 * round(0.2 * math.sin(0.03 * k), 4))
+    assert rec.measured_mm[k] == pytest.approx(10 * round(0.19 * math.sin(0.03 * k), 4))
+    assert rec.force_kN[k] == pytest.approx(9.80665 * round(0.002 * math.sin(0.03 * k), 4))
+    other = read_daq(_daq(tmp_path), DaqChannels(command="CHANNEL0", measured="CHANNEL2", force="",
+                                                 command_scale=1.0, measured_scale=2.0))
+    assert other.force_kN is None
+    assert other.command_mm[k] == pytest.approx(round(0.19 * math.sin(0.03 * k), 4))
+    assert other.measured_mm[k] == pytest.approx(2 * round(0.2 * math.sin(0.03 * k), 4))
+
+
+@pytest.mark.parametrize("edit, channels, words", [
+    (lambda r: r[:120] + r[121:], None, r"rec.txt:128: sample number jumps from 120 to 122"),
+    (lambda r: r[:40] + ["        41,   06/29/2022 04:05:36.674 PM, NaN, 0.0, 0.1"] + r[41:], None, r"rec.txt:48: CHANNEL0 is 'NaN'"),
+    (lambda r: r[:60] + ["        61,   06/29/2022, 0.1"] + r[61:], None, r"rec.txt:68: expected 5 fields"),
+    (None, DaqChannels(force="CHANNEL7"), r"rec.txt:7: no channel 'CHANNEL7' for the force"),
+])
+def test_daq_export_refuses_bad_input(tmp_path, edit, channels, words):
+    with pytest.raises(RecordError, match=words):
+        read_daq(_daq(tmp_path, edit=edit), channels)
+
+
+def test_daq_sample_count_must_match(tmp_path):
+    path = _daq(tmp_path)
+    path.write_bytes(path.read_bytes().replace(b"Sample Count:  300", b"Sample Count:  301"))
+    with pytest.raises(RecordError, match="rec.txt:5: header says Sample Count 301"):
+        read_daq(path)
+
+
+def test_record_refuses_non_finite_and_short_arrays():
+    with pytest.raises(RecordError, match="measured_mm sample 3"):
+        ActuatorRecord("x", 0.001, np.zeros(200), np.r_[np.zeros(3), np.nan, np.zeros(196)])
+    with pytest.raises(RecordError, match="at least 100"):
+        ActuatorRecord("x", 0.001, np.zeros(10), np.zeros(10))
+
+
+def test_real_daq_file(shared_data):
+    rec = read_daq(shared_data / "actuator" / "0A.txt")
+    assert rec.n == 61500 and rec.dt == pytest.approx(0.001)
+    assert 2.0 < np.max(np.abs(rec.command_mm)) < 2.5  # about +/-0.23 V x 10 mm/V
+    assert rec.force_kN is not None
