@@ -27,7 +27,9 @@ class _Progress:
 
 
 # Subcommands that live in their own modules, imported only when used: name -> "module:function".
-LAZY_COMMANDS: dict[str, str] = {}
+LAZY_COMMANDS: dict[str, str] = {
+    "study": "hsio.commands.study:study",
+}
 
 
 class LazyGroup(click.Group):

@@ -179,6 +179,7 @@ def rows_as_dicts(rows: list[Row]) -> list[dict]:
 def plot(rows: list[Row], path) -> None:
     """Er against theta, one panel per (alpha, zeta), DC and FC for each dt (the paper's Figure 12)."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -196,6 +197,9 @@ def plot(rows: list[Row], path) -> None:
                 ax.plot(th, [r.er_dc_pct for r in sel], color=f"C{di}", lw=2.4, alpha=0.45, label=f"DC, dt = {dt:g} s")
                 ax.plot(th, [r.er_fc_pct for r in sel], color=f"C{di}", lw=1.0, ls="--", marker="o", ms=3, label=f"FC, dt = {dt:g} s")
             ax.set_xscale("log")
+            ax.set_xticks([0.2, 0.5, 1.0, 2.0, 5.0])
+            ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
             ax.set_title(f"alpha = {alpha:g}, zeta = {zeta * 100:g} %", fontsize=10)
             ax.set_xlabel("theta (secondary / initial stiffness)")
             ax.set_ylabel("Er (%)")
