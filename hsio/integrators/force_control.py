@@ -89,6 +89,8 @@ class StepReport:
     commands: np.ndarray
     measured_u: np.ndarray
     measured_R: np.ndarray
+    modes: list = field(default_factory=list)  # the modes at the end of the step
+    fell_back: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # FC -> DC within the step
 
 
 class ImplicitForceControl:
@@ -191,8 +193,16 @@ class ImplicitForceControl:
         ue = u[self.dofs]
         return u, ue, R_b + k * (ue - u_b)
 
-    def step(self, P_next, elements: Elements, modes: list[ControlMode]) -> tuple[ImplicitState, StepReport]:
-        """One step: iterate eq. (7) with the elements in ``modes``; accept and advance."""
+    def step(self, P_next, elements: Elements, modes: list[ControlMode],
+             fallback_below=None) -> tuple[ImplicitState, StepReport]:
+        """One step: iterate eq. (7) with the elements in ``modes``; accept and advance.
+
+        ``fallback_below`` (per element, kN/mm; None: off): an FC element whose secant estimate
+        falls below it during the step goes on in DC for the rest of the step. The FC iteration
+        converges only while the secant it uses is below twice the stiffness of the branch
+        ahead; at the end of a stiff branch (the specimen softens within the step) it would
+        oscillate, whereas the DC iteration, dominated by K*, converges.
+        """
         s = self._require_state()
         a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
         if len(modes) != self.dofs.size:
@@ -207,6 +217,9 @@ class ImplicitForceControl:
         active = np.ones(self.dofs.size, dtype=bool)
         iterations = np.zeros(self.dofs.size, dtype=int)
         previous = None
+        fell_back = np.zeros(self.dofs.size, dtype=bool)
+        if fallback_below is not None:
+            fallback_below = np.broadcast_to(np.asarray(fallback_below, dtype=float), self.dofs.shape)
         u_m, R_m = u_b.copy(), R_b.copy()
         converged = False
         u, ue, Re = self._solve(P_star, k, u_b, R_b)
@@ -221,7 +234,8 @@ class ImplicitForceControl:
                     u, ue, Re = u_new, ue_new, Re_new
             commands = np.where(fc, Re, ue)
             if previous is not None:
-                change = np.abs(commands - previous) <= tol
+                with np.errstate(invalid="ignore"):
+                    change = np.abs(commands - previous) <= tol
                 if self.independent:
                     active &= ~change
                     if not active.any():
@@ -239,13 +253,22 @@ class ImplicitForceControl:
             iterations += active
             previous = commands
             sent = commands
+            if fallback_below is not None:
+                soft = fc & np.isfinite(k_new) & (k_new < fallback_below)
+                if soft.any():
+                    modes = [DC if soft[e] else m for e, m in enumerate(modes)]
+                    fc = fc & ~soft
+                    tol = np.where(fc, self.tol_force, self.tol_displacement)
+                    previous = np.where(soft, np.nan, previous)  # a new kind of command: iterate again
+                    fell_back |= soft
         elements.commit()
         self.k = k
         acc = (u - u_pred) / (b * h**2)
         vel = v_pred + g * h * acc
         R = self._E.T @ Re + self.K_N @ u
         self.state = ImplicitState(s.i + 1, u, vel, acc, R, P_next.copy(), u_pred)
-        report = StepReport(iterations, converged, k.copy(), ue.copy(), Re.copy(), sent.copy(), u_m, R_m)
+        report = StepReport(iterations, converged, k.copy(), ue.copy(), Re.copy(), sent.copy(), u_m, R_m,
+                            list(modes), fell_back)
         return self.state, report
 
     def _require_state(self) -> ImplicitState:
