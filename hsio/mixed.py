@@ -197,7 +197,7 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
         wall_time_s=time.perf_counter() - started,
         late_steps=getattr(getattr(elements, "loop", None), "late_steps", 0),
         stopped=stopped,
-        extra={"method": method, "iterations": iterations[keep], "secant": secant[keep],
+        extra={"method": method, "element_dofs": dofs, "iterations": iterations[keep], "secant": secant[keep],
                "u_solution": u_sol[keep], "R_solution": R_sol[keep], "switches": switches,
                "step_wall_time_s": step_time[keep],
                "thresholds": None if rule is None else {"on": rule.on, "upper": rule.upper.tolist(), "lower": rule.lower.tolist()}},

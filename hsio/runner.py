@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hsio import plots
+from hsio import implicit_run, plots
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.config import RunConfig
 from hsio.control_loop import ControlLoop
@@ -53,13 +53,16 @@ def run(config: RunConfig, out_dir: str | Path, progress=None) -> dict:
     test = config["test"]
     hardware = config["hardware"]
 
-    ns = run_numerical(structure, ground, alpha) if config["output"]["ns"] else None
+    implicit = implicit_run.is_implicit(config)
+    ns = (implicit_run.numerical_reference(structure, ground, alpha) if implicit else run_numerical(structure, ground, alpha)) if config["output"]["ns"] else None
     clock = LockstepClock() if hardware["clock"] == "lockstep" else RealTimeClock()
     actuators = open_hardware(hardware["url"], structure.experimental, clock,
                               config["emulator"] if hardware["url"].startswith("emulator") else config["driver"])
     loop = ControlLoop(actuators, clock, structure.dt, test["rate"], n_avg=test["n_avg"],
                        keep_samples=config["output"]["samples"], hold_fraction=test["hold_fraction"])
     substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]))
+    if implicit:
+        substructure = implicit_run.experimental_elements(structure, loop, config["integrator"])
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"],
@@ -71,14 +74,21 @@ def run(config: RunConfig, out_dir: str | Path, progress=None) -> dict:
         if ns is not None:
             recorder.write_ns(ns.t, ns.u)
         try:
-            hs = simulate(structure, ground, substructure, alpha, recorder, progress)
+            if implicit:
+                hs = implicit_run.run_hybrid(structure, ground, substructure, config, recorder, progress)
+            else:
+                hs = simulate(structure, ground, substructure, alpha, recorder, progress)
         except ExperimentStopped as exc:
             hs, stopped = exc.result, exc
     finally:
         substructure.close()
     summary = summarise(structure, config, ground, hs, ns, out)
+    if implicit:
+        summary.update(implicit_run.summary(hs))
     if config["output"]["plots"] and hs.steps > 0:
-        summary["plots"] = make_plots(out, structure, hs, ns, config)
+        summary["plots"] = make_plots(out, structure, implicit_run.tracking_view(hs) if implicit else hs, ns, config)
+        if implicit:
+            summary["plots"].append(str(implicit_run.plot_modes(out / "modes.png", hs, structure.dof_names, structure.experimental_dofs)))
     recorder.write_summary(summary)
     recorder.close()
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
