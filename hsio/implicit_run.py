@@ -86,6 +86,7 @@ def summary(hs: Result) -> dict:
         "switches": len(hs.extra["switches"]),
         "switch_log": hs.extra["switches"],
         "fc_step_fraction": [float(x) for x in fc.mean(axis=0)] if len(fc) else [],
+        **({"test_time_s": round(hs.extra["lab_time_s"], 3)} if hs.extra.get("lab_time_s") is not None else {}),
         "iterations_per_step_mean": float(its.mean()) if its.size else 0.0,
         "iterations_per_step_max": int(its.max()) if its.size else 0,
         "wall_time_per_step_ms": float(wall.mean() * 1e3) if wall.size else 0.0,

@@ -200,6 +200,7 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
         extra={"method": method, "element_dofs": dofs, "iterations": iterations[keep], "secant": secant[keep],
                "u_solution": u_sol[keep], "R_solution": R_sol[keep], "switches": switches,
                "step_wall_time_s": step_time[keep],
+               "lab_time_s": _lab_time(elements),
                "thresholds": None if rule is None else {"on": rule.on, "upper": rule.upper.tolist(), "lower": rule.lower.tolist()}},
     )
     if stopped:
@@ -220,6 +221,12 @@ def _write_implicit_step(recorder: Recorder, structure: Structure, step: int, it
         row += [int(iterations[j]), float(secant[j]), float(u_sol[j]), float(R_sol[j])]
     db.execute(f"INSERT INTO implicit VALUES ({', '.join('?' * len(row))})", row)
     db.commit()
+
+
+def _lab_time(elements) -> float | None:
+    """Controller time spent (ticks x period) when the elements run on a controller-rate loop."""
+    clock = getattr(getattr(elements, "loop", None), "clock", None)
+    return None if clock is None else float(clock.now_s)
 
 
 def mode_switches(modes: np.ndarray) -> int:
