@@ -98,13 +98,15 @@ class ImplicitForceControl:
 
     ``M``, ``C``, ``K_N`` are n x n; ``element_dofs`` gives the DOF of each experimental element;
     ``K_EI`` their initial stiffness (a vector, or a matrix that must be diagonal).
-    ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
+    A secant estimate above ``max_stiffness_ratio`` K^EI (a noise spike) is refused and the
+    previous secant kept. ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
     per DOF) and stops iterating each one on its own convergence: used to run many single-DOF
     cases side by side (the parametric study).
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = 0.0, j_max: int = 10,
-                 tol_displacement: float = 1e-10, tol_force: float = 1e-10, independent: bool = False):
+                 tol_displacement: float = 1e-10, tol_force: float = 1e-10, independent: bool = False,
+                 max_stiffness_ratio: float = 20.0):
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
             raise ConfigError(f"force control: alpha must be in [-1/3, 0], got {alpha!r}")
         if not dt > 0:
@@ -145,6 +147,9 @@ class ImplicitForceControl:
         self.beta = (1.0 - alpha) ** 2 / 4.0
         self.gamma = 0.5 - alpha
         self.j_max = int(j_max)
+        if not max_stiffness_ratio > 1:
+            raise ConfigError(f"force control: max_stiffness_ratio must exceed 1, got {max_stiffness_ratio!r}")
+        self.max_stiffness_ratio = float(max_stiffness_ratio)  # secant estimates above ratio x K^EI are refused
         self.tol_displacement = float(tol_displacement)
         self.tol_force = float(tol_force)
         a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
@@ -249,7 +254,8 @@ class ImplicitForceControl:
             m_u, m_R, k_new = elements.impose(commands, modes)
             u_m = np.where(active, m_u, u_m)
             R_m = np.where(active, m_R, R_m)
-            k = np.where(active & np.isfinite(k_new), k_new, k)
+            plausible = np.isfinite(k_new) & (k_new <= self.max_stiffness_ratio * self.K_EI)
+            k = np.where(active & plausible, k_new, k)
             iterations += active
             previous = commands
             sent = commands
