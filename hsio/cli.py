@@ -98,6 +98,10 @@ def _print_summary(s: dict) -> None:
     if "max_error_pct" in s:
         click.echo(f"max error      {s['max_error_pct']:.3f} % (HS vs NS)")
     click.echo(f"tracking RMS   {', '.join(f'{x:.4f}' for x in s['rms_tracking_error_mm'])} mm")
+    if "switches" in s:
+        click.echo(f"method         {s['method']}: {s['switches']} switches, FC in "
+                   f"{', '.join(f'{x * 100:.0f} %' for x in s['fc_step_fraction'])} of steps, "
+                   f"{s['iterations_per_step_mean']:.2f} commands per step")
     click.echo(f"wall time      {s['wall_time_s']:.1f} s (the lab would take {s['test_time_s']:.1f} s)")
     click.echo(f"record file    {s['run_file']}")
     for p in s.get("plots", []):
