@@ -30,6 +30,7 @@ class _Progress:
 LAZY_COMMANDS: dict[str, str] = {
     "calibrate": "hsio.commands.calibrate:calibrate",
     "diagnose": "hsio.commands.diagnose:diagnose",
+    "study": "hsio.commands.study:study",
 }
 
 
@@ -104,6 +105,10 @@ def _print_summary(s: dict) -> None:
         used = ", ".join(f"{n} a = {c['a_mm_s']:.3g} mm/s, b d_max = {c['lag_s'] * 1e3:.1f} ms"
                          for n, c in comp["actuators"].items() if c["enabled"])
         click.echo(f"compensation   {comp['mode']} ({comp['form']}): {used}")
+    if "switches" in s:
+        click.echo(f"method         {s['method']}: {s['switches']} switches, FC in "
+                   f"{', '.join(f'{x * 100:.0f} %' for x in s['fc_step_fraction'])} of steps, "
+                   f"{s['iterations_per_step_mean']:.2f} commands per step")
     click.echo(f"wall time      {s['wall_time_s']:.1f} s (the lab would take {s['test_time_s']:.1f} s)")
     click.echo(f"record file    {s['run_file']}")
     for p in s.get("plots", []):

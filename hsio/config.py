@@ -17,7 +17,9 @@ from hsio.errors import ConfigError
 DEFAULTS: dict[str, dict] = {
     "structure": {"name": "validation"},
     "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.6, "seed": 1994, "synthetic_duration_s": 20.0},
-    "integrator": {"alpha": -0.05},
+    "integrator": {"alpha": -0.05, "method": "alpha_os", "j_max": 3, "tol_displacement_mm": 0.02, "tol_force_kN": 0.05,
+                   "secant": "average", "secant_n_avg": 16, "secant_min_increment_mm": 0.1,
+                   "switch_on": "stiffness", "K_f": 0.0, "K_d": 0.0, "R_f": 0.0, "R_d": 0.0},
     "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
     "hardware": {"url": "emulator://", "clock": "lockstep", "actuator_model": ""},
     "output": {"samples": True, "plots": True, "ns": True},
@@ -83,6 +85,7 @@ def _check_ranges(t: dict, source: str) -> None:
     alpha = t["integrator"]["alpha"]
     if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
         raise ConfigError(f"{source}: [integrator] alpha must be in [-1/3, 0], got {alpha}")
+    _check_implicit(t["integrator"], source)
     if not t["test"]["rate"] > 0:
         raise ConfigError(f"{source}: [test] rate (TR) must be positive, got {t['test']['rate']}")
     if not 0.0 <= t["test"]["hold_fraction"] < 1.0:
@@ -97,6 +100,29 @@ def _check_ranges(t: dict, source: str) -> None:
         from hsio.compensation.stage import CompensationSettings
 
         CompensationSettings.from_table(t["compensation"], f"{source}: [compensation]")
+
+
+def _check_implicit(i: dict, source: str) -> None:
+    """[integrator] keys of the implicit FC / mixed methods (docs/force_control.md)."""
+    methods = ("alpha_os", "implicit_dc", "force_control", "mixed")
+    if i["method"] not in methods:
+        raise ConfigError(f"{source}: [integrator] method must be one of {', '.join(methods)}, got {i['method']!r}")
+    if not i["j_max"] >= 1:
+        raise ConfigError(f"{source}: [integrator] j_max must be at least 1, got {i['j_max']}")
+    for key in ("tol_displacement_mm", "tol_force_kN", "secant_min_increment_mm", "K_f", "K_d", "R_f", "R_d"):
+        if i[key] < 0:
+            raise ConfigError(f"{source}: [integrator] {key} must not be negative, got {i[key]}")
+    if i["secant"] not in ("raw", "average", "least_squares"):
+        raise ConfigError(f"{source}: [integrator] secant must be 'raw', 'average' or 'least_squares', got {i['secant']!r}")
+    if not i["secant_n_avg"] >= 1:
+        raise ConfigError(f"{source}: [integrator] secant_n_avg must be at least 1, got {i['secant_n_avg']}")
+    if i["switch_on"] not in ("stiffness", "force"):
+        raise ConfigError(f"{source}: [integrator] switch_on must be 'stiffness' or 'force', got {i['switch_on']!r}")
+    upper, lower = ("K_f", "K_d") if i["switch_on"] == "stiffness" else ("R_f", "R_d")
+    if i["method"] == "mixed" and i["switch_on"] == "force" and not i[upper] > 0:
+        raise ConfigError(f"{source}: [integrator] switch_on = 'force' needs R_f > 0 (kN)")
+    if i[upper] > 0 and i[lower] > 0 and not i[lower] < i[upper]:
+        raise ConfigError(f"{source}: [integrator] {lower} ({i[lower]}) must be below {upper} ({i[upper]})")
 
 
 def load(path: str | Path | None) -> RunConfig:

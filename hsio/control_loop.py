@@ -22,7 +22,7 @@ import numpy as np
 from hsio.clock import Clock
 from hsio.command import PredictorCorrector
 from hsio.errors import HsioError
-from hsio.interfaces import Actuator
+from hsio.interfaces import Actuator, ControlMode
 
 
 @dataclass
@@ -48,6 +48,7 @@ class ControlLoop:
         self.t_d = test_rate * dt
         self.n_avg = max(int(n_avg), 1)
         self.keep_samples = keep_samples
+        self.hold_fraction = hold_fraction
         initial = [a.feedback().displacement_mm for a in actuators]
         self.generators = [PredictorCorrector(self.t_d, clock.period_s, x0, hold_fraction=hold_fraction) for x0 in initial]
         self._samples: list[tuple] = []
@@ -131,6 +132,23 @@ class ControlLoop:
         except BaseException as exc:  # surfaced in the caller's thread
             self._error = exc if isinstance(exc, HsioError) else HsioError(f"control loop stopped: {exc!r}")
             self._done.set()
+
+    def set_mode(self, index: int, mode: ControlMode) -> None:
+        """Switch actuator ``index`` to ``mode`` between steps, bumplessly: the actuator starts its
+        new command at the present measurement, and so does a fresh command generator."""
+        actuator = self.actuators[index]
+        with self._lock:
+            if actuator.mode is mode:
+                return
+            try:
+                actuator.set_mode(mode)
+                fb = actuator.feedback()
+            except BaseException:
+                self.hold_all()
+                raise
+            present = fb.force_kN if mode is ControlMode.FORCE else fb.displacement_mm
+            old = self.generators[index]
+            self.generators[index] = PredictorCorrector(old.t_d, old.period, present, hold_fraction=self.hold_fraction)
 
     def hold_all(self) -> None:
         """Every actuator holds; errors while holding are ignored (each is tried)."""

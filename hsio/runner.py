@@ -9,17 +9,18 @@ from pathlib import Path
 
 import numpy as np
 
-from hsio import plots
+from hsio import implicit_run, plots
 from hsio.clock import LockstepClock, RealTimeClock
+from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
 from hsio.control_loop import ControlLoop
 from hsio.diagnose.modelfile import merged_emulator_table
+from hsio.errors import ConfigError
 from hsio.experiment import ExperimentStopped, Result, max_error_pct, simulate
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.hardware import open_hardware
 from hsio.recording import Recorder
 from hsio.structures import Structure, get_structure
-from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.substructure import Correction, ExperimentalSubstructure, NumericalSubstructure
 
 
@@ -57,9 +58,14 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
     test = config["test"]
     hardware = config["hardware"]
 
-    ns = run_numerical(structure, ground, alpha) if config["output"]["ns"] else None
+    implicit = implicit_run.is_implicit(config)
+    ns = None
+    if config["output"]["ns"]:
+        ns = implicit_run.numerical_reference(structure, ground, alpha) if implicit else run_numerical(structure, ground, alpha)
     compensation = CompensationStage([e.name for e in structure.experimental], test["rate"] * structure.dt,
                                      CompensationSettings.from_table(config["compensation"]))
+    if implicit and compensation.settings.mode != "off":
+        raise ConfigError(f"{config.source}: [compensation] applies to the alpha_os method, not to {config['integrator']['method']!r}")
     clock = LockstepClock() if hardware["clock"] == "lockstep" else RealTimeClock()
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
@@ -67,7 +73,10 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
                               emulator if hardware["url"].startswith("emulator") else config["driver"])
     loop = ControlLoop(actuators, clock, structure.dt, test["rate"], n_avg=test["n_avg"],
                        keep_samples=config["output"]["samples"], hold_fraction=test["hold_fraction"])
-    substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]), compensation)
+    if implicit:
+        substructure = implicit_run.experimental_elements(structure, loop, config["integrator"])
+    else:
+        substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]), compensation)
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,
@@ -80,15 +89,22 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
         if ns is not None:
             recorder.write_ns(ns.t, ns.u)
         try:
-            hs = simulate(structure, ground, substructure, alpha, recorder, progress)
+            if implicit:
+                hs = implicit_run.run_hybrid(structure, ground, substructure, config, recorder, progress)
+            else:
+                hs = simulate(structure, ground, substructure, alpha, recorder, progress)
         except ExperimentStopped as exc:
             hs, stopped = exc.result, exc
     finally:
         substructure.close()
     summary = summarise(structure, config, ground, hs, ns, out)
     summary["compensation"] = compensation.summary()
+    if implicit:
+        summary.update(implicit_run.summary(hs))
     if config["output"]["plots"] and hs.steps > 0:
-        summary["plots"] = make_plots(out, structure, hs, ns, config)
+        summary["plots"] = make_plots(out, structure, implicit_run.tracking_view(hs) if implicit else hs, ns, config)
+        if implicit:
+            summary["plots"].append(str(implicit_run.plot_modes(out / "modes.png", hs, structure.dof_names, structure.experimental_dofs)))
     recorder.write_summary(summary)
     recorder.close()
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

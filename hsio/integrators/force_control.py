@@ -1,0 +1,283 @@
+"""Implicit force control (FC) and iterated displacement control (DC), per DOF (METHOD.md sections 3, 5).
+
+The alpha method (HHT) written as an equivalent static problem at step i+1:
+
+    K* u_{i+1} + (1+alpha) R_{i+1} = P*_{i+1}                                              (7)
+    K* = M / (beta dt^2) + (1+alpha) gamma C / (beta dt)                                   (8)
+    P*_{i+1} = (1+alpha) P_{i+1} - alpha P_i - (1+alpha) C v~_{i+1} + alpha C v_i
+               + K* u~_{i+1} + alpha R_i                                                   (10)
+
+R = R^E + K_N u: the experimental elements (one per DOF, diagonal experimental stiffness) and the
+numerical linear springs K_N, which may link the DOF. Each experimental element is modelled over
+the step by its secant line through the base state (u_b, R_b) measured at the end of step i,
+
+    u^j = u_b + [k^j]^{-1} (R^j - R_b)                                                     (9)
+
+with k^1 = the last converged secant and k^j from eq. (11) on what iteration j-1 measured. With
+this model eq. (7) is linear; for a single DOF its solution for the force is eq. (12),
+
+    { K* [k^j]^{-1} + (1+alpha) } R^j = P* + K* [k^j]^{-1} R_b - K* u_b                    (12)
+
+and in general it is one linear solve per iteration. Each iteration both the displacement u^j and
+the force R^j of every element come out of the same solve (DC and FC are computed in parallel);
+the mode of the element decides which is commanded:
+
+* FC: command R^j, measure u^j (force control, section 3);
+* DC: command u^j, measure R^j (displacement control iterated to equilibrium, section 5).
+
+The loop stops when the change of the commanded quantity between iterations is below its
+tolerance (force for FC, displacement for DC) or after ``j_max`` commands. The step is accepted at
+the solution of eq. (7) with the last secant, and
+a_{i+1} = (u_{i+1} - u~_{i+1}) / (beta dt^2),  v_{i+1} = v~_{i+1} + gamma dt a_{i+1}.
+
+For a linear specimen the secant is exact and DC, FC and any mix give the same solution, the
+alpha method's. DOF physically coupled (a non-diagonal experimental stiffness) are outside the
+method and are refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from hsio.errors import ConfigError
+from hsio.interfaces import ControlMode
+
+DC = ControlMode.DISPLACEMENT
+FC = ControlMode.FORCE
+
+
+class Elements(Protocol):
+    """The experimental elements as the integrator sees them (one per element, in element order)."""
+
+    def base(self) -> tuple[np.ndarray, np.ndarray]:
+        """The measured (u, R) per element at the end of the last accepted step."""
+
+    def impose(self, commands: np.ndarray, modes: list[ControlMode]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Impose displacements (DC) or forces (FC); return measured u, R and the secant k
+        (eq. 11 from the base; nan where no estimate)."""
+
+    def commit(self) -> None:
+        """The step is accepted: the last measurement becomes the base of the next step."""
+
+
+@dataclass
+class ImplicitState:
+    """The state after step i."""
+
+    i: int
+    u: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    R: np.ndarray  # total restoring force per DOF (elements + numerical springs)
+    P: np.ndarray
+    u_pred: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass
+class StepReport:
+    """What one step did, per element: iterations (commands sent), converged, secant, the last
+    displacement and force solutions (DC and FC in parallel), and the last commands sent."""
+
+    iterations: np.ndarray
+    converged: bool
+    k: np.ndarray
+    u_solution: np.ndarray
+    R_solution: np.ndarray
+    commands: np.ndarray
+    measured_u: np.ndarray
+    measured_R: np.ndarray
+    modes: list = field(default_factory=list)  # the modes at the end of the step
+    fell_back: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # FC -> DC within the step
+
+
+class ImplicitForceControl:
+    """The alpha method solved by secant iteration, each element in DC or FC (eqs. 7-12).
+
+    ``M``, ``C``, ``K_N`` are n x n; ``element_dofs`` gives the DOF of each experimental element;
+    ``K_EI`` their initial stiffness (a vector, or a matrix that must be diagonal).
+    A secant estimate above ``max_stiffness_ratio`` K^EI (a noise spike) is refused and the
+    previous secant kept. ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
+    per DOF) and stops iterating each one on its own convergence: used to run many single-DOF
+    cases side by side (the parametric study).
+    """
+
+    def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = 0.0, j_max: int = 10,
+                 tol_displacement: float = 1e-10, tol_force: float = 1e-10, independent: bool = False,
+                 max_stiffness_ratio: float = 20.0):
+        if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
+            raise ConfigError(f"force control: alpha must be in [-1/3, 0], got {alpha!r}")
+        if not dt > 0:
+            raise ConfigError(f"force control: dt must be positive, got {dt!r}")
+        if int(j_max) < 1:
+            raise ConfigError(f"force control: j_max must be at least 1, got {j_max!r}")
+        if not (tol_displacement >= 0 and tol_force >= 0):
+            raise ConfigError("force control: tolerances must be zero or positive")
+        self.M = np.atleast_2d(np.asarray(M, dtype=float))
+        n = self.M.shape[0]
+        self.C = np.atleast_2d(np.asarray(C, dtype=float))
+        self.K_N = np.zeros((n, n)) if K_N is None else np.atleast_2d(np.asarray(K_N, dtype=float))
+        for name, mat in (("C", self.C), ("K_N", self.K_N)):
+            if mat.shape != (n, n):
+                raise ConfigError(f"force control: {name} is {mat.shape}, M is {(n, n)}")
+        self.dofs = np.asarray(element_dofs, dtype=int)
+        if len(set(self.dofs.tolist())) != len(self.dofs):
+            raise ConfigError("force control: two experimental elements act on the same DOF; the secant "
+                              "stiffness of eq. (11) is per DOF and cannot split a DOF's force between them")
+        if self.dofs.size and (self.dofs.min() < 0 or self.dofs.max() >= n):
+            raise ConfigError(f"force control: element DOF {self.dofs.tolist()} not all in 0..{n - 1}")
+        K_EI = np.asarray(K_EI, dtype=float)
+        if K_EI.ndim == 2:
+            off = K_EI - np.diag(np.diag(K_EI))
+            if np.any(np.abs(off) > 1e-12 * max(np.max(np.abs(K_EI)), 1e-300)):
+                raise ConfigError(
+                    "force control: the experimental stiffness is not diagonal (DOF coupled by physical "
+                    "springs); implicit force control (METHOD.md section 3) needs DOF linked only by "
+                    "numerical springs - run this setup in displacement control (alpha_os)")
+            K_EI = np.diag(K_EI)
+        if K_EI.shape != self.dofs.shape:
+            raise ConfigError(f"force control: {K_EI.size} initial stiffnesses for {self.dofs.size} elements")
+        if np.any(~np.isfinite(K_EI)) or np.any(K_EI <= 0):
+            raise ConfigError(f"force control: every element's initial stiffness must be positive, got {K_EI.tolist()}")
+        self.K_EI = K_EI
+        self.dt = float(dt)
+        self.alpha = float(alpha)
+        self.beta = (1.0 - alpha) ** 2 / 4.0
+        self.gamma = 0.5 - alpha
+        self.j_max = int(j_max)
+        if not max_stiffness_ratio > 1:
+            raise ConfigError(f"force control: max_stiffness_ratio must exceed 1, got {max_stiffness_ratio!r}")
+        self.max_stiffness_ratio = float(max_stiffness_ratio)  # secant estimates above ratio x K^EI are refused
+        self.tol_displacement = float(tol_displacement)
+        self.tol_force = float(tol_force)
+        a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
+        self.K_star = self.M / (b * h**2) + (1 + a) * g * self.C / (b * h)  # eq. (8)
+        self.independent = bool(independent)
+        if self.independent:
+            diagonal = all(np.count_nonzero(m - np.diag(np.diag(m))) == 0 for m in (self.M, self.C, self.K_N))
+            if not diagonal or sorted(self.dofs.tolist()) != list(range(n)):
+                raise ConfigError("force control: independent=True needs diagonal M, C, K_N and one element per DOF")
+        self._E = np.zeros((self.dofs.size, n))
+        self._E[np.arange(self.dofs.size), self.dofs] = 1.0
+        self.k = K_EI.copy()  # the last converged secant, per element
+        self.state: ImplicitState | None = None
+
+    @property
+    def n_dof(self) -> int:
+        return self.M.shape[0]
+
+    def start(self, P0, elements: Elements, u0=None, v0=None) -> ImplicitState:
+        """Initial state: a_0 from M a_0 = P_0 - C v_0 - R_0 with R_0 from the elements' base."""
+        n = self.n_dof
+        u0 = np.zeros(n) if u0 is None else np.asarray(u0, dtype=float)
+        v0 = np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)
+        _, R_b = elements.base()
+        R0 = self._E.T @ np.asarray(R_b, dtype=float) + self.K_N @ u0
+        P0 = np.asarray(P0, dtype=float)
+        a0 = np.linalg.solve(self.M, P0 - self.C @ v0 - R0)
+        self.state = ImplicitState(0, u0, v0, a0, R0, P0.copy(), u0.copy())
+        return self.state
+
+    def predict(self) -> tuple[np.ndarray, np.ndarray]:
+        s = self._require_state()
+        h = self.dt
+        return s.u + h * s.v + h**2 * (0.5 - self.beta) * s.a, s.v + h * (1.0 - self.gamma) * s.a
+
+    def _solve(self, P_star, k, u_b, R_b):
+        """Eq. (7) with each element on its secant line through the base: u, and R per element."""
+        a = self.alpha
+        rhs = P_star - (1 + a) * (self._E.T @ (R_b - k * u_b))
+        if self.independent:
+            A = np.diag(self.K_star) + (1 + a) * (np.diag(self.K_N) + self._E.T @ k)
+            u = rhs / A
+        else:
+            A = self.K_star + (1 + a) * (self.K_N + self._E.T @ np.diag(k) @ self._E)
+            u = np.linalg.solve(A, rhs)
+        ue = u[self.dofs]
+        return u, ue, R_b + k * (ue - u_b)
+
+    def step(self, P_next, elements: Elements, modes: list[ControlMode],
+             fallback_below=None) -> tuple[ImplicitState, StepReport]:
+        """One step: iterate eq. (7) with the elements in ``modes``; accept and advance.
+
+        ``fallback_below`` (per element, kN/mm; None: off): an FC element whose secant estimate
+        falls below it during the step goes on in DC for the rest of the step. The FC iteration
+        converges only while the secant it uses is below twice the stiffness of the branch
+        ahead; at the end of a stiff branch (the specimen softens within the step) it would
+        oscillate, whereas the DC iteration, dominated by K*, converges.
+        """
+        s = self._require_state()
+        a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
+        if len(modes) != self.dofs.size:
+            raise ConfigError(f"force control: {len(modes)} modes for {self.dofs.size} elements")
+        fc = np.array([m is FC for m in modes], dtype=bool)
+        tol = np.where(fc, self.tol_force, self.tol_displacement)
+        P_next = np.asarray(P_next, dtype=float)
+        u_pred, v_pred = self.predict()
+        P_star = (1 + a) * P_next - a * s.P - (1 + a) * self.C @ v_pred + a * self.C @ s.v + self.K_star @ u_pred + a * s.R  # eq. (10)
+        u_b, R_b = (np.asarray(x, dtype=float) for x in elements.base())
+        k = self.k.copy()
+        active = np.ones(self.dofs.size, dtype=bool)
+        iterations = np.zeros(self.dofs.size, dtype=int)
+        previous = None
+        fell_back = np.zeros(self.dofs.size, dtype=bool)
+        if fallback_below is not None:
+            fallback_below = np.broadcast_to(np.asarray(fallback_below, dtype=float), self.dofs.shape)
+        u_m, R_m = u_b.copy(), R_b.copy()
+        converged = False
+        u, ue, Re = self._solve(P_star, k, u_b, R_b)
+        sent = np.where(fc, Re, ue)
+        for j in range(self.j_max + 1):
+            if j > 0:
+                u_new, ue_new, Re_new = self._solve(P_star, k, u_b, R_b)
+                if self.independent:
+                    u = np.where(active, u_new, u)
+                    ue, Re = np.where(active, ue_new, ue), np.where(active, Re_new, Re)
+                else:
+                    u, ue, Re = u_new, ue_new, Re_new
+            commands = np.where(fc, Re, ue)
+            if previous is not None:
+                with np.errstate(invalid="ignore"):
+                    change = np.abs(commands - previous) <= tol
+                if self.independent:
+                    active &= ~change
+                    if not active.any():
+                        converged = True
+                        break
+                elif change.all():
+                    converged = True
+                    break
+            if j == self.j_max:
+                break
+            m_u, m_R, k_new = elements.impose(commands, modes)
+            u_m = np.where(active, m_u, u_m)
+            R_m = np.where(active, m_R, R_m)
+            plausible = np.isfinite(k_new) & (k_new <= self.max_stiffness_ratio * self.K_EI)
+            k = np.where(active & plausible, k_new, k)
+            iterations += active
+            previous = commands
+            sent = commands
+            if fallback_below is not None:
+                soft = fc & np.isfinite(k_new) & (k_new < fallback_below)
+                if soft.any():
+                    modes = [DC if soft[e] else m for e, m in enumerate(modes)]
+                    fc = fc & ~soft
+                    tol = np.where(fc, self.tol_force, self.tol_displacement)
+                    previous = np.where(soft, np.nan, previous)  # a new kind of command: iterate again
+                    fell_back |= soft
+        elements.commit()
+        self.k = k
+        acc = (u - u_pred) / (b * h**2)
+        vel = v_pred + g * h * acc
+        R = self._E.T @ Re + self.K_N @ u
+        self.state = ImplicitState(s.i + 1, u, vel, acc, R, P_next.copy(), u_pred)
+        report = StepReport(iterations, converged, k.copy(), ue.copy(), Re.copy(), sent.copy(), u_m, R_m,
+                            list(modes), fell_back)
+        return self.state, report
+
+    def _require_state(self) -> ImplicitState:
+        if self.state is None:
+            raise RuntimeError("force control: call start() before stepping")
+        return self.state
