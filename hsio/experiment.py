@@ -106,17 +106,29 @@ def simulate(structure: Structure, ground: GroundMotion, substructure, alpha: fl
     except KeyboardInterrupt:
         stopped = f"interrupted at step {last + 1}"
     finally:
-        hold = getattr(getattr(substructure, "loop", None), "hold_all", None)
-        if stopped and hold is not None:
-            hold()
+        if stopped:
+            hold_all(substructure)
+    histories = dict(t=t, u=u, v=v, a=a, u_pred=u_pred, R=R, targets=targets, commands=commands,
+                     measured_displacement=disp, measured_force=force, modes=modes)
+    return finish(structure, substructure, histories, last, started, stopped)
+
+
+def hold_all(owner) -> None:
+    """Every actuator behind ``owner`` (a substructure with a control loop) holds."""
+    hold = getattr(getattr(owner, "loop", None), "hold_all", None)
+    if hold is not None:
+        hold()
+
+
+def finish(structure: Structure, owner, histories: dict, last: int, started: float, stopped: str,
+           extra: dict | None = None) -> Result:
+    """The Result of steps 0..last; raises ExperimentStopped carrying it if the run ``stopped``."""
     keep = slice(0, last + 1)
     result = Result(
-        structure=structure.name, dt=structure.dt, t=t[keep], u=u[keep], v=v[keep], a=a[keep],
-        u_pred=u_pred[keep], R=R[keep], targets=targets[keep], commands=commands[keep],
-        measured_displacement=disp[keep], measured_force=force[keep], modes=modes[keep],
+        structure=structure.name, dt=structure.dt, **{name: h[keep] for name, h in histories.items()},
         wall_time_s=time.perf_counter() - started,
-        late_steps=getattr(getattr(substructure, "loop", None), "late_steps", 0),
-        stopped=stopped,
+        late_steps=getattr(getattr(owner, "loop", None), "late_steps", 0),
+        stopped=stopped, extra=extra or {},
     )
     if stopped:
         raise ExperimentStopped(f"run stopped at {stopped}; the actuators hold; {last} steps recorded", result)

@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 
 from hsio.errors import ConfigError, HsioError
-from hsio.experiment import ExperimentStopped, Result, excitation
+from hsio.experiment import Result, excitation, finish, hold_all
 from hsio.ground_motion import GroundMotion
 from hsio.integrators import ImplicitForceControl
 from hsio.interfaces import ControlMode
@@ -186,26 +186,17 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
     except KeyboardInterrupt:
         stopped = f"interrupted at step {last + 1}"
     finally:
-        hold = getattr(getattr(elements, "loop", None), "hold_all", None)
-        if stopped and hold is not None:
-            hold()
+        if stopped:
+            hold_all(elements)
+    histories = dict(t=t, u=u, v=v, a=a, u_pred=u_pred, R=R, targets=targets, commands=commands,
+                     measured_displacement=disp, measured_force=force, modes=mode_hist)
     keep = slice(0, last + 1)
-    result = Result(
-        structure=structure.name, dt=structure.dt, t=t[keep], u=u[keep], v=v[keep], a=a[keep],
-        u_pred=u_pred[keep], R=R[keep], targets=targets[keep], commands=commands[keep],
-        measured_displacement=disp[keep], measured_force=force[keep], modes=mode_hist[keep],
-        wall_time_s=time.perf_counter() - started,
-        late_steps=getattr(getattr(elements, "loop", None), "late_steps", 0),
-        stopped=stopped,
-        extra={"method": method, "element_dofs": dofs, "iterations": iterations[keep], "secant": secant[keep],
-               "u_solution": u_sol[keep], "R_solution": R_sol[keep], "switches": switches,
-               "step_wall_time_s": step_time[keep],
-               "lab_time_s": _lab_time(elements),
-               "thresholds": None if rule is None else {"on": rule.on, "upper": rule.upper.tolist(), "lower": rule.lower.tolist()}},
-    )
-    if stopped:
-        raise ExperimentStopped(f"run stopped at {stopped}; the actuators hold; {last} steps recorded", result)
-    return result
+    extra = {"method": method, "element_dofs": dofs, "iterations": iterations[keep], "secant": secant[keep],
+             "u_solution": u_sol[keep], "R_solution": R_sol[keep], "switches": switches,
+             "step_wall_time_s": step_time[keep],
+             "lab_time_s": _lab_time(elements),
+             "thresholds": None if rule is None else {"on": rule.on, "upper": rule.upper.tolist(), "lower": rule.lower.tolist()}}
+    return finish(structure, elements, histories, last, started, stopped, extra)
 
 
 def _write_implicit_step(recorder: Recorder, structure: Structure, step: int, iterations, secant, u_sol, R_sol) -> None:
