@@ -176,7 +176,7 @@ class CanopenLink:
         self.requests = 0
         self.actuators: list = []
 
-    def open(self) -> None:
+    def open(self, enable: bool = True) -> None:
         kwargs = {"interface": self.interface, "channel": self.channel}
         if self.interface not in ("virtual",):
             kwargs["bitrate"] = self.options["bitrate"]
@@ -193,9 +193,9 @@ class CanopenLink:
             self.network.subscribe(0x700 + node_id, drive.on_bootup)
             drive.node.emcy.add_callback(drive.on_emcy)
         for drive in self.drives:
-            self._start_drive(drive)
+            self._start_drive(drive, enable)
 
-    def _start_drive(self, d: DriveNode) -> None:
+    def _start_drive(self, d: DriveNode, enable: bool) -> None:
         device_type = d.sdo_read(0x1000, what="device type")
         if device_type & 0xFFFF != 402:
             raise CommunicationError(f"CANopen node {d.id}: device type 0x{device_type:08X} is not a CiA 402 drive")
@@ -216,6 +216,8 @@ class CanopenLink:
         self.lockstep = bool(flag)
         if self.lockstep:
             self.ticks = d.sdo_read(cod.CLOCK, what="clock")
+        if not enable:
+            return
         if self.options["heartbeat_ms"]:
             d.sdo_write(0x1017, int(self.options["heartbeat_ms"]), "producer heartbeat time")
         d.node.nmt.state = "PRE-OPERATIONAL"
@@ -376,10 +378,12 @@ class CanopenActuator(Actuator, DAQ):
         return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}
 
 
-def open_link(url: str, names: list[str], clock: Clock | None, options: dict | None = None) -> list[CanopenActuator]:
+def open_link(url: str, names: list[str], clock: Clock | None, options: dict | None = None,
+              enable: bool = True) -> list[CanopenActuator]:
+    """Open the drives and return one actuator per axis; ``clock=None`` skips the clock check."""
     link = CanopenLink(url, len(names), options)
     try:
-        link.open()
+        link.open(enable)
     except BaseException:
         link.close()
         raise
@@ -390,6 +394,8 @@ def open_link(url: str, names: list[str], clock: Clock | None, options: dict | N
     limits = Limits(stroke or 254.0, force, opts["velocity_mm_s"])
     actuators = [CanopenActuator(name, link, k, limits) for k, name in enumerate(names)]
     link.actuators = actuators
+    if clock is None:
+        return actuators
     lockstep_clock = clock is not None and getattr(clock, "lockstep", False)
     if link.lockstep != lockstep_clock:
         link.close()

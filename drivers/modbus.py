@@ -119,8 +119,9 @@ class ModbusLink:
                                       reconnect_delay=0, reconnect_delay_max=0)
         raise ConfigError(f"{url!r} is not a modbus+tcp:// or modbus+rtu:// URL")
 
-    def open(self) -> None:
-        """Connect, read the identity and decide lockstep or real time."""
+    def open(self, enable: bool = True) -> None:
+        """Connect, read the identity and decide lockstep or real time; then (``enable``) take
+        every axis into command at the position where it stands."""
         self._connect()
         self._read_info()
         flag = None
@@ -140,6 +141,8 @@ class ModbusLink:
             self.ticks = int(self.map.decode(adv, self.request("read_holding_registers", adv.address, count=adv.words,
                                                                what="read of the clock").registers))
         self.read_status()
+        if not enable:
+            return
         for k, st in enumerate(self.status):  # start from where each axis stands, holding
             self.commands[k]["displacement"] = st["displacement"]
             self.commands[k]["force"] = st["force"]
@@ -367,23 +370,33 @@ class ModbusActuator(Actuator, DAQ):
         return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}
 
 
-def open_link(url: str, names: list[str], clock: Clock | None, options: dict | None = None) -> list[ModbusActuator]:
-    """Connect to a controller and return one actuator per axis (axis k = names[k])."""
+def open_link(url: str, names: list[str], clock: Clock | None, options: dict | None = None,
+              enable: bool = True) -> list[ModbusActuator]:
+    """Connect to a controller and return one actuator per axis (axis k = names[k]).
+
+    ``clock=None`` skips the clock check (diagnostics decide the clock from ``link.lockstep``).
+    """
     link = ModbusLink(url, len(names), options)
-    link.open()
+    try:
+        link.open(enable)
+    except BaseException:
+        link.close()
+        raise
     opts = link.options
     stroke = opts["stroke_mm"] if opts["stroke_mm"] is not None else link.info.get("stroke_mm", 254.0)
     force = opts["force_kN"] if opts["force_kN"] is not None else link.info.get("force_limit_kN", 250.0)
     limits = Limits(stroke, force, opts["velocity_mm_s"])
     actuators = [ModbusActuator(name, link, k, limits) for k, name in enumerate(names)]
     link.actuators = actuators
+    if clock is None:
+        return actuators
     if link.lockstep:
-        if clock is None or not getattr(clock, "lockstep", False):
+        if not getattr(clock, "lockstep", False):
             link.close()
             raise ConfigError(f"{url}: the controller runs in lockstep (emulator) but the experiment's clock is real "
                               "time; set [hardware] clock = \"lockstep\" or start the emulator with --realtime")
         clock.attach(link)
-    elif clock is not None and getattr(clock, "lockstep", False):
+    elif getattr(clock, "lockstep", False):
         link.close()
         raise ConfigError(f"{url}: the controller runs on its own clock (real time) but the experiment's clock is "
                           "lockstep; set [hardware] clock = \"realtime\"")

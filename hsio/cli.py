@@ -28,6 +28,8 @@ class _Progress:
 
 # Subcommands that live in their own modules, imported only when used: name -> "module:function".
 LAZY_COMMANDS: dict[str, str] = {}
+LAZY_COMMANDS["emulate"] = "hsio.commands.emulate:emulate"
+LAZY_COMMANDS["probe"] = "hsio.commands.probe:probe"
 
 
 class LazyGroup(click.Group):
