@@ -110,7 +110,8 @@ class RegisterContext(ModbusServerContext):
 
     # -- writes ------------------------------------------------------------------------------------
     async def async_setValues(self, device_id, func_code, address, values):
-        self.requests += 1
+        if func_code != 23:  # a write-then-read is counted once, by its read
+            self.requests += 1
         if func_code not in WRITE_CODES:
             return self._exception(ExcCodes.ILLEGAL_FUNCTION, f"function {func_code} on holding registers")
         decoded = []  # (kind, axis, Register, value)
