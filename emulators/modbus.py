@@ -280,13 +280,15 @@ class ModbusEmulator:
 
     def stop(self) -> None:
         """Stop serving; the controller's axes hold."""
-        if self._loop is not None and self._server is not None:
+        loop, server, self._loop, self._server = self._loop, self._server, None, None
+        if loop is not None and server is not None and loop.is_running():
             try:
-                asyncio.run_coroutine_threadsafe(self._server.shutdown(), self._loop).result(timeout=3.0)
+                asyncio.run_coroutine_threadsafe(server.shutdown(), loop).result(timeout=3.0)
             except Exception:
                 pass
         if self._thread is not None:
             self._thread.join(timeout=3.0)
+            self._thread = None
         self.bank.stop()
         for k in range(len(self.bank.controllers)):
             self.bank.hold(k)
