@@ -5,6 +5,7 @@ clear error, and every recorded step stays recorded."""
 from __future__ import annotations
 
 import socket
+import threading
 import time
 
 import pytest
@@ -147,8 +148,10 @@ def test_malformed_frames_do_not_disturb_the_controller(monkeypatch, tmp_path, c
                 except (TimeoutError, OSError):
                     answers.append(b"")
 
-    fault_at(monkeypatch, FAULT_TICK, garbage)
+    sender = threading.Thread(target=garbage)  # another client sends junk while the run goes on
+    fault_at(monkeypatch, FAULT_TICK, sender.start)
     summary, b = run(cfg, tmp_path / "wire", url=emulator.url)
+    sender.join(timeout=5)
     assert len(answers) == 3
     assert answers[2][7] & 0x80 and answers[2][8] == 1  # unknown function 0x63: exception 1 (illegal function)
     assert summary["steps"] == reference[0]["steps"] and same_run(reference, b)
