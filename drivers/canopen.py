@@ -101,14 +101,19 @@ class DriveNode:
         self.halt = False
         self.actual = (0, 0, 0)  # counts, per mille, cycle
         self.received = threading.Event()
+        self.status_received = threading.Event()
         self.emcy: list = []
         self.booted = False
         self.identity: dict = {}
 
     def sdo_read(self, index: int, sub: int = 0, what: str = ""):
+        """An SDO upload; an object missing from the local dictionary is read as an unsigned
+        integer (so a drive that lacks it answers with its own abort)."""
         try:
-            obj = self.node.sdo[index]
-            return (obj[sub] if sub else obj).raw
+            if index in self.node.object_dictionary:
+                obj = self.node.sdo[index]
+                return (obj[sub] if sub else obj).raw
+            return int.from_bytes(self.node.sdo.upload(index, sub), "little")
         except (SdoAbortedError, SdoCommunicationError) as exc:
             raise sdo_error(self.id, f"read of {what or hex(index)} (0x{index:04X}:{sub})", exc) from None
         except KeyError:
@@ -154,10 +159,14 @@ class DriveNode:
     def send_targets(self) -> None:
         self.link.network.send_message(0x300 + self.id, struct.pack("<ih", self.target_counts, self.target_torque))
 
-    def send_control(self) -> None:
+    def send_control(self) -> bool:
+        """RPDO1 (controlword with or without halt, mode); True when the drive confirmed it
+        with a TPDO1 within the timeout."""
         cw = 0x000F | (0x0100 if self.halt else 0)
         self.node.rpdo_pointers[0x6060].raw = MODE_CODES[self.mode]
+        self.status_received.clear()
         self.node.controlword = cw  # RPDO1 (event driven: transmitted at once)
+        return self.status_received.wait(self.link.options["timeout_s"])
 
 
 class CanopenLink:
@@ -226,6 +235,7 @@ class CanopenLink:
         except (SdoAbortedError, SdoCommunicationError) as exc:
             raise sdo_error(d.id, "read of the PDO configuration", exc) from None
         self.network.subscribe(0x280 + d.id, d.on_tpdo2)
+        d.node.tpdo[1].add_callback(lambda _map, d=d: d.status_received.set())
         d.node.tpdo_values[0x6041] = d.sdo_read(0x6041, what="statusword")
         d.node.tpdo_values[0x6061] = d.sdo_read(0x6061, what="modes of operation display")
         d.node.nmt.state = "OPERATIONAL"
@@ -263,11 +273,14 @@ class CanopenLink:
         timeout = self.options["timeout_s"]
         for attempt in range(int(self.options["retries"]) + 1):
             if attempt and self.lockstep:
-                clock = self.drives[0].sdo_read(cod.CLOCK, what="clock")  # did the last SYNC arrive?
-                if clock == self.ticks + 1:
-                    for d in self.drives:
-                        d.actual = (d.sdo_read(0x6064), d.sdo_read(0x6077), clock & 0xFFFF)
-                    break
+                try:  # did the last SYNC arrive? then only its TPDO was lost
+                    clock = self.drives[0].sdo_read(cod.CLOCK, what="clock")
+                    if clock == self.ticks + 1:
+                        for d in self.drives:
+                            d.actual = (d.sdo_read(0x6064), d.sdo_read(0x6077), clock & 0xFFFF)
+                        break
+                except CommunicationError:
+                    continue
             for d in self.drives:
                 d.received.clear()
                 d.check_events()
@@ -357,7 +370,8 @@ class CanopenActuator(Actuator, DAQ):
         d = self.drive
         d.halt = True
         d.mode = ControlMode.DISPLACEMENT
-        d.send_control()
+        if not d.send_control():
+            raise CommunicationError(f"CANopen node {d.id}: no confirmation of the halt within {self.link.options['timeout_s']:g} s")
 
     def close(self) -> None:
         if self._closed:
