@@ -22,9 +22,9 @@ FLOAT32_EPS = 2.0 ** -23
 FAULT_TICK = 3000  # about a third into the run
 
 
-@pytest.fixture
-def cfg(tmp_path):
-    return write_config(tmp_path, duration=1.0)
+@pytest.fixture(scope="module")
+def cfg(tmp_path_factory):
+    return write_config(tmp_path_factory.mktemp("cfg"), duration=1.0)
 
 
 @pytest.fixture
@@ -41,9 +41,9 @@ def proxy(emulator):
     p.close()
 
 
-@pytest.fixture
-def reference(cfg, tmp_path):
-    return run(cfg, tmp_path / "local")
+@pytest.fixture(scope="module")
+def reference(cfg, tmp_path_factory):
+    return run(cfg, tmp_path_factory.mktemp("local") / "run")
 
 
 def fault_at(monkeypatch, tick: int, action) -> AtStep:
