@@ -201,7 +201,7 @@ class ModbusLink:
                     self._connect()
                     if self.boot_id is not None and "boot_id" in self.map.info:
                         reg = self.map.info["boot_id"]
-                        rr = getattr(self.client, "read_holding_registers")(reg.address, count=reg.words, device_id=self.device_id)
+                        rr = self.client.read_holding_registers(reg.address, count=reg.words, device_id=self.device_id)
                         if not rr.isError() and self.map.decode(reg, rr.registers) != self.boot_id:
                             raise CommunicationError(
                                 f"{self.url}: the controller restarted during the run (new boot id); "
