@@ -30,6 +30,8 @@ class _Progress:
 LAZY_COMMANDS: dict[str, str] = {
     "calibrate": "hsio.commands.calibrate:calibrate",
     "diagnose": "hsio.commands.diagnose:diagnose",
+    "emulate": "hsio.commands.emulate:emulate",
+    "probe": "hsio.commands.probe:probe",
     "study": "hsio.commands.study:study",
 }
 

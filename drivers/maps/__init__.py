@@ -1,0 +1,1 @@
+"""Register maps shipped with hsio (TOML data; see docs/modbus.md)."""

@@ -1,0 +1,408 @@
+"""Modbus TCP and RTU driver: any servo controller described by a register map.
+
+``modbus+tcp://HOST:PORT`` or ``modbus+rtu:///dev/ttyUSB0?baudrate=115200``; the [driver] table
+of the configuration (or the URL's query) sets ``map`` (a TOML register map, default hsio's),
+``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
+``force_kN``, ``velocity_mm_s`` (default: the controller's own, where its map has them).
+
+One :class:`ModbusLink` per controller carries the cyclic exchange of all its axes: one write of
+every axis' command block and one read of every status block, in a single request (function
+23) where the map allows. Each axis is a :class:`ModbusActuator`.
+
+Lockstep: if the controller answers the map's lockstep flag with 1 (hsio's emulator does; a real
+controller has no such register), the link attaches itself to a lockstep clock and each tick
+writes the commands together with the clock target, so one request steps the controller.
+Otherwise the controller runs on its own clock and the link writes and reads once per period.
+
+Robustness: every request has a timeout; a failed request is retried (bounded) after closing
+and reopening the link; a changed boot id (the controller restarted) or a latched watchdog or
+interlock stops the run with a clear error; Modbus exception responses are named.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from urllib.parse import parse_qsl, urlsplit
+
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ModbusException
+from pymodbus.pdu import ExceptionResponse
+
+from drivers import modbus_map
+from hsio.clock import Clock
+from hsio.errors import CommunicationError, ConfigError, InterlockError
+from hsio.interfaces import Actuator, Channel, ControlMode, DAQ, Feedback, Limits
+
+log = logging.getLogger(__name__)
+
+EXCEPTION_NAMES = {
+    1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure",
+    5: "acknowledge", 6: "device busy", 8: "memory parity error", 10: "gateway path unavailable",
+    11: "gateway target failed to respond",
+}
+SEQ_MOD = 1 << 24
+
+DEFAULT_OPTIONS = {
+    "map": "", "timeout_s": 0.5, "retries": 2, "reconnect_delay_s": 0.1, "device_id": None,
+    "baudrate": 115200, "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "lockstep": "auto",
+}
+
+
+def parse_options(url: str, options: dict | None) -> dict:
+    """The [driver] table and the URL's query, checked (the query wins)."""
+    table = dict(DEFAULT_OPTIONS)
+    given = dict(options or {})
+    for key, value in parse_qsl(urlsplit(url).query):
+        given[key] = value
+    for key, value in given.items():
+        if key not in DEFAULT_OPTIONS:
+            raise ConfigError(f"[driver] for {url!r}: unknown key {key!r}; known: {', '.join(DEFAULT_OPTIONS)}")
+        if key in ("map", "lockstep"):
+            table[key] = str(value)
+            continue
+        try:
+            table[key] = None if value is None else (int(value) if key in ("retries", "device_id", "baudrate") else float(value))
+        except (TypeError, ValueError):
+            raise ConfigError(f"[driver] for {url!r}: {key} must be a number, got {value!r}") from None
+    if not table["timeout_s"] > 0:
+        raise ConfigError(f"[driver] for {url!r}: timeout_s must be positive, got {table['timeout_s']!r}")
+    if not 0 <= table["retries"] <= 20:
+        raise ConfigError(f"[driver] for {url!r}: retries must be in 0..20, got {table['retries']!r}")
+    if table["lockstep"] not in ("auto", "on", "off"):
+        raise ConfigError(f"[driver] for {url!r}: lockstep must be 'auto', 'on' or 'off', got {table['lockstep']!r}")
+    return table
+
+
+class ModbusLink:
+    """One controller over Modbus: connection, retries, and the cyclic exchange of all axes."""
+
+    def __init__(self, url: str, n_axes: int, options: dict | None = None, regmap=None):
+        self.url = url
+        self.options = parse_options(url, options)
+        self.map = regmap or modbus_map.load(self.options["map"] or None)
+        if n_axes > self.map.max_axes:
+            raise ConfigError(f"{url}: {n_axes} axes, but register map {self.map.name!r} has room for {self.map.max_axes}")
+        self.n = n_axes
+        self.device_id = self.options["device_id"] if self.options["device_id"] is not None else self.map.device_id
+        self.client = self._make_client(url)
+        self.timeout_s = self.options["timeout_s"]
+        self.retries = int(self.options["retries"])
+        self.lockstep = False
+        self.ticks = 0
+        self.boot_id: float | None = None
+        self.info: dict[str, float] = {}
+        self.commands = [{"displacement": 0.0, "force": 0.0, "mode": float(self.map.modes["displacement"]),
+                          "enable": 0.0, "watchdog": 0.0} for _ in range(n_axes)]
+        self.status: list[dict] = [{} for _ in range(n_axes)]
+        self.fresh = [False] * n_axes
+        self.submitted: set[int] = set()
+        self.last_sequence: float | None = None
+        self.requests = 0
+        self.reconnects = 0
+        self._status_span = self.map.status_span(n_axes)
+
+    # -- connection ------------------------------------------------------------------------------
+    def _make_client(self, url: str):
+        parts = urlsplit(url)
+        timeout = self.options["timeout_s"]
+        if parts.scheme == "modbus+tcp":
+            if not parts.hostname:
+                raise ConfigError(f"{url!r}: expected modbus+tcp://HOST:PORT")
+            return ModbusTcpClient(parts.hostname, port=parts.port or 502, timeout=timeout, retries=0,
+                                   reconnect_delay=0, reconnect_delay_max=0)
+        if parts.scheme == "modbus+rtu":
+            path = (parts.netloc + parts.path) if parts.netloc else parts.path
+            if not path:
+                raise ConfigError(f"{url!r}: expected modbus+rtu:///dev/ttyXXX")
+            return ModbusSerialClient(path, baudrate=int(self.options["baudrate"]), timeout=timeout, retries=0,
+                                      reconnect_delay=0, reconnect_delay_max=0)
+        raise ConfigError(f"{url!r} is not a modbus+tcp:// or modbus+rtu:// URL")
+
+    def open(self, enable: bool = True) -> None:
+        """Connect, read the identity and decide lockstep or real time; then (``enable``) take
+        every axis into command at the position where it stands."""
+        self._connect()
+        self._read_info()
+        flag = None
+        if self.map.lockstep and self.options["lockstep"] != "off":
+            reg = self.map.lockstep["flag"]
+            try:
+                flag = self.map.decode(reg, self.request("read_holding_registers", reg.address, count=reg.words,
+                                                         what="read of the lockstep flag").registers)
+            except CommunicationError as exc:
+                if "exception" not in str(exc):
+                    raise
+        self.lockstep = flag == 1.0
+        if self.options["lockstep"] == "on" and not self.lockstep:
+            raise CommunicationError(f"{self.url}: lockstep requested but the controller runs on its own clock")
+        if self.lockstep:
+            adv = self.map.lockstep["advance"]
+            self.ticks = int(self.map.decode(adv, self.request("read_holding_registers", adv.address, count=adv.words,
+                                                               what="read of the clock").registers))
+        self.read_status()
+        if not enable:
+            return
+        for k, st in enumerate(self.status):  # start from where each axis stands, holding
+            self.commands[k]["displacement"] = st["displacement"]
+            self.commands[k]["force"] = st["force"]
+            self.commands[k]["enable"] = 0.0
+        self.exchange(advance=False)
+        for k in range(self.n):  # enable (this re-arms a watchdog that expired before)
+            self.commands[k]["enable"] = 1.0
+        self.exchange(advance=False)
+
+    def _connect(self) -> None:
+        try:
+            ok = self.client.connect()
+        except Exception as exc:  # pymodbus/pyserial raise a variety of errors here
+            ok, why = False, repr(exc)
+        else:
+            why = "connection refused or port unavailable"
+        if not ok:
+            raise CommunicationError(f"{self.url}: cannot connect ({why})")
+
+    def _read_info(self) -> None:
+        for name, reg in self.map.info.items():
+            try:
+                rr = self.request("read_holding_registers", reg.address, count=reg.words, what=f"read of {name}")
+            except CommunicationError as exc:
+                if "exception" in str(exc):
+                    continue
+                raise
+            self.info[name] = self.map.decode(reg, rr.registers)
+        boot = self.info.get("boot_id")
+        if self.boot_id is not None and boot is not None and boot != self.boot_id:
+            raise CommunicationError(
+                f"{self.url}: the controller restarted (boot id {self.boot_id:.0f} -> {boot:.0f}); its state is lost, "
+                "the run stops")
+        self.boot_id = boot
+
+    def close(self) -> None:
+        try:
+            self.client.close()
+        except Exception:
+            pass
+
+    # -- requests --------------------------------------------------------------------------------
+    def request(self, method: str, *args, what: str, **kwargs):
+        """One Modbus request with a timeout and bounded retries; reconnects between attempts.
+
+        An exception response is an answer, not a transport fault: it is raised at once (device
+        busy excepted, which is retried).
+        """
+        last = ""
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self.reconnects += 1
+                self.close()
+                time.sleep(self.options["reconnect_delay_s"] * attempt)
+                try:
+                    self._connect()
+                    if self.boot_id is not None and "boot_id" in self.map.info:
+                        reg = self.map.info["boot_id"]
+                        rr = self.client.read_holding_registers(reg.address, count=reg.words, device_id=self.device_id)
+                        if not rr.isError() and self.map.decode(reg, rr.registers) != self.boot_id:
+                            raise CommunicationError(
+                                f"{self.url}: the controller restarted during the run (new boot id); "
+                                "its state is lost, the run stops")
+                except CommunicationError as exc:
+                    if "restarted" in str(exc):
+                        raise
+                    last = str(exc)
+                    continue
+                except (ModbusException, OSError) as exc:
+                    last = f"{type(exc).__name__}: {exc}"
+                    continue
+            try:
+                self.requests += 1
+                rr = getattr(self.client, method)(*args, device_id=self.device_id, **kwargs)
+            except (ModbusException, OSError) as exc:
+                last = f"{type(exc).__name__}: {exc}"
+                continue
+            if isinstance(rr, ExceptionResponse) or rr.isError():
+                code = getattr(rr, "exception_code", None)
+                if code == 6:
+                    last = "device busy"
+                    continue
+                name = EXCEPTION_NAMES.get(code, "unknown")
+                raise CommunicationError(f"{self.url}: {what} answered with Modbus exception {code} ({name})")
+            return rr
+        raise CommunicationError(
+            f"{self.url}: {what}: no valid answer after {self.retries + 1} attempt(s) "
+            f"with a {self.timeout_s:g} s timeout each (last: {last})")
+
+    # -- cyclic exchange ---------------------------------------------------------------------------
+    def submit(self, axis: int) -> None:
+        """An axis has a new command; in real time, send once every axis has one."""
+        self.submitted.add(axis)
+        if not self.lockstep and len(self.submitted) == self.n:
+            self.exchange(advance=False)
+
+    def advance(self, ticks: int) -> None:
+        """Lockstep clock: write every command and the clock target, read every status."""
+        self.ticks += int(ticks)
+        self.exchange(advance=True)
+
+    def exchange(self, advance: bool) -> None:
+        for cmd in self.commands:
+            cmd["watchdog"] = (cmd["watchdog"] + 1.0) % SEQ_MOD
+        stepping = advance and self.lockstep
+        span = self.map.command_span(self.n, with_advance=stepping)
+        words = self.map.pack_commands(self.commands, self.ticks if stepping else None, span)
+        self.submitted.clear()
+        rs, rc = self._status_span
+        if self.map.readwrite:
+            rr = self.request("readwrite_registers", read_address=rs, read_count=rc, write_address=span[0],
+                              values=words, what="cyclic write+read")
+            self._take_status(rr.registers)
+        else:
+            self.request("write_registers", span[0], words, what="write of the commands")
+            self.read_status()
+
+    def read_status(self) -> None:
+        rs, rc = self._status_span
+        rr = self.request("read_holding_registers", rs, count=rc, what="read of the status")
+        self._take_status(rr.registers)
+
+    def _take_status(self, registers) -> None:
+        if len(registers) < self._status_span[1]:
+            raise CommunicationError(f"{self.url}: status reply too short ({len(registers)} registers)")
+        self.status = self.map.unpack_status(registers, self.n)
+        seq = self.status[0]["sequence"]
+        if self.lockstep and seq != self.ticks % SEQ_MOD:
+            raise CommunicationError(
+                f"{self.url}: controller clock at tick {seq:.0f}, expected {self.ticks % SEQ_MOD} (lockstep lost)")
+        self.last_sequence = seq
+        self.fresh = [True] * self.n
+
+    def write_axis(self, axis: int, names: tuple[str, ...], what: str) -> None:
+        """Write some command registers of one axis (and those between them), e.g. to hold."""
+        block = self.map.command
+        words = [0] * block.extent
+        for name, reg in block.registers.items():
+            words[reg.address:reg.address + reg.words] = self.map.encode(reg, self.commands[axis][name])
+        start = min(block.registers[n].address for n in names)
+        end = max(block.registers[n].address + block.registers[n].words for n in names)
+        self.request("write_registers", block.base + axis * block.stride + start,
+                     words[start:end], what=what)
+
+
+class ModbusActuator(Actuator, DAQ):
+    """One axis of a controller on a :class:`ModbusLink`."""
+
+    def __init__(self, name: str, link: ModbusLink, axis: int, limits: Limits):
+        self.name = name
+        self.link = link
+        self.axis = axis
+        self.limits = limits
+        self._mode = ControlMode.DISPLACEMENT
+        self._closed = False
+
+    @property
+    def mode(self) -> ControlMode:
+        return self._mode
+
+    def set_mode(self, mode: ControlMode) -> None:
+        """Bumpless: the new command starts at the present measurement."""
+        if mode is self._mode:
+            return
+        fb = self.feedback()
+        cmd = self.link.commands[self.axis]
+        cmd["mode"] = float(self.link.map.modes[mode.value])
+        cmd["displacement"], cmd["force"] = fb.displacement_mm, fb.force_kN
+        self._mode = mode
+
+    def _send(self, value: float) -> None:
+        self._check_status()
+        cmd = self.link.commands[self.axis]
+        cmd["displacement" if self._mode is ControlMode.DISPLACEMENT else "force"] = float(value)
+        cmd["enable"] = 1.0
+        self.link.submit(self.axis)
+
+    def feedback(self) -> Feedback:
+        link = self.link
+        if not link.fresh[self.axis]:
+            link.read_status()
+        link.fresh[self.axis] = False
+        st = link.status[self.axis]
+        t = (link.ticks if link.lockstep else (st["sequence"] or 0.0)) / link.info.get("rate_hz", 1024.0)
+        return Feedback(st["displacement"], st["force"], t)
+
+    def _check_status(self) -> None:
+        st = self.link.status[self.axis]
+        if not st:
+            return
+        word = st["status_word"]
+        bit = self.link.map.bit
+        if bit(word, "interlock"):
+            raise InterlockError(f"actuator {self.name!r} at {self.link.url}: the controller's interlock tripped; holding")
+        if bit(word, "watchdog"):
+            raise InterlockError(
+                f"actuator {self.name!r} at {self.link.url}: the controller's host watchdog expired "
+                f"(no command for more than {self.link.info.get('watchdog_s', 0):g} s); it holds")
+
+    def hold(self) -> None:
+        """Hold the present position: enable off, one write (no retries beyond the link's)."""
+        cmd = self.link.commands[self.axis]
+        cmd["enable"] = 0.0
+        cmd["mode"] = float(self.link.map.modes["displacement"])
+        self._mode = ControlMode.DISPLACEMENT
+        self.link.write_axis(self.axis, ("mode", "enable", "watchdog"), what=f"hold of axis {self.axis}")
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.hold()
+        finally:
+            if all(getattr(a, "_closed", True) for a in getattr(self.link, "actuators", [])):
+                self.link.close()
+
+    # DAQ
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        return (Channel(f"{self.name}.displacement", "mm"), Channel(f"{self.name}.force", "kN"))
+
+    def read(self) -> dict[str, float]:
+        fb = self.feedback()
+        return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}
+
+
+def open_link(url: str, names: list[str], clock: Clock | None, options: dict | None = None,
+              enable: bool = True) -> list[ModbusActuator]:
+    """Connect to a controller and return one actuator per axis (axis k = names[k]).
+
+    ``clock=None`` skips the clock check (diagnostics decide the clock from ``link.lockstep``).
+    """
+    link = ModbusLink(url, len(names), options)
+    try:
+        link.open(enable)
+    except BaseException:
+        link.close()
+        raise
+    opts = link.options
+    stroke = opts["stroke_mm"] if opts["stroke_mm"] is not None else link.info.get("stroke_mm", 254.0)
+    force = opts["force_kN"] if opts["force_kN"] is not None else link.info.get("force_limit_kN", 250.0)
+    limits = Limits(stroke, force, opts["velocity_mm_s"])
+    actuators = [ModbusActuator(name, link, k, limits) for k, name in enumerate(names)]
+    link.actuators = actuators
+    if clock is None:
+        return actuators
+    if link.lockstep:
+        if not getattr(clock, "lockstep", False):
+            link.close()
+            raise ConfigError(f"{url}: the controller runs in lockstep (emulator) but the experiment's clock is real "
+                              "time; set [hardware] clock = \"lockstep\" or start the emulator with --realtime")
+        clock.attach(link)
+    elif getattr(clock, "lockstep", False):
+        link.close()
+        raise ConfigError(f"{url}: the controller runs on its own clock (real time) but the experiment's clock is "
+                          "lockstep; set [hardware] clock = \"realtime\"")
+    return actuators
+
+
+def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:
+    """``modbus+tcp://`` / ``modbus+rtu://``: one actuator per experimental element."""
+    return open_link(url, [e.name for e in elements], clock, options)

@@ -1,0 +1,324 @@
+"""The emulated controller as CiA 402 drives on a CAN bus (canopen LocalNode, python-can).
+
+One node per axis (node ids ``node_id``, ``node_id + 1``, ...), each with the object dictionary
+of :mod:`drivers.canopen_od`:
+
+* the controlword/statusword state machine of CiA 402 (switch on disabled -> ready to switch on
+  -> switched on -> operation enabled; quick stop; fault and fault reset). The axis follows the
+  targets only in operation enabled with the halt bit clear; otherwise it holds its position
+  (a hydraulic actuator holds, it does not coast).
+* cyclic synchronous position (mode 8, displacement control) and cyclic synchronous torque
+  (mode 10, read as force control);
+* RPDOs for the targets, TPDOs for the actual values on every SYNC, SDO for configuration,
+  heartbeat (0x1017), EMCY for refused targets, interlocks and the host watchdog.
+
+Lockstep: with ``lockstep=True`` every SYNC advances the controller one period before the TPDOs
+are sent (the emulator-only object 0x2100 reads 1). In real time the controller runs its own
+loop and a SYNC only samples it.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+
+import canopen
+from canopen.sdo import SdoAbortedError
+
+from drivers import canopen_od as cod
+from emulators.bank import CommandRefused, ControllerBank
+from hsio.interfaces import ControlMode
+
+log = logging.getLogger(__name__)
+
+SOD, RTSO, SO, OE, QSA, FAULT = "SWITCH ON DISABLED", "READY TO SWITCH ON", "SWITCHED ON", "OPERATION ENABLED", \
+    "QUICK STOP ACTIVE", "FAULT"
+STATUS_BITS = {SOD: 0x0040, RTSO: 0x0021, SO: 0x0023, OE: 0x0027, QSA: 0x0007, FAULT: 0x0008}
+WARNING, REMOTE, FOLLOWING, VOLTAGE = 0x0080, 0x0200, 0x1000, 0x0010
+
+
+class DriveAxis:
+    """The CiA 402 side of one axis: state machine, mode, targets, PDO codec."""
+
+    def __init__(self, emulator: "CanopenEmulator", axis: int, node: canopen.LocalNode):
+        self.emu = emulator
+        self.bank = emulator.bank
+        self.axis = axis
+        self.node = node
+        self.state = SOD
+        self.controlword = 0
+        self.mode = cod.CSP
+        self.target_counts = 0
+        self.target_torque = 0
+        self.rx_count = 0
+        self.warning = False
+        self.fault_code = 0
+        cfg = self.bank.controllers[axis].config
+        half = int(0.5 * cfg.stroke_mm * cod.COUNTS_PER_MM)
+        node.data_store.setdefault(0x607D, {})[1] = struct.pack("<i", -half)
+        node.data_store[0x607D][2] = struct.pack("<i", half)
+        node.add_read_callback(self.on_read)
+        node.add_write_callback(self.on_write)
+
+    # -- scaling -----------------------------------------------------------------------------------
+    @staticmethod
+    def to_counts(mm: float) -> int:
+        return int(round(mm * cod.COUNTS_PER_MM))
+
+    @staticmethod
+    def to_permille(kN: float) -> int:
+        return max(-32768, min(32767, int(round(kN * 1e6 / cod.RATED_FORCE_N))))
+
+    # -- SDO ---------------------------------------------------------------------------------------
+    def on_read(self, index, subindex, od):
+        c = self.bank.controllers[self.axis]
+        if index == 0x6041:
+            return self.statusword()
+        if index == 0x6061:
+            return self.mode
+        if index == 0x6060:
+            return self.mode
+        if index == 0x6064:
+            return self.to_counts(c.measured_displacement)
+        if index == 0x6077:
+            return self.to_permille(c.measured_force)
+        if index == 0x607A:
+            return self.target_counts
+        if index == 0x6071:
+            return self.target_torque
+        if index == cod.LOCKSTEP_FLAG:
+            return 1 if self.bank.lockstep else 0
+        if index == cod.CLOCK:
+            return self.bank.ticks & 0xFFFFFFFF
+        if index == cod.CYCLE:
+            return self.bank.ticks & 0xFFFF
+        if index == cod.WATCHDOG_MS:
+            return int(round(self.bank.watchdog_s * 1000))
+        return None
+
+    def on_write(self, index, subindex, od, data):
+        value = od.decode_raw(data)
+        with self.bank.lock:
+            if index == 0x6040:
+                self.on_controlword(value)
+            elif index == 0x6060:
+                self.set_mode(value, from_sdo=True)
+            elif index == 0x607A:
+                self.target_counts = value
+                self.apply_targets(from_sdo=True)
+            elif index == 0x6071:
+                self.target_torque = value
+                self.apply_targets(from_sdo=True)
+            elif index == cod.CLOCK:
+                try:
+                    self.bank.advance_to(value)
+                except CommandRefused:
+                    raise SdoAbortedError(0x08000022) from None  # not in the present device state
+            elif index == cod.WATCHDOG_MS:
+                self.bank.watchdog_s = value / 1000.0
+
+    # -- state machine -----------------------------------------------------------------------------
+    def statusword(self) -> int:
+        word = STATUS_BITS[self.state] | REMOTE
+        if self.state in (RTSO, SO, OE):
+            word |= VOLTAGE
+        if self.warning:
+            word |= WARNING
+        if self.state == OE and not self.controlword & 0x0100 and not self.bank.axes[self.axis].watchdog_expired:
+            word |= FOLLOWING
+        return word
+
+    def on_controlword(self, cw: int) -> None:
+        previous, self.controlword = self.controlword, cw
+        state = self.state
+        if state == FAULT:
+            if cw & 0x80 and not previous & 0x80:  # fault reset, rising edge
+                c = self.bank.controllers[self.axis]
+                c.clear_trip()
+                self.bank.axes[self.axis].watchdog_expired = False
+                self.fault_code = 0
+                self.warning = False
+                self.node.emcy.reset()
+                self.state = SOD
+        elif not cw & 0x02:  # disable voltage
+            self.state = SOD
+        elif cw & 0x06 == 0x02:  # quick stop
+            self.state = QSA if state == OE else SOD
+        elif cw & 0x0F == 0x06:  # shutdown
+            if state in (SOD, SO, OE):
+                self.state = RTSO
+        elif cw & 0x0F == 0x07:  # switch on / disable operation
+            if state in (RTSO, OE):
+                self.state = SO
+        elif cw & 0x0F == 0x0F:  # enable operation
+            if state in (SO, QSA):
+                self.state = OE
+            elif state == RTSO:
+                self.state = OE  # transitions 3 + 4 at once, as many drives allow
+        self.apply_targets()
+
+    def set_mode(self, mode: int, from_sdo: bool = False) -> None:
+        if mode not in (cod.CSP, cod.CST):
+            if from_sdo:
+                raise SdoAbortedError(0x06090030)
+            self.node.emcy.send(0x6320, 0x01, struct.pack("<b", mode) + b"\0" * 4)
+            return
+        if mode != self.mode:
+            self.mode = mode
+            c = self.bank.controllers[self.axis]
+            # Bumpless: the targets start at the present measurement.
+            self.target_counts = self.to_counts(c.measured_displacement)
+            self.target_torque = self.to_permille(c.measured_force)
+        self.apply_targets()
+
+    def following(self) -> bool:
+        return self.state == OE and not self.controlword & 0x0100
+
+    def apply_targets(self, from_sdo: bool = False) -> None:
+        """Pass the targets to the controller (or hold when not following)."""
+        self.rx_count += 1
+        if self.state == FAULT:
+            return
+        mode = ControlMode.FORCE if self.mode == cod.CST else ControlMode.DISPLACEMENT
+        value = self.target_counts / cod.COUNTS_PER_MM if mode is ControlMode.DISPLACEMENT \
+            else self.target_torque * cod.RATED_FORCE_N / 1e6
+        if self.following():
+            try:
+                self.bank.check_command(self.axis, mode, value)
+            except CommandRefused as exc:
+                self.bank.refuse(self.axis)
+                self.warning = True
+                self.node.emcy.send(0x8612, 0x01, b"\0" * 5)
+                log.info("refused: %s", exc)
+                if from_sdo:
+                    raise SdoAbortedError(0x06090030) from None
+                return
+        self.bank.apply(self.axis, mode, value, self.following(), float(self.rx_count % (1 << 24)))
+
+    def check_faults(self) -> None:
+        """Interlock trips and watchdog expiry become FAULT with an EMCY (once each)."""
+        c = self.bank.controllers[self.axis]
+        code = 0
+        if c.tripped:
+            code = 0x7320 if "displacement" in c.tripped else 0x2310
+        elif self.bank.axes[self.axis].watchdog_expired:
+            code = 0x8130
+        if code and self.state != FAULT:
+            self.state = FAULT
+            self.fault_code = code
+            self.node.emcy.send(code, 0x01, b"\0" * 5)
+            self.send_tpdo1()
+
+    # -- PDOs --------------------------------------------------------------------------------------
+    def on_rpdo1(self, data: bytes) -> None:
+        cw, mode = struct.unpack_from("<Hb", data)
+        with self.bank.lock:
+            if mode != self.mode:
+                self.set_mode(mode)
+            self.on_controlword(cw)
+        self.send_tpdo1()
+
+    def on_rpdo2(self, data: bytes) -> None:
+        pos, torque = struct.unpack_from("<ih", data)
+        with self.bank.lock:
+            self.target_counts, self.target_torque = pos, torque
+            self.apply_targets()
+
+    def send_tpdo1(self) -> None:
+        self.emu.network.send_message(0x180 + self.node.id, struct.pack("<Hb", self.statusword(), self.mode))
+
+    def send_tpdo2(self) -> None:
+        c = self.bank.controllers[self.axis]
+        data = struct.pack("<ihH", self.to_counts(c.measured_displacement), self.to_permille(c.measured_force),
+                           self.bank.ticks & 0xFFFF)
+        self.emu.network.send_message(0x280 + self.node.id, data)
+
+
+class CanopenEmulator:
+    """The bank's axes as CiA 402 nodes on a CAN channel (python-can's virtual bus by default)."""
+
+    def __init__(self, bank: ControllerBank, channel: str = "hsio", node_id: int = 1,
+                 interface: str = "virtual", heartbeat_ms: int = 100):
+        self.bank = bank
+        self.channel, self.interface = channel, interface
+        self.node_id = node_id
+        self.heartbeat_ms = heartbeat_ms
+        self.network: canopen.Network | None = None
+        self.axes: list[DriveAxis] = []
+        self._fault_thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    @property
+    def url(self) -> str:
+        return f"canopen+{self.interface}://{self.channel}/{self.node_id}"
+
+    def start(self) -> "CanopenEmulator":
+        self.network = canopen.Network()
+        self.network.connect(interface=self.interface, channel=self.channel)
+        for k in range(len(self.bank.controllers)):
+            node = canopen.LocalNode(self.node_id + k, cod.object_dictionary(self.node_id + k))
+            self.network.add_node(node)
+            axis = DriveAxis(self, k, node)
+            self.axes.append(axis)
+            self.network.subscribe(0x200 + node.id, lambda cid, data, ts, a=axis: self._guard(a, a.on_rpdo1, data))
+            self.network.subscribe(0x300 + node.id, lambda cid, data, ts, a=axis: self._guard(a, a.on_rpdo2, data))
+        self.network.subscribe(0x80, self.on_sync)
+        for axis in self.axes:
+            axis.node.nmt.state = "PRE-OPERATIONAL"
+            self.network.send_message(0x700 + axis.node.id, b"\x00")  # boot-up
+            if self.heartbeat_ms:
+                axis.node.set_data(0x1017, 0, struct.pack("<H", self.heartbeat_ms))
+        self.bank.start()
+        self._stop.clear()
+        self._fault_thread = threading.Thread(target=self._watch_faults, name="canopen-faults", daemon=True)
+        self._fault_thread.start()
+        return self
+
+    def _guard(self, axis, handler, data) -> None:
+        if axis.node.nmt.state != "OPERATIONAL":
+            return  # PDOs count only in OPERATIONAL
+        try:
+            handler(data)
+        except struct.error:  # a PDO of the wrong length: CiA 301's length error, the drive goes on
+            axis.node.emcy.send(0x8210, 0x11, bytes([len(data)]) + b"\0" * 4)
+        except Exception:  # nothing on the bus may stop the drive
+            log.exception("bad PDO %r", bytes(data))
+
+    def on_sync(self, can_id, data, timestamp) -> None:
+        try:
+            if self.bank.lockstep:
+                with self.bank.lock:
+                    self.bank.advance_to(self.bank.ticks + 1)
+            for axis in self.axes:
+                if axis.node.nmt.state == "OPERATIONAL":
+                    axis.check_faults()
+                    axis.send_tpdo2()
+        except Exception:
+            log.exception("SYNC handling failed")
+
+    def _watch_faults(self) -> None:
+        while not self._stop.wait(0.01):
+            with self.bank.lock:
+                for axis in self.axes:
+                    axis.check_faults()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._fault_thread is not None:
+            self._fault_thread.join(timeout=1.0)
+        self.bank.stop()
+        for k in range(len(self.bank.controllers)):
+            self.bank.hold(k)
+        if self.network is not None:
+            for axis in self.axes:
+                axis.node.nmt.stop_heartbeat()
+            self.network.disconnect()
+            self.network = None
+        self.axes = []
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()

@@ -1,0 +1,303 @@
+"""The emulated controller served over Modbus TCP (pymodbus server) and Modbus RTU on a pty.
+
+:class:`RegisterContext` is the server's data model: it answers reads from the controller's live
+state and turns writes into commands, as the register map (:mod:`drivers.modbus_map`) says.
+A write that touches an unmapped or read-only register gets exception 2 (illegal data address),
+a value out of range exception 3 (illegal data value); neither changes anything.
+
+:class:`ModbusEmulator` runs the server in a thread with its own event loop, so tests and the
+``hsio emulate`` command start and stop it the same way.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import select
+import threading
+import tty
+
+from pymodbus.constants import ExcCodes
+from pymodbus.datastore import ModbusServerContext
+from pymodbus.pdu.device import ModbusDeviceIdentification
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+
+from drivers.modbus_map import RegisterMap
+from emulators.bank import CommandRefused, ControllerBank
+from hsio.interfaces import ControlMode
+
+log = logging.getLogger(__name__)
+
+READ_CODES = (3, 23)
+WRITE_CODES = (6, 16, 23)
+
+
+class RegisterContext(ModbusServerContext):
+    """Holding registers backed by a :class:`ControllerBank`, laid out by a register map."""
+
+    def __init__(self, bank: ControllerBank, regmap: RegisterMap):  # pylint: disable=super-init-not-called
+        # The base class is only a type tag for the server: this context answers requests itself.
+        self.old_simulator = True
+        self.simdevices = []
+        self.bank = bank
+        self.map = regmap
+        self.n = len(bank.controllers)
+        if self.n > regmap.max_axes:
+            raise ValueError(f"register map {regmap.name!r} has room for {regmap.max_axes} axes, not {self.n}")
+        # Each mapped register: start address -> (kind, axis, Register)
+        self.readable: dict[int, tuple] = {}
+        self.writable: dict[int, tuple] = {}
+        for reg in regmap.info.values():
+            self.readable[reg.address] = ("info", None, reg)
+        for name, reg in regmap.lockstep.items():
+            self.readable[reg.address] = ("lockstep", None, reg)
+            if name == "advance":
+                self.writable[reg.address] = ("lockstep", None, reg)
+        for k in range(self.n):
+            for name, reg in regmap.command.registers.items():
+                at = regmap.command.address(k, name)
+                self.readable[at] = self.writable[at] = ("command", k, reg)
+            for name, reg in regmap.status.registers.items():
+                self.readable[regmap.status.address(k, name)] = ("status", k, reg)
+        # The command registers as last written (the host reads back what it wrote).
+        self.commands = [{"displacement": 0.0, "force": 0.0, "mode": float(regmap.modes["displacement"]),
+                          "enable": 0.0, "watchdog": 0.0} for _ in range(self.n)]
+        self.requests = 0
+        self.exceptions = 0
+
+    def device_ids(self):
+        return [self.map.device_id]
+
+    # -- reads -------------------------------------------------------------------------------------
+    def _value(self, kind: str, axis, reg) -> float:
+        bank = self.bank
+        if kind == "info":
+            c = bank.controllers[0].config
+            return {"map_version": 1.0, "axes": float(self.n), "rate_hz": bank.rate_hz, "boot_id": bank.boot_id,
+                    "stroke_mm": c.stroke_mm, "force_limit_kN": c.force_limit_kN,
+                    "watchdog_s": bank.watchdog_s}.get(reg.name, 0.0)
+        if kind == "lockstep":
+            return (1.0 if bank.lockstep else 0.0) if reg.name == "flag" else float(bank.ticks)
+        if kind == "command":
+            return self.commands[axis][reg.name]
+        c = bank.controllers[axis]
+        if reg.name == "status_word":
+            return float(self.map.make_word(bank.flags(axis)))
+        if reg.name == "displacement":
+            return c.measured_displacement
+        if reg.name == "force":
+            return c.measured_force
+        if reg.name == "sequence":
+            return float(bank.ticks % (1 << 24))
+        return 0.0
+
+    async def async_getValues(self, device_id, func_code, address, count=1):
+        self.requests += 1
+        if func_code not in READ_CODES:
+            return self._exception(ExcCodes.ILLEGAL_FUNCTION, f"function {func_code} on holding registers")
+        out: list[int] = []
+        with self.bank.lock:
+            at = address
+            while at < address + count:
+                entry = self.readable.get(at)
+                if entry is None:
+                    return self._exception(ExcCodes.ILLEGAL_ADDRESS, f"read of unmapped register {at}")
+                kind, axis, reg = entry
+                out += self.map.encode(reg, self._value(kind, axis, reg))
+                at += reg.words
+        return out[:count]
+
+    # -- writes ------------------------------------------------------------------------------------
+    async def async_setValues(self, device_id, func_code, address, values):
+        if func_code != 23:  # a write-then-read is counted once, by its read
+            self.requests += 1
+        if func_code not in WRITE_CODES:
+            return self._exception(ExcCodes.ILLEGAL_FUNCTION, f"function {func_code} on holding registers")
+        decoded = []  # (kind, axis, Register, value)
+        at, end = address, address + len(values)
+        while at < end:
+            entry = self.writable.get(at)
+            if entry is None:
+                return self._exception(ExcCodes.ILLEGAL_ADDRESS, f"write to unmapped or read-only register {at}")
+            kind, axis, reg = entry
+            if at + reg.words > end:
+                return self._exception(ExcCodes.ILLEGAL_ADDRESS, f"write covers only part of {reg.name!r} at {at}")
+            decoded.append((kind, axis, reg, self.map.decode(reg, values[at - address:at - address + reg.words])))
+            at += reg.words
+        with self.bank.lock:
+            new = [dict(c) for c in self.commands]
+            advance_to = None
+            for kind, axis, reg, value in decoded:
+                if kind == "lockstep":
+                    advance_to = value
+                else:
+                    new[axis][reg.name] = value
+            touched = sorted({axis for kind, axis, _, _ in decoded if kind == "command"})
+            plans = []
+            for axis in touched:
+                cmd = new[axis]
+                modes = {v: k for k, v in self.map.modes.items()}
+                if cmd["mode"] not in modes:
+                    self.bank.refuse(axis)
+                    return self._exception(ExcCodes.ILLEGAL_VALUE, f"axis {axis}: unknown mode value {cmd['mode']!r}")
+                mode = ControlMode(modes[cmd["mode"]])
+                value = cmd["displacement"] if mode is ControlMode.DISPLACEMENT else cmd["force"]
+                try:
+                    self.bank.check_command(axis, ControlMode.DISPLACEMENT, cmd["displacement"])
+                    self.bank.check_command(axis, ControlMode.FORCE, cmd["force"])
+                except CommandRefused as exc:
+                    self.bank.refuse(axis)
+                    return self._exception(ExcCodes.ILLEGAL_VALUE, str(exc))
+                plans.append((axis, mode, value, cmd["enable"] >= 0.5, cmd["watchdog"]))
+            if advance_to is not None and not self.bank.lockstep:
+                return self._exception(ExcCodes.ILLEGAL_VALUE, "advance written while the clock runs in real time")
+            self.commands = new
+            for plan in plans:
+                self.bank.apply(*plan)
+            if advance_to is not None:
+                try:
+                    self.bank.advance_to(int(advance_to))
+                except CommandRefused as exc:
+                    return self._exception(ExcCodes.ILLEGAL_VALUE, str(exc))
+        return None
+
+    def _exception(self, code: ExcCodes, why: str) -> ExcCodes:
+        self.exceptions += 1
+        log.info("modbus exception %d: %s", int(code), why)
+        return code
+
+
+def identity(regmap: RegisterMap) -> ModbusDeviceIdentification:
+    ident = ModbusDeviceIdentification()
+    ident.VendorName = "hsio"
+    ident.ProductCode = "hsio-servo-emulator"
+    ident.ProductName = "hsio emulated servo controller"
+    ident.ModelName = regmap.name
+    ident.MajorMinorRevision = "1.0"
+    return ident
+
+
+class PtyBridge:
+    """Two pseudo-terminal pairs joined back to back, like a null-modem cable.
+
+    The server opens ``server_path``; a client (the driver, a terminal tool) opens ``path``.
+    """
+
+    def __init__(self):
+        self._a_master, a_slave = os.openpty()
+        self._b_master, b_slave = os.openpty()
+        for fd in (a_slave, b_slave):
+            tty.setraw(fd)
+        self.server_path = os.ttyname(a_slave)
+        self.path = os.ttyname(b_slave)
+        self._slaves = (a_slave, b_slave)  # kept open so the pair stays alive
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="pty-bridge", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        pair = {self._a_master: self._b_master, self._b_master: self._a_master}
+        while not self._stop.is_set():
+            ready, _, _ = select.select(list(pair), [], [], 0.1)
+            for fd in ready:
+                try:
+                    data = os.read(fd, 4096)
+                except OSError:
+                    continue
+                if data:
+                    os.write(pair[fd], data)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        for fd in (self._a_master, self._b_master, *self._slaves):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class ModbusEmulator:
+    """A Modbus server for a :class:`ControllerBank`, in a thread; TCP or RTU over a pty.
+
+    ``transport="tcp"`` listens on ``host:port``; ``transport="rtu"`` creates a pty pair and
+    serves one end (``self.path`` is the other end, for the client).
+    """
+
+    def __init__(self, bank: ControllerBank, regmap: RegisterMap, transport: str = "tcp",
+                 host: str = "127.0.0.1", port: int = 5020, baudrate: int = 115200):
+        if transport not in ("tcp", "rtu"):
+            raise ValueError(f"transport must be 'tcp' or 'rtu', got {transport!r}")
+        self.bank = bank
+        self.map = regmap
+        self.context = RegisterContext(bank, regmap)
+        self.transport = transport
+        self.host, self.port, self.baudrate = host, port, baudrate
+        self.bridge: PtyBridge | None = None
+        self.path = ""
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+
+    @property
+    def url(self) -> str:
+        if self.transport == "tcp":
+            return f"modbus+tcp://{self.host}:{self.port}"
+        return f"modbus+rtu://{self.path}?baudrate={self.baudrate}"
+
+    def start(self) -> "ModbusEmulator":
+        if self.transport == "rtu":
+            self.bridge = PtyBridge()
+            self.path = self.bridge.path
+        self.bank.start()
+        self._thread = threading.Thread(target=self._serve, name="modbus-emulator", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(5.0) or self._error is not None:
+            self.stop()
+            raise RuntimeError(f"Modbus emulator did not start on {self.url}: {self._error!r}")
+        return self
+
+    def _serve(self) -> None:
+        async def main():
+            if self.transport == "tcp":
+                self._server = ModbusTcpServer(self.context, address=(self.host, self.port), identity=identity(self.map))
+            else:
+                self._server = ModbusSerialServer(self.context, port=self.bridge.server_path, baudrate=self.baudrate,
+                                                  identity=identity(self.map), timeout=0.1)
+            self._loop = asyncio.get_running_loop()
+            await self._server.serve_forever(background=True)
+            self._ready.set()
+            await self._server.serving
+
+        try:
+            asyncio.run(main())
+        except BaseException as exc:  # reported by start()
+            self._error = exc
+            self._ready.set()
+
+    def stop(self) -> None:
+        """Stop serving; the controller's axes hold."""
+        loop, server, self._loop, self._server = self._loop, self._server, None, None
+        if loop is not None and server is not None and loop.is_running():
+            try:
+                asyncio.run_coroutine_threadsafe(server.shutdown(), loop).result(timeout=3.0)
+            except Exception:
+                pass
+        if self._thread is not None:
+            self._thread.join(timeout=3.0)
+            self._thread = None
+        self.bank.stop()
+        for k in range(len(self.bank.controllers)):
+            self.bank.hold(k)
+        if self.bridge is not None:
+            self.bridge.close()
+            self.bridge = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()

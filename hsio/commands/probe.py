@@ -1,0 +1,196 @@
+"""`hsio probe URL`: driver-level diagnostics of a real or emulated servo controller.
+
+Reports the connection and identity, the state of each axis, and the round-trip latency of the
+driver's requests (median, p99 and max over N requests, in ms). Without --move it only reads:
+no axis is enabled and nothing is commanded. With --move, axis 0 makes a small step and a slow
+sine from where it stands (rise time, overshoot, RMS tracking error) and comes back.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from urllib.parse import urlsplit
+
+import click
+import numpy as np
+
+from hsio.errors import HsioError
+
+
+def latency_stats(samples_s: list[float]) -> dict:
+    ms = np.asarray(samples_s) * 1e3
+    return {"requests": int(ms.size), "median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)),
+            "max_ms": float(ms.max())}
+
+
+def _open(url: str, axes: int, options: dict, enable: bool):
+    scheme = urlsplit(url).scheme
+    names = [f"axis{k}" for k in range(axes)]
+    if scheme.startswith("modbus+"):
+        from drivers.modbus import open_link
+    elif scheme.startswith("canopen+"):
+        from drivers.canopen import open_link
+    else:
+        raise click.BadParameter(f"{url!r}: probe speaks modbus+tcp://, modbus+rtu:// and canopen+...:// URLs", param_hint="URL")
+    return open_link(url, names, None, options, enable=enable)
+
+
+def _identity(link) -> dict:
+    if hasattr(link, "info"):  # Modbus
+        ident = {k: v for k, v in link.info.items()}
+        ident["map"] = link.map.name
+        try:
+            rr = link.client.read_device_information(device_id=link.device_id)
+            if not rr.isError():
+                ident["device_identification"] = {str(k): v.decode(errors="replace") if isinstance(v, bytes) else str(v)
+                                                  for k, v in rr.information.items()}
+        except Exception:
+            pass
+        return ident
+    return {f"node {d.id}": d.identity for d in link.drives}
+
+
+def _state(link, actuators) -> list[dict]:
+    out = []
+    if hasattr(link, "status"):
+        link.read_status()
+        for k, st in enumerate(link.status):
+            flags = {name: link.map.bit(st["status_word"], name) for name in link.map.bits}
+            out.append({"axis": k, "displacement_mm": st["displacement"], "force_kN": st["force"],
+                        "sequence": st["sequence"], "flags": flags})
+        return out
+    for d in link.drives:
+        d.node.tpdo_values[0x6041] = d.sdo_read(0x6041, what="statusword")
+        out.append({"axis": d.id - link.node_id, "node": d.id, "state": d.node.state,
+                    "statusword": f"0x{d.node.statusword:04X}", "mode": d.sdo_read(0x6061, what="mode display"),
+                    "displacement_mm": d.sdo_read(0x6064) / d.counts_per_mm, "force_kN": d.sdo_read(0x6077) * d.rated_N / 1e6})
+    return out
+
+
+def _latency(link, n: int) -> dict:
+    times = []
+    if hasattr(link, "status"):
+        what = "Modbus read of every status register (function 3)"
+        for _ in range(n):
+            t = time.perf_counter()
+            link.read_status()
+            times.append(time.perf_counter() - t)
+    else:
+        what = "CANopen SDO upload of the statusword 0x6041"
+        d = link.drives[0]
+        for _ in range(n):
+            t = time.perf_counter()
+            d.sdo_read(0x6041)
+            times.append(time.perf_counter() - t)
+    return {"what": what, **latency_stats(times)}
+
+
+def _drive(actuator, clock, commands) -> np.ndarray:
+    """Command each sample at the controller rate; return measured displacements."""
+    out = np.empty(len(commands))
+    for i, c in enumerate(commands):
+        actuator.command(float(c))
+        clock.tick()
+        out[i] = actuator.feedback().displacement_mm
+    return out
+
+
+def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> dict:
+    rate = clock.rate_hz
+    x0 = actuator.feedback().displacement_mm
+    hold = np.full(int(0.05 * rate), x0)
+    _drive(actuator, clock, hold)
+    step = np.full(int(0.5 * rate), x0 + step_mm)
+    y = _drive(actuator, clock, step) - x0
+    t = np.arange(len(y)) / rate
+    i10 = np.argmax(y >= 0.1 * step_mm) if np.any(y >= 0.1 * step_mm) else None
+    i90 = np.argmax(y >= 0.9 * step_mm) if np.any(y >= 0.9 * step_mm) else None
+    rise = float(t[i90] - t[i10]) if i10 is not None and i90 is not None else math.nan
+    overshoot = float(max(y.max() - step_mm, 0.0) / step_mm * 100.0)
+    _drive(actuator, clock, np.linspace(x0 + step_mm, x0, int(0.25 * rate)))  # back, slowly
+    n = int(2.0 / sine_hz * rate)
+    ts = np.arange(n) / rate
+    cmd = x0 + sine_mm * np.sin(2 * np.pi * sine_hz * ts)
+    meas = _drive(actuator, clock, cmd)
+    settle = int(0.25 / sine_hz * rate)
+    rms = float(np.sqrt(np.mean((cmd[settle:] - meas[settle:]) ** 2)))
+    _drive(actuator, clock, np.full(int(0.1 * rate), x0))
+    actuator.hold()
+    return {"step_mm": step_mm, "rise_time_s": rise, "overshoot_pct": overshoot,
+            "sine_amplitude_mm": sine_mm, "sine_hz": sine_hz, "rms_tracking_error_mm": rms}
+
+
+@click.command()
+@click.argument("url")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+@click.option("--move", is_flag=True, help="Also make a small step and a slow sine on axis 0 (moves the actuator).")
+@click.option("--axes", default=1, show_default=True, type=click.IntRange(1, 64), help="Number of axes to open.")
+@click.option("--requests", "n_requests", default=200, show_default=True, type=click.IntRange(1, 100000),
+              help="Requests for the latency figures.")
+@click.option("--step-mm", default=1.0, show_default=True, type=float)
+@click.option("--sine-mm", default=1.0, show_default=True, type=float)
+@click.option("--sine-hz", default=0.5, show_default=True, type=float)
+@click.option("--option", "options", multiple=True, metavar="KEY=VALUE", help="A [driver] setting (repeatable).")
+def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options) -> None:
+    """Diagnose the controller at URL: identity, state, latency; with --move, step and sine."""
+    from hsio.clock import LockstepClock, RealTimeClock
+
+    table = dict(o.partition("=")[::2] for o in options)
+    report: dict = {"url": url}
+    actuators = []
+    try:
+        started = time.perf_counter()
+        actuators = _open(url, axes, table, enable=move)
+        link = actuators[0].link
+        report["connect_s"] = round(time.perf_counter() - started, 4)
+        report["clock"] = "lockstep" if link.lockstep else "realtime"
+        report["identity"] = _identity(link)
+        report["axes"] = _state(link, actuators)
+        report["latency"] = _latency(link, n_requests)
+        if move:
+            clock = LockstepClock() if link.lockstep else RealTimeClock()
+            clock.attach(link)
+            if step_mm == 0 or abs(step_mm) > 0.05 * actuators[0].limits.stroke_mm:
+                raise click.BadParameter(f"--step-mm {step_mm}: must be non-zero and within 5 % of the stroke")
+            report["move"] = _move(actuators[0], clock, step_mm, sine_mm, sine_hz)
+    except HsioError as exc:
+        report["error"] = str(exc)
+    finally:
+        for a in actuators:
+            try:
+                a.close() if move else None
+            except Exception:
+                pass
+        if actuators and not move:
+            actuators[0].link.close()
+    if as_json:
+        click.echo(json.dumps(report, indent=2, default=str))
+    else:
+        _print(report)
+    if "error" in report:
+        sys.exit(2)
+
+
+def _print(r: dict) -> None:
+    click.echo(f"url        {r['url']}")
+    if "clock" in r:
+        click.echo(f"connected  in {r['connect_s'] * 1e3:.1f} ms; clock {r['clock']}")
+        click.echo(f"identity   {json.dumps(r['identity'], default=str)}")
+        for a in r["axes"]:
+            click.echo(f"axis {a['axis']}     d = {a['displacement_mm']:.4f} mm, F = {a['force_kN']:.4f} kN, "
+                       + (f"flags {', '.join(k for k, v in a['flags'].items() if v) or '-'}" if "flags" in a
+                          else f"state {a['state']} ({a['statusword']}), mode {a['mode']}"))
+        lat = r["latency"]
+        click.echo(f"latency    {lat['what']}: median {lat['median_ms']:.3f} ms, p99 {lat['p99_ms']:.3f} ms, "
+                   f"max {lat['max_ms']:.3f} ms over {lat['requests']} requests")
+    if "move" in r:
+        m = r["move"]
+        click.echo(f"step       {m['step_mm']:g} mm: rise time (10-90 %) {m['rise_time_s'] * 1e3:.1f} ms, "
+                   f"overshoot {m['overshoot_pct']:.2f} %")
+        click.echo(f"sine       {m['sine_amplitude_mm']:g} mm at {m['sine_hz']:g} Hz: RMS tracking error "
+                   f"{m['rms_tracking_error_mm']:.4f} mm")
+    if "error" in r:
+        click.echo(f"error      {r['error']}", err=True)

@@ -1,0 +1,187 @@
+"""CANopen CiA 402 on python-can's virtual bus: the emulated drive, the BaseNode402 driver, hsio
+run over the bus, SDO aborts, EMCY, heartbeat, restarts and malformed frames."""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import can
+import numpy as np
+import pytest
+
+from drivers import canopen_od as cod
+from drivers.canopen import CanopenLink, open_link
+from emulators.bank import bank_from_config
+from emulators.canopen import CanopenEmulator
+from hsio.clock import LockstepClock, RealTimeClock
+from hsio.errors import CommunicationError, ConfigError, InterlockError
+from hsio.experiment import ExperimentStopped
+from wire import QUIET_SENSORS, max_abs_diff, run, write_config
+
+_channels = itertools.count()
+POSITION_RESOLUTION_MM = 1.0 / cod.COUNTS_PER_MM  # int32 counts of 1 um
+FORCE_RESOLUTION_KN = cod.RATED_FORCE_N / 1e6  # int16 per mille of 10 kN: 0.01 kN
+
+
+def channel() -> str:
+    return f"hsio-test-{next(_channels)}"
+
+
+@pytest.fixture
+def cfg(tmp_path):
+    return write_config(tmp_path, duration=1.0)
+
+
+@pytest.fixture
+def drive(cfg):
+    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), channel()).start()
+    yield emu
+    emu.stop()
+
+
+def test_run_over_canopen_lockstep_equals_in_process_within_count_resolution(tmp_path):
+    """Positions cross as int32 counts (1 um) and forces as int16 per mille of the rated force
+    (0.01 kN). With the emulator's own sensor noise and quantisation off, so that only the
+    transport rounds, the first measured forces and displacements agree to half a count; the
+    histories, fed back through the integrator, agree to a fraction of a percent of the peak."""
+    cfg = write_config(tmp_path, duration=1.0, extra=QUIET_SENSORS)
+    drive = CanopenEmulator(bank_from_config(cfg, lockstep=True), channel()).start()
+    try:
+        local, a = run(cfg, tmp_path / "local")
+        wire, b = run(cfg, tmp_path / "wire", url=drive.url)
+    finally:
+        drive.stop()
+    assert wire["steps"] == local["steps"] == 100
+    first = slice(1, 3)
+    for name in ("C1", "C2"):
+        assert np.all(np.abs(a.steps[f"force_{name}"][first] - b.steps[f"force_{name}"][first]) <= FORCE_RESOLUTION_KN / 2 + 1e-9)
+        assert np.all(np.abs(a.steps[f"disp_{name}"][first] - b.steps[f"disp_{name}"][first]) <= POSITION_RESOLUTION_MM / 2 + 1e-9)
+    peak = max(local["peak_displacement_mm"])
+    assert max_abs_diff(a, b) <= 0.01 * peak
+    assert drive.bank.ticks > 50 * wire["steps"]
+
+
+def test_run_over_canopen_real_time_within_tracking_tolerance(tmp_path):
+    cfg = write_config(tmp_path, duration=1.0, rate=3.0, clock="realtime")
+    emu = CanopenEmulator(bank_from_config(cfg, lockstep=False), channel()).start()
+    try:
+        local, a = run(write_config(tmp_path, duration=1.0, rate=3.0, name="ls.toml"), tmp_path / "local")
+        wire, b = run(cfg, tmp_path / "wire", url=emu.url)
+        assert wire["steps"] == local["steps"]
+        tracking = max(wire["rms_tracking_error_mm"])
+        assert max_abs_diff(a, b) <= max(5 * tracking, 0.02 * max(local["peak_displacement_mm"]))
+    finally:
+        emu.stop()
+
+
+def test_state_machine_modes_and_identity(drive):
+    clock = LockstepClock()
+    acts = open_link(drive.url, ["C1", "C2"], clock)
+    link = acts[0].link
+    d = link.drives[0]
+    assert link.lockstep and d.node.state == "OPERATION ENABLED"
+    assert d.identity["product_code"] == 402 and d.sdo_read(0x1000) == cod.DEVICE_TYPE_402
+    for _ in range(300):
+        acts[0].command(0.8)
+        acts[1].command(-0.4)
+        clock.tick()
+    assert acts[0].feedback().displacement_mm == pytest.approx(0.8, abs=0.05)
+    # Force control (cyclic synchronous torque), bumpless, then a force command.
+    f0 = acts[0].feedback().force_kN
+    acts[0].set_mode(acts[0].mode.__class__("force"))
+    assert d.sdo_read(0x6061) == cod.CST
+    for _ in range(300):
+        acts[0].command(f0 + 0.1)
+        acts[1].command(-0.4)
+        clock.tick()
+    assert acts[0].feedback().force_kN == pytest.approx(f0 + 0.1, abs=0.03)
+    acts[0].hold()
+    assert drive.bank.controllers[0].holding and d.sdo_read(0x6061) == cod.CSP
+    for a in acts:
+        a.close()
+
+
+def test_sdo_abort_becomes_a_clear_error(drive):
+    link = CanopenLink(drive.url, 1)
+    link.open(enable=False)
+    try:
+        with pytest.raises(CommunicationError, match=r"node 1: SDO read .*0x5000.*aborted with code 0x06020000"):
+            link.drives[0].sdo_read(0x5000, what="an object it does not have")
+        with pytest.raises(CommunicationError, match=r"aborted with code 0x06090030"):
+            link.drives[0].sdo_write(0x6060, 3, "modes of operation")  # profiled velocity: not supported
+    finally:
+        link.close()
+
+
+def test_interlock_emcy_stops_the_run_with_steps_kept(tmp_path):
+    cfg = write_config(tmp_path, duration=1.0, extra="[emulator]\nstroke_mm = 1.6\n")
+    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), channel()).start()
+    try:
+        result, recorded = run(cfg, tmp_path / "wire", url=emu.url, driver={"stroke_mm": 10.0})
+        assert isinstance(result, ExperimentStopped)
+        assert "EMCY 0x" in str(result) and ("stroke" in str(result) or "out of range" in str(result))
+        assert len(recorded.steps["step"]) == result.result.steps > 5
+        assert all(c.holding for c in emu.bank.controllers)
+    finally:
+        emu.stop()
+
+
+def test_malformed_pdo_gives_emcy_and_a_clear_error(drive):
+    clock = LockstepClock()
+    acts = open_link(drive.url, ["C1", "C2"], clock)
+    with can.Bus(interface="virtual", channel=drive.channel) as bus:
+        bus.send(can.Message(arbitration_id=0x300 + 1, data=b"\x01\x02", is_extended_id=False))
+    time.sleep(0.05)
+    with pytest.raises(CommunicationError, match=r"EMCY 0x8210 \(PDO not processed: length error"):
+        acts[0].command(0.1)
+        clock.tick()
+    assert drive.network is not None  # the drive is still there
+    acts[0].link.close()
+
+
+def test_restarted_node_and_silent_node(cfg):
+    name = channel()
+    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), name).start()
+    clock = LockstepClock()
+    acts = open_link(emu.url, ["C1", "C2"], clock, {"timeout_s": 0.05, "retries": 1})
+    try:
+        emu.stop()  # the drive goes silent
+        with pytest.raises(CommunicationError, match=r"no TPDO from node\(s\) \[1, 2\]"):
+            acts[0].command(0.0)
+            acts[1].command(0.0)
+            clock.tick()
+        emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), name).start()  # and comes back
+        time.sleep(0.05)
+        with pytest.raises(CommunicationError, match="restarted"):
+            acts[0].command(0.0)
+            acts[1].command(0.0)
+            clock.tick()
+    finally:
+        emu.stop()
+        acts[0].link.close()
+
+
+def test_watchdog_emcy_in_real_time(cfg):
+    bank = bank_from_config(cfg, lockstep=False, watchdog_s=0.1)
+    emu = CanopenEmulator(bank, channel()).start()
+    try:
+        clock = RealTimeClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock)
+        for _ in range(30):
+            for a in acts:
+                a.command(0.1)
+            clock.tick()
+            acts[0].feedback()
+        time.sleep(0.3)
+        with pytest.raises(InterlockError, match=r"EMCY 0x8130 \(host watchdog expired"):
+            acts[0].command(0.1)
+        assert bank.controllers[0].holding
+        acts[0].link.close()
+    finally:
+        emu.stop()
+
+
+def test_bad_url_is_a_config_error():
+    with pytest.raises(ConfigError, match="node id 300 is not in 1..127"):
+        CanopenLink("canopen+virtual://bus/300", 1)

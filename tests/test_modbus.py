@@ -1,0 +1,215 @@
+"""Modbus TCP and RTU: the register map, the emulator's server, the driver, hsio run over the wire."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from drivers import modbus_map
+from drivers.modbus import ModbusLink, open_link
+from emulators.bank import bank_from_config
+from emulators.modbus import ModbusEmulator
+from hsio.clock import LockstepClock, RealTimeClock
+from hsio.errors import CommunicationError, ConfigError, InterlockError
+from wire import QUIET_SENSORS, free_port, max_abs_diff, run, write_config
+
+FLOAT32_EPS = 2.0 ** -23
+
+
+@pytest.fixture
+def cfg(tmp_path):
+    return write_config(tmp_path, duration=1.0)
+
+
+@pytest.fixture
+def tcp_emulator(cfg):
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), port=free_port()).start()
+    yield emu
+    emu.stop()
+
+
+# -- the register map ----------------------------------------------------------------------------
+
+def test_default_map_layout_and_float32_word_order():
+    m = modbus_map.load()
+    assert m.word_order == "big" and m.readwrite
+    reg = m.status.registers["displacement"]
+    assert reg.type == "float32" and m.status.address(1, "displacement") == m.status.base + m.status.stride + reg.address
+    # 1.5 as IEEE 754 is 0x3FC00000: high word first in "big" order.
+    assert m.encode(reg, 1.5) == [0x3FC0, 0x0000]
+    assert modbus_map.Register("x", 0).encode(1.5, "little") == [0x0000, 0x3FC0]
+    # One contiguous write carries every axis' commands and the clock target.
+    start, count = m.command_span(2, with_advance=True)
+    assert start == m.lockstep["advance"].address and count == m.command.base + 2 * m.command.stride - start
+
+
+def test_map_errors_name_the_table_and_register(tmp_path):
+    text = modbus_map.DEFAULT_MAP.read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace("force        = { offset = 2, type", "force        = { offset = 1, type"))
+    with pytest.raises(ConfigError, match=r"bad.toml: \[command\].*overlap"):
+        modbus_map.load(bad)
+    bad.write_text(text.replace('type = "uint32"', 'type = "uint64"'))
+    with pytest.raises(ConfigError, match=r"\[lockstep\].*advance.*type"):
+        modbus_map.load(bad)
+
+
+def test_a_lab_map_with_integer_counts_and_little_word_order(tmp_path, cfg):
+    """The map is data: integer registers with scales and the low word first work unchanged."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    text = text.replace('word_order = "big"', 'word_order = "little"')
+    text = text.replace('displacement = { offset = 0, type = "float32" }', 'displacement = { offset = 0, type = "int32", scale = 1000.0 }')
+    text = text.replace('displacement = { offset = 2, type = "float32" }', 'displacement = { offset = 2, type = "int32", scale = 1000.0 }')
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    lab = modbus_map.load(path)
+    assert lab.encode(lab.command.registers["displacement"], -1.2344) == [(-1234) & 0xFFFF, 0xFFFF]
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), lab, port=free_port()).start()
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path)})
+        for _ in range(200):
+            acts[0].command(0.5)
+            acts[1].command(-0.25)
+            clock.tick()
+        fb = acts[0].feedback(), acts[1].feedback()
+        # Measured displacement travels as integer micrometres.
+        assert fb[0].displacement_mm == pytest.approx(emu.bank.controllers[0].measured_displacement, abs=0.0005)
+        assert fb[0].displacement_mm == pytest.approx(0.5, abs=0.05) and fb[1].displacement_mm == pytest.approx(-0.25, abs=0.05)
+        assert fb[0].displacement_mm * 1000 == pytest.approx(round(fb[0].displacement_mm * 1000), abs=1e-9)
+        for a in acts:
+            a.close()
+    finally:
+        emu.stop()
+
+
+# -- hsio run over the wire ----------------------------------------------------------------------
+
+def test_run_over_modbus_tcp_lockstep_equals_in_process(tmp_path):
+    """Lockstep: the same run to float32 resolution (commands and measurements cross as float32)."""
+    cfg = write_config(tmp_path, duration=1.0, extra=QUIET_SENSORS)
+    tcp_emulator = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), port=free_port()).start()
+    try:
+        local, a = run(cfg, tmp_path / "local")
+        wire, b = run(cfg, tmp_path / "wire", url=tcp_emulator.url)
+    finally:
+        tcp_emulator.stop()
+    assert wire["steps"] == local["steps"] == 100
+    peak = max(local["peak_displacement_mm"])
+    assert peak > 0.5
+    # float32 carries 24 bits: relative resolution 2^-23 ~ 1.2e-7; the run may add a few roundings.
+    assert max_abs_diff(a, b) <= 100 * FLOAT32_EPS * peak
+    assert max_abs_diff(a, b, "force_") <= 100 * FLOAT32_EPS * max(np.max(np.abs(a.steps[k])) for k in a.steps if k.startswith("force_"))
+    # One request per controller period: the emulator's clock advanced exactly as the run's.
+    ticks = tcp_emulator.bank.ticks
+    assert ticks > 50 * wire["steps"]
+    assert ticks <= tcp_emulator.context.requests <= ticks + 50  # one request per controller period
+
+
+def test_run_over_modbus_rtu_pty_lockstep_equals_in_process(tmp_path):
+    cfg = write_config(tmp_path, duration=0.3, rate=5.0, extra=QUIET_SENSORS)
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), transport="rtu").start()
+    try:
+        assert emu.path.startswith("/dev/pts/")
+        local, a = run(cfg, tmp_path / "local")
+        wire, b = run(cfg, tmp_path / "wire", url=emu.url)
+        assert wire["steps"] == local["steps"] == 30
+        assert max_abs_diff(a, b) <= 100 * FLOAT32_EPS * max(local["peak_displacement_mm"])
+    finally:
+        emu.stop()
+
+
+def test_run_over_modbus_tcp_real_time_within_tracking_tolerance(tmp_path):
+    """Real time: the emulator runs its own 1024 Hz loop; HS over TCP matches in-process HS
+    within the tracking tolerance (a few tracking-error RMS)."""
+    cfg = write_config(tmp_path, duration=1.0, rate=3.0, clock="realtime")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False), modbus_map.load(), port=free_port()).start()
+    try:
+        local, a = run(write_config(tmp_path, duration=1.0, rate=3.0, name="ls.toml"), tmp_path / "local")
+        wire, b = run(cfg, tmp_path / "wire", url=emu.url)
+        assert wire["steps"] == local["steps"]
+        peak = max(local["peak_displacement_mm"])
+        tracking = max(wire["rms_tracking_error_mm"])
+        assert max_abs_diff(a, b) <= max(5 * tracking, 0.02 * peak), (max_abs_diff(a, b), tracking, peak)
+        assert wire["max_error_pct"] < 5.0
+    finally:
+        emu.stop()
+
+
+def test_clock_mismatch_is_a_clear_error(cfg, tcp_emulator):
+    with pytest.raises(ConfigError, match="lockstep"):
+        open_link(tcp_emulator.url, ["C1", "C2"], RealTimeClock())
+
+
+# -- a third-party client --------------------------------------------------------------------------
+
+def test_third_party_client_reads_and_commands(cfg):
+    """pymodbus's own client, no hsio code: read measured displacement, write a command."""
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0), modbus_map.load(), port=free_port()).start()
+    try:
+        c = ModbusTcpClient("127.0.0.1", port=emu.port)
+        assert c.connect()
+        F32 = ModbusTcpClient.DATATYPE.FLOAT32
+        # axis 0: command block at 18 (displacement 18, force 20, mode 22, enable 24, watchdog 26)
+        regs = c.convert_to_registers(2.0, F32) + c.convert_to_registers(0.0, F32) \
+            + c.convert_to_registers(0.0, F32) + c.convert_to_registers(1.0, F32)
+        assert not c.write_registers(18, regs, device_id=1).isError()
+        time.sleep(0.3)
+        rr = c.read_holding_registers(202, count=2, device_id=1)  # axis 0 measured displacement
+        d = c.convert_from_registers(rr.registers, F32)
+        assert d == pytest.approx(2.0, abs=0.1)
+        # Out of range (beyond +/-127 mm): exception 3, nothing applied, the axis keeps its command.
+        bad = c.write_registers(18, c.convert_to_registers(500.0, F32), device_id=1)
+        assert bad.isError() and bad.exception_code == 3
+        assert emu.bank.controllers[0].command == pytest.approx(2.0)
+        # Status registers are read only: exception 2.
+        ro = c.write_registers(202, c.convert_to_registers(1.0, F32), device_id=1)
+        assert ro.isError() and ro.exception_code == 2
+        c.close()
+    finally:
+        emu.stop()
+
+
+def test_modbus_exception_becomes_a_clear_error(cfg, tcp_emulator):
+    link = ModbusLink(tcp_emulator.url, 2)
+    link.open(enable=False)
+    with pytest.raises(CommunicationError, match=r"Modbus exception 2 \(illegal data address\)"):
+        link.request("write_registers", 200, [0, 0], what="write to the status block")
+    link.close()
+
+
+def test_watchdog_holds_the_axis_and_the_driver_says_so(cfg):
+    bank = bank_from_config(cfg, lockstep=False, watchdog_s=0.15)
+    emu = ModbusEmulator(bank, modbus_map.load(), port=free_port()).start()
+    try:
+        clock = RealTimeClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock)
+        for _ in range(50):
+            for a in acts:
+                a.command(0.2)
+            clock.tick()
+            acts[0].feedback()
+        time.sleep(0.4)  # the host goes silent
+        assert bank.axes[0].watchdog_expired and bank.controllers[0].holding
+        acts[0].link.read_status()
+        with pytest.raises(InterlockError, match="watchdog expired"):
+            acts[0].command(0.3)
+    finally:
+        emu.stop()
+
+
+def test_connect_to_nothing_is_a_clear_error():
+    with pytest.raises(CommunicationError, match="cannot connect"):
+        open_link(f"modbus+tcp://127.0.0.1:{free_port()}", ["a"], LockstepClock(), {"timeout_s": 0.2})
+
+
+def test_bad_driver_options_are_refused():
+    with pytest.raises(ConfigError, match="unknown key 'timeout'"):
+        ModbusLink("modbus+tcp://127.0.0.1:1", 1, {"timeout": 1})
+    with pytest.raises(ConfigError, match="timeout_s must be positive"):
+        ModbusLink("modbus+tcp://127.0.0.1:1?timeout_s=0", 1)
+    assert math.isfinite(ModbusLink("modbus+tcp://127.0.0.1:1?timeout_s=0.3", 1).timeout_s)

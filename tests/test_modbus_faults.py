@@ -1,0 +1,157 @@
+"""Faults on the Modbus link: dropped link, late and corrupted replies, a silent or restarted
+controller, out-of-range commands, malformed frames. The run holds, reconnects, or stops with a
+clear error, and every recorded step stays recorded."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import pytest
+
+from drivers import modbus_map
+from emulators.bank import bank_from_config
+from emulators.modbus import ModbusEmulator
+from hsio import runner
+from hsio.clock import LockstepClock
+from hsio.experiment import ExperimentStopped
+from wire import AtStep, FaultProxy, free_port, max_abs_diff, run, write_config
+
+FLOAT32_EPS = 2.0 ** -23
+FAULT_TICK = 3000  # about a third into the run
+
+
+@pytest.fixture(scope="module")
+def cfg(tmp_path_factory):
+    return write_config(tmp_path_factory.mktemp("cfg"), duration=1.0)
+
+
+@pytest.fixture
+def emulator(cfg):
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0.3), modbus_map.load(), port=free_port()).start()
+    yield emu
+    emu.stop()
+
+
+@pytest.fixture
+def proxy(emulator):
+    p = FaultProxy(emulator.port)
+    yield p
+    p.close()
+
+
+@pytest.fixture(scope="module")
+def reference(cfg, tmp_path_factory):
+    return run(cfg, tmp_path_factory.mktemp("local") / "run")
+
+
+def fault_at(monkeypatch, tick: int, action) -> AtStep:
+    trigger = AtStep(tick, action)
+
+    def make_clock():
+        clock = LockstepClock()
+        clock.attach(trigger)
+        return clock
+
+    monkeypatch.setattr(runner, "LockstepClock", make_clock)
+    return trigger
+
+
+def same_run(reference, b) -> bool:
+    summary, a = reference
+    return max_abs_diff(a, b) <= 100 * FLOAT32_EPS * max(summary["peak_displacement_mm"])
+
+
+def assert_stopped_with_steps_kept(result, recorded, pattern: str) -> None:
+    assert isinstance(result, ExperimentStopped), result
+    assert pytest.approx(0) != len(result.result.t)
+    msg = str(result)
+    import re
+    assert re.search(pattern, msg), msg
+    assert "steps recorded" in msg
+    steps = result.result.steps
+    assert steps > 5
+    assert len(recorded.steps["step"]) == steps  # every step made is in the record
+
+
+def test_dropped_link_reconnects_and_the_run_is_unchanged(monkeypatch, tmp_path, cfg, proxy, reference):
+    trigger = fault_at(monkeypatch, FAULT_TICK, proxy.drop)
+    summary, b = run(cfg, tmp_path / "wire", url=f"modbus+tcp://127.0.0.1:{proxy.port}", driver={"timeout_s": 0.2})
+    assert trigger.done and proxy.connections >= 2
+    assert summary["steps"] == reference[0]["steps"]
+    assert same_run(reference, b)
+
+
+def test_reply_later_than_the_timeout_is_retried(monkeypatch, tmp_path, cfg, proxy, reference):
+    fault_at(monkeypatch, FAULT_TICK, lambda: proxy.delay_next(0.5))
+    started = time.perf_counter()
+    summary, b = run(cfg, tmp_path / "wire", url=f"modbus+tcp://127.0.0.1:{proxy.port}", driver={"timeout_s": 0.15})
+    assert proxy.connections >= 2  # the late reply was abandoned with its connection
+    assert summary["steps"] == reference[0]["steps"] and same_run(reference, b)
+    assert time.perf_counter() - started < 20
+
+
+def test_corrupted_reply_is_rejected_and_retried(monkeypatch, tmp_path, cfg, proxy, reference):
+    fault_at(monkeypatch, FAULT_TICK, proxy.corrupt_next)
+    summary, b = run(cfg, tmp_path / "wire", url=f"modbus+tcp://127.0.0.1:{proxy.port}", driver={"timeout_s": 0.15})
+    assert summary["steps"] == reference[0]["steps"] and same_run(reference, b)
+
+
+def test_silent_controller_stops_the_run_with_a_clear_error(monkeypatch, tmp_path, cfg, emulator, proxy):
+    def go_silent():
+        proxy.blackhole = True
+
+    fault_at(monkeypatch, FAULT_TICK, go_silent)
+    result, recorded = run(cfg, tmp_path / "wire", url=f"modbus+tcp://127.0.0.1:{proxy.port}",
+                           driver={"timeout_s": 0.1, "retries": 1})
+    assert_stopped_with_steps_kept(result, recorded, r"no valid answer after 2 attempt\(s\) with a 0.1 s timeout")
+    # The controller, silent host or not, holds (its watchdog of 0.3 s expires).
+    time.sleep(0.5)
+    assert all(c.holding for c in emulator.bank.controllers)
+
+
+def test_restarted_controller_is_detected_and_the_run_stops(monkeypatch, tmp_path, cfg, emulator):
+    port = emulator.port
+    fresh = {}
+
+    def restart():
+        emulator.stop()
+        fresh["emu"] = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), port=port).start()
+
+    fault_at(monkeypatch, FAULT_TICK, restart)
+    try:
+        result, recorded = run(cfg, tmp_path / "wire", url=emulator.url, driver={"timeout_s": 0.2, "reconnect_delay_s": 0.2})
+        assert_stopped_with_steps_kept(result, recorded, "the controller restarted")
+    finally:
+        if "emu" in fresh:
+            fresh["emu"].stop()
+
+
+def test_out_of_range_command_is_refused_and_the_actuators_hold(tmp_path, cfg, emulator):
+    result, recorded = run(cfg, tmp_path / "wire", url=emulator.url, driver={"stroke_mm": 1.0})
+    assert_stopped_with_steps_kept(result, recorded, r"beyond the stroke \(\+/-0.5 mm\); not sent")
+    assert all(c.holding for c in emulator.bank.controllers)
+    assert all(abs(c.command) <= 0.5 for c in emulator.bank.controllers)  # nothing beyond was sent
+
+
+def test_malformed_frames_do_not_disturb_the_controller(monkeypatch, tmp_path, cfg, emulator, reference):
+    answers = []
+
+    def garbage():
+        for junk in (b"\x00\x01\x00\x00\x00\x02\x01", b"\xff" * 40, b"\x00\x07\x00\x00\x00\x06\x01\x63\x00\x00\x00\x01"):
+            with socket.create_connection(("127.0.0.1", emulator.port), timeout=0.5) as s:
+                s.sendall(junk)
+                s.settimeout(0.2)
+                try:
+                    answers.append(s.recv(256))
+                except (TimeoutError, OSError):
+                    answers.append(b"")
+
+    sender = threading.Thread(target=garbage)  # another client sends junk while the run goes on
+    fault_at(monkeypatch, FAULT_TICK, sender.start)
+    summary, b = run(cfg, tmp_path / "wire", url=emulator.url)
+    sender.join(timeout=5)
+    assert len(answers) == 3
+    assert answers[2][7] & 0x80 and answers[2][8] == 1  # unknown function 0x63: exception 1 (illegal function)
+    assert summary["steps"] == reference[0]["steps"] and same_run(reference, b)

@@ -1,0 +1,175 @@
+"""Helpers for the tests over the wire: configurations, free ports, runs, a fault-injecting proxy."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hsio import config as config_mod
+from hsio import runner
+from hsio.experiment import ExperimentStopped
+from hsio.recording import Run
+
+BASE = """
+[record]
+duration_s = {duration}
+[test]
+rate = {rate}
+[output]
+plots = false
+samples = false
+[hardware]
+clock = "{clock}"
+"""
+
+# The emulator's own sensor noise and quantisation off: a run over the wire then differs from the
+# in-process run only by the transport's number format (a 0.025 mm quantiser would turn a
+# rounding of the transport into a whole step now and then).
+QUIET_SENSORS = "[emulator]\nnoise_mm = 0.0\nresolution_mm = 0.0\nforce_noise_kN = 0.0\nforce_resolution_kN = 0.0\n"
+
+
+def write_config(tmp_path: Path, duration: float = 1.0, rate: float = 20.0, clock: str = "lockstep",
+                 extra: str = "", name: str = "run.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(BASE.format(duration=duration, rate=rate, clock=clock) + extra)
+    return path
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run(config_path: Path, out: Path, url: str | None = None, driver: dict | None = None):
+    """hsio run's pipeline in process; returns (summary or the ExperimentStopped, Run)."""
+    cfg = config_mod.load(config_path)
+    if url is not None:
+        cfg["hardware"]["url"] = url
+    if driver:
+        cfg["driver"].update(driver)
+    try:
+        result = runner.run(cfg, out)
+    except ExperimentStopped as exc:
+        result = exc
+    return result, Run(out / "run.sqlite")
+
+
+def max_abs_diff(a: Run, b: Run, prefix: str = "u_") -> float:
+    keys = [k for k in a.steps if k.startswith(prefix)]
+    n = min(len(a.steps["step"]), len(b.steps["step"]))
+    return max(float(np.max(np.abs(a.steps[k][:n] - b.steps[k][:n]))) for k in keys)
+
+
+class FaultProxy:
+    """A TCP proxy between a client and a server that can drop, delay or corrupt the traffic.
+
+    ``drop()`` closes every open connection (the client sees a dropped link); ``delay_next(s)``
+    holds the next reply for ``s`` seconds; ``corrupt_next()`` flips the bytes of the next reply;
+    ``blackhole = True`` swallows every reply (a controller that went silent).
+    """
+
+    def __init__(self, target_port: int, host: str = "127.0.0.1"):
+        self.target = (host, target_port)
+        self.listener = socket.socket()
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.listener.bind((host, 0))
+        self.listener.listen(8)
+        self.port = self.listener.getsockname()[1]
+        self.pairs: list[tuple[socket.socket, socket.socket]] = []
+        self.lock = threading.Lock()
+        self.delay_s = 0.0
+        self.corrupt = False
+        self.blackhole = False
+        self.replies = 0
+        self.connections = 0
+        self._stop = threading.Event()
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        self.listener.settimeout(0.1)
+        while not self._stop.is_set():
+            try:
+                client, _ = self.listener.accept()
+            except (TimeoutError, OSError):
+                continue
+            try:
+                server = socket.create_connection(self.target, timeout=1.0)
+            except OSError:
+                client.close()
+                continue
+            for s in (client, server):
+                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self.lock:
+                self.pairs.append((client, server))
+                self.connections += 1
+            threading.Thread(target=self._pipe, args=(client, server, False), daemon=True).start()
+            threading.Thread(target=self._pipe, args=(server, client, True), daemon=True).start()
+
+    def _pipe(self, src: socket.socket, dst: socket.socket, reply: bool) -> None:
+        src.settimeout(None)
+        while True:
+            try:
+                data = src.recv(4096)
+            except OSError:
+                break
+            if not data:
+                break
+            if reply:
+                self.replies += 1
+                if self.blackhole:
+                    continue
+                if self.delay_s:
+                    d, self.delay_s = self.delay_s, 0.0
+                    time.sleep(d)
+                if self.corrupt:
+                    self.corrupt = False
+                    data = bytes(b ^ 0x5A for b in data)
+            try:
+                dst.sendall(data)
+            except OSError:
+                break
+        for s in (src, dst):
+            try:
+                s.close()
+            except OSError:
+                pass
+
+    def drop(self) -> None:
+        with self.lock:
+            pairs, self.pairs = self.pairs, []
+        for pair in pairs:
+            for s in pair:
+                try:
+                    s.shutdown(socket.SHUT_RDWR)
+                    s.close()
+                except OSError:
+                    pass
+
+    def delay_next(self, seconds: float) -> None:
+        self.delay_s = seconds
+
+    def corrupt_next(self) -> None:
+        self.corrupt = True
+
+    def close(self) -> None:
+        self._stop.set()
+        self.drop()
+        self.listener.close()
+
+
+class AtStep:
+    """Calls ``action`` once when the lockstep clock reaches ``tick`` (a device on the clock)."""
+
+    def __init__(self, tick: int, action):
+        self.tick, self.action, self.ticks, self.done = tick, action, 0, False
+
+    def advance(self, n: int) -> None:
+        self.ticks += n
+        if not self.done and self.ticks >= self.tick:
+            self.done = True
+            self.action()
