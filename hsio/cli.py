@@ -110,7 +110,8 @@ def _print_summary(s: dict) -> None:
     if "switches" in s:
         click.echo(f"method         {s['method']}: {s['switches']} switches, FC in "
                    f"{', '.join(f'{x * 100:.0f} %' for x in s['fc_step_fraction'])} of steps, "
-                   f"{s['iterations_per_step_mean']:.2f} commands per step")
+                   f"{s['iterations_per_step_mean']:.2f} commands per step, "
+                   f"{s['nonconverged_steps']} steps at j_max without convergence")
     click.echo(f"wall time      {s['wall_time_s']:.1f} s (the lab would take {s['test_time_s']:.1f} s)")
     click.echo(f"record file    {s['run_file']}")
     for p in s.get("plots", []):

@@ -96,10 +96,12 @@ def _check_ranges(t: dict, source: str) -> None:
         raise ConfigError(f"{source}: [hardware] clock must be 'lockstep' or 'realtime', got {t['hardware']['clock']!r}")
     if t["record"]["duration_s"] < 0:
         raise ConfigError(f"{source}: [record] duration_s must not be negative")
-    if "compensation" in t:
-        from hsio.compensation.stage import CompensationSettings
+    from hsio.compensation.stage import CompensationSettings
 
-        CompensationSettings.from_table(t["compensation"], f"{source}: [compensation]")
+    CompensationSettings.from_table(t["compensation"], f"{source}: [compensation]")
+    if t["compensation"]["mode"] == "offline" and t["test"]["hold_fraction"] > 0:
+        raise ConfigError(f"{source}: [compensation] mode = 'offline' compensates continuous motion (a and b are "
+                          f"calibrated on continuous ramps): set [test] hold_fraction = 0, or use mode = 'online'")
 
 
 def _check_implicit(i: dict, source: str) -> None:

@@ -100,7 +100,10 @@ class ControlLoop:
         commands = []
         try:
             for g, actuator in zip(self.generators, self.actuators):
+                previous = g.command
                 c = g.next_sample()
+                if actuator.mode is ControlMode.DISPLACEMENT:
+                    actuator.limits.check_velocity((c - previous) / self.clock.period_s, f"actuator {actuator.name!r}")
                 actuator.command(c)
                 commands.append(c)
             self.clock.tick()

@@ -89,6 +89,8 @@ def summary(hs: Result) -> dict:
         **({"test_time_s": round(hs.extra["lab_time_s"], 3)} if hs.extra.get("lab_time_s") is not None else {}),
         "iterations_per_step_mean": float(its.mean()) if its.size else 0.0,
         "iterations_per_step_max": int(its.max()) if its.size else 0,
+        # Steps accepted after j_max commands without reaching the tolerance.
+        "nonconverged_steps": int(np.count_nonzero(~hs.extra["converged"][1:])),
         "wall_time_per_step_ms": float(wall.mean() * 1e3) if wall.size else 0.0,
         "thresholds": hs.extra["thresholds"],
     }

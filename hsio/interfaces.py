@@ -59,6 +59,14 @@ class Limits:
                 f"(+/-{self.force_kN:.1f} kN); not sent, the actuator holds"
             )
 
+    def check_velocity(self, value: float, where: str) -> None:
+        """Refuse a displacement command that would move faster than the actuator can."""
+        if abs(value) > self.velocity_mm_s:
+            raise LimitError(
+                f"{where}: command velocity {value:.1f} mm/s is beyond the limit "
+                f"({self.velocity_mm_s:.1f} mm/s); not sent, the actuator holds"
+            )
+
     def check(self, mode: ControlMode, value: float, where: str) -> None:
         if mode is ControlMode.DISPLACEMENT:
             self.check_displacement(value, where)

@@ -129,6 +129,7 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
     u, v, a, u_pred, R = (np.zeros((n_steps, n)) for _ in range(5))
     targets, commands, disp, force = (np.zeros((n_steps, n_e)) for _ in range(4))
     iterations = np.zeros((n_steps, n_e), dtype=int)
+    converged = np.ones(n_steps, dtype=bool)  # False: j_max reached before the tolerance
     secant = np.zeros((n_steps, n_e))
     u_sol, R_sol = np.zeros((n_steps, n_e)), np.zeros((n_steps, n_e))
     mode_hist = np.full((n_steps, n), DC.value, dtype=object)
@@ -161,11 +162,13 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
             commands[k_] = fb.commands if fb is not None else report.commands
             disp[k_], force[k_] = report.measured_u, report.measured_R
             iterations[k_], secant[k_] = report.iterations, report.k
+            converged[k_] = report.converged
             u_sol[k_], R_sol[k_] = report.u_solution, report.R_solution
             if recorder is not None:
+                recorder.write_row("implicit", k_, _implicit_row(structure, iterations[k_], converged[k_], secant[k_],
+                                                                 u_sol[k_], R_sol[k_]))
                 recorder.write_step(k_, float(t[k_]), u[k_], v[k_], a[k_], u_pred[k_], R[k_], mode_hist[k_],
                                     targets[k_], commands[k_], disp[k_], force[k_], elements.take_step_samples())
-                _write_implicit_step(recorder, structure, k_, iterations[k_], secant[k_], u_sol[k_], R_sol[k_])
             else:
                 elements.take_step_samples()
             last = k_
@@ -191,7 +194,7 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
     histories = dict(t=t, u=u, v=v, a=a, u_pred=u_pred, R=R, targets=targets, commands=commands,
                      measured_displacement=disp, measured_force=force, modes=mode_hist)
     keep = slice(0, last + 1)
-    extra = {"method": method, "element_dofs": dofs, "iterations": iterations[keep], "secant": secant[keep],
+    extra = {"method": method, "element_dofs": dofs, "iterations": iterations[keep], "converged": converged[keep], "secant": secant[keep],
              "u_solution": u_sol[keep], "R_solution": R_sol[keep], "switches": switches,
              "step_wall_time_s": step_time[keep],
              "lab_time_s": _lab_time(elements),
@@ -199,19 +202,13 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
     return finish(structure, elements, histories, last, started, stopped, extra)
 
 
-def _write_implicit_step(recorder: Recorder, structure: Structure, step: int, iterations, secant, u_sol, R_sol) -> None:
+def _implicit_row(structure: Structure, iterations, converged: bool, secant, u_sol, R_sol) -> dict:
     """Per step and element: iterations, secant stiffness, displacement and force solutions."""
-    names = [e.name for e in structure.experimental]
-    cols = [column(p, nm) for nm in names for p in ("iterations", "secant", "u_solution", "r_solution")]
-    db = recorder.db
-    if not getattr(recorder, "_implicit_table", False):
-        db.execute("CREATE TABLE IF NOT EXISTS implicit (step INTEGER PRIMARY KEY, " + ", ".join(f"{c} REAL" for c in cols) + ")")
-        recorder._implicit_table = True
-    row = [step]
-    for j in range(len(names)):
-        row += [int(iterations[j]), float(secant[j]), float(u_sol[j]), float(R_sol[j])]
-    db.execute(f"INSERT INTO implicit VALUES ({', '.join('?' * len(row))})", row)
-    db.commit()
+    row = {"converged": float(converged)}
+    for j, e in enumerate(structure.experimental):
+        row.update({column("iterations", e.name): int(iterations[j]), column("secant", e.name): float(secant[j]),
+                    column("u_solution", e.name): float(u_sol[j]), column("r_solution", e.name): float(R_sol[j])})
+    return row
 
 
 def _lab_time(elements) -> float | None:

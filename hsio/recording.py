@@ -69,6 +69,7 @@ class Recorder:
         self._insert_sample = f"INSERT INTO samples VALUES ({', '.join('?' * len(self._sample_cols))})"
         self._insert_ns = f"INSERT INTO ns VALUES ({', '.join('?' * len(self._ns_cols))})"
         self.steps_written = 0
+        self._extra_tables: dict[str, list[str]] = {}
 
     def write_step(self, step: int, time_s: float, u, v, a, u_pred, r, modes, targets, commands, disp, force, samples=None) -> None:
         """One integration step; ``samples`` is n x n_actuators x 3 (command, disp, force)."""
@@ -85,14 +86,20 @@ class Recorder:
         self.db.commit()
         self.steps_written += 1
 
-    def write_compensation(self, step: int, row: dict) -> None:
-        """One step of the compensation stage (committed with the step's row by write_step)."""
-        names = [_NAME.sub("_", k) for k in row]
-        if not getattr(self, "_compensation_cols", None):
-            self._compensation_cols = names
-            self.db.execute("CREATE TABLE compensation (step INTEGER PRIMARY KEY, " + ", ".join(f"{c} REAL" for c in names) + ")")
-        self.db.execute(f"INSERT INTO compensation VALUES ({', '.join('?' * (len(names) + 1))})",
+    def write_row(self, table: str, step: int, row: dict) -> None:
+        """One step of an extra table (``compensation``, ``implicit``), created on first use with
+        the row's keys as REAL columns; committed with the step's row by :meth:`write_step`."""
+        if table not in self._extra_tables:
+            names = [_NAME.sub("_", k) for k in row]
+            self._extra_tables[table] = names
+            self.db.execute(f"CREATE TABLE {table} (step INTEGER PRIMARY KEY, " + ", ".join(f"{c} REAL" for c in names) + ")")
+        n = len(self._extra_tables[table])
+        self.db.execute(f"INSERT INTO {table} VALUES ({', '.join('?' * (n + 1))})",
                         [step, *(None if x is None else float(x) for x in row.values())])
+
+    def write_compensation(self, step: int, row: dict) -> None:
+        """One step of the compensation stage (Er^cc, or Er^ca and Er^aa, per actuator)."""
+        self.write_row("compensation", step, row)
 
     def write_ns(self, t: np.ndarray, u: np.ndarray) -> None:
         self.db.executemany(self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
@@ -154,18 +161,23 @@ class Run:
         data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
         return {c: data[:, i] for i, c in enumerate(cols)}
 
-    def compensation(self) -> dict[str, np.ndarray]:
-        """The compensation table (empty if the run had none); missing values are NaN."""
+    def table(self, name: str) -> dict[str, np.ndarray]:
+        """An extra per-step table (``compensation``, ``implicit``); empty if the run has none.
+        Missing values are NaN."""
         db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
         try:
-            if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='compensation'").fetchone():
+            if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name=?", (name,)).fetchone():
                 return {}
-            cur = db.execute("SELECT * FROM compensation ORDER BY step")
+            cur = db.execute(f"SELECT * FROM {name} ORDER BY step")
             cols = [c[0] for c in cur.description]
             data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
             return {c: data[:, i] for i, c in enumerate(cols)}
         finally:
             db.close()
+
+    def compensation(self) -> dict[str, np.ndarray]:
+        """The compensation table (empty if the run had none)."""
+        return self.table("compensation")
 
     def dof(self, prefix: str, name: str) -> np.ndarray:
         return self.steps[column(prefix, name)]

@@ -91,7 +91,8 @@ def test_nan_in_a_record_array_is_refused():
 def test_target_beyond_stroke_stops_the_run_holding_and_keeps_the_record(tmp_path):
     """A record scaled far too large: the first target beyond +/-127 mm is refused unsent."""
     cfg = tmp_path / "big.toml"
-    cfg.write_text("[record]\nscale = 12.0\nsynthetic_duration_s = 8.0\n[test]\nrate = 6.25\n")
+    cfg.write_text("[record]\nscale = 12.0\nsynthetic_duration_s = 8.0\n[test]\nrate = 6.25\n"
+                   "[emulator]\nvelocity_limit_mm_s = 5000.0\n")
     out = tmp_path / "o"
     proc = hsio("run", str(cfg), "--out", str(out), "--json")
     assert proc.returncode == 3, proc.stderr
@@ -105,3 +106,17 @@ def test_target_beyond_stroke_stops_the_run_holding_and_keeps_the_record(tmp_pat
     assert max(max_cmd) <= 127.0  # nothing beyond the stroke was ever sent
     max_target = db.execute("SELECT MAX(ABS(target_C1)) FROM steps").fetchone()[0]
     assert max_target <= 127.0
+
+
+def test_command_faster_than_the_actuator_is_refused(tmp_path):
+    """A test rate too fast for the servo-valve: refused before the command is sent, not clamped."""
+    cfg = tmp_path / "fast.toml"
+    cfg.write_text("[record]\nsynthetic_duration_s = 4.0\n[test]\nrate = 1.0\n[emulator]\nvelocity_limit_mm_s = 100.0\n"
+                   "[output]\nplots = false\n")
+    out = tmp_path / "o"
+    proc = hsio("run", str(cfg), "--out", str(out))
+    assert proc.returncode == 3, proc.stderr
+    assert "command velocity" in proc.stderr and "beyond the limit (100.0 mm/s)" in proc.stderr
+    db = sqlite3.connect(out / "run.sqlite")
+    cmds = np.array(db.execute("SELECT cmd_C1 FROM samples ORDER BY step, k").fetchall(), dtype=float)[:, 0]
+    assert np.max(np.abs(np.diff(cmds))) * 1024 <= 100.0  # no faster command was ever sent

@@ -143,6 +143,14 @@ def test_bad_compensation_table_is_named(table, message):
     assert "lab.toml" in str(info.value) and "[compensation]" in str(info.value)
 
 
+def test_offline_compensation_with_ramp_hold_is_refused():
+    """a and b describe continuous ramps: with a ramp-hold the offline stage would overshoot."""
+    table = {"mode": "offline", "a_mm_s": 5.0, "b_s_mm": 7.9e-5}
+    with pytest.raises(ConfigError, match=r"hold_fraction = 0"):
+        config_mod.from_dict({"compensation": table, "test": {"hold_fraction": 0.5}}, "lab.toml")
+    config_mod.from_dict({"compensation": table, "test": {"hold_fraction": 0.0}}, "lab.toml")
+
+
 def test_unknown_actuator_is_refused_before_anything_moves(tmp_path):
     cfg = config_mod.from_dict({"structure": {"name": "structure_I"}, "compensation": {"mode": "online", "actuators": ["BF"]}})
     with pytest.raises(ConfigError, match="unknown actuator.*BF.*known: wall"):

@@ -1,7 +1,6 @@
 """The extended model file: written by diagnose, taken by the emulator and by `hsio run`, and the
 run's recording read back by diagnose."""
 
-import json
 import subprocess
 import sys
 

@@ -3,7 +3,6 @@
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 
 def test_default_run_matches_numerical_simulation(tmp_path):

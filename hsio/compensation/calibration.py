@@ -15,8 +15,6 @@ end-of-step velocity (``order=2``, see :func:`hockey_stick.step_velocity`).
 
 from __future__ import annotations
 
-import csv
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,42 +50,16 @@ class StepData:
 
 
 def read_csv(path: Path, t_d: float | None = None, test_rate: float | None = None) -> StepData:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
-    rows = list(csv.reader(text.splitlines()))
-    if not rows:
-        raise RecordError(f"{path}: empty file; expected a header {','.join(CSV_COLUMNS)}")
-    header = [h.strip() for h in rows[0]]
-    missing = [c for c in CSV_COLUMNS if c not in header]
-    if missing:
-        raise RecordError(f"{path}:1: missing column(s) {', '.join(missing)}; the header must name {', '.join(CSV_COLUMNS)}")
-    idx = [header.index(c) for c in CSV_COLUMNS]
-    data = []
-    for lineno, row in enumerate(rows[1:], start=2):
-        if not row or all(not x.strip() for x in row):
-            continue
-        values = []
-        for name, i in zip(CSV_COLUMNS, idx):
-            try:
-                x = float(row[i])
-            except (IndexError, ValueError):
-                raise RecordError(f"{path}:{lineno}: {name} {row[i] if i < len(row) else '(missing)'!r} is not a number") from None
-            if not math.isfinite(x):
-                raise RecordError(f"{path}:{lineno}: {name} is {x!r}")
-            values.append(x)
-        data.append(values)
-    if len(data) < 5:
-        raise RecordError(f"{path}: {len(data)} data rows; a calibration needs at least 5 steps")
-    arr = np.array(data)
-    steps = np.diff(arr[:, 0])
-    if np.any(steps <= 0):
-        bad = int(np.flatnonzero(steps <= 0)[0]) + 3
-        raise RecordError(f"{path}:{bad}: time_s does not increase")
+    """One row per step, header ``time_s,command_mm,measured_mm``; uniform time steps (gaps,
+    repeats and jitter are refused with the line, by the reader of hsio diagnose)."""
+    from hsio.diagnose.readers import read_csv as read_record
+
+    record = read_record(path)
+    if record.command_mm.size < 5:
+        raise RecordError(f"{path}: {record.command_mm.size} data rows; a calibration needs at least 5 steps")
     if t_d is None:
-        t_d = float(np.median(steps)) * (test_rate if test_rate else 1.0)
-    return StepData({"actuator": arr[:, 1]}, {"actuator": arr[:, 2]}, float(t_d), [])
+        t_d = record.dt * (test_rate if test_rate else 1.0)
+    return StepData({"actuator": record.command_mm}, {"actuator": record.measured_mm}, float(t_d), [])
 
 
 def read_run(path: Path, t_d: float | None = None) -> StepData:
@@ -104,6 +76,10 @@ def read_run(path: Path, t_d: float | None = None) -> StepData:
     if test.get("n_avg", 1) > 1:
         warnings.append(f"the run averaged the last {test['n_avg']} samples of each step: the fitted lag includes "
                         f"{(test['n_avg'] - 1) / 2:g} controller periods of averaging")
+    in_force = [c[len("mode_"):] for c, modes in run.steps.items() if c.startswith("mode_") and "force" in set(modes)]
+    if in_force:
+        raise RecordError(f"{path}: DOF {', '.join(in_force)} ran steps in force control, whose commands are kN; "
+                          "calibrate on a run in displacement control")
     if t_d is None:
         t_d = float(run.meta["test_rate"]) * float(run.meta["dt"])
     commands = {a: run.actuator("command", a) for a in run.actuator_names}  # steps 1..n

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import math
 
+from hsio.compensation.hockey_stick import last_velocity
+
 FORMS = ("lead", "eq2")
 
 
@@ -57,12 +59,7 @@ class FeedForward:
 
     def command_velocity(self, d_c: float) -> float:
         """The velocity of the command stream ending at d_c (without recording it)."""
-        c = [*self._c[-2:], d_c]
-        if len(c) == 1:
-            return 0.0
-        if self.form == "eq2" or len(c) == 2:
-            return (c[-1] - c[-2]) / self.t_d
-        return (3.0 * c[2] - 4.0 * c[1] + c[0]) / (2.0 * self.t_d)
+        return last_velocity([*self._c[-2:], d_c], self.t_d, 1 if self.form == "eq2" else 2)
 
     def adjust(self, d_c: float) -> float:
         """d^a_i for the command d^c_i (eq. 2); advances the step."""

@@ -35,6 +35,17 @@ def error(v, a: float, b: float):
     return b * excess_velocity(v, a)
 
 
+def last_velocity(history, t_d: float, order: int = 2) -> float:
+    """Velocity at the last of the per-step commands ``history`` (oldest first, up to three used):
+    order 1 the mean over the step, order 2 the backward quadratic (see :func:`step_velocity`)."""
+    h = list(history)[-3:]
+    if len(h) < 2:
+        return 0.0
+    if order == 1 or len(h) == 2:
+        return (h[-1] - h[-2]) / t_d
+    return (3.0 * h[2] - 4.0 * h[1] + h[0]) / (2.0 * t_d)
+
+
 def step_velocity(d, t_d: float, order: int = 1) -> np.ndarray:
     """Command velocity at each step from the per-step commands d (one every t_d).
 

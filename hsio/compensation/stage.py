@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 
 from hsio.compensation.feedforward import FORMS, FeedForward
-from hsio.compensation.hockey_stick import D_MAX_MM
+from hsio.compensation.hockey_stick import D_MAX_MM, last_velocity
 from hsio.compensation.online import EstimatorSettings, OnlineEstimator
 from hsio.errors import ConfigError
 
@@ -132,11 +132,7 @@ class CompensationStage:
 
     def _sent_velocity(self, j: int, d_a: float) -> float:
         h = self._sent[j] = [*self._sent[j][-2:], d_a]
-        if len(h) == 1:
-            return 0.0
-        if self.settings.form == "eq2" or len(h) == 2:
-            return (h[-1] - h[-2]) / self.t_d
-        return (3.0 * h[2] - 4.0 * h[1] + h[0]) / (2.0 * self.t_d)
+        return last_velocity(h, self.t_d, 1 if self.settings.form == "eq2" else 2)
 
     def observe(self, d_c, d_a, d_m) -> dict:
         """After the step: record Er^cc or Er^ca/Er^aa, update the online estimates. Returns the row."""
