@@ -19,12 +19,10 @@ import threading
 import time
 from dataclasses import dataclass
 
-from emulators.local import _parse_value
-from emulators.servo import ServoConfig, ServoController
+from emulators.servo import ServoController, make_controllers, parse_value
 from hsio import config as config_mod
 from hsio.errors import ConfigError
 from hsio.interfaces import ControlMode
-from hsio.specimens import make_specimen
 from hsio.structures import get_structure
 
 
@@ -190,11 +188,7 @@ def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float 
     """
     cfg = config_mod.load(config_path)
     structure = get_structure(cfg["structure"]["name"])
-    table = {**cfg["emulator"], **(overrides or {})}
-    controllers = []
-    for index, element in enumerate(structure.experimental):
-        servo = ServoConfig.from_dict({**table, "seed": int(table.get("seed", 0)) + index})
-        controllers.append(ServoController(make_specimen(element.specimen), servo))
+    controllers = make_controllers(structure.experimental, {**cfg["emulator"], **(overrides or {})})
     return ControllerBank(controllers, [e.name for e in structure.experimental], lockstep, watchdog_s)
 
 
@@ -205,5 +199,5 @@ def parse_settings(pairs) -> dict:
         key, sep, value = pair.partition("=")
         if not sep:
             raise ConfigError(f"--set {pair!r}: expected KEY=VALUE")
-        out[key.strip()] = _parse_value(value.strip())
+        out[key.strip()] = parse_value(value.strip())
     return out

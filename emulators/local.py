@@ -10,11 +10,10 @@ import threading
 import time
 from urllib.parse import parse_qsl, urlsplit
 
-from emulators.servo import ServoConfig, ServoController
+from emulators.servo import ServoController, make_controllers, parse_value
 from hsio.clock import Clock
 from hsio.errors import ConfigError, InterlockError
 from hsio.interfaces import Actuator, Channel, ControlMode, DAQ, Feedback, Limits
-from hsio.specimens import make_specimen
 
 
 class RealTimeLoop:
@@ -120,21 +119,7 @@ def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> l
         raise ConfigError(f"{url!r} is not an emulator:// URL")
     table = dict(options or {})
     for key, value in parse_qsl(parts.query):
-        table[key] = _parse_value(value)
-    actuators = []
-    for index, element in enumerate(elements):
-        cfg = ServoConfig.from_dict({**table, "seed": int(table.get("seed", 0)) + index})
-        controller = ServoController(make_specimen(element.specimen), cfg)
-        actuators.append(EmulatedActuator(element.name, controller, clock))
-    return actuators
+        table[key] = parse_value(value)
+    controllers = make_controllers(elements, table)
+    return [EmulatedActuator(e.name, c, clock) for e, c in zip(elements, controllers)]
 
-
-def _parse_value(text: str):
-    if text.lower() in ("none", "null"):
-        return None
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text

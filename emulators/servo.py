@@ -74,6 +74,14 @@ class ServoConfig:
     seed: int = 0
 
     def __post_init__(self):
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "lag_retract_s" and value is None:
+                continue
+            wanted = int if f.name == "seed" else (int, float)
+            if isinstance(value, bool) or not isinstance(value, wanted) or not math.isfinite(value):
+                kind = "a whole number" if f.name == "seed" else "a finite number"
+                raise ConfigError(f"emulator: {f.name} must be {kind}, got {value!r}")
         positive = ("rate_hz", "lag_s", "force_lag_s", "stroke_mm", "force_limit_kN", "velocity_limit_mm_s")
         for name in positive:
             if not getattr(self, name) > 0:
@@ -102,6 +110,31 @@ class ServoConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def parse_value(text: str):
+    """A setting given as text (a URL query, ``--set KEY=VALUE``): a number where it reads as one."""
+    if text.lower() in ("none", "null"):
+        return None
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def make_controllers(elements, table: dict) -> list["ServoController"]:
+    """One controller per experimental element, with the [emulator] settings ``table`` and its
+    own noise seed (seed + index): the same controllers in process and behind any protocol."""
+    from hsio.specimens import make_specimen
+
+    controllers = []
+    for index, element in enumerate(elements):
+        config = ServoConfig.from_dict({**table, "seed": table.get("seed", 0)})
+        config.seed += index
+        controllers.append(ServoController(make_specimen(element.specimen), config))
+    return controllers
 
 
 def quantise(value: float, resolution: float) -> float:

@@ -70,10 +70,11 @@ def run(config_file: str | None, out_dir: str, as_json: bool) -> None:
     try:
         cfg = config_mod.load(config_file)
         structure = get_structure(cfg["structure"]["name"])
-        steps = len(excitation(structure, runner.build_record(cfg, structure))[0]) - 1
+        ground = runner.build_record(cfg, structure)
+        steps = len(excitation(structure, ground)[0]) - 1
         progress = _Progress(steps, f"HS {structure.name}")
         try:
-            summary = runner.run(cfg, out_dir, progress)
+            summary = runner.run(cfg, out_dir, progress, ground=ground)
         finally:
             progress.close()
     except ExperimentStopped as exc:

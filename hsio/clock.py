@@ -67,7 +67,8 @@ class RealTimeClock(Clock):
     """Wall-clock periods: :meth:`tick` sleeps until the next period is due.
 
     ``overruns`` counts periods that started late by more than one period (the host could not
-    keep up); the experiment reports it.
+    keep up: a pause, a slow request); the run summary reports it. After an overrun the schedule
+    starts again from now, so that the periods missed are not made up in a burst of commands.
     """
 
     lockstep = False
@@ -85,3 +86,4 @@ class RealTimeClock(Clock):
             time.sleep(delay)
         elif -delay > self.period_s:
             self.overruns += 1
+            self._start = time.perf_counter() - self.ticks * self.period_s

@@ -64,6 +64,7 @@ class PredictorCorrector:
         self.late_steps = 0
         self._started = False
         self._k = 0  # samples since the present segment started
+        self._waited = 0  # samples since the last target was reached (the integrator computing)
         self._n = 0  # length of the interpolation segment, in samples
         self._hermite: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
@@ -74,18 +75,22 @@ class PredictorCorrector:
         curve = 0.5 * (d0 - 2.0 * d1 + d2)
         return d0 + s * slope + s * s * curve, (slope + 2.0 * s * curve) / self.t_d
 
-    def new_target(self, target: float) -> None:
-        """Start moving to ``target``: it is reached at the end of the step."""
-        target = float(target)
+    def planned_samples(self) -> int:
+        """How many periods a target arriving now would be interpolated over."""
         if self.dwell_samples:
             # Ramp-hold: the integrator computes while the actuator dwells; the ramp keeps its length.
-            n = max(self.samples_per_step - self.dwell_samples, 1)
-        elif self.phase in (Phase.SLOW, Phase.HOLD):
-            n = self.samples_per_step
-            if self._started:
-                self.late_steps += 1
-        else:
-            n = max(self.samples_per_step - self._k, self.samples_per_step // 2, 1)
+            return max(self.samples_per_step - self.dwell_samples, 1)
+        if self.phase in (Phase.SLOW, Phase.HOLD):
+            return self.samples_per_step
+        return max(self.samples_per_step - self._k, self.samples_per_step // 2, 1)
+
+    def new_target(self, target: float, samples: int | None = None) -> None:
+        """Start moving to ``target``: it is reached at the end of the step, after
+        :meth:`planned_samples` periods, or ``samples`` when several generators keep step."""
+        target = float(target)
+        if self._started and self._waited > self.slow_after * self.samples_per_step:
+            self.late_steps += 1
+        n = max(int(samples if samples is not None else self.planned_samples()), 1)
         self.history = [self.history[1], self.history[2], target]
         _, v_end = self._extrapolation(0.0)
         if self.dwell_samples:
@@ -93,6 +98,7 @@ class PredictorCorrector:
         self._hermite = (self.command, self.velocity, target, v_end)
         self._n = n
         self._k = 0
+        self._waited = 0
         self.phase = Phase.INTERPOLATE
         self.reached = False
         self._started = True
@@ -101,6 +107,8 @@ class PredictorCorrector:
         """Advance one controller period and return the command for it."""
         self._k += 1
         self.reached = False
+        if self.phase in (Phase.EXTRAPOLATE, Phase.SLOW, Phase.HOLD):
+            self._waited += 1
         if self.phase is Phase.INTERPOLATE:
             self.command, self.velocity = self._hermite_at(self._k)
             if self._k >= self._n:

@@ -50,6 +50,8 @@ def _check_type(where: str, key: str, value, default):
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
         return value
+    if isinstance(default, int) and not isinstance(value, bool) and isinstance(value, float):
+        raise ConfigError(f"{where}: {key} must be a whole number, got {value!r}")
     if isinstance(default, (int, float)):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
@@ -94,8 +96,21 @@ def _check_ranges(t: dict, source: str) -> None:
         raise ConfigError(f"{source}: [test] n_avg must be at least 1, got {t['test']['n_avg']}")
     if t["hardware"]["clock"] not in ("lockstep", "realtime"):
         raise ConfigError(f"{source}: [hardware] clock must be 'lockstep' or 'realtime', got {t['hardware']['clock']!r}")
-    if t["record"]["duration_s"] < 0:
+    record = t["record"]
+    if record["duration_s"] < 0:
         raise ConfigError(f"{source}: [record] duration_s must not be negative")
+    for key in ("synthetic_duration_s", "pga_g"):
+        if not record[key] > 0:
+            raise ConfigError(f"{source}: [record] {key} must be positive, got {record[key]}")
+    if record["seed"] < 0:
+        raise ConfigError(f"{source}: [record] seed must not be negative, got {record['seed']}")
+    if t["hardware"]["url"].startswith("emulator"):
+        from emulators.servo import ServoConfig  # the emulator checks its own settings
+
+        try:
+            ServoConfig.from_dict(t["emulator"])
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: [emulator] {str(exc).removeprefix('emulator: ')}") from None
     from hsio.compensation.stage import CompensationSettings
 
     CompensationSettings.from_table(t["compensation"], f"{source}: [compensation]")

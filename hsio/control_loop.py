@@ -39,6 +39,8 @@ class StepFeedback:
 class ControlLoop:
     """Drives a set of actuators at the controller rate for a given test rate."""
 
+    STEP_TIMEOUT_STEPS = 4  # a step that has not landed after this many t_d is an error
+
     def __init__(self, actuators: list[Actuator], clock: Clock, dt: float, test_rate: float,
                  n_avg: int = 1, keep_samples: bool = True, hold_fraction: float = 0.0):
         if not test_rate > 0:
@@ -51,11 +53,14 @@ class ControlLoop:
         self.hold_fraction = hold_fraction
         initial = [a.feedback().displacement_mm for a in actuators]
         self.generators = [PredictorCorrector(self.t_d, clock.period_s, x0, hold_fraction=hold_fraction) for x0 in initial]
-        self._samples: list[tuple] = []
+        self._samples: list[tuple] = []  # every period since the last step landed
+        self._commands: list[float] = []
         self._thread: threading.Thread | None = None
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self._done = threading.Event()
         self._stop = threading.Event()
+        self._held = False
+        self._closed = False
         self._error: BaseException | None = None
         self._result: StepFeedback | None = None
         if not getattr(clock, "lockstep", False):
@@ -66,38 +71,50 @@ class ControlLoop:
     def late_steps(self) -> int:
         return max(g.late_steps for g in self.generators)
 
+    def feedback(self) -> list:
+        """The actuators' latest measurements, read between two periods of the loop."""
+        with self._lock:
+            return [a.feedback() for a in self.actuators]
+
     def execute(self, targets: np.ndarray) -> StepFeedback:
         """Move every actuator to its target over one step; return what was measured."""
+        if self._held:
+            raise self._error or HsioError("the control loop holds the actuators after an earlier stop")
         targets = np.asarray(targets, dtype=float)
         for actuator, target in zip(self.actuators, targets):
             actuator.limits.check(actuator.mode, float(target), f"actuator {actuator.name!r} target")
+        limit = self.STEP_TIMEOUT_STEPS * max(g.samples_per_step for g in self.generators)
         if self._thread is None:
-            with self._lock:
-                self._start_step(targets)
-            while True:
-                if self._tick():
-                    return self._result
-        if self._error is not None:
-            raise self._error
-        with self._lock:
-            self._done.clear()
             self._start_step(targets)
-        while not self._done.wait(0.05):
-            if not self._thread.is_alive():
-                break
-        if self._error is not None:
-            raise self._error
-        return self._result
+            for _ in range(limit):
+                self._send()
+                self.clock.tick()
+                if self._collect():
+                    return self._result
+        else:
+            if self._error is not None:
+                raise self._error
+            with self._lock:
+                self._done.clear()
+                self._start_step(targets)
+            if self._done.wait(limit * self.clock.period_s + 1.0) and self._error is None:
+                return self._result
+            if self._error is not None:
+                raise self._error
+        self.hold_all()
+        raise HsioError(f"the step to {np.round(targets, 4).tolist()} did not land within {limit} controller "
+                        "periods; the actuators hold")
 
     def _start_step(self, targets: np.ndarray) -> None:
+        """New targets; every generator gets the same segment length so that they land together."""
         self._targets = targets
-        self._samples = []
+        n = max(g.planned_samples() for g in self.generators)
         for g, t in zip(self.generators, targets):
-            g.new_target(t)
+            g.new_target(t, samples=n)
 
-    def _tick(self) -> bool:
-        """One controller period. True when every command has landed on its target."""
-        commands = []
+    def _send(self) -> None:
+        """One command per actuator for this period (velocity and limits checked first)."""
+        self._commands = []
         try:
             for g, actuator in zip(self.generators, self.actuators):
                 previous = g.command
@@ -105,17 +122,23 @@ class ControlLoop:
                 if actuator.mode is ControlMode.DISPLACEMENT:
                     actuator.limits.check_velocity((c - previous) / self.clock.period_s, f"actuator {actuator.name!r}")
                 actuator.command(c)
-                commands.append(c)
-            self.clock.tick()
+                self._commands.append(c)
+        except BaseException as exc:
+            self._fail(exc)
+
+    def _collect(self) -> bool:
+        """Read the period's measurements. True when every command has landed on its target."""
+        try:
             feedback = [a.feedback() for a in self.actuators]
-        except BaseException:
-            self.hold_all()
-            raise
+        except BaseException as exc:
+            self._fail(exc)
+        commands = self._commands
         self._samples.append((commands, [f.displacement_mm for f in feedback], [f.force_kN for f in feedback]))
         if not all(g.reached for g in self.generators):
             return False
         tail = np.array(self._samples[-self.n_avg:])  # n x 3 x n_act
         samples = np.array(self._samples).transpose(0, 2, 1) if self.keep_samples else None
+        self._samples = []
         self._result = StepFeedback(
             targets=self._targets.copy(),
             commands=np.array(commands),
@@ -125,13 +148,25 @@ class ControlLoop:
         )
         return True
 
+    def _fail(self, exc: BaseException):
+        """Hold everything and raise ``exc`` as an HsioError (anything unexpected is wrapped)."""
+        self.hold_all()
+        if isinstance(exc, HsioError):
+            raise exc
+        raise HsioError(f"control loop stopped: {exc!r}") from exc
+
     def _run_real_time(self) -> None:
         try:
             while not self._stop.is_set():
                 with self._lock:
-                    finished = self._tick()
-                if finished:
-                    self._done.set()
+                    active = not self._held
+                    if active:
+                        self._send()
+                self.clock.tick()  # the wait for the next period, outside the lock
+                if active:
+                    with self._lock:
+                        if not self._held and self._collect():
+                            self._done.set()
         except BaseException as exc:  # surfaced in the caller's thread
             self._error = exc if isinstance(exc, HsioError) else HsioError(f"control loop stopped: {exc!r}")
             self._done.set()
@@ -146,25 +181,31 @@ class ControlLoop:
             try:
                 actuator.set_mode(mode)
                 fb = actuator.feedback()
-            except BaseException:
-                self.hold_all()
-                raise
+            except BaseException as exc:
+                self._fail(exc)
             present = fb.force_kN if mode is ControlMode.FORCE else fb.displacement_mm
             old = self.generators[index]
             self.generators[index] = PredictorCorrector(old.t_d, old.period, present, hold_fraction=self.hold_fraction)
 
     def hold_all(self) -> None:
-        """Every actuator holds; errors while holding are ignored (each is tried)."""
-        for actuator in self.actuators:
-            try:
-                actuator.hold()
-            except Exception:
-                pass
+        """Stop commanding, and every actuator holds (each is tried; errors while holding are
+        ignored). The loop sends nothing more: a new run needs a new loop."""
+        self._held = True
+        with self._lock:
+            for actuator in self.actuators:
+                try:
+                    actuator.hold()
+                except Exception:
+                    pass
 
     def close(self) -> None:
+        """Stop the loop, hold and release every actuator. Safe to call more than once."""
+        if self._closed:
+            return
+        self._closed = True
         self._stop.set()
         if self._thread is not None:
-            self._thread.join(timeout=1.0)
+            self._thread.join()
         self.hold_all()
         for actuator in self.actuators:
             try:

@@ -101,16 +101,22 @@ def simulate(structure: Structure, ground: GroundMotion, substructure, alpha: fl
             last = k
             if progress is not None:
                 progress(1)
-    except HsioError as exc:
-        stopped = f"step {last + 1} (t = {(last + 1) * structure.dt:.3f} s): {exc}"
-    except KeyboardInterrupt:
-        stopped = f"interrupted at step {last + 1}"
+    except (Exception, KeyboardInterrupt) as exc:
+        stopped = stop_reason(exc, last, structure.dt)
     finally:
         if stopped:
             hold_all(substructure)
     histories = dict(t=t, u=u, v=v, a=a, u_pred=u_pred, R=R, targets=targets, commands=commands,
                      measured_displacement=disp, measured_force=force, modes=modes)
     return finish(structure, substructure, histories, last, started, stopped)
+
+
+def stop_reason(exc: BaseException, last: int, dt: float) -> str:
+    """Why a run stopped after step ``last``: an HsioError says it plainly; anything else is named."""
+    if isinstance(exc, KeyboardInterrupt):
+        return f"interrupted at step {last + 1}"
+    what = str(exc) if isinstance(exc, HsioError) else f"unexpected {exc!r}"
+    return f"step {last + 1} (t = {(last + 1) * dt:.3f} s): {what}"
 
 
 def hold_all(owner) -> None:

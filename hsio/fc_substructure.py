@@ -40,7 +40,7 @@ class ExperimentalElements:
         self.structure = structure
         self.loop = loop
         self.estimator = estimator or SecantEstimator("average", n_avg=max(loop.n_avg, 1))
-        feedback = [a.feedback() for a in loop.actuators]
+        feedback = loop.feedback()
         self._base = (np.array([f.displacement_mm for f in feedback]), np.array([f.force_kN for f in feedback]))
         self._last = self._base
         self.estimator.begin_step(*self._base)

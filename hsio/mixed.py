@@ -24,8 +24,8 @@ from typing import Callable
 
 import numpy as np
 
-from hsio.errors import ConfigError, HsioError
-from hsio.experiment import Result, excitation, finish, hold_all
+from hsio.errors import ConfigError
+from hsio.experiment import Result, excitation, finish, hold_all, stop_reason
 from hsio.ground_motion import GroundMotion
 from hsio.integrators import ImplicitForceControl
 from hsio.interfaces import ControlMode
@@ -184,10 +184,8 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
                     modes = new
             if progress is not None:
                 progress(1)
-    except HsioError as exc:
-        stopped = f"step {last + 1} (t = {(last + 1) * structure.dt:.3f} s): {exc}"
-    except KeyboardInterrupt:
-        stopped = f"interrupted at step {last + 1}"
+    except (Exception, KeyboardInterrupt) as exc:
+        stopped = stop_reason(exc, last, structure.dt)
     finally:
         if stopped:
             hold_all(elements)

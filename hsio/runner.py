@@ -3,6 +3,7 @@ record, summarise and plot."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from pathlib import Path
@@ -69,25 +70,32 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
     clock = LockstepClock() if hardware["clock"] == "lockstep" else RealTimeClock()
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
-    actuators = open_hardware(hardware["url"], structure.experimental, clock,
-                              emulator if hardware["url"].startswith("emulator") else config["driver"])
-    loop = ControlLoop(actuators, clock, structure.dt, test["rate"], n_avg=test["n_avg"],
-                       keep_samples=config["output"]["samples"], hold_fraction=test["hold_fraction"])
-    if implicit:
-        substructure = implicit_run.experimental_elements(structure, loop, config["integrator"])
-    else:
-        substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]), compensation)
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
-    recorder = Recorder(out / "run.sqlite", structure.dof_names, [a.name for a in actuators], meta)
-    compensation.sink = recorder.write_compensation
-    stopped = None
-    try:
+    with contextlib.ExitStack() as cleanup:
+        # Whatever fails from here on, what was opened is closed (the actuators left holding).
+        actuators = open_hardware(hardware["url"], structure.experimental, clock,
+                                  emulator if hardware["url"].startswith("emulator") else config["driver"])
+        try:
+            loop = ControlLoop(actuators, clock, structure.dt, test["rate"], n_avg=test["n_avg"],
+                               keep_samples=config["output"]["samples"], hold_fraction=test["hold_fraction"])
+        except BaseException:
+            _close_all(actuators)
+            raise
+        cleanup.callback(loop.close)  # from here on the loop owns the actuators
+        if implicit:
+            substructure = implicit_run.experimental_elements(structure, loop, config["integrator"])
+        else:
+            substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]), compensation)
+        recorder = Recorder(out / "run.sqlite", structure.dof_names, [a.name for a in actuators], meta)
+        cleanup.callback(recorder.close)
+        compensation.sink = recorder.write_compensation
         if ns is not None:
             recorder.write_ns(ns.t, ns.u)
+        stopped = None
         try:
             if implicit:
                 hs = implicit_run.run_hybrid(structure, ground, substructure, config, recorder, progress)
@@ -95,22 +103,32 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
                 hs = simulate(structure, ground, substructure, alpha, recorder, progress)
         except ExperimentStopped as exc:
             hs, stopped = exc.result, exc
-    finally:
-        substructure.close()
-    summary = summarise(structure, config, ground, hs, ns, out)
-    summary["compensation"] = compensation.summary()
-    if implicit:
-        summary.update(implicit_run.summary(hs))
-    if config["output"]["plots"] and hs.steps > 0:
-        summary["plots"] = make_plots(out, structure, implicit_run.tracking_view(hs) if implicit else hs, ns, config)
+        loop.close()
+        summary = summarise(structure, config, ground, hs, ns, out)
+        summary["clock_overruns"] = getattr(clock, "overruns", 0)
+        summary["compensation"] = compensation.summary()
         if implicit:
-            summary["plots"].append(str(implicit_run.plot_modes(out / "modes.png", hs, structure.dof_names, structure.experimental_dofs)))
-    recorder.write_summary(summary)
-    recorder.close()
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+            summary.update(implicit_run.summary(hs))
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        recorder.write_summary(summary)
+        if config["output"]["plots"] and hs.steps > 0:
+            summary["plots"] = make_plots(out, structure, implicit_run.tracking_view(hs) if implicit else hs, ns, config)
+            if implicit:
+                summary["plots"].append(str(implicit_run.plot_modes(out / "modes.png", hs, structure.dof_names, structure.experimental_dofs)))
+            (out / "summary.json").write_text(json.dumps(summary, indent=2))
+            recorder.write_summary(summary)
     if stopped is not None:
         raise stopped
     return summary
+
+
+def _close_all(actuators) -> None:
+    """Hold and release every actuator; each is tried whatever the others do."""
+    for actuator in actuators:
+        try:
+            actuator.close()
+        except Exception:
+            pass
 
 
 def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs: Result, ns: Result | None, out: Path) -> dict:

@@ -87,3 +87,34 @@ def test_arguments_are_checked():
         PredictorCorrector(0.0, PERIOD)
     with pytest.raises(ValueError):
         PredictorCorrector(0.1, PERIOD, hold_fraction=1.0)
+
+
+def test_late_target_is_counted_with_ramp_hold_too():
+    gen = PredictorCorrector(0.1, PERIOD, hold_fraction=0.5)
+    run_steps(gen, [0.0, 1.0])
+    for _ in range(round(3 * 0.1 / PERIOD)):  # the integrator is three steps late
+        gen.next_sample()
+    assert gen.phase is Phase.HOLD
+    gen.new_target(2.0)
+    assert gen.late_steps == 1
+    on_time = PredictorCorrector(0.1, PERIOD, hold_fraction=0.5)
+    run_steps(on_time, [0.0, 1.0, 2.0, 3.0])
+    assert on_time.late_steps == 0
+
+
+def test_a_common_segment_length_keeps_generators_in_step():
+    """Two generators, one fresh and one that extrapolated for a while: told the same length,
+    they land on their targets on the same period."""
+    a = PredictorCorrector(0.1, PERIOD)
+    b = PredictorCorrector(0.1, PERIOD)
+    run_steps(a, [1.0, 2.0])
+    for _ in range(20):
+        a.next_sample()
+    assert a.planned_samples() != b.planned_samples()
+    n = max(a.planned_samples(), b.planned_samples())
+    a.new_target(3.0, samples=n)
+    b.new_target(3.0, samples=n)
+    for _ in range(n):
+        a.next_sample()
+        b.next_sample()
+    assert a.reached and b.reached
