@@ -4,10 +4,12 @@
 process) or ``canopen+socketcan://can0/NODE``; axis k is node NODE + k. The [driver] table (or
 the URL's query) sets ``eds`` (the drive's EDS file; default hsio's object dictionary),
 ``timeout_s``, ``retries``, ``heartbeat_ms`` and the limits ``stroke_mm``, ``force_kN``,
-``velocity_mm_s``.
+``velocity_mm_s``; the stroke and force capacity default to the drive's own (0x607D, 0x6072 x
+0x6076), never to a guess.
 
 Start-up, per node: SDO reads of identity, device type (must be CiA 402), scaling (counts per mm,
-rated force), software position limits and the emulator-only lockstep flag; PDO configuration
+rated force), software position limits, max torque and the emulator-only lockstep flag; then,
+once the limits and the clock are checked, per node: PDO configuration
 read by SDO (``setup_402_state_machine``); heartbeat on; NMT operational; the CiA 402 state
 machine walked to OPERATION ENABLED in cyclic synchronous position mode.
 
@@ -17,7 +19,8 @@ what advances the emulated drive's clock.
 
 Errors: SDO aborts, EMCY messages, a silent node (no TPDO, no heartbeat) and a restarted node
 (boot-up message) become :class:`~hsio.errors.CommunicationError` or
-:class:`~hsio.errors.InterlockError` naming the node, the object and the code.
+:class:`~hsio.errors.InterlockError` naming the node, the object and the code. A failure while
+opening disables (halt, disable operation) every drive that may have been enabled.
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@
 ``modbus+tcp://HOST:PORT`` or ``modbus+rtu:///dev/ttyUSB0?baudrate=115200``; the [driver] table
 of the configuration (or the URL's query) sets ``map`` (a TOML register map, default hsio's),
 ``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
-``force_kN``, ``velocity_mm_s`` (default: the controller's own, where its map has them).
+``force_kN``, ``velocity_mm_s``. The stroke and force capacity default to the controller's own
+(its info registers); one it does not report must be set, never guessed (:mod:`drivers.common`).
 
 One :class:`ModbusLink` per controller carries the cyclic exchange of all its axes: one write of
 every axis' command block and one read of every status block, in a single request (function
