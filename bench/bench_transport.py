@@ -9,7 +9,6 @@ The ratio driver / raw is the framework's overhead. Prints a table; asserts noth
 from __future__ import annotations
 
 import argparse
-import socket
 import tempfile
 import threading
 import time
@@ -55,12 +54,6 @@ def timed(fn, n: int) -> list[float]:
     return out
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def step_time(url: str, cfg) -> tuple[float, float]:
     """Wall time of one integration step (median) and controller periods per step."""
     structure = get_structure(cfg["structure"]["name"])
@@ -100,8 +93,7 @@ def main() -> None:
 
     # -- Modbus TCP and RTU --------------------------------------------------------------------
     for transport in ("tcp", "rtu"):
-        emu = ModbusEmulator(bank_from_config(cfg_path, lockstep=True), modbus_map.load(), transport,
-                             port=free_port()).start()
+        emu = ModbusEmulator(bank_from_config(cfg_path, lockstep=True), modbus_map.load(), transport).start()
         clock = LockstepClock()
         acts = modbus_link(emu.url, names, clock, {})
         link = acts[0].link
@@ -181,7 +173,7 @@ def main() -> None:
     print(f"Integration step (validation structure, TR {cfg['test']['rate']:g}, lockstep, median over the record)")
     local_s, ticks = step_time("emulator://", cfg)
     print(f"{'in process':<16} {local_s * 1e3:8.2f} ms per step ({ticks:.0f} controller periods)")
-    for label, make in (("Modbus TCP", lambda: ModbusEmulator(bank_from_config(cfg_path, lockstep=True), modbus_map.load(), "tcp", port=free_port())),
+    for label, make in (("Modbus TCP", lambda: ModbusEmulator(bank_from_config(cfg_path, lockstep=True), modbus_map.load(), "tcp")),
                         ("CANopen", lambda: CanopenEmulator(bank_from_config(cfg_path, lockstep=True), "bench-step"))):
         emu = make().start()
         try:

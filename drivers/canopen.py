@@ -4,10 +4,12 @@
 process) or ``canopen+socketcan://can0/NODE``; axis k is node NODE + k. The [driver] table (or
 the URL's query) sets ``eds`` (the drive's EDS file; default hsio's object dictionary),
 ``timeout_s``, ``retries``, ``heartbeat_ms`` and the limits ``stroke_mm``, ``force_kN``,
-``velocity_mm_s``.
+``velocity_mm_s``; the stroke and force capacity default to the drive's own (0x607D, 0x6072 x
+0x6076), never to a guess.
 
 Start-up, per node: SDO reads of identity, device type (must be CiA 402), scaling (counts per mm,
-rated force), software position limits and the emulator-only lockstep flag; PDO configuration
+rated force), software position limits, max torque and the emulator-only lockstep flag; then,
+once the limits and the clock are checked, per node: PDO configuration
 read by SDO (``setup_402_state_machine``); heartbeat on; NMT operational; the CiA 402 state
 machine walked to OPERATION ENABLED in cyclic synchronous position mode.
 
@@ -17,7 +19,8 @@ what advances the emulated drive's clock.
 
 Errors: SDO aborts, EMCY messages, a silent node (no TPDO, no heartbeat) and a restarted node
 (boot-up message) become :class:`~hsio.errors.CommunicationError` or
-:class:`~hsio.errors.InterlockError` naming the node, the object and the code.
+:class:`~hsio.errors.InterlockError` naming the node, the object and the code. A failure while
+opening disables (halt, disable operation) every drive that may have been enabled.
 """
 
 from __future__ import annotations
@@ -26,15 +29,16 @@ import logging
 import struct
 import threading
 import time
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import urlsplit
 
 import canopen
 from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from drivers import canopen_od as cod
+from drivers import common
 from hsio.clock import Clock
-from hsio.errors import CommunicationError, ConfigError, InterlockError
+from hsio.errors import CommunicationError, ConfigError, InterlockError, LimitError
 from hsio.interfaces import Actuator, Channel, ControlMode, DAQ, Feedback, Limits
 
 log = logging.getLogger(__name__)
@@ -43,6 +47,12 @@ DEFAULT_OPTIONS = {"eds": "", "timeout_s": 0.5, "retries": 2, "heartbeat_ms": 10
                    "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0}
 MODE_NAMES = {ControlMode.DISPLACEMENT: "CYCLIC SYNCHRONOUS POSITION", ControlMode.FORCE: "CYCLIC SYNCHRONOUS TORQUE"}
 MODE_CODES = {ControlMode.DISPLACEMENT: cod.CSP, ControlMode.FORCE: cod.CST}
+RULES = {
+    **common.COMMON_RULES,
+    "heartbeat_ms": common.whole(0, 65535),
+    "bitrate": common.Rule(int, 10_000, 1_000_000, False, "a CAN bit rate in 10000..1000000 bit/s"),
+}
+PERMILLE_MAX = 32767  # the CiA 402 torque objects are int16, per mille of the rated value 0x6076
 
 
 def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
@@ -60,21 +70,7 @@ def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
         raise ConfigError(f"{url!r}: node id {node_text!r} is not a number") from None
     if not 1 <= node_id <= 127:
         raise ConfigError(f"{url!r}: node id {node_id} is not in 1..127")
-    table = dict(DEFAULT_OPTIONS)
-    given = {**(options or {}), **dict(parse_qsl(parts.query))}
-    for key, value in given.items():
-        if key not in DEFAULT_OPTIONS:
-            raise ConfigError(f"[driver] for {url!r}: unknown key {key!r}; known: {', '.join(DEFAULT_OPTIONS)}")
-        if key == "eds":
-            table[key] = str(value)
-            continue
-        try:
-            table[key] = None if value is None else (int(value) if key in ("retries", "heartbeat_ms", "bitrate") else float(value))
-        except (TypeError, ValueError):
-            raise ConfigError(f"[driver] for {url!r}: {key} must be a number, got {value!r}") from None
-    if not table["timeout_s"] > 0:
-        raise ConfigError(f"[driver] for {url!r}: timeout_s must be positive")
-    return interface, channel, node_id, table
+    return interface, channel, node_id, common.parse_options(url, options, DEFAULT_OPTIONS, RULES)
 
 
 def sdo_error(node_id: int, what: str, exc: Exception) -> CommunicationError:
@@ -105,6 +101,9 @@ class DriveNode:
         self.emcy: list = []
         self.booted = False
         self.identity: dict = {}
+        self.max_torque_permille: int | None = None
+        self.limits_counts = (0, 0)
+        self.enabling = False  # set once the drive may be enabled: a failure must disable it
 
     def sdo_read(self, index: int, sub: int = 0, what: str = ""):
         """An SDO upload; an object missing from the local dictionary is read as an unsigned
@@ -156,6 +155,41 @@ class DriveNode:
     def force_kN(self) -> float:
         return self.actual[1] * self.rated_N / 1e6
 
+    def permille(self, kN: float) -> int:
+        """A force as the int16 torque objects carry it (per mille of the rated force)."""
+        value = int(round(kN * 1e6 / self.rated_N))
+        if not -PERMILLE_MAX - 1 <= value <= PERMILLE_MAX:
+            raise LimitError(f"CANopen node {self.id}: force {kN:.3f} kN is {value} per mille of the rated force "
+                             f"{self.rated_N / 1e3:g} kN (0x6076), beyond the int16 range; not sent, the axis holds")
+        return value
+
+    def limits(self, url: str, options: dict):
+        """[driver] stroke_mm / force_kN where set, else the drive's own: the software position
+        limits 0x607D and the max torque 0x6072 (per mille of the rated torque 0x6076, read as
+        newtons). Asymmetric position limits give the smaller half-range on either side of zero;
+        a force capacity the int16 torque objects cannot carry is refused."""
+        lo, hi = self.limits_counts
+        where = f"{url} node {self.id}"
+        stroke, stroke_why = None, " (0x607D software position limits are 0/0: none set)"
+        if (lo, hi) != (0, 0):
+            if not lo < 0 < hi:
+                raise ConfigError(f"{where}: software position limits 0x607D {lo}..{hi} counts do not contain zero; "
+                                  "hsio's stroke is centred on zero: set the drive's limits around the neutral position")
+            stroke = 2.0 * min(-lo, hi) / self.counts_per_mm
+            if -lo != hi and options["stroke_mm"] is None:
+                log.warning("%s: asymmetric software position limits %.3f..%.3f mm; using +/-%.3f mm", where,
+                            lo / self.counts_per_mm, hi / self.counts_per_mm, stroke / 2)
+        force = None if self.max_torque_permille is None else self.max_torque_permille * self.rated_N / 1e6
+        limits = common.resolve_limits(where, options, stroke, force, stroke_why,
+                                       " (no max torque 0x6072)")
+        top = PERMILLE_MAX * self.rated_N / 1e6
+        if limits.force_kN > top:
+            key = "[driver] force_kN" if options["force_kN"] is not None else "the max torque 0x6072"
+            raise ConfigError(f"{where}: force capacity {limits.force_kN:g} kN ({key}) is beyond what the int16 torque "
+                              f"objects carry: {PERMILLE_MAX} per mille of the rated force {self.rated_N / 1e3:g} kN "
+                              f"(0x6076) = {top:g} kN; set [driver] force_kN <= {top:g}")
+        return limits
+
     def send_targets(self) -> None:
         self.link.network.send_message(0x300 + self.id, struct.pack("<ih", self.target_counts, self.target_torque))
 
@@ -169,7 +203,7 @@ class DriveNode:
         return self.status_received.wait(self.link.options["timeout_s"])
 
 
-class CanopenLink:
+class CanopenLink(common.AxisLink):
     """The drives of one controller on one CAN network; the cyclic SYNC exchange."""
 
     def __init__(self, url: str, n_axes: int, options: dict | None = None):
@@ -186,6 +220,7 @@ class CanopenLink:
         self.actuators: list = []
 
     def open(self, enable: bool = True) -> None:
+        """Connect and identify every drive (nothing enabled); then (``enable``) enable them."""
         kwargs = {"interface": self.interface, "channel": self.channel}
         if self.interface not in ("virtual",):
             kwargs["bitrate"] = self.options["bitrate"]
@@ -202,9 +237,21 @@ class CanopenLink:
             self.network.subscribe(0x700 + node_id, drive.on_bootup)
             drive.node.emcy.add_callback(drive.on_emcy)
         for drive in self.drives:
-            self._start_drive(drive, enable)
+            self._identify(drive)
+        if enable:
+            self.enable()
 
-    def _start_drive(self, d: DriveNode, enable: bool) -> None:
+    def _read_optional(self, d: DriveNode, index: int, sub: int, what: str):
+        """An object a drive may lack: None when it answers "does not exist" (an SDO abort)."""
+        try:
+            return d.sdo_read(index, sub, what)
+        except CommunicationError as exc:
+            if "aborted" not in str(exc):
+                raise
+            return None
+
+    def _identify(self, d: DriveNode) -> None:
+        """SDO reads only: device type, identity, scaling, limits, clock."""
         device_type = d.sdo_read(0x1000, what="device type")
         if device_type & 0xFFFF != 402:
             raise CommunicationError(f"CANopen node {d.id}: device type 0x{device_type:08X} is not a CiA 402 drive")
@@ -215,18 +262,28 @@ class CanopenLink:
         except CommunicationError:
             pass  # a lab drive: the default scaling holds unless [driver] says otherwise
         d.rated_N = float(d.sdo_read(0x6076, what="rated torque (read as rated force, N)"))
-        d.limits_counts = (d.sdo_read(0x607D, 1, "min position limit"), d.sdo_read(0x607D, 2, "max position limit"))
-        try:
-            flag = d.sdo_read(cod.LOCKSTEP_FLAG, what="lockstep flag")
-        except CommunicationError as exc:
-            if "aborted" not in str(exc):
-                raise
-            flag = 0
+        if not d.rated_N > 0:
+            raise CommunicationError(f"CANopen node {d.id}: rated torque 0x6076 is {d.rated_N:g}; the force scaling "
+                                     "needs a positive rated force (N)")
+        d.max_torque_permille = self._read_optional(d, 0x6072, 0, "max torque")
+        lo = self._read_optional(d, 0x607D, 1, "min position limit")
+        hi = self._read_optional(d, 0x607D, 2, "max position limit")
+        d.limits_counts = (lo or 0, hi or 0) if lo is not None and hi is not None else (0, 0)
+        flag = self._read_optional(d, cod.LOCKSTEP_FLAG, 0, "lockstep flag")
         self.lockstep = bool(flag)
         if self.lockstep:
             self.ticks = d.sdo_read(cod.CLOCK, what="clock")
-        if not enable:
-            return
+
+    def axis_limits(self) -> list[Limits]:
+        return [d.limits(self.url, self.options) for d in self.drives]
+
+    def enable(self) -> None:
+        for drive in self.drives:
+            self._enable_drive(drive)
+
+    def _enable_drive(self, d: DriveNode) -> None:
+        """Heartbeat, PDOs, NMT operational, CiA 402 to OPERATION ENABLED in cyclic synchronous
+        position mode, starting from where the axis stands."""
         if self.options["heartbeat_ms"]:
             d.sdo_write(0x1017, int(self.options["heartbeat_ms"]), "producer heartbeat time")
         d.node.nmt.state = "PRE-OPERATIONAL"
@@ -238,6 +295,7 @@ class CanopenLink:
         d.node.tpdo[1].add_callback(lambda _map, d=d: d.status_received.set())
         d.node.tpdo_values[0x6041] = d.sdo_read(0x6041, what="statusword")
         d.node.tpdo_values[0x6061] = d.sdo_read(0x6061, what="modes of operation display")
+        d.enabling = True
         d.node.nmt.state = "OPERATIONAL"
         d.node.rpdo_pointers[0x6060].raw = cod.CSP
         if d.node.state == "FAULT":
@@ -256,11 +314,25 @@ class CanopenLink:
             raise CommunicationError(f"CANopen node {d.id}: mode {mode} after asking for cyclic synchronous position (8)")
         d.check_events()
 
+    def disable(self) -> None:
+        """Every drive that may have been enabled: halt and disable operation (controlword
+        0x0107 by SDO, confirmed), so it holds in SWITCHED ON."""
+        errors = []
+        for d in self.drives:
+            if not d.enabling:
+                continue
+            d.halt = True
+            d.mode = ControlMode.DISPLACEMENT
+            try:
+                d.sdo_write(0x6040, 0x0107, "controlword (halt, disable operation)")
+            except CommunicationError as exc:
+                errors.append(str(exc))
+        if errors:
+            raise CommunicationError("; ".join(errors))
+
     # -- cyclic exchange -----------------------------------------------------------------------
-    def submit(self, axis: int) -> None:
-        self.submitted.add(axis)
-        if not self.lockstep and len(self.submitted) == self.n:
-            self.exchange()
+    def cycle(self) -> None:
+        self.exchange()
 
     def advance(self, ticks: int) -> None:
         for _ in range(int(ticks)):
@@ -336,7 +408,7 @@ class CanopenActuator(Actuator, DAQ):
             return
         fb = self.feedback()
         d.target_counts = int(round(fb.displacement_mm * d.counts_per_mm))
-        d.target_torque = int(round(fb.force_kN * 1e6 / d.rated_N))
+        d.target_torque = d.permille(fb.force_kN)
         d.send_targets()
         d.mode = mode
         d.node.op_mode = MODE_NAMES[mode]  # logs rather than raises on failure: check 0x6061
@@ -353,7 +425,7 @@ class CanopenActuator(Actuator, DAQ):
         if d.mode is ControlMode.DISPLACEMENT:
             d.target_counts = int(round(value * d.counts_per_mm))
         else:
-            d.target_torque = int(round(value * 1e6 / d.rated_N))
+            d.target_torque = d.permille(value)
         self.link.submit(self.axis)
 
     def feedback(self) -> Feedback:
@@ -374,14 +446,7 @@ class CanopenActuator(Actuator, DAQ):
             raise CommunicationError(f"CANopen node {d.id}: no confirmation of the halt within {self.link.options['timeout_s']:g} s")
 
     def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self.hold()
-        finally:
-            if all(a._closed for a in self.link.actuators):
-                self.link.close()
+        common.close_axis(self)
 
     @property
     def channels(self) -> tuple[Channel, ...]:
@@ -394,31 +459,11 @@ class CanopenActuator(Actuator, DAQ):
 
 def open_link(url: str, names: list[str], clock: Clock | None, options: dict | None = None,
               enable: bool = True) -> list[CanopenActuator]:
-    """Open the drives and return one actuator per axis; ``clock=None`` skips the clock check."""
+    """Open the drives and return one actuator per axis; the clock is checked before any drive
+    is enabled, and a failure while opening leaves every drive disabled and holding.
+    ``clock=None`` skips the clock check."""
     link = CanopenLink(url, len(names), options)
-    try:
-        link.open(enable)
-    except BaseException:
-        link.close()
-        raise
-    opts = link.options
-    d0 = link.drives[0]
-    stroke = opts["stroke_mm"] if opts["stroke_mm"] is not None else (d0.limits_counts[1] - d0.limits_counts[0]) / d0.counts_per_mm
-    force = opts["force_kN"] if opts["force_kN"] is not None else 250.0
-    limits = Limits(stroke or 254.0, force, opts["velocity_mm_s"])
-    actuators = [CanopenActuator(name, link, k, limits) for k, name in enumerate(names)]
-    link.actuators = actuators
-    if clock is None:
-        return actuators
-    lockstep_clock = clock is not None and getattr(clock, "lockstep", False)
-    if link.lockstep != lockstep_clock:
-        link.close()
-        want = "lockstep" if link.lockstep else "realtime"
-        raise ConfigError(f"{url}: the drive's clock is {'lockstep' if link.lockstep else 'real time'} but the experiment's "
-                          f"is not; set [hardware] clock = \"{want}\"")
-    if link.lockstep:
-        clock.attach(link)
-    return actuators
+    return common.open_axes(link, names, clock, CanopenActuator, enable)
 
 
 def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:

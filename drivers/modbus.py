@@ -3,7 +3,8 @@
 ``modbus+tcp://HOST:PORT`` or ``modbus+rtu:///dev/ttyUSB0?baudrate=115200``; the [driver] table
 of the configuration (or the URL's query) sets ``map`` (a TOML register map, default hsio's),
 ``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
-``force_kN``, ``velocity_mm_s`` (default: the controller's own, where its map has them).
+``force_kN``, ``velocity_mm_s``. The stroke and force capacity default to the controller's own
+(its info registers); one it does not report must be set, never guessed (:mod:`drivers.common`).
 
 One :class:`ModbusLink` per controller carries the cyclic exchange of all its axes: one write of
 every axis' command block and one read of every status block, in a single request (function
@@ -23,13 +24,13 @@ from __future__ import annotations
 
 import logging
 import time
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import urlsplit
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.pdu import ExceptionResponse
 
-from drivers import modbus_map
+from drivers import common, modbus_map
 from hsio.clock import Clock
 from hsio.errors import CommunicationError, ConfigError, InterlockError
 from hsio.interfaces import Actuator, Channel, ControlMode, DAQ, Feedback, Limits
@@ -49,32 +50,23 @@ DEFAULT_OPTIONS = {
 }
 
 
+RULES = {
+    **common.COMMON_RULES,
+    "reconnect_delay_s": common.Rule(float, 0.0, 10.0, False, "between 0 and 10 s"),
+    "device_id": common.whole(0, 247),
+    "baudrate": common.Rule(int, 1, 10_000_000, False, "a whole number of bit/s, 1..10000000"),
+}
+
+
 def parse_options(url: str, options: dict | None) -> dict:
     """The [driver] table and the URL's query, checked (the query wins)."""
-    table = dict(DEFAULT_OPTIONS)
-    given = dict(options or {})
-    for key, value in parse_qsl(urlsplit(url).query):
-        given[key] = value
-    for key, value in given.items():
-        if key not in DEFAULT_OPTIONS:
-            raise ConfigError(f"[driver] for {url!r}: unknown key {key!r}; known: {', '.join(DEFAULT_OPTIONS)}")
-        if key in ("map", "lockstep"):
-            table[key] = str(value)
-            continue
-        try:
-            table[key] = None if value is None else (int(value) if key in ("retries", "device_id", "baudrate") else float(value))
-        except (TypeError, ValueError):
-            raise ConfigError(f"[driver] for {url!r}: {key} must be a number, got {value!r}") from None
-    if not table["timeout_s"] > 0:
-        raise ConfigError(f"[driver] for {url!r}: timeout_s must be positive, got {table['timeout_s']!r}")
-    if not 0 <= table["retries"] <= 20:
-        raise ConfigError(f"[driver] for {url!r}: retries must be in 0..20, got {table['retries']!r}")
+    table = common.parse_options(url, options, DEFAULT_OPTIONS, RULES)
     if table["lockstep"] not in ("auto", "on", "off"):
         raise ConfigError(f"[driver] for {url!r}: lockstep must be 'auto', 'on' or 'off', got {table['lockstep']!r}")
     return table
 
 
-class ModbusLink:
+class ModbusLink(common.AxisLink):
     """One controller over Modbus: connection, retries, and the cyclic exchange of all axes."""
 
     def __init__(self, url: str, n_axes: int, options: dict | None = None, regmap=None):
@@ -100,6 +92,8 @@ class ModbusLink:
         self.last_sequence: float | None = None
         self.requests = 0
         self.reconnects = 0
+        self.actuators: list = []
+        self.enabling = False
         self._status_span = self.map.status_span(n_axes)
 
     # -- connection ------------------------------------------------------------------------------
@@ -141,16 +135,44 @@ class ModbusLink:
             self.ticks = int(self.map.decode(adv, self.request("read_holding_registers", adv.address, count=adv.words,
                                                                what="read of the clock").registers))
         self.read_status()
-        if not enable:
-            return
+        if enable:
+            self.enable()
+
+    def enable(self) -> None:
+        """Take every axis into command at the position where it stands (this re-arms a
+        watchdog that expired before)."""
         for k, st in enumerate(self.status):  # start from where each axis stands, holding
             self.commands[k]["displacement"] = st["displacement"]
             self.commands[k]["force"] = st["force"]
             self.commands[k]["enable"] = 0.0
         self.exchange(advance=False)
-        for k in range(self.n):  # enable (this re-arms a watchdog that expired before)
+        self.enabling = True  # from here on, a failure must disable the axes again
+        for k in range(self.n):
             self.commands[k]["enable"] = 1.0
         self.exchange(advance=False)
+
+    def disable(self) -> None:
+        """Every axis holds (enable off, displacement control), one write per axis."""
+        if not self.enabling:
+            return
+        errors = []
+        for k in range(self.n):
+            self.commands[k]["enable"] = 0.0
+            self.commands[k]["mode"] = float(self.map.modes["displacement"])
+            try:
+                self.write_axis(k, ("mode", "enable", "watchdog"), what=f"hold of axis {k}")
+            except CommunicationError as exc:
+                errors.append(str(exc))
+        if errors:
+            raise CommunicationError("; ".join(errors))
+
+    def axis_limits(self) -> list[Limits]:
+        """One controller, one set of limits: [driver] where set, else the controller's info
+        registers (stroke_mm, force_limit_kN); neither guessed."""
+        why = f" (register map {self.map.name!r} has no such info register or it reads 0)"
+        limits = common.resolve_limits(self.url, self.options, self.info.get("stroke_mm"),
+                                       self.info.get("force_limit_kN"), why, why)
+        return [limits] * self.n
 
     def _connect(self) -> None:
         try:
@@ -233,11 +255,9 @@ class ModbusLink:
             f"with a {self.timeout_s:g} s timeout each (last: {last})")
 
     # -- cyclic exchange ---------------------------------------------------------------------------
-    def submit(self, axis: int) -> None:
-        """An axis has a new command; in real time, send once every axis has one."""
-        self.submitted.add(axis)
-        if not self.lockstep and len(self.submitted) == self.n:
-            self.exchange(advance=False)
+    def cycle(self) -> None:
+        """Real time: every axis has its command; one exchange."""
+        self.exchange(advance=False)
 
     def advance(self, ticks: int) -> None:
         """Lockstep clock: write every command and the clock target, read every status."""
@@ -351,14 +371,7 @@ class ModbusActuator(Actuator, DAQ):
         self.link.write_axis(self.axis, ("mode", "enable", "watchdog"), what=f"hold of axis {self.axis}")
 
     def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self.hold()
-        finally:
-            if all(getattr(a, "_closed", True) for a in getattr(self.link, "actuators", [])):
-                self.link.close()
+        common.close_axis(self)
 
     # DAQ
     @property
@@ -374,33 +387,12 @@ def open_link(url: str, names: list[str], clock: Clock | None, options: dict | N
               enable: bool = True) -> list[ModbusActuator]:
     """Connect to a controller and return one actuator per axis (axis k = names[k]).
 
-    ``clock=None`` skips the clock check (diagnostics decide the clock from ``link.lockstep``).
+    The clock is checked before any axis is enabled; a failure while opening leaves every axis
+    holding. ``clock=None`` skips the clock check (diagnostics decide the clock from
+    ``link.lockstep``).
     """
     link = ModbusLink(url, len(names), options)
-    try:
-        link.open(enable)
-    except BaseException:
-        link.close()
-        raise
-    opts = link.options
-    stroke = opts["stroke_mm"] if opts["stroke_mm"] is not None else link.info.get("stroke_mm", 254.0)
-    force = opts["force_kN"] if opts["force_kN"] is not None else link.info.get("force_limit_kN", 250.0)
-    limits = Limits(stroke, force, opts["velocity_mm_s"])
-    actuators = [ModbusActuator(name, link, k, limits) for k, name in enumerate(names)]
-    link.actuators = actuators
-    if clock is None:
-        return actuators
-    if link.lockstep:
-        if not getattr(clock, "lockstep", False):
-            link.close()
-            raise ConfigError(f"{url}: the controller runs in lockstep (emulator) but the experiment's clock is real "
-                              "time; set [hardware] clock = \"lockstep\" or start the emulator with --realtime")
-        clock.attach(link)
-    elif getattr(clock, "lockstep", False):
-        link.close()
-        raise ConfigError(f"{url}: the controller runs on its own clock (real time) but the experiment's clock is "
-                          "lockstep; set [hardware] clock = \"realtime\"")
-    return actuators
+    return common.open_axes(link, names, clock, ModbusActuator, enable)
 
 
 def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:

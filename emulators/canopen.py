@@ -54,10 +54,17 @@ class DriveAxis:
         self.rx_count = 0
         self.warning = False
         self.fault_code = 0
+        self.rated_N = float(emulator.rated_force_N)
         cfg = self.bank.controllers[axis].config
-        half = int(0.5 * cfg.stroke_mm * cod.COUNTS_PER_MM)
-        node.data_store.setdefault(0x607D, {})[1] = struct.pack("<i", -half)
-        node.data_store[0x607D][2] = struct.pack("<i", half)
+        if emulator.position_limits_mm is None:  # the controller's stroke, centred on zero
+            lo, hi = -0.5 * cfg.stroke_mm, 0.5 * cfg.stroke_mm
+        else:
+            lo, hi = emulator.position_limits_mm
+        node.data_store.setdefault(0x607D, {})[1] = struct.pack("<i", int(lo * cod.COUNTS_PER_MM))
+        node.data_store[0x607D][2] = struct.pack("<i", int(hi * cod.COUNTS_PER_MM))
+        node.data_store.setdefault(0x6076, {})[0] = struct.pack("<I", int(self.rated_N))
+        # The force capacity as max torque, per mille of the rated force (u16).
+        node.data_store.setdefault(0x6072, {})[0] = struct.pack("<H", min(0xFFFF, int(cfg.force_limit_kN * 1e6 / self.rated_N)))
         node.add_read_callback(self.on_read)
         node.add_write_callback(self.on_write)
 
@@ -66,9 +73,8 @@ class DriveAxis:
     def to_counts(mm: float) -> int:
         return int(round(mm * cod.COUNTS_PER_MM))
 
-    @staticmethod
-    def to_permille(kN: float) -> int:
-        return max(-32768, min(32767, int(round(kN * 1e6 / cod.RATED_FORCE_N))))
+    def to_permille(self, kN: float) -> int:
+        return max(-32768, min(32767, int(round(kN * 1e6 / self.rated_N))))
 
     # -- SDO ---------------------------------------------------------------------------------------
     def on_read(self, index, subindex, od):
@@ -182,7 +188,7 @@ class DriveAxis:
             return
         mode = ControlMode.FORCE if self.mode == cod.CST else ControlMode.DISPLACEMENT
         value = self.target_counts / cod.COUNTS_PER_MM if mode is ControlMode.DISPLACEMENT \
-            else self.target_torque * cod.RATED_FORCE_N / 1e6
+            else self.target_torque * self.rated_N / 1e6
         if self.following():
             try:
                 self.bank.check_command(self.axis, mode, value)
@@ -239,8 +245,14 @@ class CanopenEmulator:
     """The bank's axes as CiA 402 nodes on a CAN channel (python-can's virtual bus by default)."""
 
     def __init__(self, bank: ControllerBank, channel: str = "hsio", node_id: int = 1,
-                 interface: str = "virtual", heartbeat_ms: int = 100):
+                 interface: str = "virtual", heartbeat_ms: int = 100, rated_force_N: float = cod.RATED_FORCE_N,
+                 position_limits_mm: tuple[float, float] | None = None):
+        """``rated_force_N`` is the drive's rated torque 0x6076 (read as newtons);
+        ``position_limits_mm`` its software position limits 0x607D (default: the controller's
+        stroke, centred on zero; (0, 0): none)."""
         self.bank = bank
+        self.rated_force_N = rated_force_N
+        self.position_limits_mm = position_limits_mm
         self.channel, self.interface = channel, interface
         self.node_id = node_id
         self.heartbeat_ms = heartbeat_ms

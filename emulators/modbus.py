@@ -221,12 +221,13 @@ class PtyBridge:
 class ModbusEmulator:
     """A Modbus server for a :class:`ControllerBank`, in a thread; TCP or RTU over a pty.
 
-    ``transport="tcp"`` listens on ``host:port``; ``transport="rtu"`` creates a pty pair and
-    serves one end (``self.path`` is the other end, for the client).
+    ``transport="tcp"`` listens on ``host:port``; ``port=0`` lets the system choose a free port,
+    and ``self.port`` is the port bound once :meth:`start` returns. ``transport="rtu"`` creates a
+    pty pair and serves one end (``self.path`` is the other end, for the client).
     """
 
     def __init__(self, bank: ControllerBank, regmap: RegisterMap, transport: str = "tcp",
-                 host: str = "127.0.0.1", port: int = 5020, baudrate: int = 115200):
+                 host: str = "127.0.0.1", port: int = 0, baudrate: int = 115200):
         if transport not in ("tcp", "rtu"):
             raise ValueError(f"transport must be 'tcp' or 'rtu', got {transport!r}")
         self.bank = bank
@@ -269,6 +270,8 @@ class ModbusEmulator:
                                                   identity=identity(self.map), timeout=0.1)
             self._loop = asyncio.get_running_loop()
             await self._server.serve_forever(background=True)
+            if self.transport == "tcp":  # the port actually bound (port 0: chosen by the system)
+                self.port = self._server.transport.sockets[0].getsockname()[1]
             self._ready.set()
             await self._server.serving
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from wire import free_port, write_config
+from wire import refused_port, write_config
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
@@ -25,37 +26,59 @@ def hsio(*args, timeout=120):
 
 
 class Emulator:
-    """`hsio emulate ...` in a subprocess; waits for its banner and stops it with SIGTERM."""
+    """`hsio emulate ...` in a subprocess; waits (at most ``startup_s``) for its banner and stops
+    it with SIGTERM."""
 
-    def __init__(self, *args):
-        self.proc = subprocess.Popen([sys.executable, "-m", "hsio.cli", "emulate", *map(str, args)],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
+    def __init__(self, *args, startup_s: float = 30.0, argv: list[str] | None = None):
+        argv = argv or [sys.executable, "-m", "hsio.cli", "emulate", *map(str, args)]
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV, cwd=ROOT)
         self.lines: dict[str, str] = {}
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
-            line = self.proc.stdout.readline()
-            if not line:
-                raise RuntimeError(f"emulator exited: {self.proc.stderr.read()}")
-            key, _, value = line.partition(" ")
-            self.lines[key] = value.strip()
-            if line.startswith("Ctrl-C"):
-                return
-        raise RuntimeError("emulator did not start")
+        self.banner = ""
+        try:
+            self._read_banner(time.monotonic() + startup_s)
+        except BaseException:
+            self.proc.kill()
+            self.proc.communicate(timeout=10)
+            raise
+
+    def _read_banner(self, deadline: float) -> None:
+        """Read stdout with select, so the deadline holds even when the process prints nothing."""
+        fd = self.proc.stdout.fileno()
+        pending = b""
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise RuntimeError(f"emulator did not start in time; it printed {self.banner + pending.decode()!r}")
+            ready, _, _ = select.select([fd], [], [], left)
+            if not ready:
+                continue
+            chunk = os.read(fd, 4096)
+            if not chunk:
+                raise RuntimeError(f"emulator exited: {self.proc.stderr.read().decode()}")
+            pending += chunk
+            while b"\n" in pending:
+                raw, _, pending = pending.partition(b"\n")
+                line = raw.decode()
+                self.banner += line + "\n"
+                key, _, value = line.partition(" ")
+                self.lines[key] = value.strip()
+                if line.startswith("Ctrl-C"):
+                    return
 
     def stop(self) -> str:
         self.proc.send_signal(signal.SIGTERM)
         out, _ = self.proc.communicate(timeout=10)
-        return out
+        return out.decode()
 
 
 def test_emulate_modbus_and_run_against_it(tmp_path):
     """`hsio emulate modbus CONFIG` + `hsio run CONFIG` with the modbus+tcp URL = in-process run."""
-    port = free_port()
-    cfg = write_config(tmp_path, duration=0.5, extra=f'url = "modbus+tcp://127.0.0.1:{port}"\n')
-    emu = Emulator("modbus", "--port", port, cfg)
+    emu = Emulator("modbus", "--port", 0, write_config(tmp_path, duration=0.5, name="emulator.toml"))
     try:
-        assert emu.lines["url"] == f"modbus+tcp://127.0.0.1:{port}"
+        url = emu.lines["url"]  # the port the emulator bound
+        assert url.startswith("modbus+tcp://127.0.0.1:") and int(url.rpartition(":")[2]) > 0
         assert emu.lines["axes"] == "C1, C2" and emu.lines["clock"].startswith("lockstep")
+        cfg = write_config(tmp_path, duration=0.5, extra=f'url = "{url}"\n')
         wire = hsio("run", cfg, "--out", tmp_path / "wire", "--json")
         assert wire.returncode == 0, wire.stderr
     finally:
@@ -88,10 +111,10 @@ def test_emulate_modbus_rtu_prints_the_pty_and_probe_reads_without_moving(tmp_pa
 
 
 def test_probe_move_reports_step_and_sine(tmp_path):
-    port = free_port()
-    emu = Emulator("modbus", "--port", port, write_config(tmp_path))
+    emu = Emulator("modbus", "--port", 0, write_config(tmp_path))
     try:
-        probe = hsio("probe", f"modbus+tcp://127.0.0.1:{port}", "--move", "--json")
+        url = emu.lines["url"]
+        probe = hsio("probe", url, "--move", "--json")
         assert probe.returncode == 0, probe.stderr
         m = json.loads(probe.stdout)["move"]
         # The default emulator: first-order loop with a 20 ms lag -> 10-90 % rise of 2.2 lags.
@@ -99,7 +122,7 @@ def test_probe_move_reports_step_and_sine(tmp_path):
         assert 0 <= m["overshoot_pct"] < 5
         # A 1 mm, 0.5 Hz sine lags by 20 ms: RMS error about 2 pi f A lag / sqrt 2 = 0.044 mm.
         assert m["rms_tracking_error_mm"] == pytest.approx(0.0444, abs=0.01)
-        text = hsio("probe", f"modbus+tcp://127.0.0.1:{port}")
+        text = hsio("probe", url)
         assert "latency" in text.stdout and "median" in text.stdout
     finally:
         emu.stop()
@@ -114,5 +137,15 @@ def test_emulate_canopen_starts_and_stops(tmp_path):
 
 
 def test_probe_of_nothing_fails_clearly():
-    r = hsio("probe", f"modbus+tcp://127.0.0.1:{free_port()}?timeout_s=0.2")
+    with refused_port() as port:
+        r = hsio("probe", f"modbus+tcp://127.0.0.1:{port}?timeout_s=0.2")
     assert r.returncode == 2 and "cannot connect" in r.stderr
+
+
+def test_a_silent_emulator_fails_the_start_up_deadline():
+    """The banner wait is bounded even if the process prints nothing (a plain readline() would
+    block for ever): a process that sleeps gives up after the deadline."""
+    started = time.monotonic()
+    with pytest.raises(RuntimeError, match="did not start in time"):
+        Emulator(argv=[sys.executable, "-c", "import time; time.sleep(30)"], startup_s=1.0)
+    assert time.monotonic() - started < 10

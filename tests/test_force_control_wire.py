@@ -8,7 +8,7 @@ from drivers import modbus_map
 from emulators.bank import bank_from_config
 from emulators.canopen import CanopenEmulator
 from emulators.modbus import ModbusEmulator
-from wire import QUIET_SENSORS, free_port, max_abs_diff, run
+from wire import QUIET_SENSORS, max_abs_diff, run
 
 MIXED = """
 [structure]
@@ -42,7 +42,7 @@ def check_same_run(local, a, wire, b, tolerance_mm):
 
 def test_mixed_run_over_modbus_tcp_equals_in_process(tmp_path):
     cfg = mixed_config(tmp_path)
-    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), port=free_port()).start()
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load()).start()
     try:
         local, a = run(cfg, tmp_path / "local")
         wire, b = run(cfg, tmp_path / "wire", url=emu.url)

@@ -15,7 +15,7 @@ from emulators.bank import bank_from_config
 from emulators.modbus import ModbusEmulator
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.errors import CommunicationError, ConfigError, InterlockError
-from wire import QUIET_SENSORS, free_port, max_abs_diff, run, write_config
+from wire import QUIET_SENSORS, max_abs_diff, refused_port, run, write_config
 
 FLOAT32_EPS = 2.0 ** -23
 
@@ -27,7 +27,7 @@ def cfg(tmp_path):
 
 @pytest.fixture
 def tcp_emulator(cfg):
-    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), port=free_port()).start()
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load()).start()
     yield emu
     emu.stop()
 
@@ -68,7 +68,7 @@ def test_a_lab_map_with_integer_counts_and_little_word_order(tmp_path, cfg):
     path.write_text(text)
     lab = modbus_map.load(path)
     assert lab.encode(lab.command.registers["displacement"], -1.2344) == [(-1234) & 0xFFFF, 0xFFFF]
-    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), lab, port=free_port()).start()
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), lab).start()
     try:
         clock = LockstepClock()
         acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path)})
@@ -92,7 +92,7 @@ def test_a_lab_map_with_integer_counts_and_little_word_order(tmp_path, cfg):
 def test_run_over_modbus_tcp_lockstep_equals_in_process(tmp_path):
     """Lockstep: the same run to float32 resolution (commands and measurements cross as float32)."""
     cfg = write_config(tmp_path, duration=1.0, extra=QUIET_SENSORS)
-    tcp_emulator = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), port=free_port()).start()
+    tcp_emulator = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load()).start()
     try:
         local, a = run(cfg, tmp_path / "local")
         wire, b = run(cfg, tmp_path / "wire", url=tcp_emulator.url)
@@ -127,7 +127,7 @@ def test_run_over_modbus_tcp_real_time_within_tracking_tolerance(tmp_path):
     """Real time: the emulator runs its own 1024 Hz loop; HS over TCP matches in-process HS
     within the tracking tolerance (a few tracking-error RMS)."""
     cfg = write_config(tmp_path, duration=1.0, rate=3.0, clock="realtime")
-    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False), modbus_map.load(), port=free_port()).start()
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False), modbus_map.load()).start()
     try:
         local, a = run(write_config(tmp_path, duration=1.0, rate=3.0, name="ls.toml"), tmp_path / "local")
         wire, b = run(cfg, tmp_path / "wire", url=emu.url)
@@ -149,7 +149,7 @@ def test_clock_mismatch_is_a_clear_error(cfg, tcp_emulator):
 
 def test_third_party_client_reads_and_commands(cfg):
     """pymodbus's own client, no hsio code: read measured displacement, write a command."""
-    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0), modbus_map.load(), port=free_port()).start()
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0), modbus_map.load()).start()
     try:
         c = ModbusTcpClient("127.0.0.1", port=emu.port)
         assert c.connect()
@@ -184,7 +184,7 @@ def test_modbus_exception_becomes_a_clear_error(cfg, tcp_emulator):
 
 def test_watchdog_holds_the_axis_and_the_driver_says_so(cfg):
     bank = bank_from_config(cfg, lockstep=False, watchdog_s=0.15)
-    emu = ModbusEmulator(bank, modbus_map.load(), port=free_port()).start()
+    emu = ModbusEmulator(bank, modbus_map.load()).start()
     try:
         clock = RealTimeClock()
         acts = open_link(emu.url, ["C1", "C2"], clock)
@@ -203,8 +203,8 @@ def test_watchdog_holds_the_axis_and_the_driver_says_so(cfg):
 
 
 def test_connect_to_nothing_is_a_clear_error():
-    with pytest.raises(CommunicationError, match="cannot connect"):
-        open_link(f"modbus+tcp://127.0.0.1:{free_port()}", ["a"], LockstepClock(), {"timeout_s": 0.2})
+    with refused_port() as port, pytest.raises(CommunicationError, match="cannot connect"):
+        open_link(f"modbus+tcp://127.0.0.1:{port}", ["a"], LockstepClock(), {"timeout_s": 0.2})
 
 
 def test_bad_driver_options_are_refused():

@@ -1,7 +1,8 @@
-"""Helpers for the tests over the wire: configurations, free ports, runs, a fault-injecting proxy."""
+"""Helpers for the tests over the wire: configurations, a refused port, runs, a fault-injecting proxy."""
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
@@ -39,10 +40,13 @@ def write_config(tmp_path: Path, duration: float = 1.0, rate: float = 20.0, cloc
     return path
 
 
-def free_port() -> int:
+@contextlib.contextmanager
+def refused_port():
+    """A local port nobody listens on, for as long as the block runs: it is bound (so no other
+    server can take it) but not listening, so a connection to it is refused."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        yield s.getsockname()[1]
 
 
 def run(config_path: Path, out: Path, url: str | None = None, driver: dict | None = None):

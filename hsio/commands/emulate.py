@@ -67,7 +67,7 @@ def emulate() -> None:
 
 @emulate.command("modbus")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind (127.0.0.1: this machine only).")
-@click.option("--port", default=5020, show_default=True, type=int)
+@click.option("--port", default=5020, show_default=True, type=int, help="TCP port (0: any free port; the banner shows the one bound).")
 @click.option("--map", "map_file", default=None, type=click.Path(dir_okay=False), help="Register map TOML (default: hsio's).")
 @_common
 def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, settings) -> None:

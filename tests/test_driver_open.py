@@ -1,0 +1,206 @@
+"""Opening a controller over Modbus or CANopen: the limits come from [driver] or the controller,
+never from a guess; the clock is checked before any axis is enabled; a failure while opening
+leaves every axis holding; bad [driver] options are refused by name."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from drivers import modbus_map
+from drivers.canopen import CanopenLink
+from drivers.canopen import open_link as canopen_open
+from drivers.modbus import ModbusLink
+from drivers.modbus import open_link as modbus_open
+from emulators.bank import bank_from_config
+from emulators.canopen import OE, CanopenEmulator
+from emulators.modbus import ModbusEmulator
+from hsio.clock import LockstepClock, RealTimeClock
+from hsio.errors import CommunicationError, ConfigError, LimitError
+from wire import write_config
+
+_channels = itertools.count()
+NAMES = ["C1", "C2"]
+# Limits unlike any default, so that a limit read from the controller cannot pass for a guess.
+EMULATOR_LIMITS = "[emulator]\nstroke_mm = 100.0\nforce_limit_kN = 40.0\n"
+
+
+@pytest.fixture
+def cfg(tmp_path):
+    return write_config(tmp_path, duration=0.5, extra=EMULATOR_LIMITS)
+
+
+def canopen_emulator(cfg, **kwargs) -> CanopenEmulator:
+    bank = bank_from_config(cfg, lockstep=True, watchdog_s=0)
+    return CanopenEmulator(bank, f"hsio-open-{next(_channels)}", **kwargs).start()
+
+
+def none_enabled(bank) -> bool:
+    return all(not bank.flags(k)["enabled"] and bank.controllers[k].holding for k in range(len(bank.controllers)))
+
+
+def close_all(actuators) -> None:
+    for a in actuators:
+        a.close()
+
+
+# -- Modbus ----------------------------------------------------------------------------------------
+
+def test_modbus_limits_are_the_controllers_own(cfg):
+    with ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0), modbus_map.load()) as emu:
+        acts = modbus_open(emu.url, NAMES, LockstepClock())
+        try:
+            assert (acts[0].limits.stroke_mm, acts[0].limits.force_kN) == (100.0, 40.0)
+            with pytest.raises(LimitError, match="beyond the stroke"):
+                acts[0].command(50.5)
+        finally:
+            close_all(acts)
+
+
+def test_modbus_map_without_limits_needs_them_configured(tmp_path, cfg):
+    """A lab map without the stroke and capacity registers: each must come from [driver]."""
+    text = "\n".join(line for line in modbus_map.DEFAULT_MAP.read_text().splitlines()
+                     if not line.startswith(("stroke_mm ", "force_limit_kN ")))
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    lab = modbus_map.load(path)
+    assert "stroke_mm" not in lab.info and "force_limit_kN" not in lab.info
+    with ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0), lab) as emu:
+        with pytest.raises(ConfigError, match=r"does not report its stroke.*set \[driver\] stroke_mm"):
+            modbus_open(emu.url, NAMES, LockstepClock(), {"map": str(path)})
+        with pytest.raises(ConfigError, match=r"does not report its force capacity.*set \[driver\] force_kN"):
+            modbus_open(emu.url, NAMES, LockstepClock(), {"map": str(path), "stroke_mm": 80})
+        assert none_enabled(emu.bank)
+        acts = modbus_open(emu.url, NAMES, LockstepClock(), {"map": str(path), "stroke_mm": 80, "force_kN": 30})
+        try:
+            assert (acts[1].limits.stroke_mm, acts[1].limits.force_kN) == (80.0, 30.0)
+        finally:
+            close_all(acts)
+
+
+def test_modbus_clock_mismatch_enables_nothing(cfg):
+    with ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0), modbus_map.load()) as emu:
+        with pytest.raises(ConfigError, match=r"lockstep.*clock = \"lockstep\""):
+            modbus_open(emu.url, NAMES, RealTimeClock())
+        assert none_enabled(emu.bank)
+        assert emu.context.commands[0]["enable"] == 0.0 and emu.context.commands[1]["enable"] == 0.0
+
+
+# -- CANopen -----------------------------------------------------------------------------------------
+
+def test_canopen_limits_are_the_drives_own(cfg):
+    emu = canopen_emulator(cfg)
+    try:
+        acts = canopen_open(emu.url, NAMES, LockstepClock())
+        assert (acts[0].limits.stroke_mm, acts[0].limits.force_kN) == (100.0, pytest.approx(40.0))
+        close_all(acts)
+    finally:
+        emu.stop()
+
+
+def test_canopen_force_capacity_beyond_int16_is_refused_at_open(cfg):
+    """A drive rated 5 kN carries at most 32767 per mille = 163.835 kN: 250 kN is refused at
+    open, by name, and nothing is enabled; a capacity within the range works."""
+    emu = canopen_emulator(cfg, rated_force_N=5000)
+    try:
+        with pytest.raises(ConfigError, match=r"force capacity 250 kN \(\[driver\] force_kN\).*0x6076.*163.835"):
+            canopen_open(emu.url, NAMES, LockstepClock(), {"force_kN": 250})
+        assert none_enabled(emu.bank) and all(a.state != OE for a in emu.axes)
+        clock = LockstepClock()
+        acts = canopen_open(emu.url, NAMES, clock, {"force_kN": 150})
+        try:
+            assert acts[0].drive.rated_N == 5000.0
+            assert acts[0].drive.permille(150.0) == 30000
+            with pytest.raises(LimitError, match="beyond the int16 range"):
+                acts[0].drive.permille(170.0)
+        finally:
+            close_all(acts)
+    finally:
+        emu.stop()
+
+
+def test_canopen_drive_without_software_limits_needs_stroke_configured(cfg):
+    emu = canopen_emulator(cfg, position_limits_mm=(0.0, 0.0))
+    try:
+        with pytest.raises(ConfigError, match=r"0x607D.*0/0.*set \[driver\] stroke_mm"):
+            canopen_open(emu.url, NAMES, LockstepClock())
+        assert none_enabled(emu.bank)
+        acts = canopen_open(emu.url, NAMES, LockstepClock(), {"stroke_mm": 60})
+        assert acts[0].limits.stroke_mm == 60.0
+        close_all(acts)
+    finally:
+        emu.stop()
+
+
+def test_canopen_asymmetric_software_limits_give_the_smaller_side(cfg):
+    """Limits -30..+45 mm: hsio's stroke is centred on zero, so +/-30 mm; 31 mm is refused."""
+    emu = canopen_emulator(cfg, position_limits_mm=(-30.0, 45.0))
+    try:
+        acts = canopen_open(emu.url, NAMES, LockstepClock())
+        try:
+            assert acts[0].limits.half_stroke_mm == pytest.approx(30.0)
+            with pytest.raises(LimitError, match="beyond the stroke"):
+                acts[0].command(31.0)
+        finally:
+            close_all(acts)
+    finally:
+        emu.stop()
+    emu = canopen_emulator(cfg, position_limits_mm=(5.0, 45.0))
+    try:
+        with pytest.raises(ConfigError, match=r"0x607D 5000\.\.45000 counts do not contain zero"):
+            canopen_open(emu.url, NAMES, LockstepClock())
+    finally:
+        emu.stop()
+
+
+def test_canopen_clock_mismatch_enables_nothing(cfg):
+    emu = canopen_emulator(cfg)
+    try:
+        with pytest.raises(ConfigError, match=r"clock = \"lockstep\""):
+            canopen_open(emu.url, NAMES, RealTimeClock())
+        assert none_enabled(emu.bank) and all(a.state != OE for a in emu.axes)
+    finally:
+        emu.stop()
+
+
+def test_canopen_failure_part_way_disables_the_drives_already_enabled(cfg):
+    """Node 2 fails while being enabled (it lacks 0x6077): node 1, enabled before, is disabled."""
+    emu = canopen_emulator(cfg)
+    try:
+        del emu.axes[1].node.object_dictionary[0x6077]
+        with pytest.raises(CommunicationError, match=r"node 2: SDO read of torque actual value.*aborted"):
+            canopen_open(emu.url, NAMES, LockstepClock())
+        assert emu.axes[0].state != OE and none_enabled(emu.bank)
+    finally:
+        emu.stop()
+
+
+# -- [driver] options ---------------------------------------------------------------------------------
+
+BAD_OPTIONS = [
+    ("stroke_mm", 0), ("stroke_mm", -5.0), ("stroke_mm", "nan"), ("force_kN", -1), ("force_kN", "inf"),
+    ("velocity_mm_s", 0), ("timeout_s", 0), ("timeout_s", 1e6), ("retries", -1), ("retries", 2.5),
+    ("retries", 100), ("stroke_mm", True), ("force_kN", "lots"),
+]
+
+
+@pytest.mark.parametrize("key, value", BAD_OPTIONS)
+def test_bad_driver_options_are_refused_by_name(key, value):
+    for make in (lambda: ModbusLink("modbus+tcp://127.0.0.1:1", 1, {key: value}),
+                 lambda: CanopenLink("canopen+virtual://bus/1", 1, {key: value})):
+        with pytest.raises(ConfigError, match=rf"\[driver\] for .*: {key} must be"):
+            make()
+
+
+@pytest.mark.parametrize("url, key", [
+    ("modbus+tcp://127.0.0.1:1?reconnect_delay_s=-1", "reconnect_delay_s"),
+    ("modbus+tcp://127.0.0.1:1?device_id=300", "device_id"),
+    ("modbus+tcp://127.0.0.1:1?baudrate=0", "baudrate"),
+    ("canopen+virtual://bus/1?heartbeat_ms=70000", "heartbeat_ms"),
+    ("canopen+virtual://bus/1?bitrate=5", "bitrate"),
+])
+def test_bad_driver_options_in_the_url_are_refused_by_name(url, key):
+    link = ModbusLink if url.startswith("modbus") else CanopenLink
+    with pytest.raises(ConfigError, match=rf"{key} must be"):
+        link(url, 1)
