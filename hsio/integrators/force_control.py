@@ -157,8 +157,8 @@ class ImplicitForceControl:
         self.independent = bool(independent)
         if self.independent:
             diagonal = all(np.count_nonzero(m - np.diag(np.diag(m))) == 0 for m in (self.M, self.C, self.K_N))
-            if not diagonal or sorted(self.dofs.tolist()) != list(range(n)):
-                raise ConfigError("force control: independent=True needs diagonal M, C, K_N and one element per DOF")
+            if not diagonal or self.dofs.tolist() != list(range(n)):
+                raise ConfigError("force control: independent=True needs diagonal M, C, K_N and element j at DOF j")
         self._E = np.zeros((self.dofs.size, n))
         self._E[np.arange(self.dofs.size), self.dofs] = 1.0
         self.k = K_EI.copy()  # the last converged secant, per element
