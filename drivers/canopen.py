@@ -39,7 +39,7 @@ from drivers import canopen_od as cod
 from drivers import common
 from hsio.clock import Clock
 from hsio.errors import CommunicationError, ConfigError, InterlockError, LimitError
-from hsio.interfaces import Actuator, Channel, ControlMode, DAQ, Feedback, Limits
+from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
 log = logging.getLogger(__name__)
 
@@ -387,7 +387,7 @@ class CanopenLink(common.AxisLink):
             pass
 
 
-class CanopenActuator(Actuator, DAQ):
+class CanopenActuator(Actuator, ActuatorChannels):
     """One axis: a CiA 402 drive on a :class:`CanopenLink`."""
 
     def __init__(self, name: str, link: CanopenLink, axis: int, limits: Limits):
@@ -448,13 +448,6 @@ class CanopenActuator(Actuator, DAQ):
     def close(self) -> None:
         common.close_axis(self)
 
-    @property
-    def channels(self) -> tuple[Channel, ...]:
-        return (Channel(f"{self.name}.displacement", "mm"), Channel(f"{self.name}.force", "kN"))
-
-    def read(self) -> dict[str, float]:
-        fb = self.feedback()
-        return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}
 
 
 def open_link(url: str, names: list[str], clock: Clock | None, options: dict | None = None,

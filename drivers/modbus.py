@@ -33,7 +33,7 @@ from pymodbus.pdu import ExceptionResponse
 from drivers import common, modbus_map
 from hsio.clock import Clock
 from hsio.errors import CommunicationError, ConfigError, InterlockError
-from hsio.interfaces import Actuator, Channel, ControlMode, DAQ, Feedback, Limits
+from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
 log = logging.getLogger(__name__)
 
@@ -308,7 +308,7 @@ class ModbusLink(common.AxisLink):
                      words[start:end], what=what)
 
 
-class ModbusActuator(Actuator, DAQ):
+class ModbusActuator(Actuator, ActuatorChannels):
     """One axis of a controller on a :class:`ModbusLink`."""
 
     def __init__(self, name: str, link: ModbusLink, axis: int, limits: Limits):
@@ -373,14 +373,6 @@ class ModbusActuator(Actuator, DAQ):
     def close(self) -> None:
         common.close_axis(self)
 
-    # DAQ
-    @property
-    def channels(self) -> tuple[Channel, ...]:
-        return (Channel(f"{self.name}.displacement", "mm"), Channel(f"{self.name}.force", "kN"))
-
-    def read(self) -> dict[str, float]:
-        fb = self.feedback()
-        return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}
 
 
 def open_link(url: str, names: list[str], clock: Clock | None, options: dict | None = None,

@@ -13,7 +13,7 @@ from urllib.parse import parse_qsl, urlsplit
 from emulators.servo import ServoController, make_controllers, parse_value
 from hsio.clock import Clock
 from hsio.errors import ConfigError, InterlockError
-from hsio.interfaces import Actuator, Channel, ControlMode, DAQ, Feedback, Limits
+from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
 
 class RealTimeLoop:
@@ -48,7 +48,7 @@ class RealTimeLoop:
                 self.overruns += 1
 
 
-class EmulatedActuator(Actuator, DAQ):
+class EmulatedActuator(Actuator, ActuatorChannels):
     """An emulated controller channel as an Actuator (and its DAQ channels)."""
 
     def __init__(self, name: str, controller: ServoController, clock: Clock | None = None):
@@ -97,14 +97,6 @@ class EmulatedActuator(Actuator, DAQ):
         if self.controller.tripped:
             raise InterlockError(f"actuator {self.name!r}: interlock tripped: {self.controller.tripped}; holding")
 
-    # DAQ
-    @property
-    def channels(self) -> tuple[Channel, ...]:
-        return (Channel(f"{self.name}.displacement", "mm"), Channel(f"{self.name}.force", "kN"))
-
-    def read(self) -> dict[str, float]:
-        fb = self.feedback()
-        return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}
 
 
 def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:

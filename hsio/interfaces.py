@@ -143,3 +143,18 @@ class DAQ(ABC):
     @abstractmethod
     def read(self) -> dict[str, float]:
         """One reading of every channel, by name, in the channel's unit."""
+
+
+class ActuatorChannels(DAQ):
+    """An actuator's own transducers as DAQ channels: ``<name>.displacement`` (mm) and
+    ``<name>.force`` (kN), read through :meth:`Actuator.feedback`."""
+
+    name: str
+
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        return (Channel(f"{self.name}.displacement", "mm"), Channel(f"{self.name}.force", "kN"))
+
+    def read(self) -> dict[str, float]:
+        fb = self.feedback()
+        return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}

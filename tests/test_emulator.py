@@ -124,3 +124,15 @@ def test_unknown_emulator_setting_is_named():
         ServoConfig.from_dict({"lagg": 0.02})
     with pytest.raises(ConfigError, match="lag_s"):
         ServoConfig(lag_s=-1.0)
+
+
+def test_actuator_reads_as_a_daq_with_named_channels_and_units():
+    clock = LockstepClock()
+    act = open_url("emulator://?noise_mm=0&resolution_mm=0", validation().experimental[:1], clock)[0]
+    assert [(c.name, c.unit) for c in act.channels] == [("C1.displacement", "mm"), ("C1.force", "kN")]
+    act.command(2.0)
+    for _ in range(1024):
+        clock.tick()
+    reading = act.read()
+    assert reading["C1.displacement"] == pytest.approx(2.0, abs=1e-3)
+    assert reading["C1.force"] == pytest.approx(2.0 * 0.613, abs=0.01)
