@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import struct
-import tomllib
+from hsio.config import read_toml
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -260,10 +260,5 @@ def _check_layout(m: RegisterMap) -> None:
 def load(path: str | Path | None = None) -> RegisterMap:
     """Read a register map; ``None`` gives hsio's default map."""
     path = Path(path) if path else DEFAULT_MAP
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read register map: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    data = read_toml(path, "register map")
     return from_dict(data, str(path))

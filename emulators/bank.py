@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from emulators.servo import ServoController, make_controllers, parse_value
 from hsio import config as config_mod
+from hsio.clock import RealTimeClock
 from hsio.errors import ConfigError
 from hsio.interfaces import ControlMode
 from hsio.structures import get_structure
@@ -80,20 +81,15 @@ class ControllerBank:
             self._thread = None
 
     def _run(self) -> None:
-        period = 1.0 / self.rate_hz if not self.lockstep else 0.02
-        start = time.perf_counter()
-        k = 0
+        # In lockstep the thread only watches the host (every 20 ms); the host steps the clock.
+        clock = RealTimeClock(self.rate_hz if not self.lockstep else 50.0)
         while not self._stop.is_set():
             with self.lock:
                 self.check_watchdog()
                 if not self.lockstep:
                     self._step()
-            k += 1
-            delay = start + k * period - time.perf_counter()
-            if delay > 0:
-                time.sleep(delay)
-            elif -delay > period:
-                self.overruns += 1
+            clock.tick()
+            self.overruns = clock.overruns
 
     def _step(self) -> None:
         for c in self.controllers:

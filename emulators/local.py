@@ -7,11 +7,10 @@ own loop in a thread (:class:`RealTimeLoop`) and the experiment only writes and 
 from __future__ import annotations
 
 import threading
-import time
 from urllib.parse import parse_qsl, urlsplit
 
 from emulators.servo import ServoController, make_controllers, parse_value
-from hsio.clock import Clock
+from hsio.clock import Clock, RealTimeClock
 from hsio.errors import ConfigError, InterlockError
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
@@ -34,18 +33,12 @@ class RealTimeLoop:
         self._thread.join(timeout=1.0)
 
     def _run(self) -> None:
-        period = self.controller.dt
-        start = time.perf_counter()
-        k = 0
+        clock = RealTimeClock(self.controller.config.rate_hz)
         while not self._stop.is_set():
             with self.lock:
                 self.controller.step()
-            k += 1
-            delay = start + k * period - time.perf_counter()
-            if delay > 0:
-                time.sleep(delay)
-            elif -delay > period:
-                self.overruns += 1
+            clock.tick()
+            self.overruns = clock.overruns
 
 
 class EmulatedActuator(Actuator, ActuatorChannels):

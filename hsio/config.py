@@ -142,19 +142,23 @@ def _check_implicit(i: dict, source: str) -> None:
         raise ConfigError(f"{source}: [integrator] {lower} ({i[lower]}) must be below {upper} ({i[upper]})")
 
 
+def read_toml(path: str | Path, what: str) -> dict:
+    """A TOML file as a dict; an unreadable or malformed file is a ConfigError naming it."""
+    path = Path(path)
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read {what}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+
+
 def load(path: str | Path | None) -> RunConfig:
     """Read and check a TOML configuration; ``None`` gives the defaults."""
     if path is None:
         return from_dict({})
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read configuration: {exc.strerror}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    data = read_toml(path, "configuration")
     config = from_dict(data, str(path))
     record_file = config["record"]["file"]
     if record_file and not Path(record_file).is_absolute():

@@ -103,9 +103,6 @@ def simulate(structure: Structure, ground: GroundMotion, substructure, alpha: fl
                 progress(1)
     except (Exception, KeyboardInterrupt) as exc:
         stopped = stop_reason(exc, last, structure.dt)
-    finally:
-        if stopped:
-            hold_all(substructure)
     histories = dict(t=t, u=u, v=v, a=a, u_pred=u_pred, R=R, targets=targets, commands=commands,
                      measured_displacement=disp, measured_force=force, modes=modes)
     return finish(structure, substructure, histories, last, started, stopped)
@@ -128,7 +125,10 @@ def hold_all(owner) -> None:
 
 def finish(structure: Structure, owner, histories: dict, last: int, started: float, stopped: str,
            extra: dict | None = None) -> Result:
-    """The Result of steps 0..last; raises ExperimentStopped carrying it if the run ``stopped``."""
+    """The Result of steps 0..last. If the run ``stopped``, the actuators behind ``owner`` hold
+    and ExperimentStopped is raised carrying the Result."""
+    if stopped:
+        hold_all(owner)
     keep = slice(0, last + 1)
     result = Result(
         structure=structure.name, dt=structure.dt, **{name: h[keep] for name, h in histories.items()},

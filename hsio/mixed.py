@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 
 from hsio.errors import ConfigError
-from hsio.experiment import Result, excitation, finish, hold_all, stop_reason
+from hsio.experiment import Result, excitation, finish, stop_reason
 from hsio.ground_motion import GroundMotion
 from hsio.integrators import ImplicitForceControl
 from hsio.interfaces import ControlMode
@@ -186,9 +186,6 @@ def simulate_implicit(structure: Structure, ground: GroundMotion, elements, alph
                 progress(1)
     except (Exception, KeyboardInterrupt) as exc:
         stopped = stop_reason(exc, last, structure.dt)
-    finally:
-        if stopped:
-            hold_all(elements)
     histories = dict(t=t, u=u, v=v, a=a, u_pred=u_pred, R=R, targets=targets, commands=commands,
                      measured_displacement=disp, measured_force=force, modes=mode_hist)
     keep = slice(0, last + 1)

@@ -14,7 +14,7 @@ Jacobian at the optimum.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.optimize
@@ -89,9 +89,6 @@ class HockeyStick:
         out = {"a_mm_s": self.a_mm_s, "b_s_mm": self.b_s_mm, "lag_s": self.lag_s,
                "a_std": self.a_std, "b_std": self.b_std, "n": self.n}
         return {k: (None if isinstance(x, float) and not math.isfinite(x) else x) for k, x in out.items()}
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
 
 class FitError(HsioError):

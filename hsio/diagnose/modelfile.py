@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
+from hsio.config import read_toml
 from pathlib import Path
 
 from hsio.errors import ConfigError
@@ -86,12 +86,7 @@ def load_model(path: str | Path) -> dict:
     from emulators.servo import ServoConfig
 
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read actuator model: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    data = read_toml(path, "actuator model")
     table = data.get("emulator")
     if not isinstance(table, dict):
         raise ConfigError(f"{path}: an actuator model needs an [emulator] table")

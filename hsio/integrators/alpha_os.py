@@ -16,7 +16,7 @@ and correctors u_{i+1} = u~_{i+1} + dt^2 beta a_{i+1},  v_{i+1} = v~_{i+1} + dt 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -108,10 +108,6 @@ class AlphaOS:
         """One step: predict, ask the substructure for R~ at u~_{i+1}, correct."""
         u_pred, _ = self.predict()
         return self.correct(restoring_force(u_pred), P_next)
-
-    def restore(self, state: AlphaOSState) -> None:
-        """Continue from a saved state (e.g. a run resumed from its record)."""
-        self.state = replace(state)
 
     def _require_state(self) -> AlphaOSState:
         if self.state is None:
