@@ -13,7 +13,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from emulators.servo import ServoConfig  # noqa: E402
+from hsio.emulators.servo import ServoConfig  # noqa: E402
 from hsio.diagnose.readers import read_record  # noqa: E402
 from hsio.diagnose.report import write_report  # noqa: E402
 from hsio.diagnose.selection import diagnose  # noqa: E402

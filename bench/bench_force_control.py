@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from emulators.local import open_url
+from hsio.emulators.local import open_url
 from hsio import implicit_run, study
 from hsio.clock import LockstepClock
 from hsio.control_loop import ControlLoop

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers import modbus_map
-from drivers.canopen import open_link as canopen_link
-from drivers.modbus import open_link as modbus_link
-from emulators.bank import bank_from_config
-from emulators.canopen import CanopenEmulator
-from emulators.modbus import ModbusEmulator
+from hsio.drivers import modbus_map
+from hsio.drivers.canopen import open_link as canopen_link
+from hsio.drivers.modbus import open_link as modbus_link
+from hsio.emulators.bank import bank_from_config
+from hsio.emulators.canopen import CanopenEmulator
+from hsio.emulators.modbus import ModbusEmulator
 from hsio import config as config_mod
 from hsio.clock import LockstepClock
 from hsio.control_loop import ControlLoop

@@ -35,8 +35,8 @@ import canopen
 from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from drivers import canopen_od as cod
-from drivers import common
+from hsio.drivers import canopen_od as cod
+from hsio.drivers import common
 from hsio.clock import Clock
 from hsio.errors import CommunicationError, ConfigError, InterlockError, LimitError
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits

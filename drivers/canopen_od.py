@@ -1,7 +1,7 @@
 """The object dictionary of hsio's CiA 402 servo drive (see docs/canopen.md).
 
-Used by both ends: the emulated drive (:mod:`emulators.canopen`) serves it, the driver
-(:mod:`drivers.canopen`) reads it as the drive's description. A lab drive is described by its own
+Used by both ends: the emulated drive (:mod:`hsio.emulators.canopen`) serves it, the driver
+(:mod:`hsio.drivers.canopen`) reads it as the drive's description. A lab drive is described by its own
 EDS file instead ([driver] eds = "drive.eds").
 
 Units on the bus: positions in counts (0x2001 counts per mm, default 1000: 1 um), forces as the

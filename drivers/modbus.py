@@ -4,7 +4,7 @@
 of the configuration (or the URL's query) sets ``map`` (a TOML register map, default hsio's),
 ``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
 ``force_kN``, ``velocity_mm_s``. The stroke and force capacity default to the controller's own
-(its info registers); one it does not report must be set, never guessed (:mod:`drivers.common`).
+(its info registers); one it does not report must be set, never guessed (:mod:`hsio.drivers.common`).
 
 One :class:`ModbusLink` per controller carries the cyclic exchange of all its axes: one write of
 every axis' command block and one read of every status block, in a single request (function
@@ -30,7 +30,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.pdu import ExceptionResponse
 
-from drivers import common, modbus_map
+from hsio.drivers import common, modbus_map
 from hsio.clock import Clock
 from hsio.errors import CommunicationError, ConfigError, InterlockError
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits

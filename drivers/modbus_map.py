@@ -2,7 +2,7 @@
 
 The map is data: a lab describes its own controller by writing a TOML file in the format of
 ``drivers/maps/hsio_default.toml``, no code. The same map drives both ends of the wire: the
-driver (:mod:`drivers.modbus`) and the emulator's server (:mod:`emulators.modbus`).
+driver (:mod:`hsio.drivers.modbus`) and the emulator's server (:mod:`hsio.emulators.modbus`).
 
 Values are converted here, once, at the protocol boundary: a register value is the engineering
 value (mm, kN, s) times ``scale``, in the register's type and the map's word order.

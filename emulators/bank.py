@@ -1,13 +1,13 @@
 """A multi-axis emulated servo controller as a protocol front-end sees it.
 
-One :class:`~emulators.servo.ServoController` per axis, plus what a real controller adds around
+One :class:`~hsio.emulators.servo.ServoController` per axis, plus what a real controller adds around
 its loops: an enable/hold switch per axis, a host watchdog (the host must change its watchdog
 counter within ``watchdog_s``, otherwise the axis holds and the watchdog bit latches until the
 host re-enables), range checks on incoming commands (refused, never clamped), and a clock that
 either runs in real time (its own 1024 Hz loop in a thread) or in lockstep (it waits for the
 host to advance it).
 
-The Modbus server (:mod:`emulators.modbus`) and the CANopen node (:mod:`emulators.canopen`)
+The Modbus server (:mod:`hsio.emulators.modbus`) and the CANopen node (:mod:`hsio.emulators.canopen`)
 both serve a :class:`ControllerBank`.
 """
 
@@ -19,7 +19,7 @@ import threading
 import time
 from dataclasses import dataclass
 
-from emulators.servo import ServoController, make_controllers, parse_value
+from hsio.emulators.servo import ServoController, make_controllers, parse_value
 from hsio import config as config_mod
 from hsio.clock import RealTimeClock
 from hsio.errors import ConfigError

@@ -1,7 +1,7 @@
 """The emulated controller as CiA 402 drives on a CAN bus (canopen LocalNode, python-can).
 
 One node per axis (node ids ``node_id``, ``node_id + 1``, ...), each with the object dictionary
-of :mod:`drivers.canopen_od`:
+of :mod:`hsio.drivers.canopen_od`:
 
 * the controlword/statusword state machine of CiA 402 (switch on disabled -> ready to switch on
   -> switched on -> operation enabled; quick stop; fault and fault reset). The axis follows the
@@ -26,8 +26,8 @@ import threading
 import canopen
 from canopen.sdo import SdoAbortedError
 
-from drivers import canopen_od as cod
-from emulators.bank import CommandRefused, ControllerBank
+from hsio.drivers import canopen_od as cod
+from hsio.emulators.bank import CommandRefused, ControllerBank
 from hsio.interfaces import ControlMode
 
 log = logging.getLogger(__name__)

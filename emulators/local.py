@@ -9,7 +9,7 @@ from __future__ import annotations
 import threading
 from urllib.parse import parse_qsl, urlsplit
 
-from emulators.servo import ServoController, make_controllers, parse_value
+from hsio.emulators.servo import ServoController, make_controllers, parse_value
 from hsio.clock import Clock, RealTimeClock
 from hsio.errors import ConfigError, InterlockError
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits

@@ -1,7 +1,7 @@
 """The emulated controller served over Modbus TCP (pymodbus server) and Modbus RTU on a pty.
 
 :class:`RegisterContext` is the server's data model: it answers reads from the controller's live
-state and turns writes into commands, as the register map (:mod:`drivers.modbus_map`) says.
+state and turns writes into commands, as the register map (:mod:`hsio.drivers.modbus_map`) says.
 A write that touches an unmapped or read-only register gets exception 2 (illegal data address),
 a value out of range exception 3 (illegal data value); neither changes anything.
 
@@ -23,8 +23,8 @@ from pymodbus.datastore import ModbusServerContext
 from pymodbus.pdu.device import ModbusDeviceIdentification
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
-from drivers.modbus_map import RegisterMap
-from emulators.bank import CommandRefused, ControllerBank
+from hsio.drivers.modbus_map import RegisterMap
+from hsio.emulators.bank import CommandRefused, ControllerBank
 from hsio.interfaces import ControlMode
 
 log = logging.getLogger(__name__)

@@ -169,7 +169,7 @@ class ServoController:
 
     def reset(self) -> None:
         """Back to rest at zero, in displacement control, interlocks cleared."""
-        self.specimen.reset()
+        self.specimen.revert_to_start()
         self.mode = ControlMode.DISPLACEMENT
         self.command = 0.0
         self.ticks = 0

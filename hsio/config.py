@@ -29,7 +29,7 @@ DEFAULTS: dict[str, dict] = {
                      "window": 400, "update_every": 10, "min_samples": 40, "min_beyond": 20, "max_rel_std": 0.25,
                      "lag_max_s": 0.1, "a_max_mm_s": 50.0, "lag_step_s": 0.005, "a_step_mm_s": 2.0},
 }
-# The [emulator] table is passed to the emulated controller (emulators.servo.ServoConfig), which
+# The [emulator] table is passed to the emulated controller (hsio.emulators.servo.ServoConfig), which
 # checks its own keys; [drivers] likewise goes to the driver named by hardware.url.
 FREE_TABLES = ("emulator", "driver")
 
@@ -105,7 +105,7 @@ def _check_ranges(t: dict, source: str) -> None:
     if record["seed"] < 0:
         raise ConfigError(f"{source}: [record] seed must not be negative, got {record['seed']}")
     if t["hardware"]["url"].startswith("emulator"):
-        from emulators.servo import ServoConfig  # the emulator checks its own settings
+        from hsio.emulators.servo import ServoConfig  # the emulator checks its own settings
 
         try:
             ServoConfig.from_dict(t["emulator"])

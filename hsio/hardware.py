@@ -16,11 +16,11 @@ from urllib.parse import urlsplit
 from hsio.errors import ConfigError
 
 BUILT_IN = {
-    "emulator": "emulators.local:open_url",
-    "modbus+tcp": "drivers.modbus:open_url",
-    "modbus+rtu": "drivers.modbus:open_url",
-    "canopen+virtual": "drivers.canopen:open_url",
-    "canopen+socketcan": "drivers.canopen:open_url",
+    "emulator": "hsio.emulators.local:open_url",
+    "modbus+tcp": "hsio.drivers.modbus:open_url",
+    "modbus+rtu": "hsio.drivers.modbus:open_url",
+    "canopen+virtual": "hsio.drivers.canopen:open_url",
+    "canopen+socketcan": "hsio.drivers.canopen:open_url",
 }
 
 

@@ -2,8 +2,8 @@
 
 An :class:`Actuator` takes one command sample per controller period, in displacement (mm) or
 force (kN) control, and reports measured displacement and force. A :class:`DAQ` reports named
-channels with units. Both are implemented by the in-process emulator (``emulators.local``) and by
-the drivers (``drivers.modbus``, ``drivers.canopen``), so the experiment does not know which it
+channels with units. Both are implemented by the in-process emulator (``hsio.emulators.local``) and by
+the drivers (``hsio.drivers.modbus``, ``hsio.drivers.canopen``), so the experiment does not know which it
 drives.
 
 Limits are checked here, before anything is sent: a command beyond a limit raises

@@ -169,6 +169,39 @@ class Structure:
     def experimental_dofs(self) -> list[int]:
         return [e.dof for e in self.experimental]
 
+    def numerical_assembly(self) -> "NumericalAssembly":
+        """The numerical part of the restoring force, R^N (fresh models in the virgin state)."""
+        return NumericalAssembly(self)
+
+
+class NumericalAssembly:
+    """R^N(u): the numerical springs and elements of a structure, with trial and commit.
+
+    ``K_linear`` is the stiffness of the linear part, ``K_initial`` that of every numerical
+    element from the virgin state; ``is_linear`` says whether R^N = K_linear u exactly.
+    """
+
+    def __init__(self, structure: Structure):
+        self.structure = structure
+        self.models = [make_specimen(e.specimen) for e in structure.numerical]
+        self.K_linear = structure.K_N.copy()
+        self.K_initial = structure.K_N + structure.K_num_init
+        self.is_linear = all(m.kind == "linear" for m in self.models)
+        if self.is_linear:
+            self.K_linear = self.K_initial.copy()
+
+    def trial(self, u: np.ndarray, dt: float = 0.0) -> np.ndarray:
+        """R^N at ``u`` from the committed state (committed state unchanged)."""
+        u = np.asarray(u, dtype=float)
+        R = self.structure.K_N @ u
+        for element, model in zip(self.structure.numerical, self.models):
+            R[element.dof] += model.trial(float(u[element.dof]), dt)
+        return R
+
+    def commit(self) -> None:
+        for model in self.models:
+            model.commit()
+
 
 def validation() -> Structure:
     """The validation structure (Table I): two steel cantilevers coupled by a stiff numerical spring.

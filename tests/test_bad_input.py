@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from emulators.servo import ServoController
+from hsio.emulators.servo import ServoController
 from hsio import config, runner
 from hsio.experiment import ExperimentStopped
 from hsio.errors import ConfigError, RecordError

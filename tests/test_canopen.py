@@ -10,10 +10,10 @@ import can
 import numpy as np
 import pytest
 
-from drivers import canopen_od as cod
-from drivers.canopen import CanopenLink, open_link
-from emulators.bank import bank_from_config
-from emulators.canopen import CanopenEmulator
+from hsio.drivers import canopen_od as cod
+from hsio.drivers.canopen import CanopenLink, open_link
+from hsio.emulators.bank import bank_from_config
+from hsio.emulators.canopen import CanopenEmulator
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.errors import CommunicationError, ConfigError, InterlockError
 from hsio.experiment import ExperimentStopped

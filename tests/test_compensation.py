@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from emulators.servo import PRESETS, ServoConfig, ServoController
+from hsio.emulators.servo import PRESETS, ServoConfig, ServoController
 from hsio import config as config_mod
 from hsio import runner
 from hsio.compensation import hockey_stick

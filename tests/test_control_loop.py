@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from emulators.local import open_url
+from hsio.emulators.local import open_url
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.control_loop import ControlLoop
 from hsio.errors import HsioError

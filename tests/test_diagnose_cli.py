@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from emulators.servo import ServoConfig
+from hsio.emulators.servo import ServoConfig
 from hsio.diagnose.readers import write_csv
 from hsio.diagnose.synth import chirp_command, emulate
 

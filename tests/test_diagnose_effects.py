@@ -1,11 +1,11 @@
-"""diagnose finds each effect hidden in records of the real emulator (emulators.servo), at
+"""diagnose finds each effect hidden in records of the real emulator (hsio.emulators.servo), at
 realistic magnitudes, with sensor noise and 0.025 mm quantisation, under seismic and chirp
 commands, and recovers its parameter within 20 %; with nothing hidden it answers none."""
 
 import numpy as np
 import pytest
 
-from emulators.servo import ServoConfig
+from hsio.emulators.servo import ServoConfig
 from hsio.diagnose.selection import NONE, diagnose
 from hsio.diagnose.synth import chirp_command, emulate, seismic_command
 

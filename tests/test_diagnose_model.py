@@ -1,12 +1,12 @@
 """The diagnose model replays the emulator sample by sample, and each emulator effect does what
-its name says (emulators.servo.ServoController driven directly, noise off)."""
+its name says (hsio.emulators.servo.ServoController driven directly, noise off)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from emulators.servo import ServoConfig, ServoController
+from hsio.emulators.servo import ServoConfig, ServoController
 from hsio.diagnose.model import simulate
 from hsio.diagnose.synth import emulate, seismic_command
 from hsio.specimens import Linear

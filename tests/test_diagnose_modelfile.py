@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from emulators.servo import ServoConfig
+from hsio.emulators.servo import ServoConfig
 from hsio import config as config_mod
 from hsio.diagnose.modelfile import load_model, merged_emulator_table, servo_config, write_model
 from hsio.diagnose.readers import read_run

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from emulators.servo import ServoConfig
+from hsio.emulators.servo import ServoConfig
 from hsio.diagnose.effects import NAMES
 from hsio.diagnose.modelfile import load_model
 

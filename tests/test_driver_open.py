@@ -8,14 +8,14 @@ import itertools
 
 import pytest
 
-from drivers import modbus_map
-from drivers.canopen import CanopenLink
-from drivers.canopen import open_link as canopen_open
-from drivers.modbus import ModbusLink
-from drivers.modbus import open_link as modbus_open
-from emulators.bank import bank_from_config
-from emulators.canopen import OE, CanopenEmulator
-from emulators.modbus import ModbusEmulator
+from hsio.drivers import modbus_map
+from hsio.drivers.canopen import CanopenLink
+from hsio.drivers.canopen import open_link as canopen_open
+from hsio.drivers.modbus import ModbusLink
+from hsio.drivers.modbus import open_link as modbus_open
+from hsio.emulators.bank import bank_from_config
+from hsio.emulators.canopen import OE, CanopenEmulator
+from hsio.emulators.modbus import ModbusEmulator
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.errors import CommunicationError, ConfigError, LimitError
 from wire import write_config

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from emulators.local import EmulatedActuator, open_url
-from emulators.servo import ServoConfig, ServoController
+from hsio.emulators.local import EmulatedActuator, open_url
+from hsio.emulators.servo import ServoConfig, ServoController
 from hsio.clock import LockstepClock
 from hsio.errors import ConfigError, InterlockError, LimitError
 from hsio.interfaces import ControlMode

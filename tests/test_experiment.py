@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from emulators.local import open_url
+from hsio.emulators.local import open_url
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.control_loop import ControlLoop
 from hsio.experiment import max_error_pct, simulate

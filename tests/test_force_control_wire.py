@@ -4,10 +4,10 @@ import itertools
 
 import numpy as np
 
-from drivers import modbus_map
-from emulators.bank import bank_from_config
-from emulators.canopen import CanopenEmulator
-from emulators.modbus import ModbusEmulator
+from hsio.drivers import modbus_map
+from hsio.emulators.bank import bank_from_config
+from hsio.emulators.canopen import CanopenEmulator
+from hsio.emulators.modbus import ModbusEmulator
 from wire import QUIET_SENSORS, max_abs_diff, run
 
 MIXED = """

@@ -5,7 +5,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from emulators.local import open_url
+from hsio.emulators.local import open_url
 from hsio import implicit_run
 from hsio.clock import LockstepClock
 from hsio.config import from_dict

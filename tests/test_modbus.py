@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from drivers import modbus_map
-from drivers.modbus import ModbusLink, open_link
-from emulators.bank import bank_from_config
-from emulators.modbus import ModbusEmulator
+from hsio.drivers import modbus_map
+from hsio.drivers.modbus import ModbusLink, open_link
+from hsio.emulators.bank import bank_from_config
+from hsio.emulators.modbus import ModbusEmulator
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.errors import CommunicationError, ConfigError, InterlockError
 from wire import QUIET_SENSORS, max_abs_diff, refused_port, run, write_config

@@ -10,9 +10,9 @@ import time
 
 import pytest
 
-from drivers import modbus_map
-from emulators.bank import bank_from_config
-from emulators.modbus import ModbusEmulator
+from hsio.drivers import modbus_map
+from hsio.emulators.bank import bank_from_config
+from hsio.emulators.modbus import ModbusEmulator
 from hsio import runner
 from hsio.clock import LockstepClock
 from hsio.experiment import ExperimentStopped

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from emulators.local import open_url
+from hsio.emulators.local import open_url
 from hsio.clock import LockstepClock
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError

@@ -30,7 +30,7 @@ def _common(func):
 
 
 def _bank(config_file, clock, watchdog_s, settings):
-    from emulators.bank import bank_from_config, parse_settings
+    from hsio.emulators.bank import bank_from_config, parse_settings
     from hsio import config as config_mod
 
     if clock == "config":
@@ -72,8 +72,8 @@ def emulate() -> None:
 @_common
 def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, settings) -> None:
     """Modbus TCP server (pymodbus) on HOST:PORT."""
-    from drivers import modbus_map
-    from emulators.modbus import ModbusEmulator
+    from hsio.drivers import modbus_map
+    from hsio.emulators.modbus import ModbusEmulator
 
     try:
         bank = _bank(config_file, clock, watchdog_s, settings)
@@ -90,8 +90,8 @@ def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, settings) -
 @_common
 def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, settings) -> None:
     """Modbus RTU server on a pseudo-terminal; prints the pty path for the client."""
-    from drivers import modbus_map
-    from emulators.modbus import ModbusEmulator
+    from hsio.drivers import modbus_map
+    from hsio.emulators.modbus import ModbusEmulator
 
     try:
         bank = _bank(config_file, clock, watchdog_s, settings)
@@ -111,7 +111,7 @@ def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, settings) -> 
 @_common
 def canopen_cmd(channel, interface, node_id, heartbeat_ms, config_file, clock, watchdog_s, settings) -> None:
     """CiA 402 drives (canopen LocalNode) on a python-can bus."""
-    from emulators.canopen import CanopenEmulator
+    from hsio.emulators.canopen import CanopenEmulator
 
     try:
         bank = _bank(config_file, clock, watchdog_s, settings)

@@ -30,9 +30,9 @@ def _open(url: str, axes: int, options: dict, enable: bool):
     scheme = urlsplit(url).scheme
     names = [f"axis{k}" for k in range(axes)]
     if scheme.startswith("modbus+"):
-        from drivers.modbus import open_link
+        from hsio.drivers.modbus import open_link
     elif scheme.startswith("canopen+"):
-        from drivers.canopen import open_link
+        from hsio.drivers.canopen import open_link
     else:
         raise click.BadParameter(f"{url!r}: probe speaks modbus+tcp://, modbus+rtu:// and canopen+...:// URLs", param_hint="URL")
     return open_link(url, names, None, options, enable=enable)

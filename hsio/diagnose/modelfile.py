@@ -64,7 +64,7 @@ def write_model(path: str | Path, params: dict, provenance: dict) -> Path:
     path = Path(path)
     table, refused = emulator_table(params)
     lines = ["# Actuator model fitted by `hsio diagnose`; the [emulator] table holds emulator settings",
-             "# (emulators.servo.ServoConfig). Use it in a run with [hardware] actuator_model = \"<this file>\".",
+             "# (hsio.emulators.servo.ServoConfig). Use it in a run with [hardware] actuator_model = \"<this file>\".",
              "", "[emulator]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in table.items()]
     lines += ["", "[diagnose]"]
@@ -83,7 +83,7 @@ def write_model(path: str | Path, params: dict, provenance: dict) -> Path:
 
 def load_model(path: str | Path) -> dict:
     """The [emulator] table of an actuator-model file, checked by the emulator's own ServoConfig."""
-    from emulators.servo import ServoConfig
+    from hsio.emulators.servo import ServoConfig
 
     path = Path(path)
     data = read_toml(path, "actuator model")
@@ -99,7 +99,7 @@ def load_model(path: str | Path) -> dict:
 
 def servo_config(path: str | Path, **overrides):
     """A ServoConfig from an actuator-model file, with ``overrides`` on top."""
-    from emulators.servo import ServoConfig
+    from hsio.emulators.servo import ServoConfig
 
     return ServoConfig.from_dict({**load_model(path), **overrides})
 

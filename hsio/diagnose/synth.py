@@ -1,4 +1,4 @@
-"""Records from the emulator: a command history driven through emulators.servo.ServoController.
+"""Records from the emulator: a command history driven through hsio.emulators.servo.ServoController.
 
 Used by the tests (effects hidden in the emulator, to be found again) and by the benchmark.
 The controller runs at its own rate; at each sample the command is set, the controller steps
@@ -52,7 +52,7 @@ def default_specimen() -> Specimen:
 
 def emulate(command: np.ndarray, config=None, specimen: Specimen | None = None, source: str = "emulator") -> ActuatorRecord:
     """Drive a ServoController with ``command`` (one value per controller period) and record it."""
-    from emulators.servo import ServoConfig, ServoController
+    from hsio.emulators.servo import ServoConfig, ServoController
 
     config = config or ServoConfig()
     controller = ServoController(specimen or default_specimen(), config)

@@ -1,0 +1,74 @@
+"""Path-independent (elastic) specimen models: linear, bilinear with a gap, Menegotto-Pinto.
+
+Their force depends on the deformation only, so a trial needs no state and commit does nothing.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from hsio.specimens.base import Specimen
+
+
+@dataclass
+class Linear(Specimen):
+    """R = k u."""
+
+    k: float
+    kind = "linear"
+
+    @property
+    def initial_stiffness(self) -> float:
+        return self.k
+
+    def trial(self, u: float, dt: float = 0.0) -> float:
+        return self.k * u
+
+
+@dataclass
+class BilinearGap(Specimen):
+    """Bilinear elastic stiffening: k1 until a gap closes at |u| = gap, then k2 (push and pull).
+
+    Column C2 of the validation structure (METHOD.md section 6): k1 = 0.536, k2 = 2.011 kN/mm.
+    R = k1 u + (k2 - k1) sign(u) max(|u| - gap, 0).
+    """
+
+    k1: float
+    k2: float
+    gap: float
+    kind = "bilinear_gap"
+
+    @property
+    def initial_stiffness(self) -> float:
+        return self.k1
+
+    def trial(self, u: float, dt: float = 0.0) -> float:
+        closing = max(abs(u) - self.gap, 0.0)
+        return self.k1 * u + (self.k2 - self.k1) * math.copysign(closing, u)
+
+
+@dataclass
+class MenegottoPinto(Specimen):
+    """Nonlinear elastic Menegotto-Pinto spring, METHOD.md eq. (13).
+
+    R = k0 u_y [theta x + (1 - theta) x / (1 + |x|^n)^(1/n)],  x = u / u_y.
+    theta < 1 softens, theta > 1 hardens.
+    """
+
+    k0: float
+    u_y: float
+    theta: float
+    n: float = 1.0
+    kind = "menegotto_pinto"
+
+    @property
+    def initial_stiffness(self) -> float:
+        return self.k0
+
+    def trial(self, u: float, dt: float = 0.0) -> float:
+        x = u / self.u_y
+        shape = self.theta * x + (1.0 - self.theta) * x / (1.0 + abs(x) ** self.n) ** (1.0 / self.n)
+        return self.k0 * self.u_y * shape
+
+
