@@ -16,17 +16,16 @@ import time
 import numpy as np
 
 from hsio.emulators.local import open_url
-from hsio import implicit_run, study
+from hsio import study
+from hsio.api import run_numerical, simulate
 from hsio.clock import LockstepClock
 from hsio.control_loop import ControlLoop
-from hsio.experiment import max_error_pct, simulate
-from hsio.fc_substructure import ExperimentalElements
+from hsio.result import max_error_pct
+from hsio.sites import ActuatorSite
 from hsio.ground_motion import synthetic_record
 from hsio.interfaces import ControlMode
-from hsio.mixed import simulate_implicit
 from hsio.secant import SecantEstimator
 from hsio.structures import structure_I
-from hsio.substructure import Correction, ExperimentalSubstructure, NumericalSubstructure
 
 
 def numerical_sdof() -> None:
@@ -46,7 +45,7 @@ def numerical_sdof() -> None:
 def emulated_structure_I(duration_s: float = 4.0, test_rate: float = 10.0) -> None:
     structure = structure_I()
     ground = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=0.6, seed=1994)
-    ns = implicit_run.numerical_reference(structure, ground, -0.05)
+    ns = run_numerical(structure, ground, "mixed", -0.05)
     print(f"\n2. Structure I on the emulator (lockstep, TR = {test_rate:g}, {duration_s:g} s, peak NS "
           f"{np.max(np.abs(ns.u)):.1f} mm), secant averaged over 16 samples, j_max 3")
     print(f"{'method':>12} {'its/step':>9} {'max':>4} {'FC steps':>9} {'switches':>9} {'wall/step (ms)':>15} "
@@ -57,14 +56,14 @@ def emulated_structure_I(duration_s: float = 4.0, test_rate: float = 10.0) -> No
         loop = ControlLoop(actuators, clock, structure.dt, test_rate, n_avg=4, keep_samples=True, hold_fraction=0.5)
         t0 = time.perf_counter()
         if method == "alpha_os":
-            sub = ExperimentalSubstructure(structure, loop, Correction(True))
-            hs = simulate(structure, ground, sub, -0.05)
+            sub = ActuatorSite(loop)
+            hs = simulate(structure, ground, sub, "alpha_os", -0.05)
             its, fc, switches = np.ones(1), 0.0, 0
-            reference = simulate(structure, ground, NumericalSubstructure(structure), -0.05)  # its own NS
+            reference = run_numerical(structure, ground, "alpha_os", -0.05)  # its own NS
         else:
-            sub = ExperimentalElements(structure, loop, SecantEstimator("average", 16, 0.1))
-            hs = simulate_implicit(structure, ground, sub, -0.05, method, j_max=3, tol_displacement=0.02, tol_force=0.05)
-            its, fc, switches = hs.extra["iterations"][1:], float(np.mean(hs.modes[1:, 0] == "force")), len(hs.extra["switches"])
+            sub = ActuatorSite(loop, SecantEstimator("average", 16, 0.1))
+            hs = simulate(structure, ground, sub, method, -0.05, j_max=3, tol_displacement=0.02, tol_force=0.05)
+            its, fc, switches = hs.iterations[1:], float(np.mean(hs.modes[1:, 0] == "force")), len(hs.switches)
             reference = ns
         wall = time.perf_counter() - t0
         sub.close()

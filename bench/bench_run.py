@@ -12,7 +12,8 @@ import tempfile
 import time
 
 from hsio import config
-from hsio.runner import build_record, run, run_numerical
+from hsio.api import run_numerical
+from hsio.runner import build_record, run
 from hsio.structures import get_structure
 
 
@@ -22,7 +23,7 @@ def main() -> None:
     structure = get_structure(cfg["structure"]["name"])
     ground = build_record(cfg, structure)
     t0 = time.perf_counter()
-    ns = run_numerical(structure, ground, cfg["integrator"]["alpha"])
+    ns = run_numerical(structure, ground, "alpha_os", cfg["integrator"]["alpha"])
     ns_wall = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as out:
         for keep in (True, False):

@@ -25,11 +25,11 @@ from hsio.emulators.modbus import ModbusEmulator
 from hsio import config as config_mod
 from hsio.clock import LockstepClock
 from hsio.control_loop import ControlLoop
-from hsio.experiment import simulate
+from hsio.api import simulate
 from hsio.hardware import open_hardware
 from hsio.runner import build_record
 from hsio.structures import get_structure
-from hsio.substructure import ExperimentalSubstructure
+from hsio.sites import ActuatorSite
 
 CONFIG = """
 [record]
@@ -62,7 +62,7 @@ def step_time(url: str, cfg) -> tuple[float, float]:
     actuators = open_hardware(url, structure.experimental, clock, {})
     loop = ControlLoop(actuators, clock, structure.dt, cfg["test"]["rate"], n_avg=cfg["test"]["n_avg"],
                        keep_samples=False, hold_fraction=cfg["test"]["hold_fraction"])
-    sub = ExperimentalSubstructure(structure, loop)
+    sub = ActuatorSite(loop)
     times = []
     original = sub.restoring_force
 
@@ -74,7 +74,7 @@ def step_time(url: str, cfg) -> tuple[float, float]:
 
     sub.restoring_force = timed_force
     try:
-        result = simulate(structure, ground, sub, cfg["integrator"]["alpha"])
+        result = simulate(structure, ground, sub, "alpha_os", cfg["integrator"]["alpha"])
     finally:
         sub.close()
     return float(np.median(times)), clock.ticks / max(result.steps, 1)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import threading
 from urllib.parse import parse_qsl, urlsplit
 
-from hsio.emulators.servo import ServoController, make_controllers, parse_value
+from hsio.emulators.servo import ServoConfig, ServoController, make_controllers, parse_value
 from hsio.clock import Clock, RealTimeClock
 from hsio.errors import ConfigError, InterlockError
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
@@ -92,6 +92,22 @@ class EmulatedActuator(Actuator, ActuatorChannels):
 
 
 
+def _settings(url: str, options: dict | None) -> dict:
+    """The [emulator] table with the URL's query parameters on top."""
+    parts = urlsplit(url)
+    if parts.scheme != "emulator":
+        raise ConfigError(f"{url!r} is not an emulator:// URL")
+    table = dict(options or {})
+    for key, value in parse_qsl(parts.query):
+        table[key] = parse_value(value)
+    return table
+
+
+def check_options(url: str, options: dict | None = None) -> None:
+    """Check the [emulator] table (and the URL's settings) as the controller will read them."""
+    ServoConfig.from_dict(_settings(url, options))
+
+
 def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:
     """Open ``emulator://`` with one emulated controller per experimental element.
 
@@ -99,12 +115,6 @@ def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> l
     parameters of the URL override it, e.g. ``emulator://?lag_s=0.03&noise_mm=0``.
     Each controller gets its own noise seed (seed + index).
     """
-    parts = urlsplit(url)
-    if parts.scheme != "emulator":
-        raise ConfigError(f"{url!r} is not an emulator:// URL")
-    table = dict(options or {})
-    for key, value in parse_qsl(parts.query):
-        table[key] = parse_value(value)
-    controllers = make_controllers(elements, table)
+    controllers = make_controllers(elements, _settings(url, options))
     return [EmulatedActuator(e.name, c, clock) for e, c in zip(elements, controllers)]
 

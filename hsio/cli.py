@@ -65,11 +65,10 @@ def run(config_file: str | None, out_dir: str, as_json: bool) -> None:
     from hsio import config as config_mod
     from hsio import runner
     from hsio.experiment import ExperimentStopped, excitation
-    from hsio.structures import get_structure
 
     try:
         cfg = config_mod.load(config_file)
-        structure = get_structure(cfg["structure"]["name"])
+        structure = runner.load_run_structure(cfg)
         ground = runner.build_record(cfg, structure)
         steps = len(excitation(structure, ground)[0]) - 1
         progress = _Progress(steps, f"HS {structure.name}")

@@ -105,10 +105,10 @@ def _check_ranges(t: dict, source: str) -> None:
     if record["seed"] < 0:
         raise ConfigError(f"{source}: [record] seed must not be negative, got {record['seed']}")
     if t["hardware"]["url"].startswith("emulator"):
-        from hsio.emulators.servo import ServoConfig  # the emulator checks its own settings
+        from hsio.hardware import check_options  # each backend checks its own table
 
         try:
-            ServoConfig.from_dict(t["emulator"])
+            check_options(t["hardware"]["url"], t["emulator"])
         except ConfigError as exc:
             raise ConfigError(f"{source}: [emulator] {str(exc).removeprefix('emulator: ')}") from None
     from hsio.compensation.stage import CompensationSettings

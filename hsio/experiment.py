@@ -1,57 +1,29 @@
-"""The experiment loop: one integration step at a time, hybrid (HS) or purely numerical (NS).
+"""The experiment loop: one integration step at a time, for every method, hybrid (HS) or numerical (NS).
 
-Each step (METHOD.md section 2, the paper's Figure 9): predict u~_{i+1}, impose it on the
-experimental substructure and measure R~^E, add the numerical restoring force R~^N, solve and
-correct, record. Any error stops the run in a safe state: the actuators hold, every step already
-made stays in the record, and :class:`ExperimentStopped` carries the partial result.
+Each step the method (:mod:`hsio.integrators`) imposes trials on the experimental site
+(:mod:`hsio.sites`: actuators, or the specimen models for NS), reads the measurements, solves and
+commits; the loop records the step and reports progress (E&M 2007 Figures 9 and 11;
+docs/method.md sections 2, 3 and 5). Any error or interrupt stops the run in a safe state: the
+actuators hold, every step already made stays in the record, and :class:`ExperimentStopped`
+carries the partial :class:`~hsio.result.Result`.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from hsio.errors import HsioError
 from hsio.ground_motion import GroundMotion
-from hsio.integrators import AlphaOS
-from hsio.recording import Recorder
-from hsio.specimens import make_specimen
+from hsio.integrators.base import Integrator, StepOutcome
+from hsio.interfaces import ControlMode
+from hsio.recording import Recorder, column
+from hsio.result import Result, Switch, max_error_pct
 from hsio.structures import Structure
-from hsio.substructure import numerical_restoring_force
 
-
-@dataclass
-class Result:
-    """Histories of a run, one row per step (step 0 is the initial state)."""
-
-    structure: str
-    dt: float
-    t: np.ndarray
-    u: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
-    u_pred: np.ndarray
-    R: np.ndarray
-    targets: np.ndarray  # per actuator
-    commands: np.ndarray
-    measured_displacement: np.ndarray
-    measured_force: np.ndarray
-    modes: np.ndarray  # per DOF, "displacement" or "force"
-    wall_time_s: float = 0.0
-    late_steps: int = 0
-    stopped: str = ""
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def steps(self) -> int:
-        return len(self.t) - 1
-
-    def tracking_error(self) -> np.ndarray:
-        """Target minus measured displacement at the end of each step, per actuator (mm)."""
-        return self.targets - self.measured_displacement
+__all__ = ["ExperimentStopped", "excitation", "run_steps", "max_error_pct", "stop_reason"]
 
 
 class ExperimentStopped(HsioError):
@@ -63,49 +35,12 @@ class ExperimentStopped(HsioError):
 
 
 def excitation(structure: Structure, ground: GroundMotion) -> tuple[np.ndarray, np.ndarray]:
-    """Time and P = -M iota a_g at the structure's time step (kN)."""
+    """Time and the effective force P = -M iota a_g at the structure's time step (kN; E&M 2007
+    section 2)."""
     g = ground.resampled(structure.dt)
     ag = g.acceleration_mm_s2()
     P = -np.outer(ag, structure.M @ structure.iota)
     return np.arange(len(ag)) * structure.dt, P
-
-
-def simulate(structure: Structure, ground: GroundMotion, substructure, alpha: float = -0.05,
-             recorder: Recorder | None = None, progress: Callable[[int], None] | None = None) -> Result:
-    """Run alpha-OS over the whole record against ``substructure`` (experimental or numerical)."""
-    t, P = excitation(structure, ground)
-    n_steps, n = len(t), structure.n_dof
-    n_act = len(structure.experimental)
-    integrator = AlphaOS(structure.M, structure.C, structure.K_init, structure.dt, alpha)
-    integrator.start(P[0])
-    numerical = [make_specimen(e.specimen) for e in structure.numerical]
-    u, v, a, u_pred, R = (np.zeros((n_steps, n)) for _ in range(5))
-    a[0] = integrator.state.a
-    targets, commands, disp, force = (np.zeros((n_steps, n_act)) for _ in range(4))
-    modes = np.full((n_steps, n), "displacement", dtype=object)
-    started = time.perf_counter()
-    last = 0
-    stopped = ""
-    try:
-        for i in range(n_steps - 1):
-            predicted, _ = integrator.predict()
-            R_tilde = substructure.restoring_force(predicted) + numerical_restoring_force(structure, numerical, predicted)
-            state = integrator.correct(R_tilde, P[i + 1])
-            fb = substructure.last
-            k = i + 1
-            u[k], v[k], a[k], u_pred[k], R[k] = state.u, state.v, state.a, state.u_pred, state.R_pred
-            targets[k], commands[k], disp[k], force[k] = fb.targets, fb.commands, fb.displacement, fb.force
-            if recorder is not None:
-                recorder.write_step(k, float(t[k]), u[k], v[k], a[k], u_pred[k], R[k], modes[k],
-                                    targets[k], commands[k], disp[k], force[k], fb.samples)
-            last = k
-            if progress is not None:
-                progress(1)
-    except (Exception, KeyboardInterrupt) as exc:
-        stopped = stop_reason(exc, last, structure.dt)
-    histories = dict(t=t, u=u, v=v, a=a, u_pred=u_pred, R=R, targets=targets, commands=commands,
-                     measured_displacement=disp, measured_force=force, modes=modes)
-    return finish(structure, substructure, histories, last, started, stopped)
 
 
 def stop_reason(exc: BaseException, last: int, dt: float) -> str:
@@ -116,35 +51,92 @@ def stop_reason(exc: BaseException, last: int, dt: float) -> str:
     return f"step {last + 1} (t = {(last + 1) * dt:.3f} s): {what}"
 
 
-def hold_all(owner) -> None:
-    """Every actuator behind ``owner`` (a substructure with a control loop) holds."""
-    hold = getattr(getattr(owner, "loop", None), "hold_all", None)
-    if hold is not None:
-        hold()
+class _Histories:
+    """Preallocated per-step arrays that the loop fills in, then cut to the steps made."""
+
+    def __init__(self, n_steps: int, n_dof: int, n_e: int):
+        dof = lambda: np.zeros((n_steps, n_dof))  # noqa: E731
+        el = lambda: np.zeros((n_steps, n_e))  # noqa: E731
+        self.u, self.v, self.a, self.u_pred, self.R = dof(), dof(), dof(), dof(), dof()
+        self.modes = np.full((n_steps, n_dof), ControlMode.DISPLACEMENT.value, dtype=object)
+        self.targets, self.commands, self.measured_displacement, self.measured_force = el(), el(), el(), el()
+        self.iterations = np.zeros((n_steps, n_e), dtype=int)
+        self.converged = np.ones(n_steps, dtype=bool)
+        self.secant, self.u_solution, self.R_solution = el(), el(), el()
+        self.step_wall_time_s = np.zeros(n_steps)
+
+    def put(self, k: int, out: StepOutcome, dofs) -> None:
+        self.u[k], self.v[k], self.a[k], self.u_pred[k], self.R[k] = out.u, out.v, out.a, out.u_pred, out.R
+        for j, d in enumerate(dofs):
+            self.modes[k, d] = out.modes[j].value
+        self.targets[k], self.commands[k] = out.targets, out.commands
+        self.measured_displacement[k], self.measured_force[k] = out.measured_u, out.measured_R
+        self.iterations[k], self.converged[k] = out.iterations, out.converged
+        self.secant[k], self.u_solution[k], self.R_solution[k] = out.secant, out.u_solution, out.R_solution
+
+    def cut(self, last: int) -> dict:
+        keep = slice(0, last + 1)
+        return {name: values[keep] for name, values in vars(self).items()}
 
 
-def finish(structure: Structure, owner, histories: dict, last: int, started: float, stopped: str,
-           extra: dict | None = None) -> Result:
-    """The Result of steps 0..last. If the run ``stopped``, the actuators behind ``owner`` hold
-    and ExperimentStopped is raised carrying the Result."""
-    if stopped:
-        hold_all(owner)
-    keep = slice(0, last + 1)
+def _implicit_row(names, out: StepOutcome) -> dict:
+    """Per step and element: iterations, secant stiffness, displacement and force solutions."""
+    row = {"converged": float(out.converged)}
+    for j, name in enumerate(names):
+        row.update({column("iterations", name): int(out.iterations[j]), column("secant", name): float(out.secant[j]),
+                    column("u_solution", name): float(out.u_solution[j]),
+                    column("r_solution", name): float(out.R_solution[j])})
+    return row
+
+
+def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator, site,
+              recorder: Recorder | None = None, progress: Callable[[int], None] | None = None) -> Result:
+    """Run ``integrator`` over the whole record against ``site`` (actuators or specimen models).
+
+    Returns the :class:`Result`; raises :class:`ExperimentStopped` carrying the steps made if the
+    run stops early (the actuators behind ``site`` hold first).
+    """
+    t, P = excitation(structure, ground)
+    n_steps = len(t)
+    dofs = structure.experimental_dofs
+    names = [e.name for e in structure.experimental]
+    numerical = structure.numerical_assembly()
+    h = _Histories(n_steps, structure.n_dof, len(dofs))
+    switches: list[Switch] = []
+    started = time.perf_counter()
+    last = 0
+    stopped = ""
+    try:
+        h.put(0, integrator.start(P[0], site, numerical), dofs)
+        for i in range(n_steps - 1):
+            k = i + 1
+            t0 = time.perf_counter()
+            out = integrator.step(P[k], site, numerical, k, float(t[k]))
+            h.step_wall_time_s[k] = time.perf_counter() - t0
+            h.put(k, out, dofs)
+            switches += out.switches
+            samples = site.take_samples()
+            if recorder is not None:
+                if integrator.method != "alpha_os":
+                    recorder.write_row("implicit", k, _implicit_row(names, out))
+                recorder.write_step(k, float(t[k]), h.u[k], h.v[k], h.a[k], h.u_pred[k], h.R[k], h.modes[k],
+                                    h.targets[k], h.commands[k], h.measured_displacement[k], h.measured_force[k],
+                                    samples)
+            last = k
+            if progress is not None:
+                progress(1)
+    except (Exception, KeyboardInterrupt) as exc:
+        stopped = stop_reason(exc, last, structure.dt)
+        hold = getattr(site, "hold", None)
+        if hold is not None:
+            hold()
     result = Result(
-        structure=structure.name, dt=structure.dt, **{name: h[keep] for name, h in histories.items()},
-        wall_time_s=time.perf_counter() - started,
-        late_steps=getattr(getattr(owner, "loop", None), "late_steps", 0),
-        stopped=stopped, extra=extra or {},
+        structure=structure.name, method=integrator.method, dt=structure.dt,
+        dof_names=tuple(structure.dof_names), element_names=tuple(names), element_dofs=tuple(dofs),
+        t=t[: last + 1], **h.cut(last), switches=switches, thresholds=integrator.thresholds,
+        wall_time_s=time.perf_counter() - started, lab_time_s=site.lab_time_s, late_steps=site.late_steps,
+        stopped=stopped,
     )
     if stopped:
         raise ExperimentStopped(f"run stopped at {stopped}; the actuators hold; {last} steps recorded", result)
     return result
-
-
-def max_error_pct(u_hs: np.ndarray, u_ns: np.ndarray) -> tuple[float, list[float]]:
-    """Max over time and DOF of |u_HS - u_NS| / peak |u_NS| of that DOF, in percent; and per DOF."""
-    n = min(len(u_hs), len(u_ns))
-    peak = np.max(np.abs(u_ns[:n]), axis=0)
-    peak = np.where(peak > 0, peak, 1.0)
-    per_dof = np.max(np.abs(u_hs[:n] - u_ns[:n]), axis=0) / peak * 100.0
-    return float(np.max(per_dof)), [float(x) for x in per_dof]

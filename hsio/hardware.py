@@ -31,8 +31,8 @@ def schemes() -> dict[str, str]:
     return found
 
 
-def open_hardware(url: str, elements, clock, options: dict | None = None):
-    """One Actuator per experimental element, from the driver that ``url``'s scheme names."""
+def _backend(url: str):
+    """The module and function that ``url``'s scheme names."""
     scheme = urlsplit(url).scheme
     target = schemes().get(scheme)
     if target is None:
@@ -42,4 +42,19 @@ def open_hardware(url: str, elements, clock, options: dict | None = None):
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise ConfigError(f"hardware URL {url!r}: driver module {module_name!r} is not available ({exc})") from None
+    return module, func
+
+
+def check_options(url: str, options: dict | None = None) -> None:
+    """Let the backend of ``url`` check its own options table ([emulator] or [driver]) before
+    anything opens: a backend module may define ``check_options(url, options)``."""
+    module, _ = _backend(url)
+    check = getattr(module, "check_options", None)
+    if check is not None:
+        check(url, options or {})
+
+
+def open_hardware(url: str, elements, clock, options: dict | None = None):
+    """One Actuator per experimental element, from the driver that ``url``'s scheme names."""
+    module, func = _backend(url)
     return getattr(module, func)(url, elements, clock, options or {})

@@ -80,3 +80,70 @@ def tracking_error(path: Path, t, targets, measured, actuator_names, resolution_
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def control_modes(path: Path, hs) -> Path:
+    """Per element: displacement with FC steps shaded, and the secant stiffness against the
+    switching thresholds (docs/method.md section 5)."""
+    n = len(hs.element_dofs)
+    fig, axes = plt.subplots(2 * n, 1, figsize=(10, 4.4 * n + 0.8), sharex=True, squeeze=False)
+    th = hs.thresholds
+    for j, d in enumerate(hs.element_dofs):
+        ax, ax_k = axes[2 * j, 0], axes[2 * j + 1, 0]
+        name = hs.dof_names[d]
+        fc = hs.modes[:, d] == "force"
+        ax.plot(hs.t, hs.u[:, d], color="C0", lw=0.9, label="displacement")
+        ymin, ymax = ax.get_ylim()
+        ax.fill_between(hs.t, ymin, ymax, where=fc, color="C3", alpha=0.15, step="mid", label="force control")
+        ax.set_ylim(ymin, ymax)
+        ax.set_ylabel(f"{name} (mm)")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.grid(alpha=0.3)
+        switches = [s for s in hs.switches if s.dof == name]
+        ax.set_title(f"{name}: {len(switches)} switches, {fc[1:].mean() * 100:.0f} % of steps in FC", fontsize=9, loc="left")
+        ax_k.plot(hs.t, hs.secant[:, j], color="C2", lw=0.8, label="secant stiffness")
+        if th is not None and th["on"] == "stiffness":
+            ax_k.axhline(th["upper"][j], color="C3", ls="--", lw=0.8, label="K_f (to FC)")
+            ax_k.axhline(th["lower"][j], color="C0", ls="--", lw=0.8, label="K_d (to DC)")
+        ax_k.set_ylabel("k (kN/mm)")
+        ax_k.legend(loc="upper right", fontsize=8)
+        ax_k.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.suptitle(f"Control mode per step ({hs.method})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def result_figure(result, reference=None, path: str | Path | None = None):
+    """One figure of a :class:`hsio.result.Result`: displacement of each DOF (against
+    ``reference``, e.g. NS) and the force-displacement loop of each experimental element."""
+    n, m = len(result.dof_names), len(result.element_names)
+    rows = max(n, m)
+    fig, axes = plt.subplots(rows, 2, figsize=(11, 2.8 * rows + 0.8), squeeze=False)
+    for k, name in enumerate(result.dof_names):
+        ax = axes[k, 0]
+        if reference is not None:
+            ax.plot(reference.t, reference.u[:, k], color="0.55", lw=2.0, label="reference")
+        ax.plot(result.t, result.u[:, k], color="C0", lw=0.9, label=result.method)
+        ax.set_ylabel(f"{name} (mm)")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    for j, name in enumerate(result.element_names):
+        ax = axes[j, 1]
+        ax.plot(result.measured_displacement[1:, j], result.measured_force[1:, j], color="C1", lw=0.8)
+        ax.set_xlabel(f"{name} displacement (mm)")
+        ax.set_ylabel("force (kN)")
+        ax.grid(alpha=0.3)
+    for row in range(rows):
+        if row >= n:
+            axes[row, 0].set_visible(False)
+        if row >= m:
+            axes[row, 1].set_visible(False)
+    axes[min(n, rows) - 1, 0].set_xlabel("time (s)")
+    fig.suptitle(f"{result.structure}: {result.method}, {result.steps} steps")
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig

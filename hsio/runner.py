@@ -1,5 +1,5 @@
-"""`hsio run`: build the structure, record and hardware from a configuration, run HS and NS,
-record, summarise and plot."""
+"""`hsio run`: a configuration in, the library calls of :mod:`hsio.api` (NS, open the site, HS),
+the record, summary and plots out."""
 
 from __future__ import annotations
 
@@ -10,19 +10,18 @@ from pathlib import Path
 
 import numpy as np
 
-from hsio import implicit_run, plots
-from hsio.clock import LockstepClock, RealTimeClock
+from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
-from hsio.control_loop import ControlLoop
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.errors import ConfigError
-from hsio.experiment import ExperimentStopped, Result, max_error_pct, simulate
+from hsio.experiment import ExperimentStopped
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
-from hsio.hardware import open_hardware
+from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
 from hsio.recording import Recorder
+from hsio.result import Result, max_error_pct
+from hsio.secant import SecantEstimator
 from hsio.structures import Structure, get_structure
-from hsio.substructure import Correction, ExperimentalSubstructure, NumericalSubstructure
 
 
 def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
@@ -38,9 +37,27 @@ def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
     return ground
 
 
-def run_numerical(structure: Structure, ground: GroundMotion, alpha: float) -> Result:
-    """NS: the same integrator with the specimen models in place of the actuators."""
-    return simulate(structure, ground, NumericalSubstructure(structure), alpha)
+def load_run_structure(config: RunConfig) -> Structure:
+    """The structure a run configuration names (``[structure] file`` or ``name``)."""
+    return get_structure(config["structure"]["name"])
+
+
+def switching_rule(structure: Structure, integ: dict) -> SwitchingRule:
+    """K_f / K_d in kN/mm (0: 1.2 and 0.8 times each element's K^EI), or R_f / R_d in kN."""
+    n = len(structure.experimental)
+    if integ["switch_on"] == "force":
+        lower = integ["R_d"] if integ["R_d"] > 0 else 0.5 * integ["R_f"]
+        return SwitchingRule(np.full(n, integ["R_f"]), np.full(n, lower), "force")
+    return SwitchingRule.from_initial_stiffness([e.K_EI for e in structure.experimental], integ["K_f"], integ["K_d"])
+
+
+def integrator_options(config: RunConfig, structure: Structure) -> dict:
+    """The [integrator] and [test] keys as options of :func:`hsio.api.make_integrator`."""
+    integ = config["integrator"]
+    if integ["method"] == "alpha_os":
+        return {"correct_measured_displacement": config["test"]["measured_displacement_correction"]}
+    return {"rule": switching_rule(structure, integ) if integ["method"] == "mixed" else None,
+            "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"], "tol_force": integ["tol_force_kN"]}
 
 
 def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMotion | None = None) -> dict:
@@ -53,21 +70,19 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    structure = get_structure(config["structure"]["name"])
+    structure = load_run_structure(config)
     ground = ground if ground is not None else build_record(config, structure)
-    alpha = config["integrator"]["alpha"]
+    integ = config["integrator"]
+    method, alpha = integ["method"], integ["alpha"]
+    implicit = method in IMPLICIT_METHODS
     test = config["test"]
     hardware = config["hardware"]
 
-    implicit = implicit_run.is_implicit(config)
-    ns = None
-    if config["output"]["ns"]:
-        ns = implicit_run.numerical_reference(structure, ground, alpha) if implicit else run_numerical(structure, ground, alpha)
+    ns = api.run_numerical(structure, ground, method, alpha) if config["output"]["ns"] else None
     compensation = CompensationStage([e.name for e in structure.experimental], test["rate"] * structure.dt,
                                      CompensationSettings.from_table(config["compensation"]))
     if implicit and compensation.settings.mode != "off":
-        raise ConfigError(f"{config.source}: [compensation] applies to the alpha_os method, not to {config['integrator']['method']!r}")
-    clock = LockstepClock() if hardware["clock"] == "lockstep" else RealTimeClock()
+        raise ConfigError(f"{config.source}: [compensation] applies to the alpha_os method, not to {method!r}")
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     meta = {
@@ -75,60 +90,44 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
+    estimator = (SecantEstimator(integ["secant"], integ["secant_n_avg"], integ["secant_min_increment_mm"])
+                 if implicit else None)
     with contextlib.ExitStack() as cleanup:
         # Whatever fails from here on, what was opened is closed (the actuators left holding).
-        actuators = open_hardware(hardware["url"], structure.experimental, clock,
-                                  emulator if hardware["url"].startswith("emulator") else config["driver"])
-        try:
-            loop = ControlLoop(actuators, clock, structure.dt, test["rate"], n_avg=test["n_avg"],
-                               keep_samples=config["output"]["samples"], hold_fraction=test["hold_fraction"])
-        except BaseException:
-            _close_all(actuators)
-            raise
-        cleanup.callback(loop.close)  # from here on the loop owns the actuators
-        if implicit:
-            substructure = implicit_run.experimental_elements(structure, loop, config["integrator"])
-        else:
-            substructure = ExperimentalSubstructure(structure, loop, Correction(test["measured_displacement_correction"]), compensation)
-        recorder = Recorder(out / "run.sqlite", structure.dof_names, [a.name for a in actuators], meta)
+        site = api.open_site(structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
+                             hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
+                             keep_samples=config["output"]["samples"],
+                             options=emulator if hardware["url"].startswith("emulator") else config["driver"],
+                             estimator=estimator, compensation=None if implicit else compensation)
+        cleanup.callback(site.close)
+        recorder = Recorder(out / "run.sqlite", structure.dof_names, [e.name for e in structure.experimental], meta)
         cleanup.callback(recorder.close)
         compensation.sink = recorder.write_compensation
         if ns is not None:
             recorder.write_ns(ns.t, ns.u)
         stopped = None
         try:
-            if implicit:
-                hs = implicit_run.run_hybrid(structure, ground, substructure, config, recorder, progress)
-            else:
-                hs = simulate(structure, ground, substructure, alpha, recorder, progress)
+            hs = api.simulate(structure, ground, site, method, alpha, recorder, progress,
+                                **integrator_options(config, structure))
         except ExperimentStopped as exc:
             hs, stopped = exc.result, exc
-        loop.close()
+        site.close()
         summary = summarise(structure, config, ground, hs, ns, out)
-        summary["clock_overruns"] = getattr(clock, "overruns", 0)
+        summary["clock_overruns"] = getattr(site.loop.clock, "overruns", 0)
         summary["compensation"] = compensation.summary()
         if implicit:
-            summary.update(implicit_run.summary(hs))
+            summary.update(implicit_summary(hs))
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
         recorder.write_summary(summary)
         if config["output"]["plots"] and hs.steps > 0:
-            summary["plots"] = make_plots(out, structure, implicit_run.tracking_view(hs) if implicit else hs, ns, config)
+            summary["plots"] = make_plots(out, structure, hs, ns, config)
             if implicit:
-                summary["plots"].append(str(implicit_run.plot_modes(out / "modes.png", hs, structure.dof_names, structure.experimental_dofs)))
+                summary["plots"].append(str(plots.control_modes(out / "modes.png", hs)))
             (out / "summary.json").write_text(json.dumps(summary, indent=2))
             recorder.write_summary(summary)
     if stopped is not None:
         raise stopped
     return summary
-
-
-def _close_all(actuators) -> None:
-    """Hold and release every actuator; each is tried whatever the others do."""
-    for actuator in actuators:
-        try:
-            actuator.close()
-        except Exception:
-            pass
 
 
 def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs: Result, ns: Result | None, out: Path) -> dict:
@@ -157,6 +156,36 @@ def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs:
     return summary
 
 
+def implicit_summary(hs: Result) -> dict:
+    """Method, switches, share of steps in FC, iterations and wall time per step; tracking errors
+    of DC steps (mm) and of FC steps (kN) separately."""
+    its = hs.iterations[1:]
+    wall = hs.step_wall_time_s[1:]
+    fc_act = hs.force_control[1:]
+    d_err = np.where(~fc_act, hs.targets[1:] - hs.measured_displacement[1:], np.nan)
+    f_err = np.where(fc_act, hs.targets[1:] - hs.measured_force[1:], np.nan)
+    fc = hs.modes[1:] == "force"
+
+    def rms(columns):
+        return [float(np.sqrt(np.nanmean(c ** 2))) if np.isfinite(c).any() else 0.0 for c in columns.T]
+
+    return {
+        "rms_tracking_error_mm": rms(d_err),
+        "rms_force_tracking_error_kN": rms(f_err),
+        "method": hs.method,
+        "switches": len(hs.switches),
+        "switch_log": [s.as_dict() for s in hs.switches],
+        "fc_step_fraction": [float(x) for x in fc.mean(axis=0)] if len(fc) else [],
+        **({"test_time_s": round(hs.lab_time_s, 3)} if hs.lab_time_s is not None else {}),
+        "iterations_per_step_mean": float(its.mean()) if its.size else 0.0,
+        "iterations_per_step_max": int(its.max()) if its.size else 0,
+        # Steps accepted after j_max commands without reaching the tolerance.
+        "nonconverged_steps": int(np.count_nonzero(~hs.converged[1:])),
+        "wall_time_per_step_ms": float(wall.mean() * 1e3) if wall.size else 0.0,
+        "thresholds": hs.thresholds,
+    }
+
+
 def make_plots(out: Path, structure: Structure, hs: Result, ns: Result | None, config: RunConfig) -> list[str]:
     actuators = [e.name for e in structure.experimental]
     title = f"{structure.name}: HS vs NS, TR = {config['test']['rate']:g}"
@@ -168,7 +197,8 @@ def make_plots(out: Path, structure: Structure, hs: Result, ns: Result | None, c
                                      ns.u if ns is not None else None, structure.dof_names, title),
         plots.hysteresis_loops(out / "hysteresis.png", hs.measured_displacement, hs.measured_force, actuators,
                                ns.measured_displacement if ns is not None else None, ns.measured_force if ns is not None else None),
-        plots.tracking_error(out / "tracking.png", hs.t, hs.targets, hs.measured_displacement, actuators,
+        plots.tracking_error(out / "tracking.png", hs.t, hs.measured_displacement + hs.tracking_error(),
+                             hs.measured_displacement, actuators,
                              config["emulator"].get("resolution_mm", 0.025)),
     ]
     return [str(p) for p in paths]

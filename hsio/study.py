@@ -8,7 +8,7 @@ zeta (mass-proportional on the initial frequency), a step load P = 3 k0 u_y from
 * FC: the same equation (7) solved by eqs. (9)-(12): command R, measure u;
 
 both with the secant stiffness of eq. (11), tolerance 1e-10 on the commanded increments and at most
-10 iterations (:class:`hsio.integrators.ImplicitForceControl`). The "exact" solution is the
+10 iterations (:class:`hsio.integrators.ImplicitAlpha`). The "exact" solution is the
 average-acceleration method at dt = 0.0002 s (:func:`hsio.integrators.newmark_average_acceleration`).
 The error is
 
@@ -27,9 +27,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from hsio.errors import ConfigError
-from hsio.integrators import ImplicitForceControl, newmark_average_acceleration
+from hsio.integrators import ImplicitAlpha, newmark_average_acceleration
 from hsio.interfaces import ControlMode
 from hsio.secant import secant_stiffness
+from hsio.sites.base import Daq
 
 K0 = 4.0 * math.pi**2  # unit mass, unit period
 U_Y = 1.0
@@ -67,22 +68,29 @@ def mp_energy(u: np.ndarray, theta: np.ndarray) -> np.ndarray:
 
 
 class MenegottoPintoBatch:
-    """Many elastic Menegotto-Pinto springs (one per DOF) as :class:`Elements`: exact response."""
+    """Many elastic Menegotto-Pinto springs (one per DOF) as an experimental site
+    (:class:`hsio.sites.ExperimentalSite`): exact, vectorised response."""
 
     def __init__(self, theta: np.ndarray):
         self.theta = np.asarray(theta, dtype=float)
         self._base = (np.zeros(self.theta.size), np.zeros(self.theta.size))
         self._last = self._base
 
-    def base(self):
+    def committed(self):
         return self._base
 
-    def impose(self, commands, modes):
+    def set_modes(self, modes):
+        return []
+
+    def set_trial(self, commands, modes):
         fc = np.array([m is ControlMode.FORCE for m in modes])
         u = np.where(fc, mp_displacement(commands, self.theta), commands)
         R = np.where(fc, commands, mp_force(commands, self.theta))
         self._last = (u, R)
-        return u, R, secant_stiffness(u, R, *self._base)
+        self._daq = Daq(u=u, R=R, k=secant_stiffness(u, R, *self._base), targets=commands, commands=commands)
+
+    def get_daq(self) -> Daq:
+        return self._daq
 
     def commit(self):
         self._base = self._last
@@ -125,7 +133,7 @@ def run_algorithm(theta: np.ndarray, zeta: np.ndarray, alpha: float, dt: float, 
     omega = math.sqrt(K0)
     M = np.eye(n)
     C = np.diag(2.0 * np.asarray(zeta, dtype=float) * omega)
-    integ = ImplicitForceControl(M, C, None, np.arange(n), np.full(n, K0), dt, alpha, j_max=j_max,
+    integ = ImplicitAlpha(M, C, None, np.arange(n), np.full(n, K0), dt, alpha, j_max=j_max,
                                  tol_displacement=tol, tol_force=tol, independent=True)
     elements = MenegottoPintoBatch(theta)
     P = np.full(n, LOAD)

@@ -84,12 +84,12 @@ def test_two_dof_earthquake_matches_scipy_solve_ivp():
 
 
 def test_operator_splitting_uses_measured_force_not_stiffness():
-    """With a softer specimen than K_I, alpha-OS follows the specimen's force (explicit part)."""
+    """With a softer specimen than K_init, alpha-OS follows the specimen's force (explicit part)."""
     m, k_init = 1.0, 4 * np.pi**2
     integ = AlphaOS([[m]], [[0.0]], [[k_init]], 0.01, -0.05)
     integ.start(np.array([0.0]), u0=[1.0], R0=[0.5 * k_init])
     s = integ.step(np.array([0.0]), lambda u: 0.5 * k_init * u)
-    # Softer restoring force -> smaller deceleration than with the stiff K_I alone.
+    # Softer restoring force -> smaller deceleration than with the stiff K_init alone.
     integ2 = AlphaOS([[m]], [[0.0]], [[k_init]], 0.01, -0.05)
     integ2.start(np.array([0.0]), u0=[1.0], R0=[k_init])
     s2 = integ2.step(np.array([0.0]), lambda u: k_init * u)

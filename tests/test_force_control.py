@@ -1,4 +1,4 @@
-"""Implicit force control (METHOD.md eqs. 7-12) and its agreement with DC for linear specimens."""
+"""Implicit force control (E&M 2007 eqs. 7-12) and its agreement with DC for linear specimens."""
 
 import numpy as np
 import pytest
@@ -7,16 +7,15 @@ from hsio.emulators.local import open_url
 from hsio.clock import LockstepClock
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
-from hsio.experiment import simulate
-from hsio.fc_substructure import ExperimentalElements, NumericalElements, displacement_for_force
+from hsio.api import run_numerical, simulate
 from hsio.ground_motion import GroundMotion, synthetic_record
-from hsio.integrators import ImplicitForceControl
+from hsio.integrators import ImplicitAlpha, SwitchingRule
 from hsio.interfaces import ControlMode
-from hsio.mixed import SwitchingRule, simulate_implicit
 from hsio.secant import SecantEstimator, secant_stiffness
+from hsio.sites import ActuatorSite, Daq, NumericalSite
+from hsio.sites.numerical import displacement_for_force
 from hsio.specimens import Linear, PinchedWood
 from hsio.structures import NumericalElement, Structure, sdof, structure_II
-from hsio.substructure import NumericalSubstructure
 
 FC, DC = ControlMode.FORCE, ControlMode.DISPLACEMENT
 QUIET = "emulator://?noise_mm=0&force_noise_kN=0&resolution_mm=0&force_resolution_kN=0"
@@ -47,34 +46,33 @@ def force_rule(ns):
 
 def test_linear_numerical_dc_fc_mixed_agree_with_alpha_os():
     structure, ground = linear_case()
-    reference = simulate(structure, ground, NumericalSubstructure(structure), alpha=-0.1)
+    reference = run_numerical(structure, ground, "alpha_os", -0.1)
     runs = {}
     for method in ("implicit_dc", "force_control", "mixed"):
         rule = force_rule(reference) if method == "mixed" else None
-        runs[method] = simulate_implicit(structure, ground, NumericalElements(structure), -0.1, method, rule,
-                                         j_max=10, tol_displacement=1e-12, tol_force=1e-12)
+        runs[method] = simulate(structure, ground, NumericalSite.of(structure), method, -0.1, rule=rule,
+                                j_max=10, tol_displacement=1e-12, tol_force=1e-12)
         assert relative(runs[method].u, reference.u) < 1e-6, method
     assert np.all(runs["force_control"].modes[1:, 0] == "force")
     mixed = runs["mixed"]
-    assert len(mixed.extra["switches"]) >= 4
+    assert len(mixed.switches) >= 4
     assert {"force", "displacement"} <= set(mixed.modes[1:, 0])
     # a linear element's secant is exact: one command per step
-    assert np.all(runs["force_control"].extra["iterations"][1:] == 1)
+    assert np.all(runs["force_control"].iterations[1:] == 1)
 
 
 def test_linear_emulated_noise_free_dc_fc_mixed_agree():
     structure, ground = linear_case()
-    ns = simulate_implicit(structure, ground, NumericalElements(structure), -0.05, "implicit_dc",
-                           j_max=10, tol_displacement=1e-12, tol_force=1e-12)
+    ns = simulate(structure, ground, NumericalSite.of(structure), "implicit_dc", -0.05,
+                  j_max=10, tol_displacement=1e-12, tol_force=1e-12)
     for method in ("implicit_dc", "force_control", "mixed"):
         clock = LockstepClock()
         actuators = open_url(QUIET, structure.experimental, clock, {})
         loop = ControlLoop(actuators, clock, structure.dt, 5.0, n_avg=4, keep_samples=True, hold_fraction=0.5)
-        elements = ExperimentalElements(structure, loop, SecantEstimator("average", n_avg=8))
+        elements = ActuatorSite(loop, SecantEstimator("average", n_avg=8))
         try:
-            hs = simulate_implicit(structure, ground, elements, -0.05, method,
-                                   force_rule(ns) if method == "mixed" else None,
-                                   j_max=4, tol_displacement=1e-9, tol_force=1e-9)
+            hs = simulate(structure, ground, elements, method, -0.05, rule=force_rule(ns) if method == "mixed" else None,
+                          j_max=4, tol_displacement=1e-9, tol_force=1e-9)
         finally:
             elements.close()
         assert relative(hs.u, ns.u) < 1e-6, method
@@ -82,7 +80,7 @@ def test_linear_emulated_noise_free_dc_fc_mixed_agree():
             assert np.any(hs.modes[1:, 0] == "force")
             fc = hs.modes[:, 0] == "force"
             # in FC steps the actuator was commanded in kN: the targets are the forces solved for
-            assert np.allclose(hs.targets[fc, 0], hs.extra["R_solution"][fc, 0], rtol=1e-6, atol=1e-9)
+            assert np.allclose(hs.targets[fc, 0], hs.R_solution[fc, 0], rtol=1e-6, atol=1e-9)
 
 
 class Probe:
@@ -94,10 +92,10 @@ class Probe:
         self._last = self._base
         self.sent = []
 
-    def base(self):
+    def committed(self):
         return self._base
 
-    def impose(self, commands, modes):
+    def set_trial(self, commands, modes):
         self.sent.append((float(commands[0]), modes[0]))
         if modes[0] is FC:
             R = np.array(commands, dtype=float)
@@ -106,7 +104,10 @@ class Probe:
             u = np.array(commands, dtype=float)
             R = self.spec.k * u
         self._last = (u, R)
-        return u, R, secant_stiffness(u, R, *self._base)
+        self._daq = Daq(u, R, secant_stiffness(u, R, *self._base), np.array(commands), np.array(commands))
+
+    def get_daq(self):
+        return self._daq
 
     def commit(self):
         self._base = self._last
@@ -114,7 +115,7 @@ class Probe:
 
 def test_first_force_command_is_eq_12_and_secant_is_eq_11():
     m, c, k_true, k_ei, dt, alpha = 0.011, 0.02, 2.0, 2.6, 0.005, -0.2
-    integ = ImplicitForceControl([[m]], [[c]], None, [0], [k_ei], dt, alpha, j_max=10, tol_displacement=1e-12, tol_force=1e-12)
+    integ = ImplicitAlpha([[m]], [[c]], None, [0], [k_ei], dt, alpha, j_max=10, tol_displacement=1e-12, tol_force=1e-12)
     probe = Probe(k_true)
     P0, P1 = np.array([0.3]), np.array([0.5])
     integ.start(P0, probe)
@@ -137,34 +138,34 @@ def test_two_dof_with_numerical_spring_matches_dc():
     """Structure II (two physical frames linked by numerical slab springs): FC = DC when linear."""
     structure = structure_II()
     ground = from_rest(synthetic_record(duration_s=1.0, dt=structure.dt, pga_g=0.3, seed=3))
-    dc = simulate_implicit(structure, ground, NumericalElements(structure), -0.05, "implicit_dc", j_max=10,
-                           tol_displacement=1e-12, tol_force=1e-12)
-    fc = simulate_implicit(structure, ground, NumericalElements(structure), -0.05, "force_control", j_max=10,
-                           tol_displacement=1e-12, tol_force=1e-12)
-    os_ = simulate(structure, ground, NumericalSubstructure(structure), -0.05)
+    dc = simulate(structure, ground, NumericalSite.of(structure), "implicit_dc", -0.05, j_max=10,
+                  tol_displacement=1e-12, tol_force=1e-12)
+    fc = simulate(structure, ground, NumericalSite.of(structure), "force_control", -0.05, j_max=10,
+                  tol_displacement=1e-12, tol_force=1e-12)
+    os_ = run_numerical(structure, ground, "alpha_os", -0.05)
     assert relative(fc.u, dc.u) < 1e-6
     assert relative(dc.u, os_.u) < 1e-6
 
 
 def test_setups_outside_the_method_are_refused():
     with pytest.raises(ConfigError, match="not diagonal"):
-        ImplicitForceControl(np.eye(2), np.zeros((2, 2)), None, [0, 1], [[2.0, -0.5], [-0.5, 2.0]], 0.01)
+        ImplicitAlpha(np.eye(2), np.zeros((2, 2)), None, [0, 1], [[2.0, -0.5], [-0.5, 2.0]], 0.01)
     with pytest.raises(ConfigError, match="same DOF"):
-        ImplicitForceControl(np.eye(2), np.zeros((2, 2)), None, [0, 0], [1.0, 1.0], 0.01)
+        ImplicitAlpha(np.eye(2), np.zeros((2, 2)), None, [0, 0], [1.0, 1.0], 0.01)
     with pytest.raises(ConfigError, match="alpha"):
-        ImplicitForceControl(np.eye(1), np.zeros((1, 1)), None, [0], [1.0], 0.01, alpha=0.2)
+        ImplicitAlpha(np.eye(1), np.zeros((1, 1)), None, [0], [1.0], 0.01, alpha=0.2)
     base = sdof(dt=0.01)
     nonlinear = Structure(name="x", dof_names=("a", "b"), masses=(1.0, 1.0), experimental=base.experimental,
                           numerical=(NumericalElement("n", 1, {"kind": "pinched_wood", "k0": 1.0, "F0": 1.0}),),
                           dt=0.01)
     ground = synthetic_record(duration_s=0.5, dt=0.01, seed=1)
-    with pytest.raises(ConfigError, match="numerical element 'n'"):
-        simulate_implicit(nonlinear, ground, NumericalElements(nonlinear), method="force_control")
+    with pytest.raises(ConfigError, match="linear numerical elements only"):
+        simulate(nonlinear, ground, NumericalSite.of(nonlinear), "force_control")
     clock = LockstepClock()
     actuators = open_url(QUIET, base.experimental, clock, {})
     loop = ControlLoop(actuators, clock, base.dt, 5.0, keep_samples=False)
     with pytest.raises(ConfigError, match="samples"):
-        ExperimentalElements(base, loop)
+        ActuatorSite(loop, SecantEstimator())
     loop.close()
 
 
@@ -173,6 +174,6 @@ def test_displacement_for_force_on_a_path_dependent_specimen():
     wall.force(20.0)  # load into the nonlinear range
     u_c, F_c = 20.0, wall._F
     for target in (F_c - 10.0, 0.0, -5.0):
-        u, moved = displacement_for_force(wall, target, u_c, F_c, 2.6)
-        assert moved._F == pytest.approx(target, abs=1e-9)
+        u = displacement_for_force(wall, target, u_c, F_c, 2.6)
+        assert wall.trial(u) == pytest.approx(target, abs=1e-9)
         assert wall._u == u_c  # the committed specimen is untouched

@@ -5,19 +5,19 @@ import sqlite3
 import numpy as np
 import pytest
 
-from hsio.emulators.local import open_url
-from hsio import implicit_run
+from hsio.api import run_numerical, simulate
 from hsio.clock import LockstepClock
 from hsio.config import from_dict
 from hsio.control_loop import ControlLoop
+from hsio.emulators.local import open_url
 from hsio.errors import ConfigError
-from hsio.experiment import max_error_pct
-from hsio.fc_substructure import ExperimentalElements
 from hsio.ground_motion import synthetic_record
+from hsio.integrators import SwitchingRule
 from hsio.interfaces import ControlMode
-from hsio.mixed import SwitchingRule, mode_switches, simulate_implicit
 from hsio.recording import Recorder, Run
+from hsio.result import max_error_pct, mode_switches
 from hsio.secant import SecantEstimator
+from hsio.sites import ActuatorSite
 from hsio.structures import sdof, structure_I
 
 K_F, K_D = 3.12, 2.08  # 1.2 and 0.8 K^EI: unloading 3.9 kN/mm, loading <= 2.6 kN/mm
@@ -27,17 +27,17 @@ K_F, K_D = 3.12, 2.08  # 1.2 and 0.8 K^EI: unloading 3.9 kN/mm, loading <= 2.6 k
 def mixed_run(tmp_path_factory):
     structure = structure_I()
     ground = synthetic_record(duration_s=4.0, dt=structure.dt, pga_g=0.6, seed=1994)
-    ns = implicit_run.numerical_reference(structure, ground, -0.05)
+    ns = run_numerical(structure, ground, "mixed", -0.05)
     clock = LockstepClock()
     actuators = open_url("emulator://", structure.experimental, clock, {})
     loop = ControlLoop(actuators, clock, structure.dt, 10.0, n_avg=4, keep_samples=True, hold_fraction=0.5)
-    elements = ExperimentalElements(structure, loop, SecantEstimator("average", n_avg=16, min_increment=0.1))
+    elements = ActuatorSite(loop, SecantEstimator("average", n_avg=16, min_increment=0.1))
     path = tmp_path_factory.mktemp("mixed") / "run.sqlite"
     recorder = Recorder(path, structure.dof_names, [a.name for a in actuators])
     rule = SwitchingRule([K_F], [K_D])
     try:
-        hs = simulate_implicit(structure, ground, elements, -0.05, "mixed", rule, j_max=3,
-                               tol_displacement=0.02, tol_force=0.05, recorder=recorder)
+        hs = simulate(structure, ground, elements, "mixed", -0.05, recorder, rule=rule, j_max=3,
+                      tol_displacement=0.02, tol_force=0.05)
     finally:
         elements.close()
         recorder.close()
@@ -54,15 +54,15 @@ def test_mixed_matches_ns_within_3_percent(mixed_run):
 
 def test_switches_to_fc_on_stiff_unloading_and_back(mixed_run):
     _, hs, ns, _ = mixed_run
-    to_fc = [s for s in hs.extra["switches"] if s["to"] == "force"]
-    to_dc = [s for s in hs.extra["switches"] if s["to"] == "displacement"]
+    to_fc = [s for s in hs.switches if s.to == "force"]
+    to_dc = [s for s in hs.switches if s.to == "displacement"]
     assert len(to_fc) >= 5 and len(to_dc) >= 5
-    assert all(s["secant_kN_mm"] > K_F for s in to_fc)
-    assert all(s["secant_kN_mm"] < K_D for s in to_dc)
+    assert all(s.secant_kN_mm > K_F for s in to_fc)
+    assert all(s.secant_kN_mm < K_D for s in to_dc)
     fc = hs.modes[1:, 0] == "force"
     assert 0.1 < fc.mean() < 0.9
     # the FC steps are where the wall is stiff: the numerical model's secant there is the unloading one
-    k_ns = ns.extra["secant"][1:, 0]
+    k_ns = ns.secant[1:, 0]
     assert np.mean(k_ns[fc] > K_D) > 0.85
     assert np.mean(k_ns[~fc] < K_F) > 0.5
 
@@ -85,11 +85,11 @@ def test_no_command_jump_at_a_switch(mixed_run):
     structure, hs, _, path = mixed_run
     samples = Run(path).samples()
     checked = 0
-    for s in hs.extra["switches"]:
-        if s["within_step"]:
+    for s in hs.switches:
+        if s.within_step:
             continue
-        k = s["step"]
-        quantity = "force_wall" if s["to"] == "force" else "disp_wall"
+        k = s.step
+        quantity = "force_wall" if s.to == "force" else "disp_wall"
         last_measured = samples[quantity][samples["step"] == k][-1]
         first_command = samples["cmd_wall"][samples["step"] == k + 1][0]
         assert abs(first_command - last_measured) < 0.05, (s, last_measured, first_command)

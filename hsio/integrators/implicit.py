@@ -1,4 +1,5 @@
-"""Implicit force control (FC) and iterated displacement control (DC), per DOF (METHOD.md sections 3, 5).
+"""The implicit alpha method solved by secant iteration, each element in DC or FC (E&M 2007 eqs. 7-12;
+docs/method.md sections 3 and 5).
 
 The alpha method (HHT) written as an equivalent static problem at step i+1:
 
@@ -38,8 +39,6 @@ method and are refused.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
-
 import numpy as np
 
 from hsio.errors import ConfigError
@@ -47,20 +46,6 @@ from hsio.interfaces import ControlMode
 
 DC = ControlMode.DISPLACEMENT
 FC = ControlMode.FORCE
-
-
-class Elements(Protocol):
-    """The experimental elements as the integrator sees them (one per element, in element order)."""
-
-    def base(self) -> tuple[np.ndarray, np.ndarray]:
-        """The measured (u, R) per element at the end of the last accepted step."""
-
-    def impose(self, commands: np.ndarray, modes: list[ControlMode]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Impose displacements (DC) or forces (FC); return measured u, R and the secant k
-        (eq. 11 from the base; nan where no estimate)."""
-
-    def commit(self) -> None:
-        """The step is accepted: the last measurement becomes the base of the next step."""
 
 
 @dataclass
@@ -93,8 +78,12 @@ class StepReport:
     fell_back: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # FC -> DC within the step
 
 
-class ImplicitForceControl:
+class ImplicitAlpha:
     """The alpha method solved by secant iteration, each element in DC or FC (eqs. 7-12).
+
+    The same solve serves implicit displacement control (every element in DC), implicit force
+    control (every element in FC) and mixed control; :class:`hsio.integrators.mixed.ImplicitMethod`
+    chooses the modes.
 
     ``M``, ``C``, ``K_N`` are n x n; ``element_dofs`` gives the DOF of each experimental element;
     ``K_EI`` their initial stiffness (a vector, or a matrix that must be diagonal).
@@ -134,7 +123,7 @@ class ImplicitForceControl:
             if np.any(np.abs(off) > 1e-12 * max(np.max(np.abs(K_EI)), 1e-300)):
                 raise ConfigError(
                     "force control: the experimental stiffness is not diagonal (DOF coupled by physical "
-                    "springs); implicit force control (METHOD.md section 3) needs DOF linked only by "
+                    "springs); implicit force control (docs/method.md section 3) needs DOF linked only by "
                     "numerical springs - run this setup in displacement control (alpha_os)")
             K_EI = np.diag(K_EI)
         if K_EI.shape != self.dofs.shape:
@@ -168,12 +157,12 @@ class ImplicitForceControl:
     def n_dof(self) -> int:
         return self.M.shape[0]
 
-    def start(self, P0, elements: Elements, u0=None, v0=None) -> ImplicitState:
-        """Initial state: a_0 from M a_0 = P_0 - C v_0 - R_0 with R_0 from the elements' base."""
+    def start(self, P0, site, u0=None, v0=None) -> ImplicitState:
+        """Initial state: a_0 from M a_0 = P_0 - C v_0 - R_0 with R_0 from the site's committed state."""
         n = self.n_dof
         u0 = np.zeros(n) if u0 is None else np.asarray(u0, dtype=float)
         v0 = np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)
-        _, R_b = elements.base()
+        _, R_b = site.committed()
         R0 = self._E.T @ np.asarray(R_b, dtype=float) + self.K_N @ u0
         P0 = np.asarray(P0, dtype=float)
         a0 = np.linalg.solve(self.M, P0 - self.C @ v0 - R0)
@@ -198,7 +187,7 @@ class ImplicitForceControl:
         ue = u[self.dofs]
         return u, ue, R_b + k * (ue - u_b)
 
-    def step(self, P_next, elements: Elements, modes: list[ControlMode],
+    def step(self, P_next, site, modes: list[ControlMode],
              fallback_below=None) -> tuple[ImplicitState, StepReport]:
         """One step: iterate eq. (7) with the elements in ``modes``; accept and advance.
 
@@ -217,7 +206,7 @@ class ImplicitForceControl:
         P_next = np.asarray(P_next, dtype=float)
         u_pred, v_pred = self.predict()
         P_star = (1 + a) * P_next - a * s.P - (1 + a) * self.C @ v_pred + a * self.C @ s.v + self.K_star @ u_pred + a * s.R  # eq. (10)
-        u_b, R_b = (np.asarray(x, dtype=float) for x in elements.base())
+        u_b, R_b = (np.asarray(x, dtype=float) for x in site.committed())
         k = self.k.copy()
         active = np.ones(self.dofs.size, dtype=bool)
         iterations = np.zeros(self.dofs.size, dtype=int)
@@ -251,7 +240,9 @@ class ImplicitForceControl:
                     break
             if j == self.j_max:
                 break
-            m_u, m_R, k_new = elements.impose(commands, modes)
+            site.set_trial(commands, modes)
+            daq = site.get_daq()
+            m_u, m_R, k_new = daq.u, daq.R, daq.k
             u_m = np.where(active, m_u, u_m)
             R_m = np.where(active, m_R, R_m)
             plausible = np.isfinite(k_new) & (k_new <= self.max_stiffness_ratio * self.K_EI)
@@ -267,7 +258,7 @@ class ImplicitForceControl:
                     tol = np.where(fc, self.tol_force, self.tol_displacement)
                     previous = np.where(soft, np.nan, previous)  # a new kind of command: iterate again
                     fell_back |= soft
-        elements.commit()
+        site.commit()
         self.k = k
         acc = (u - u_pred) / (b * h**2)
         vel = v_pred + g * h * acc

@@ -1,0 +1,146 @@
+"""Mixed variables: DC and FC side by side, switched per element between steps (E&M 2007 section 5;
+docs/method.md section 5).
+
+Every iteration of :class:`hsio.integrators.implicit.ImplicitAlpha` computes both the displacement and
+the force of each element from one solve of eq. (7) (DC and FC in parallel over the whole history);
+the element's mode decides which is commanded. At the end of each step :class:`SwitchingRule`
+decides, per element, the mode of the next step from the measured secant stiffness (or the
+restoring force), with two thresholds for hysteresis:
+
+* to FC when the quantity rises above the upper threshold (K_f: the DOF is stiff, its displacement
+  increments are small against the sensor resolution - unloading branches of wood walls, infill);
+* back to DC when it falls below the lower threshold (K_d: the DOF is flexible again).
+
+A switch is bumpless: the actuator and its command generator restart from the present measurement
+of the new quantity. :class:`ImplicitMethod` runs ``implicit_dc``, ``force_control`` or ``mixed``
+as a method of the experiment loop and reports the switches.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hsio.errors import ConfigError
+from hsio.integrators.base import StepOutcome
+from hsio.integrators.implicit import ImplicitAlpha
+from hsio.interfaces import ControlMode
+from hsio.result import Switch
+
+METHODS = ("implicit_dc", "force_control", "mixed")
+DC = ControlMode.DISPLACEMENT
+FC = ControlMode.FORCE
+
+
+@dataclass(frozen=True)
+class SwitchingRule:
+    """Two thresholds per element on the secant stiffness (kN/mm) or on |R| (kN).
+
+    ``on = "stiffness"``: to FC when k > upper (K_f), to DC when k < lower (K_d).
+    ``on = "force"``: to FC when |R| > upper, to DC when |R| < lower (specimens that stiffen
+    with load, e.g. a closing gap).
+    """
+
+    upper: np.ndarray
+    lower: np.ndarray
+    on: str = "stiffness"
+
+    def __post_init__(self):
+        if self.on not in ("stiffness", "force"):
+            raise ConfigError(f"switching rule: 'on' must be 'stiffness' or 'force', got {self.on!r}")
+        upper = np.atleast_1d(np.asarray(self.upper, dtype=float))
+        lower = np.atleast_1d(np.asarray(self.lower, dtype=float))
+        if np.any(~np.isfinite(upper)) or np.any(~np.isfinite(lower)) or np.any(lower < 0):
+            raise ConfigError(f"switching rule: thresholds must be finite and not negative, got {upper}, {lower}")
+        if np.any(lower >= upper):
+            raise ConfigError(f"switching rule: the lower threshold (to DC, {lower.tolist()}) must be below "
+                              f"the upper one (to FC, {upper.tolist()})")
+        object.__setattr__(self, "upper", upper)
+        object.__setattr__(self, "lower", lower)
+
+    @classmethod
+    def from_initial_stiffness(cls, K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio_f: float = 1.2,
+                               ratio_d: float = 0.8) -> "SwitchingRule":
+        """K_f, K_d in kN/mm, or (when zero) ratio_f K^EI and ratio_d K^EI per element."""
+        K_EI = np.asarray(K_EI, dtype=float)
+        upper = np.full(K_EI.shape, K_f) if K_f > 0 else ratio_f * K_EI
+        lower = np.full(K_EI.shape, K_d) if K_d > 0 else ratio_d * K_EI
+        return cls(upper, lower, "stiffness")
+
+    def next_modes(self, modes: list[ControlMode], k: np.ndarray, R: np.ndarray) -> list[ControlMode]:
+        q = np.asarray(k, dtype=float) if self.on == "stiffness" else np.abs(np.asarray(R, dtype=float))
+        upper = np.broadcast_to(self.upper, q.shape)
+        lower = np.broadcast_to(self.lower, q.shape)
+        out = []
+        for m, value, up, lo in zip(modes, q, upper, lower):
+            if m is DC and value > up:
+                out.append(FC)
+            elif m is FC and value < lo:
+                out.append(DC)
+            else:
+                out.append(m)
+        return out
+
+
+class ImplicitMethod:
+    """``implicit_dc``, ``force_control`` or ``mixed`` as a method of the experiment loop.
+
+    ``K_N`` is the stiffness of the numerical part, which must be linear (the secant model of
+    eq. 9 covers the experimental elements only). In ``mixed``, an element in FC whose secant
+    falls below the lower threshold during a step goes on in DC for the rest of the step
+    (:meth:`ImplicitAlpha.step`, ``fallback_below``).
+    """
+
+    def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = -0.05, method: str = "mixed",
+                 rule: SwitchingRule | None = None, dof_names=None, j_max: int = 4,
+                 tol_displacement: float = 1e-3, tol_force: float = 1e-3):
+        if method not in METHODS:
+            raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
+        self.method = method
+        self.core = ImplicitAlpha(M, C, K_N, element_dofs, K_EI, dt, alpha, j_max=j_max,
+                                  tol_displacement=tol_displacement, tol_force=tol_force)
+        if method == "mixed" and rule is None:
+            rule = SwitchingRule.from_initial_stiffness(self.core.K_EI)
+        self.rule = rule if method == "mixed" else None
+        self.dofs = self.core.dofs
+        n_e = self.dofs.size
+        self.dof_names = list(dof_names) if dof_names is not None else [str(d) for d in range(self.core.n_dof)]
+        self.modes = [FC if method == "force_control" else DC] * n_e
+        self.fallback = self.rule.lower if self.rule is not None and self.rule.on == "stiffness" else None
+        self.thresholds = None if self.rule is None else {"on": self.rule.on, "upper": self.rule.upper.tolist(),
+                                                          "lower": self.rule.lower.tolist()}
+
+    def start(self, P0, site, numerical) -> StepOutcome:
+        site.set_modes(self.modes)
+        state = self.core.start(P0, site)
+        u_b, R_b = site.committed()
+        n_e = self.dofs.size
+        return StepOutcome(u=state.u, v=state.v, a=state.a, u_pred=state.u_pred, R=state.R, modes=list(self.modes),
+                           targets=np.zeros(n_e), commands=np.zeros(n_e), measured_u=np.asarray(u_b, dtype=float),
+                           measured_R=np.asarray(R_b, dtype=float), iterations=np.zeros(n_e, dtype=int), converged=True,
+                           secant=self.core.k.copy(), u_solution=np.zeros(n_e), R_solution=np.zeros(n_e))
+
+    def _switch(self, step: int, time_s: float, j: int, to: ControlMode, within: bool, k, R) -> Switch:
+        return Switch(step=step, time_s=float(time_s), dof=self.dof_names[self.dofs[j]], to=to.value,
+                      within_step=within, secant_kN_mm=float(k[j]), force_kN=float(R[j]))
+
+    def step(self, P_next, site, numerical, step: int = 0, time_s: float = 0.0) -> StepOutcome:
+        state, report = self.core.step(P_next, site, self.modes, self.fallback)
+        switches = [self._switch(step, time_s, j, DC, True, report.k, report.measured_R)
+                    for j in np.flatnonzero(report.fell_back)]
+        self.modes = report.modes
+        ended_in = list(self.modes)
+        if self.rule is not None:
+            new = self.rule.next_modes(self.modes, report.k, report.measured_R)
+            changed = [j for j in range(len(new)) if new[j] is not self.modes[j]]
+            if changed:
+                site.set_modes(new)
+                switches += [self._switch(step, time_s, j, new[j], False, report.k, report.measured_R) for j in changed]
+                self.modes = new
+        daq = site.get_daq()
+        return StepOutcome(u=state.u, v=state.v, a=state.a, u_pred=state.u_pred, R=state.R, modes=ended_in,
+                           targets=report.commands, commands=daq.commands, measured_u=report.measured_u,
+                           measured_R=report.measured_R, iterations=report.iterations, converged=report.converged,
+                           secant=report.k, u_solution=report.u_solution, R_solution=report.R_solution,
+                           switches=switches)

@@ -1,0 +1,111 @@
+"""The experimental elements replaced by their specimen models: the purely numerical simulation.
+
+A trial evaluates each model from its committed state without moving it
+(:meth:`hsio.specimens.Specimen.trial`), so an implicit step may try as often as it needs; the
+commit moves the models. In force control the displacement that carries the commanded force is
+found by bracketing from the committed state and Brent's method (scipy.optimize.brentq).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.optimize
+
+from hsio.errors import HsioError
+from hsio.interfaces import ControlMode
+from hsio.secant import secant_stiffness
+from hsio.sites.base import Daq
+from hsio.specimens import Specimen
+
+
+def displacement_for_force(model: Specimen, target: float, u_start: float, F_start: float, k_guess: float,
+                           xtol: float = 1e-13) -> float:
+    """The displacement at which ``model``, moved from its committed state, carries ``target``.
+
+    The models' force grows with displacement along any path from a committed state, so the root
+    is bracketed by stepping out from ``u_start`` and found by Brent's method. The model's trial
+    is left at the root.
+    """
+    if target == F_start:
+        model.trial(u_start)
+        return u_start
+
+    def residual(u: float) -> float:
+        return model.trial(u) - target
+
+    direction = 1.0 if target > F_start else -1.0
+    step = max(abs(target - F_start) / max(k_guess, 1e-12), 1e-9)
+    lo, f_lo = u_start, F_start - target
+    hi = u_start + direction * step
+    f_hi = residual(hi)
+    for _ in range(200):
+        if f_lo * f_hi <= 0:
+            break
+        lo, f_lo = hi, f_hi
+        step *= 2.0
+        hi = u_start + direction * step
+        f_hi = residual(hi)
+    else:
+        raise HsioError(f"force control: no displacement carries {target:.6g} kN from the state at "
+                        f"{u_start:.6g} mm (the element cannot resist that force)")
+    root = scipy.optimize.brentq(residual, min(lo, hi), max(lo, hi), xtol=xtol, rtol=4 * np.finfo(float).eps)
+    model.trial(root)
+    return root
+
+
+class NumericalSite:
+    """Specimen models in place of actuators (one per experimental element)."""
+
+    late_steps = 0
+    lab_time_s = None
+
+    def __init__(self, models: list[Specimen]):
+        self.models = list(models)
+        self.n_elements = len(self.models)
+        self.modes = [ControlMode.DISPLACEMENT] * self.n_elements
+        self._committed = (np.zeros(self.n_elements), np.zeros(self.n_elements))
+        self._daq: Daq | None = None
+
+    @classmethod
+    def of(cls, structure) -> "NumericalSite":
+        """The specimen models of ``structure``'s experimental elements, in the virgin state."""
+        return cls([e.model() for e in structure.experimental])
+
+    def committed(self):
+        return self._committed
+
+    def set_modes(self, modes) -> list[int]:
+        switched = [j for j, (old, new) in enumerate(zip(self.modes, modes)) if old is not new]
+        self.modes = list(modes)
+        return switched
+
+    def set_trial(self, commands, modes) -> None:
+        self.set_modes(modes)
+        commands = np.asarray(commands, dtype=float)
+        u_b, R_b = self._committed
+        u = np.empty(self.n_elements)
+        R = np.empty(self.n_elements)
+        for j, (model, value, mode) in enumerate(zip(self.models, commands, self.modes)):
+            if mode is ControlMode.FORCE:
+                u[j] = displacement_for_force(model, float(value), float(u_b[j]), float(R_b[j]), model.initial_stiffness)
+                R[j] = float(value)
+            else:
+                u[j], R[j] = float(value), model.trial(float(value))
+        self._daq = Daq(u=u, R=R, k=secant_stiffness(u, R, u_b, R_b), targets=commands.copy(), commands=commands.copy())
+
+    def get_daq(self) -> Daq:
+        if self._daq is None:
+            raise HsioError("numerical site: get_daq before any trial")
+        return self._daq
+
+    def commit(self) -> None:
+        for model in self.models:
+            model.commit()
+        if self._daq is not None:
+            self._committed = (self._daq.u, self._daq.R)
+
+    def take_samples(self):
+        return None
+
+    def close(self) -> None:
+        pass

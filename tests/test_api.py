@@ -1,0 +1,65 @@
+"""hsio as a library: the notebook example runs, the API gives typed results, and the package
+installs as one namespace."""
+
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import hsio
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_notebook_example_writes_a_dataframe_and_a_plot(tmp_path):
+    proc = subprocess.run([sys.executable, str(ROOT / "examples" / "notebook.py"), str(tmp_path)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "max |HS - NS|" in proc.stdout
+    lines = (tmp_path / "steps.csv").read_text().splitlines()
+    assert lines[0].startswith("step,time_s,u_C1")
+    assert len(lines) == 1 + 501  # 5 s at dt = 0.01, plus the initial state
+    assert (tmp_path / "hs_vs_ns.png").stat().st_size > 20_000
+
+
+def test_api_result_is_typed_and_converts_to_a_dataframe():
+    structure = hsio.load_structure("structure_I")
+    ground = hsio.synthetic_record(duration_s=1.0, dt=structure.dt, pga_g=0.3, seed=2)
+    ns = hsio.run_numerical(structure, ground)
+    assert isinstance(ns, hsio.Result)
+    assert ns.method == "alpha_os" and ns.steps == 200 and ns.u.shape == (201, 1)
+    frame = ns.to_dataframe()
+    assert list(frame.index[:2]) == [0, 1]
+    np.testing.assert_array_equal(frame["u_wall"].to_numpy(), ns.u[:, 0])
+    np.testing.assert_array_equal(frame["force_wall"].to_numpy(), ns.measured_force[:, 0])
+    with pytest.raises(hsio.ConfigError, match="method"):
+        hsio.run_numerical(structure, ground, method="newmark")
+
+
+def test_open_site_holds_and_closes_on_exit():
+    structure = hsio.load_structure("validation")
+    ground = hsio.synthetic_record(duration_s=0.3, dt=structure.dt, seed=1)
+    with hsio.open_site(structure, "emulator://", test_rate=5.0) as site:
+        hs = hsio.simulate(structure, ground, site, "mixed")
+    assert hs.steps == 30 and hs.lab_time_s == pytest.approx(30 * 5.0 * structure.dt, rel=0.05)
+    assert all(a.controller.holding for a in site.loop.actuators)
+
+
+def test_a_wheel_installs_only_the_hsio_namespace(tmp_path):
+    """`pip install .` puts hsio (with hsio.drivers and hsio.emulators) in site-packages and
+    nothing else: no top-level drivers or emulators packages."""
+    proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q",
+                           "-w", str(tmp_path), str(ROOT)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    wheel = next(tmp_path.glob("hsio-*.whl"))
+    names = zipfile.ZipFile(wheel).namelist()
+    top = {n.split("/")[0] for n in names if not n.startswith("hsio-")}
+    assert top == {"hsio"}
+    assert "hsio/drivers/modbus.py" in names and "hsio/emulators/servo.py" in names
+    assert "hsio/drivers/maps/hsio_default.toml" in names
+    metadata = next(n for n in names if n.endswith("METADATA"))
+    text = zipfile.ZipFile(wheel).read(metadata).decode()
+    assert "License-Expression: MIT" in text
