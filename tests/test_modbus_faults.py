@@ -13,7 +13,7 @@ import pytest
 from hsio.drivers import modbus_map
 from hsio.emulators.bank import bank_from_config
 from hsio.emulators.modbus import ModbusEmulator
-from hsio import runner
+from hsio import api
 from hsio.clock import LockstepClock
 from hsio.experiment import ExperimentStopped
 from wire import AtStep, FaultProxy, max_abs_diff, run, write_config
@@ -65,7 +65,7 @@ def fault_at(monkeypatch, tick: int, action) -> AtStep:
         clock.attach(trigger)
         return clock
 
-    monkeypatch.setattr(runner, "LockstepClock", make_clock)
+    monkeypatch.setattr(api, "LockstepClock", make_clock)
     return trigger
 
 
