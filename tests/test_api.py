@@ -60,6 +60,10 @@ def test_a_wheel_installs_only_the_hsio_namespace(tmp_path):
     assert top == {"hsio"}
     assert "hsio/drivers/modbus.py" in names and "hsio/emulators/servo.py" in names
     assert "hsio/drivers/maps/hsio_default.toml" in names
+    sources = {f"hsio/{p.relative_to(ROOT / 'hsio').as_posix()}" for p in (ROOT / "hsio").rglob("*.py")}
+    sources |= {f"hsio/{folder}/{p.relative_to(ROOT / folder).as_posix()}" for folder in ("drivers", "emulators")
+                for p in (ROOT / folder).rglob("*.py")}
+    assert not {s for s in sources if "__pycache__" not in s} - set(names), "modules left out of the wheel"
     metadata = next(n for n in names if n.endswith("METADATA"))
     text = zipfile.ZipFile(wheel).read(metadata).decode()
     assert "License-Expression: MIT" in text
