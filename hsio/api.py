@@ -45,6 +45,10 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
     dofs = structure.experimental_dofs
     K_EI = [e.K_EI for e in structure.experimental]
+    if method == "alpha_os" and rule is not None:
+        raise ConfigError("a switching rule applies to method = 'mixed', not to 'alpha_os'")
+    if method != "alpha_os" and not correct_measured_displacement:
+        raise ConfigError(f"correct_measured_displacement applies to alpha_os; {method!r} iterates to the target")
     if method == "alpha_os":
         return OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha, dofs, K_EI,
                                  correct_measured_displacement)
@@ -66,6 +70,9 @@ def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alp
     iterations): the converged solution that any of them approaches.
     """
     if method in IMPLICIT_METHODS:
+        if options:
+            raise ConfigError(f"run_numerical: the reference of the implicit methods is implicit DC converged "
+                              f"to 1e-10; it takes no options (got {', '.join(sorted(options))})")
         integrator = make_integrator(structure, "implicit_dc", alpha, j_max=20, tol_displacement=1e-10,
                                      tol_force=1e-10)
     else:

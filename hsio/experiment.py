@@ -127,9 +127,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
                 progress(1)
     except (Exception, KeyboardInterrupt) as exc:
         stopped = stop_reason(exc, last, structure.dt)
-        hold = getattr(site, "hold", None)
-        if hold is not None:
-            hold()
+        site.hold()
     result = Result(
         structure=structure.name, method=integrator.method, dt=structure.dt,
         dof_names=tuple(structure.dof_names), element_names=tuple(names), element_dofs=tuple(dofs),

@@ -93,8 +93,8 @@ class ImplicitMethod:
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = -0.05, method: str = "mixed",
-                 rule: SwitchingRule | None = None, dof_names=None, j_max: int = 4,
-                 tol_displacement: float = 1e-3, tol_force: float = 1e-3):
+                 rule: SwitchingRule | None = None, dof_names=None, j_max: int = 3,
+                 tol_displacement: float = 0.02, tol_force: float = 0.05):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         self.method = method

@@ -44,6 +44,8 @@ class ExperimentalSite(Protocol):
     """The experimental elements as an integrator sees them."""
 
     n_elements: int
+    late_steps: int  # steps whose target came after the command generator had slowed down
+    lab_time_s: float | None  # controller time spent so far; None for a numerical site
 
     def committed(self) -> tuple[np.ndarray, np.ndarray]:
         """The measured (u, R) per element at the end of the last committed step."""
@@ -62,6 +64,9 @@ class ExperimentalSite(Protocol):
 
     def take_samples(self) -> np.ndarray | None:
         """The controller-rate samples of every trial since the last call, in order."""
+
+    def hold(self) -> None:
+        """Every actuator holds where it stands (called when a run stops early)."""
 
     def close(self) -> None:
         """Leave every actuator holding and release it."""

@@ -107,5 +107,8 @@ class NumericalSite:
     def take_samples(self):
         return None
 
+    def hold(self) -> None:
+        pass
+
     def close(self) -> None:
         pass
