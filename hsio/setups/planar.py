@@ -1,0 +1,138 @@
+"""Actuators in a plane driving a rigid loading platen: one, two, three actuators, an inverted V.
+
+The element's control point moves with the platen: its pose is (u_x, u_y, theta) from the
+position at rest, of which the setup's basic DOFs are a subset (the others are held at zero by
+the specimen or by bracing). Actuator i is pinned to the reaction at A_i and to the platen at
+B_i = C + (u_x, u_y) + R(theta) r_i, where C is the control point at rest and r_i the offset of
+the pin from it. Its stroke is its length change, exactly:
+
+    s_i = |B_i(d) - A_i| - |B_i(0) - A_i|
+
+and its row of the Jacobian is e_i . dB_i/dd, with e_i the unit vector from A_i to B_i:
+dB/du_x = (1, 0), dB/du_y = (0, 1), dB/dtheta = R'(theta) r_i. Lengths in the lab's mm,
+rotations in rad (docs/setups.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hsio.errors import ConfigError
+from hsio.setups.base import Factors, Setup
+
+POSE = ("ux", "uy", "theta")
+
+
+@dataclass(frozen=True)
+class PlanarActuator:
+    """One actuator: pinned at ``fixed`` (x, y) to the reaction and at ``offset`` (x, y) from the
+    control point to the platen, both in mm and in the position at rest."""
+
+    name: str
+    fixed: tuple[float, float]
+    offset: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass
+class PlanarSetup(Setup):
+    """Rigid platen in a plane, ``basic`` DOFs out of (ux, uy, theta), one or more actuators."""
+
+    basic: tuple[str, ...]
+    actuators: tuple[PlanarActuator, ...]
+    factors: Factors = field(default_factory=Factors)
+
+    def __post_init__(self):
+        if not self.basic or any(b not in POSE for b in self.basic) or len(set(self.basic)) != len(self.basic):
+            raise ConfigError(f"planar setup: basic DOFs must be distinct names out of {', '.join(POSE)}, got {self.basic}")
+        if len(self.actuators) < len(self.basic):
+            raise ConfigError(f"planar setup: {len(self.actuators)} actuator(s) cannot control "
+                              f"{len(self.basic)} basic DOFs")
+        self.n_basic = len(self.basic)
+        self.n_actuators = len(self.actuators)
+        self._index = [POSE.index(b) for b in self.basic]
+        self._A = np.array([a.fixed for a in self.actuators], dtype=float)
+        self._r = np.array([a.offset for a in self.actuators], dtype=float)
+        self._L0 = np.linalg.norm(self._r - self._A, axis=1)
+        if np.any(self._L0 <= 0) or not np.all(np.isfinite(self._L0)):
+            raise ConfigError("planar setup: an actuator has no length at rest (its two pins coincide)")
+        # model -> lab: translations divide by the displacement factor, rotations do not
+        self._scale = np.array([1.0 / self.factors.displacement if b != "theta" else 1.0 for b in self.basic])
+        J0 = self.jacobian(np.zeros(self.n_basic))
+        if np.linalg.matrix_rank(J0) < self.n_basic:
+            raise ConfigError("planar setup: the actuators cannot move every basic DOF (the Jacobian at rest is "
+                              "singular: parallel actuators through one point?)")
+
+    def _pose(self, d) -> np.ndarray:
+        d = np.asarray(d, dtype=float)
+        if d.shape != (self.n_basic,):
+            raise ConfigError(f"planar setup: {d.size} basic displacements for {self.n_basic} basic DOFs")
+        pose = np.zeros(3)
+        pose[self._index] = d * self._scale
+        return pose
+
+    def _pins(self, pose) -> np.ndarray:
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        rotated = self._r @ np.array([[c, s], [-s, c]])  # R(theta) r for each row r
+        return rotated + pose[:2]
+
+    def strokes(self, d) -> np.ndarray:
+        B = self._pins(self._pose(d))
+        return np.linalg.norm(B - self._A, axis=1) - self._L0
+
+    def jacobian(self, d) -> np.ndarray:
+        pose = self._pose(d)
+        B = self._pins(pose)
+        e = (B - self._A) / np.linalg.norm(B - self._A, axis=1)[:, None]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        dB_dtheta = self._r @ np.array([[-s, c], [-c, -s]])  # R'(theta) r
+        columns = {"ux": e[:, 0], "uy": e[:, 1], "theta": np.sum(e * dB_dtheta, axis=1)}
+        return np.column_stack([columns[b] for b in self.basic]) * self._scale
+
+
+def one_actuator(length_mm: float, angle_deg: float = 0.0, factors: Factors | None = None) -> PlanarSetup:
+    """One actuator of length ``length_mm`` at rest, at ``angle_deg`` from the basic DOF's
+    direction (x), pushing the control point along x."""
+    if not length_mm > 0:
+        raise ConfigError(f"one actuator: length_mm must be positive, got {length_mm!r}")
+    a = math.radians(angle_deg)
+    return PlanarSetup(("ux",), (PlanarActuator("actuator", (-length_mm * math.cos(a), -length_mm * math.sin(a))),),
+                       factors or Factors())
+
+
+def two_actuators(length_mm: float, spacing_mm: float, factors: Factors | None = None) -> PlanarSetup:
+    """A column top in translation (x) and rotation: two horizontal actuators of length
+    ``length_mm``, pinned to the platen at the control point and ``spacing_mm`` above it."""
+    if not (length_mm > 0 and spacing_mm > 0):
+        raise ConfigError("two actuators: length_mm and spacing_mm must be positive")
+    return PlanarSetup(("ux", "theta"), (
+        PlanarActuator("lower", (-length_mm, 0.0), (0.0, 0.0)),
+        PlanarActuator("upper", (-length_mm, spacing_mm), (0.0, spacing_mm)),
+    ), factors or Factors())
+
+
+def three_actuators(length_mm: float, half_span_mm: float, factors: Factors | None = None) -> PlanarSetup:
+    """A joint in x, y and rotation: one horizontal actuator at the control point and two
+    vertical ones ``half_span_mm`` either side of it, each ``length_mm`` long at rest."""
+    if not (length_mm > 0 and half_span_mm > 0):
+        raise ConfigError("three actuators: length_mm and half_span_mm must be positive")
+    return PlanarSetup(("ux", "uy", "theta"), (
+        PlanarActuator("horizontal", (-length_mm, 0.0), (0.0, 0.0)),
+        PlanarActuator("left", (-half_span_mm, -length_mm), (-half_span_mm, 0.0)),
+        PlanarActuator("right", (half_span_mm, -length_mm), (half_span_mm, 0.0)),
+    ), factors or Factors())
+
+
+def inverted_v_brace(leg_length_mm: float, angle_deg: float, factors: Factors | None = None) -> PlanarSetup:
+    """An inverted-V brace: two actuators as its legs, from the apex (the control point, moving in
+    x and y) down to pins ``leg_length_mm`` away at ``angle_deg`` from the vertical on either side."""
+    if not (leg_length_mm > 0 and 0 < angle_deg < 90):
+        raise ConfigError("inverted V: leg_length_mm must be positive and angle_deg in (0, 90)")
+    a = math.radians(angle_deg)
+    dx, dy = leg_length_mm * math.sin(a), leg_length_mm * math.cos(a)
+    return PlanarSetup(("ux", "uy"), (
+        PlanarActuator("left", (-dx, -dy)),
+        PlanarActuator("right", (dx, -dy)),
+    ), factors or Factors())

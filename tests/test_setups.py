@@ -1,0 +1,95 @@
+"""Experimental setups against closed-form geometry: forward, inverse, forces, linearised form."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hsio.errors import ConfigError
+from hsio.setups import Factors, PlanarActuator, PlanarSetup, inverted_v_brace, one_actuator, three_actuators, two_actuators
+
+
+def test_one_actuator_at_an_angle_in_closed_form():
+    L, angle = 1500.0, 30.0
+    setup = one_actuator(L, angle)
+    a = math.radians(angle)
+    for u in (-200.0, -3.0, 0.0, 0.7, 250.0):
+        stroke = math.hypot(L * math.cos(a) + u, L * math.sin(a)) - L
+        assert setup.strokes([u])[0] == pytest.approx(stroke, abs=1e-10)
+        assert setup.basic_displacements([stroke])[0] == pytest.approx(u, abs=1e-9)
+        # the actuator's force resolved on x: f cos(phi), phi its present angle
+        cos_phi = (L * math.cos(a) + u) / (stroke + L)
+        assert setup.basic_forces([10.0], [u])[0] == pytest.approx(10.0 * cos_phi, rel=1e-12)
+    # linearised: stroke = cos(angle) u
+    assert setup.linearised_strokes([1.0])[0] == pytest.approx(math.cos(a), rel=1e-12)
+
+
+def test_two_actuators_translation_and_large_rotation():
+    L, h = 1000.0, 400.0
+    setup = two_actuators(L, h)
+    for ux, theta in ((5.0, 0.0), (0.0, 0.01), (-30.0, 0.3), (60.0, -0.6)):
+        s_lower = math.hypot(L + ux, 0.0) - L
+        upper = np.array([ux - h * math.sin(theta), h * math.cos(theta)])
+        s_upper = math.hypot(upper[0] + L, upper[1] - h) - L
+        np.testing.assert_allclose(setup.strokes([ux, theta]), [s_lower, s_upper], atol=1e-10)
+        np.testing.assert_allclose(setup.basic_displacements(setup.strokes([ux, theta])), [ux, theta], atol=1e-9)
+
+
+def test_three_actuators_round_trip_and_virtual_work():
+    setup = three_actuators(1200.0, 600.0)
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        d = rng.uniform([-80, -40, -0.4], [80, 40, 0.4])
+        np.testing.assert_allclose(setup.basic_displacements(setup.strokes(d)), d, atol=1e-9)
+        # virtual work: f . ds = q . dd for a small motion about d
+        f = rng.uniform(-50, 50, 3)
+        q = setup.basic_forces(f, d)
+        dd = rng.normal(size=3) * 1e-6
+        ds = setup.strokes(d + dd) - setup.strokes(d - dd)
+        assert f @ ds == pytest.approx(q @ (2 * dd), rel=1e-5)
+
+
+def test_inverted_v_brace_apex():
+    leg, angle = 2000.0, 40.0
+    setup = inverted_v_brace(leg, angle)
+    a = math.radians(angle)
+    ux, uy = 12.0, -3.0
+    left = math.hypot(leg * math.sin(a) + ux, leg * math.cos(a) + uy) - leg
+    right = math.hypot(-leg * math.sin(a) + ux, leg * math.cos(a) + uy) - leg
+    np.testing.assert_allclose(setup.strokes([ux, uy]), [left, right], atol=1e-10)
+    np.testing.assert_allclose(setup.basic_displacements([left, right]), [ux, uy], atol=1e-9)
+    # equal tension in both legs pulls the apex straight down
+    q = setup.basic_forces([5.0, 5.0], [0.0, 0.0])
+    assert q[0] == pytest.approx(0.0, abs=1e-12) and q[1] == pytest.approx(2 * 5.0 * math.cos(a), rel=1e-12)
+
+
+def test_linearised_form_agrees_to_second_order():
+    setup = three_actuators(1000.0, 500.0)
+    d = np.array([1.0, -0.5, 0.002])
+    errors = []
+    for scale in (1.0, 0.1, 0.01):
+        exact, linear = setup.strokes(scale * d), setup.linearised_strokes(scale * d)
+        errors.append(np.max(np.abs(exact - linear)))
+    assert errors[1] / errors[0] == pytest.approx(0.01, rel=0.05)  # O(d^2)
+    assert errors[2] < 1e-7
+
+
+def test_factors_scale_displacements_and_forces():
+    lab = one_actuator(1000.0, 0.0)
+    model = one_actuator(1000.0, 0.0, Factors(displacement=2.0, force=-4.0))
+    assert model.strokes([10.0])[0] == pytest.approx(lab.strokes([5.0])[0], abs=1e-12)
+    assert model.basic_displacements(lab.strokes([5.0]))[0] == pytest.approx(10.0, abs=1e-9)
+    assert model.basic_forces([3.0], [10.0])[0] == pytest.approx(-12.0, rel=1e-12)
+    with pytest.raises(ConfigError, match="non-zero"):
+        Factors(force=0.0)
+
+
+def test_bad_geometry_is_refused():
+    with pytest.raises(ConfigError, match="singular"):
+        PlanarSetup(("ux", "theta"), (PlanarActuator("a", (-1000.0, 0.0)), PlanarActuator("b", (-2000.0, 0.0))))
+    with pytest.raises(ConfigError, match="cannot control"):
+        PlanarSetup(("ux", "uy"), (PlanarActuator("a", (-1000.0, 0.0)),))
+    with pytest.raises(ConfigError, match="no length"):
+        PlanarSetup(("ux",), (PlanarActuator("a", (0.0, 0.0)),))
+    with pytest.raises(ConfigError, match="strokes"):
+        two_actuators(1000.0, 400.0).basic_displacements([1.0])
