@@ -28,6 +28,7 @@ MAX_DOF = 1000
 MAX_ELEMENTS = 10000
 MAX_FILE_BYTES = 4_000_000
 GROUND = "ground"
+PAPER = ("validation", "structure_I", "structure_II")  # E&M 2007, Tables I-III
 
 TABLES = {
     "structure": {"name", "description", "dt"},
@@ -44,7 +45,9 @@ ARRAYS = ("dof", "spring", "numerical", "experimental")
 def shipped_names() -> list[str]:
     """Names of the structures shipped with hsio (``hsio/library/*.toml``)."""
     library = resources.files("hsio") / "library"
-    return sorted(p.name[:-5] for p in library.iterdir() if p.name.endswith(".toml"))
+    names = sorted(p.name[:-5] for p in library.iterdir() if p.name.endswith(".toml"))
+    paper = [n for n in PAPER if n in names]
+    return paper + [n for n in names if n not in PAPER]
 
 
 def load_shipped(name: str) -> Structure:
