@@ -221,7 +221,7 @@ class _Reader:
         return M
 
     def damping(self, table: dict, n: int) -> Damping:
-        kind = table.get("kind", "rayleigh")
+        kind = table.get("kind", "rayleigh" if n > 1 else "mass")
         if kind not in DAMPING_KINDS:
             raise self.error("damping.kind", f"must be one of {', '.join(DAMPING_KINDS)}, got {kind!r}")
         zeta = table.get("zeta", 0.05)
@@ -320,7 +320,8 @@ class _Reader:
         return ExperimentalElement(name, i, spec, actuator, K_EI)
 
     def check_stable(self, structure: Structure) -> None:
-        w2 = scipy.linalg.eigh(structure.K_init, structure.M, eigvals_only=True)
-        if not np.all(w2 > 1e-12 * np.max(np.abs(w2))):
-            raise self.error("spring/numerical/experimental",
-                             "the initial stiffness K_I is singular: some DOF has no stiffness path to the ground")
+        w2, phi = scipy.linalg.eigh(structure.K_init, structure.M)
+        if w2[0] <= 1e-12 * np.max(np.abs(w2)):
+            k = int(np.argmax(np.abs(phi[:, 0])))
+            raise self.error(f"dof[{k}]", f"DOF {structure.dof_names[k]!r} has no stiffness path to the ground "
+                             "(the initial stiffness K_I is singular): add a spring or element")
