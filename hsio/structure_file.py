@@ -59,12 +59,18 @@ def load_shipped(name: str) -> Structure:
     return parse_structure(resource.read_bytes(), f"{name}.toml (shipped)")
 
 
-def load_structure(path_or_name: str | Path) -> Structure:
-    """A structure from a file path, or a shipped structure's name (no suffix, no folder)."""
+def load_structure(path_or_name: str | Path, relative_to: str | Path | None = None) -> Structure:
+    """A structure from a file path, or a shipped structure's name (no suffix, no folder).
+
+    A relative path is taken relative to the folder ``relative_to`` (e.g. that of the run
+    configuration that names the file), else to the working directory.
+    """
     text = str(path_or_name)
     if not isinstance(path_or_name, Path) and "/" not in text and "\\" not in text and not text.endswith(".toml"):
         return load_shipped(text)
-    path = Path(path_or_name)
+    path = Path(path_or_name).expanduser()
+    if relative_to is not None and not path.is_absolute():
+        path = Path(relative_to) / path
     try:
         size = path.stat().st_size
         if size > MAX_FILE_BYTES:
@@ -140,7 +146,9 @@ class _Reader:
             if len(doc.get(name, [])) > (MAX_DOF if name == "dof" else MAX_ELEMENTS):
                 cap = MAX_DOF if name == "dof" else MAX_ELEMENTS
                 raise self.error(name, f"{len(doc[name])} entries; at most {cap}")
-        head = self.table("structure", self.required("(top level)", doc, "structure"), TABLES["structure"])
+        if "structure" not in doc:
+            raise self.error("structure", "missing: a structure file starts with a [structure] table (dt at least)")
+        head = self.table("structure", doc["structure"], TABLES["structure"])
         name = self.string("structure.name", head.get("name", self.default_name))
         description = head.get("description", "")
         if not isinstance(description, str):
@@ -181,8 +189,14 @@ class _Reader:
         springs = tuple(self.spring(k, e) for k, e in enumerate(doc.get("spring", [])))
         numerical = tuple(self.numerical(k, e) for k, e in enumerate(doc.get("numerical", [])))
         experimental = tuple(self.experimental(k, e) for k, e in enumerate(doc.get("experimental", [])))
-        self.unique("spring", [s.name for s in springs if s.name] + [e.name for e in numerical] + [e.name for e in experimental],
-                    "element names")
+        named = [(f"spring[{k}]", s.name) for k, s in enumerate(springs) if s.name]
+        named += [(f"numerical[{k}]", e.name) for k, e in enumerate(numerical)]
+        named += [(f"experimental[{k}]", e.name) for k, e in enumerate(experimental)]
+        first: dict[str, str] = {}
+        for where, element_name in named:
+            if element_name in first:
+                raise self.error(f"{where}.name", f"{element_name!r} already names {first[element_name]}")
+            first[element_name] = where
         for key in ("dof", "actuator"):
             seen: dict = {}
             for k, e in enumerate(experimental):
@@ -197,13 +211,6 @@ class _Reader:
                               source=self.file)
         self.check_stable(structure)
         return structure
-
-    def unique(self, where: str, names: list[str], what: str) -> None:
-        seen = set()
-        for name in names:
-            if name in seen:
-                raise self.error(where, f"{what} must be unique: {name!r} appears twice")
-            seen.add(name)
 
     def mass_matrix(self, table: dict, n: int) -> np.ndarray:
         rows = self.required("mass", table, "matrix")

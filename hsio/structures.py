@@ -346,8 +346,9 @@ def get_structure(name: str) -> Structure:
     return load_shipped(name)
 
 
-def load_structure(path_or_name) -> Structure:
-    """A structure from a structure file (path) or a shipped name; see docs/structures.md."""
+def load_structure(path_or_name, relative_to=None) -> Structure:
+    """A structure from a structure file (path, relative to ``relative_to`` if given) or a
+    shipped name; see docs/structures.md."""
     from hsio.structure_file import load_structure as _load
 
-    return _load(path_or_name)
+    return _load(path_or_name, relative_to)

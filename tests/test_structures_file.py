@@ -216,6 +216,9 @@ BAD = [
      '[mass]\nmatrix = [[1.0, 2.0], [2.0, 1.0]]\n', r"mass\.matrix: not positive definite"),
     ('[[dof]]\nname = "a"\nmass = 1.0\n[mass]\nmatrix = [[1.0]]\n', r"dof\[0\]\.mass: give the masses either"),
     ('[[dof]]\nname = "a"\nmass = 1.0\n[loads]\nx = 1\n', r"loads: unknown table"),
+    ('[[dof]]\nname = "a"\nmass = 1.0\n[[spring]]\nname = "x"\ndof = "a"\nk = 1.0\n[[numerical]]\nname = "x"\ndof = "a"\n'
+     'model = { kind = "linear", k = 1.0 }\n', r"numerical\[0\]\.name: 'x' already names spring\[0\]"),
+    ('[dof]\nname = "a"\nmass = 1.0\n', r"dof: must be an array of tables"),
 ]
 
 
@@ -234,6 +237,9 @@ def test_errors_in_the_structure_table(tmp_path):
     with pytest.raises(ConfigError, match=r"s\.toml: structure\.period: unknown key"):
         structure(tmp_path, body, head="[structure]\ndt = 0.01\nperiod = 1\n")
     assert structure(tmp_path, body, name="my_frame.toml").name == "my_frame"
+    with pytest.raises(ConfigError, match=r"s\.toml: structure: missing"):
+        structure(tmp_path, body, head="")
+    assert load_structure("my_frame.toml", relative_to=tmp_path).name == "my_frame"
 
 
 def test_files_that_are_not_utf8_toml_or_too_big(tmp_path):
