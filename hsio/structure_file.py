@@ -92,6 +92,11 @@ def parse_structure(data: bytes | str, filename: str, default_name: str = "struc
         doc = tomllib.loads(data)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{filename}: not valid TOML: {exc}") from None
+    return structure_from_tables(doc, filename, default_name)
+
+
+def structure_from_tables(doc: dict, filename: str, default_name: str = "structure") -> Structure:
+    """Check and build a structure from the tables of a structure file (as tomllib reads them)."""
     return _Reader(filename, default_name).build(doc)
 
 
@@ -280,7 +285,7 @@ class _Reader:
         if not isinstance(value, dict):
             raise self.error(where, f"must be a table such as {{ kind = \"linear\", k = 1.0 }}, got {value!r}")
         kind = value.get("kind")
-        if kind not in SPECIMEN_KINDS:
+        if not isinstance(kind, str) or kind not in SPECIMEN_KINDS:
             raise self.error(f"{where}.kind", f"unknown specimen model {kind!r}; known: {', '.join(sorted(SPECIMEN_KINDS))}")
         params = inspect.signature(SPECIMEN_KINDS[kind]).parameters
         spec = {"kind": kind}

@@ -266,3 +266,34 @@ def test_every_specimen_kind_loads_as_a_numerical_element(tmp_path):
     assembly = s.numerical_assembly()
     R = assembly.trial(np.array([0.0, 0.1]))
     assert R[1] == pytest.approx(-R[0]) and 0.9 < R[1] < 1.01  # about 10 kN/mm x 0.1 mm
+
+
+def test_any_bad_value_anywhere_gives_a_config_error_naming_the_file():
+    import copy
+    import tomllib
+
+    from hsio.structure_file import structure_from_tables
+
+    doc = tomllib.loads((REPO / "hsio" / "library" / "three_storey.toml").read_text())
+    places = []  # (path of keys/indices) to every value of the file
+    def walk(node, path):
+        items = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
+        for key, value in items:
+            places.append((*path, key))
+            walk(value, (*path, key))
+    walk(doc, ())
+    bad_values = ["x", -1.0, 0, float("nan"), [], {}, True, [[1.0]], 1e300]
+    failures = 0
+    for place in places:
+        for bad in bad_values:
+            mutated = copy.deepcopy(doc)
+            node = mutated
+            for key in place[:-1]:
+                node = node[key]
+            node[place[-1]] = bad
+            try:
+                structure_from_tables(mutated, "b.toml")
+            except ConfigError as exc:
+                assert str(exc).startswith("b.toml: "), exc
+                failures += 1
+    assert failures > len(places) * 4  # most substitutions are refused, none with another exception
