@@ -20,7 +20,7 @@ from hsio.experiment import ExperimentStopped
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.result import Result, max_error_pct
 from hsio.sites import ActuatorSite, NumericalSite
-from hsio.structures import Structure, get_structure
+from hsio.structures import Structure, load_structure
 
 try:
     from importlib.metadata import PackageNotFoundError, version
@@ -28,12 +28,6 @@ try:
     __version__ = version("hsio")
 except PackageNotFoundError:  # pragma: no cover - running from a source tree that is not installed
     __version__ = "unknown"
-
-
-def load_structure(name_or_path) -> Structure:
-    """A structure by shipped name (``validation``, ``structure_I``, ``structure_II``, ...) or
-    from a structure file (TOML, docs/structures.md)."""
-    return get_structure(str(name_or_path))
 
 
 __all__ = ["load_structure", "Structure", "GroundMotion", "read_at2", "synthetic_record", "run_numerical",

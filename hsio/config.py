@@ -15,7 +15,7 @@ from pathlib import Path
 from hsio.errors import ConfigError
 
 DEFAULTS: dict[str, dict] = {
-    "structure": {"name": "validation"},
+    "structure": {"name": "validation", "file": ""},
     "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.6, "seed": 1994, "synthetic_duration_s": 20.0},
     "integrator": {"alpha": -0.05, "method": "alpha_os", "j_max": 3, "tol_displacement_mm": 0.02, "tol_force_kN": 0.05,
                    "secant": "average", "secant_n_avg": 16, "secant_min_increment_mm": 0.1,
@@ -163,6 +163,9 @@ def load(path: str | Path | None) -> RunConfig:
     record_file = config["record"]["file"]
     if record_file and not Path(record_file).is_absolute():
         config["record"]["file"] = str((path.parent / record_file).resolve())
+    structure_file = config["structure"]["file"]
+    if structure_file and not Path(structure_file).is_absolute():
+        config["structure"]["file"] = str((path.parent / structure_file).resolve())
     model_file = config["hardware"]["actuator_model"]
     if model_file and not Path(model_file).is_absolute():
         config["hardware"]["actuator_model"] = str((path.parent / model_file).resolve())

@@ -21,7 +21,7 @@ from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
 from hsio.recording import Recorder
 from hsio.result import Result, max_error_pct
 from hsio.secant import SecantEstimator
-from hsio.structures import Structure, get_structure
+from hsio.structures import Structure, get_structure, load_structure
 
 
 def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
@@ -38,8 +38,10 @@ def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
 
 
 def load_run_structure(config: RunConfig) -> Structure:
-    """The structure a run configuration names (``[structure] file`` or ``name``)."""
-    return get_structure(config["structure"]["name"])
+    """The structure a run configuration names: ``[structure] file`` (a structure file,
+    docs/structures.md) or else ``name`` (a shipped structure)."""
+    table = config["structure"]
+    return load_structure(table["file"]) if table["file"] else get_structure(table["name"])
 
 
 def switching_rule(structure: Structure, integ: dict) -> SwitchingRule:

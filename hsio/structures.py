@@ -1,10 +1,13 @@
-"""Structures: mass, damping, numerical springs and experimental elements, per DOF.
+"""Structures: mass, damping, numerical springs and elements, experimental elements, per DOF.
 
 A :class:`Structure` holds what the integrator needs (M, C, the implicit stiffness K_I, the
-influence vector) and what the experiment needs (which DOF are experimental, and the specimen
-model that stands behind each in emulation and in the purely numerical simulation).
+influence vector iota) and what the experiment needs (which DOF are experimental, the actuator
+behind each, and the specimen model that stands for it in emulation and in the purely numerical
+simulation, NS).
 
-The ready-made structures are the paper's (METHOD.md section 6, Tables I-III).
+Structures are data: a structure file (TOML, docs/structures.md) read by
+:func:`hsio.structure_file.load_structure`. The paper's three (docs/method.md section 6;
+E&M 2007, Tables I-III) ship with hsio as ``validation``, ``structure_I`` and ``structure_II``.
 """
 
 from __future__ import annotations
@@ -22,66 +25,148 @@ from hsio.specimens import Specimen, make_specimen
 class ExperimentalElement:
     """A physical element at one DOF, loaded by one actuator.
 
-    ``specimen`` describes it (for the emulator and for NS); K^EI is its initial stiffness.
+    ``specimen`` describes it (for the emulator and for NS). K^EI is its initial stiffness: the
+    declared ``K_EI_declared`` when the structure states one (the integrator then uses it even if
+    the specimen model's differs), else the specimen model's. ``actuator`` names the actuator
+    that drives it (default: the element's name).
     """
 
     name: str
     dof: int
     specimen: dict
+    actuator: str = ""
+    K_EI_declared: float | None = None
+
+    def __post_init__(self):
+        if not self.actuator:
+            object.__setattr__(self, "actuator", self.name)
 
     def model(self) -> Specimen:
         return make_specimen(self.specimen)
 
     @property
     def K_EI(self) -> float:
+        if self.K_EI_declared is not None:
+            return float(self.K_EI_declared)
         return self.model().initial_stiffness
 
 
 @dataclass(frozen=True)
 class Spring:
-    """A numerical linear spring between DOF i and j (j = None: to the ground), k in kN/mm."""
+    """A numerical linear spring between DOF i and j (j = None: to the ground), k in kN/mm.
+
+    Springs make K_N, the linear part of the numerical restoring force R^N = K_N u + ...
+    """
 
     i: int
     j: int | None
     k: float
+    name: str = ""
 
 
 @dataclass(frozen=True)
 class NumericalElement:
-    """A numerical (possibly nonlinear) element at one DOF, to the ground."""
+    """A numerical element with a specimen model, between DOF ``dof`` and ``to`` (None: ground).
+
+    Its deformation is u[dof] - u[to]; its force F acts as +F on ``dof`` and -F on ``to``.
+    """
 
     name: str
-    dof: int
+    i: int
     specimen: dict
+    j: int | None = None
+
+    @property
+    def dof(self) -> int:
+        """The DOF of an element to the ground (an element between two DOF has two: i and j)."""
+        if self.j is not None:
+            raise ConfigError(f"numerical element {self.name!r} joins two DOF ({self.i}, {self.j}); "
+                              "use Structure.numerical_assembly() for its force")
+        return self.i
+
+    def model(self) -> Specimen:
+        return make_specimen(self.specimen)
+
+
+def _add_between(K: np.ndarray, i: int, j: int | None, k: float) -> None:
+    """Add the stiffness k of an element between DOF i and j (j None: ground) to K."""
+    K[i, i] += k
+    if j is not None:
+        K[j, j] += k
+        K[i, j] -= k
+        K[j, i] -= k
+
+
+DAMPING_KINDS = ("mass", "stiffness", "rayleigh", "modal")
 
 
 @dataclass(frozen=True)
 class Damping:
-    """Viscous damping: ratio zeta, proportional to mass, stiffness or both (Rayleigh, modes 1-2)."""
+    """Viscous damping C from the ratio(s) zeta, of the structure's initial stiffness K_I.
 
-    zeta: float = 0.05
+    * ``mass``: C = 2 zeta w_m M, ratio zeta on mode m = ``modes[0]`` (default 1);
+    * ``stiffness``: C = 2 zeta / w_m K, ratio zeta on mode m;
+    * ``rayleigh``: C = a0 M + a1 K with ratio zeta_i on modes i, j = ``modes`` (default 1, 2);
+      ``zeta`` is one ratio or one per mode;
+    * ``modal``: C = M Phi diag(2 zeta_r w_r) Phi^T M (Phi mass-normalised), ratio zeta_r on
+      every mode r; ``zeta`` is one ratio or one per mode.
+
+    Modes are numbered from 1 by increasing frequency.
+    """
+
+    zeta: float | tuple[float, ...] = 0.05
     kind: str = "rayleigh"
+    modes: tuple[int, ...] = ()
+
+    def mode_numbers(self) -> tuple[int, ...]:
+        if self.modes:
+            return tuple(self.modes)
+        return (1, 2) if self.kind == "rayleigh" else (1,)
+
+    def ratios(self, count: int) -> tuple[float, ...]:
+        z = self.zeta
+        if isinstance(z, (int, float)):
+            return (float(z),) * count
+        if len(z) != count:
+            raise ConfigError(f"damping {self.kind!r}: {len(z)} ratios for {count} modes")
+        return tuple(float(v) for v in z)
 
     def matrix(self, M: np.ndarray, K: np.ndarray) -> np.ndarray:
+        n = M.shape[0]
+        if self.kind not in DAMPING_KINDS:
+            raise ConfigError(f"damping kind must be one of {', '.join(DAMPING_KINDS)}, got {self.kind!r}")
+        if self.kind == "modal":
+            w2, phi = scipy.linalg.eigh(K, M)
+            zeta = np.asarray(self.ratios(n))
+            Mphi = M @ phi
+            return Mphi @ np.diag(2 * zeta * np.sqrt(w2)) @ Mphi.T
+        modes = self.mode_numbers()
+        if any(not 1 <= m <= n for m in modes):
+            raise ConfigError(f"damping {self.kind!r} on modes {list(modes)}: the structure has {n} mode(s)")
         omega = np.sqrt(np.sort(scipy.linalg.eigh(K, M, eigvals_only=True)))
-        w1 = omega[0]
-        if self.kind == "mass":
-            return 2 * self.zeta * w1 * M
-        if self.kind == "stiffness":
-            return 2 * self.zeta / w1 * K
-        if self.kind == "rayleigh":
-            if omega.size == 1:
-                return 2 * self.zeta * w1 * M
-            w2 = omega[1]
-            a0 = 2 * self.zeta * w1 * w2 / (w1 + w2)
-            a1 = 2 * self.zeta / (w1 + w2)
-            return a0 * M + a1 * K
-        raise ConfigError(f"damping kind must be 'mass', 'stiffness' or 'rayleigh', got {self.kind!r}")
+        if self.kind in ("mass", "stiffness"):
+            (zeta,) = self.ratios(1)
+            w = omega[modes[0] - 1]
+            return 2 * zeta * w * M if self.kind == "mass" else 2 * zeta / w * K
+        if len(modes) != 2 or modes[0] == modes[1]:
+            raise ConfigError(f"rayleigh damping needs two different modes, got {list(modes)}")
+        z1, z2 = self.ratios(2)
+        w1, w2 = omega[modes[0] - 1], omega[modes[1] - 1]
+        if z1 == z2:
+            a0 = 2 * z1 * w1 * w2 / (w1 + w2)
+            a1 = 2 * z1 / (w1 + w2)
+        else:  # zeta_r = a0 / (2 w_r) + a1 w_r / 2 on both modes
+            a0, a1 = np.linalg.solve([[1 / (2 * w1), w1 / 2], [1 / (2 * w2), w2 / 2]], [z1, z2])
+        return a0 * M + a1 * K
 
 
 @dataclass(frozen=True)
 class Structure:
-    """A structure for hybrid simulation, in kN, mm, s (mass in kN s^2/mm)."""
+    """A structure for hybrid simulation, in kN, mm, s (mass in kN s^2/mm).
+
+    ``masses`` are lumped per DOF; ``mass_matrix`` (if given) is the full M instead.
+    ``influence`` is the excitation direction per DOF (the influence vector iota, default 1).
+    """
 
     name: str
     dof_names: tuple[str, ...]
@@ -92,22 +177,32 @@ class Structure:
     damping: Damping = field(default_factory=Damping)
     dt: float = 0.01
     description: str = ""
+    mass_matrix: tuple[tuple[float, ...], ...] | None = None
+    influence: tuple[float, ...] | None = None
+    source: str = ""
 
     def __post_init__(self):
         n = len(self.dof_names)
         if n == 0 or len(self.masses) != n:
             raise ConfigError(f"structure {self.name!r}: {len(self.masses)} masses for {n} DOF")
-        if any(not m > 0 for m in self.masses):
+        if self.mass_matrix is None and any(not m > 0 for m in self.masses):
             raise ConfigError(f"structure {self.name!r}: every mass must be positive, got {self.masses}")
-        for element in (*self.experimental, *self.numerical):
+        if self.mass_matrix is not None and np.shape(self.mass_matrix) != (n, n):
+            raise ConfigError(f"structure {self.name!r}: the mass matrix must be {n} x {n}")
+        if self.influence is not None and len(self.influence) != n:
+            raise ConfigError(f"structure {self.name!r}: {len(self.influence)} influence coefficients for {n} DOF")
+        for element in self.experimental:
             if not 0 <= element.dof < n:
                 raise ConfigError(f"structure {self.name!r}: element {element.name!r} is at DOF {element.dof}, not in 0..{n - 1}")
-        for s in self.springs:
-            if not 0 <= s.i < n or (s.j is not None and not 0 <= s.j < n):
-                raise ConfigError(f"structure {self.name!r}: spring {s} joins a DOF not in 0..{n - 1}")
+        for e in (*self.springs, *self.numerical):
+            if not 0 <= e.i < n or (e.j is not None and not 0 <= e.j < n) or e.i == e.j:
+                raise ConfigError(f"structure {self.name!r}: {e} must join a DOF in 0..{n - 1} to another or to the ground")
         dofs = [e.dof for e in self.experimental]
         if len(set(dofs)) != len(dofs):
             raise ConfigError(f"structure {self.name!r}: two experimental elements share a DOF")
+        actuators = [e.actuator for e in self.experimental]
+        if len(set(actuators)) != len(actuators):
+            raise ConfigError(f"structure {self.name!r}: two experimental elements share an actuator")
         if not self.dt > 0:
             raise ConfigError(f"structure {self.name!r}: dt must be positive")
 
@@ -117,23 +212,23 @@ class Structure:
 
     @property
     def M(self) -> np.ndarray:
+        if self.mass_matrix is not None:
+            return np.array(self.mass_matrix, dtype=float)
         return np.diag(np.asarray(self.masses, dtype=float))
 
     @property
     def iota(self) -> np.ndarray:
-        """Influence vector of the ground acceleration (every DOF horizontal, same direction)."""
-        return np.ones(self.n_dof)
+        """Influence vector of the ground acceleration: P(t) = -M iota a_g(t)."""
+        if self.influence is None:
+            return np.ones(self.n_dof)
+        return np.asarray(self.influence, dtype=float)
 
     @property
     def K_N(self) -> np.ndarray:
         """Stiffness matrix of the numerical linear springs."""
         K = np.zeros((self.n_dof, self.n_dof))
         for s in self.springs:
-            K[s.i, s.i] += s.k
-            if s.j is not None:
-                K[s.j, s.j] += s.k
-                K[s.i, s.j] -= s.k
-                K[s.j, s.i] -= s.k
+            _add_between(K, s.i, s.j, s.k)
         return K
 
     @property
@@ -146,10 +241,10 @@ class Structure:
 
     @property
     def K_num_init(self) -> np.ndarray:
-        """Initial stiffness of the numerical nonlinear elements."""
+        """Initial stiffness of the numerical elements (with specimen models)."""
         K = np.zeros((self.n_dof, self.n_dof))
         for e in self.numerical:
-            K[e.dof, e.dof] += make_specimen(e.specimen).initial_stiffness
+            _add_between(K, e.i, e.j, e.model().initial_stiffness)
         return K
 
     @property
@@ -161,9 +256,19 @@ class Structure:
     def C(self) -> np.ndarray:
         return self.damping.matrix(self.M, self.K_init)
 
+    def modes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Circular frequencies (rad/s, increasing) and mass-normalised mode shapes of (K_I, M)."""
+        w2, phi = scipy.linalg.eigh(self.K_init, self.M)
+        return np.sqrt(w2), phi
+
     def natural_frequencies_hz(self) -> np.ndarray:
         w2 = scipy.linalg.eigh(self.K_init, self.M, eigvals_only=True)
         return np.sqrt(np.sort(w2)) / (2 * np.pi)
+
+    def damping_ratios(self) -> np.ndarray:
+        """zeta_r = phi_r^T C phi_r / (2 w_r), per mode (exact for classical damping)."""
+        omega, phi = self.modes()
+        return np.einsum("ir,ij,jr->r", phi, self.C, phi) / (2 * omega)
 
     @property
     def experimental_dofs(self) -> list[int]:
@@ -183,7 +288,7 @@ class NumericalAssembly:
 
     def __init__(self, structure: Structure):
         self.structure = structure
-        self.models = [make_specimen(e.specimen) for e in structure.numerical]
+        self.models = [e.model() for e in structure.numerical]
         self.K_linear = structure.K_N.copy()
         self.K_initial = structure.K_N + structure.K_num_init
         self.is_linear = all(m.kind == "linear" for m in self.models)
@@ -194,78 +299,17 @@ class NumericalAssembly:
         """R^N at ``u`` from the committed state (committed state unchanged)."""
         u = np.asarray(u, dtype=float)
         R = self.structure.K_N @ u
-        for element, model in zip(self.structure.numerical, self.models):
-            R[element.dof] += model.trial(float(u[element.dof]), dt)
+        for e, model in zip(self.structure.numerical, self.models):
+            deformation = u[e.i] - (u[e.j] if e.j is not None else 0.0)
+            F = model.trial(float(deformation), dt)
+            R[e.i] += F
+            if e.j is not None:
+                R[e.j] -= F
         return R
 
     def commit(self) -> None:
         for model in self.models:
             model.commit()
-
-
-def validation() -> Structure:
-    """The validation structure (Table I): two steel cantilevers coupled by a stiff numerical spring.
-
-    C1 linear, k = 0.613 kN/mm, m = 0.0017; C2 bilinear stiffening when a gap closes, 0.536 then
-    2.011 kN/mm, m = 0.0011; zeta = 5 %, dt = 0.01 s, T1 = 0.31 s. The paper gives neither the
-    gap nor the coupling stiffness: hsio takes a 10 mm gap and a 50 kN/mm spring.
-    """
-    return Structure(
-        name="validation",
-        dof_names=("C1", "C2"),
-        masses=(0.0017, 0.0011),
-        experimental=(
-            ExperimentalElement("C1", 0, {"kind": "linear", "k": 0.613}),
-            ExperimentalElement("C2", 1, {"kind": "bilinear_gap", "k1": 0.536, "k2": 2.011, "gap": 10.0}),
-        ),
-        springs=(Spring(0, 1, 50.0),),
-        damping=Damping(0.05, "mass"),
-        dt=0.01,
-        description="Table I: two cantilevers (C1 linear, C2 stiffening gap) coupled by a stiff numerical spring",
-    )
-
-
-def structure_I() -> Structure:
-    """Test structure I (Table II): first storey of a two-storey wood house, SDOF.
-
-    m = 0.011 kN s^2/mm, k = 2.6 kN/mm (f = 2.44 Hz), zeta = 5 % mass-proportional, dt = 0.005 s.
-    The wall is the pinched wood model, sized for about +/-40 kN at +/-100 mm.
-    """
-    return Structure(
-        name="structure_I",
-        dof_names=("wall",),
-        masses=(0.011,),
-        experimental=(
-            ExperimentalElement("wall", 0, {"kind": "pinched_wood", "k0": 2.6, "F0": 30.0, "r1": 0.05, "r3": 1.5, "r4": 0.02, "r_pinch": 0.15}),
-        ),
-        damping=Damping(0.05, "mass"),
-        dt=0.005,
-        description="Table II: wood shear wall (pinched: flexible loading, stiff unloading)",
-    )
-
-
-def structure_II() -> Structure:
-    """Test structure II (Table III): bare (BF) and infilled (IF) RC frames linked by a slab spring.
-
-    BF and IF are physical; a third frame mirrors BF numerically, linked to IF by a second slab
-    spring. m_BF = 0.012, m_IF = 0.019; k_BF = 7.2, k_IF = 122.6, k_s = 289.0 kN/mm;
-    zeta = 6.2 %, dt = 0.005 s. (With this layout the first mode is 8.8 Hz; the paper reports a
-    measured 7.46 Hz.)
-    """
-    return Structure(
-        name="structure_II",
-        dof_names=("BF", "IF", "BF_mirror"),
-        masses=(0.012, 0.019, 0.012),
-        experimental=(
-            ExperimentalElement("BF", 0, {"kind": "linear", "k": 7.2}),
-            ExperimentalElement("IF", 1, {"kind": "linear", "k": 122.6}),
-        ),
-        springs=(Spring(0, 1, 289.0), Spring(1, 2, 289.0)),
-        numerical=(NumericalElement("BF_mirror", 2, {"kind": "linear", "k": 7.2}),),
-        damping=Damping(0.062, "mass"),
-        dt=0.005,
-        description="Table III: bare and infilled RC frames, a numerical mirror frame, slab springs",
-    )
 
 
 def sdof(m: float = 1.0, k: float = 4 * np.pi**2, zeta: float = 0.0, dt: float = 0.01, specimen: dict | None = None) -> Structure:
@@ -280,11 +324,31 @@ def sdof(m: float = 1.0, k: float = 4 * np.pi**2, zeta: float = 0.0, dt: float =
     )
 
 
-STRUCTURES = {"validation": validation, "structure_I": structure_I, "structure_II": structure_II}
+def validation() -> Structure:
+    """The validation structure (E&M 2007, Table I), from the shipped file."""
+    return get_structure("validation")
+
+
+def structure_I() -> Structure:
+    """Test structure I (E&M 2007, Table II), from the shipped file."""
+    return get_structure("structure_I")
+
+
+def structure_II() -> Structure:
+    """Test structure II (E&M 2007, Table III), from the shipped file."""
+    return get_structure("structure_II")
 
 
 def get_structure(name: str) -> Structure:
-    try:
-        return STRUCTURES[name]()
-    except KeyError:
-        raise ConfigError(f"unknown structure {name!r}; known: {', '.join(STRUCTURES)}") from None
+    """A shipped structure by name (``validation``, ``structure_I``, ``structure_II``, ...)."""
+    from hsio.structure_file import load_shipped
+
+    return load_shipped(name)
+
+
+def load_structure(path_or_name, relative_to=None) -> Structure:
+    """A structure from a structure file (path, relative to ``relative_to`` if given) or a
+    shipped name; see docs/structures.md."""
+    from hsio.structure_file import load_structure as _load
+
+    return _load(path_or_name, relative_to)

@@ -30,7 +30,7 @@ class Linear(Specimen):
 class BilinearGap(Specimen):
     """Bilinear elastic stiffening: k1 until a gap closes at |u| = gap, then k2 (push and pull).
 
-    Column C2 of the validation structure (METHOD.md section 6): k1 = 0.536, k2 = 2.011 kN/mm.
+    Column C2 of the validation structure (E&M 2007, Table I): k1 = 0.536, k2 = 2.011 kN/mm.
     R = k1 u + (k2 - k1) sign(u) max(|u| - gap, 0).
     """
 
@@ -50,7 +50,7 @@ class BilinearGap(Specimen):
 
 @dataclass
 class MenegottoPinto(Specimen):
-    """Nonlinear elastic Menegotto-Pinto spring, METHOD.md eq. (13).
+    """Nonlinear elastic Menegotto-Pinto spring, E&M 2007 eq. (13).
 
     R = k0 u_y [theta x + (1 - theta) x / (1 + |x|^n)^(1/n)],  x = u / u_y.
     theta < 1 softens, theta > 1 hardens.

@@ -1,4 +1,4 @@
-"""The pinched hysteresis of a wood shear wall (test structure I, docs/method.md section 7)."""
+"""The pinched hysteresis of a wood shear wall (test structure I, docs/method.md section 6)."""
 
 from __future__ import annotations
 

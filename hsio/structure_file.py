@@ -1,0 +1,339 @@
+"""Structure files: a structure as data (TOML), checked key by key.
+
+The format is documented table by table in docs/structures.md. Every error is a
+:class:`~hsio.errors.ConfigError` that names the file, the table (with its array index) and the
+key, e.g. ``three_storey.toml: experimental[0].dof: unknown DOF 'floor4'``.
+
+:func:`load_structure` takes a path or the name of a shipped structure (the files in
+``hsio/library/``: the paper's ``validation``, ``structure_I``, ``structure_II`` and the
+``three_storey`` building).
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+
+from hsio.errors import ConfigError
+from hsio.specimens import SPECIMEN_KINDS, make_specimen
+from hsio.structures import DAMPING_KINDS, Damping, ExperimentalElement, NumericalElement, Spring, Structure
+
+MAX_DOF = 1000
+MAX_ELEMENTS = 10000
+MAX_FILE_BYTES = 4_000_000
+GROUND = "ground"
+PAPER = ("validation", "structure_I", "structure_II")  # E&M 2007, Tables I-III
+
+TABLES = {
+    "structure": {"name", "description", "dt"},
+    "dof": {"name", "mass", "iota"},
+    "mass": {"matrix"},
+    "damping": {"kind", "zeta", "modes"},
+    "spring": {"name", "dof", "to", "k"},
+    "numerical": {"name", "dof", "to", "model"},
+    "experimental": {"name", "dof", "actuator", "K_EI", "model"},
+}
+ARRAYS = ("dof", "spring", "numerical", "experimental")
+
+
+def shipped_names() -> list[str]:
+    """Names of the structures shipped with hsio (``hsio/library/*.toml``)."""
+    library = resources.files("hsio") / "library"
+    names = sorted(p.name[:-5] for p in library.iterdir() if p.name.endswith(".toml"))
+    paper = [n for n in PAPER if n in names]
+    return paper + [n for n in names if n not in PAPER]
+
+
+def load_shipped(name: str) -> Structure:
+    """A shipped structure by name."""
+    names = shipped_names()
+    if name not in names:
+        raise ConfigError(f"unknown structure {name!r}; known: {', '.join(names)}")
+    resource = resources.files("hsio") / "library" / f"{name}.toml"
+    return parse_structure(resource.read_bytes(), f"{name}.toml (shipped)")
+
+
+def load_structure(path_or_name: str | Path, relative_to: str | Path | None = None) -> Structure:
+    """A structure from a file path, or a shipped structure's name (no suffix, no folder).
+
+    A relative path is taken relative to the folder ``relative_to`` (e.g. that of the run
+    configuration that names the file), else to the working directory.
+    """
+    text = str(path_or_name)
+    if not isinstance(path_or_name, Path) and "/" not in text and "\\" not in text and not text.endswith(".toml"):
+        return load_shipped(text)
+    path = Path(path_or_name).expanduser()
+    if relative_to is not None and not path.is_absolute():
+        path = Path(relative_to) / path
+    try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise ConfigError(f"{path}: {size} bytes; a structure file is at most {MAX_FILE_BYTES} bytes")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the structure file ({exc.strerror or exc})") from None
+    return parse_structure(data, str(path), default_name=path.stem)
+
+
+def parse_structure(data: bytes | str, filename: str, default_name: str = "structure") -> Structure:
+    """Check and build a structure from the text of a structure file named ``filename``."""
+    if isinstance(data, bytes):
+        try:
+            data = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"{filename}: not UTF-8 text (byte {exc.start} is 0x{data[exc.start]:02x})") from None
+    try:
+        doc = tomllib.loads(data)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{filename}: not valid TOML: {exc}") from None
+    return structure_from_tables(doc, filename, default_name)
+
+
+def structure_from_tables(doc: dict, filename: str, default_name: str = "structure") -> Structure:
+    """Check and build a structure from the tables of a structure file (as tomllib reads them)."""
+    return _Reader(filename, default_name).build(doc)
+
+
+class _Reader:
+    def __init__(self, filename: str, default_name: str):
+        self.file = filename
+        self.default_name = default_name
+
+    def error(self, where: str, message: str) -> ConfigError:
+        return ConfigError(f"{self.file}: {where}: {message}")
+
+    # -- values ---------------------------------------------------------------------------
+
+    def number(self, where: str, value, *, positive: bool = False, non_negative: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(where, f"must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise self.error(where, f"must be finite, got {value!r}")
+        if positive and not value > 0:
+            raise self.error(where, f"must be positive, got {value!r}")
+        if non_negative and value < 0:
+            raise self.error(where, f"must not be negative, got {value!r}")
+        return float(value)
+
+    def string(self, where: str, value) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.error(where, f"must be a non-empty string, got {value!r}")
+        return value
+
+    def table(self, where: str, value, keys: set[str]) -> dict:
+        if not isinstance(value, dict):
+            raise self.error(where, f"must be a table, got {value!r}")
+        unknown = sorted(set(value) - keys)
+        if unknown:
+            raise self.error(f"{where}.{unknown[0]}", f"unknown key; known: {', '.join(sorted(keys))}")
+        return value
+
+    def required(self, where: str, table: dict, key: str):
+        if key not in table:
+            raise self.error(f"{where}.{key}", "missing")
+        return table[key]
+
+    # -- the document -----------------------------------------------------------------------
+
+    def build(self, doc: dict) -> Structure:
+        unknown = sorted(set(doc) - set(TABLES))
+        if unknown:
+            raise self.error(unknown[0], f"unknown table; known: {', '.join(TABLES)}")
+        for name in ARRAYS:
+            if name in doc and not isinstance(doc[name], list):
+                raise self.error(name, f"must be an array of tables ([[{name}]])")
+            if len(doc.get(name, [])) > (MAX_DOF if name == "dof" else MAX_ELEMENTS):
+                cap = MAX_DOF if name == "dof" else MAX_ELEMENTS
+                raise self.error(name, f"{len(doc[name])} entries; at most {cap}")
+        if "structure" not in doc:
+            raise self.error("structure", "missing: a structure file starts with a [structure] table (dt at least)")
+        head = self.table("structure", doc["structure"], TABLES["structure"])
+        name = self.string("structure.name", head.get("name", self.default_name))
+        description = head.get("description", "")
+        if not isinstance(description, str):
+            raise self.error("structure.description", f"must be a string, got {description!r}")
+        dt = self.number("structure.dt", self.required("structure", head, "dt"), positive=True)
+
+        dofs = doc.get("dof", [])
+        if not dofs:
+            raise self.error("dof", "missing: declare each degree of freedom in a [[dof]] table")
+        self.dof_index: dict[str, int] = {}
+        dof_names, masses, iota = [], [], []
+        has_matrix = "mass" in doc
+        for k, entry in enumerate(dofs):
+            where = f"dof[{k}]"
+            entry = self.table(where, entry, TABLES["dof"])
+            dof_name = self.string(f"{where}.name", self.required(where, entry, "name"))
+            if dof_name == GROUND:
+                raise self.error(f"{where}.name", f"{GROUND!r} is reserved for the ground")
+            if dof_name in self.dof_index:
+                raise self.error(f"{where}.name", f"DOF {dof_name!r} is declared twice")
+            self.dof_index[dof_name] = k
+            dof_names.append(dof_name)
+            if has_matrix:
+                if "mass" in entry:
+                    raise self.error(f"{where}.mass", "give the masses either per DOF or as [mass] matrix, not both")
+            else:
+                masses.append(self.number(f"{where}.mass", self.required(where, entry, "mass"), positive=True))
+            iota.append(self.number(f"{where}.iota", entry.get("iota", 1.0)))
+        n = len(dof_names)
+
+        matrix = None
+        if has_matrix:
+            M = self.mass_matrix(self.table("mass", doc["mass"], TABLES["mass"]), n)
+            matrix = tuple(tuple(float(v) for v in row) for row in M)
+            masses = [float(v) for v in np.diag(M)]
+
+        damping = self.damping(self.table("damping", doc.get("damping", {}), TABLES["damping"]), n)
+        springs = tuple(self.spring(k, e) for k, e in enumerate(doc.get("spring", [])))
+        numerical = tuple(self.numerical(k, e) for k, e in enumerate(doc.get("numerical", [])))
+        experimental = tuple(self.experimental(k, e) for k, e in enumerate(doc.get("experimental", [])))
+        named = [(f"spring[{k}]", s.name) for k, s in enumerate(springs) if s.name]
+        named += [(f"numerical[{k}]", e.name) for k, e in enumerate(numerical)]
+        named += [(f"experimental[{k}]", e.name) for k, e in enumerate(experimental)]
+        first: dict[str, str] = {}
+        for where, element_name in named:
+            if element_name in first:
+                raise self.error(f"{where}.name", f"{element_name!r} already names {first[element_name]}")
+            first[element_name] = where
+        for key in ("dof", "actuator"):
+            seen: dict = {}
+            for k, e in enumerate(experimental):
+                value = e.dof if key == "dof" else e.actuator
+                if value in seen:
+                    raise self.error(f"experimental[{k}].{key}", f"already used by experimental[{seen[value]}]")
+                seen[value] = k
+
+        structure = Structure(name=name, dof_names=tuple(dof_names), masses=tuple(masses), experimental=experimental,
+                              springs=springs, numerical=numerical, damping=damping, dt=dt, description=description,
+                              mass_matrix=matrix, influence=None if all(v == 1.0 for v in iota) else tuple(iota),
+                              source=self.file)
+        self.check_stable(structure)
+        return structure
+
+    def mass_matrix(self, table: dict, n: int) -> np.ndarray:
+        rows = self.required("mass", table, "matrix")
+        if not isinstance(rows, list) or len(rows) != n or any(not isinstance(r, list) or len(r) != n for r in rows):
+            raise self.error("mass.matrix", f"must be {n} rows of {n} numbers (one per [[dof]])")
+        M = np.array([[self.number(f"mass.matrix[{i}][{j}]", v) for j, v in enumerate(row)] for i, row in enumerate(rows)])
+        scale = np.max(np.abs(M))
+        if not np.allclose(M, M.T, rtol=0.0, atol=1e-12 * scale):
+            i, j = np.unravel_index(np.argmax(np.abs(M - M.T)), M.shape)
+            raise self.error("mass.matrix", f"not symmetric: [{i}][{j}] = {M[i, j]!r} but [{j}][{i}] = {M[j, i]!r}")
+        try:
+            np.linalg.cholesky(M)
+        except np.linalg.LinAlgError:
+            raise self.error("mass.matrix", "not positive definite") from None
+        return M
+
+    def damping(self, table: dict, n: int) -> Damping:
+        kind = table.get("kind", "rayleigh" if n > 1 else "mass")
+        if kind not in DAMPING_KINDS:
+            raise self.error("damping.kind", f"must be one of {', '.join(DAMPING_KINDS)}, got {kind!r}")
+        zeta = table.get("zeta", 0.05)
+        if isinstance(zeta, list):
+            ratios = tuple(self.number(f"damping.zeta[{k}]", z, non_negative=True) for k, z in enumerate(zeta))
+        else:
+            ratios = (self.number("damping.zeta", zeta, non_negative=True),)
+        if any(z >= 1.0 for z in ratios):
+            raise self.error("damping.zeta", f"a damping ratio is a fraction of critical, below 1; got {list(ratios)}")
+        if kind == "modal":
+            if "modes" in table:
+                raise self.error("damping.modes", "modal damping applies to every mode; give zeta per mode instead")
+            if len(ratios) not in (1, n):
+                raise self.error("damping.zeta", f"{len(ratios)} ratios for {n} modes: give one, or one per mode")
+            return Damping(ratios[0] if len(ratios) == 1 and not isinstance(zeta, list) else ratios, "modal")
+        count = 2 if kind == "rayleigh" else 1
+        modes = table.get("modes", [1, 2] if kind == "rayleigh" else [1])
+        if not isinstance(modes, list) or len(modes) != count:
+            raise self.error("damping.modes", f"{kind} damping takes {count} mode number(s), got {modes!r}")
+        for k, m in enumerate(modes):
+            if isinstance(m, bool) or not isinstance(m, int):
+                raise self.error(f"damping.modes[{k}]", f"must be a mode number (1 = lowest), got {m!r}")
+            if not 1 <= m <= n:
+                raise self.error(f"damping.modes[{k}]", f"mode {m} does not exist: the structure has {n} mode(s)")
+        if count == 2 and modes[0] == modes[1]:
+            raise self.error("damping.modes", f"rayleigh damping needs two different modes, got {modes}")
+        if len(ratios) not in (1, count):
+            raise self.error("damping.zeta", f"{len(ratios)} ratios for {count} mode(s)")
+        value = ratios if isinstance(zeta, list) else ratios[0]
+        return Damping(value, kind, tuple(modes))
+
+    def dof(self, where: str, value) -> int:
+        name = self.string(where, value)
+        if name not in self.dof_index:
+            raise self.error(where, f"unknown DOF {name!r}; DOFs: {', '.join(self.dof_index)}")
+        return self.dof_index[name]
+
+    def ends(self, where: str, entry: dict) -> tuple[int, int | None]:
+        i = self.dof(f"{where}.dof", self.required(where, entry, "dof"))
+        to = entry.get("to", GROUND)
+        if to == GROUND:
+            return i, None
+        j = self.dof(f"{where}.to", to)
+        if j == i:
+            raise self.error(f"{where}.to", f"the element joins DOF {to!r} to itself")
+        return i, j
+
+    def model(self, where: str, value) -> dict:
+        if not isinstance(value, dict):
+            raise self.error(where, f"must be a table such as {{ kind = \"linear\", k = 1.0 }}, got {value!r}")
+        kind = value.get("kind")
+        if not isinstance(kind, str) or kind not in SPECIMEN_KINDS:
+            raise self.error(f"{where}.kind", f"unknown specimen model {kind!r}; known: {', '.join(sorted(SPECIMEN_KINDS))}")
+        params = inspect.signature(SPECIMEN_KINDS[kind]).parameters
+        spec = {"kind": kind}
+        for key, v in value.items():
+            if key == "kind":
+                continue
+            if key not in params:
+                raise self.error(f"{where}.{key}", f"unknown parameter of {kind!r}; known: {', '.join(params)}")
+            spec[key] = self.number(f"{where}.{key}", v)
+        for key, p in params.items():
+            if p.default is inspect.Parameter.empty and key not in spec:
+                raise self.error(f"{where}.{key}", f"missing: {kind!r} needs {', '.join(k for k in params)}")
+        try:
+            model = make_specimen(spec)
+        except (ConfigError, ValueError) as exc:
+            raise self.error(where, str(exc)) from None
+        if not (math.isfinite(model.initial_stiffness) and model.initial_stiffness > 0):
+            raise self.error(where, f"initial stiffness must be positive, got {model.initial_stiffness!r}")
+        return spec
+
+    def spring(self, k: int, entry) -> Spring:
+        where = f"spring[{k}]"
+        entry = self.table(where, entry, TABLES["spring"])
+        i, j = self.ends(where, entry)
+        stiffness = self.number(f"{where}.k", self.required(where, entry, "k"), positive=True)
+        name = self.string(f"{where}.name", entry["name"]) if "name" in entry else ""
+        return Spring(i, j, stiffness, name)
+
+    def numerical(self, k: int, entry) -> NumericalElement:
+        where = f"numerical[{k}]"
+        entry = self.table(where, entry, TABLES["numerical"])
+        i, j = self.ends(where, entry)
+        name = self.string(f"{where}.name", entry.get("name", f"numerical{k}"))
+        return NumericalElement(name, i, self.model(f"{where}.model", self.required(where, entry, "model")), j)
+
+    def experimental(self, k: int, entry) -> ExperimentalElement:
+        where = f"experimental[{k}]"
+        entry = self.table(where, entry, TABLES["experimental"])
+        i = self.dof(f"{where}.dof", self.required(where, entry, "dof"))
+        name = self.string(f"{where}.name", entry.get("name", list(self.dof_index)[i]))
+        actuator = self.string(f"{where}.actuator", entry.get("actuator", name))
+        spec = self.model(f"{where}.model", self.required(where, entry, "model"))
+        K_EI = self.number(f"{where}.K_EI", entry["K_EI"], positive=True) if "K_EI" in entry else None
+        return ExperimentalElement(name, i, spec, actuator, K_EI)
+
+    def check_stable(self, structure: Structure) -> None:
+        w2, phi = scipy.linalg.eigh(structure.K_init, structure.M)
+        if w2[0] <= 1e-12 * np.max(np.abs(w2)):
+            k = int(np.argmax(np.abs(phi[:, 0])))
+            raise self.error(f"dof[{k}]", f"DOF {structure.dof_names[k]!r} has no stiffness path to the ground "
+                             "(the initial stiffness K_I is singular): add a spring or element")

@@ -1,0 +1,108 @@
+"""The peak-oriented degrading specimen in closed form, and the three-storey building in NS."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hsio.errors import ConfigError
+from hsio.ground_motion import synthetic_record
+from hsio.runner import run_numerical
+from hsio.specimens import PeakOriented, make_specimen
+from hsio.structures import get_structure
+
+# k0 = 20 kN/mm, F_y = 40 kN (u_y = 2 mm), hardening 3 %: H(a) = 40 + 0.6 (a - 2);
+# capping at 10 mm (F_c = 44.8 kN), then -10 %: P(a) = 44.8 - 2 (a - 10), down to 8 kN at 28.4 mm.
+PARAMS = {"kind": "peak_oriented", "k0": 20.0, "Fy": 40.0, "u_c": 10.0, "alpha_s": 0.03, "alpha_c": 0.1,
+          "residual": 0.2, "gamma": 50.0, "c": 1.0}
+
+
+def model() -> PeakOriented:
+    return make_specimen(PARAMS)
+
+
+def test_monotonic_backbone():
+    expected = {1.0: 20.0, 2.0: 40.0, 6.0: 42.4, 10.0: 44.8, 15.0: 34.8, 28.4: 8.0, 35.0: 8.0}
+    for sign in (1.0, -1.0):
+        m = model()
+        forces = {float(u): m.force(sign * u) for u in np.arange(0.5, 35.01, 0.1).round(1)}
+        for u, F in expected.items():
+            assert forces[u] == pytest.approx(sign * F, abs=1e-9), (sign, u)
+        assert m.strength_factor == 1.0  # no excursion has ended: no deterioration
+    m = model()
+    for u in (10.0, 15.0):
+        m.force(u)
+    assert (m.trial(15.5) - m.trial(15.0)) / 0.5 == pytest.approx(-2.0)  # the softening branch
+
+
+def test_trial_leaves_the_committed_state_and_commit_moves_it():
+    m = model()
+    for u in (2.0, 6.0):
+        m.force(u)
+    assert m.trial(8.0) == pytest.approx(43.6)
+    assert m.trial(4.0) == pytest.approx(2.4)  # unloading at k0 from (6, 42.4)
+    assert m.trial(8.0) == pytest.approx(43.6)  # still from (6, 42.4)
+    m.trial(4.0)
+    m.commit()
+    assert m.trial(6.0) == pytest.approx(42.4)  # reloading from (4, 2.4)
+    path = 25 * np.sin(np.linspace(0, 6 * np.pi, 400)) * np.linspace(0.2, 1.0, 400)
+    a, b = model(), model()
+    for u in path:
+        b.trial(u + 3.0)
+        b.trial(-u)
+        b.trial(u)
+        b.commit()
+        assert b.force(u) == a.force(u)
+    assert a.strength_factor == b.strength_factor < 1.0
+
+
+def test_strength_and_stiffness_drop_after_an_excursion():
+    m = model()
+    for u in (2.0, 8.0):
+        m.force(u)
+    m.force(8.0 - 43.6 / 20.0)  # unloaded to zero force: the first excursion ends
+    E1 = 40.0 * 2.0 / 2 + (40.0 + 43.6) / 2 * 6.0 - 43.6**2 / (2 * 20.0)
+    s1 = 1 - E1 / (50.0 * 40.0 * 2.0)
+    assert m.strength_factor == pytest.approx(s1, rel=1e-12)
+    assert m.unloading_stiffness == pytest.approx(20.0 * s1, rel=1e-12)
+    # the other way it has not yielded: it goes to the deteriorated envelope -s1 H(8)
+    assert m.force(-8.0) == pytest.approx(-s1 * 43.6, rel=1e-12)
+    u_zero = -8.0 + s1 * 43.6 / m.unloading_stiffness
+    m.force(u_zero)
+    s2 = m.strength_factor
+    assert s2 < s1
+    # peak-oriented: reloading aims at the earlier peak (8 mm), on the deteriorated envelope
+    assert m.trial(8.0) == pytest.approx(s2 * 43.6, rel=1e-9)
+    assert m.trial(8.0) / (8.0 - u_zero) < 0.5 * 20.0  # reloading far softer than k0
+
+
+def test_deterioration_accumulates_until_the_energy_capacity_is_spent():
+    m = make_specimen({**PARAMS, "gamma": 10.0})
+    factors = []
+    for amplitude in [12.0] * 8:
+        for u in np.linspace(0, amplitude, 30).tolist() + np.linspace(amplitude, -amplitude, 60).tolist() + np.linspace(-amplitude, 0, 30).tolist():
+            m.force(u)
+        factors.append(m.strength_factor)
+    assert all(b < a for a, b in zip(factors, factors[1:]))
+    assert factors[-1] < 0.01  # the capacity E_t = 10 F_y u_y is long spent
+
+
+@pytest.mark.parametrize("bad", [{"k0": 0.0}, {"Fy": -1.0}, {"u_c": 1.0}, {"alpha_s": 1.0}, {"residual": 1.2}, {"gamma": 0.0}])
+def test_bad_parameters(bad):
+    with pytest.raises(ConfigError, match="peak_oriented"):
+        make_specimen({**PARAMS, **bad})
+
+
+def test_three_storey_building_periods_and_NS_peaks():
+    s = get_structure("three_storey")
+    np.testing.assert_allclose(1 / s.natural_frequencies_hz(), [0.4544, 0.1825, 0.1239], atol=5e-4)
+    np.testing.assert_allclose(s.damping_ratios()[[0, 2]], 0.05, atol=1e-12)
+    assert s.experimental[0].actuator == "act1" and s.experimental_dofs == [0]
+    assert s.iota.tolist() == [1.0, 1.0, 1.0]
+    ground = synthetic_record(duration_s=20.0, dt=s.dt, pga_g=0.4, seed=1994)
+    ns = run_numerical(s, ground, -0.05)
+    drift = np.abs(np.diff(np.column_stack([np.zeros(len(ns.u)), ns.u]), axis=1)).max(axis=0)
+    # the first storey passes its capping point (21 mm) at the design level; storeys 2-3 stay elastic
+    assert 21.0 < drift[0] < 30.0
+    assert drift[1] * 50.0 < 600.0 and drift[2] * 35.0 < 400.0
+    assert np.abs(ns.measured_force).max() == pytest.approx(434, abs=5)
