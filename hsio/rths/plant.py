@@ -57,12 +57,6 @@ class PlantParameters:
         B = np.array([[0.0], [p.a1b0 * p.input_gain], [0.0], [0.0], [0.0]])
         return A, B
 
-    def transfer_function(self) -> signal.TransferFunction:
-        """x/u of the plant in its inner loop, continuous."""
-        A, B = self.continuous()
-        C = np.array([[0.0, 0.0, 0.0, 1.0, 0.0]])
-        return signal.StateSpace(A, B, C, np.zeros((1, 1))).to_tf()
-
     def discrete(self, fs: float) -> tuple[np.ndarray, np.ndarray]:
         A, B = self.continuous()
         Ad, Bd, *_ = signal.cont2discrete((A, B, np.eye(5), np.zeros((5, 1))), 1.0 / fs, method="zoh")
