@@ -52,7 +52,13 @@ def in_process(periods: int) -> dict:
 
 
 EMULATOR = """
-import sys
+import os, sys
+try:  # the controller's own process: the other CPU and real-time priority where granted
+    cpus = sorted(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {cpus[0]})
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(40))
+except (AttributeError, OSError):
+    pass
 from hsio.drivers import modbus_map
 from hsio.emulators.bank import bank_from_config
 from hsio.emulators.modbus import ModbusEmulator

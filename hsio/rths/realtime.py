@@ -6,7 +6,9 @@ of microseconds on a general-purpose kernel; the final busy-wait removes it), th
 ``work(k)``. Deadlines are fixed on a grid from the start, so lateness does not accumulate; a
 period whose work ends after the next deadline is an overrun, and the loop starts the next
 period at once rather than bursting to catch up. With ``dedicated_thread`` the loop runs in a
-thread of its own; the garbage collector is paused during the run. ``pin_cpu`` asks the kernel
+thread of its own; the garbage collector is paused during the run and the interpreter's thread
+switch interval shortened (``switch_interval_s``: another Python thread holding the interpreter
+lock, such as an in-process emulator, then hands it over within that time, not the default 5 ms). ``pin_cpu`` asks the kernel
 for CPU affinity and ``fifo_priority`` for SCHED_FIFO; each is used only where the OS permits
 it, and the result says what was granted. Every loop is bounded in count and in time.
 """
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import gc
 import os
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -67,7 +70,7 @@ def _request_os_help(pin_cpu: int | None, fifo_priority: int | None) -> dict:
 
 def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: float = 0.0003,
                  max_seconds: float = 60.0, dedicated_thread: bool = True, pin_cpu: int | None = None,
-                 fifo_priority: int | None = None) -> Timing:
+                 fifo_priority: int | None = None, switch_interval_s: float = 5e-5) -> Timing:
     """Run ``work(k)`` at ``rate_hz`` for ``periods`` periods (at most ``max_seconds``)."""
     if not rate_hz > 0 or periods < 1:
         raise ValueError("rate_hz must be positive and periods at least 1")
@@ -82,6 +85,8 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
         out["granted"] = _request_os_help(pin_cpu, fifo_priority)
         gc_was = gc.isenabled()
         gc.disable()
+        interval_was = sys.getswitchinterval()
+        sys.setswitchinterval(switch_interval_s)
         overruns = 0
         done = 0
         try:
@@ -108,6 +113,7 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
                     overruns += 1
                     deadline = end
         finally:
+            sys.setswitchinterval(interval_was)
             if gc_was:
                 gc.enable()
             if affinity_before is not None and out["granted"].get("affinity") is not None:
