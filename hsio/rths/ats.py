@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from hsio.rths.jit import jit
+from hsio.rths.jit import helper, jit
 from hsio.rths.stage import Stage
 
 # layout of the parameter vector p
@@ -50,7 +50,7 @@ S_SUMS = 15  # running sums: XtX (9), XtU (3)
 S_BUF = 27  # ring buffer of regressors: x, v, acc, u per sample
 
 
-@jit
+@helper
 def _biquad(p, s, i, x):
     y = p[P_B] * x + s[i]
     s[i] = p[P_B + 1] * x - p[P_A] * y + s[i + 1]
@@ -58,7 +58,7 @@ def _biquad(p, s, i, x):
     return y
 
 
-@jit
+@helper
 def solve3(M, b, out):
     """Gaussian elimination with partial pivoting on a 3 x 3 system (row-major M, 9 values);
     returns False when it is singular."""

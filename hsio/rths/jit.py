@@ -31,3 +31,13 @@ def pick(fn, use_numba: bool | None = None):
     if use_numba is None:
         use_numba = numba_enabled()
     return fn if (use_numba and HAVE_NUMBA) else fn.py_func
+
+
+def helper(fn):
+    """A function called from ``jit`` functions: compiled inline with them under numba, and a plain
+    Python function when they run as Python (so the Python loop never calls into numba)."""
+    if not HAVE_NUMBA:
+        return fn
+    from numba.extending import register_jitable
+
+    return register_jitable(fn)

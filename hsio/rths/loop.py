@@ -21,12 +21,9 @@ from hsio.rths.jit import jit, pick
 
 @jit
 def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, noise_f,
-                quantum, m_per_V, N_per_V, out_xt, out_xm, out_floors, out_u, out_f, out_x):
-    n = ag.size
-    w = np.zeros(5)
-    w1 = np.zeros(5)
-    z = np.zeros(6)
-    z1 = np.zeros(6)
+                quantum, m_per_V, N_per_V, out_xt, out_xm, out_floors, out_u, out_f, out_x, w, w1, z, z1):
+    # arrays under numba; lists in the pure-Python loop (element access is several times faster)
+    n = len(ag)
     x_m = math.floor(noise_x[0] / quantum + 0.5) * quantum * m_per_V
     f_m = math.floor(noise_f[0] / quantum + 0.5) * quantum * N_per_V
     f_prev = f_m
@@ -38,9 +35,9 @@ def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, nois
             a_t += Ca[i] * z[i]
         out_xt[k] = x_t
         out_xm[k] = x_m
-        out_floors[k, 0] = x_m
-        out_floors[k, 1] = z[1]
-        out_floors[k, 2] = z[2]
+        out_floors[k][0] = x_m
+        out_floors[k][1] = z[1]
+        out_floors[k][2] = z[2]
         u = step(p, s, k, x_t, v_t, a_t, x_m)
         u = math.floor(u / m_per_V / quantum + 0.5) * quantum * m_per_V
         out_u[k] = u
@@ -48,7 +45,7 @@ def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, nois
         for i in range(5):
             acc = Bp[i] * u
             for j in range(5):
-                acc += Ap[i, j] * w[j]
+                acc += Ap[i][j] * w[j]
             w1[i] = acc
         for i in range(5):
             w[i] = w1[i]
@@ -60,9 +57,9 @@ def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, nois
         out_f[k] = w[2]
         # the numerical substructure over the same period, a_g[k] and f_m[k] held
         for i in range(6):
-            acc = Bn[i, 0] * ag[k] + Bn[i, 1] * f_prev
+            acc = Bn[i][0] * ag[k] + Bn[i][1] * f_prev
             for j in range(6):
-                acc += An[i, j] * z[j]
+                acc += An[i][j] * z[j]
             z1[i] = acc
         for i in range(6):
             z[i] = z1[i]
@@ -94,7 +91,19 @@ def run(stage, plant, sub, ag, fs: float, noise_seed: int = 0, use_numba: bool |
     out = Result(np.zeros(n), np.zeros(n), np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n))
     kernel = pick(rths_kernel, use_numba)
     step = pick(stage.step, use_numba)
-    kernel(step, stage.p, stage.fresh_state(), Ap, Bp, plant.max_force, sub.Ad, sub.Bd, sub.Ca, sub.Da,
-           np.ascontiguousarray(ag), noise_x, noise_f, plant.quantum_V, plant.m_per_V, plant.N_per_V,
-           out.x_t, out.x_m, out.floors, out.u, out.force, out.x)
+    compiled = kernel is rths_kernel and hasattr(rths_kernel, "py_func") and rths_kernel.py_func is not rths_kernel
+    p, s = stage.p, stage.fresh_state()
+    args = [Ap, Bp, plant.max_force, sub.Ad, sub.Bd, sub.Ca, sub.Da, np.ascontiguousarray(ag), noise_x, noise_f,
+            plant.quantum_V, plant.m_per_V, plant.N_per_V]
+    outs = [out.x_t, out.x_m, out.floors, out.u, out.force, out.x]
+    work = [np.zeros(5), np.zeros(5), np.zeros(6), np.zeros(6)]
+    if compiled:
+        kernel(step, p, s, *args, *outs, *work)
+        return out
+    # the pure-Python loop on lists: the same operations in the same order, the same numbers
+    as_list = lambda a: a.tolist() if isinstance(a, np.ndarray) else a  # noqa: E731
+    outs_l = [a.tolist() for a in outs]
+    kernel(step, p.tolist(), s.tolist(), *[as_list(a) for a in args], *outs_l, *[a.tolist() for a in work])
+    for a, l in zip(outs, outs_l):
+        a[...] = np.asarray(l)
     return out
