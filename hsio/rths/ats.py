@@ -1,14 +1,13 @@
 """Adaptive time series (ATS) compensator (Chae, Kazemibidokhti and Ricles 2013).
 
-The command is a linear combination of the desired displacement and its derivatives (eq. 8 of
-the paper),
+The command is a linear combination of the desired displacement and its derivatives,
 
     x_c = a0 x_t + a1 v_t + a2 acc_t,
 
 where a0 corrects the amplitude and a1, a2 the delay (a1 ~ tau, a2 ~ tau^2/2 for a pure delay
 tau). The coefficients are identified online from the actuator's own history: over a moving
 window of N samples the past commands are fitted by least squares to the measured response and
-its derivatives (eqs. 10-13),
+its derivatives,
 
     U = X_m A,   A = (X_m^T X_m)^-1 X_m^T U,   X_m = [x_m, v_m, acc_m],
 

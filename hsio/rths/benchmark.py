@@ -1,6 +1,6 @@
 """The benchmark's data: reference model, partitioning cases, experimental substructure, record.
 
-Silva et al. (2020), section 2: a 3-storey frame, M x'' + C x' + K x = -M iota a_g (eq. 1), is
+Silva et al. (2020): a 3-storey frame, the reference model M x'' + C x' + K x = -M iota a_g, is
 split at the first floor. The experimental substructure is (m_e, c_e, k_e) at DOF 1; the
 numerical substructure is the reference model less those, loaded by the ground motion and by the
 measured restoring force f_m of the specimen:
@@ -110,7 +110,7 @@ def case(bm: Benchmark, number: int) -> Case:
 
 
 def reference_response(M: np.ndarray, C: np.ndarray, K: np.ndarray, ag: np.ndarray, fs: float = FS) -> np.ndarray:
-    """Floor displacements (n x 3) of the reference model, eq. 1, for a_g linearly interpolated
+    """Floor displacements (n x 3) of the reference model for a_g linearly interpolated
     between samples: the first-order-hold discretisation is exact for that input. It runs in
     the eigenvectors of the discrete state matrix, one first-order recursion (lfilter) each."""
     A, B = _second_order_ss(M, C, K, M @ np.ones(3)[:, None] * -1.0)

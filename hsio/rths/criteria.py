@@ -1,4 +1,4 @@
-"""The evaluation criteria J1-J9 of the benchmark (Silva et al. 2020, section 4, Table 1).
+"""The evaluation criteria J1-J9 of the benchmark (Silva et al. 2020).
 
 Tracking (desired x_t: the numerical substructure's first-floor displacement; measured x_m):
 

@@ -1,4 +1,4 @@
-"""The RTHS loop at the controller rate (Silva et al. 2020, Fig. 3): numerical substructure,
+"""The RTHS loop at the controller rate (Silva et al. 2020): numerical substructure,
 tracking controller, control plant, converters, restoring force back to the numerical model.
 
 Sample k: the numerical substructure gives x_t, v_t, a_t; the controller turns them and the

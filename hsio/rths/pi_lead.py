@@ -1,4 +1,4 @@
-"""The benchmark's sample controller: PI plus phase lead (Silva et al. 2020, section 5).
+"""The benchmark's sample controller: PI plus phase lead (Silva et al. 2020).
 
     u = G_c(s) (G_T(s) x_t - x_m),   G_c(s) = 2 + 95/s,   G_T(s) = 50.8 (s + 168.6)/(s + 8570)
 
