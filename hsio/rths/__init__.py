@@ -9,8 +9,13 @@ Modules, one job each:
 
 - ``benchmark``: the benchmark's data (reference model, partitioning cases, ground motion);
 - ``plant``: the control plant as an emulator model (nominal or perturbed), converters, noise;
-- ``pi_lead``, ``ats``, ``amb``: tracking controllers as discrete stages (``controllers`` lists them);
-- ``loop``: the RTHS loop at the controller rate (numba when installed, pure Python otherwise);
+- ``stage``: a tracking controller as a discrete stage of the loop;
+- ``pi_lead``, ``ats``, ``amb``: the tracking controllers (``controllers`` lists them by name);
+- ``loop``: the RTHS loop at the controller rate (numba when installed, pure Python otherwise,
+  same numbers; ``jit`` chooses);
 - ``criteria``: the evaluation criteria J1-J9;
-- ``evaluate``: cases x controllers x plants, nominal and perturbed.
+- ``evaluate``: cases x controllers x plants, nominal and perturbed;
+- ``realtime``: a periodic loop for the lab (sleep, then busy-wait) and its timing statistics.
+
+The same plant as a stand-alone emulated device is ``hsio.emulators.vrths_plant``.
 """
