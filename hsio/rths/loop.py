@@ -30,9 +30,8 @@ def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, nois
     for k in range(n):
         x_t = z[0]
         v_t = z[3]
-        a_t = Da[0] * ag[k] + Da[1] * f_m
-        for i in range(6):
-            a_t += Ca[i] * z[i]
+        a_t = (Da[0] * ag[k] + Da[1] * f_m + Ca[0] * z[0] + Ca[1] * z[1] + Ca[2] * z[2]
+               + Ca[3] * z[3] + Ca[4] * z[4] + Ca[5] * z[5])
         out_xt[k] = x_t
         out_xm[k] = x_m
         out_floors[k][0] = x_m
@@ -41,12 +40,11 @@ def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, nois
         u = step(p, s, k, x_t, v_t, a_t, x_m)
         u = math.floor(u / m_per_V / quantum + 0.5) * quantum * m_per_V
         out_u[k] = u
-        # the control plant over one period, command held
+        # the control plant over one period, command held (rows written out: the same sums in
+        # the same order as a loop over j, several times faster in the pure-Python loop)
         for i in range(5):
-            acc = Bp[i] * u
-            for j in range(5):
-                acc += Ap[i][j] * w[j]
-            w1[i] = acc
+            r = Ap[i]
+            w1[i] = Bp[i] * u + r[0] * w[0] + r[1] * w[1] + r[2] * w[2] + r[3] * w[3] + r[4] * w[4]
         for i in range(5):
             w[i] = w1[i]
         if w[2] > max_force:
@@ -55,12 +53,13 @@ def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, nois
             w[2] = -max_force
         out_x[k] = w[3]
         out_f[k] = w[2]
-        # the numerical substructure over the same period, a_g[k] and f_m[k] held
+        # the numerical substructure over the same period, a_g[k] and f_m[k-1] held
+        g = ag[k]
         for i in range(6):
-            acc = Bn[i][0] * ag[k] + Bn[i][1] * f_prev
-            for j in range(6):
-                acc += An[i][j] * z[j]
-            z1[i] = acc
+            r = An[i]
+            b = Bn[i]
+            z1[i] = (b[0] * g + b[1] * f_prev + r[0] * z[0] + r[1] * z[1] + r[2] * z[2] + r[3] * z[3]
+                     + r[4] * z[4] + r[5] * z[5])
         for i in range(6):
             z[i] = z1[i]
         # converters
