@@ -12,10 +12,13 @@ from hsio.rths.realtime import run_periodic
 def test_periodic_loop_paces_and_counts():
     calls = []
     t0 = time.perf_counter()
-    timing = run_periodic(calls.append, rate_hz=1024.0, periods=256, pin_cpu=0)
+    timing = run_periodic(calls.append, rate_hz=1024.0, periods=256)
     elapsed = time.perf_counter() - t0
     assert calls == list(range(256)) and timing.periods == 256
-    assert elapsed == pytest.approx(256 / 1024.0, abs=0.15)  # paced, not as fast as it can
+    # paced: never before its deadline, so the run cannot be shorter than its periods (a loaded
+    # machine can make it longer, which is what the lateness figures report)
+    assert timing.lateness_us.min() >= 0.0
+    assert 255 / 1024.0 <= elapsed < 10.0
     s = timing.stats()
     assert 0 <= s["p50_us"] <= s["p99_us"] <= s["max_us"]
     assert set(s) >= {"p50_us", "p99_us", "max_us", "overruns_per_10k", "affinity", "sched_fifo"}
