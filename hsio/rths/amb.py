@@ -91,7 +91,14 @@ def amb_step(p, s, k, x_t, v_t, a_t, x_m):
                 th = p[P_HI + i]
             s[S_TH + i] = th
     s[S_INT] += p[P_KI] * e / fs
-    # advance the four model copies with this sample's regressors
+    # advance the four model copies with this sample's regressors (the model's coefficients in
+    # locals once per sample: the pure-Python loop reads each only once)
+    a00, a01, a02, a03, a04 = p[P_AD], p[P_AD + 1], p[P_AD + 2], p[P_AD + 3], p[P_AD + 4]
+    a10, a11, a12, a13, a14 = p[P_AD + 5], p[P_AD + 6], p[P_AD + 7], p[P_AD + 8], p[P_AD + 9]
+    a20, a21, a22, a23, a24 = p[P_AD + 10], p[P_AD + 11], p[P_AD + 12], p[P_AD + 13], p[P_AD + 14]
+    a30, a31, a32, a33, a34 = p[P_AD + 15], p[P_AD + 16], p[P_AD + 17], p[P_AD + 18], p[P_AD + 19]
+    a40, a41, a42, a43, a44 = p[P_AD + 20], p[P_AD + 21], p[P_AD + 22], p[P_AD + 23], p[P_AD + 24]
+    b0, b1, b2, b3, b4 = p[P_BD], p[P_BD + 1], p[P_BD + 2], p[P_BD + 3], p[P_BD + 4]
     for i in range(NR):
         if i == 0:
             ph = phi0
@@ -107,10 +114,11 @@ def amb_step(p, s, k, x_t, v_t, a_t, x_m):
         w2 = s[base + 2]
         w3 = s[base + 3]
         w4 = s[base + 4]
-        for r in range(5):
-            o = P_AD + 5 * r
-            s[base + r] = (p[o] * w0 + p[o + 1] * w1 + p[o + 2] * w2 + p[o + 3] * w3 + p[o + 4] * w4
-                           + p[P_BD + r] * ph)
+        s[base] = a00 * w0 + a01 * w1 + a02 * w2 + a03 * w3 + a04 * w4 + b0 * ph
+        s[base + 1] = a10 * w0 + a11 * w1 + a12 * w2 + a13 * w3 + a14 * w4 + b1 * ph
+        s[base + 2] = a20 * w0 + a21 * w1 + a22 * w2 + a23 * w3 + a24 * w4 + b2 * ph
+        s[base + 3] = a30 * w0 + a31 * w1 + a32 * w2 + a33 * w3 + a34 * w4 + b3 * ph
+        s[base + 4] = a40 * w0 + a41 * w1 + a42 * w2 + a43 * w3 + a44 * w4 + b4 * ph
     return (s[S_TH] * phi0 + s[S_TH + 1] * phi1 + s[S_TH + 2] * phi2 + s[S_TH + 3] * phi3) + s[S_INT]
 
 
