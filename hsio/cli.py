@@ -28,6 +28,7 @@ class _Progress:
 
 # Subcommands that live in their own modules, imported only when used: name -> "module:function".
 LAZY_COMMANDS: dict[str, str] = {
+    "bench": "hsio.commands.bench:bench",
     "calibrate": "hsio.commands.calibrate:calibrate",
     "diagnose": "hsio.commands.diagnose:diagnose",
     "emulate": "hsio.commands.emulate:emulate",

@@ -1,0 +1,155 @@
+"""The benchmark's data: reference model, partitioning cases, experimental substructure, record.
+
+Silva et al. (2020): a 3-storey frame, the reference model M x'' + C x' + K x = -M iota a_g, is
+split at the first floor. The experimental substructure is (m_e, c_e, k_e) at DOF 1; the
+numerical substructure is the reference model less those, loaded by the ground motion and by the
+measured restoring force f_m of the specimen:
+
+    M_n x'' + C_n x' + K_n x = -M iota a_g - [f_m, 0, 0]^T
+
+(M_n = M - m_e e1 e1^T and likewise for C and K). Everything here is in SI units (kg, N, m, s).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from scipy import signal
+
+FS = 4096.0  # controller rate, Hz (benchmark constraint)
+RECORD_SCALE = 0.4  # El Centro 1940 x 0.4
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    """benchmark.json and the unscaled El Centro record, as read from ``folder``."""
+
+    data: dict
+    record_t: np.ndarray
+    record_a: np.ndarray
+
+    @property
+    def cases(self) -> list[int]:
+        return sorted(int(c) for c in self.data["cases"])
+
+    def table3(self, case: int) -> list[float]:
+        return list(self.data["table3_sample_controller_elcentro"][str(case)])
+
+
+@lru_cache(maxsize=4)
+def load(folder: str | Path) -> Benchmark:
+    folder = Path(folder)
+    data = json.loads((folder / "benchmark.json").read_text())
+    rec = np.loadtxt(folder / "elcentro_vrths.csv", delimiter=",", skiprows=1)
+    return Benchmark(data, rec[:, 0].copy(), rec[:, 1].copy())
+
+
+def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) -> np.ndarray:
+    """a_g at the controller rate (m/s^2): the record x 0.4, linearly interpolated. The whole
+    record by default; with ``duration``, that many seconds from the last quiet sample before the
+    ground starts to move (the record opens with 5 s of zeros, during which nothing happens)."""
+    t0 = 0.0
+    t_end = bm.record_t[-1]
+    if duration is not None:
+        moving = np.flatnonzero(bm.record_a != 0.0)
+        t0 = bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else 0.0
+        t_end = min(t0 + duration, t_end)
+    n = int(np.floor((t_end - t0) * fs + 1e-9)) + 1
+    t = t0 + np.arange(n) / fs
+    return RECORD_SCALE * np.interp(t, bm.record_t, bm.record_a)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One partitioning case: the reference model and the numerical substructure."""
+
+    number: int
+    M: np.ndarray
+    C: np.ndarray
+    K: np.ndarray
+    me: float
+    ce: float
+    ke: float
+
+    @property
+    def Mn(self) -> np.ndarray:
+        return self.M - self.me * _e1e1()
+
+    @property
+    def Cn(self) -> np.ndarray:
+        return self.C - self.ce * _e1e1()
+
+    @property
+    def Kn(self) -> np.ndarray:
+        return self.K - self.ke * _e1e1()
+
+    def with_specimen_stiffness(self, ke_actual: float) -> "Case":
+        """The reference model when the physical specimen's stiffness is ``ke_actual`` (a perturbed
+        plant): the numerical substructure keeps the nominal partition, the specimen changes."""
+        K = self.K + (ke_actual - self.ke) * _e1e1()
+        return Case(self.number, self.M, self.C, K, self.me, self.ce, ke_actual)
+
+
+def _e1e1() -> np.ndarray:
+    e = np.zeros((3, 3))
+    e[0, 0] = 1.0
+    return e
+
+
+def case(bm: Benchmark, number: int) -> Case:
+    if str(number) not in bm.data["cases"]:
+        raise ValueError(f"case {number}: the benchmark has cases {bm.cases}")
+    c = bm.data["cases"][str(number)]
+    ex = bm.data["experimental_substructure"]
+    return Case(number, np.array(c["M"], float), np.array(c["C"], float), np.array(c["K"], float),
+                float(ex["me_kg"]), float(ex["ce_kg_s"]), float(ex["ke_N_m"]))
+
+
+def reference_response(M: np.ndarray, C: np.ndarray, K: np.ndarray, ag: np.ndarray, fs: float = FS) -> np.ndarray:
+    """Floor displacements (n x 3) of the reference model for a_g linearly interpolated
+    between samples: the first-order-hold discretisation is exact for that input. It runs in
+    the eigenvectors of the discrete state matrix, one first-order recursion (lfilter) each."""
+    A, B = _second_order_ss(M, C, K, M @ np.ones(3)[:, None] * -1.0)
+    Cy = np.hstack([np.eye(3), np.zeros((3, 3))])
+    Ad, Bd, Cd, Dd, _ = signal.cont2discrete((A, B, Cy, np.zeros((3, 1))), 1.0 / fs, method="foh")
+    lam, V = np.linalg.eig(Ad)
+    b = np.linalg.solve(V, Bd[:, 0])
+    a = np.asarray(ag, float)
+    # xi[k] = sum_i V[:, i] q_i[k],  q_i[k+1] = lam_i q_i[k] + b_i a[k],  q_i[0] = 0
+    q = np.empty((lam.size, a.size), complex)
+    for i in range(lam.size):
+        q[i] = signal.lfilter([0.0, b[i]], [1.0, -lam[i]], a)
+    y = (Cd @ V @ q).real.T + a[:, None] * Dd[:, 0]
+    return y
+
+
+def _second_order_ss(M, C, K, F):
+    """x = [u; u'], x' = A x + B w for M u'' + C u' + K u = F w."""
+    n = M.shape[0]
+    Mi = np.linalg.inv(M)
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [-Mi @ K, -Mi @ C]])
+    B = np.vstack([np.zeros((n, F.shape[1])), Mi @ F])
+    return A, B
+
+
+@dataclass(frozen=True)
+class NumericalSubstructure:
+    """The numerical substructure discretised at the controller rate (zero-order hold on a_g and
+    f_m): z[k+1] = Ad z[k] + Bd [a_g, f_m]; the first floor's acceleration is Ca z + Da [a_g, f_m]."""
+
+    Ad: np.ndarray
+    Bd: np.ndarray
+    Ca: np.ndarray
+    Da: np.ndarray
+
+
+def numerical_substructure(cs: Case, fs: float = FS) -> NumericalSubstructure:
+    F = np.hstack([-cs.M @ np.ones((3, 1)), -np.array([[1.0], [0.0], [0.0]])])
+    A, B = _second_order_ss(cs.Mn, cs.Cn, cs.Kn, F)
+    Ad, Bd, *_ = signal.cont2discrete((A, B, np.eye(6), np.zeros((6, 2))), 1.0 / fs, method="zoh")
+    return NumericalSubstructure(np.ascontiguousarray(Ad), np.ascontiguousarray(Bd),
+                                 np.ascontiguousarray(A[3]), np.ascontiguousarray(B[3]))
