@@ -67,3 +67,16 @@ def test_a_wheel_installs_only_the_hsio_namespace(tmp_path):
     metadata = next(n for n in names if n.endswith("METADATA"))
     text = zipfile.ZipFile(wheel).read(metadata).decode()
     assert "License-Expression: MIT" in text
+
+
+def test_the_readme_structure_example_loads(tmp_path):
+    text = (ROOT / "README.md").read_text()
+    section = text[text.index("## Your own structure"):]
+    block = section[section.index("```toml") + len("```toml"):section.index("```", section.index("```toml") + 7)]
+    path = tmp_path / "my_frame.toml"
+    path.write_text(block)
+    structure = hsio.load_structure(path)
+    assert structure.name == "my_frame" and structure.dof_names == ("floor1", "roof")
+    assert [e.name for e in structure.experimental] and structure.experimental[0].K_EI == 60.0
+    ratios = structure.damping_ratios()
+    assert ratios[0] == pytest.approx(0.05, rel=1e-9) and ratios[1] == pytest.approx(0.05, rel=1e-9)
