@@ -21,6 +21,7 @@ from hsio.errors import ConfigError
 from hsio.experiment import run_steps
 from hsio.ground_motion import GroundMotion
 from hsio.hardware import open_hardware
+from hsio.interfaces import ActuatorSpec
 from hsio.integrators import IMPLICIT_METHODS, METHODS, ImplicitMethod, OperatorSplitting, SwitchingRule
 from hsio.recording import Recorder
 from hsio.result import Result
@@ -93,7 +94,8 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
-    actuators = open_hardware(hardware, structure.experimental, ticker, options or {})
+    specs = [ActuatorSpec(e.actuator, e.specimen) for e in structure.experimental]
+    actuators = open_hardware(hardware, specs, ticker, options or {})
     try:
         loop = ControlLoop(actuators, ticker, structure.dt, test_rate, n_avg=n_avg, keep_samples=keep_samples,
                            hold_fraction=hold_fraction)

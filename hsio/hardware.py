@@ -54,7 +54,8 @@ def check_options(url: str, options: dict | None = None) -> None:
         check(url, options or {})
 
 
-def open_hardware(url: str, elements, clock, options: dict | None = None):
-    """One Actuator per experimental element, from the driver that ``url``'s scheme names."""
+def open_hardware(url: str, actuators, clock, options: dict | None = None):
+    """One Actuator per :class:`hsio.interfaces.ActuatorSpec` (name, specimen model), from the
+    backend that ``url``'s scheme names."""
     module, func = _backend(url)
-    return getattr(module, func)(url, elements, clock, options or {})
+    return getattr(module, func)(url, actuators, clock, options or {})

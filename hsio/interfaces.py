@@ -75,6 +75,15 @@ class Limits:
 
 
 @dataclass(frozen=True)
+class ActuatorSpec:
+    """What a hardware backend needs to open one actuator: its name (the controller's channel,
+    docs/structures.md ``actuator``) and, for an emulator, the specimen model it loads."""
+
+    name: str
+    specimen: dict
+
+
+@dataclass(frozen=True)
 class Feedback:
     """One controller-period sample of an actuator's measured response."""
 

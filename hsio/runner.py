@@ -81,7 +81,7 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
     hardware = config["hardware"]
 
     ns = api.run_numerical(structure, ground, method, alpha) if config["output"]["ns"] else None
-    compensation = CompensationStage([e.name for e in structure.experimental], test["rate"] * structure.dt,
+    compensation = CompensationStage([e.actuator for e in structure.experimental], test["rate"] * structure.dt,
                                      CompensationSettings.from_table(config["compensation"]))
     if implicit and compensation.settings.mode != "off":
         raise ConfigError(f"{config.source}: [compensation] applies to the alpha_os method, not to {method!r}")
@@ -102,7 +102,7 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
                              options=emulator if hardware["url"].startswith("emulator") else config["driver"],
                              estimator=estimator, compensation=None if implicit else compensation)
         cleanup.callback(site.close)
-        recorder = Recorder(out / "run.sqlite", structure.dof_names, [e.name for e in structure.experimental], meta)
+        recorder = Recorder(out / "run.sqlite", structure.dof_names, [e.actuator for e in structure.experimental], meta)
         cleanup.callback(recorder.close)
         compensation.sink = recorder.write_compensation
         if ns is not None:
@@ -189,7 +189,7 @@ def implicit_summary(hs: Result) -> dict:
 
 
 def make_plots(out: Path, structure: Structure, hs: Result, ns: Result | None, config: RunConfig) -> list[str]:
-    actuators = [e.name for e in structure.experimental]
+    actuators = [e.actuator for e in structure.experimental]
     title = f"{structure.name}: HS vs NS, TR = {config['test']['rate']:g}"
     if ns is not None:
         worst, _ = max_error_pct(hs.u, ns.u)
