@@ -23,6 +23,7 @@ interlock stops the run with a clear error; Modbus exception responses are named
 from __future__ import annotations
 
 import logging
+import math
 import time
 from urllib.parse import urlsplit
 
@@ -32,7 +33,8 @@ from pymodbus.pdu import ExceptionResponse
 
 from hsio.drivers import common, modbus_map
 from hsio.clock import Clock
-from hsio.errors import CommunicationError, ConfigError, InterlockError
+from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError,
+                         ModbusExceptionError)
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
 log = logging.getLogger(__name__)
@@ -47,6 +49,7 @@ SEQ_MOD = 1 << 24
 DEFAULT_OPTIONS = {
     "map": "", "timeout_s": 0.5, "retries": 2, "reconnect_delay_s": 0.1, "device_id": None,
     "baudrate": 115200, "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "lockstep": "auto",
+    **common.PLAUSIBILITY_DEFAULTS,
 }
 
 
@@ -55,6 +58,7 @@ RULES = {
     "reconnect_delay_s": common.Rule(float, 0.0, 10.0, False, "between 0 and 10 s"),
     "device_id": common.whole(0, 247),
     "baudrate": common.Rule(int, 1, 10_000_000, False, "a whole number of bit/s, 1..10000000"),
+    **common.PLAUSIBILITY_RULES,
 }
 
 
@@ -75,6 +79,7 @@ class ModbusLink(common.AxisLink):
         self.map = regmap or modbus_map.load(self.options["map"] or None)
         if n_axes > self.map.max_axes:
             raise ConfigError(f"{url}: {n_axes} axes, but register map {self.map.name!r} has room for {self.map.max_axes}")
+        self.map.check_spans(n_axes)
         self.n = n_axes
         self.device_id = self.options["device_id"] if self.options["device_id"] is not None else self.map.device_id
         self.client = self._make_client(url)
@@ -96,6 +101,12 @@ class ModbusLink(common.AxisLink):
         self.enabling = False
         self._status_span = self.map.status_span(n_axes)
 
+    @property
+    def rate_hz(self) -> float:
+        """The controller's loop rate (its info register; 1024 Hz when it reports none or nonsense)."""
+        rate = self.info.get("rate_hz", 1024.0)
+        return rate if math.isfinite(rate) and 1.0 <= rate <= 1e6 else 1024.0
+
     # -- connection ------------------------------------------------------------------------------
     def _make_client(self, url: str):
         parts = urlsplit(url)
@@ -103,7 +114,7 @@ class ModbusLink(common.AxisLink):
         if parts.scheme == "modbus+tcp":
             if not parts.hostname:
                 raise ConfigError(f"{url!r}: expected modbus+tcp://HOST:PORT")
-            return ModbusTcpClient(parts.hostname, port=parts.port or 502, timeout=timeout, retries=0,
+            return ModbusTcpClient(parts.hostname, port=common.url_port(url, 502), timeout=timeout, retries=0,
                                    reconnect_delay=0, reconnect_delay_max=0)
         if parts.scheme == "modbus+rtu":
             path = (parts.netloc + parts.path) if parts.netloc else parts.path
@@ -124,9 +135,8 @@ class ModbusLink(common.AxisLink):
             try:
                 flag = self.map.decode(reg, self.request("read_holding_registers", reg.address, count=reg.words,
                                                          what="read of the lockstep flag").registers)
-            except CommunicationError as exc:
-                if "exception" not in str(exc):
-                    raise
+            except ModbusExceptionError:
+                pass  # a real controller has no lockstep register
         self.lockstep = flag == 1.0
         if self.options["lockstep"] == "on" and not self.lockstep:
             raise CommunicationError(f"{self.url}: lockstep requested but the controller runs on its own clock")
@@ -188,14 +198,12 @@ class ModbusLink(common.AxisLink):
         for name, reg in self.map.info.items():
             try:
                 rr = self.request("read_holding_registers", reg.address, count=reg.words, what=f"read of {name}")
-            except CommunicationError as exc:
-                if "exception" in str(exc):
-                    continue
-                raise
+            except ModbusExceptionError:
+                continue  # the controller lacks this info register
             self.info[name] = self.map.decode(reg, rr.registers)
         boot = self.info.get("boot_id")
         if self.boot_id is not None and boot is not None and boot != self.boot_id:
-            raise CommunicationError(
+            raise ControllerRestartedError(
                 f"{self.url}: the controller restarted (boot id {self.boot_id:.0f} -> {boot:.0f}); its state is lost, "
                 "the run stops")
         self.boot_id = boot
@@ -225,12 +233,12 @@ class ModbusLink(common.AxisLink):
                         reg = self.map.info["boot_id"]
                         rr = self.client.read_holding_registers(reg.address, count=reg.words, device_id=self.device_id)
                         if not rr.isError() and self.map.decode(reg, rr.registers) != self.boot_id:
-                            raise CommunicationError(
+                            raise ControllerRestartedError(
                                 f"{self.url}: the controller restarted during the run (new boot id); "
                                 "its state is lost, the run stops")
+                except ControllerRestartedError:
+                    raise
                 except CommunicationError as exc:
-                    if "restarted" in str(exc):
-                        raise
                     last = str(exc)
                     continue
                 except (ModbusException, OSError) as exc:
@@ -242,13 +250,23 @@ class ModbusLink(common.AxisLink):
             except (ModbusException, OSError) as exc:
                 last = f"{type(exc).__name__}: {exc}"
                 continue
+            except Exception as exc:  # a reply pymodbus could not make sense of (an echo, garbage)
+                last = f"malformed reply ({type(exc).__name__}: {exc})"
+                continue
             if isinstance(rr, ExceptionResponse) or rr.isError():
                 code = getattr(rr, "exception_code", None)
                 if code == 6:
                     last = "device busy"
                     continue
                 name = EXCEPTION_NAMES.get(code, "unknown")
-                raise CommunicationError(f"{self.url}: {what} answered with Modbus exception {code} ({name})")
+                raise ModbusExceptionError(f"{self.url}: {what} answered with Modbus exception {code} ({name})",
+                                           code if isinstance(code, int) else -1)
+            expected = kwargs.get("read_count", kwargs.get("count")) if method.startswith(("read", "readwrite")) else None
+            got = getattr(rr, "registers", None)
+            if expected is not None and (not isinstance(got, list) or len(got) != expected):
+                # an echo of the request or a reply to another request: not an answer
+                last = f"reply with {len(got) if isinstance(got, list) else 'no'} registers, expected {expected}"
+                continue
             return rr
         raise CommunicationError(
             f"{self.url}: {what}: no valid answer after {self.retries + 1} attempt(s) "
@@ -318,6 +336,8 @@ class ModbusActuator(Actuator, ActuatorChannels):
         self.limits = limits
         self._mode = ControlMode.DISPLACEMENT
         self._closed = False
+        self.plausibility = common.Plausibility(f"actuator {name!r} at {link.url}", limits,
+                                                1.0 / link.rate_hz, link.options)
 
     @property
     def mode(self) -> ControlMode:
@@ -346,7 +366,10 @@ class ModbusActuator(Actuator, ActuatorChannels):
             link.read_status()
         link.fresh[self.axis] = False
         st = link.status[self.axis]
-        t = (link.ticks if link.lockstep else (st["sequence"] or 0.0)) / link.info.get("rate_hz", 1024.0)
+        t = (link.ticks if link.lockstep else (st["sequence"] or 0.0)) / link.rate_hz
+        cmd = link.commands[self.axis]
+        self.plausibility.check(st["displacement"], st["force"], t,
+                                cmd["displacement"] if self._mode is ControlMode.DISPLACEMENT and cmd["enable"] else None)
         return Feedback(st["displacement"], st["force"], t)
 
     def _check_status(self) -> None:
