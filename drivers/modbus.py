@@ -176,6 +176,26 @@ class ModbusLink(common.AxisLink):
         if errors:
             raise CommunicationError("; ".join(errors))
 
+    def reset_interlock(self) -> None:
+        """The interlock reset of docs/modbus.md: every axis holds (enable 0), then 1 goes to the
+        map's [reset] interlock register, then the status must show no latched interlock or
+        watchdog. A refusal (the cause persists) is :class:`ModbusExceptionError` code 4."""
+        reg = self.map.reset.get("interlock")
+        if reg is None:
+            raise ConfigError(f"{self.url}: register map {self.map.name!r} has no [reset] interlock register; "
+                              "reset the interlock at the controller")
+        self.read_status()
+        for k in range(self.n):
+            self.commands[k]["enable"] = 0.0
+            self.commands[k]["mode"] = float(self.map.modes["displacement"])
+            self.write_axis(k, ("mode", "enable", "watchdog"), what=f"hold of axis {k} before the reset")
+        self.request("write_registers", reg.address, self.map.encode(reg, 1.0), what="interlock reset")
+        self.read_status()
+        for k, st in enumerate(self.status):
+            for bit in ("interlock", "watchdog"):
+                if self.map.bit(st["status_word"], bit):
+                    raise InterlockError(f"{self.url}: axis {k}: the {bit} bit is still set after the reset")
+
     def axis_limits(self) -> list[Limits]:
         """One controller, one set of limits: [driver] where set, else the controller's info
         registers (stroke_mm, force_limit_kN); neither guessed."""

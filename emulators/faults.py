@@ -183,7 +183,7 @@ def parse(spec: str) -> FaultSchedule:
 
 
 def _arg_max(kind: str) -> float:
-    return {"delay": MAX_DELAY_S, "spike": 1e6, "stuck": MAX_TICK}.get(kind, 0.0)
+    return {"delay": MAX_DELAY_S, "spike": 1e30, "stuck": MAX_TICK}.get(kind, 0.0)
 
 
 def _kinds(text: str) -> tuple[str, ...]:

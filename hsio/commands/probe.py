@@ -134,7 +134,9 @@ def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> di
 @click.option("--sine-mm", default=1.0, show_default=True, type=float)
 @click.option("--sine-hz", default=0.5, show_default=True, type=float)
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE", help="A [driver] setting (repeatable).")
-def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options) -> None:
+@click.option("--reset-interlock", is_flag=True,
+              help="Modbus: hold every axis and clear the latched interlocks (docs/modbus.md, Interlock reset).")
+def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options, reset_interlock=False) -> None:
     """Diagnose the controller at URL: identity, state, latency; with --move, step and sine."""
     from hsio.clock import LockstepClock, RealTimeClock
 
@@ -148,6 +150,11 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
         report["connect_s"] = round(time.perf_counter() - started, 4)
         report["clock"] = "lockstep" if link.lockstep else "realtime"
         report["identity"] = _identity(link)
+        if reset_interlock:
+            if not hasattr(link, "reset_interlock"):
+                raise click.BadParameter("--reset-interlock: only Modbus controllers have a reset register")
+            link.reset_interlock()
+            report["interlock_reset"] = True
         report["axes"] = _state(link, actuators)
         report["latency"] = _latency(link, n_requests)
         if move:
