@@ -21,6 +21,7 @@ BUILT_IN = {
     "modbus+rtu": "hsio.drivers.modbus:open_url",
     "canopen+virtual": "hsio.drivers.canopen:open_url",
     "canopen+socketcan": "hsio.drivers.canopen:open_url",
+    "canopen+slcan": "hsio.drivers.canopen:open_url",
 }
 
 
