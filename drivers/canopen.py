@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import logging
 import math
-import struct
 import threading
 import time
 from urllib.parse import urlsplit
@@ -142,13 +141,32 @@ class DriveNode:
         except (SdoAbortedError, SdoCommunicationError) as exc:
             raise sdo_error(self.id, f"write of {what or hex(index)} (0x{index:04X}) = {value!r}", exc) from None
 
-    def on_tpdo2(self, can_id, data, timestamp) -> None:
+    def take_pdos(self) -> None:
+        """RPDO2 and TPDO2 as the drive maps them (read from its 0x1601 / 0x1A01 over SDO): the
+        targets and actual values are set and read through canopen's PDO maps, by object."""
+        self.rpdo2, self.tpdo2 = self.node.rpdo[2], self.node.tpdo[2]
+        for name, pdo, needed in (("RPDO2", self.rpdo2, (0x607A, 0x6071)), ("TPDO2", self.tpdo2, (0x6064, 0x6077))):
+            mapped = {v.index for v in pdo.map}
+            missing = [f"0x{i:04X}" for i in needed if i not in mapped]
+            if missing:
+                raise CommunicationError(f"CANopen node {self.id}: {name} does not map {', '.join(missing)} "
+                                         "(docs/canopen.md)")
+        self.cycle_mapped = cod.CYCLE in {v.index for v in self.tpdo2.map}
+        self.tpdo2.add_callback(self.on_tpdo2)
+
+    def on_tpdo2(self, pdo) -> None:
         try:
-            self.actual = struct.unpack_from("<ihH", data)
-        except struct.error:
-            log.warning("node %d: malformed TPDO2 %r", self.id, bytes(data))
+            if len(pdo.data) < self.tpdo2_length:
+                raise ValueError(f"{len(pdo.data)} bytes, the mapping has {self.tpdo2_length}")
+            self.actual = (pdo[0x6064].raw, pdo[0x6077].raw, pdo[cod.CYCLE].raw if self.cycle_mapped else 0)
+        except Exception as exc:  # a malformed frame is not an answer: the exchange retries
+            log.warning("node %d: malformed TPDO2 %r (%s)", self.id, bytes(pdo.data), exc)
             return
         self.received.set()
+
+    @property
+    def tpdo2_length(self) -> int:
+        return sum(v.length for v in self.tpdo2.map) // 8
 
     def on_emcy(self, error) -> None:
         if error.code:
@@ -209,7 +227,10 @@ class DriveNode:
         return limits
 
     def send_targets(self) -> None:
-        self.link.network.send_message(0x300 + self.id, struct.pack("<ih", self.target_counts, self.target_torque))
+        """RPDO2 through canopen's PDO map: target position 0x607A, target torque 0x6071."""
+        self.rpdo2[0x607A].raw = self.target_counts
+        self.rpdo2[0x6071].raw = self.target_torque
+        self.rpdo2.transmit()
 
     def send_control(self) -> bool:
         """RPDO1 (controlword with or without halt, mode); True when the drive confirmed it
@@ -334,7 +355,7 @@ class CanopenLink(common.AxisLink):
             d.node.setup_402_state_machine(read_pdos=True)
         except (SdoAbortedError, SdoCommunicationError) as exc:
             raise sdo_error(d.id, "read of the PDO configuration", exc) from None
-        self.network.subscribe(0x280 + d.id, d.on_tpdo2)
+        d.take_pdos()
         d.node.tpdo[1].add_callback(lambda _map, d=d: d.status_received.set())
         d.node.tpdo_values[0x6041] = d.sdo_read(0x6041, what="statusword")
         d.node.tpdo_values[0x6061] = d.sdo_read(0x6061, what="modes of operation display")
