@@ -63,7 +63,7 @@ PERMILLE_MAX = 32767  # the CiA 402 torque objects are int16, per mille of the r
 
 
 def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
-    parts = urlsplit(url)
+    parts = common.split_url(url)
     interface = parts.scheme.partition("+")[2]
     if parts.scheme.partition("+")[0] != "canopen" or not interface:
         raise ConfigError(f"{url!r} is not a canopen+INTERFACE://CHANNEL/NODE URL")

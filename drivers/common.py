@@ -71,7 +71,7 @@ def parse_options(url: str, options: dict | None, defaults: dict, rules: dict[st
     A key without a rule is a string; a default of None means "not set" (the controller's own).
     """
     table = dict(defaults)
-    given = {**(options or {}), **dict(parse_qsl(urlsplit(url).query))}
+    given = {**(options or {}), **dict(parse_qsl(split_url(url).query))}
     for key, value in given.items():
         if key not in defaults:
             raise ConfigError(f"[driver] for {url!r}: unknown key {key!r}; known: {', '.join(defaults)}")
@@ -179,6 +179,16 @@ def open_axes(link: AxisLink, names: list[str], clock, make_actuator, enable: bo
     except BaseException:
         link.abort()
         raise
+
+
+def split_url(url: str):
+    """``urlsplit`` whose refusal (a broken IPv6 address, a bad port) is a ConfigError naming the URL."""
+    try:
+        parts = urlsplit(url)
+        parts.port  # noqa: B018 (raises ValueError for a bad port)
+        return parts
+    except ValueError as exc:
+        raise ConfigError(f"hardware URL {url!r} is malformed ({exc}); expected SCHEME://HOST:port or a device path") from None
 
 
 def url_port(url: str, default: int) -> int:

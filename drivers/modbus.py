@@ -109,7 +109,7 @@ class ModbusLink(common.AxisLink):
 
     # -- connection ------------------------------------------------------------------------------
     def _make_client(self, url: str):
-        parts = urlsplit(url)
+        parts = common.split_url(url)
         timeout = self.options["timeout_s"]
         if parts.scheme == "modbus+tcp":
             if not parts.hostname:

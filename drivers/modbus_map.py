@@ -184,7 +184,7 @@ def _register(where: str, name: str, table, key: str) -> Register:
     if unknown:
         raise ConfigError(f"{where}: register {name!r}: unknown key(s) {', '.join(sorted(unknown))}")
     address, kind, scale = table[key], table.get("type", "float32"), table.get("scale", 1.0)
-    if not isinstance(address, int) or address < 0 or address > 0xFFFF:
+    if isinstance(address, bool) or not isinstance(address, int) or address < 0 or address > 0xFFFF:
         raise ConfigError(f"{where}: register {name!r}: {key} must be an integer in 0..65535, got {address!r}")
     if kind not in TYPES:
         raise ConfigError(f"{where}: register {name!r}: type must be one of {', '.join(TYPES)}, got {kind!r}")
@@ -215,8 +215,8 @@ def _block(where: str, table, required) -> Block:
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: must be a table")
     for key in ("base", "stride"):
-        if not isinstance(table.get(key), int) or table[key] < 0:
-            raise ConfigError(f"{where}: {key} must be a non-negative integer, got {table.get(key)!r}")
+        if isinstance(table.get(key), bool) or not isinstance(table.get(key), int) or not 0 <= table[key] <= 0xFFFF:
+            raise ConfigError(f"{where}: {key} must be an integer in 0..65535, got {table.get(key)!r}")
     regs = _registers(where, table, "offset", required, skip=("base", "stride"))
     block = Block(table["base"], table["stride"], regs)
     if block.stride < block.extent:
@@ -275,8 +275,9 @@ def from_dict(data: dict, source: str = "<dict>") -> RegisterMap:
             raise ConfigError(f"{source}: [status_bits] {owner[b]} and {name} share bit {b}")
         owner[b] = name
     modes = dict(data.get("modes", {"displacement": 0, "force": 1}))
-    if set(modes) != {"displacement", "force"} or len(set(modes.values())) != 2 \
-            or not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 0xFFFF for v in modes.values()):
+    if set(modes) != {"displacement", "force"} \
+            or not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 0xFFFF for v in modes.values()) \
+            or len(set(modes.values())) != 2:
         raise ConfigError(f"{source}: [modes] needs distinct whole numbers (0..65535) for 'displacement' and 'force', "
                           f"got {modes!r}")
     regmap = RegisterMap(

@@ -34,7 +34,10 @@ def schemes() -> dict[str, str]:
 
 def open_hardware(url: str, elements, clock, options: dict | None = None):
     """One Actuator per experimental element, from the driver that ``url``'s scheme names."""
-    scheme = urlsplit(url).scheme
+    try:
+        scheme = urlsplit(url).scheme
+    except ValueError as exc:
+        raise ConfigError(f"hardware URL {url!r} is malformed ({exc})") from None
     target = schemes().get(scheme)
     if target is None:
         raise ConfigError(f"hardware URL {url!r}: unknown scheme {scheme!r}; known: {', '.join(sorted(schemes()))}")

@@ -96,6 +96,11 @@ def test_url_with_port_99999(tmp_path):
     assert_clear_error(proc, "99999", "port")
 
 
+@pytest.mark.parametrize("url", ["modbus+tcp://[", "canopen+slcan://[::1/1", "modbus+tcp://127.0.0.1:0"])
+def test_malformed_urls(tmp_path, url):
+    assert_clear_error(run_config(tmp_path, f'[hardware]\nurl = "{url}"\n'), url)
+
+
 def test_canopen_url_garbage(tmp_path):
     proc = run_config(tmp_path, '[hardware]\nurl = "canopen+virtual://x/abc"\n')
     assert_clear_error(proc, "node id")
@@ -204,3 +209,25 @@ def test_echo_device_from_the_cli(tmp_path):
         echo.close()
     assert proc.returncode in (2, 3), proc.stderr
     assert "Traceback" not in proc.stderr and "127.0.0.1" in proc.stderr
+
+
+# Failures the property-based tests found (tests/test_properties_parsers.py), kept as regular tests.
+
+def test_found_map_modes_not_a_number(tmp_path):
+    with pytest.raises(ConfigError, match=r"\[modes\] needs distinct whole numbers"):
+        modbus_map.load(write_map(tmp_path, "force = 1\n", "force = {}\n"))
+
+
+def test_found_map_address_true(tmp_path):
+    with pytest.raises(ConfigError, match=r"register 'rate_hz': address must be an integer"):
+        modbus_map.load(write_map(tmp_path, "rate_hz        = { address = 4,", "rate_hz        = { address = true,"))
+
+
+def test_found_url_with_broken_ipv6_host():
+    from hsio.drivers import canopen as canopen_driver
+    from hsio.drivers.modbus import parse_options
+
+    with pytest.raises(ConfigError, match="malformed"):
+        parse_options("A://[", {})
+    with pytest.raises(ConfigError, match="malformed"):
+        canopen_driver.parse_url("canopen+virtual://[x/1", {})
