@@ -74,6 +74,9 @@ def _serve(emulator, bank, lines: list[str]) -> None:
         pass
     finally:
         emulator.stop()
+        if bank.faults:
+            done_kinds = ", ".join(f"{k} {n}" for k, n in sorted(bank.faults.injected.items()))
+            click.echo(f"faults    injected {bank.faults.total}: {done_kinds or 'none'}")
         click.echo("emulator stopped; the axes hold.")
 
 
