@@ -38,6 +38,9 @@ from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedErr
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
 log = logging.getLogger(__name__)
+# pymodbus reports a missed reply on its own logger (with a hex dump); the driver retries and
+# names the failure itself, so those reports stay out of a terminal unless logging is configured.
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())
 
 EXCEPTION_NAMES = {
     1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure",

@@ -29,6 +29,9 @@ from hsio.emulators.bank import CommandRefused, ControllerBank
 from hsio.interfaces import ControlMode
 
 log = logging.getLogger(__name__)
+# pymodbus reports a missed reply on its own logger (with a hex dump); the driver retries and
+# names the failure itself, so those reports stay out of a terminal unless logging is configured.
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())
 
 READ_CODES = (3, 23)
 WRITE_CODES = (6, 16, 23)
