@@ -231,3 +231,26 @@ def test_found_url_with_broken_ipv6_host():
         parse_options("A://[", {})
     with pytest.raises(ConfigError, match="malformed"):
         canopen_driver.parse_url("canopen+virtual://[x/1", {})
+
+
+@pytest.mark.parametrize("args, words", [
+    (["probe", "modbus+tcp://["], ["malformed"]),
+    (["probe", "modbus+tcp://127.0.0.1:99999"], ["99999"]),
+    (["probe", "modbus+tcp://127.0.0.1:5", "--option", "timeout_s"], ["KEY=VALUE"]),
+    (["emulate", "modbus", "--faults", "bogus@1"], ["unknown fault 'bogus'"]),
+    (["emulate", "modbus", "--port", "99999"], ["99999"]),
+    (["emulate", "canopen", "--slcan", "tcp", "--faults", "drop@x"], ["'x' is not a whole number"]),
+])
+def test_other_commands_refuse_bad_input_without_traceback(args, words):
+    proc = hsio(*args)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    for w in words:
+        assert w in proc.stderr + proc.stdout
+
+
+def test_emulate_config_not_utf8(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes(b"\xff\xfe[test]\n")
+    proc = hsio("emulate", "modbus", bad)
+    assert proc.returncode == 2 and "bad.toml" in proc.stderr and "not UTF-8" in proc.stderr

@@ -319,3 +319,86 @@ def test_canopen_driver_tpdo_of_any_bytes(data):
     drive.tpdo2.data = bytearray(data)
     drive.on_tpdo2(drive.tpdo2)
     assert drive.received.is_set() == (len(data) >= 8)
+
+
+class ReplyServer:
+    """A TCP 'controller' whose reply to every request is the next of a list of byte strings
+    (hypothesis draws them): garbage, wrong lengths, wrong transaction ids, exception replies."""
+
+    def __init__(self):
+        import threading
+
+        self.replies: list[bytes] = []
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.sock.settimeout(0.05)
+        self.port = self.sock.getsockname()[1]
+        self.stop = threading.Event()
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _run(self):
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                continue
+            conn.settimeout(0.3)
+            with conn:
+                while not self.stop.is_set():
+                    try:
+                        request = conn.recv(4096)
+                    except OSError:
+                        break
+                    if not request:
+                        break
+                    reply = self.replies.pop(0) if self.replies else b""
+                    if reply:
+                        # keep the request's transaction id half the time, so pymodbus parses further
+                        if len(reply) > 2 and reply[0] & 1:
+                            reply = request[:2] + reply[2:]
+                        try:
+                            conn.sendall(reply)
+                        except OSError:
+                            break
+
+    def close(self):
+        self.stop.set()
+        self.sock.close()
+
+
+@pytest.fixture(scope="module")
+def reply_server():
+    s = ReplyServer()
+    yield s
+    s.close()
+
+
+replies = st.one_of(
+    st.binary(max_size=40),
+    st.builds(lambda fc, body: struct.pack(">HHHBB", 0, 0, len(body) + 2, 1, fc) + body,
+              st.sampled_from([3, 23, 0x83, 0x97, 16, 1]), st.binary(max_size=30)),
+    st.builds(lambda n, words: struct.pack(">HHHBBB", 0, 0, 3 + 2 * len(words), 1, 3, n)
+              + b"".join(struct.pack(">H", w) for w in words), st.integers(0, 255),
+              st.lists(st.integers(0, 0xFFFF), max_size=12)),
+)
+
+
+@SLOW
+@given(st.lists(replies, min_size=1, max_size=3))
+def test_modbus_driver_given_any_replies(reply_server, answers):
+    """Whatever a 'controller' answers, the driver reads a value it can check, or raises
+    hsio's CommunicationError (or a refusal it can name): nothing else escapes."""
+    from hsio.drivers.modbus import ModbusLink
+
+    reply_server.replies = list(answers)
+    link = ModbusLink(f"modbus+tcp://127.0.0.1:{reply_server.port}", 1,
+                      {"timeout_s": 0.05, "retries": 1, "reconnect_delay_s": 0.0})
+    try:
+        link._connect()
+        link.read_status()
+        assert len(link.status) == 1
+    except HsioError:
+        pass
+    finally:
+        link.close()

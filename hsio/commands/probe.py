@@ -27,7 +27,10 @@ def latency_stats(samples_s: list[float]) -> dict:
 
 
 def _open(url: str, axes: int, options: dict, enable: bool):
-    scheme = urlsplit(url).scheme
+    try:
+        scheme = urlsplit(url).scheme
+    except ValueError as exc:
+        raise click.BadParameter(f"{url!r} is malformed ({exc})", param_hint="URL") from None
     names = [f"axis{k}" for k in range(axes)]
     if scheme.startswith("modbus+"):
         from hsio.drivers.modbus import open_link
@@ -140,6 +143,9 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
     """Diagnose the controller at URL: identity, state, latency; with --move, step and sine."""
     from hsio.clock import LockstepClock, RealTimeClock
 
+    bad = [o for o in options if "=" not in o]
+    if bad:
+        raise click.BadParameter(f"{bad[0]!r}: expected KEY=VALUE", param_hint="--option")
     table = dict(o.partition("=")[::2] for o in options)
     report: dict = {"url": url}
     actuators = []
