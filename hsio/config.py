@@ -101,7 +101,6 @@ BOUNDS: dict[tuple[str, str], tuple[float, float, str]] = {
     ("integrator", "tol_force_kN"): (0.0, 1e5, "kN"),
     ("integrator", "secant_min_increment_mm"): (0.0, 1000.0, "mm"),
 }
-MAX_STEPS = 1_000_000  # integration steps of one run (docs/faults.md)
 
 
 def check_bounds(tables: dict, source: str) -> None:
