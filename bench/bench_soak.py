@@ -46,7 +46,7 @@ velocity_limit_mm_s = 2000.0
 """
 
 
-def soak(steps: int, every: int, seed: int, timeout_s: float = 0.1, kinds=faults.RECOVERABLE,
+def soak(steps: int, every: int, seed: int, timeout_s: float = 0.5, kinds=faults.RECOVERABLE,
          workdir: Path | None = None) -> dict:
     """Run ``steps`` integration steps over Modbus TCP with a seeded fault schedule; return figures."""
     work = Path(workdir or tempfile.mkdtemp(prefix="hsio-soak-"))
@@ -67,7 +67,7 @@ def soak(steps: int, every: int, seed: int, timeout_s: float = 0.1, kinds=faults
     try:
         cfg = config_mod.load(cfg_path)
         cfg["hardware"]["url"] = emulator.url
-        cfg["driver"].update({"timeout_s": timeout_s, "retries": 3, "reconnect_delay_s": 0.0, "velocity_mm_s": 2000.0})
+        cfg["driver"].update({"timeout_s": timeout_s, "retries": 4, "reconnect_delay_s": 0.0, "velocity_mm_s": 2000.0})
         started = time.perf_counter()
         summary = runner.run(cfg, work / "run")
         wall = time.perf_counter() - started
@@ -102,7 +102,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100_000)
     parser.add_argument("--every", type=int, default=2000, help="mean controller ticks between faults")
     parser.add_argument("--seed", type=int, default=7)
-    parser.add_argument("--timeout", type=float, default=0.1, help="the driver's request timeout (s)")
+    parser.add_argument("--timeout", type=float, default=0.5, help="the driver's request timeout (s)")
     args = parser.parse_args()
     r = soak(args.steps, args.every, args.seed, args.timeout)
     print(f"soak over Modbus TCP, seed {args.seed}, a fault every {args.every} ticks on average")
