@@ -1,7 +1,10 @@
 """CANopen CiA 402 driver: one servo drive per axis, through canopen's BaseNode402.
 
 ``canopen+virtual://CHANNEL/NODE`` (python-can's virtual bus; the emulator must run in the same
-process) or ``canopen+socketcan://can0/NODE``; axis k is node NODE + k. The [driver] table (or
+process), ``canopen+socketcan://can0/NODE``, or a Lawicel (SLCAN) adapter:
+``canopen+slcan:///dev/ttyACM0/NODE`` (a serial device or pseudo-terminal) or
+``canopen+slcan://127.0.0.1:PORT/NODE`` (a TCP serial port, pyserial's socket://); axis k is node
+NODE + k (docs/canopen.md). The [driver] table (or
 the URL's query) sets ``eds`` (the drive's EDS file; default hsio's object dictionary),
 ``timeout_s``, ``retries``, ``heartbeat_ms`` and the limits ``stroke_mm``, ``force_kN``,
 ``velocity_mm_s``; the stroke and force capacity default to the drive's own (0x607D, 0x6072 x
@@ -26,7 +29,7 @@ opening disables (halt, disable operation) every drive that may have been enable
 from __future__ import annotations
 
 import logging
-import struct
+import math
 import threading
 import time
 from urllib.parse import urlsplit
@@ -38,32 +41,46 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from hsio.drivers import canopen_od as cod
 from hsio.drivers import common
 from hsio.clock import Clock
-from hsio.errors import CommunicationError, ConfigError, InterlockError, LimitError
+from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError, LimitError,
+                         SdoAbortError)
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
 log = logging.getLogger(__name__)
 
 DEFAULT_OPTIONS = {"eds": "", "timeout_s": 0.5, "retries": 2, "heartbeat_ms": 100, "bitrate": 1000000,
-                   "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0}
+                   "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "counts_per_mm": None,
+                   **common.PLAUSIBILITY_DEFAULTS}
 MODE_NAMES = {ControlMode.DISPLACEMENT: "CYCLIC SYNCHRONOUS POSITION", ControlMode.FORCE: "CYCLIC SYNCHRONOUS TORQUE"}
 MODE_CODES = {ControlMode.DISPLACEMENT: cod.CSP, ControlMode.FORCE: cod.CST}
 RULES = {
     **common.COMMON_RULES,
     "heartbeat_ms": common.whole(0, 65535),
     "bitrate": common.Rule(int, 10_000, 1_000_000, False, "a CAN bit rate in 10000..1000000 bit/s"),
+    "counts_per_mm": common.Rule(float, 1e-3, 1e9, False, "between 0.001 and 1e9 counts per mm"),
+    **common.PLAUSIBILITY_RULES,
 }
 PERMILLE_MAX = 32767  # the CiA 402 torque objects are int16, per mille of the rated value 0x6076
 
 
 def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
-    parts = urlsplit(url)
+    parts = common.split_url(url)
     interface = parts.scheme.partition("+")[2]
     if parts.scheme.partition("+")[0] != "canopen" or not interface:
         raise ConfigError(f"{url!r} is not a canopen+INTERFACE://CHANNEL/NODE URL")
-    channel = parts.hostname or parts.netloc
+    if interface == "slcan":  # a Lawicel adapter: a serial device path, or a TCP serial port (docs/canopen.md)
+        if parts.netloc:
+            common.url_port(url, 0)
+            channel, node_text = f"socket://{parts.netloc}", parts.path.strip("/") or "1"
+        else:
+            device, _, node_text = parts.path.rstrip("/").rpartition("/")
+            channel = device
+            if not device or not node_text:
+                raise ConfigError(f"{url!r}: expected canopen+slcan:///dev/ttyXXX/NODE or canopen+slcan://HOST:PORT/NODE")
+    else:
+        channel = parts.hostname or parts.netloc
+        node_text = parts.path.strip("/") or "1"
     if not channel:
         raise ConfigError(f"{url!r}: no channel (expected canopen+{interface}://CHANNEL/NODE)")
-    node_text = parts.path.strip("/") or "1"
     try:
         node_id = int(node_text)
     except ValueError:
@@ -75,7 +92,7 @@ def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
 
 def sdo_error(node_id: int, what: str, exc: Exception) -> CommunicationError:
     if isinstance(exc, SdoAbortedError):
-        return CommunicationError(f"CANopen node {node_id}: SDO {what} aborted with code 0x{exc.code:08X} ({exc})")
+        return SdoAbortError(f"CANopen node {node_id}: SDO {what} aborted with code 0x{exc.code:08X} ({exc})", exc.code)
     return CommunicationError(f"CANopen node {node_id}: SDO {what} failed: {exc}")
 
 
@@ -124,13 +141,32 @@ class DriveNode:
         except (SdoAbortedError, SdoCommunicationError) as exc:
             raise sdo_error(self.id, f"write of {what or hex(index)} (0x{index:04X}) = {value!r}", exc) from None
 
-    def on_tpdo2(self, can_id, data, timestamp) -> None:
+    def take_pdos(self) -> None:
+        """RPDO2 and TPDO2 as the drive maps them (read from its 0x1601 / 0x1A01 over SDO): the
+        targets and actual values are set and read through canopen's PDO maps, by object."""
+        self.rpdo2, self.tpdo2 = self.node.rpdo[2], self.node.tpdo[2]
+        for name, pdo, needed in (("RPDO2", self.rpdo2, (0x607A, 0x6071)), ("TPDO2", self.tpdo2, (0x6064, 0x6077))):
+            mapped = {v.index for v in pdo.map}
+            missing = [f"0x{i:04X}" for i in needed if i not in mapped]
+            if missing:
+                raise CommunicationError(f"CANopen node {self.id}: {name} does not map {', '.join(missing)} "
+                                         "(docs/canopen.md)")
+        self.cycle_mapped = cod.CYCLE in {v.index for v in self.tpdo2.map}
+        self.tpdo2.add_callback(self.on_tpdo2)
+
+    def on_tpdo2(self, pdo) -> None:
         try:
-            self.actual = struct.unpack_from("<ihH", data)
-        except struct.error:
-            log.warning("node %d: malformed TPDO2 %r", self.id, bytes(data))
+            if len(pdo.data) < self.tpdo2_length:
+                raise ValueError(f"{len(pdo.data)} bytes, the mapping has {self.tpdo2_length}")
+            self.actual = (pdo[0x6064].raw, pdo[0x6077].raw, pdo[cod.CYCLE].raw if self.cycle_mapped else 0)
+        except Exception as exc:  # a malformed frame is not an answer: the exchange retries
+            log.warning("node %d: malformed TPDO2 %r (%s)", self.id, bytes(pdo.data), exc)
             return
         self.received.set()
+
+    @property
+    def tpdo2_length(self) -> int:
+        return sum(v.length for v in self.tpdo2.map) // 8
 
     def on_emcy(self, error) -> None:
         if error.code:
@@ -142,11 +178,11 @@ class DriveNode:
 
     def check_events(self) -> None:
         if self.booted:
-            raise CommunicationError(f"CANopen node {self.id} restarted (boot-up message); its state is lost, the run stops")
+            raise ControllerRestartedError(f"CANopen node {self.id} restarted (boot-up message); its state is lost, the run stops")
         if self.emcy:
             e = self.emcy.pop(0)
             text = cod.EMCY_TEXT.get(e.code, e.get_desc())
-            error = InterlockError if e.code in (0x7320, 0x2310, 0x8130, 0x8612) else CommunicationError
+            error = InterlockError if e.code in (0x7320, 0x2310, 0x5000, 0x8130, 0x8612) else CommunicationError
             raise error(f"CANopen node {self.id}: EMCY 0x{e.code:04X} ({text}), error register 0x{e.register:02X}")
 
     def displacement_mm(self) -> float:
@@ -191,7 +227,10 @@ class DriveNode:
         return limits
 
     def send_targets(self) -> None:
-        self.link.network.send_message(0x300 + self.id, struct.pack("<ih", self.target_counts, self.target_torque))
+        """RPDO2 through canopen's PDO map: target position 0x607A, target torque 0x6071."""
+        self.rpdo2[0x607A].raw = self.target_counts
+        self.rpdo2[0x6071].raw = self.target_torque
+        self.rpdo2.transmit()
 
     def send_control(self) -> bool:
         """RPDO1 (controlword with or without halt, mode); True when the drive confirmed it
@@ -224,6 +263,8 @@ class CanopenLink(common.AxisLink):
         kwargs = {"interface": self.interface, "channel": self.channel}
         if self.interface not in ("virtual",):
             kwargs["bitrate"] = self.options["bitrate"]
+        if self.interface == "slcan" and (self.channel.startswith("socket://") or self.channel.startswith("/dev/pts/")):
+            kwargs["sleep_after_open"] = 0.0  # no adapter to reset behind a TCP port or a pseudo-terminal
         try:
             self.network.connect(**kwargs)
         except Exception as exc:
@@ -238,6 +279,7 @@ class CanopenLink(common.AxisLink):
             drive.node.emcy.add_callback(drive.on_emcy)
         for drive in self.drives:
             self._identify(drive)
+            drive.booted = False  # a boot-up before this point is the drive's start, not a restart
         if enable:
             self.enable()
 
@@ -245,9 +287,7 @@ class CanopenLink(common.AxisLink):
         """An object a drive may lack: None when it answers "does not exist" (an SDO abort)."""
         try:
             return d.sdo_read(index, sub, what)
-        except CommunicationError as exc:
-            if "aborted" not in str(exc):
-                raise
+        except SdoAbortError:
             return None
 
     def _identify(self, d: DriveNode) -> None:
@@ -257,10 +297,7 @@ class CanopenLink(common.AxisLink):
             raise CommunicationError(f"CANopen node {d.id}: device type 0x{device_type:08X} is not a CiA 402 drive")
         d.identity = {"vendor_id": d.sdo_read(0x1018, 1, "vendor id"), "product_code": d.sdo_read(0x1018, 2, "product code"),
                       "revision": d.sdo_read(0x1018, 3, "revision"), "serial": d.sdo_read(0x1018, 4, "serial number")}
-        try:
-            d.counts_per_mm = float(d.sdo_read(cod.COUNTS, what="counts per mm"))
-        except CommunicationError:
-            pass  # a lab drive: the default scaling holds unless [driver] says otherwise
+        d.counts_per_mm = self._scaling(d)
         d.rated_N = float(d.sdo_read(0x6076, what="rated torque (read as rated force, N)"))
         if not d.rated_N > 0:
             raise CommunicationError(f"CANopen node {d.id}: rated torque 0x6076 is {d.rated_N:g}; the force scaling "
@@ -273,6 +310,33 @@ class CanopenLink(common.AxisLink):
         self.lockstep = bool(flag)
         if self.lockstep:
             self.ticks = d.sdo_read(cod.CLOCK, what="clock")
+
+    def _scaling(self, d: DriveNode) -> float:
+        """Position counts per mm: [driver] counts_per_mm where set, else the drive's position
+        factor 0x6093 (numerator / divisor: counts per mm, the drive's user unit being the mm),
+        else its feed constant 0x6092 (feed per revolution in mm) with one revolution being
+        0x608F (encoder increments per revolution). Never guessed (docs/canopen.md)."""
+        if self.options["counts_per_mm"] is not None:
+            return float(self.options["counts_per_mm"])
+        num = self._read_optional(d, 0x6093, 1, "position factor numerator")
+        div = self._read_optional(d, 0x6093, 2, "position factor divisor")
+        if num and div:
+            return self._checked_scale(d, num / div, f"position factor 0x6093 ({num}/{div})")
+        feed = self._read_optional(d, 0x6092, 1, "feed constant")
+        revs = self._read_optional(d, 0x6092, 2, "feed constant shaft revolutions")
+        incs = self._read_optional(d, 0x608F, 1, "position encoder increments")
+        turns = self._read_optional(d, 0x608F, 2, "position encoder motor revolutions")
+        if feed and revs and incs and turns:
+            return self._checked_scale(d, (incs / turns) * revs / feed,
+                                       f"feed constant 0x6092 ({feed}/{revs}) and encoder resolution 0x608F ({incs}/{turns})")
+        raise ConfigError(f"{self.url} node {d.id}: the drive reports no position scaling (neither the position factor "
+                          "0x6093 nor the feed constant 0x6092 with 0x608F); set [driver] counts_per_mm")
+
+    @staticmethod
+    def _checked_scale(d: DriveNode, value: float, what: str) -> float:
+        if not (math.isfinite(value) and 1e-3 <= value <= 1e9):
+            raise CommunicationError(f"CANopen node {d.id}: {what} gives {value!r} counts per mm, not a usable scaling")
+        return float(value)
 
     def axis_limits(self) -> list[Limits]:
         return [d.limits(self.url, self.options) for d in self.drives]
@@ -291,7 +355,7 @@ class CanopenLink(common.AxisLink):
             d.node.setup_402_state_machine(read_pdos=True)
         except (SdoAbortedError, SdoCommunicationError) as exc:
             raise sdo_error(d.id, "read of the PDO configuration", exc) from None
-        self.network.subscribe(0x280 + d.id, d.on_tpdo2)
+        d.take_pdos()
         d.node.tpdo[1].add_callback(lambda _map, d=d: d.status_received.set())
         d.node.tpdo_values[0x6041] = d.sdo_read(0x6041, what="statusword")
         d.node.tpdo_values[0x6061] = d.sdo_read(0x6061, what="modes of operation display")
@@ -397,6 +461,8 @@ class CanopenActuator(Actuator, ActuatorChannels):
         self.drive = link.drives[axis]
         self.limits = limits
         self._closed = False
+        self.plausibility = common.Plausibility(f"actuator {name!r} at {link.url} node {self.drive.id}", limits,
+                                                1.0 / 1024.0, link.options)
 
     @property
     def mode(self) -> ControlMode:
@@ -435,7 +501,11 @@ class CanopenActuator(Actuator, ActuatorChannels):
             link.exchange()
         link.fresh[self.axis] = False
         t = link.ticks / 1024.0 if link.lockstep else time.monotonic()
-        return Feedback(self.drive.displacement_mm(), self.drive.force_kN(), t)
+        d, f = self.drive.displacement_mm(), self.drive.force_kN()
+        command = self.drive.target_counts / self.drive.counts_per_mm \
+            if self.drive.mode is ControlMode.DISPLACEMENT and not self.drive.halt else None
+        self.plausibility.check(d, f, t, command)
+        return Feedback(d, f, t)
 
     def hold(self) -> None:
         """Halt (controlword bit 8): the drive holds its position in position control."""

@@ -4,7 +4,7 @@ Used by both ends: the emulated drive (:mod:`hsio.emulators.canopen`) serves it,
 (:mod:`hsio.drivers.canopen`) reads it as the drive's description. A lab drive is described by its own
 EDS file instead ([driver] eds = "drive.eds").
 
-Units on the bus: positions in counts (0x2001 counts per mm, default 1000: 1 um), forces as the
+Units on the bus: positions in counts (position factor 0x6093, 1000/1 counts per mm: 1 um), forces as the
 CiA 402 torque objects, int16 in per mille of the rated value 0x6076 (read as newtons; default
 10 000 N, so one unit is 0.01 kN and the range is +/-327 kN).
 
@@ -33,13 +33,13 @@ LOCKSTEP_FLAG = 0x2100  # u8: 1 when the drive's clock advances one period per S
 CLOCK = 0x2101  # u32: controller periods since start; write T to run until tick T (lockstep)
 CYCLE = 0x2102  # u16: the clock modulo 65536, mapped in TPDO2
 WATCHDOG_MS = 0x2103  # u16: host watchdog (no RPDO2 for longer: hold, EMCY 0x8130); 0 off
-COUNTS = 0x2001  # u32: position counts per mm
 
 EMCY_TEXT = {
     0x0000: "error reset",
     0x8612: "target out of range (refused, the axis holds)",
     0x7320: "displacement beyond the stroke (interlock, the axis holds)",
     0x2310: "force beyond the capacity (interlock, the axis holds)",
+    0x5000: "device hardware: servo-valve failure (interlock, the axis holds)",
     0x8130: "host watchdog expired: no command in time (the axis holds)",
     0x6320: "unsupported mode of operation (refused)",
     0x8210: "PDO not processed: length error (a malformed frame reached the drive)",
@@ -95,7 +95,6 @@ def object_dictionary(node_id: int) -> od.ObjectDictionary:
     add(_comm(0x1801, 0x280 + node_id, 1))
     add(_mapping(0x1A00, [(0x6041, 0, 16), (0x6061, 0, 8)]))
     add(_mapping(0x1A01, [(0x6064, 0, 32), (0x6077, 0, 16), (CYCLE, 0, 16)]))
-    add(_var("Position counts per mm", COUNTS, 0, dt.UNSIGNED32, "ro", COUNTS_PER_MM))
     add(_var("Lockstep clock", LOCKSTEP_FLAG, 0, dt.UNSIGNED8, "ro", 0))
     add(_var("Clock ticks", CLOCK, 0, dt.UNSIGNED32, "rw", 0))
     add(_var("Cycle counter", CYCLE, 0, dt.UNSIGNED16, "ro", 0, True))
@@ -112,5 +111,7 @@ def object_dictionary(node_id: int) -> od.ObjectDictionary:
     add(_var("Target position", 0x607A, 0, dt.INTEGER32, "rw", 0, True))
     add(_record("Software position limit", 0x607D, [("Min position limit", dt.INTEGER32, "ro", 0),
                                                      ("Max position limit", dt.INTEGER32, "ro", 0)]))
+    add(_record("Position factor", 0x6093, [("Numerator", dt.UNSIGNED32, "ro", COUNTS_PER_MM),
+                                            ("Divisor", dt.UNSIGNED32, "ro", 1)]))
     add(_var("Supported drive modes", 0x6502, 0, dt.UNSIGNED32, "ro", 0x0080 | 0x0200))
     return d

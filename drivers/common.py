@@ -71,7 +71,7 @@ def parse_options(url: str, options: dict | None, defaults: dict, rules: dict[st
     A key without a rule is a string; a default of None means "not set" (the controller's own).
     """
     table = dict(defaults)
-    given = {**(options or {}), **dict(parse_qsl(urlsplit(url).query))}
+    given = {**(options or {}), **dict(parse_qsl(split_url(url).query))}
     for key, value in given.items():
         if key not in defaults:
             raise ConfigError(f"[driver] for {url!r}: unknown key {key!r}; known: {', '.join(defaults)}")
@@ -179,3 +179,101 @@ def open_axes(link: AxisLink, names: list[str], clock, make_actuator, enable: bo
     except BaseException:
         link.abort()
         raise
+
+
+def split_url(url: str):
+    """``urlsplit`` whose refusal (a broken IPv6 address, a bad port) is a ConfigError naming the URL."""
+    try:
+        parts = urlsplit(url)
+        parts.port  # noqa: B018 (raises ValueError for a bad port)
+        return parts
+    except ValueError as exc:
+        raise ConfigError(f"hardware URL {url!r} is malformed ({exc}); expected SCHEME://HOST:port or a device path") from None
+
+
+def url_port(url: str, default: int) -> int:
+    """The port of a URL; a port that is not a number in 1..65535 is a ConfigError naming the URL."""
+    try:
+        port = urlsplit(url).port
+    except ValueError as exc:
+        raise ConfigError(f"hardware URL {url!r}: bad port ({exc}); expected a number in 1..65535") from None
+    if port is None:
+        return default
+    if not 1 <= port <= 65535:
+        raise ConfigError(f"hardware URL {url!r}: port {port} is not in 1..65535")
+    return port
+
+
+# [driver] options of the plausibility check (docs/faults.md), shared by both drivers.
+PLAUSIBILITY_DEFAULTS = {"jump_floor_mm": 2.0, "stuck_samples": 512, "stuck_mm": 5.0}
+PLAUSIBILITY_RULES = {
+    "jump_floor_mm": positive(1000.0, "mm"),
+    "stuck_samples": whole(0, 1_000_000),
+    "stuck_mm": positive(1000.0, "mm"),
+}
+
+
+class Plausibility:
+    """Checks every measured sample of one axis before the experiment sees it (docs/faults.md).
+
+    Refused, as :class:`~hsio.errors.ImplausibleMeasurementError` (an interlock: the run holds):
+
+    * a value that is not finite (NaN, infinity);
+    * a displacement beyond twice the half stroke, a force beyond twice the capacity;
+    * a displacement that moved faster than twice the velocity limit since the last sample (plus
+      ``jump_floor_mm`` for noise and quantisation), a force that changed by more than half the
+      capacity between two samples;
+    * a stuck transducer: the same displacement reading, bit for bit, for ``stuck_samples``
+      samples in a row while the command moved by more than ``stuck_mm`` (0 samples: off).
+    """
+
+    def __init__(self, where: str, limits: Limits, period_s: float, options: dict | None = None):
+        o = {**PLAUSIBILITY_DEFAULTS, **{k: v for k, v in (options or {}).items() if k in PLAUSIBILITY_DEFAULTS}}
+        self.where = where
+        self.max_d = float(limits.stroke_mm)  # 2 x the half stroke
+        self.max_f = 2.0 * float(limits.force_kN)
+        self.max_v = 2.0 * float(limits.velocity_mm_s)
+        self.max_df = 0.5 * float(limits.force_kN)
+        self.period_s = float(period_s)
+        self.jump_floor = float(o["jump_floor_mm"])
+        self.stuck_samples = int(o["stuck_samples"])
+        self.stuck_mm = float(o["stuck_mm"])
+        self.last: tuple[float, float, float] | None = None
+        self.same = 0
+        self.command_at_change: float | None = None
+        self.rejected = 0
+
+    def _refuse(self, what: str):
+        from hsio.errors import ImplausibleMeasurementError
+
+        self.rejected += 1
+        raise ImplausibleMeasurementError(f"{self.where}: implausible measurement: {what}; not passed on, the run holds")
+
+    def check(self, displacement: float, force: float, t: float, command: float | None = None) -> None:
+        if not math.isfinite(displacement):
+            self._refuse(f"displacement {displacement!r} is not finite")
+        if not math.isfinite(force):
+            self._refuse(f"force {force!r} is not finite")
+        if abs(displacement) > self.max_d:
+            self._refuse(f"displacement {displacement:.6g} mm beyond twice the half stroke (+/-{self.max_d:g} mm)")
+        if abs(force) > self.max_f:
+            self._refuse(f"force {force:.6g} kN beyond twice the capacity (+/-{self.max_f:g} kN)")
+        if self.last is not None:
+            d0, f0, t0 = self.last
+            elapsed = t - t0 if math.isfinite(t) and t > t0 else self.period_s
+            step = self.max_v * max(elapsed, self.period_s) + self.jump_floor
+            if abs(displacement - d0) > step:
+                self._refuse(f"displacement jumped {displacement - d0:+.6g} mm in {elapsed:.4g} s (at most {step:.4g} mm)")
+            if abs(force - f0) > self.max_df:
+                self._refuse(f"force jumped {force - f0:+.6g} kN between two samples (at most {self.max_df:g} kN)")
+            if self.stuck_samples and command is not None:
+                if displacement == d0:
+                    self.same += 1
+                    if self.command_at_change is None:
+                        self.command_at_change = command
+                    if self.same >= self.stuck_samples and abs(command - self.command_at_change) > self.stuck_mm:
+                        self._refuse(f"displacement stuck at {displacement:.6g} mm for {self.same} samples while the "
+                                     f"command moved {command - self.command_at_change:+.4g} mm (a stuck transducer)")
+                else:
+                    self.same, self.command_at_change = 0, None
+        self.last = (displacement, force, t)

@@ -23,6 +23,7 @@ interlock stops the run with a clear error; Modbus exception responses are named
 from __future__ import annotations
 
 import logging
+import math
 import time
 from urllib.parse import urlsplit
 
@@ -32,10 +33,14 @@ from pymodbus.pdu import ExceptionResponse
 
 from hsio.drivers import common, modbus_map
 from hsio.clock import Clock
-from hsio.errors import CommunicationError, ConfigError, InterlockError
+from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError,
+                         ModbusExceptionError)
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
 log = logging.getLogger(__name__)
+# pymodbus reports a missed reply on its own logger (with a hex dump); the driver retries and
+# names the failure itself, so those reports stay out of a terminal unless logging is configured.
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())
 
 EXCEPTION_NAMES = {
     1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure",
@@ -47,14 +52,16 @@ SEQ_MOD = 1 << 24
 DEFAULT_OPTIONS = {
     "map": "", "timeout_s": 0.5, "retries": 2, "reconnect_delay_s": 0.1, "device_id": None,
     "baudrate": 115200, "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "lockstep": "auto",
+    **common.PLAUSIBILITY_DEFAULTS,
 }
 
 
 RULES = {
     **common.COMMON_RULES,
     "reconnect_delay_s": common.Rule(float, 0.0, 10.0, False, "between 0 and 10 s"),
-    "device_id": common.whole(0, 247),
+    "device_id": common.whole(1, 247),  # 0 is the broadcast address: no device answers it
     "baudrate": common.Rule(int, 1, 10_000_000, False, "a whole number of bit/s, 1..10000000"),
+    **common.PLAUSIBILITY_RULES,
 }
 
 
@@ -75,6 +82,7 @@ class ModbusLink(common.AxisLink):
         self.map = regmap or modbus_map.load(self.options["map"] or None)
         if n_axes > self.map.max_axes:
             raise ConfigError(f"{url}: {n_axes} axes, but register map {self.map.name!r} has room for {self.map.max_axes}")
+        self.map.check_spans(n_axes)
         self.n = n_axes
         self.device_id = self.options["device_id"] if self.options["device_id"] is not None else self.map.device_id
         self.client = self._make_client(url)
@@ -96,14 +104,20 @@ class ModbusLink(common.AxisLink):
         self.enabling = False
         self._status_span = self.map.status_span(n_axes)
 
+    @property
+    def rate_hz(self) -> float:
+        """The controller's loop rate (its info register; 1024 Hz when it reports none or nonsense)."""
+        rate = self.info.get("rate_hz", 1024.0)
+        return rate if math.isfinite(rate) and 1.0 <= rate <= 1e6 else 1024.0
+
     # -- connection ------------------------------------------------------------------------------
     def _make_client(self, url: str):
-        parts = urlsplit(url)
+        parts = common.split_url(url)
         timeout = self.options["timeout_s"]
         if parts.scheme == "modbus+tcp":
             if not parts.hostname:
                 raise ConfigError(f"{url!r}: expected modbus+tcp://HOST:PORT")
-            return ModbusTcpClient(parts.hostname, port=parts.port or 502, timeout=timeout, retries=0,
+            return ModbusTcpClient(parts.hostname, port=common.url_port(url, 502), timeout=timeout, retries=0,
                                    reconnect_delay=0, reconnect_delay_max=0)
         if parts.scheme == "modbus+rtu":
             path = (parts.netloc + parts.path) if parts.netloc else parts.path
@@ -124,9 +138,8 @@ class ModbusLink(common.AxisLink):
             try:
                 flag = self.map.decode(reg, self.request("read_holding_registers", reg.address, count=reg.words,
                                                          what="read of the lockstep flag").registers)
-            except CommunicationError as exc:
-                if "exception" not in str(exc):
-                    raise
+            except ModbusExceptionError:
+                pass  # a real controller has no lockstep register
         self.lockstep = flag == 1.0
         if self.options["lockstep"] == "on" and not self.lockstep:
             raise CommunicationError(f"{self.url}: lockstep requested but the controller runs on its own clock")
@@ -166,6 +179,26 @@ class ModbusLink(common.AxisLink):
         if errors:
             raise CommunicationError("; ".join(errors))
 
+    def reset_interlock(self) -> None:
+        """The interlock reset of docs/modbus.md: every axis holds (enable 0), then 1 goes to the
+        map's [reset] interlock register, then the status must show no latched interlock or
+        watchdog. A refusal (the cause persists) is :class:`ModbusExceptionError` code 4."""
+        reg = self.map.reset.get("interlock")
+        if reg is None:
+            raise ConfigError(f"{self.url}: register map {self.map.name!r} has no [reset] interlock register; "
+                              "reset the interlock at the controller")
+        self.read_status()
+        for k in range(self.n):
+            self.commands[k]["enable"] = 0.0
+            self.commands[k]["mode"] = float(self.map.modes["displacement"])
+            self.write_axis(k, ("mode", "enable", "watchdog"), what=f"hold of axis {k} before the reset")
+        self.request("write_registers", reg.address, self.map.encode(reg, 1.0), what="interlock reset")
+        self.read_status()
+        for k, st in enumerate(self.status):
+            for bit in ("interlock", "watchdog"):
+                if self.map.bit(st["status_word"], bit):
+                    raise InterlockError(f"{self.url}: axis {k}: the {bit} bit is still set after the reset")
+
     def axis_limits(self) -> list[Limits]:
         """One controller, one set of limits: [driver] where set, else the controller's info
         registers (stroke_mm, force_limit_kN); neither guessed."""
@@ -188,14 +221,12 @@ class ModbusLink(common.AxisLink):
         for name, reg in self.map.info.items():
             try:
                 rr = self.request("read_holding_registers", reg.address, count=reg.words, what=f"read of {name}")
-            except CommunicationError as exc:
-                if "exception" in str(exc):
-                    continue
-                raise
+            except ModbusExceptionError:
+                continue  # the controller lacks this info register
             self.info[name] = self.map.decode(reg, rr.registers)
         boot = self.info.get("boot_id")
         if self.boot_id is not None and boot is not None and boot != self.boot_id:
-            raise CommunicationError(
+            raise ControllerRestartedError(
                 f"{self.url}: the controller restarted (boot id {self.boot_id:.0f} -> {boot:.0f}); its state is lost, "
                 "the run stops")
         self.boot_id = boot
@@ -225,12 +256,12 @@ class ModbusLink(common.AxisLink):
                         reg = self.map.info["boot_id"]
                         rr = self.client.read_holding_registers(reg.address, count=reg.words, device_id=self.device_id)
                         if not rr.isError() and self.map.decode(reg, rr.registers) != self.boot_id:
-                            raise CommunicationError(
+                            raise ControllerRestartedError(
                                 f"{self.url}: the controller restarted during the run (new boot id); "
                                 "its state is lost, the run stops")
+                except ControllerRestartedError:
+                    raise
                 except CommunicationError as exc:
-                    if "restarted" in str(exc):
-                        raise
                     last = str(exc)
                     continue
                 except (ModbusException, OSError) as exc:
@@ -242,13 +273,23 @@ class ModbusLink(common.AxisLink):
             except (ModbusException, OSError) as exc:
                 last = f"{type(exc).__name__}: {exc}"
                 continue
+            except Exception as exc:  # a reply pymodbus could not make sense of (an echo, garbage)
+                last = f"malformed reply ({type(exc).__name__}: {exc})"
+                continue
             if isinstance(rr, ExceptionResponse) or rr.isError():
                 code = getattr(rr, "exception_code", None)
                 if code == 6:
                     last = "device busy"
                     continue
                 name = EXCEPTION_NAMES.get(code, "unknown")
-                raise CommunicationError(f"{self.url}: {what} answered with Modbus exception {code} ({name})")
+                raise ModbusExceptionError(f"{self.url}: {what} answered with Modbus exception {code} ({name})",
+                                           code if isinstance(code, int) else -1)
+            expected = kwargs.get("read_count", kwargs.get("count")) if method.startswith(("read", "readwrite")) else None
+            got = getattr(rr, "registers", None)
+            if expected is not None and (not isinstance(got, list) or len(got) != expected):
+                # an echo of the request or a reply to another request: not an answer
+                last = f"reply with {len(got) if isinstance(got, list) else 'no'} registers, expected {expected}"
+                continue
             return rr
         raise CommunicationError(
             f"{self.url}: {what}: no valid answer after {self.retries + 1} attempt(s) "
@@ -318,6 +359,8 @@ class ModbusActuator(Actuator, ActuatorChannels):
         self.limits = limits
         self._mode = ControlMode.DISPLACEMENT
         self._closed = False
+        self.plausibility = common.Plausibility(f"actuator {name!r} at {link.url}", limits,
+                                                1.0 / link.rate_hz, link.options)
 
     @property
     def mode(self) -> ControlMode:
@@ -346,7 +389,10 @@ class ModbusActuator(Actuator, ActuatorChannels):
             link.read_status()
         link.fresh[self.axis] = False
         st = link.status[self.axis]
-        t = (link.ticks if link.lockstep else (st["sequence"] or 0.0)) / link.info.get("rate_hz", 1024.0)
+        t = (link.ticks if link.lockstep else (st["sequence"] or 0.0)) / link.rate_hz
+        cmd = link.commands[self.axis]
+        self.plausibility.check(st["displacement"], st["force"], t,
+                                cmd["displacement"] if self._mode is ControlMode.DISPLACEMENT and cmd["enable"] else None)
         return Feedback(st["displacement"], st["force"], t)
 
     def _check_status(self) -> None:

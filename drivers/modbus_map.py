@@ -30,6 +30,8 @@ TYPES = {  # name -> (struct format, registers)
 }
 COMMAND_NAMES = ("displacement", "force", "mode", "enable", "watchdog")
 STATUS_NAMES = ("status_word", "displacement", "force", "sequence")
+MAP_KEYS = {"name", "version", "word_order", "device_id", "max_axes", "readwrite"}
+MAX_AXES = 64  # more axes than one controller has; bounds the map checks
 STATUS_BITS = ("enabled", "force_mode", "holding", "interlock", "watchdog", "refused", "lockstep")
 
 
@@ -105,6 +107,21 @@ class RegisterMap:
     modes: dict[str, int]
     source: str = ""
     extra: dict = field(default_factory=dict)
+    reset: dict[str, Register] = field(default_factory=dict)
+
+    def check_spans(self, n_axes: int) -> None:
+        """The cyclic exchange of ``n_axes`` axes must fit one Modbus request: at most 125
+        registers read, 123 written (121 with function 23). Checked when the map is loaded
+        (one axis) and when a link opens (its axes), never mid-run."""
+        _, read = self.status_span(n_axes)
+        start, write = self.command_span(n_axes, with_advance=bool(self.lockstep))
+        write_max = 121 if self.readwrite else 123
+        if read > 125:
+            raise ConfigError(f"{self.source}: [status] {n_axes} axis/axes span {read} registers (base {self.status.base}, "
+                              f"stride {self.status.stride}); one Modbus read carries at most 125")
+        if write > write_max:
+            raise ConfigError(f"{self.source}: [command] {n_axes} axis/axes span {write} registers from {start} (stride "
+                              f"{self.command.stride}, with the lockstep advance); one Modbus write carries at most {write_max}")
 
     # -- conversion ----------------------------------------------------------------------------
     def encode(self, reg: Register, value: float) -> list[int]:
@@ -167,7 +184,7 @@ def _register(where: str, name: str, table, key: str) -> Register:
     if unknown:
         raise ConfigError(f"{where}: register {name!r}: unknown key(s) {', '.join(sorted(unknown))}")
     address, kind, scale = table[key], table.get("type", "float32"), table.get("scale", 1.0)
-    if not isinstance(address, int) or address < 0 or address > 0xFFFF:
+    if isinstance(address, bool) or not isinstance(address, int) or address < 0 or address > 0xFFFF:
         raise ConfigError(f"{where}: register {name!r}: {key} must be an integer in 0..65535, got {address!r}")
     if kind not in TYPES:
         raise ConfigError(f"{where}: register {name!r}: type must be one of {', '.join(TYPES)}, got {kind!r}")
@@ -198,8 +215,8 @@ def _block(where: str, table, required) -> Block:
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: must be a table")
     for key in ("base", "stride"):
-        if not isinstance(table.get(key), int) or table[key] < 0:
-            raise ConfigError(f"{where}: {key} must be a non-negative integer, got {table.get(key)!r}")
+        if isinstance(table.get(key), bool) or not isinstance(table.get(key), int) or not 0 <= table[key] <= 0xFFFF:
+            raise ConfigError(f"{where}: {key} must be an integer in 0..65535, got {table.get(key)!r}")
     regs = _registers(where, table, "offset", required, skip=("base", "stride"))
     block = Block(table["base"], table["stride"], regs)
     if block.stride < block.extent:
@@ -209,48 +226,79 @@ def _block(where: str, table, required) -> Block:
 
 def from_dict(data: dict, source: str = "<dict>") -> RegisterMap:
     """Check a map table by table; errors name the file, the table and the register."""
-    known = {"map", "info", "lockstep", "command", "status", "status_bits", "modes"}
+    known = {"map", "info", "lockstep", "reset", "command", "status", "status_bits", "modes"}
     unknown = set(data) - known
     if unknown:
         raise ConfigError(f"{source}: unknown table(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}")
     head = data.get("map", {})
+    if not isinstance(head, dict):
+        raise ConfigError(f"{source}: [map] must be a table")
+    unknown_keys = set(head) - MAP_KEYS
+    if unknown_keys:
+        raise ConfigError(f"{source}: [map] unknown key(s) {', '.join(sorted(unknown_keys))}; known: {', '.join(sorted(MAP_KEYS))}")
     word_order = head.get("word_order", "big")
     if word_order not in ("big", "little"):
         raise ConfigError(f"{source}: [map] word_order must be 'big' or 'little', got {word_order!r}")
     device_id = head.get("device_id", 1)
-    if not isinstance(device_id, int) or not 0 <= device_id <= 247:
-        raise ConfigError(f"{source}: [map] device_id must be an integer in 0..247, got {device_id!r}")
+    if isinstance(device_id, bool) or not isinstance(device_id, int) or not 1 <= device_id <= 247:
+        raise ConfigError(f"{source}: [map] device_id must be an integer in 1..247 (0 is broadcast), got {device_id!r}")
     max_axes = head.get("max_axes", 8)
-    if not isinstance(max_axes, int) or max_axes < 1:
-        raise ConfigError(f"{source}: [map] max_axes must be a positive integer, got {max_axes!r}")
+    if isinstance(max_axes, bool) or not isinstance(max_axes, int) or not 1 <= max_axes <= MAX_AXES:
+        raise ConfigError(f"{source}: [map] max_axes must be an integer in 1..{MAX_AXES}, got {max_axes!r}")
+    readwrite = head.get("readwrite", False)
+    if not isinstance(readwrite, bool):
+        raise ConfigError(f"{source}: [map] readwrite must be true or false (unquoted), got {readwrite!r}")
+    for key in ("info", "lockstep", "reset", "status_bits", "modes"):
+        if not isinstance(data.get(key, {}), dict):
+            raise ConfigError(f"{source}: [{key}] must be a table")
     info = _registers(f"{source}: [info]", data.get("info", {}), "address", ())
     lockstep = _registers(f"{source}: [lockstep]", data.get("lockstep", {}), "address", ())
     if lockstep and set(lockstep) != {"flag", "advance"}:
         raise ConfigError(f"{source}: [lockstep] needs exactly the registers 'flag' and 'advance'")
+    reset = _registers(f"{source}: [reset]", data.get("reset", {}), "address", ())
+    if reset and set(reset) != {"interlock"}:
+        raise ConfigError(f"{source}: [reset] has one register, 'interlock'; got {', '.join(sorted(reset))}")
     command = _block(f"{source}: [command]", data.get("command"), COMMAND_NAMES)
     status = _block(f"{source}: [status]", data.get("status"), STATUS_NAMES)
     bits = dict(data.get("status_bits", {}))
     missing = [b for b in STATUS_BITS if b not in bits]
     if missing:
         raise ConfigError(f"{source}: [status_bits] missing {', '.join(missing)}")
+    extra_bits = set(bits) - set(STATUS_BITS)
+    if extra_bits:
+        raise ConfigError(f"{source}: [status_bits] unknown bit(s) {', '.join(sorted(extra_bits))}; known: {', '.join(STATUS_BITS)}")
+    owner: dict[int, str] = {}
     for name, b in bits.items():
-        if not isinstance(b, int) or not 0 <= b < 24:
+        if isinstance(b, bool) or not isinstance(b, int) or not 0 <= b < 24:
             raise ConfigError(f"{source}: [status_bits] {name} must be a bit number in 0..23, got {b!r}")
+        if b in owner:
+            raise ConfigError(f"{source}: [status_bits] {owner[b]} and {name} share bit {b}")
+        owner[b] = name
     modes = dict(data.get("modes", {"displacement": 0, "force": 1}))
-    if set(modes) != {"displacement", "force"} or len(set(modes.values())) != 2:
-        raise ConfigError(f"{source}: [modes] needs distinct values for 'displacement' and 'force', got {modes!r}")
+    if set(modes) != {"displacement", "force"} \
+            or not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 0xFFFF for v in modes.values()) \
+            or len(set(modes.values())) != 2:
+        raise ConfigError(f"{source}: [modes] needs distinct whole numbers (0..65535) for 'displacement' and 'force', "
+                          f"got {modes!r}")
     regmap = RegisterMap(
         name=str(head.get("name", Path(source).stem)), word_order=word_order, device_id=device_id,
-        max_axes=max_axes, readwrite=bool(head.get("readwrite", False)), info=info, lockstep=lockstep,
-        command=command, status=status, bits=bits, modes=modes, source=source,
+        max_axes=max_axes, readwrite=readwrite, info=info, lockstep=lockstep,
+        command=command, status=status, bits=bits, modes=modes, source=source, reset=reset,
     )
     _check_layout(regmap)
+    regmap.check_spans(1)
     return regmap
 
 
 def _check_layout(m: RegisterMap) -> None:
-    """No two registers of the whole map (every axis up to max_axes) share an address."""
-    absolute = list(m.info.values()) + list(m.lockstep.values())
+    """No two registers of the whole map (every axis up to max_axes) share an address, and every
+    one lies in the 0..65535 address space."""
+    for block, tag in ((m.command, "command"), (m.status, "status")):
+        last = block.base + (m.max_axes - 1) * block.stride + block.extent - 1
+        if last > 0xFFFF:
+            raise ConfigError(f"{m.source}: [{tag}] axis {m.max_axes - 1} ends at address {last}, beyond 65535 "
+                              f"(base {block.base}, stride {block.stride}, [map] max_axes {m.max_axes})")
+    absolute = list(m.info.values()) + list(m.lockstep.values()) + list(m.reset.values())
     for block, tag in ((m.command, "command"), (m.status, "status")):
         for k in range(m.max_axes):
             absolute += [Register(f"{tag}[{k}].{r.name}", block.address(k, r.name), r.type) for r in block.registers.values()]

@@ -59,6 +59,8 @@ class ControllerBank:
         self.rate_hz = controllers[0].config.rate_hz
         self.boot_id = float(random.SystemRandom().randrange(1, 1 << 24))
         self.lock = threading.RLock()
+        self.faults = None  # a hsio.emulators.faults.FaultSchedule (docs/faults.md)
+        self.restarts = 0
         self.ticks = 0
         self.overruns = 0
         self._stop = threading.Event()
@@ -160,6 +162,49 @@ class ControllerBank:
                     and now - state.watchdog_seen > self.watchdog_s:
                 state.watchdog_expired = True
                 c.hold()
+
+    # -- faults and resets (docs/faults.md, docs/modbus.md) -------------------------------------------
+    def fault_due(self):
+        """The request fault due now (drop, delay, corrupt, duplicate, restart) or None."""
+        return self.faults.due(self.ticks) if self.faults else None
+
+    def measured(self, axis: int) -> tuple[float, float]:
+        """What axis ``axis``'s transducers report (displacement mm, force kN), faults applied."""
+        c = self.controllers[axis]
+        if not self.faults:
+            return c.measured_displacement, c.measured_force
+        if axis == 0 and self.faults.take_valve():
+            c.tripped = "servo-valve failure (the axis does not follow its command)"
+            c.hold()
+        return self.faults.measured(axis, self.ticks, c.measured_displacement), c.measured_force
+
+    def restart(self) -> None:
+        """The controller restarts: a new boot id, the clock at zero, every axis at rest, holding."""
+        with self.lock:
+            self.boot_id = float(random.SystemRandom().randrange(1, 1 << 24))
+            self.ticks = 0
+            self.restarts += 1
+            for k, c in enumerate(self.controllers):
+                c.reset()
+                c.hold()
+                self.axes[k] = AxisState()
+
+    def reset_interlocks(self) -> None:
+        """Clear the latched interlock and watchdog of every axis (docs/modbus.md, "Interlock
+        reset"). Refused while an axis is enabled or while a cause persists (a measurement
+        still beyond the stroke or the capacity)."""
+        with self.lock:
+            for k, (state, c) in enumerate(zip(self.axes, self.controllers)):
+                if state.enabled:
+                    raise CommandRefused(f"axis {k} is enabled: disable every axis before the reset")
+                cfg = c.config
+                if abs(c.measured_displacement) > 0.5 * cfg.stroke_mm or abs(c.measured_force) > cfg.force_limit_kN:
+                    raise CommandRefused(f"axis {k}: the cause persists (measurement beyond the stroke or capacity)")
+            for state, c in zip(self.axes, self.controllers):
+                c.clear_trip()
+                c.hold()
+                state.watchdog_expired = False
+                state.refused = False
 
     # -- status ------------------------------------------------------------------------------------
     def flags(self, axis: int) -> dict[str, bool]:

@@ -20,6 +20,7 @@ loop and a SYNC only samples it.
 from __future__ import annotations
 
 import logging
+import math
 import struct
 import threading
 
@@ -86,7 +87,7 @@ class DriveAxis:
         if index == 0x6060:
             return self.mode
         if index == 0x6064:
-            return self.to_counts(c.measured_displacement)
+            return self.to_counts(self.bank.measured(self.axis)[0])
         if index == 0x6077:
             return self.to_permille(c.measured_force)
         if index == 0x607A:
@@ -207,7 +208,7 @@ class DriveAxis:
         c = self.bank.controllers[self.axis]
         code = 0
         if c.tripped:
-            code = 0x7320 if "displacement" in c.tripped else 0x2310
+            code = 0x7320 if "displacement" in c.tripped else 0x5000 if "valve" in c.tripped else 0x2310
         elif self.bank.axes[self.axis].watchdog_expired:
             code = 0x8130
         if code and self.state != FAULT:
@@ -234,11 +235,14 @@ class DriveAxis:
     def send_tpdo1(self) -> None:
         self.emu.network.send_message(0x180 + self.node.id, struct.pack("<Hb", self.statusword(), self.mode))
 
-    def send_tpdo2(self) -> None:
-        c = self.bank.controllers[self.axis]
-        data = struct.pack("<ihH", self.to_counts(c.measured_displacement), self.to_permille(c.measured_force),
-                           self.bank.ticks & 0xFFFF)
-        self.emu.network.send_message(0x280 + self.node.id, data)
+    def tpdo2(self) -> bytes:
+        d, f = self.bank.measured(self.axis)
+        counts = self.to_counts(d) if math.isfinite(d) else -(1 << 31)  # a NaN reading: the int32 "no value"
+        counts = max(-(1 << 31), min((1 << 31) - 1, counts))
+        return struct.pack("<ihH", counts, self.to_permille(f), self.bank.ticks & 0xFFFF)
+
+    def send_tpdo2(self, data: bytes | None = None) -> None:
+        self.emu.network.send_message(0x280 + self.node.id, data if data is not None else self.tpdo2())
 
 
 class CanopenEmulator:
@@ -246,11 +250,14 @@ class CanopenEmulator:
 
     def __init__(self, bank: ControllerBank, channel: str = "hsio", node_id: int = 1,
                  interface: str = "virtual", heartbeat_ms: int = 100, rated_force_N: float = cod.RATED_FORCE_N,
-                 position_limits_mm: tuple[float, float] | None = None):
+                 position_limits_mm: tuple[float, float] | None = None, faults=None, bus_options: dict | None = None):
         """``rated_force_N`` is the drive's rated torque 0x6076 (read as newtons);
         ``position_limits_mm`` its software position limits 0x607D (default: the controller's
         stroke, centred on zero; (0, 0): none)."""
         self.bank = bank
+        if faults is not None:
+            bank.faults = faults
+        self.bus_options = dict(bus_options or {})
         self.rated_force_N = rated_force_N
         self.position_limits_mm = position_limits_mm
         self.channel, self.interface = channel, interface
@@ -261,13 +268,17 @@ class CanopenEmulator:
         self._fault_thread: threading.Thread | None = None
         self._stop = threading.Event()
 
+    slcan = None  # a SlcanPort when served over SLCAN
+
     @property
     def url(self) -> str:
+        if self.slcan is not None:
+            return self.slcan.url(self.node_id)
         return f"canopen+{self.interface}://{self.channel}/{self.node_id}"
 
     def start(self) -> "CanopenEmulator":
         self.network = canopen.Network()
-        self.network.connect(interface=self.interface, channel=self.channel)
+        self.network.connect(interface=self.interface, channel=self.channel, **self.bus_options)
         for k in range(len(self.bank.controllers)):
             node = canopen.LocalNode(self.node_id + k, cod.object_dictionary(self.node_id + k))
             self.network.add_node(node)
@@ -299,15 +310,40 @@ class CanopenEmulator:
 
     def on_sync(self, can_id, data, timestamp) -> None:
         try:
+            fault = self.bank.fault_due()
+            if fault is not None and fault.kind == "drop":
+                return  # the SYNC is lost: nothing advances, nothing answers
+            if fault is not None and fault.kind == "restart":
+                self.restart()
+                return
             if self.bank.lockstep:
                 with self.bank.lock:
                     self.bank.advance_to(self.bank.ticks + 1)
-            for axis in self.axes:
-                if axis.node.nmt.state == "OPERATIONAL":
-                    axis.check_faults()
-                    axis.send_tpdo2()
+            if fault is not None and fault.kind == "delay":
+                threading.Timer(fault.arg, self._send_tpdos).start()
+                return
+            self._send_tpdos(fault)
         except Exception:
             log.exception("SYNC handling failed")
+
+    def _send_tpdos(self, fault=None) -> None:
+        for axis in self.axes:
+            if axis.node.nmt.state == "OPERATIONAL":
+                axis.check_faults()
+                data = axis.tpdo2()
+                if fault is not None and fault.kind == "corrupt":
+                    data = data[:-3]  # a frame cut short
+                axis.send_tpdo2(data)
+                if fault is not None and fault.kind == "duplicate":
+                    axis.send_tpdo2(data)
+
+    def restart(self) -> None:
+        """The controller restarts (docs/faults.md): state lost, every node boots up again."""
+        self.bank.restart()
+        for axis in self.axes:
+            axis.state, axis.controlword, axis.mode = SOD, 0, cod.CSP
+            axis.node.nmt.state = "PRE-OPERATIONAL"
+            self.network.send_message(0x700 + axis.node.id, b"\x00")
 
     def _watch_faults(self) -> None:
         while not self._stop.wait(0.01):
@@ -328,9 +364,120 @@ class CanopenEmulator:
             self.network.disconnect()
             self.network = None
         self.axes = []
+        if self.slcan is not None:
+            self.slcan.close()
+            self.slcan = None
 
     def __enter__(self):
         return self.start()
 
     def __exit__(self, *exc):
         self.stop()
+
+
+class SlcanPort:
+    """The emulated drives' CAN bus reachable from another process the way a USB-CAN adapter is:
+    the Lawicel (SLCAN) serial protocol, spoken by python-can's ``slcan`` interface at both ends.
+
+    ``kind="pty"``: two pseudo-terminals back to back (:class:`hsio.emulators.modbus.PtyBridge`);
+    the emulator's bus opens one, a client opens :attr:`path`. ``kind="tcp"``: a TCP port on
+    127.0.0.1 (a client opens ``socket://127.0.0.1:PORT`` through pyserial); one client at a
+    time, its bytes forwarded to and from a pseudo-terminal the emulator's bus opens.
+    """
+
+    def __init__(self, kind: str = "pty", host: str = "127.0.0.1", port: int = 0):
+        import os
+        import socket
+        import tty
+
+        from hsio.emulators.modbus import PtyBridge
+
+        if kind not in ("pty", "tcp"):
+            raise ValueError(f"SLCAN port kind must be 'pty' or 'tcp', got {kind!r}")
+        if host not in ("127.0.0.1", "localhost", "::1"):
+            raise ValueError(f"SLCAN over TCP listens on the loopback address only, not {host!r}")
+        self.kind = kind
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        if kind == "pty":
+            self.bridge = PtyBridge()
+            self.server_path, self.path = self.bridge.server_path, self.bridge.path
+            return
+        self.bridge = None
+        self._master, slave = os.openpty()
+        tty.setraw(slave)
+        self._slave = slave
+        self.server_path = os.ttyname(slave)
+        self.listener = socket.socket()
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.listener.bind((host, port))
+        self.listener.listen(1)
+        self.listener.settimeout(0.1)
+        self.host, self.port = host, self.listener.getsockname()[1]
+        self.path = f"socket://{host}:{self.port}"
+        t = threading.Thread(target=self._serve, name="slcan-tcp", daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def _serve(self) -> None:
+        import os
+        import select
+        import socket
+
+        while not self._stop.is_set():
+            try:
+                conn, _ = self.listener.accept()
+            except OSError:
+                continue
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            while select.select([self._master], [], [], 0)[0]:  # frames sent before anyone listened are gone
+                os.read(self._master, 4096)
+            with conn:
+                while not self._stop.is_set():
+                    ready, _, _ = select.select([conn, self._master], [], [], 0.1)
+                    try:
+                        if conn in ready:
+                            data = conn.recv(4096)
+                            if not data:
+                                break
+                            if hasattr(socket, "TCP_QUICKACK"):  # ack at once: the client's Nagle then sends its next frame
+                                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
+                            os.write(self._master, data)
+                        if self._master in ready:
+                            conn.sendall(os.read(self._master, 4096))
+                    except OSError:
+                        break
+
+    def url(self, node_id: int) -> str:
+        if self.kind == "tcp":
+            return f"canopen+slcan://{self.host}:{self.port}/{node_id}"
+        return f"canopen+slcan://{self.path}/{node_id}"
+
+    def close(self) -> None:
+        import os
+
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=1.0)
+        if self.bridge is not None:
+            self.bridge.close()
+            return
+        self.listener.close()
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+def slcan_emulator(bank: ControllerBank, kind: str = "pty", node_id: int = 1, port: int = 0, **kwargs) -> "CanopenEmulator":
+    """A :class:`CanopenEmulator` on an SLCAN port (started); ``emulator.url`` is the driver's URL."""
+    slcan = SlcanPort(kind, port=port)
+    emulator = CanopenEmulator(bank, slcan.server_path, node_id, "slcan",
+                               bus_options={"sleep_after_open": 0.0, "bitrate": 1000000}, **kwargs)
+    emulator.slcan = slcan
+    try:
+        return emulator.start()
+    except BaseException:
+        slcan.close()
+        raise

@@ -20,6 +20,7 @@ import tty
 
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusServerContext
+from pymodbus.exceptions import NoSuchIdException
 from pymodbus.pdu.device import ModbusDeviceIdentification
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
@@ -28,6 +29,9 @@ from hsio.emulators.bank import CommandRefused, ControllerBank
 from hsio.interfaces import ControlMode
 
 log = logging.getLogger(__name__)
+# pymodbus reports a missed reply on its own logger (with a hex dump); the driver retries and
+# names the failure itself, so those reports stay out of a terminal unless logging is configured.
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())
 
 READ_CODES = (3, 23)
 WRITE_CODES = (6, 16, 23)
@@ -63,8 +67,31 @@ class RegisterContext(ModbusServerContext):
         # The command registers as last written (the host reads back what it wrote).
         self.commands = [{"displacement": 0.0, "force": 0.0, "mode": float(regmap.modes["displacement"]),
                           "enable": 0.0, "watchdog": 0.0} for _ in range(self.n)]
+        for reg in regmap.reset.values():
+            self.readable[reg.address] = self.writable[reg.address] = ("reset", None, reg)
         self.requests = 0
         self.exceptions = 0
+        self.ignored = 0  # requests for another unit id or broadcast (device id 0): not answered
+        self._pending = None  # the fault of a write-then-read, applied to its read
+
+    def _accept(self, device_id) -> None:
+        """Only this controller's unit id is served; another id, or a broadcast (0), is ignored
+        (no reply, nothing applied): docs/modbus.md, "Unit id and broadcast"."""
+        if device_id != self.map.device_id:
+            self.ignored += 1
+            raise NoSuchIdException(f"device id {device_id} is not {self.map.device_id}")
+
+    async def _fault(self, fault, applied: bool = False) -> None:
+        """Request faults of docs/faults.md: drop (no reply), restart, delay."""
+        if fault is None:
+            return
+        if fault.kind == "restart":
+            self.bank.restart()
+            raise NoSuchIdException("fault: controller restart")
+        if fault.kind == "drop" or (fault.kind == "corrupt" and applied):
+            raise NoSuchIdException(f"fault: {fault.kind}")  # the server stays silent
+        if fault.kind == "delay":
+            await asyncio.sleep(fault.arg)
 
     def device_ids(self):
         return [self.map.device_id]
@@ -81,11 +108,13 @@ class RegisterContext(ModbusServerContext):
             return (1.0 if bank.lockstep else 0.0) if reg.name == "flag" else float(bank.ticks)
         if kind == "command":
             return self.commands[axis][reg.name]
+        if kind == "reset":
+            return 0.0
         c = bank.controllers[axis]
         if reg.name == "status_word":
             return float(self.map.make_word(bank.flags(axis)))
         if reg.name == "displacement":
-            return c.measured_displacement
+            return bank.measured(axis)[0]
         if reg.name == "force":
             return c.measured_force
         if reg.name == "sequence":
@@ -93,6 +122,12 @@ class RegisterContext(ModbusServerContext):
         return 0.0
 
     async def async_getValues(self, device_id, func_code, address, count=1):
+        self._accept(device_id)
+        if func_code == 23:
+            fault, self._pending = self._pending, None
+        else:
+            fault = self.bank.fault_due()
+            await self._fault(fault)
         self.requests += 1
         if func_code not in READ_CODES:
             return self._exception(ExcCodes.ILLEGAL_FUNCTION, f"function {func_code} on holding registers")
@@ -106,10 +141,25 @@ class RegisterContext(ModbusServerContext):
                 kind, axis, reg = entry
                 out += self.map.encode(reg, self._value(kind, axis, reg))
                 at += reg.words
+        if fault is not None and fault.kind == "corrupt":
+            return out[:count - 1]  # a reply cut short
         return out[:count]
 
     # -- writes ------------------------------------------------------------------------------------
     async def async_setValues(self, device_id, func_code, address, values):
+        self._accept(device_id)
+        fault = self.bank.fault_due()
+        if fault is not None and fault.kind != "corrupt":
+            await self._fault(fault)
+        self._pending = fault if func_code == 23 else None
+        result = self._set(func_code, address, values)
+        if result is None and fault is not None and fault.kind == "duplicate":
+            result = self._set(func_code, address, values)  # the same frame, applied again
+        if result is None and fault is not None and fault.kind == "corrupt" and func_code != 23:
+            await self._fault(fault, applied=True)  # the write's reply is lost
+        return result
+
+    def _set(self, func_code, address, values):
         if func_code != 23:  # a write-then-read is counted once, by its read
             self.requests += 1
         if func_code not in WRITE_CODES:
@@ -129,6 +179,14 @@ class RegisterContext(ModbusServerContext):
             new = [dict(c) for c in self.commands]
             advance_to = None
             for kind, axis, reg, value in decoded:
+                if kind == "reset":
+                    if value != 1.0:
+                        return self._exception(ExcCodes.ILLEGAL_VALUE, f"interlock reset: write 1, not {value!r}")
+                    try:
+                        self.bank.reset_interlocks()
+                    except CommandRefused as exc:
+                        return self._exception(ExcCodes.DEVICE_FAILURE, f"interlock reset refused: {exc}")
+                    continue
                 if kind == "lockstep":
                     advance_to = value
                 else:
@@ -227,10 +285,12 @@ class ModbusEmulator:
     """
 
     def __init__(self, bank: ControllerBank, regmap: RegisterMap, transport: str = "tcp",
-                 host: str = "127.0.0.1", port: int = 0, baudrate: int = 115200):
+                 host: str = "127.0.0.1", port: int = 0, baudrate: int = 115200, faults=None):
         if transport not in ("tcp", "rtu"):
             raise ValueError(f"transport must be 'tcp' or 'rtu', got {transport!r}")
         self.bank = bank
+        if faults is not None:
+            bank.faults = faults
         self.map = regmap
         self.context = RegisterContext(bank, regmap)
         self.transport = transport
@@ -264,9 +324,11 @@ class ModbusEmulator:
     def _serve(self) -> None:
         async def main():
             if self.transport == "tcp":
-                self._server = ModbusTcpServer(self.context, address=(self.host, self.port), identity=identity(self.map))
+                self._server = ModbusTcpServer(self.context, address=(self.host, self.port), identity=identity(self.map),
+                                               ignore_missing_devices=True)
             else:
                 self._server = ModbusSerialServer(self.context, port=self.bridge.server_path, baudrate=self.baudrate,
+                                                  ignore_missing_devices=True,
                                                   identity=identity(self.map), timeout=0.1)
             self._loop = asyncio.get_running_loop()
             await self._server.serve_forever(background=True)

@@ -80,7 +80,44 @@ def from_dict(data: dict, source: str = "<dict>") -> RunConfig:
                 raise ConfigError(f"{source}: unknown key {key!r} in [{name}]; known: {', '.join(DEFAULTS[name])}")
             tables[name][key] = _check_type(f"{source}: [{name}]", key, value, DEFAULTS[name][key])
     _check_ranges(tables, source)
+    check_bounds(tables, source)
     return RunConfig(tables, source)
+
+
+# -- Sanity bounds (docs/faults.md) --------------------------------------------------------------
+# Upper (and lower) bounds of the run's own quantities: beyond them a run would hang, exhaust
+# memory or mean a typing error. (table, key) -> (low, high, unit). Checked after the types.
+BOUNDS: dict[tuple[str, str], tuple[float, float, str]] = {
+    ("test", "rate"): (1e-3, 1000.0, ""),
+    ("test", "n_avg"): (1, 1024, "samples"),
+    ("record", "synthetic_duration_s"): (0.0, 3600.0, "s"),
+    ("record", "duration_s"): (0.0, 3600.0, "s"),
+    ("record", "scale"): (-100.0, 100.0, ""),
+    ("record", "pga_g"): (0.0, 10.0, "g"),
+    ("record", "seed"): (0, 2**32 - 1, ""),
+    ("integrator", "j_max"): (1, 100, "iterations"),
+    ("integrator", "secant_n_avg"): (1, 10000, "samples"),
+    ("integrator", "tol_displacement_mm"): (0.0, 1000.0, "mm"),
+    ("integrator", "tol_force_kN"): (0.0, 1e5, "kN"),
+    ("integrator", "secant_min_increment_mm"): (0.0, 1000.0, "mm"),
+}
+
+
+def check_bounds(tables: dict, source: str) -> None:
+    """Every bounded key within its bounds; the error names the file, the table, the key and the bound."""
+    for (table, key), (low, high, unit) in BOUNDS.items():
+        value = tables[table][key]
+        if not low <= value <= high:
+            raise ConfigError(f"{source}: [{table}] {key} = {value!r} is out of bounds: it must be within "
+                              f"{low:g}..{high:g}{' ' + unit if unit else ''}")
+
+
+def _resolve_beside(config: "RunConfig", path: Path) -> None:
+    """File names inside the configuration ([driver] map, eds) are relative to the configuration file."""
+    for key in ("map", "eds"):
+        value = config["driver"].get(key)
+        if isinstance(value, str) and value and not Path(value).is_absolute():
+            config["driver"][key] = str((path.parent / value).resolve())
 
 
 def _check_ranges(t: dict, source: str) -> None:
@@ -151,6 +188,8 @@ def read_toml(path: str | Path, what: str) -> dict:
         raise ConfigError(f"{path}: cannot read {what}: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: malformed TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: cannot read {what}: not UTF-8 text (byte {exc.start})") from None
 
 
 def load(path: str | Path | None) -> RunConfig:
@@ -169,4 +208,5 @@ def load(path: str | Path | None) -> RunConfig:
     model_file = config["hardware"]["actuator_model"]
     if model_file and not Path(model_file).is_absolute():
         config["hardware"]["actuator_model"] = str((path.parent / model_file).resolve())
+    _resolve_beside(config, path)
     return config

@@ -26,3 +26,30 @@ class CommunicationError(HsioError):
 
 class InterlockError(HsioError):
     """A controller reports an interlock (limit trip, fault) and holds."""
+
+
+class ProtocolError(CommunicationError):
+    """A controller answered with a protocol-level error that carries a code (a Modbus
+    exception code, a CANopen SDO abort code). Control flow tests ``code``, never the text."""
+
+    def __init__(self, message: str, code: int):
+        super().__init__(message)
+        self.code = int(code)
+
+
+class ModbusExceptionError(ProtocolError):
+    """A Modbus exception response; ``code`` is the exception code (2: illegal data address, ...)."""
+
+
+class SdoAbortError(ProtocolError):
+    """A CANopen SDO transfer aborted; ``code`` is the 32-bit abort code (0x06020000: no such object)."""
+
+
+class ControllerRestartedError(CommunicationError):
+    """The controller restarted during the run (a new boot id or a boot-up message): its state
+    is lost and the run stops."""
+
+
+class ImplausibleMeasurementError(InterlockError):
+    """A measured value is not plausible (not finite, beyond a physical bound, an impossible
+    jump); it never reaches the integrator and the run holds as for an interlock."""

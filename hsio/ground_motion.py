@@ -17,6 +17,11 @@ import numpy as np
 from hsio.errors import RecordError
 
 G_MM_S2 = 9806.65  # standard gravity in mm/s^2
+# Sanity bounds (docs/faults.md): a record's time step, its length, and the steps of a run.
+DT_MIN_S, DT_MAX_S = 1e-5, 1.0
+MAX_SAMPLES = 2_000_000
+MAX_STEPS = 1_000_000
+MAX_FILE_BYTES = 200_000_000
 
 
 @dataclass(frozen=True)
@@ -52,11 +57,19 @@ class GroundMotion:
         return GroundMotion(f"{self.name} x {factor:g}", self.dt, self.accel_g * factor)
 
     def truncated(self, duration_s: float) -> "GroundMotion":
-        n = int(round(duration_s / self.dt)) + 1
+        n = int(min(round(duration_s / self.dt), MAX_SAMPLES)) + 1
         return GroundMotion(self.name, self.dt, self.accel_g[: max(n, 2)])
 
     def resampled(self, dt: float) -> "GroundMotion":
-        """Linear interpolation to time step ``dt`` over the same duration."""
+        """Linear interpolation to time step ``dt`` over the same duration (at most
+        :data:`MAX_STEPS` steps: a longer run is refused, naming the record and the bound)."""
+        if not (dt > 0 and math.isfinite(dt)):
+            raise RecordError(f"{self.name}: time step must be positive, got {dt!r}")
+        steps = self.duration_s / dt
+        if steps > MAX_STEPS:
+            raise RecordError(f"{self.name}: {self.duration_s:g} s at the structure's time step {dt:g} s is "
+                              f"{steps:.0f} steps, more than the bound of {MAX_STEPS} steps per run; shorten it "
+                              "([record] duration_s) or check the record's DT")
         if math.isclose(dt, self.dt, rel_tol=1e-12):
             return self
         n = int(math.floor(self.duration_s / dt + 1e-9)) + 1
@@ -82,6 +95,9 @@ def read_at2(path: str | Path) -> GroundMotion:
     """
     path = Path(path)
     try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise RecordError(f"{path}: {size} bytes is too large for a ground-motion file (at most {MAX_FILE_BYTES})")
         lines = path.read_text(encoding="latin-1").splitlines()
     except OSError as exc:
         raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
@@ -100,6 +116,11 @@ def read_at2(path: str | Path) -> GroundMotion:
         raise RecordError(f"{path}:4: DT {match.group(2)!r} is not a number") from None
     if not (dt > 0 and math.isfinite(dt)):
         raise RecordError(f"{path}:4: DT must be positive, got {dt!r}")
+    if not DT_MIN_S <= dt <= DT_MAX_S:
+        raise RecordError(f"{path}:4: DT = {dt:g} s is out of bounds: a record's time step must be within "
+                          f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
+    if not 2 <= npts <= MAX_SAMPLES:
+        raise RecordError(f"{path}:4: NPTS = {npts} is out of bounds: within 2..{MAX_SAMPLES}")
     values: list[float] = []
     for lineno, line in enumerate(lines[4:], start=5):
         for word in line.split():
@@ -132,6 +153,8 @@ def synthetic_record(
     """
     from scipy import signal
 
+    if not (duration_s > 0 and dt > 0 and duration_s / dt <= MAX_STEPS):
+        raise RecordError(f"synthetic record: {duration_s!r} s at {dt!r} s is beyond the bound of {MAX_STEPS} steps")
     n = int(round(duration_s / dt)) + 1
     rng = np.random.default_rng(seed)
     noise = rng.standard_normal(n)

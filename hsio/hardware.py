@@ -21,6 +21,7 @@ BUILT_IN = {
     "modbus+rtu": "hsio.drivers.modbus:open_url",
     "canopen+virtual": "hsio.drivers.canopen:open_url",
     "canopen+socketcan": "hsio.drivers.canopen:open_url",
+    "canopen+slcan": "hsio.drivers.canopen:open_url",
 }
 
 
@@ -33,7 +34,10 @@ def schemes() -> dict[str, str]:
 
 def _backend(url: str):
     """The module and function that ``url``'s scheme names."""
-    scheme = urlsplit(url).scheme
+    try:
+        scheme = urlsplit(url).scheme
+    except ValueError as exc:
+        raise ConfigError(f"hardware URL {url!r} is malformed ({exc})") from None
     target = schemes().get(scheme)
     if target is None:
         raise ConfigError(f"hardware URL {url!r}: unknown scheme {scheme!r}; known: {', '.join(sorted(schemes()))}")

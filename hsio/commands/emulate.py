@@ -19,6 +19,9 @@ from hsio.errors import HsioError
 
 
 def _common(func):
+    func = click.option("--faults", "faults_spec", default="", metavar="SPEC",
+                        help="Inject faults on a seeded schedule, e.g. 'drop@3000,spike@5000:40' or "
+                             "'seed=7,every=2000' (docs/faults.md).")(func)
     func = click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
                         help="Override an [emulator] setting (repeatable), e.g. --set lag_s=0.03.")(func)
     func = click.option("--watchdog-s", default=1.0, show_default=True, type=float,
@@ -29,14 +32,28 @@ def _common(func):
     return func
 
 
-def _bank(config_file, clock, watchdog_s, settings):
+def _bank(config_file, clock, watchdog_s, settings, faults_spec=""):
     from hsio.emulators.bank import bank_from_config, parse_settings
+    from hsio.emulators.faults import parse
     from hsio import config as config_mod
+    from hsio.errors import ConfigError
 
+    if not (watchdog_s >= 0 and watchdog_s <= 3600):
+        raise ConfigError(f"--watchdog-s {watchdog_s!r}: must be within 0..3600 s")
+    schedule = parse(faults_spec) if faults_spec else None
     if clock == "config":
         clock = config_mod.load(config_file)["hardware"]["clock"]
-    return bank_from_config(config_file, lockstep=(clock == "lockstep"), watchdog_s=watchdog_s,
+    bank = bank_from_config(config_file, lockstep=(clock == "lockstep"), watchdog_s=watchdog_s,
                             overrides=parse_settings(settings))
+    bank.faults = schedule
+    return bank
+
+
+def _fault_line(bank) -> list[str]:
+    f = bank.faults
+    if not f:
+        return []
+    return [f"faults    {len(f.faults)} scheduled, first at tick {f.faults[0].tick} (docs/faults.md)"]
 
 
 def _serve(emulator, bank, lines: list[str]) -> None:
@@ -57,6 +74,9 @@ def _serve(emulator, bank, lines: list[str]) -> None:
         pass
     finally:
         emulator.stop()
+        if bank.faults:
+            done_kinds = ", ".join(f"{k} {n}" for k, n in sorted(bank.faults.injected.items()))
+            click.echo(f"faults    injected {bank.faults.total}: {done_kinds or 'none'}")
         click.echo("emulator stopped; the axes hold.")
 
 
@@ -70,53 +90,71 @@ def emulate() -> None:
 @click.option("--port", default=5020, show_default=True, type=int, help="TCP port (0: any free port; the banner shows the one bound).")
 @click.option("--map", "map_file", default=None, type=click.Path(dir_okay=False), help="Register map TOML (default: hsio's).")
 @_common
-def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, settings) -> None:
+def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, settings, faults_spec) -> None:
     """Modbus TCP server (pymodbus) on HOST:PORT."""
     from hsio.drivers import modbus_map
     from hsio.emulators.modbus import ModbusEmulator
 
     try:
-        bank = _bank(config_file, clock, watchdog_s, settings)
+        if not 0 <= port <= 65535:
+            raise click.BadParameter(f"{port} is not in 0..65535", param_hint="--port")
+        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec)
         emulator = ModbusEmulator(bank, modbus_map.load(map_file), "tcp", host=host, port=port).start()
-    except (HsioError, RuntimeError, ValueError) as exc:
+    except (HsioError, RuntimeError, ValueError, OSError) as exc:
         click.echo(f"hsio emulate modbus: error: {exc}", err=True)
         sys.exit(2)
-    _serve(emulator, bank, [f"url       {emulator.url}", f"map       {emulator.map.name} ({emulator.map.source})"])
+    _serve(emulator, bank, [f"url       {emulator.url}", f"map       {emulator.map.name} ({emulator.map.source})",
+                            *_fault_line(bank)])
 
 
 @emulate.command("modbus-rtu")
 @click.option("--baudrate", default=115200, show_default=True, type=int)
 @click.option("--map", "map_file", default=None, type=click.Path(dir_okay=False), help="Register map TOML (default: hsio's).")
 @_common
-def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, settings) -> None:
+def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, settings, faults_spec) -> None:
     """Modbus RTU server on a pseudo-terminal; prints the pty path for the client."""
     from hsio.drivers import modbus_map
     from hsio.emulators.modbus import ModbusEmulator
 
     try:
-        bank = _bank(config_file, clock, watchdog_s, settings)
+        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec)
         emulator = ModbusEmulator(bank, modbus_map.load(map_file), "rtu", baudrate=baudrate).start()
     except (HsioError, RuntimeError, ValueError, OSError) as exc:
         click.echo(f"hsio emulate modbus-rtu: error: {exc}", err=True)
         sys.exit(2)
     _serve(emulator, bank, [f"pty       {emulator.path}", f"url       {emulator.url}",
-                            f"map       {emulator.map.name} ({emulator.map.source})"])
+                            f"map       {emulator.map.name} ({emulator.map.source})", *_fault_line(bank)])
 
 
 @emulate.command("canopen")
-@click.option("--channel", required=True, help="CAN channel name (virtual bus: shared inside one process only).")
+@click.option("--channel", default="", help="python-can channel (virtual bus: shared inside one process only).")
 @click.option("--interface", default="virtual", show_default=True, help="python-can interface (virtual, socketcan, ...).")
+@click.option("--slcan", type=click.Choice(["pty", "tcp"]), default=None,
+              help="Serve the bus as a Lawicel (SLCAN) adapter another process opens: on a pseudo-terminal, or on "
+                   "a TCP port of 127.0.0.1 (socket://). Replaces --channel/--interface (docs/canopen.md).")
+@click.option("--port", default=0, show_default=True, type=click.IntRange(0, 65535), help="TCP port for --slcan tcp (0: any free port).")
 @click.option("--node-id", default=1, show_default=True, type=click.IntRange(1, 127), help="Node id of axis 0 (axis k: +k).")
-@click.option("--heartbeat-ms", default=100, show_default=True, type=int)
+@click.option("--heartbeat-ms", default=100, show_default=True, type=click.IntRange(0, 65535))
 @_common
-def canopen_cmd(channel, interface, node_id, heartbeat_ms, config_file, clock, watchdog_s, settings) -> None:
-    """CiA 402 drives (canopen LocalNode) on a python-can bus."""
-    from hsio.emulators.canopen import CanopenEmulator
+def canopen_cmd(channel, interface, slcan, port, node_id, heartbeat_ms, config_file, clock, watchdog_s, settings,
+                faults_spec) -> None:
+    """CiA 402 drives (canopen LocalNode) on a python-can bus, or on an SLCAN port for another process."""
+    from hsio.emulators.canopen import CanopenEmulator, slcan_emulator
 
     try:
-        bank = _bank(config_file, clock, watchdog_s, settings)
-        emulator = CanopenEmulator(bank, channel, node_id, interface, heartbeat_ms).start()
+        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec)
+        if slcan:
+            emulator = slcan_emulator(bank, slcan, node_id, port=port, heartbeat_ms=heartbeat_ms)
+        else:
+            if not channel:
+                raise click.BadParameter("give --channel (or --slcan pty|tcp to reach the bus from another process)")
+            emulator = CanopenEmulator(bank, channel, node_id, interface, heartbeat_ms).start()
+    except click.BadParameter:
+        raise
     except Exception as exc:  # python-can raises various errors for a missing interface
         click.echo(f"hsio emulate canopen: error: {exc}", err=True)
         sys.exit(2)
-    _serve(emulator, bank, [f"url       {emulator.url}", f"nodes     {node_id}..{node_id + len(bank.controllers) - 1}"])
+    lines = [f"url       {emulator.url}", f"nodes     {node_id}..{node_id + len(bank.controllers) - 1}"]
+    if slcan:
+        lines.insert(0, f"slcan     {emulator.slcan.path}")
+    _serve(emulator, bank, lines + _fault_line(bank))

@@ -27,7 +27,10 @@ def latency_stats(samples_s: list[float]) -> dict:
 
 
 def _open(url: str, axes: int, options: dict, enable: bool):
-    scheme = urlsplit(url).scheme
+    try:
+        scheme = urlsplit(url).scheme
+    except ValueError as exc:
+        raise click.BadParameter(f"{url!r} is malformed ({exc})", param_hint="URL") from None
     names = [f"axis{k}" for k in range(axes)]
     if scheme.startswith("modbus+"):
         from hsio.drivers.modbus import open_link
@@ -134,10 +137,15 @@ def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> di
 @click.option("--sine-mm", default=1.0, show_default=True, type=float)
 @click.option("--sine-hz", default=0.5, show_default=True, type=float)
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE", help="A [driver] setting (repeatable).")
-def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options) -> None:
+@click.option("--reset-interlock", is_flag=True,
+              help="Modbus: hold every axis and clear the latched interlocks (docs/modbus.md, Interlock reset).")
+def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options, reset_interlock=False) -> None:
     """Diagnose the controller at URL: identity, state, latency; with --move, step and sine."""
     from hsio.clock import LockstepClock, RealTimeClock
 
+    bad = [o for o in options if "=" not in o]
+    if bad:
+        raise click.BadParameter(f"{bad[0]!r}: expected KEY=VALUE", param_hint="--option")
     table = dict(o.partition("=")[::2] for o in options)
     report: dict = {"url": url}
     actuators = []
@@ -148,6 +156,11 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
         report["connect_s"] = round(time.perf_counter() - started, 4)
         report["clock"] = "lockstep" if link.lockstep else "realtime"
         report["identity"] = _identity(link)
+        if reset_interlock:
+            if not hasattr(link, "reset_interlock"):
+                raise click.BadParameter("--reset-interlock: only Modbus controllers have a reset register")
+            link.reset_interlock()
+            report["interlock_reset"] = True
         report["axes"] = _state(link, actuators)
         report["latency"] = _latency(link, n_requests)
         if move:

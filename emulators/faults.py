@@ -1,0 +1,207 @@
+"""Fault injection in the emulated controllers (docs/faults.md).
+
+A :class:`FaultSchedule` is a list of faults, each at a controller tick, parsed from a SPEC
+string (``hsio emulate ... --faults SPEC``) or built in code. The protocol front-ends
+(:mod:`hsio.emulators.modbus`, :mod:`hsio.emulators.canopen`) ask it, request by request, what
+to do; the bank (:mod:`hsio.emulators.bank`) asks it what the transducers read.
+
+SPEC: items separated by commas.
+
+* ``KIND@TICK`` or ``KIND@TICK:ARG``: one fault at the first request at or after controller
+  tick TICK (ARG: the fault's parameter, see :data:`KINDS`).
+* ``seed=S``, ``every=N``, ``kinds=K1+K2+...``, ``until=T``: a seeded random schedule, one
+  fault every N ticks on average (gaps uniform in N/2..3N/2) up to tick T (default 10**7),
+  kinds drawn from the list (default the recoverable ones: drop, delay, corrupt, duplicate).
+
+Kinds (what happens, and the outcome the driver gives; docs/faults.md):
+
+=========== ============================================================== ================
+drop        the request is lost: nothing applied, no reply                  retried, completes
+delay:S     the reply is held S seconds (default 0.05)                      completes
+corrupt     the reply is cut short (a reply the driver cannot use)          retried, completes
+duplicate   the request is applied twice (a repeated frame)                 completes
+restart     the controller restarts: new boot id, clock at 0, axes hold     stops (restarted)
+spike:MM    one displacement reading of axis 0 off by MM (default 50)       interlock (implausible)
+stuck:N     axis 0's displacement reading frozen for N ticks (0: for good)  interlock (stuck transducer)
+nan         one displacement reading of axis 0 is NaN                       interlock (implausible)
+valve       axis 0's servo-valve fails: the controller trips and holds      interlock
+=========== ============================================================== ================
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import threading
+from dataclasses import dataclass, field
+
+from hsio.errors import ConfigError
+
+KINDS = {  # kind -> default argument
+    "drop": 0.0, "delay": 0.05, "corrupt": 0.0, "duplicate": 0.0, "restart": 0.0,
+    "spike": 50.0, "stuck": 0.0, "nan": 0.0, "valve": 0.0,
+}
+REQUEST_KINDS = ("drop", "delay", "corrupt", "duplicate", "restart")
+RECOVERABLE = ("drop", "delay", "corrupt", "duplicate")
+MAX_FAULTS = 100_000
+MAX_TICK = 10**9
+MAX_DELAY_S = 10.0
+
+
+@dataclass
+class Fault:
+    kind: str
+    tick: int
+    arg: float = 0.0
+    done: bool = False
+
+
+@dataclass
+class FaultSchedule:
+    """Faults by controller tick; thread-safe; counts what it injected."""
+
+    faults: list[Fault] = field(default_factory=list)
+    injected: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.faults.sort(key=lambda f: f.tick)
+        self._lock = threading.Lock()
+        self._next = 0
+        self.stuck_until: int | None = None
+        self.stuck_value: float | None = None
+        self.spike_mm = 0.0
+        self.nan = False
+        self.valve = False
+
+    def __bool__(self) -> bool:
+        return bool(self.faults)
+
+    def _count(self, kind: str) -> None:
+        self.injected[kind] = self.injected.get(kind, 0) + 1
+
+    def due(self, tick: int, kinds=REQUEST_KINDS) -> Fault | None:
+        """The next request fault due at ``tick`` (at most one per request), marked done.
+        Measurement faults that fall due are armed for the bank."""
+        with self._lock:
+            while self._next < len(self.faults) and self.faults[self._next].tick <= tick:
+                f = self.faults[self._next]
+                self._next += 1
+                f.done = True
+                self._count(f.kind)
+                if f.kind in kinds:
+                    return f
+                self._arm(f, tick)
+        return None
+
+    def _arm(self, f: Fault, tick: int) -> None:
+        if f.kind == "spike":
+            self.spike_mm = f.arg
+        elif f.kind == "nan":
+            self.nan = True
+        elif f.kind == "stuck":
+            self.stuck_until = tick + int(f.arg) if f.arg > 0 else MAX_TICK * 10
+            self.stuck_value = None
+        elif f.kind == "valve":
+            self.valve = True
+
+    def measured(self, axis: int, tick: int, displacement: float) -> float:
+        """What axis ``axis``'s displacement transducer reports (faults apply to axis 0)."""
+        if axis != 0:
+            return displacement
+        with self._lock:
+            if self.nan:
+                self.nan = False
+                return math.nan
+            if self.spike_mm:
+                spike, self.spike_mm = self.spike_mm, 0.0
+                return displacement + spike
+            if self.stuck_until is not None:
+                if tick < self.stuck_until:
+                    if self.stuck_value is None:
+                        self.stuck_value = displacement
+                    return self.stuck_value
+                self.stuck_until = self.stuck_value = None
+        return displacement
+
+    def take_valve(self) -> bool:
+        with self._lock:
+            v, self.valve = self.valve, False
+            return v
+
+    @property
+    def total(self) -> int:
+        return sum(self.injected.values())
+
+
+def _number(item: str, text: str, kind=float, low=0.0, high=math.inf):
+    try:
+        value = kind(text)
+    except ValueError:
+        raise ConfigError(f"--faults {item!r}: {text!r} is not a {'whole number' if kind is int else 'number'}") from None
+    if not (math.isfinite(value) and low <= value <= high):
+        raise ConfigError(f"--faults {item!r}: {text} is not in {low:g}..{high:g}")
+    return value
+
+
+def parse(spec: str) -> FaultSchedule:
+    """A SPEC string (see the module's docstring) as a schedule; a bad item is a ConfigError
+    naming it."""
+    faults: list[Fault] = []
+    rnd: dict[str, str] = {}
+    if len(spec) > 100_000:
+        raise ConfigError(f"--faults: SPEC of {len(spec)} characters is too long (at most 100000)")
+    for item in (s.strip() for s in spec.split(",")):
+        if not item:
+            continue
+        if "=" in item:
+            key, _, value = item.partition("=")
+            key = key.strip()
+            if key not in ("seed", "every", "kinds", "until"):
+                raise ConfigError(f"--faults {item!r}: unknown key {key!r}; known: seed, every, kinds, until")
+            rnd[key] = value.strip()
+            continue
+        kind, at, rest = item.partition("@")
+        kind = kind.strip()
+        if kind not in KINDS:
+            raise ConfigError(f"--faults {item!r}: unknown fault {kind!r}; known: {', '.join(KINDS)}")
+        if not at:
+            raise ConfigError(f"--faults {item!r}: expected KIND@TICK or KIND@TICK:ARG")
+        tick_text, _, arg_text = rest.partition(":")
+        tick = _number(item, tick_text.strip(), int, 0, MAX_TICK)
+        arg = KINDS[kind] if not arg_text else _number(item, arg_text.strip(), float, 0.0, _arg_max(kind))
+        faults.append(Fault(kind, tick, arg))
+        if len(faults) > MAX_FAULTS:
+            raise ConfigError(f"--faults: more than {MAX_FAULTS} faults")
+    if rnd:
+        faults += random_faults(
+            seed=_number("seed=", rnd.get("seed", "0"), int, 0, 2**32 - 1),
+            every=_number("every=", rnd.get("every", "1000"), int, 10, MAX_TICK),
+            kinds=_kinds(rnd.get("kinds", "+".join(RECOVERABLE))),
+            until=_number("until=", rnd.get("until", str(10**7)), int, 1, MAX_TICK),
+        )
+    return FaultSchedule(faults)
+
+
+def _arg_max(kind: str) -> float:
+    return {"delay": MAX_DELAY_S, "spike": 1e30, "stuck": MAX_TICK}.get(kind, 0.0)
+
+
+def _kinds(text: str) -> tuple[str, ...]:
+    kinds = tuple(k.strip() for k in text.split("+") if k.strip())
+    bad = [k for k in kinds if k not in KINDS]
+    if bad or not kinds:
+        raise ConfigError(f"--faults kinds={text!r}: unknown fault(s) {', '.join(bad) or '(none given)'}; known: {', '.join(KINDS)}")
+    return kinds
+
+
+def random_faults(seed: int, every: int, kinds=RECOVERABLE, until: int = 10**7, start: int = 0) -> list[Fault]:
+    """A seeded schedule: one fault every ``every`` ticks on average, up to ``until``."""
+    rng = random.Random(seed)
+    out, tick = [], start
+    while len(out) < MAX_FAULTS:
+        tick += rng.randint(max(every // 2, 1), max(3 * every // 2, 1))
+        if tick > until:
+            break
+        kind = rng.choice(kinds)
+        out.append(Fault(kind, tick, KINDS[kind]))
+    return out

@@ -1,0 +1,82 @@
+"""CANopen across processes: `hsio emulate canopen --slcan pty|tcp` serves the drives as a
+Lawicel (SLCAN) adapter; `hsio run` in another process reaches them through python-can's slcan
+interface, as it would a USB-CAN adapter. The result equals the run with the emulator in the
+same process on python-can's virtual bus, step for step."""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from hsio.emulators.bank import bank_from_config
+from hsio.emulators.canopen import CanopenEmulator, SlcanPort
+from hsio.recording import Run
+from test_emulate_cli import Emulator, hsio
+from wire import QUIET_SENSORS, run, write_config
+
+_channels = itertools.count()
+
+
+@pytest.fixture(scope="module")
+def cfg(tmp_path_factory):
+    return write_config(tmp_path_factory.mktemp("slcan"), duration=0.5, rate=4.0, extra=QUIET_SENSORS)
+
+
+@pytest.fixture(scope="module")
+def in_process(cfg, tmp_path_factory):
+    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), f"slcan-ref-{next(_channels)}", 1).start()
+    try:
+        summary, recorded = run(cfg, tmp_path_factory.mktemp("local") / "run", url=emu.url)
+    finally:
+        emu.stop()
+    assert isinstance(summary, dict), summary
+    return summary, recorded
+
+
+@pytest.mark.parametrize("kind", ["pty", "tcp"])
+def test_run_across_processes_equals_in_process(cfg, in_process, tmp_path, kind):
+    emu = Emulator("canopen", "--slcan", kind, cfg)
+    try:
+        url = emu.lines["url"]
+        assert url.startswith("canopen+slcan://" + ("127.0.0.1:" if kind == "tcp" else "/dev/pts/"))
+        run_cfg = tmp_path / "run.toml"
+        run_cfg.write_text(cfg.read_text().replace('clock = "lockstep"', f'clock = "lockstep"\nurl = "{url}"'))
+        proc = hsio("run", run_cfg, "--out", tmp_path / "o", "--json")
+    finally:
+        emu.stop()
+    assert proc.returncode == 0, proc.stderr
+    summary, local = in_process
+    across = Run(tmp_path / "o" / "run.sqlite")
+    assert json.loads(proc.stdout)["steps"] == summary["steps"] > 0
+    for key in local.steps:
+        if key.startswith(("u_", "disp_", "force_", "target_")):
+            assert np.array_equal(across.steps[key], local.steps[key]), key
+
+
+def test_slcan_tcp_listens_on_loopback_only():
+    with pytest.raises(ValueError, match="loopback"):
+        SlcanPort("tcp", host="0.0.0.0")
+
+
+def test_scaling_is_never_guessed(tmp_path):
+    """A drive without the position factor 0x6093 or the feed constant 0x6092 needs [driver]
+    counts_per_mm; with it set, the run goes on."""
+    from hsio.clock import LockstepClock
+    from hsio.drivers.canopen import open_link
+    from hsio.errors import ConfigError
+
+    emu = CanopenEmulator(bank_from_config(write_config(tmp_path), lockstep=True), f"slcan-noscale-{next(_channels)}", 1).start()
+    try:
+        for axis in emu.axes:
+            del axis.node.object_dictionary[0x6093]
+        with pytest.raises(ConfigError, match="no position scaling.*counts_per_mm"):
+            open_link(emu.url, ["C1", "C2"], LockstepClock(), {})
+        actuators = open_link(emu.url, ["C1", "C2"], LockstepClock(), {"counts_per_mm": 1000})
+        assert actuators[0].drive.counts_per_mm == 1000.0
+        for a in actuators:
+            a.close()
+    finally:
+        emu.stop()
