@@ -60,7 +60,7 @@ try:  # the controller's own process: the other CPU and real-time priority where
 except (AttributeError, OSError):
     pass
 from hsio.drivers import modbus_map
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.modbus import ModbusEmulator
 emu = ModbusEmulator(bank_from_config(None, lockstep=False, watchdog_s=0), modbus_map.load(),
                      host="127.0.0.1", port=0).start()

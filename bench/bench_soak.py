@@ -23,7 +23,7 @@ from hsio import runner
 from hsio.drivers import modbus as modbus_driver
 from hsio.drivers import modbus_map
 from hsio.emulators import faults
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.modbus import ModbusEmulator
 
 DT = 0.01  # the validation structure's time step

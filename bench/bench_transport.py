@@ -19,7 +19,7 @@ import numpy as np
 from hsio.drivers import modbus_map
 from hsio.drivers.canopen import open_link as canopen_link
 from hsio.drivers.modbus import open_link as modbus_link
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.canopen import CanopenEmulator
 from hsio.emulators.modbus import ModbusEmulator
 from hsio import config as config_mod

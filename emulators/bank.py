@@ -19,12 +19,10 @@ import threading
 import time
 from dataclasses import dataclass
 
-from hsio.emulators.servo import ServoController, make_controllers, parse_value
-from hsio import config as config_mod
+from hsio.emulators.servo import ServoController, parse_value
 from hsio.clock import RealTimeClock
 from hsio.errors import ConfigError
 from hsio.interfaces import ControlMode
-from hsio.structures import get_structure
 
 
 class CommandRefused(Exception):
@@ -218,19 +216,6 @@ class ControllerBank:
             "refused": state.refused,
             "lockstep": self.lockstep,
         }
-
-
-def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float = 1.0,
-                     overrides: dict | None = None) -> ControllerBank:
-    """One axis per experimental element of the structure in an ``hsio run`` configuration.
-
-    Each axis gets the [emulator] settings and its own noise seed (seed + index), exactly as the
-    in-process emulator (``emulator://``) builds them, so both give the same controller.
-    """
-    cfg = config_mod.load(config_path)
-    structure = get_structure(cfg["structure"]["name"])
-    controllers = make_controllers(structure.experimental, {**cfg["emulator"], **(overrides or {})})
-    return ControllerBank(controllers, [e.name for e in structure.experimental], lockstep, watchdog_s)
 
 
 def parse_settings(pairs) -> dict:

@@ -12,7 +12,7 @@ import pytest
 
 from hsio.drivers import canopen_od as cod
 from hsio.drivers.canopen import CanopenLink, open_link
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.canopen import CanopenEmulator
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.errors import CommunicationError, ConfigError, InterlockError

@@ -13,7 +13,7 @@ from hsio.drivers.canopen import CanopenLink
 from hsio.drivers.canopen import open_link as canopen_open
 from hsio.drivers.modbus import ModbusLink
 from hsio.drivers.modbus import open_link as modbus_open
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.canopen import OE, CanopenEmulator
 from hsio.emulators.modbus import ModbusEmulator
 from hsio.clock import LockstepClock, RealTimeClock

@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 
 from hsio.drivers import modbus_map
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.canopen import CanopenEmulator
 from hsio.emulators.modbus import ModbusEmulator
 from wire import QUIET_SENSORS, max_abs_diff, run

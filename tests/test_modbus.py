@@ -11,7 +11,7 @@ from pymodbus.client import ModbusTcpClient
 
 from hsio.drivers import modbus_map
 from hsio.drivers.modbus import ModbusLink, open_link
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.modbus import ModbusEmulator
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.errors import CommunicationError, ConfigError, InterlockError

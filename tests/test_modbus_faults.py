@@ -11,7 +11,7 @@ import time
 import pytest
 
 from hsio.drivers import modbus_map
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.modbus import ModbusEmulator
 from hsio import api
 from hsio.clock import LockstepClock

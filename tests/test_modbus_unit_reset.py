@@ -9,7 +9,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from hsio.clock import LockstepClock
 from hsio.drivers import modbus_map
 from hsio.drivers.modbus import ModbusLink, open_link
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.modbus import ModbusEmulator
 from hsio.errors import InterlockError, ModbusExceptionError
 from wire import write_config

@@ -226,7 +226,7 @@ def test_fault_spec_parses_or_is_refused(spec):
 
 @pytest.fixture(scope="module")
 def modbus_emulator():
-    from hsio.emulators.bank import bank_from_config
+    from hsio.commands.emulate import bank_from_config
     from hsio.emulators.modbus import ModbusEmulator
 
     emu = ModbusEmulator(bank_from_config(None, lockstep=True, watchdog_s=0.0), modbus_map.load()).start()
@@ -272,7 +272,7 @@ def test_modbus_emulator_survives_any_frames(modbus_emulator, frames):
 def canopen_pair():
     import canopen
 
-    from hsio.emulators.bank import bank_from_config
+    from hsio.commands.emulate import bank_from_config
     from hsio.emulators.canopen import CanopenEmulator
 
     emu = CanopenEmulator(bank_from_config(None, lockstep=True, watchdog_s=0.0), "fuzz", 1).start()

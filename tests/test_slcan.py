@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from hsio.emulators.bank import bank_from_config
+from hsio.commands.emulate import bank_from_config
 from hsio.emulators.canopen import CanopenEmulator, SlcanPort
 from hsio.recording import Run
 from test_emulate_cli import Emulator, hsio

@@ -32,8 +32,29 @@ def _common(func):
     return func
 
 
+def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float = 1.0,
+                     overrides: dict | None = None):
+    """An emulated controller with one axis per experimental element of the structure in an
+    ``hsio run`` configuration, named as the structure file names its actuators.
+
+    Each axis gets the [emulator] settings and its own noise seed (seed + index), exactly as the
+    in-process emulator (``emulator://``) builds them, so both give the same controller. The
+    core reads the configuration and the structure; the emulator gets only the actuators.
+    """
+    from hsio import config as config_mod
+    from hsio.emulators.bank import ControllerBank
+    from hsio.emulators.servo import make_controllers
+    from hsio.interfaces import ActuatorSpec
+    from hsio.runner import load_run_structure
+
+    cfg = config_mod.load(config_path)
+    specs = [ActuatorSpec(e.actuator, e.specimen) for e in load_run_structure(cfg).experimental]
+    controllers = make_controllers(specs, {**cfg["emulator"], **(overrides or {})})
+    return ControllerBank(controllers, [s.name for s in specs], lockstep, watchdog_s)
+
+
 def _bank(config_file, clock, watchdog_s, settings, faults_spec=""):
-    from hsio.emulators.bank import bank_from_config, parse_settings
+    from hsio.emulators.bank import parse_settings
     from hsio.emulators.faults import parse
     from hsio import config as config_mod
     from hsio.errors import ConfigError
