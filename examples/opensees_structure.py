@@ -63,6 +63,9 @@ def build(ops, structure, ground_mm_s2: np.ndarray, ports, host: str = "127.0.0.
     ops.test("FixedNumIter", 1)
     ops.algorithm("Linear")
     ops.integrator("AlphaOS", 1.0 + alpha)
+    # At rest, with the record's first value acting: M a_0 = P_0 = -M iota a_g(0), as hsio starts.
+    for k in range(structure.n_dof):
+        ops.setNodeAccel(k + 1, 1, -float(ground_mm_s2[0]), "-commit")
     ops.analysis("Transient")
 
 

@@ -81,6 +81,7 @@ class Lab:
         self.has_imposed = np.zeros(n, dtype=bool)
         self.moved_this_step = np.zeros(n, dtype=bool)
         self.committed_flags = np.zeros(n, dtype=bool)
+        self.snapshots: list[tuple | None] = [None] * n  # per element, its state at its commit
         self.answered = np.zeros(n)  # the last force answered, kN
         self.steps = 0
         self.failed = ""
@@ -223,30 +224,33 @@ class Lab:
         return float(self.K_EI[j])
 
     def _commit(self, j: int) -> None:
-        """Element ``j`` accepts the step; once every connected element has, the step is recorded."""
+        """Element ``j`` accepts the step: its state is kept as it is now (the next trial may come
+        before the other elements commit); once every connected element has committed, the step is
+        recorded. A step in which nothing moved (a commit before any force) is not a step."""
         site = self._require_site()
+        if self.moved_this_step[j]:
+            daq = site.get_daq()
+            trial = self.latest[j]
+            self.snapshots[j] = (trial.t, *(float(self.to_mm(x)[0]) if x.size else 0.0 for x in (trial.d, trial.v, trial.a)),
+                                 float(self.imposed[j]), float(self.answered[j]), float(daq.commands[j]),
+                                 float(daq.u[j]), float(daq.R[j]))
         self.committed_flags[j] = True
+        self.moved_this_step[j] = False
         if not all(self.committed_flags[k] for k in self.active):
             return
-        if not self.moved_this_step[list(self.active)].any():
-            self._reset_step()  # nothing was imposed (e.g. a commit before any force): no step
+        rows = [self.snapshots[k] for k in range(self.n)]
+        self.snapshots = [None] * self.n
+        self.committed_flags[:] = False
+        if all(r is None for r in rows):
             return
-        daq = site.get_daq()
         samples = site.take_samples()
         site.commit()
         self.steps += 1
-        t = next((tr.t for tr in self.latest if tr is not None), 0.0)
-        u = np.array([self.to_mm(tr.d)[0] if tr is not None else 0.0 for tr in self.latest])
-        v = np.array([self.to_mm(tr.v)[0] if tr is not None and tr.v.size else 0.0 for tr in self.latest])
-        a = np.array([self.to_mm(tr.a)[0] if tr is not None and tr.a.size else 0.0 for tr in self.latest])
-        self.recorder.write_step(self.steps, t, u, v, a, self.imposed, self.answered,
-                                 [ControlMode.DISPLACEMENT.value] * self.n, self.imposed, daq.commands,
-                                 daq.u, daq.R, samples)
-        self._reset_step()
-
-    def _reset_step(self) -> None:
-        self.moved_this_step[:] = False
-        self.committed_flags[:] = False
+        blank = (0.0,) * 9
+        t, u, v, a, target, answered, command, disp, force = (np.array(c) for c in zip(*(r or blank for r in rows)))
+        self.recorder.write_step(self.steps, float(next(r[0] for r in rows if r is not None)), u, v, a, target,
+                                 answered, [ControlMode.DISPLACEMENT.value] * self.n, target, command, disp, force,
+                                 samples)
 
     def _stop(self) -> None:
         self.active.clear()
