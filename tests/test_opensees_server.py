@@ -182,6 +182,7 @@ frames = st.lists(st.tuples(actions, values, st.booleans()), min_size=1, max_siz
 @PROPERTY
 @given(messages=frames)
 def test_hostile_data_messages_are_refused_and_the_actuators_hold(server, messages):
+    sessions = server.lab.sessions
     c = RawClient(server.ports[0], timeout_s=5.0)
     try:
         c.setup()
@@ -203,7 +204,8 @@ def test_hostile_data_messages_are_refused_and_the_actuators_hold(server, messag
         pass
     finally:
         c.close()
-    assert wait_for(lambda: session_over(server))  # the session ended: actuators held and released
+    # The session (opened by the valid setup) ended: the actuators held and were released.
+    assert wait_for(lambda: server.lab.sessions > sessions and session_over(server))
     for path in records(server)[-1:]:
         run = Run(path)
         targets = run.actuator("target", "C1") if len(run.steps["step"]) else np.zeros(0)
