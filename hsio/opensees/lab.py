@@ -164,9 +164,6 @@ class Lab:
         return np.asarray(K, dtype=float) * self.settings.length_factor / self.settings.force_factor
 
     # --- actions --------------------------------------------------------------------------
-    def _set_trial(self, j: int, trial: Trial) -> None:
-        self.latest[j] = trial
-
     def _require_site(self):
         if self.failed:
             raise HsioError(f"the session stopped earlier ({self.failed}); the actuators hold")
@@ -192,8 +189,9 @@ class Lab:
 
     def _impose(self, site) -> None:
         """Every element with a new trial moves to it; the others stay at their last target."""
+        latest = list(self.latest)
         targets = np.where(self.has_imposed, self.imposed, site.committed()[0])
-        for k, trial in enumerate(self.latest):
+        for k, trial in enumerate(latest):
             if trial is not None:
                 targets[k] = float(self.to_mm(trial.d)[0])
         for actuator, value in zip(site.loop.actuators, targets):  # refused before anything moves
@@ -203,7 +201,7 @@ class Lab:
         self.site_s += time.perf_counter() - t0
         self.imposed = targets
         self.has_imposed[:] = True
-        for k, trial in enumerate(self.latest):
+        for k, trial in enumerate(latest):
             if trial is not None:
                 self.moved_this_step[k] = True
 
@@ -273,7 +271,9 @@ class Lab:
         self._call(self._hold, reason)
 
     def set_trial(self, j: int, trial: Trial) -> None:
-        self._call(self._set_trial, j, trial)
+        """Store element ``j``'s trial (nothing moves until a force is asked for); no worker hop:
+        one reference is replaced, and :meth:`_impose` works on a copy of the list."""
+        self.latest[j] = trial
 
     def force(self, j: int) -> float:
         """Element ``j``'s force (kN) at its latest trial, moving the actuators if needed."""
@@ -285,6 +285,8 @@ class Lab:
 
     def tangent(self, j: int) -> float:
         """kN/mm: K^EI, or the secant of the last trial where it is finite and positive."""
+        if self.settings.stiffness == "initial":
+            return float(self.K_EI[j])
         return self._call(self._tangent, j)
 
     def commit(self, j: int) -> None:
