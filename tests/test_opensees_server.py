@@ -24,7 +24,7 @@ PROPERTY = settings(max_examples=200, deadline=None, suppress_health_check=[Heal
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("opensees")
-    config = write_config(tmp, "validation", ["C1"], extra="timeout_s = 1.0\n" + QUIET)
+    config = write_config(tmp, "validation", ["C1"], extra="timeout_s = 2.0\n" + QUIET)
     with serving(config) as srv:
         srv.tmp = tmp
         yield srv
@@ -88,11 +88,11 @@ def test_silent_client_is_dropped_and_its_record_closed(server):
     c = RawClient(server.ports[0])
     c.setup()
     c.step(0.3, 0.01)
-    assert c.closed_by_server(timeout_s=5.0)  # timeout_s = 1 in the fixture
+    assert c.closed_by_server(timeout_s=5.0)  # timeout_s = 2 in the fixture
     c.close()
     assert wait_for(lambda: session_over(server))
     run = Run(records(server)[-1])
-    assert run.summary["steps"] == 1 and "silent for 1 s" in run.summary["end"]
+    assert run.summary["steps"] == 1 and "silent for 2 s" in run.summary["end"]
     good_step_works(server)
 
 

@@ -214,9 +214,11 @@ class Lab:
             return float(site.committed()[0][j])
 
     def _tangent(self, j: int) -> float:
-        """kN/mm: K^EI, or the secant of the last trial from the committed state where it is finite."""
-        if self.settings.stiffness == "secant" and self.site is not None and self.site._daq is not None:
-            k = float(self.site.get_daq().k[j])
+        if self.settings.stiffness == "secant" and self.site is not None:
+            try:
+                k = float(self.site.get_daq().k[j])
+            except RuntimeError:  # no trial yet
+                k = float("nan")
             if np.isfinite(k) and k > 0:
                 return k
         return float(self.K_EI[j])
@@ -256,7 +258,11 @@ class Lab:
 
     # --- the worker -----------------------------------------------------------------------
     def _call(self, fn, *args):
-        return self._worker.submit(fn, *args).result()
+        try:
+            future = self._worker.submit(fn, *args)
+        except RuntimeError:  # the worker has stopped: the server is closing
+            raise HsioError("the server is stopping") from None
+        return future.result()
 
     def attach(self, j: int) -> None:
         """Element ``j`` joins the session (the first one opens the actuators)."""

@@ -22,6 +22,7 @@ from hsio.opensees.lab import Lab
 SETUP_TIMEOUT_S = 10.0  # for the setup message (the element sends it right after connecting)
 MAX_PENDING = 8  # connections waiting for their setup message, at most
 ACCEPT_POLL_S = 0.2
+CLAIM_WAIT_S = 0.5  # a second client for a busy element waits this long, then is refused
 
 
 class OpenSeesServer:
@@ -36,7 +37,9 @@ class OpenSeesServer:
             raise HsioError(f"{lab.n} elements served, {len(ports)} ports given")
         self._stop = threading.Event()
         self._lock = threading.Lock()
+        self._freed = threading.Condition(self._lock)  # notified when an element's client leaves
         self._busy: dict[int, socket.socket] = {}
+        self._open: set[socket.socket] = set()  # every accepted connection not yet closed
         self._pending = 0
         self._threads: list[threading.Thread] = []
         self.refused = 0
@@ -71,16 +74,18 @@ class OpenSeesServer:
             except OSError:
                 return
             with self._lock:
-                full = self._pending >= MAX_PENDING
+                full = self._pending >= MAX_PENDING or self._stop.is_set()
                 if not full:
                     self._pending += 1
+                    self._open.add(conn)
             if full:
                 self._refuse(conn, f"element {self.lab.names[j]}: connection from {peer[0]}:{peer[1]} refused: "
                                    f"{MAX_PENDING} connections already wait for their setup message")
                 continue
             t = threading.Thread(target=self._connection, args=(j, conn, peer), daemon=True)
             t.start()
-            self._threads = [x for x in self._threads if x.is_alive()] + [t]
+            with self._lock:
+                self._threads = [x for x in self._threads if x.is_alive()] + [t]
 
     def _refuse(self, conn: socket.socket, message: str) -> None:
         self.refused += 1
@@ -106,11 +111,11 @@ class OpenSeesServer:
             finally:
                 with self._lock:
                     self._pending -= 1
-            with self._lock:
-                if j in self._busy or self._stop.is_set():
-                    busy = True
-                else:
-                    busy = False
+            with self._freed:
+                # A client that reconnects at once may find the previous one still closing its session.
+                self._freed.wait_for(lambda: j not in self._busy or self._stop.is_set(), CLAIM_WAIT_S)
+                busy = j in self._busy or self._stop.is_set()
+                if not busy:
                     self._busy[j] = conn
             if busy:
                 self._refuse(conn, f"{who}: refused: element {name} already has a client (one client per element)")
@@ -144,11 +149,16 @@ class OpenSeesServer:
             except Exception as exc:  # a fault of the server itself: hold, report, keep serving
                 reason = f"unexpected error: {exc!r}"
                 self.lab.hold(reason)
-            self.lab.detach(j, f"{reason}; {handler.messages} messages")
+            try:
+                self.lab.detach(j, f"{reason}; {handler.messages} messages")
+            except Exception as exc:  # the server is closing: the lab closes the session itself
+                self.log(f"{who}: {reason}; {exc}")
         finally:
-            if claimed:
-                with self._lock:
+            with self._freed:
+                self._open.discard(conn)
+                if claimed:
                     self._busy.pop(j, None)
+                    self._freed.notify_all()
             try:
                 conn.close()
             except OSError:
@@ -163,13 +173,14 @@ class OpenSeesServer:
             except OSError:
                 pass
         with self._lock:
-            conns = list(self._busy.values())
+            conns = list(self._open)
+            threads = list(self._threads)
         for c in conns:
             try:
                 c.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
-        for t in list(self._threads):
+        for t in threads:
             t.join(timeout_s)
         self.lab.close()
 
