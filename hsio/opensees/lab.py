@@ -86,6 +86,7 @@ class Lab:
         self.steps = 0
         self.failed = ""
         self.site_s = 0.0
+        self.record_s = 0.0
         self.started = time.perf_counter()
 
     def _attach(self, j: int) -> None:
@@ -139,7 +140,8 @@ class Lab:
             wall = time.perf_counter() - self.started
             self.recorder.write_summary({"steps": self.steps, "elements": self.names, "end": reason,
                                          "stopped": self.failed, "wall_time_s": round(wall, 3),
-                                         "site_time_s": round(self.site_s, 3)})
+                                         "site_time_s": round(self.site_s, 3),
+                                         "record_time_s": round(self.record_s, 3)})
             self.recorder.close()
             self.log(f"session {self.sessions} ended ({reason}): {self.steps} committed steps recorded")
             self.recorder = None
@@ -246,11 +248,13 @@ class Lab:
         samples = site.take_samples()
         site.commit()
         self.steps += 1
+        t0 = time.perf_counter()
         blank = (0.0,) * 9
         t, u, v, a, target, answered, command, disp, force = (np.array(c) for c in zip(*(r or blank for r in rows)))
         self.recorder.write_step(self.steps, float(next(r[0] for r in rows if r is not None)), u, v, a, target,
                                  answered, [ControlMode.DISPLACEMENT.value] * self.n, target, command, disp, force,
                                  samples)
+        self.record_s += time.perf_counter() - t0
 
     def _stop(self) -> None:
         self.active.clear()
