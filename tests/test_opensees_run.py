@@ -72,3 +72,27 @@ def test_structure_II_one_element_per_actuator(tmp_path):
     reference = hsio_run(tmp_path, "structure_II", 1.5, extra=QUIET)
     worst, per_dof = max_error_pct(u[1:], u_of(reference, ["BF", "IF", "BF_mirror"]))
     assert worst < 1.0, per_dof
+
+
+def test_opensees_killed_mid_run_leaves_a_clean_record(tmp_path):
+    import subprocess
+    import sys
+
+    from test_opensees_support import EXAMPLE, session_over, wait_for
+
+    need_openseespy()
+    config = write_config(tmp_path, "validation", ["C1", "C2"])
+    with serving(config) as server:
+        proc = subprocess.Popen([sys.executable, str(EXAMPLE), "validation", "--ports", *map(str, server.ports),
+                                 "--duration", "20"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            assert wait_for(lambda: server.lab.steps >= 20, timeout_s=120)
+        finally:
+            proc.kill()
+            proc.wait(timeout=30)
+        assert wait_for(lambda: session_over(server), timeout_s=30)  # the actuators hold, the record is closed
+    record = Run(tmp_path / "records" / "run.sqlite")
+    steps = record.steps["step"]
+    assert len(steps) >= 20 and steps.tolist() == list(range(1, len(steps) + 1))
+    assert record.summary["steps"] == len(steps)
+    assert "closed" in record.summary["end"] or "connection lost" in record.summary["end"]
