@@ -31,7 +31,7 @@ from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder
-from hsio.structures import Structure
+from hsio.structures import ExperimentalElement, Structure
 
 
 def served_structure(structure: Structure, names) -> Structure:
@@ -42,8 +42,6 @@ def served_structure(structure: Structure, names) -> Structure:
     if unknown:
         raise ConfigError(f"[opensees] elements: {unknown[0]!r} is not an experimental element of structure "
                           f"{structure.name!r}; known: {', '.join(by_name)}")
-    from hsio.structures import ExperimentalElement
-
     elements = tuple(ExperimentalElement(n, j, by_name[n].specimen) for j, n in enumerate(names))
     return Structure(name=structure.name, dof_names=tuple(names), masses=(1.0,) * len(names),
                      experimental=elements, dt=structure.dt, description=f"served elements of {structure.name}")
