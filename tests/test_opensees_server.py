@@ -214,3 +214,45 @@ def test_hostile_data_messages_are_refused_and_the_actuators_hold(server, messag
 
 def test_after_the_hostile_clients_a_good_client_still_works(server):
     good_step_works(server)
+
+
+def test_trials_move_the_actuator_once_per_step_unless_the_displacement_changes(server):
+    c = RawClient(server.ports[0])
+    c.setup()
+    c.step(0.5, 0.01)
+
+    def lab_time():
+        return server.lab._call(lambda: server.lab.site.lab_time_s)
+
+    t_d = 20.0 * 0.01  # TR dt
+    start = lab_time()
+    c.send(p.SET_TRIAL, [1.0], t=0.02)
+    c.ask(p.GET_FORCE)
+    c.send(p.SET_TRIAL, [1.0], v=[3.0], t=0.02)  # AlphaOS's second trial: same displacement
+    c.ask(p.GET_FORCE)
+    assert lab_time() - start == pytest.approx(t_d, rel=0.05)  # one motion
+    c.send(p.SET_TRIAL, [1.2], t=0.02)  # another displacement in the same step (a static search)
+    assert c.ask(p.GET_FORCE)[0] == pytest.approx(0.613 * 1.2, abs=0.02)
+    assert lab_time() - start == pytest.approx(2 * t_d, rel=0.05)
+    c.send(p.COMMIT)
+    c.send(p.DIE)
+    c.close()
+    assert wait_for(lambda: session_over(server))
+    run = Run(records(server)[-1])
+    assert run.actuator("target", "C1").tolist() == [0.5, 1.2] and run.dof("v", "C1").tolist()[-1] == 0.0
+
+
+def test_secant_stiffness_is_answered_when_configured(tmp_path):
+    config = write_config(tmp_path, "validation", ["C2"], extra='stiffness = "secant"\n' + QUIET)
+    with serving(config) as srv:
+        c = RawClient(srv.ports[0])
+        c.setup()
+        assert c.ask(p.GET_TANGENT_STIFF)[0] == pytest.approx(0.536)  # K^EI before any trial
+        c.step(5.0, 0.01)
+        c.send(p.SET_TRIAL, [14.0], t=0.02)  # beyond the 10 mm gap: 0.536, then 2.011 kN/mm
+        c.ask(p.GET_FORCE)
+        secant = (0.536 * 10 + 2.011 * 4 - 0.536 * 5) / 9
+        assert c.ask(p.GET_TANGENT_STIFF)[0] == pytest.approx(secant, rel=0.05)
+        c.send(p.DIE)
+        c.close()
+        assert wait_for(lambda: session_over(srv))
