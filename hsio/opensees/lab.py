@@ -231,9 +231,9 @@ class Lab:
         if self.moved_this_step[j]:
             daq = site.get_daq()
             trial = self.latest[j]
-            self.snapshots[j] = (trial.t, *(float(self.to_mm(x)[0]) if x.size else 0.0 for x in (trial.d, trial.v, trial.a)),
-                                 float(self.imposed[j]), float(self.answered[j]), float(daq.commands[j]),
-                                 float(daq.u[j]), float(daq.R[j]))
+            motion = (float(self.to_mm(x)[0]) if x.size else 0.0 for x in (trial.d, trial.v, trial.a))
+            self.snapshots[j] = (trial.t, *motion, float(self.imposed[j]), float(self.answered[j]),
+                                 float(daq.commands[j]), float(daq.u[j]), float(daq.R[j]))
         self.committed_flags[j] = True
         self.moved_this_step[j] = False
         if not all(self.committed_flags[k] for k in self.active):
