@@ -21,9 +21,10 @@ HALF_STROKE_MM = 127.0
 PROPERTY = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("opensees")
+@pytest.fixture
+def server(tmp_path):
+    """A server of C1 for one test (every example of a property test shares it)."""
+    tmp = tmp_path
     config = write_config(tmp, "validation", ["C1"], extra="timeout_s = 2.0\n" + QUIET)
     with serving(config) as srv:
         srv.tmp = tmp
@@ -170,6 +171,8 @@ def test_malformed_setup_is_refused_and_the_server_stays_up(server, raw):
         c.close()
     assert wait_for(lambda: server.refused > refused)
     assert session_over(server)  # no session was opened: the actuators were never touched
+    if server.refused % 10 == 0:
+        good_step_works(server)  # still up and serving
 
 
 actions = st.one_of(st.sampled_from([3.0, 5.0, 7.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0]),
@@ -210,10 +213,8 @@ def test_hostile_data_messages_are_refused_and_the_actuators_hold(server, messag
         run = Run(path)
         targets = run.actuator("target", "C1") if len(run.steps["step"]) else np.zeros(0)
         assert np.all(np.isfinite(targets)) and np.all(np.abs(targets) <= HALF_STROKE_MM)
-
-
-def test_after_the_hostile_clients_a_good_client_still_works(server):
-    good_step_works(server)
+    if server.lab.sessions % 10 == 0:
+        good_step_works(server)  # still up and serving
 
 
 def test_trials_move_the_actuator_once_per_step_unless_the_displacement_changes(server):
