@@ -157,6 +157,7 @@ class Framer:
         self._buffer = bytearray(8 * data_size)
 
     def receive(self) -> np.ndarray:
+        quick_ack(self.sock)
         raw = recv_exact(self.sock, 8 * self.data_size, self._buffer)
         quick_ack(self.sock)
         return np.frombuffer(raw, dtype="<f8").astype(float)
