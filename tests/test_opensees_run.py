@@ -47,6 +47,18 @@ def test_validation_structure_matches_hsio_run_within_1_percent(tmp_path):
     assert max_error_pct(targets, between)[0] < 1.0
 
 
+def test_a_model_in_newtons_and_metres_is_converted_at_the_server(tmp_path):
+    need_openseespy()
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra="length_factor = 1000.0\nforce_factor = 0.001\n")
+    with serving(config) as server:
+        u, _ = run_model("validation", server.ports, tmp_path / "u.npy", 2.0, units="N-m")
+    reference = hsio_run(tmp_path, "validation", 2.0)
+    worst, per_dof = max_error_pct(u[1:], u_of(reference, ["C1", "C2"]))
+    assert worst < 1.0, per_dof
+    record = Run(tmp_path / "records" / "run.sqlite")  # recorded in hsio's units
+    assert max_error_pct(record.actuator("force", "C1")[:, None], reference.actuator("force", "C1")[:, None])[0] < 1.0
+
+
 def test_two_labs_each_serving_one_element_of_one_model(tmp_path):
     need_openseespy()
     lab1 = write_config(tmp_path, "validation", ["C1"], name="lab1.toml")

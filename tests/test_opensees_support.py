@@ -105,9 +105,9 @@ def cli_server(config: Path, out: Path, timeout_s: float = 60.0):
         proc.stderr.close()
 
 
-def run_model(structure: str, ports, out: Path, duration_s: float, timeout_s: float = 300.0):
-    """The example OpenSees model in a subprocess (a crash cannot take pytest down): (u, stdout)."""
-    proc = subprocess.run([sys.executable, str(EXAMPLE), structure, "--ports", *map(str, ports),
+def run_model(structure: str, ports, out: Path, duration_s: float, timeout_s: float = 300.0, units: str = "kN-mm"):
+    """The example OpenSees model in a subprocess (a crash cannot take pytest down): (u in mm, stdout)."""
+    proc = subprocess.run([sys.executable, str(EXAMPLE), structure, "--ports", *map(str, ports), "--units", units,
                            "--duration", str(duration_s), "--out", str(out)], capture_output=True, text=True,
                           timeout=timeout_s, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert proc.returncode == 0, proc.stdout + proc.stderr
