@@ -4,13 +4,13 @@ genericClient elements served by `hsio serve opensees` (docs/opensees.md).
     hsio serve opensees examples/opensees_validation.toml          # C1 on 8090, C2 on 8091
     python examples/opensees_structure.py validation --ports 8090 8091
 
-Each DOF of the structure is a node (1-D model, kN, mm, s); each experimental element is a
-one-node genericClient at its DOF (the actuator imposes the DOF's displacement relative to the
-ground); the numerical springs and linear elements are zeroLength elements; the masses are nodal;
+Each DOF of the structure is a node (1-D model in kN, mm, s, or N, m, s with --units N-m); each
+experimental element is a one-node genericClient at its DOF (the actuator imposes the DOF's
+displacement relative to the ground); the numerical springs and linear elements are zeroLength elements; the masses are nodal;
 damping is mass-proportional (rayleigh alphaM); the ground motion is a UniformExcitation of the
 record `hsio run` uses by default; the integrator is OpenSees' AlphaOS with alpha = 1 + hsio's
-alpha, one update per step (a specimen cannot be reverted). Writes the displacement history
-(one row per step, one column per DOF) to --out (.npy).
+alpha, one update per step (a specimen cannot be reverted). Writes the displacement history in
+mm (one row per step, one column per DOF) to --out (.npy).
 """
 
 from __future__ import annotations
