@@ -33,6 +33,7 @@ LAZY_COMMANDS: dict[str, str] = {
     "diagnose": "hsio.commands.diagnose:diagnose",
     "emulate": "hsio.commands.emulate:emulate",
     "probe": "hsio.commands.probe:probe",
+    "serve": "hsio.commands.serve:serve",
     "study": "hsio.commands.study:study",
 }
 

@@ -1,0 +1,72 @@
+"""`hsio serve opensees CONFIG`: serve experimental elements to OpenSees' genericClient elements.
+
+CONFIG is a `hsio run` configuration ([structure], [hardware], [test], [emulator], ...) with an
+[opensees] table naming the elements served (docs/opensees.md). Each element listens on its own
+port, printed at start-up; the server runs until interrupted.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+
+import click
+
+from hsio.errors import HsioError
+
+
+@click.group()
+def serve() -> None:
+    """Serve hsio's actuators to other programs."""
+
+
+@serve.command("opensees")
+@click.argument("config_file", type=click.Path(dir_okay=False))
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind (127.0.0.1: this machine only).")
+@click.option("--port", default=8090, show_default=True, type=click.IntRange(0, 65535),
+              help="Port of the first element; the next elements take the next ports (0: any free ports).")
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+              help="Folder for the session records (default: [opensees] out).")
+def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> None:
+    """Serve the [opensees] elements of CONFIG to OpenSees genericClient elements."""
+    from hsio.opensees.lab import Lab
+    from hsio.opensees.server import OpenSeesServer
+    from hsio.opensees.settings import split_config
+    from hsio.runner import load_run_structure
+
+    def log(line: str) -> None:
+        click.echo(f"hsio serve opensees: {line}", err=True)
+
+    try:
+        settings, config = split_config(config_file)
+        if out_dir is not None:
+            settings = type(settings)(**{**settings.__dict__, "out": out_dir})
+        lab = Lab(settings, config, load_run_structure(config), log=log)
+        ports = [0] * lab.n if port == 0 else [port + j for j in range(lab.n)]
+        if port and ports[-1] > 65535:
+            raise HsioError(f"--port {port}: {lab.n} elements need ports up to {ports[-1]}, beyond 65535")
+        server = OpenSeesServer(lab, host, ports, log=log).start()
+    except HsioError as exc:
+        click.echo(f"hsio serve opensees: error: {exc}", err=True)
+        sys.exit(2)
+    f = settings.force_factor
+    click.echo(f"structure {lab.structure.name}, hardware {config['hardware']['url']} ({config['hardware']['clock']}), "
+               f"TR = {config['test']['rate']:g}")
+    click.echo(f"units     model length x {settings.length_factor:g} = mm, model force x {f:g} = kN")
+    for name, bound in zip(lab.names, server.ports):
+        click.echo(f"element {name} on {host}:{bound}")
+    click.echo(f"records   {settings.out}")
+    click.echo("Ctrl-C stops the server.")
+    sys.stdout.flush()
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    try:
+        while not done.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+        click.echo("server stopped; the actuators hold.")

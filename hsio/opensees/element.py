@@ -1,0 +1,74 @@
+"""One genericClient element served: its messages answered from the lab (docs/opensees.md).
+
+Identity setup: basic DOF j of the element is actuator j of the element (hsio's experimental
+elements have one actuator each, so an element has one basic DOF). Units are converted at this
+boundary: trial displacements times ``length_factor`` give mm; forces in kN divided by
+``force_factor`` and stiffnesses in kN/mm times ``length_factor / force_factor`` give the model's
+units. Matrices go out column-major.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hsio.opensees import protocol as p
+from hsio.opensees.lab import Lab
+
+MAX_MESSAGES = 1_000_000_000  # per connection: each message is also bounded by the idle timeout
+
+
+class Done(Exception):
+    """The element ended the session (DIE)."""
+
+
+class ElementHandler:
+    """Answers one connected element ``j`` of ``lab``; :meth:`serve` runs until it leaves."""
+
+    def __init__(self, lab: Lab, j: int, framer: p.Framer, n: int = 1):
+        self.lab = lab
+        self.j = j
+        self.name = lab.names[j]
+        self.framer = framer
+        self.n = n
+        self.messages = 0
+
+    def serve(self) -> str:
+        """Messages until DIE (returns why it ended); raises ProtocolError, PeerClosed, OSError,
+        HsioError."""
+        for _ in range(MAX_MESSAGES):
+            frame = self.framer.receive()
+            self.messages += 1
+            where = f"element {self.name}, message {self.messages}"
+            action = p.action_of(frame, where)
+            if action == p.DIE:
+                return "DIE received"
+            reply = self.answer(action, frame, where)
+            if reply is not None:
+                self.framer.send(reply)
+        return f"{MAX_MESSAGES} messages"
+
+    def answer(self, action: int, frame: np.ndarray, where: str):
+        lab, j, n = self.lab, self.j, self.n
+        if action == p.SET_TRIAL:
+            trial = p.Trial.from_frame(frame, n, where)
+            lab.set_trial(j, trial)
+            return None
+        if action == p.COMMIT:
+            lab.commit(j)
+            return None
+        if action == p.GET_FORCE:
+            return lab.force_to_model([lab.force(j)])
+        if action == p.GET_DISP:
+            return np.array([lab.displacement(j)]) / lab.settings.length_factor
+        if action == p.GET_TIME:
+            return np.array([lab.latest_time(j)])
+        if action in (p.GET_INITIAL_STIFF, p.GET_TANGENT_STIFF):
+            k = lab.K_EI[j] if action == p.GET_INITIAL_STIFF else lab.tangent(j)
+            return p.matrix_payload(lab.stiffness_to_model(np.eye(n) * k))
+        if action == p.GET_DAMP:
+            c = lab.settings.damping.get(self.name, 0.0)
+            return p.matrix_payload(lab.stiffness_to_model(np.eye(n) * c))  # kN s/mm -> model (time in s)
+        if action == p.GET_MASS:
+            m = lab.settings.mass.get(self.name, 0.0)
+            return p.matrix_payload(lab.stiffness_to_model(np.eye(n) * m))  # kN s^2/mm -> model
+        raise p.ProtocolError(f"{where}: action {action} is not served")

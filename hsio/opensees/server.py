@@ -1,0 +1,199 @@
+"""The TCP side: one listening port per served element, one client per element at a time.
+
+A genericClient says nothing about which element it is, so each served element listens on its
+own port (``--port`` for the first, the next ports for the others; port 0: any free port, each
+printed). A connection must send a valid setup message within the timeout; a second client for
+an element already served is refused (logged, then closed). Each connection runs in its own
+thread with a socket timeout: a silent element is dropped after ``timeout_s``. Whatever a client
+sends, the server answers it, refuses it and closes that connection, or times out; the actuators
+hold and the session's record is closed when the last element leaves (docs/opensees.md).
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+
+from hsio.errors import HsioError
+from hsio.opensees import protocol as p
+from hsio.opensees.element import ElementHandler
+from hsio.opensees.lab import Lab
+
+SETUP_TIMEOUT_S = 10.0  # for the setup message (the element sends it right after connecting)
+MAX_PENDING = 8  # connections waiting for their setup message, at most
+ACCEPT_POLL_S = 0.2
+CLAIM_WAIT_S = 0.5  # a second client for a busy element waits this long, then is refused
+
+
+class OpenSeesServer:
+    """Serves ``lab``'s elements on ``host``; ``ports[j]`` for element j (0: any free port)."""
+
+    def __init__(self, lab: Lab, host: str = "127.0.0.1", ports=None, log=print):
+        self.lab = lab
+        self.host = host
+        self.log = log
+        ports = list(ports) if ports is not None else [0] * lab.n
+        if len(ports) != lab.n:
+            raise HsioError(f"{lab.n} elements served, {len(ports)} ports given")
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._freed = threading.Condition(self._lock)  # notified when an element's client leaves
+        self._busy: dict[int, socket.socket] = {}
+        self._open: set[socket.socket] = set()  # every accepted connection not yet closed
+        self._pending = 0
+        self._threads: list[threading.Thread] = []
+        self.refused = 0
+        self.listeners: list[socket.socket] = []
+        try:
+            for port in ports:
+                s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                s.bind((host, port))
+                s.listen(4)
+                s.settimeout(ACCEPT_POLL_S)
+                self.listeners.append(s)
+        except OSError as exc:
+            for s in self.listeners:
+                s.close()
+            raise HsioError(f"cannot listen on {host} port {port}: {exc.strerror or exc}") from None
+        self.ports = [s.getsockname()[1] for s in self.listeners]
+
+    def start(self) -> "OpenSeesServer":
+        for j, listener in enumerate(self.listeners):
+            t = threading.Thread(target=self._accept, args=(j, listener), name=f"hsio-opensees-{j}", daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def _accept(self, j: int, listener: socket.socket) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, peer = listener.accept()
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                return
+            with self._lock:
+                full = self._pending >= MAX_PENDING or self._stop.is_set()
+                if not full:
+                    self._pending += 1
+                    self._open.add(conn)
+            if full:
+                self._refuse(conn, f"element {self.lab.names[j]}: connection from {peer[0]}:{peer[1]} refused: "
+                                   f"{MAX_PENDING} connections already wait for their setup message")
+                continue
+            t = threading.Thread(target=self._connection, args=(j, conn, peer), daemon=True)
+            t.start()
+            with self._lock:
+                self._threads = [x for x in self._threads if x.is_alive()] + [t]
+
+    def _refuse(self, conn: socket.socket, message: str) -> None:
+        self.refused += 1
+        self.log(message)
+        try:
+            conn.close()
+        except OSError:
+            pass
+
+    def _connection(self, j: int, conn: socket.socket, peer) -> None:
+        name = self.lab.names[j]
+        who = f"element {name} ({peer[0]}:{peer[1]})"
+        claimed = False
+        try:
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            conn.settimeout(min(SETUP_TIMEOUT_S, self.lab.settings.timeout_s))
+            try:
+                setup = p.Setup.decode(bytes(p.recv_exact(conn, p.SETUP_BYTES)))
+                setup.check(1, who)
+            except (p.ProtocolError, p.PeerClosed, OSError) as exc:
+                self._refuse(conn, f"{who}: refused: {_describe(exc)}")
+                return
+            finally:
+                with self._lock:
+                    self._pending -= 1
+            with self._freed:
+                # A client that reconnects at once may find the previous one still closing its session.
+                self._freed.wait_for(lambda: j not in self._busy or self._stop.is_set(), CLAIM_WAIT_S)
+                busy = j in self._busy or self._stop.is_set()
+                if not busy:
+                    self._busy[j] = conn
+            if busy:
+                self._refuse(conn, f"{who}: refused: element {name} already has a client (one client per element)")
+                return
+            claimed = True
+            conn.settimeout(self.lab.settings.timeout_s)
+            try:
+                self.lab.attach(j)
+            except Exception as exc:
+                self.log(f"{who}: cannot open the actuators: {_describe(exc)}")
+                return
+            self.log(f"{who}: connected (dataSize {setup.data_size})")
+            handler = ElementHandler(self.lab, j, p.Framer(conn, setup.data_size))
+            reason = "left"
+            try:
+                reason = handler.serve()
+            except p.PeerClosed as exc:
+                reason = str(exc)
+            except (TimeoutError, socket.timeout):
+                reason = f"silent for {self.lab.settings.timeout_s:g} s: disconnected"
+                self.lab.hold(reason)
+            except p.ProtocolError as exc:
+                reason = f"refused: {exc}"
+                self.lab.hold(reason)
+            except HsioError as exc:
+                reason = f"stopped: {exc}"
+                self.lab.hold(reason)
+            except OSError as exc:
+                reason = f"connection lost: {exc.strerror or exc}"
+                self.lab.hold(reason)
+            except Exception as exc:  # a fault of the server itself: hold, report, keep serving
+                reason = f"unexpected error: {exc!r}"
+                self.lab.hold(reason)
+            try:
+                self.lab.detach(j, f"{reason}; {handler.messages} messages")
+            except Exception as exc:  # the server is closing: the lab closes the session itself
+                self.log(f"{who}: {reason}; {exc}")
+        finally:
+            with self._freed:
+                self._open.discard(conn)
+                if claimed:
+                    self._busy.pop(j, None)
+                    self._freed.notify_all()
+            try:
+                conn.close()
+            except OSError:
+                pass
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop listening, drop every client, end the session (actuators hold, record closed)."""
+        self._stop.set()
+        for s in self.listeners:
+            try:
+                s.close()
+            except OSError:
+                pass
+        with self._lock:
+            conns = list(self._open)
+            threads = list(self._threads)
+        for c in conns:
+            try:
+                c.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+        for t in threads:
+            t.join(timeout_s)
+        self.lab.close()
+
+    def __enter__(self) -> "OpenSeesServer":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, (TimeoutError, socket.timeout)):
+        return "no setup message in time"
+    if isinstance(exc, OSError):
+        return exc.strerror or str(exc)
+    return str(exc)

@@ -1,0 +1,113 @@
+"""The ``[opensees]`` table of a run configuration (docs/opensees.md).
+
+    [opensees]
+    elements = ["C1"]          # experimental elements of [structure] this server serves
+    length_factor = 1.0        # mm per length unit of the OpenSees model (1000 for metres)
+    force_factor = 1.0         # kN per force unit of the OpenSees model (1 for kN, 0.001 for N)
+    stiffness = "initial"      # getTangentStiff: "initial" (K^EI) or "secant" (estimated per step)
+    force_correction = true    # getForce: measured force + K^EI (target - measured displacement)
+    timeout_s = 60.0           # a silent element is disconnected after this long
+    mass = {}                  # per element, kN s^2/mm, answered to getMass (default 0)
+    damping = {}               # per element, kN s/mm, answered to getDamp (default 0)
+    out = "runs/opensees"      # folder of the session records (run.sqlite, run-2.sqlite, ...),
+                               # relative to the working directory as `hsio run --out`
+
+The rest of the file is a `hsio run` configuration ([structure], [hardware], [test], ...).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hsio.errors import ConfigError
+
+KEYS = ("elements", "length_factor", "force_factor", "stiffness", "force_correction", "timeout_s", "mass",
+        "damping", "out")
+
+
+@dataclass(frozen=True)
+class OpenSeesSettings:
+    """What the server needs beyond a run configuration."""
+
+    elements: tuple[str, ...]
+    length_factor: float = 1.0
+    force_factor: float = 1.0
+    stiffness: str = "initial"
+    force_correction: bool | None = None  # None: [test] measured_displacement_correction
+    timeout_s: float = 60.0
+    mass: dict = field(default_factory=dict)
+    damping: dict = field(default_factory=dict)
+    out: str = "runs/opensees"
+
+
+def _number(where: str, key: str, value, positive: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{where}: {key} must be a finite number, got {value!r}")
+    if positive and not value > 0:
+        raise ConfigError(f"{where}: {key} must be positive, got {value!r}")
+    if not positive and value < 0:
+        raise ConfigError(f"{where}: {key} must not be negative, got {value!r}")
+    return float(value)
+
+
+def _per_element(where: str, key: str, value, elements) -> dict:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where}: {key} must be a table of element = value, got {value!r}")
+    for name, x in value.items():
+        if name not in elements:
+            raise ConfigError(f"{where}: {key} names {name!r}, not one of the served elements {list(elements)}")
+        _number(where, f"{key}.{name}", x, positive=False)
+    return {name: float(x) for name, x in value.items()}
+
+
+def parse(table, source: str) -> OpenSeesSettings:
+    where = f"{source}: [opensees]"
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where} must be a table, got {table!r}")
+    unknown = sorted(set(table) - set(KEYS))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key {unknown[0]!r}; known: {', '.join(KEYS)}")
+    elements = table.get("elements")
+    if (not isinstance(elements, list) or not elements or not all(isinstance(e, str) and e for e in elements)
+            or len(set(elements)) != len(elements)):
+        raise ConfigError(f"{where}: elements must be a non-empty list of distinct element names, got {elements!r}")
+    stiffness = table.get("stiffness", "initial")
+    if stiffness not in ("initial", "secant"):
+        raise ConfigError(f"{where}: stiffness must be 'initial' or 'secant', got {stiffness!r}")
+    correction = table.get("force_correction")
+    if correction is not None and not isinstance(correction, bool):
+        raise ConfigError(f"{where}: force_correction must be true or false, got {correction!r}")
+    out = table.get("out", "runs/opensees")
+    if not isinstance(out, str) or not out:
+        raise ConfigError(f"{where}: out must be a folder name, got {out!r}")
+    return OpenSeesSettings(
+        elements=tuple(elements),
+        length_factor=_number(where, "length_factor", table.get("length_factor", 1.0)),
+        force_factor=_number(where, "force_factor", table.get("force_factor", 1.0)),
+        stiffness=stiffness, force_correction=correction,
+        timeout_s=_number(where, "timeout_s", table.get("timeout_s", 60.0)),
+        mass=_per_element(where, "mass", table.get("mass", {}), elements),
+        damping=_per_element(where, "damping", table.get("damping", {}), elements),
+        out=out,
+    )
+
+
+def split_config(path: str | Path):
+    """A server configuration file as (OpenSeesSettings, RunConfig): the [opensees] table parsed
+    here, the rest checked as `hsio run` checks it (relative paths resolved beside the file)."""
+    from hsio import config as config_mod
+
+    path = Path(path)
+    data = config_mod.read_toml(path, "server configuration")
+    if "opensees" not in data:
+        raise ConfigError(f"{path}: no [opensees] table: say which elements this server serves, "
+                          f"e.g. [opensees] elements = [\"C1\"]")
+    settings = parse(data.pop("opensees"), str(path))
+    run = config_mod.from_dict(data, str(path))
+    for table, key in (("record", "file"), ("hardware", "actuator_model")):
+        value = run[table][key]
+        if value and not Path(value).is_absolute():
+            run[table][key] = str((path.parent / value).resolve())
+    return settings, run
