@@ -12,9 +12,10 @@ from hsio.errors import ConfigError
 from hsio.specimens.base import Specimen
 from hsio.specimens.elastic import BilinearGap, Linear, MenegottoPinto
 from hsio.specimens.wood import PinchedWood
+from hsio.specimens.diagnosed import Diagnosed
 
 SPECIMEN_KINDS: dict[str, type[Specimen]] = {
-    cls.kind: cls for cls in (Linear, BilinearGap, MenegottoPinto, PinchedWood)
+    cls.kind: cls for cls in (Linear, BilinearGap, MenegottoPinto, PinchedWood, Diagnosed)
 }
 
 
@@ -40,4 +41,4 @@ def specimen_spec(specimen: Specimen) -> dict:
 
 
 __all__ = ["Specimen", "SPECIMEN_KINDS", "make_specimen", "specimen_spec",
-           "Linear", "BilinearGap", "MenegottoPinto", "PinchedWood"]
+           "Linear", "BilinearGap", "MenegottoPinto", "PinchedWood", "Diagnosed"]
