@@ -27,7 +27,7 @@ from hsio.diagnose import residual as residual_mod
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, blocks, rms
 from hsio.diagnose.specimen_record import SpecimenRecord
 from hsio.errors import RecordError
-from hsio.specimens.diagnosed import BETA, GAMMA, MAX_SUBSTEPS
+from hsio.specimens.diagnosed import bouc_wen_step
 
 MARGIN = 1.10
 PARSIMONY = 1.02
@@ -136,19 +136,12 @@ NAMES = tuple(EFFECTS)
 
 
 def bouc_wen(u: np.ndarray, u_y: float) -> np.ndarray:
-    """z along a displacement history (the specimen model's step, hsio.specimens.diagnosed)."""
+    """z along a displacement history, from rest (the specimen model's exact step)."""
     out = [0.0] * u.size
     z, prev = 0.0, 0.0
     for i, x in enumerate(u.tolist()):
-        du = x - prev
+        z = bouc_wen_step(z, x - prev, u_y)
         prev = x
-        if du != 0.0:
-            n = min(max(int(math.ceil(4.0 * abs(du) / u_y)), 1), MAX_SUBSTEPS)
-            h = du / n
-            for _ in range(n):
-                r = z / u_y
-                z += h * (1.0 - r * r * (BETA * (1.0 if h * z >= 0.0 else -1.0) + GAMMA))
-                z = u_y if z > u_y else (-u_y if z < -u_y else z)
         out[i] = z
     return np.array(out)
 
@@ -231,15 +224,18 @@ def fit(sig: Signals, effects: tuple[str, ...], n_train: int, n_choose: int, sta
     """Fit theta (least squares, bounded) with the amplitudes solved at each evaluation."""
     specs = _theta_specs(effects, sig)
     f_train = sig.force[:n_train]
+    # The optimiser sees the training block only (the model is causal: its prefix is the same).
+    train = Signals(sig.u[:n_train], sig.v[:n_train], sig.a[:n_train], f_train, sig.dt, sig.v_ref, sig.u_peak, sig.travel,
+                    sig.cutoff_hz, sig.u_noise)
 
-    def amplitudes(theta):
-        names, cols, lower = design(sig, effects, theta)
+    def amplitudes(theta, signals_=sig):
+        names, cols, lower = design(signals_, effects, theta)
         return names, cols, _solve(names, cols[:n_train], lower, f_train)
 
     def residual(x):
         theta = {s[0]: xi * (s[2] - s[1]) + s[1] for s, xi in zip(specs, x)}
-        names, cols, coef = amplitudes(theta)
-        return f_train - cols[:n_train] @ coef
+        names, cols, coef = amplitudes(theta, train)
+        return f_train - cols @ coef
 
     best_theta = {}
     if specs:
@@ -342,14 +338,47 @@ def _choose(named: list, ctx_order: tuple) -> SpecimenCandidate:
     return min(close, key=lambda c: (c.fit.n_params, ctx_order.index(c.cause)))
 
 
+MAX_SAMPLES = 20000  # longer records are thinned after the low-pass (the Bouc-Wen replay is a loop)
+
+
+def moving_part(record: SpecimenRecord, margin_s: float = 0.1) -> SpecimenRecord:
+    """The record from the first to the last motion (rests before and after say nothing of the
+    specimen, and would fill the scoring block)."""
+    u = record.displacement_mm
+    w = max(int(round(0.1 / record.dt)), 5)
+    n = u.size // w
+    spans = np.ptp(u[: n * w].reshape(n, w), axis=1)
+    moving = np.flatnonzero(spans > 0.05 * np.max(spans))
+    if moving.size == 0:
+        return record
+    m = int(round(margin_s / record.dt))
+    a, b = max(moving[0] * w - m, 0), min((moving[-1] + 1) * w + m, u.size)
+    if b - a < 100 or (a == 0 and b == u.size):
+        return record
+    return SpecimenRecord(record.source, record.dt, u[a:b], record.force_kN[a:b])
+
+
+def thinned(sig: Signals, force: np.ndarray) -> tuple[Signals, int]:
+    """Every q-th sample of the low-passed signals when the record is long (q keeps the cutoff
+    below 0.8 of the new Nyquist frequency)."""
+    n = sig.u.size
+    q = int(min(math.ceil(n / MAX_SAMPLES), max(math.floor(0.4 / (sig.dt * sig.cutoff_hz)), 1)))
+    if q <= 1:
+        return sig, 1
+    return Signals(sig.u[::q], sig.v[::q], sig.a[::q], force[::q], sig.dt * q, sig.v_ref, sig.u_peak, sig.travel,
+                   sig.cutoff_hz, sig.u_noise), q
+
+
 def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRACTION,
                       choose_fraction: float = CHOOSE_FRACTION, margin: float = MARGIN,
                       effects: tuple[str, ...] | None = None, max_combination: int = 3) -> SpecimenDiagnosis:
     t0 = time.perf_counter()
+    record = moving_part(record)
+    sig, q = thinned(signals(record), record.force_kN)
+    record = SpecimenRecord(record.source, sig.dt, record.displacement_mm[::q], record.force_kN[::q])
     n_train, n_choose = blocks(record.n, train_fraction, choose_fraction)
     if np.ptp(record.displacement_mm[:n_train]) <= 0:
         raise RecordError(f"{record.source}: the displacement does not move in the training part")
-    sig = signals(record)
     baseline = fit(sig, (), n_train, n_choose)
     names = list(effects or NAMES)
     candidates = []

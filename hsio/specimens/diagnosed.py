@@ -7,8 +7,9 @@ effects the diagnosis found (docs/diagnose.md, "Specimen diagnosis").
         + m a                                                                   a moving mass
 
 * z is the Bouc-Wen hysteretic displacement, dz = du [1 - |z/u_y|^2 (beta sign(du z) + gamma)]
-  with beta = gamma = 1/2: it follows u elastically after a reversal and saturates at +-u_y, so
-  the hysteretic force is bounded by the strength f_y (Wen 1976, with n = 2).
+  with beta = gamma = 1/2 (Wen 1976, with n = 2), integrated exactly over each move: it follows
+  u elastically after a reversal and saturates at +-u_y, so the hysteretic force is bounded by
+  the strength f_y.
 * P(u) = 1 - pinch exp(-(u / pinch_width_mm)^2) pinches the loop near zero deformation (slack
   connectors, closing cracks): the hysteretic force is reduced where the loop crosses u = 0.
 * D(s) = 1 / (1 + degradation_per_mm s) degrades stiffness and strength with the travel
@@ -27,23 +28,22 @@ from dataclasses import dataclass, field
 from hsio.specimens.base import Specimen
 
 BETA = GAMMA = 0.5
-MAX_SUBSTEPS = 10  # beyond, z saturates within the step anyway (clamped at +-u_y)
+_EDGE = 1.0 - 1e-12
 
 
 def bouc_wen_step(z: float, du: float, u_y: float) -> float:
-    """The hysteretic displacement after a move du (sub-stepped so each step is under u_y / 4)."""
+    """The hysteretic displacement after a move du, integrated exactly: unloading (du z < 0) has
+    dz/du = 1 - (beta - gamma) |z/u_y|^2 = 1 until z crosses zero; loading has
+    dz/du = 1 - (z/u_y)^2, so z/u_y = tanh(atanh(z0/u_y) + du/u_y)."""
     if du == 0.0 or u_y <= 0.0:
         return z
-    n = min(max(int(math.ceil(4.0 * abs(du) / u_y)), 1), MAX_SUBSTEPS)
-    h = du / n
-    for _ in range(n):
-        x = z / u_y
-        z += h * (1.0 - x * x * (BETA * math.copysign(1.0, h * z) + GAMMA))
-        if z > u_y:
-            z = u_y
-        elif z < -u_y:
-            z = -u_y
-    return z
+    if du * z < 0.0:
+        if abs(du) <= abs(z):
+            return z + du
+        du += z  # the part of the move beyond z = 0 loads from zero
+        z = 0.0
+    x = max(min(z / u_y, _EDGE), -_EDGE)
+    return u_y * math.tanh(math.atanh(x) + du / u_y)
 
 
 def pinching(u: float, pinch: float, width: float) -> float:
