@@ -65,6 +65,17 @@ class Diagnosis:
     structure: residual_mod.Structure | None = None
 
     @property
+    def equivalent(self) -> Candidate | None:
+        """A candidate that predicts the displacement as well as the cause (within PARSIMONY) and
+        differs only where the record cannot tell (a delay in the loop or in the channel)."""
+        other = EQUIVALENT.get(self.cause)
+        c = next((c for c in self.candidates if c.cause == other), None)
+        single = self.single
+        if c is None or single is None or not c.named:
+            return None
+        return c if c.fit.rms_choose_mm <= PARSIMONY * single.fit.rms_choose_mm else None
+
+    @property
     def explained(self) -> bool:
         """The extended model's held-out error is within FLOOR_FACTOR sensor floors."""
         return self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
@@ -102,6 +113,7 @@ class Diagnosis:
                          "rms_test_mm": self.baseline.rms_test_mm},
             "cause": self.cause,
             "single": single.summary() if single else None,
+            "equivalent": self.equivalent.summary() if self.equivalent else None,
             "combination": list(self.extended.effects),
             "extended": self.extended.summary(),
             "gain": self.gain,
@@ -145,22 +157,18 @@ def _distinct(c: Candidate) -> bool:
 def choose_single(named: list[Candidate], ctx: Context, record: ActuatorRecord) -> Candidate:
     """The best named candidate on the choosing block; among those within PARSIMONY of it, the one
     with the fewest parameters (then the earliest in the library), unless the best shows a
-    distinct signature. A skewed displacement channel and a transport delay predict the same
-    displacement: the force decides (:func:`~hsio.diagnose.timing.skew_evidence`)."""
+    distinct signature. A late displacement channel (channel_skew) and a transport delay predict
+    the same displacement from the command (a delay commutes with the linear lag), so they tie;
+    the tie goes to transport_delay and the diagnosis names channel_skew as its equivalent."""
     best = min(named, key=lambda c: c.fit.rms_choose_mm)
     if not _distinct(best):
         close = [c for c in named if c.fit.rms_choose_mm <= PARSIMONY * best.fit.rms_choose_mm]
         order = list(NAMES)
         best = min(close, key=lambda c: (len(EFFECTS[c.cause].params(ctx)), order.index(c.cause)))
-    if best.cause in ("transport_delay", "channel_skew"):
-        rivals = {c.cause: c for c in named if c.cause in ("transport_delay", "channel_skew")}
-        if len(rivals) == 2 and max(r.fit.rms_choose_mm for r in rivals.values()) <= PARSIMONY * min(
-                r.fit.rms_choose_mm for r in rivals.values()):
-            from hsio.diagnose.timing import skew_evidence
-
-            skew = rivals["channel_skew"].fit.params["channel_skew_s"]
-            best = rivals["channel_skew"] if skew_evidence(record, skew) else rivals["transport_delay"]
     return best
+
+
+EQUIVALENT = {"transport_delay": "channel_skew", "channel_skew": "transport_delay"}
 
 
 def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, baseline: Fit, candidates: list,
