@@ -338,7 +338,7 @@ def _choose(named: list, ctx_order: tuple) -> SpecimenCandidate:
     return min(close, key=lambda c: (c.fit.n_params, ctx_order.index(c.cause)))
 
 
-MAX_SAMPLES = 20000  # longer records are thinned after the low-pass (the Bouc-Wen replay is a loop)
+MAX_SAMPLES = 8000  # longer records are thinned after the low-pass (the Bouc-Wen replay is a loop)
 
 
 def moving_part(record: SpecimenRecord, margin_s: float = 0.1) -> SpecimenRecord:
