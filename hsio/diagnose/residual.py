@@ -137,7 +137,7 @@ def structure(residual: np.ndarray, n_held: int, dt: float, floor_mm: float, vel
     var = float(np.var(held))
     r2 = 1.0 - float(np.var(held - a @ coef)) / var if var > 0 else 0.0
     return Structure(float(np.sqrt(np.mean(held**2))), spectral_lines(held, dt, floor_mm), float(slope),
-                     abs(slope) * duration > TREND_FLOORS * floor_mm, max(r2, 0.0), corr)
+                     bool(abs(slope) * duration > TREND_FLOORS * floor_mm), float(max(r2, 0.0)), corr)
 
 
 def remains(s: Structure, floor: Floor) -> str:

@@ -78,7 +78,7 @@ class Diagnosis:
     @property
     def explained(self) -> bool:
         """The extended model's held-out error is within FLOOR_FACTOR sensor floors."""
-        return self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
+        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm)
 
     def residual_json(self) -> dict:
         s = self.structure

@@ -297,7 +297,7 @@ class SpecimenDiagnosis:
 
     @property
     def explained(self) -> bool:
-        return self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
+        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm)
 
     def to_json(self) -> dict:
         s, fl = self.structure, self.floor
