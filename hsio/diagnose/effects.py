@@ -148,7 +148,7 @@ _register(Effect(
     "actuator overshoots and rings near that frequency instead of only falling behind",
     lambda c: (Param("servo_frequency_hz", 0.5, 0.45 / c.record.dt, 5.0), Param("servo_damping", 0.02, 2.0, 0.1)),
     lambda c: [{"servo_frequency_hz": f, "servo_damping": z, "lag_s": c.lag_s}
-               for f, z in ((max(c.residual_peak_hz, 1.0), 0.1), (max(c.residual_peak_hz, 1.0), 0.4),
+               for f, z in ((max(c.residual_peak_hz, 1.0), 0.15),
                             (min(1.0 / (2 * math.pi * max(c.lag_s, c.record.dt)) * 3.0, 0.4 / c.record.dt), 0.7))],
     lambda p: f"mode at {p['servo_frequency_hz']:.2f} Hz with damping {p['servo_damping']:.3f} after a lag of "
               f"{1e3 * p['lag_s']:.2f} ms",
@@ -172,7 +172,7 @@ _register(Effect(
     "filtered transducer, a conditioning amplifier or DAQ channel with its own delay): the actuator "
     "moves in time with the force, only its displacement reading is late",
     lambda c: (Param("channel_skew_s", 0.0, max(0.5, 4.0 * c.lag_s), max(0.3 * c.lag_s, c.record.dt)),),
-    lambda c: [{"channel_skew_s": f * c.lag_s, "lag_s": max((1.0 - f) * c.lag_s, 2.0 * c.record.dt)} for f in (0.3, 0.7)],
+    lambda c: [{"channel_skew_s": 0.5 * c.lag_s, "lag_s": max(0.5 * c.lag_s, 2.0 * c.record.dt)}],
     lambda p: f"displacement channel {1e3 * p['channel_skew_s']:.2f} ms late, lag {1e3 * p['lag_s']:.2f} ms",
     primary="channel_skew_s",
 ))

@@ -30,6 +30,7 @@ from hsio.errors import RecordError
 
 MARGIN = 1.10  # held-out RMS must fall by at least this factor for a cause to be named
 PARSIMONY = 1.02  # a candidate within this factor of the best, with fewer parameters or earlier in the library, wins
+HELPS = 1.01  # an effect whose single fit gains less than this on the choosing block joins no combination
 RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signature no delay mimics
 NONE = "none"
 UNEXPLAINED = "unexplained"
@@ -208,11 +209,14 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
         return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx)
     best = choose_single(named, ctx, record)
     singles = {c.cause: c.fit for c in candidates}
+    gains = {c.cause: c.choose_gain for c in candidates}
     current = best.fit
     while len(current.effects) < max_combination:
         trials = []
         for name in names:
-            if name in current.effects:
+            # An effect that did nothing alone, or one the record cannot tell from an effect
+            # already in, is not tried (it saves most of the time on long records).
+            if name in current.effects or gains[name] < HELPS or EQUIVALENT.get(name) in current.effects:
                 continue
             trials.append(fit(record, (*current.effects, name), ctx, n_train, _merged_starts(current, singles[name])))
         if not trials:
