@@ -56,7 +56,7 @@ def test_velocity_threshold_is_the_hockey_stick():
         ramp = v * np.arange(2048) / RATE
         x = _drive(ServoConfig(lag_s=lag, velocity_threshold_mm_s=a, **QUIET), ramp)[:, 0]
         error = ramp[-1] - x[-1]
-        # METHOD.md eq. (1) with b d_max = lag, between a command and the measurement after it.
+        # E&M 2007, eq. (1) with b d_max = lag, between a command and the measurement after it.
         assert error == pytest.approx(lag * max(v - a, 0.0), abs=1e-6)
 
 

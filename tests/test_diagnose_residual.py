@@ -42,6 +42,15 @@ def test_hum_on_the_transducer_is_unexplained_with_its_line(commands):
     assert "50.0" in residual["remains"] or "49.9" in residual["remains"] or "50.1" in residual["remains"]
 
 
+def test_a_faint_hum_still_shows_as_a_line(commands):
+    """A 60 Hz hum of 0.02 mm barely lifts the RMS above the floor, yet its line stands out."""
+    record = _record(commands["chirp"], seed=8)
+    t = record.time_s
+    d = diagnose(dataclasses.replace(record, measured_mm=record.measured_mm + 0.02 * np.sin(2 * np.pi * 60.0 * t)))
+    assert d.cause == UNEXPLAINED
+    assert d.to_json()["residual"]["lines_hz"][0] == pytest.approx(60.0, rel=0.05)
+
+
 def test_nothing_hidden_reaches_the_floor(commands):
     d = diagnose(_record(commands["chirp"]))
     assert d.cause == NONE
@@ -84,6 +93,8 @@ def test_new_effect_is_named_and_measured(commands, effect):
     assert d.single.fit.params[key] == pytest.approx(value, rel=0.20)
     assert d.single.fit.params["lag_s"] == pytest.approx(LAG_S, rel=0.20)
     assert d.single.gain > 1.0
+    if effect == "sensor_drift":  # the signature: the baseline's residual trends at the drift rate
+        assert d.to_json()["residual"]["trend_mm_per_s"] == pytest.approx(value, rel=0.20)
 
 
 def test_a_late_displacement_channel_is_measured_as_its_equivalent_delay(commands):

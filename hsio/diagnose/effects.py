@@ -79,7 +79,7 @@ _register(Effect(
 _register(Effect(
     "velocity_threshold", "velocity threshold (hockey stick)",
     "velocity feed-forward up to a threshold speed a: below it the actuator follows the command with "
-    "no error, above it the error grows as lag (|v| - a) (METHOD.md eq. 1)",
+    "no error, above it the error grows as lag (|v| - a) (E&M 2007, eq. (1))",
     lambda c: (Param("velocity_threshold_mm_s", 0.0, c.v_cmd_peak, max(0.05 * c.v_cmd_peak, 1e-3)),),
     lambda c: [{"velocity_threshold_mm_s": f * c.v_cmd_peak, "lag_s": c.lag_s} for f in (0.02, 0.1, 0.3)],
     lambda p: f"no error below {p['velocity_threshold_mm_s']:.3g} mm/s, then lag {1e3 * p['lag_s']:.2f} ms x (|v| - a)",

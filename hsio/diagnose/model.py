@@ -15,7 +15,7 @@ Per sample k (dt = 1 / rate), the same explicit step as emulators/servo.py:
 
 With a = 0 this is the first-order lag of the command: since the loop sees the previous
 period's position, K_p = 1 / (lag + dt) makes a ramp at velocity v lag by lag (|v| - a) between
-a command and the measurement that follows it, the hockey stick of METHOD.md eq. (1) with
+a command and the measurement that follows it, the hockey stick of E&M 2007, eq. (1) with
 b d_max = lag_s. Without asymmetric lag and flow limit the state equation is linear,
 x[k] = (1 - K_p dt) x[k-1] +
 K_p dt c_d[k] + dt v_ff[k], and runs as one scipy.signal.lfilter call; otherwise it runs as a

@@ -12,6 +12,9 @@
   neighbourhood, with its frequency and sinusoidal amplitude), a slow trend (least-squares
   slope of r against time over the whole record) and the share of r that the velocity, the
   acceleration and the force explain together (the R^2 of a linear regression on them).
+
+A residual reaches the floor when its RMS is within FLOOR_FACTOR floors and it holds no line
+and no trend.
 """
 
 from __future__ import annotations
@@ -47,6 +50,11 @@ class Structure:
     trend_significant: bool = False
     r2_motion: float = 0.0  # share of the residual's variance that v, a and F explain linearly
     correlations: dict = field(default_factory=dict)
+
+    @property
+    def structured(self) -> bool:
+        """A line or a trend stands out of the noise."""
+        return bool(self.lines) or self.trend_significant
 
 
 def quantisation_step(x: np.ndarray) -> float:
@@ -114,12 +122,17 @@ def spectral_lines(r: np.ndarray, dt: float, floor_mm: float, lowest_hz: float =
     return lines[:5]
 
 
+def trend(residual: np.ndarray, dt: float) -> float:
+    """Least-squares slope of a residual against time (mm/s)."""
+    t = np.arange(residual.size) * dt
+    return float(np.polyfit(t, residual, 1)[0])
+
+
 def structure(residual: np.ndarray, n_held: int, dt: float, floor_mm: float, velocity: np.ndarray,
               force: np.ndarray | None) -> Structure:
     """The structure of ``residual`` (whole record; samples from ``n_held`` on were not fitted)."""
     held = residual[n_held:]
-    t = np.arange(residual.size) * dt
-    slope, _ = np.polyfit(t, residual, 1)
+    slope = trend(residual, dt)
     duration = residual.size * dt
     acceleration = np.gradient(velocity, dt)
     regressors = {"velocity": velocity[n_held:], "acceleration": acceleration[n_held:]}

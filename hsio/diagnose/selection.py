@@ -10,7 +10,8 @@ nor the choice saw.
 
 When no candidate clears the margin, the answer depends on the sensor floor
 (:mod:`~hsio.diagnose.residual`): ``none`` when the baseline's held-out error is within
-``FLOOR_FACTOR`` floors (the lag explains the record as well as the sensors allow), otherwise
+``FLOOR_FACTOR`` floors and holds no line or trend (the lag explains the record as well as
+the sensors allow), otherwise
 ``unexplained``, with what remains in the residual (lines, trend, correlation with the motion).
 """
 
@@ -79,13 +80,15 @@ class Diagnosis:
     @property
     def explained(self) -> bool:
         """The extended model's held-out error is within FLOOR_FACTOR sensor floors."""
-        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm)
+        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
+                    and not self.structure.structured)
 
     def residual_json(self) -> dict:
         s = self.structure
         return {**self.floor.to_json(), "rms_test_mm": s.rms_test_mm, "floors": s.rms_test_mm / self.floor.sensor_floor_mm,
                 "explained": self.explained, "lines_hz": [line["hz"] for line in s.lines], "lines": s.lines,
-                "trend_mm_per_s": s.trend_mm_per_s, "trend_significant": s.trend_significant,
+                "trend_mm_per_s": residual_mod.trend(self.record.measured_mm - self.baseline.prediction, self.record.dt),
+                "trend_after_mm_per_s": s.trend_mm_per_s, "trend_significant": s.trend_significant,
                 "r2_motion": s.r2_motion, "correlations": s.correlations,
                 "remains": residual_mod.remains(s, self.floor)}
 
@@ -179,7 +182,8 @@ def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, 
     r = record.measured_mm - extended.prediction
     s = residual_mod.structure(r, n_train, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
-        cause = NONE if s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm else UNEXPLAINED
+        reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
+        cause = NONE if reached else UNEXPLAINED
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
                      n_choose, floor, s)
 

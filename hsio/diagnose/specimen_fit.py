@@ -76,38 +76,38 @@ class Effect:
     amplitude: str  # the linear coefficient the effect adds ("" when none)
 
 
-def _bw(name, title, cause, theta, starts, describe, primary, amplitude=""):
+def _effect(name, title, cause, theta, starts, describe, primary, amplitude=""):
     return Effect(name, title, cause, theta, starts, describe, primary, amplitude)
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
-    _bw("friction", "friction (Coulomb, with the dashpot Bingham)",
+    _effect("friction", "friction (Coulomb, with the dashpot Bingham)",
         "a force of constant size opposing the motion: dry friction in seals and bearings, or the yield "
         "stress of a field-controlled fluid (an MR damper behaves as a Bingham solid: friction plus viscosity)",
         (("friction_v0_mm_s", lambda s: 0.002 * s.v_ref, lambda s: 0.3 * s.v_ref),),
         lambda s: [{"friction_v0_mm_s": 0.02 * s.v_ref}],
         lambda p: f"friction force {p['friction_kN']:.4g} kN (smoothed over {p['friction_v0_mm_s']:.3g} mm/s)",
         "friction_kN", "friction_kN"),
-    _bw("hysteresis", "hysteresis (Bouc-Wen)",
+    _effect("hysteresis", "hysteresis (Bouc-Wen)",
         "an elastic-plastic component: after each reversal the force rises with the elastic stiffness and "
         "saturates at a strength, so the loop encloses energy dissipated by yielding (Bouc-Wen)",
         (("uy_mm", lambda s: 0.01 * s.u_peak, lambda s: 2.0 * s.u_peak),),
         lambda s: [{"uy_mm": f * s.u_peak} for f in (0.05, 0.3)],
         lambda p: f"strength {p['fy_kN']:.4g} kN reached over {p['uy_mm']:.3g} mm", "fy_kN", "fy_kN"),
-    _bw("gap", "gap (stiffening when a gap closes)",
+    _effect("gap", "gap (stiffening when a gap closes)",
         "a gap or slack in a connection, or a contact that closes: beyond a displacement the specimen "
         "stiffens (a second load path engages)",
         (("gap_mm", lambda s: 0.02 * s.u_peak, lambda s: 0.98 * s.u_peak),),
         lambda s: [{"gap_mm": f * s.u_peak} for f in (0.3, 0.6)],
         lambda p: f"stiffness rises by {p['k_gap']:.4g} kN/mm beyond {p['gap_mm']:.3g} mm", "gap_mm", "k_gap"),
-    _bw("degradation", "stiffness and strength degradation",
+    _effect("degradation", "stiffness and strength degradation",
         "damage accumulates with the cycles (cracking, loosening, fatigue): stiffness and strength fall with "
         "the displacement travelled",
         (("degradation_per_mm", lambda s: 0.0, lambda s: 50.0 / max(s.travel, 1e-9)),),
         lambda s: [{"degradation_per_mm": f / max(s.travel, 1e-9)} for f in (0.1, 1.0)],
         lambda p: f"stiffness and strength divided by 1 + {p['degradation_per_mm']:.4g} per mm of travel",
         "degradation_per_mm"),
-    _bw("pinching", "pinched hysteresis",
+    _effect("pinching", "pinched hysteresis",
         "a hysteretic loop pinched near zero deformation: slack connectors or cracks that open and close "
         "carry little force until they bear again (timber joints, cracked concrete)",
         (("uy_mm", lambda s: 0.01 * s.u_peak, lambda s: 2.0 * s.u_peak), ("pinch", lambda s: 0.0, lambda s: 0.98),
@@ -116,17 +116,17 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                    {"uy_mm": 0.05 * s.u_peak, "pinch": 0.8, "pinch_width_mm": 0.15 * s.u_peak}],
         lambda p: f"hysteretic strength {p['fy_kN']:.4g} kN over {p['uy_mm']:.3g} mm, pinched by {p['pinch']:.2f} "
                   f"within {p['pinch_width_mm']:.3g} mm of zero", "pinch", "fy_kN"),
-    _bw("inertia", "inertia (a moving mass)",
+    _effect("inertia", "inertia (a moving mass)",
         "a mass moves with the specimen (its own, the clevis and load cell between it and the actuator): "
         "a force proportional to the acceleration, which rises with the square of the frequency",
         (), lambda s: [{}], lambda p: f"moving mass {p['mass_kg']:.4g} kg", "mass_kg", "mass_kg"),
-    _bw("rate_dependence", "rate dependence (nonlinear damping)",
+    _effect("rate_dependence", "rate dependence (nonlinear damping)",
         "the damping force is not proportional to the velocity: F = c v_ref |v / v_ref|^alpha "
         "(alpha < 1: a shear-thinning fluid or orifice flow that saturates; alpha > 1: turbulent flow)",
         (("alpha", lambda s: 0.05, lambda s: 3.0),), lambda s: [{"alpha": 0.5}, {"alpha": 1.5}],
         lambda p: f"damping exponent alpha = {p['alpha']:.3f} (c = {p['c']:.4g} kN s/mm at {p['v_ref_mm_s']:.3g} mm/s)",
         "alpha"),
-    _bw("channel_skew", "channel skew (force late on displacement)",
+    _effect("channel_skew", "channel skew (force late on displacement)",
         "the force channel is recorded late against the displacement (a filtered load cell, a separate "
         "conditioning delay): it shows as negative damping, energy the specimen seems to give back",
         (("skew_s", lambda s: -0.05, lambda s: 0.05),), lambda s: [{"skew_s": 2 * s.dt}, {"skew_s": 10 * s.dt}],
@@ -297,7 +297,8 @@ class SpecimenDiagnosis:
 
     @property
     def explained(self) -> bool:
-        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm)
+        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
+                    and not self.structure.structured)
 
     def to_json(self) -> dict:
         s, fl = self.structure, self.floor
@@ -412,6 +413,7 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
     r = record.force_kN - current.prediction
     s = residual_mod.structure(r, n_train, record.dt, floor.sensor_floor_mm, sig.v, None)
     if cause is None:
-        cause = NONE if s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm else UNEXPLAINED
+        reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
+        cause = NONE if reached else UNEXPLAINED
     return SpecimenDiagnosis(record, sig, n_train, n_choose, margin, baseline, candidates, cause, current, floor, s,
                              time.perf_counter() - t0)
