@@ -130,7 +130,7 @@ def trend(residual: np.ndarray, dt: float) -> float:
 
 def structure(residual: np.ndarray, n_held: int, dt: float, floor_mm: float, velocity: np.ndarray,
               force: np.ndarray | None) -> Structure:
-    """The structure of ``residual`` (whole record; samples from ``n_held`` on were not fitted)."""
+    """The structure of ``residual`` (whole record; samples from ``n_held`` on are the scoring block)."""
     held = residual[n_held:]
     slope = trend(residual, dt)
     duration = residual.size * dt
@@ -164,7 +164,7 @@ def remains(s: Structure, floor: Floor) -> str:
         strongest = max(s.correlations, key=lambda k: abs(s.correlations[k]))
         parts.append(f"a part that follows the motion ({100 * s.r2_motion:.0f} % of its variance; strongest with "
                      f"the {strongest}, r = {s.correlations[strongest]:+.2f})")
-    head = f"held-out RMS {s.rms_test_mm:.4f} mm against a sensor floor of {floor.sensor_floor_mm:.4f} mm"
+    head = f"scoring-block RMS {s.rms_test_mm:.4f} mm against a sensor floor of {floor.sensor_floor_mm:.4f} mm"
     if not parts:
         return head + "; no line, trend or correlation with the motion stands out (broadband)"
     return head + "; it holds " + ", ".join(parts)

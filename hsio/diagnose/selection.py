@@ -180,7 +180,7 @@ def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, 
     """Measure the floor and the residual's structure, and settle none against unexplained."""
     floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
     r = record.measured_mm - extended.prediction
-    s = residual_mod.structure(r, n_train, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
+    s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
         reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
         cause = NONE if reached else UNEXPLAINED

@@ -411,7 +411,7 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
                 break
             current = trial
     r = record.force_kN - current.prediction
-    s = residual_mod.structure(r, n_train, record.dt, floor.sensor_floor_mm, sig.v, None)
+    s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, sig.v, None)
     if cause is None:
         reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
         cause = NONE if reached else UNEXPLAINED
