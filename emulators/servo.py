@@ -16,6 +16,13 @@ Physics per period dt = 1/rate (explicit, one tick at a time):
 * Load train: the specimen sees the rod through a backlash gap and a compliance
   (d_spec = backlash(d_rod) - compliance F); the displacement transducer on the specimen reads
   gain * d_spec. Sensors add Gaussian noise and quantise to their resolution.
+* Further effects, off by default: a dead band (the loop ignores errors below
+  ``dead_band_mm``: e' = e - clip(e, -w, w)); a second-order servo-valve or oil-column mode
+  between the rod and the specimen (natural frequency ``servo_frequency_hz``, damping
+  ``servo_damping``, bilinear transform of w^2 / (s^2 + 2 zeta w s + w^2)); a transducer drift
+  (``sensor_drift_mm_s`` t added to the measured displacement) and a skew of the measured
+  displacement channel (it reads the displacement of ``channel_skew_s`` earlier, linear
+  interpolation between periods, as a filtered transducer does).
 * Interlocks: a measured displacement beyond the stroke or force beyond the capacity trips the
   controller, which then holds its position and refuses commands until reset.
 
@@ -72,6 +79,11 @@ class ServoConfig:
     force_resolution_kN: float = 0.001
     force_noise_kN: float = 0.002
     seed: int = 0
+    dead_band_mm: float = 0.0  # the displacement loop ignores errors smaller than this
+    servo_frequency_hz: float = 0.0  # second-order servo-valve / oil-column mode (0: none)
+    servo_damping: float = 0.7  # its damping ratio
+    sensor_drift_mm_s: float = 0.0  # slow trend of the displacement transducer
+    channel_skew_s: float = 0.0  # the measured displacement channel reads this much late
 
     def __post_init__(self):
         for f in fields(self):
@@ -87,7 +99,8 @@ class ServoConfig:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"emulator: {name} must be positive, got {getattr(self, name)!r}")
         non_negative = ("ki_per_s2", "velocity_threshold_mm_s", "transport_delay_s", "backlash_mm",
-                        "compliance_mm_per_kN", "resolution_mm", "noise_mm", "force_resolution_kN", "force_noise_kN")
+                        "compliance_mm_per_kN", "resolution_mm", "noise_mm", "force_resolution_kN", "force_noise_kN",
+                        "dead_band_mm", "servo_frequency_hz", "servo_damping", "channel_skew_s")
         for name in non_negative:
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"emulator: {name} must be zero or positive, got {getattr(self, name)!r}")
@@ -137,6 +150,15 @@ def make_controllers(elements, table: dict) -> list["ServoController"]:
     return controllers
 
 
+def servo_mode_filter(frequency_hz: float, damping: float, rate_hz: float) -> tuple[list, list]:
+    """(b, a) of the mode w^2 / (s^2 + 2 zeta w s + w^2) by the bilinear transform at rate_hz."""
+    from scipy import signal
+
+    w = 2 * math.pi * frequency_hz
+    b, a = signal.bilinear([w * w], [1.0, 2 * damping * w, w * w], fs=rate_hz)
+    return [float(v) for v in b], [float(v) for v in a]
+
+
 def quantise(value: float, resolution: float) -> float:
     return round(value / resolution) * resolution if resolution > 0 else value
 
@@ -165,6 +187,10 @@ class ServoController:
         self.kf = 1.0 / (c.force_lag_s * max(specimen.initial_stiffness, 1e-9))
         self._rng = np.random.default_rng(c.seed)
         self._delay = collections.deque(maxlen=max(int(round(c.transport_delay_s * c.rate_hz)), 0) + 1)
+        self._mode = servo_mode_filter(c.servo_frequency_hz, c.servo_damping, c.rate_hz) if c.servo_frequency_hz > 0 else None
+        skew = c.channel_skew_s * c.rate_hz
+        self._skew_frac = skew - math.floor(skew)
+        self._skew = collections.deque(maxlen=int(math.floor(skew)) + 2)
         self.reset()
 
     def reset(self) -> None:
@@ -180,6 +206,8 @@ class ServoController:
         self._last_loop_cmd = 0.0
         self._d_engaged = 0.0  # where the specimen side of the backlash gap stands
         self._delay.clear()
+        self._mode_state = [0.0, 0.0]
+        self._skew.clear()
         self.tripped = ""
         self.holding = False
         self._noise_d = np.empty(0)
@@ -235,6 +263,9 @@ class ServoController:
         loop_cmd = self._delay[0]
         if self.mode is ControlMode.DISPLACEMENT:
             error = loop_cmd - self._rod_feedback
+            w = c.dead_band_mm
+            if w > 0.0:
+                error = 0.0 if -w <= error <= w else error - math.copysign(w, error)
             self._integral += error * dt
             kp = self.kp_extend if error >= 0.0 else self.kp_retract
             v_cmd = (loop_cmd - self._last_loop_cmd) / dt
@@ -259,6 +290,14 @@ class ServoController:
     def _load_train(self) -> None:
         c = self.config
         d = self.d_rod
+        if self._mode is not None:
+            # Direct form II transposed of the mode's discrete filter (b, a).
+            b, a = self._mode
+            z = self._mode_state
+            y = b[0] * d + z[0]
+            z[0] = b[1] * d - a[1] * y + z[1]
+            z[1] = b[2] * d - a[2] * y
+            d = y
         if c.backlash_mm > 0.0:
             # The rod moves freely inside the gap; the specimen follows once the gap is taken up.
             half = 0.5 * c.backlash_mm
@@ -285,7 +324,17 @@ class ServoController:
     def _measure(self) -> None:
         c = self.config
         nd, nf = self._next_noise()
-        self.measured_displacement = quantise(c.displacement_gain * self.d_spec + nd, c.resolution_mm)
+        shown = c.displacement_gain * self.d_spec
+        if c.channel_skew_s > 0.0:
+            self._skew.append(shown)
+            older = self._skew[0]
+            newer = self._skew[1] if len(self._skew) > 1 else older
+            if len(self._skew) < self._skew.maxlen:  # before the record reaches back that far: at rest
+                older = newer = self._skew[0]
+            shown = (1.0 - self._skew_frac) * newer + self._skew_frac * older
+        if c.sensor_drift_mm_s != 0.0:
+            shown += c.sensor_drift_mm_s * self.time_s
+        self.measured_displacement = quantise(shown + nd, c.resolution_mm)
         self.measured_force = quantise(self.force + nf, c.force_resolution_kN)
         # The loop is closed on the rod's own transducer (same sensor quality).
         self._rod_feedback = quantise(self.d_rod + nd, c.resolution_mm)

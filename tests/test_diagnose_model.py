@@ -19,6 +19,9 @@ QUIET = dict(rate_hz=RATE, noise_mm=0.0, resolution_mm=0.0, force_noise_kN=0.0, 
     {}, {"transport_delay_s": 8 / RATE}, {"velocity_threshold_mm_s": 5.0}, {"velocity_limit_mm_s": 80.0},
     {"backlash_mm": 0.2}, {"lag_retract_s": 0.03}, {"displacement_gain": 1.03}, {"compliance_mm_per_kN": 0.01},
     {"transport_delay_s": 4 / RATE, "lag_retract_s": 0.025, "backlash_mm": 0.1, "velocity_limit_mm_s": 120.0},
+    {"dead_band_mm": 0.05}, {"servo_frequency_hz": 12.0, "servo_damping": 0.15}, {"sensor_drift_mm_s": 0.01},
+    {"channel_skew_s": 4.3 / RATE}, {"channel_skew_s": 0.6 / RATE},
+    {"dead_band_mm": 0.03, "servo_frequency_hz": 20.0, "servo_damping": 0.3, "channel_skew_s": 2 / RATE},
 ])
 def test_model_replays_the_emulator(settings):
     command = seismic_command(6.0, RATE, peak_mm=15.0)
@@ -53,7 +56,7 @@ def test_velocity_threshold_is_the_hockey_stick():
         ramp = v * np.arange(2048) / RATE
         x = _drive(ServoConfig(lag_s=lag, velocity_threshold_mm_s=a, **QUIET), ramp)[:, 0]
         error = ramp[-1] - x[-1]
-        # METHOD.md eq. (1) with b d_max = lag, between a command and the measurement after it.
+        # E&M 2007, eq. (1) with b d_max = lag, between a command and the measurement after it.
         assert error == pytest.approx(lag * max(v - a, 0.0), abs=1e-6)
 
 

@@ -41,7 +41,9 @@ def test_names_a_cause_with_a_held_out_gain_of_three(diagnosis):
     for c in result["candidates"]:
         assert c["gain"] == pytest.approx(b["rms_test_mm"] / c["rms_test_mm"])
     single = next(c for c in result["candidates"] if c["cause"] == result["cause"])
-    assert single["gain"] == max(c["gain"] for c in result["candidates"])
+    # Chosen on the choosing block; every gain is scored on the last block, which nothing saw.
+    assert single["choose_gain"] >= 0.98 * max(c["choose_gain"] for c in result["candidates"])
+    assert result["residual"]["sensor_floor_mm"] > 0 and "remains" in result["residual"]
     # The measured signal lags the command by about 26-27 ms (SOURCES.md): the fitted lag says so.
     assert 0.020 < b["params"]["lag_s"] < 0.035
 

@@ -12,7 +12,13 @@ from hsio.errors import HsioError
 
 
 @click.command()
-@click.argument("file", type=click.Path(exists=True, dir_okay=False))
+@click.argument("file", required=False, type=click.Path(exists=True, dir_okay=False))
+@click.option("--specimen", "specimen_file", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Diagnose a specimen from its measured displacement and force (CSV time_s,displacement_mm,force_kN, DAQ export or run.sqlite).")
+@click.option("--run", "run_dir", default=None, type=click.Path(exists=True, file_okay=False),
+              help="Error budget of a hybrid run: what makes it differ from the numerical simulation.")
+@click.option("--displacement-channel", default="CHANNEL0", show_default=True, help="--specimen DAQ: channel of the displacement.")
+@click.option("--displacement-scale", default=10.0, show_default=True, type=float, help="--specimen DAQ: mm per volt of the displacement.")
 @click.option("--format", "fmt", type=click.Choice(["csv", "daq", "run"]), default=None,
               help="Record format (default: from the file name and its first bytes).")
 @click.option("--command-channel", default="CHANNEL2", show_default=True, help="DAQ: channel of the command.")
@@ -22,16 +28,32 @@ from hsio.errors import HsioError
 @click.option("--measured-scale", default=10.0, show_default=True, type=float, help="DAQ: mm per volt of the measured displacement.")
 @click.option("--force-scale", default=9.80665, show_default=True, type=float, help="DAQ: kN per volt of the force.")
 @click.option("--actuator", default=None, help="Run recordings: which actuator (default: the first).")
-@click.option("--train-fraction", default=0.7, show_default=True, type=float, help="Fit on this first part, judge on the rest.")
+@click.option("--train-fraction", default=0.6, show_default=True, type=float, help="Fit on this first part.")
+@click.option("--choose-fraction", default=0.2, show_default=True, type=float,
+              help="Choose between models on this next part; the rest scores the choice.")
 @click.option("--margin", default=None, type=float, help="Held-out improvement a cause must reach to be named (default 1.1).")
 @click.option("--json", "as_json", is_flag=True, help="Print the diagnosis as JSON on stdout.")
 @click.option("--report", "report_dir", default=None, type=click.Path(file_okay=False),
               help="Write plots, report.md, diagnosis.json and actuator_model.toml in this folder.")
 @click.option("--model", "model_path", default=None, type=click.Path(dir_okay=False),
               help="Write the extended model (TOML) here (default with --report: DIR/actuator_model.toml).")
-def diagnose(file, fmt, command_channel, measured_channel, force_channel, command_scale, measured_scale, force_scale,
-             actuator, train_fraction, margin, as_json, report_dir, model_path) -> None:
-    """Name what the actuator model gets wrong in a measured record FILE and extend it."""
+def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_scale, fmt, command_channel, measured_channel,
+             force_channel, command_scale, measured_scale, force_scale, actuator, train_fraction, choose_fraction, margin, as_json,
+             report_dir, model_path) -> None:
+    """Name what the actuator model gets wrong in a measured record FILE and extend it; with
+    --specimen, what a linear spring and dashpot miss in a specimen's force; with --run, the
+    error budget of a hybrid run."""
+    given = [x for x in (file, specimen_file, run_dir) if x]
+    if len(given) != 1:
+        click.echo("hsio diagnose: error: give one of FILE (an actuator record), --specimen FILE or --run RUN_DIR", err=True)
+        sys.exit(2)
+    if specimen_file:
+        _specimen(specimen_file, fmt, displacement_channel, force_channel, displacement_scale, force_scale, actuator,
+                  train_fraction, choose_fraction, margin, as_json, report_dir, model_path)
+        return
+    if run_dir:
+        _budget(run_dir, as_json, report_dir)
+        return
     from hsio.diagnose import report as report_mod
     from hsio.diagnose.modelfile import write_model
     from hsio.diagnose.readers import DaqChannels, read_record
@@ -42,7 +64,8 @@ def diagnose(file, fmt, command_channel, measured_channel, force_channel, comman
     channels = DaqChannels(command_channel, measured_channel, force, command_scale, measured_scale, force_scale)
     try:
         record = read_record(file, fmt, channels, actuator)
-        d = run_diagnosis(record, train_fraction=train_fraction, margin=MARGIN if margin is None else margin)
+        d = run_diagnosis(record, train_fraction=train_fraction, margin=MARGIN if margin is None else margin,
+                          choose_fraction=choose_fraction)
         files = report_mod.write_report(d, report_dir) if report_dir else {}
         if model_path:
             files["model"] = str(write_model(model_path, report_mod.model_params(d), report_mod.provenance(d)))
@@ -56,12 +79,68 @@ def diagnose(file, fmt, command_channel, measured_channel, force_channel, comman
         click.echo(json.dumps(result, indent=2))
         return
     b, e = d.baseline, d.extended
-    click.echo(f"record      {record.source}: {record.n} samples at {record.rate_hz:g} Hz, fit on {d.n_train}, judged on {record.n - d.n_train}")
-    click.echo(f"baseline    lag {1e3 * b.params['lag_s']:.2f} ms: RMS {b.rms_train_mm:.4f} mm fitted, {b.rms_test_mm:.4f} mm held out")
+    click.echo(f"record      {record.source}: {record.n} samples at {record.rate_hz:g} Hz, fit on {d.n_train}, "
+               f"choose on {d.n_choose - d.n_train}, score on {record.n - d.n_choose}")
+    click.echo(f"baseline    lag {1e3 * b.params['lag_s']:.2f} ms: RMS {b.rms_train_mm:.4f} mm fitted, {b.rms_test_mm:.4f} mm scored")
     for c in d.candidates:
-        click.echo(f"candidate   {c.cause:<20} held out {c.fit.rms_test_mm:.4f} mm  gain {c.gain:6.3f}{'  *' if c.named else ''}")
+        click.echo(f"candidate   {c.cause:<20} scored {c.fit.rms_test_mm:.4f} mm  gain {c.gain:6.3f}  "
+                   f"(choosing {c.choose_gain:6.3f}){'  *' if c.named else ''}")
     click.echo(f"cause       {d.cause}")
-    click.echo(f"extended    {e.name}: held out {e.rms_test_mm:.4f} mm, gain {d.gain:.2f}")
+    click.echo(f"residual    {d.residual_json()['remains']}")
+    click.echo(f"extended    {e.name}: scored {e.rms_test_mm:.4f} mm, gain {d.gain:.2f}")
     click.echo(f"            {', '.join(f'{k} = {v:.5g}' for k, v in e.params.items())}")
     for name, path in files.items():
         click.echo(f"{name:<11} {path}")
+
+
+def _specimen(path, fmt, displacement_channel, force_channel, displacement_scale, force_scale, actuator, train_fraction,
+              choose_fraction, margin, as_json, report_dir, model_path) -> None:
+    from hsio.diagnose.specimen_fit import MARGIN, diagnose_specimen
+    from hsio.diagnose.specimen_record import read_specimen
+    from hsio.diagnose.specimen_report import specimen_json, write_specimen_model, write_specimen_report
+
+    try:
+        if not 0.1 <= train_fraction <= 0.8 or not 0.05 <= choose_fraction <= 0.95 - train_fraction:
+            raise HsioError(f"fractions: train in [0.1, 0.8] and choose in [0.05, 0.95 - train], got {train_fraction}, {choose_fraction}")
+        records = read_specimen(path, fmt, displacement_channel, force_channel, displacement_scale, force_scale, actuator)
+        diagnoses = [diagnose_specimen(r, train_fraction, choose_fraction, MARGIN if margin is None else margin) for r in records]
+        files = write_specimen_report(diagnoses, report_dir) if report_dir else {}
+        if model_path:
+            files["model"] = str(write_specimen_model(model_path, diagnoses[-1]))
+    except HsioError as exc:
+        click.echo(f"hsio diagnose: error: {exc}", err=True)
+        sys.exit(2)
+    result = specimen_json(diagnoses)
+    if files:
+        result["files"] = files
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    for d in diagnoses:
+        b, e = d.baseline, d.extended
+        click.echo(f"record      {d.record.source}: {d.record.n} samples at {d.record.rate_hz:g} Hz")
+        click.echo(f"baseline    k {b.params['k']:.4g} kN/mm, c {b.params['c']:.4g} kN s/mm: RMS {b.rms_test_kN:.4f} kN scored "
+                   f"(sensor floor {d.floor.sensor_floor_mm:.4f} kN)")
+        for c in d.candidates:
+            click.echo(f"candidate   {c.cause:<16} scored {c.fit.rms_test_kN:.4f} kN  gain {c.gain:6.3f}  "
+                       f"(choosing {c.choose_gain:6.3f}){'  *' if c.named else ''}")
+        click.echo(f"cause       {d.cause}")
+        click.echo(f"extended    {e.name}: scored {e.rms_test_kN:.4f} kN, gain {d.gain:.2f}")
+    for name, p in files.items():
+        click.echo(f"{name:<11} {p}")
+
+
+def _budget(run_dir, as_json, report_dir) -> None:
+    from hsio.diagnose.budget import error_budget, write_budget
+
+    try:
+        b = error_budget(run_dir)
+        files = write_budget(b, report_dir) if report_dir else {}
+    except HsioError as exc:
+        click.echo(f"hsio diagnose: error: {exc}", err=True)
+        sys.exit(2)
+    result = {**b.to_json(), **({"files": files} if files else {})}
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    click.echo(b.table())

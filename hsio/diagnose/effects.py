@@ -8,6 +8,7 @@ the parameter means physically.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from typing import Callable
 
 import numpy as np
@@ -35,6 +36,7 @@ class Context:
     v_model_peak: float  # the same of the baseline model's velocity, mm/s
     stroke_mm: float  # peak-to-peak command
     force_peak: float  # peak-to-peak force, kN (0 without force)
+    residual_peak_hz: float = 0.0  # where the baseline residual's spectrum peaks (above 0.5 Hz)
 
 
 @dataclass(frozen=True)
@@ -77,7 +79,7 @@ _register(Effect(
 _register(Effect(
     "velocity_threshold", "velocity threshold (hockey stick)",
     "velocity feed-forward up to a threshold speed a: below it the actuator follows the command with "
-    "no error, above it the error grows as lag (|v| - a) (METHOD.md eq. 1)",
+    "no error, above it the error grows as lag (|v| - a) (E&M 2007, eq. (1))",
     lambda c: (Param("velocity_threshold_mm_s", 0.0, c.v_cmd_peak, max(0.05 * c.v_cmd_peak, 1e-3)),),
     lambda c: [{"velocity_threshold_mm_s": f * c.v_cmd_peak, "lag_s": c.lag_s} for f in (0.02, 0.1, 0.3)],
     lambda p: f"no error below {p['velocity_threshold_mm_s']:.3g} mm/s, then lag {1e3 * p['lag_s']:.2f} ms x (|v| - a)",
@@ -139,6 +141,52 @@ _register(Effect(
     primary="displacement_gain",
 ))
 
+_register(Effect(
+    "servo_dynamics", "servo-valve or oil-column mode",
+    "a second-order stage in series with the lag: the servo-valve spool's own dynamics or the "
+    "oil-column resonance (the piston and specimen mass on the compressibility of the oil), so the "
+    "actuator overshoots and rings near that frequency instead of only falling behind",
+    lambda c: (Param("servo_frequency_hz", 0.5, 0.45 / c.record.dt, 5.0), Param("servo_damping", 0.02, 2.0, 0.1)),
+    lambda c: [{"servo_frequency_hz": f, "servo_damping": z, "lag_s": c.lag_s}
+               for f, z in ((max(c.residual_peak_hz, 1.0), 0.15),
+                            (min(1.0 / (2 * math.pi * max(c.lag_s, c.record.dt)) * 3.0, 0.4 / c.record.dt), 0.7))],
+    lambda p: f"mode at {p['servo_frequency_hz']:.2f} Hz with damping {p['servo_damping']:.3f} after a lag of "
+              f"{1e3 * p['lag_s']:.2f} ms",
+    primary="servo_frequency_hz",
+))
+
+_register(Effect(
+    "sensor_drift", "transducer drift",
+    "the displacement transducer or its conditioning drifts slowly (temperature of the LVDT and its "
+    "amplifier, a creeping zero): the measurement walks away from the actuator at a steady rate",
+    lambda c: (Param("sensor_drift_mm_s", -c.stroke_mm / c.record.duration_s, c.stroke_mm / c.record.duration_s,
+                     max(c.residual_rms_mm, 1e-4) / c.record.duration_s),),
+    lambda c: [{"sensor_drift_mm_s": 0.0, "lag_s": c.lag_s}],
+    lambda p: f"drift {1e3 * p['sensor_drift_mm_s']:.4g} um/s",
+    primary="sensor_drift_mm_s",
+))
+
+_register(Effect(
+    "channel_skew", "channel skew",
+    "the measured displacement channel is recorded late against the command and force channels (a "
+    "filtered transducer, a conditioning amplifier or DAQ channel with its own delay): the actuator "
+    "moves in time with the force, only its displacement reading is late",
+    lambda c: (Param("channel_skew_s", 0.0, max(0.5, 4.0 * c.lag_s), max(0.3 * c.lag_s, c.record.dt)),),
+    lambda c: [{"channel_skew_s": 0.5 * c.lag_s, "lag_s": max(0.5 * c.lag_s, 2.0 * c.record.dt)}],
+    lambda p: f"displacement channel {1e3 * p['channel_skew_s']:.2f} ms late, lag {1e3 * p['lag_s']:.2f} ms",
+    primary="channel_skew_s",
+))
+
+_register(Effect(
+    "dead_band", "dead band",
+    "the loop does not answer errors smaller than a width (servo-valve overlap, spool stiction, a "
+    "controller dead zone): the actuator stops short of small commands and moves in steps",
+    lambda c: (Param("dead_band_mm", 0.0, 0.25 * max(c.stroke_mm, 1e-6), max(c.residual_rms_mm, 1e-4)),),
+    lambda c: [{"dead_band_mm": f * c.residual_rms_mm, "lag_s": c.lag_s} for f in (0.5, 2.0)],
+    lambda p: f"no response to loop errors below {p['dead_band_mm']:.4g} mm",
+    primary="dead_band_mm",
+))
+
 NAMES = tuple(EFFECTS)
 
 
@@ -148,9 +196,20 @@ def _speed(x: np.ndarray, dt: float) -> np.ndarray:
     return np.abs(x[w:] - x[:-w]) / (w * dt)
 
 
+def peak_frequency(residual: np.ndarray, dt: float, lowest_hz: float = 0.5) -> float:
+    """Where the residual's amplitude spectrum peaks, above ``lowest_hz`` (Hz)."""
+    from scipy import signal
+
+    fs = 1.0 / dt
+    f, p = signal.welch(residual - residual.mean(), fs=fs, nperseg=int(min(residual.size, 2 ** int(np.log2(max(fs * 4, 64))))))
+    keep = f >= lowest_hz
+    return float(f[keep][np.argmax(p[keep])]) if keep.any() else 0.0
+
+
 def context(record: ActuatorRecord, lag_s: float, residual_rms_mm: float, baseline_prediction: np.ndarray) -> Context:
     v_cmd = np.abs(record.command_velocity())
     force_peak = float(np.ptp(record.force_kN)) if record.force_kN is not None else 0.0
     return Context(record, lag_s, residual_rms_mm, float(np.percentile(v_cmd, 99.9)),
                    float(np.percentile(_speed(record.measured_mm, record.dt), 99.9)),
-                   float(np.percentile(_speed(baseline_prediction, record.dt), 99.9)), float(np.ptp(record.command_mm)), force_peak)
+                   float(np.percentile(_speed(baseline_prediction, record.dt), 99.9)), float(np.ptp(record.command_mm)), force_peak,
+                   peak_frequency(record.measured_mm - baseline_prediction, record.dt))

@@ -4,6 +4,10 @@ The prediction is a free-run simulation of the whole record from the command alo
 output-error fit): the training part fixes the parameters, the held-out part is predicted
 without any feedback from the measurement. The offset between transducers is solved in
 closed form (the mean residual on the training part) at every evaluation.
+
+The record is cut in three blocks in time: the first 60 % fits the parameters, the next 20 %
+chooses between models, the last 20 % scores the chosen one (its gain is measured on data used
+neither to fit nor to choose).
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ from hsio.diagnose.effects import BASELINE_PARAMS, EFFECTS, Context, Param
 from hsio.diagnose.model import NEUTRAL, simulate
 from hsio.diagnose.record import ActuatorRecord
 
-TRAIN_FRACTION = 0.7
+TRAIN_FRACTION = 0.6
+CHOOSE_FRACTION = 0.2
 
 
 @dataclass
@@ -27,7 +32,8 @@ class Fit:
     effects: tuple[str, ...]
     params: dict
     rms_train_mm: float
-    rms_test_mm: float
+    rms_choose_mm: float  # the block that chooses between models
+    rms_test_mm: float  # the block that scores the chosen one
     prediction: np.ndarray  # the whole record, mm
     nfev: int = 0
 
@@ -37,12 +43,18 @@ class Fit:
 
     def summary(self) -> dict:
         return {"model": self.name, "effects": list(self.effects), "params": dict(self.params),
-                "rms_train_mm": self.rms_train_mm, "rms_test_mm": self.rms_test_mm}
+                "rms_train_mm": self.rms_train_mm, "rms_choose_mm": self.rms_choose_mm, "rms_test_mm": self.rms_test_mm}
 
 
 def split_index(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION) -> int:
-    """Samples [0, n_train) fit the model, [n_train, n) judge it."""
+    """Samples [0, n_train) fit the model."""
     return int(round(train_fraction * record.n))
+
+
+def blocks(n: int, train_fraction: float = TRAIN_FRACTION, choose_fraction: float = CHOOSE_FRACTION) -> tuple[int, int]:
+    """(n_train, n_choose): [0, n_train) fits, [n_train, n_choose) chooses, [n_choose, n) scores."""
+    n_train = int(round(train_fraction * n))
+    return n_train, min(int(round((train_fraction + choose_fraction) * n)), n - 1)
 
 
 def param_specs(effects: tuple[str, ...], ctx: Context) -> list[Param]:
@@ -52,7 +64,12 @@ def param_specs(effects: tuple[str, ...], ctx: Context) -> list[Param]:
     return specs
 
 
-def evaluate(record: ActuatorRecord, effects: tuple[str, ...], params: dict, n_train: int, nfev: int = 0) -> Fit:
+def rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
+
+
+def evaluate(record: ActuatorRecord, effects: tuple[str, ...], params: dict, n_train: int, nfev: int = 0,
+             n_choose: int | None = None) -> Fit:
     """Simulate the whole record with ``params`` (offset fitted on the training part) and score it."""
     params = dict(params)
     params["offset_mm"] = 0.0
@@ -61,8 +78,8 @@ def evaluate(record: ActuatorRecord, effects: tuple[str, ...], params: dict, n_t
     params["offset_mm"] = offset
     pred = pred + offset
     r = record.measured_mm - pred
-    return Fit(tuple(effects), params, float(np.sqrt(np.mean(r[:n_train] ** 2))), float(np.sqrt(np.mean(r[n_train:] ** 2))),
-               pred, nfev)
+    n_choose = blocks(record.n, n_train / record.n)[1] if n_choose is None else n_choose
+    return Fit(tuple(effects), params, rms(r[:n_train]), rms(r[n_train:n_choose]), rms(r[n_choose:]), pred, nfev)
 
 
 def _neutral(name: str, ctx: Context) -> float:
@@ -75,7 +92,7 @@ def _neutral(name: str, ctx: Context) -> float:
 
 
 def fit(record: ActuatorRecord, effects: tuple[str, ...], ctx: Context, n_train: int, starts: list[dict],
-        max_nfev: int = 60) -> Fit:
+        max_nfev: int = 60, n_choose: int | None = None) -> Fit:
     """Fit lag_s and the effects' parameters on samples [0, n_train) from each start; keep the best."""
     specs = param_specs(effects, ctx)
     lower = np.array([s.lower for s in specs])
@@ -102,4 +119,4 @@ def fit(record: ActuatorRecord, effects: tuple[str, ...], ctx: Context, n_train:
         nfev += sol.nfev
         if best is None or sol.cost < best.cost:
             best = sol
-    return evaluate(record, effects, to_params(best.x), n_train, nfev)
+    return evaluate(record, effects, to_params(best.x), n_train, nfev, n_choose)

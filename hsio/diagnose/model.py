@@ -4,14 +4,18 @@ Per sample k (dt = 1 / rate), the same explicit step as emulators/servo.py:
 
     c_d[k] = c(t_k - transport_delay)                                     (transport_delay_s)
     v_ff   = clip((c_d[k] - c_d[k-1]) / dt, -a, a) K_p lag                (velocity_threshold_mm_s)
-    e      = c_d[k] - x[k-1];  K_p = 1 / (lag_s + dt) if e >= 0 else 1 / (lag_retract_s + dt)
+    e      = c_d[k] - x[k-1], less its dead band: e - clip(e, -w, w)      (dead_band_mm)
+             K_p = 1 / (lag_s + dt) if e >= 0 else 1 / (lag_retract_s + dt)
     x[k]   = x[k-1] + dt clip(K_p e + v_ff, -v_max, v_max)                (velocity_limit_mm_s)
-    y[k]   = backlash(x)[k]  (play operator, gap backlash_mm)
-    m[k]   = displacement_gain (y[k] - compliance F[k]) + offset_mm
+    x'     = H(z) x, the servo-valve / oil-column mode w^2 / (s^2 + 2 zeta w s + w^2) by the
+             bilinear transform                                      (servo_frequency_hz, servo_damping)
+    y[k]   = backlash(x')[k]  (play operator, gap backlash_mm)
+    m[k]   = displacement_gain (y - compliance F)(t_k - skew) + drift t_k + offset_mm
+                                                        (channel_skew_s, sensor_drift_mm_s)
 
 With a = 0 this is the first-order lag of the command: since the loop sees the previous
 period's position, K_p = 1 / (lag + dt) makes a ramp at velocity v lag by lag (|v| - a) between
-a command and the measurement that follows it, the hockey stick of METHOD.md eq. (1) with
+a command and the measurement that follows it, the hockey stick of E&M 2007, eq. (1) with
 b d_max = lag_s. Without asymmetric lag and flow limit the state equation is linear,
 x[k] = (1 - K_p dt) x[k-1] +
 K_p dt c_d[k] + dt v_ff[k], and runs as one scipy.signal.lfilter call; otherwise it runs as a
@@ -37,6 +41,11 @@ NEUTRAL: dict[str, float | None] = {
     "compliance_mm_per_kN": 0.0,
     "displacement_gain": 1.0,
     "offset_mm": 0.0,
+    "dead_band_mm": 0.0,
+    "servo_frequency_hz": 0.0,  # 0: no mode
+    "servo_damping": 0.7,
+    "sensor_drift_mm_s": 0.0,
+    "channel_skew_s": 0.0,
 }
 
 
@@ -65,14 +74,18 @@ def _linear_lag(cd: np.ndarray, vff: np.ndarray | None, dt: float, lag: float) -
     return signal.lfilter([1.0], [1.0, -(1.0 - k)], u, zi=[(1.0 - k) * cd[0]])[0]
 
 
-def _loop_lag(cd: np.ndarray, vff: np.ndarray | None, dt: float, lag: float, lag_retract: float, vmax: float) -> np.ndarray:
+def _loop_lag(cd: np.ndarray, vff: np.ndarray | None, dt: float, lag: float, lag_retract: float, vmax: float,
+              dead_band: float = 0.0) -> np.ndarray:
     kp_e, kp_r = 1.0 / (lag + dt), 1.0 / (lag_retract + dt)
+    w = dead_band
     lo = -vmax
     x = float(cd[0])
     out = [0.0] * cd.size
     ff = vff.tolist() if vff is not None else [0.0] * cd.size
     for i, (c, f) in enumerate(zip(cd.tolist(), ff)):
         e = c - x
+        if w > 0.0:
+            e = 0.0 if -w <= e <= w else (e - w if e > 0.0 else e + w)
         v = (kp_e if e >= 0.0 else kp_r) * e + f
         if v > vmax:
             v = vmax
@@ -110,12 +123,28 @@ def simulate(command: np.ndarray, dt: float, params: dict, force: np.ndarray | N
     lag_retract = p["lag_retract_s"] if p["lag_retract_s"] is not None else lag
     vff = feed_forward(cd, dt, a, lag / (lag + dt), lag_retract / (lag_retract + dt)) if a > 0.0 else None
     vmax = p["velocity_limit_mm_s"]
-    if lag_retract == lag and not math.isfinite(vmax):
+    w = p["dead_band_mm"]
+    if lag_retract == lag and not math.isfinite(vmax) and w <= 0.0:
         x = _linear_lag(cd, vff, dt, lag)
     else:
-        x = _loop_lag(cd, vff, dt, lag, lag_retract, vmax if math.isfinite(vmax) else 1e300)
+        x = _loop_lag(cd, vff, dt, lag, lag_retract, vmax if math.isfinite(vmax) else 1e300, w)
+    if p["servo_frequency_hz"] > 0.0:
+        x = servo_mode(x, dt, p["servo_frequency_hz"], p["servo_damping"])
     if p["backlash_mm"] > 0.0:
         x = play(x, p["backlash_mm"])
     if p["compliance_mm_per_kN"] != 0.0 and force is not None:
         x = x - p["compliance_mm_per_kN"] * force
-    return p["displacement_gain"] * x + p["offset_mm"]
+    m = p["displacement_gain"] * x
+    if p["channel_skew_s"] > 0.0:
+        m = delayed(m, p["channel_skew_s"] / dt)
+    if p["sensor_drift_mm_s"] != 0.0:
+        m = m + p["sensor_drift_mm_s"] * dt * np.arange(1, m.size + 1)
+    return m + p["offset_mm"]
+
+
+def servo_mode(x: np.ndarray, dt: float, frequency_hz: float, damping: float) -> np.ndarray:
+    """The rod's motion through a second-order mode (the emulator's filter), at rest on x[0]."""
+    from hsio.emulators.servo import servo_mode_filter
+
+    b, a = servo_mode_filter(frequency_hz, damping, 1.0 / dt)
+    return signal.lfilter(b, a, x, zi=signal.lfilter_zi(b, a) * x[0])[0]

@@ -26,8 +26,10 @@ from hsio.errors import ConfigError
 
 # Model parameters that are emulator settings (ServoConfig fields) and the ranges it accepts.
 EMULATED = ("lag_s", "transport_delay_s", "velocity_threshold_mm_s", "velocity_limit_mm_s", "backlash_mm",
-            "lag_retract_s", "compliance_mm_per_kN", "displacement_gain")
-NON_NEGATIVE = ("transport_delay_s", "velocity_threshold_mm_s", "backlash_mm", "compliance_mm_per_kN")
+            "lag_retract_s", "compliance_mm_per_kN", "displacement_gain", "dead_band_mm", "servo_frequency_hz",
+            "servo_damping", "sensor_drift_mm_s", "channel_skew_s")
+NON_NEGATIVE = ("transport_delay_s", "velocity_threshold_mm_s", "backlash_mm", "compliance_mm_per_kN", "dead_band_mm",
+                "servo_frequency_hz", "channel_skew_s")
 
 
 def _toml_value(value) -> str:

@@ -61,9 +61,13 @@ def read_csv(path: str | Path) -> ActuatorRecord:
     """A CSV record with the header ``time_s,command_mm,measured_mm[,force_kN]``."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        raw = path.read_bytes()
     except OSError as exc:
         raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise RecordError(f"{path}: not UTF-8 text (byte {exc.start})") from None
     header = None
     rows: list[list[float]] = []
     lines: list[int] = []

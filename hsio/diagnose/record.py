@@ -60,7 +60,7 @@ class ActuatorRecord:
         return self.n * self.dt
 
     def command_velocity(self) -> np.ndarray:
-        """Backward difference of the command, mm/s (METHOD.md section 4: v_i = (d_i - d_{i-1}) / t_d)."""
+        """Backward difference of the command, mm/s (E&M 2007, section 4: v_i = (d_i - d_{i-1}) / t_d)."""
         v = np.empty(self.n)
         v[0] = 0.0
         v[1:] = np.diff(self.command_mm) / self.dt

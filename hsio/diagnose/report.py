@@ -16,7 +16,7 @@ from scipy import signal  # noqa: E402
 
 from hsio.diagnose.effects import EFFECTS  # noqa: E402
 from hsio.diagnose.modelfile import write_model  # noqa: E402
-from hsio.diagnose.selection import NONE, Diagnosis  # noqa: E402
+from hsio.diagnose.selection import NONE, UNEXPLAINED, Diagnosis  # noqa: E402
 
 MAX_POINTS = 20000  # scatter plots thin the record to this many points
 
@@ -148,7 +148,9 @@ def text(d: Diagnosis, ev: dict) -> str:
     lines = [f"# Actuator diagnosis: {Path(rec.source).name}", "",
              f"Record: {rec.n} samples at {rec.rate_hz:g} Hz ({rec.duration_s:.2f} s), "
              f"{'with' if rec.force_kN is not None else 'without'} force. Every model is fitted on the first "
-             f"{100 * d.n_train / rec.n:.0f} % (0 to {d.n_train * rec.dt:.2f} s) and judged on the rest, which it never saw.",
+             f"{100 * d.n_train / rec.n:.0f} % (0 to {d.n_train * rec.dt:.2f} s); models are chosen on the next "
+             f"{100 * (d.n_choose - d.n_train) / rec.n:.0f} % (to {d.n_choose * rec.dt:.2f} s) and every gain is scored on the "
+             f"last {100 * (rec.n - d.n_choose) / rec.n:.0f} %, which neither the fit nor the choice saw.",
              "", "## What the baseline gets wrong", "",
              f"The emulator's velocity-proportional lag (a first-order lag of the command, lag = "
              f"{1e3 * b.params['lag_s']:.2f} ms) predicts the measured displacement with an RMS error of "
@@ -159,12 +161,19 @@ def text(d: Diagnosis, ev: dict) -> str:
              f"{ev['corr_velocity']:+.2f}, with its magnitude {ev['corr_abs_velocity']:+.2f}, with the command "
              f"{ev['corr_displacement']:+.2f}" + (f", with the force {ev['corr_force']:+.2f}." if "corr_force" in ev else "."),
              ""]
-    if d.cause == NONE:
-        best = min(d.candidates, key=lambda c: c.fit.rms_test_mm) if d.candidates else None
-        lines += ["## Cause: none", "",
-                  f"No candidate improves the held-out error by the margin of {d.margin:g}x"
-                  + (f" (best: {best.cause}, {best.gain:.3f}x)." if best else ".")
-                  + " The lag alone explains the record to within its noise; nothing is named.", ""]
+    floor = d.floor.sensor_floor_mm
+    if d.cause in (NONE, UNEXPLAINED):
+        best = min(d.candidates, key=lambda c: c.fit.rms_choose_mm) if d.candidates else None
+        lines += [f"## Cause: {d.cause}", "",
+                  f"No candidate improves the choosing block by the margin of {d.margin:g}x"
+                  + (f" (best: {best.cause}, {best.choose_gain:.3f}x)." if best else ".")]
+        if d.cause == NONE:
+            lines += [f"The lag alone reaches the sensor floor ({floor:.4f} mm: noise and quantisation, estimated from "
+                      "the data); nothing is named.", ""]
+        else:
+            lines += [f"Yet the baseline stays {d.structure.rms_test_mm / floor:.1f} times above the sensor floor "
+                      f"({floor:.4f} mm): something the library does not hold is at work. "
+                      f"{d.residual_json()['remains'].capitalize()}.", ""]
     else:
         single = d.single
         effect = EFFECTS[d.cause]
@@ -172,6 +181,12 @@ def text(d: Diagnosis, ev: dict) -> str:
                   f"Physically: {effect.cause}.",
                   f"Fitted: {effect.describe(single.fit.params)}. Held-out RMS error {single.fit.rms_test_mm:.4f} mm: "
                   f"{single.gain:.2f} times better than the baseline (a cause is named only above {d.margin:g}x).", ""]
+        if d.equivalent is not None:
+            other = EFFECTS[d.equivalent.cause]
+            lines += [f"Equivalently: {other.describe(d.equivalent.fit.params)} ({d.equivalent.cause}) predicts the "
+                      "displacement as well: a delay inside the loop and a late displacement channel cannot be told apart "
+                      "from the command and the displacement alone. The force-displacement relation can tell them "
+                      "(`hsio diagnose --specimen` names a channel skew).", ""]
         if len(d.extended.effects) > 1:
             lines += [f"## Best combination: {d.extended.name}", "",
                       "; ".join(EFFECTS[e].describe(d.extended.params) for e in d.extended.effects) + ".",
@@ -179,11 +194,16 @@ def text(d: Diagnosis, ev: dict) -> str:
                       "each added effect had to clear the margin over the combination before it.", ""]
         else:
             lines += ["No further effect improves on it by the margin: the extended model is the single cause.", ""]
+    if d.cause not in (NONE, UNEXPLAINED):
+        lines += ["## What remains", "",
+                  ("The extended model reaches the sensor floor: " if d.explained else "The extended model stays above the sensor floor: ")
+                  + d.residual_json()["remains"] + ".", ""]
     lines += ["## Candidates (each fitted on top of the lag)", "",
-              "| cause | held-out RMS (mm) | gain | parameters |", "| --- | --- | --- | --- |"]
+              "| cause | scored RMS (mm) | scoring gain | choosing gain | parameters |", "| --- | --- | --- | --- | --- |"]
     for c in d.candidates:
-        lines.append(f"| {c.cause} | {c.fit.rms_test_mm:.4f} | {c.gain:.3f}{' *' if c.named else ''} | {_params_text(c.fit.params)} |")
-    lines += ["", f"(* clears the margin of {d.margin:g}x)", "",
+        lines.append(f"| {c.cause} | {c.fit.rms_test_mm:.4f} | {c.gain:.3f} | {c.choose_gain:.3f}{' *' if c.named else ''} | "
+                     f"{_params_text(c.fit.params)} |")
+    lines += ["", f"(* clears the margin of {d.margin:g}x on the choosing block)", "",
               "## Files", "",
               "- residual_time.png: the departure where the baseline is worst, and the residual against time",
               "- residual_velocity.png, residual_force.png: the residual against command velocity and force",

@@ -1,10 +1,18 @@
-"""Honest model selection: fit on the first 70 % of the samples, judge on the last 30 %.
+"""Honest model selection in three blocks of time: fit on the first 60 %, choose on the next
+20 %, score on the last 20 %.
 
-A cause is named only when its held-out RMS error is at least ``margin`` times smaller than the
-baseline's; otherwise the answer is ``none``. The best single cause is the candidate with the
-lowest held-out error among those that clear the margin. The best combination grows from it
-greedily: each round adds the effect that lowers the held-out error most, while it still clears
-the margin over the combination so far.
+A cause is named only when its RMS error on the choosing block is at least ``margin`` times
+smaller than the baseline's. The best single cause is the candidate with the lowest choosing
+error among those that clear the margin. The best combination grows from it greedily: each round
+adds the effect that lowers the choosing error most, while it still clears the margin over the
+combination so far. Every gain reported is measured on the scoring block, which neither the fit
+nor the choice saw.
+
+When no candidate clears the margin, the answer depends on the sensor floor
+(:mod:`~hsio.diagnose.residual`): ``none`` when the baseline's held-out error is within
+``FLOOR_FACTOR`` floors and holds no line or trend (the lag explains the record as well as
+the sensors allow), otherwise
+``unexplained``, with what remains in the residual (lines, trend, correlation with the motion).
 """
 
 from __future__ import annotations
@@ -16,24 +24,31 @@ import numpy as np
 from scipy import signal
 
 from hsio.diagnose.effects import EFFECTS, NAMES, Context, context
-from hsio.diagnose.fitting import TRAIN_FRACTION, Fit, fit, split_index
+from hsio.diagnose import residual as residual_mod
+from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, Fit, blocks, fit
 from hsio.diagnose.record import ActuatorRecord
 from hsio.errors import RecordError
 
 MARGIN = 1.10  # held-out RMS must fall by at least this factor for a cause to be named
+PARSIMONY = 1.02  # a candidate within this factor of the best, with fewer parameters or earlier in the library, wins
+HELPS = 1.01  # an effect whose single fit gains less than this on the choosing block joins no combination
+RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signature no delay mimics
 NONE = "none"
+UNEXPLAINED = "unexplained"
 
 
 @dataclass
 class Candidate:
     cause: str
     fit: Fit
-    gain: float  # baseline rms_test / candidate rms_test
-    named: bool  # clears the margin
+    gain: float  # baseline rms_test / candidate rms_test (the scoring block)
+    named: bool  # clears the margin on the choosing block
+    choose_gain: float = 1.0  # baseline rms_choose / candidate rms_choose
 
     def summary(self) -> dict:
         return {"cause": self.cause, "params": dict(self.fit.params), "rms_train_mm": self.fit.rms_train_mm,
-                "rms_test_mm": self.fit.rms_test_mm, "gain": self.gain, "clears_margin": self.named}
+                "rms_choose_mm": self.fit.rms_choose_mm, "rms_test_mm": self.fit.rms_test_mm, "gain": self.gain,
+                "choose_gain": self.choose_gain, "clears_margin": self.named}
 
 
 @dataclass
@@ -43,10 +58,39 @@ class Diagnosis:
     margin: float
     baseline: Fit
     candidates: list[Candidate]
-    cause: str  # the best single cause, or "none"
-    extended: Fit  # the best combination (the baseline when the cause is none)
+    cause: str  # the best single cause, "none" or "unexplained"
+    extended: Fit  # the best combination (the baseline when no cause is named)
     elapsed_s: float = 0.0
     context: Context | None = field(default=None, repr=False)
+    n_choose: int = 0  # [n_train, n_choose) chooses, [n_choose, n) scores
+    floor: residual_mod.Floor | None = None
+    structure: residual_mod.Structure | None = None
+
+    @property
+    def equivalent(self) -> Candidate | None:
+        """A candidate that predicts the displacement as well as the cause (within PARSIMONY) and
+        differs only where the record cannot tell (a delay in the loop or in the channel)."""
+        other = EQUIVALENT.get(self.cause)
+        c = next((c for c in self.candidates if c.cause == other), None)
+        single = self.single
+        if c is None or single is None or not c.named:
+            return None
+        return c if c.fit.rms_choose_mm <= PARSIMONY * single.fit.rms_choose_mm else None
+
+    @property
+    def explained(self) -> bool:
+        """The extended model's held-out error is within FLOOR_FACTOR sensor floors."""
+        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
+                    and not self.structure.structured)
+
+    def residual_json(self) -> dict:
+        s = self.structure
+        return {**self.floor.to_json(), "rms_test_mm": s.rms_test_mm, "floors": s.rms_test_mm / self.floor.sensor_floor_mm,
+                "explained": self.explained, "lines_hz": [line["hz"] for line in s.lines], "lines": s.lines,
+                "trend_mm_per_s": residual_mod.trend(self.record.measured_mm - self.baseline.prediction, self.record.dt),
+                "trend_after_mm_per_s": s.trend_mm_per_s, "trend_significant": s.trend_significant,
+                "r2_motion": s.r2_motion, "correlations": s.correlations,
+                "remains": residual_mod.remains(s, self.floor)}
 
     @property
     def gain(self) -> float:
@@ -64,15 +108,21 @@ class Diagnosis:
             "rate_hz": self.record.rate_hz,
             "train_fraction": self.n_train / self.record.n,
             "n_train": self.n_train,
+            "n_choose": self.n_choose,
+            "scoring": (f"fit on samples [0, {self.n_train}), choose on [{self.n_train}, {self.n_choose}), "
+                        f"score on [{self.n_choose}, {self.record.n}): the gain is measured on data used neither to fit nor to choose"),
             "margin": self.margin,
             "baseline": {"model": self.baseline.name, "params": dict(self.baseline.params),
-                         "rms_train_mm": self.baseline.rms_train_mm, "rms_test_mm": self.baseline.rms_test_mm},
+                         "rms_train_mm": self.baseline.rms_train_mm, "rms_choose_mm": self.baseline.rms_choose_mm,
+                         "rms_test_mm": self.baseline.rms_test_mm},
             "cause": self.cause,
             "single": single.summary() if single else None,
+            "equivalent": self.equivalent.summary() if self.equivalent else None,
             "combination": list(self.extended.effects),
             "extended": self.extended.summary(),
             "gain": self.gain,
             "candidates": [c.summary() for c in self.candidates],
+            "residual": self.residual_json(),
             "elapsed_s": self.elapsed_s,
         }
 
@@ -103,13 +153,51 @@ def _merged_starts(base: Fit, single: Fit) -> list[dict]:
     return [start]
 
 
+def _distinct(c: Candidate) -> bool:
+    """A candidate whose fit shows its own signature, which no simpler rival can mimic."""
+    return c.cause == "servo_dynamics" and c.fit.params["servo_damping"] < RESONANT_DAMPING
+
+
+def choose_single(named: list[Candidate], ctx: Context, record: ActuatorRecord) -> Candidate:
+    """The best named candidate on the choosing block; among those within PARSIMONY of it, the one
+    with the fewest parameters (then the earliest in the library), unless the best shows a
+    distinct signature. A late displacement channel (channel_skew) and a transport delay predict
+    the same displacement from the command (a delay commutes with the linear lag), so they tie;
+    the tie goes to transport_delay and the diagnosis names channel_skew as its equivalent."""
+    best = min(named, key=lambda c: c.fit.rms_choose_mm)
+    if not _distinct(best):
+        close = [c for c in named if c.fit.rms_choose_mm <= PARSIMONY * best.fit.rms_choose_mm]
+        order = list(NAMES)
+        best = min(close, key=lambda c: (len(EFFECTS[c.cause].params(ctx)), order.index(c.cause)))
+    return best
+
+
+EQUIVALENT = {"transport_delay": "channel_skew", "channel_skew": "transport_delay"}
+
+
+def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, baseline: Fit, candidates: list,
+            cause: str | None, extended: Fit, t0: float, ctx: Context) -> Diagnosis:
+    """Measure the floor and the residual's structure, and settle none against unexplained."""
+    floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
+    r = record.measured_mm - extended.prediction
+    s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
+    if cause is None:
+        reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
+        cause = NONE if reached else UNEXPLAINED
+    return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
+                     n_choose, floor, s)
+
+
 def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, margin: float = MARGIN,
-             effects: tuple[str, ...] | None = None, max_combination: int = 4) -> Diagnosis:
+             effects: tuple[str, ...] | None = None, max_combination: int = 3,
+             choose_fraction: float = CHOOSE_FRACTION) -> Diagnosis:
     """Fit the baseline and every candidate effect; name the cause; grow the best combination."""
     t0 = time.perf_counter()
-    if not 0.1 <= train_fraction <= 0.9:
-        raise RecordError(f"train fraction must be in [0.1, 0.9], got {train_fraction}")
-    n_train = split_index(record, train_fraction)
+    if not 0.1 <= train_fraction <= 0.8:
+        raise RecordError(f"train fraction must be in [0.1, 0.8], got {train_fraction}")
+    if not 0.05 <= choose_fraction <= 0.95 - train_fraction:
+        raise RecordError(f"choose fraction must be in [0.05, {0.95 - train_fraction:.2f}] (the rest scores), got {choose_fraction}")
+    n_train, n_choose = blocks(record.n, train_fraction, choose_fraction)
     if np.ptp(record.command_mm[:n_train]) <= 0:
         raise RecordError(f"{record.source}: the command does not move in the training part")
     baseline = fit_baseline(record, n_train)
@@ -118,24 +206,27 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     candidates = []
     for name in names:
         f = fit(record, (name,), ctx, n_train, EFFECTS[name].starts(ctx))
-        gain = baseline.rms_test_mm / f.rms_test_mm
-        candidates.append(Candidate(name, f, gain, gain >= margin))
+        choose_gain = baseline.rms_choose_mm / f.rms_choose_mm
+        candidates.append(Candidate(name, f, baseline.rms_test_mm / f.rms_test_mm, choose_gain >= margin, choose_gain))
     named = [c for c in candidates if c.named]
     if not named:
-        return Diagnosis(record, n_train, margin, baseline, candidates, NONE, baseline, time.perf_counter() - t0, ctx)
-    best = min(named, key=lambda c: c.fit.rms_test_mm)
+        return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx)
+    best = choose_single(named, ctx, record)
     singles = {c.cause: c.fit for c in candidates}
+    gains = {c.cause: c.choose_gain for c in candidates}
     current = best.fit
     while len(current.effects) < max_combination:
         trials = []
         for name in names:
-            if name in current.effects:
+            # An effect that did nothing alone, or one the record cannot tell from an effect
+            # already in, is not tried (it saves most of the time on long records).
+            if name in current.effects or gains[name] < HELPS or EQUIVALENT.get(name) in current.effects:
                 continue
             trials.append(fit(record, (*current.effects, name), ctx, n_train, _merged_starts(current, singles[name])))
         if not trials:
             break
-        trial = min(trials, key=lambda f: f.rms_test_mm)
-        if current.rms_test_mm / trial.rms_test_mm < margin:
+        trial = min(trials, key=lambda f: f.rms_choose_mm)
+        if current.rms_choose_mm / trial.rms_choose_mm < margin:
             break
         current = trial
-    return Diagnosis(record, n_train, margin, baseline, candidates, best.cause, current, time.perf_counter() - t0, ctx)
+    return _finish(record, n_train, n_choose, margin, baseline, candidates, best.cause, current, t0, ctx)

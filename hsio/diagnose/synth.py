@@ -67,3 +67,27 @@ def emulate(command: np.ndarray, config=None, specimen: Specimen | None = None, 
     if controller.tripped:
         raise RuntimeError(f"emulator tripped: {controller.tripped}")
     return ActuatorRecord(source, 1.0 / config.rate_hz, np.asarray(command, dtype=float), measured, force)
+
+
+def emulate_specimen(specimen: Specimen, displacement_mm: np.ndarray, rate_hz: float, noise_mm: float = 0.005,
+                     resolution_mm: float = 0.01, force_noise_kN: float = 0.01, force_resolution_kN: float = 0.005,
+                     skew_s: float = 0.0, seed: int = 0, source: str = "emulated specimen"):
+    """A specimen record: ``specimen`` driven along ``displacement_mm`` (one value per sample, the
+    move taking 1 / rate_hz), both channels with Gaussian noise and quantised; ``skew_s`` records
+    the force that much late (linear interpolation)."""
+    from hsio.diagnose.model import delayed
+    from hsio.diagnose.specimen_record import SpecimenRecord
+
+    dt = 1.0 / rate_hz
+    u = np.asarray(displacement_mm, dtype=float)
+    specimen.revert_to_start()
+    force = np.array([specimen.force(x, dt) for x in u.tolist()])
+    if skew_s > 0:
+        force = delayed(force, skew_s / dt)
+    rng = np.random.default_rng(seed)
+
+    def sensor(x, noise, step):
+        x = x + rng.normal(0.0, noise, x.size) if noise > 0 else x
+        return np.round(x / step) * step if step > 0 else x
+
+    return SpecimenRecord(source, dt, sensor(u, noise_mm, resolution_mm), sensor(force, force_noise_kN, force_resolution_kN))

@@ -1,0 +1,342 @@
+"""Error budget of a hybrid run: why the hybrid simulation (HS) differs from the numerical one (NS).
+
+The difference D(t) = u_HS - u_NS is attributed by replaying NS with one source at a time put in:
+
+* actuator tracking: each step's measured tracking error (target - measured displacement) is
+  imposed on the specimen model, and the force corrected as in HS (R = F + K^EI (d - d_m));
+* force measurement noise: the part of each measured force above the response's band (the
+  residual of the specimen model on the measured path, high-passed) is added to the model's force;
+* specimen-model mismatch: the specimen model is replaced by the one the specimen diagnosis
+  fits to the measured displacement and force (hsio.diagnose.specimen_fit), or by the
+  structure's own model scaled to the measured force, whichever predicts the last 20 % of the
+  measured force better;
+* the integrator and the interaction of the sources: what the replay with every source at once
+  leaves of D.
+
+A source's share is 1 - RMS(D - Delta_s) / RMS(D), Delta_s = u_s - u_NS (the part of D its replay
+reproduces); the budget accounts for 1 - RMS(u_HS - u_all) / RMS(D).
+
+Every call into hsio's run and NS machinery is in :func:`load_run` and :func:`replay`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hsio.errors import HsioError, RecordError
+
+SOURCES = ("tracking", "force_noise", "specimen")
+TITLES = {"tracking": "actuator tracking error", "force_noise": "force measurement noise",
+          "specimen": "specimen-model mismatch", "rest": "integrator and interaction (the rest)"}
+
+
+@dataclass
+class RunData:
+    """What the budget needs of a run, in arrays (step 0 is the initial state)."""
+
+    source: str
+    structure: object  # hsio.structures.Structure
+    ground: object  # hsio.ground_motion.GroundMotion
+    alpha: float
+    correction: bool  # the measured force corrected to the target displacement
+    t: np.ndarray
+    u_hs: np.ndarray  # steps x DOF
+    u_ns: np.ndarray
+    targets: np.ndarray  # steps x actuators
+    displacement: np.ndarray
+    force: np.ndarray
+
+
+def load_run(run_dir: str | Path) -> RunData:
+    """Read run.sqlite with the structure, record and integrator it was run with."""
+    from hsio.config import from_dict
+    from hsio.recording import Run
+    from hsio.runner import build_record, load_run_structure
+
+    path = Path(run_dir) / "run.sqlite"
+    try:
+        run = Run(path)
+    except FileNotFoundError:
+        raise RecordError(f"{run_dir}: no run.sqlite (give the folder `hsio run` wrote)") from None
+    except Exception as exc:
+        raise RecordError(f"{path}: not an hsio recording: {exc}") from None
+    config = from_dict(run.meta.get("config", {}), str(path))
+    if config["integrator"]["method"] != "alpha_os":
+        raise RecordError(f"{path}: the error budget replays alpha_os runs; this one used {config['integrator']['method']!r}")
+    structure = load_run_structure(config)
+    steps = run.steps
+    if steps.get("step") is None or steps["step"].size < 20:
+        raise RecordError(f"{path}: fewer than 20 recorded steps")
+
+    def rows(prefix, names):
+        return np.vstack([np.zeros(len(names)), np.column_stack([run.steps[f"{prefix}_{n}"] for n in names])])
+
+    dofs, acts = run.dof_names, run.actuator_names
+    u_hs = rows("u", dofs)
+    if run.ns and run.ns.get("step") is not None and run.ns["step"].size:
+        u_ns = np.column_stack([run.ns[f"u_{n}"] for n in dofs])[: u_hs.shape[0]]
+    else:
+        u_ns = None
+    t = np.r_[0.0, steps["time_s"]]
+    data = RunData(str(path), structure, build_record(config, structure), config["integrator"]["alpha"],
+                   bool(config["test"]["measured_displacement_correction"]), t, u_hs, u_ns, rows("target", acts),
+                   rows("disp", acts), rows("force", acts))
+    if data.u_ns is None or data.u_ns.shape != u_hs.shape:
+        data.u_ns = replay(data, [e.model() for e in structure.experimental])
+    return data
+
+
+class _Replay:
+    """An experimental site (hsio.sites.ExperimentalSite) whose elements are specimen models,
+    with the run's measured errors put in: each trial lands ``tracking_error`` short of its
+    target, and the force it reads carries ``force_noise``."""
+
+    late_steps = 0
+    lab_time_s = None
+
+    def __init__(self, data: RunData, specimens, tracking_error=None, force_noise=None):
+        self.data, self.specimens = data, specimens
+        self.error, self.noise = tracking_error, force_noise
+        self.n_elements = len(specimens)
+        self.step = 0
+        self._daq = None
+
+    def committed(self):
+        return np.zeros(self.n_elements), np.zeros(self.n_elements)
+
+    def set_modes(self, modes):
+        return []
+
+    def set_trial(self, commands, modes) -> None:
+        from hsio.sites import Daq
+
+        self.step += 1
+        k = min(self.step, self.data.t.size - 1)
+        d = np.asarray(commands, dtype=float)
+        d_m = d - self.error[k] if self.error is not None else d
+        F = np.array([s.force(x, self.data.structure.dt) for s, x in zip(self.specimens, d_m)])
+        if self.noise is not None:
+            F = F + self.noise[k]
+        self._daq = Daq(u=d_m, R=F, k=np.full(self.n_elements, np.nan), targets=d.copy(), commands=d.copy())
+
+    def get_daq(self):
+        return self._daq
+
+    def commit(self) -> None:
+        pass
+
+    def take_samples(self):
+        return None
+
+    def hold(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def replay(data: RunData, specimens, tracking_error=None, force_noise=None) -> np.ndarray:
+    """NS of the run's structure and record with ``specimens`` in place of the experimental
+    elements, and the measured errors put in (displacement history, steps x DOF)."""
+    from hsio.api import simulate
+
+    for s in specimens:
+        s.revert_to_start()
+    result = simulate(data.structure, data.ground, _Replay(data, specimens, tracking_error, force_noise), "alpha_os",
+                      data.alpha, correct_measured_displacement=data.correction)
+    n = min(result.u.shape[0], data.u_hs.shape[0])
+    if result.stopped:
+        raise HsioError(f"{data.source}: the replay stopped: {result.stopped}")
+    return result.u[:n]
+
+
+# -- the budget -----------------------------------------------------------------------------------
+
+def _rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else 0.0
+
+
+def _path_force(specimen, d: np.ndarray, dt: float) -> np.ndarray:
+    specimen.revert_to_start()
+    out = np.array([specimen.force(x, dt) for x in d.tolist()])
+    specimen.revert_to_start()
+    return out
+
+
+def specimen_models(data: RunData) -> tuple[list, list[dict]]:
+    """Per actuator, the specimen model that best predicts its measured force on the last 20 %
+    of the steps: the diagnosed model or the structure's model scaled to the measured force."""
+    from hsio.diagnose.specimen_fit import diagnose_specimen
+    from hsio.diagnose.specimen_record import SpecimenRecord
+    from hsio.specimens import Diagnosed
+
+    dt = data.structure.dt
+    models, notes = [], []
+    for j, element in enumerate(data.structure.experimental):
+        d, f = data.displacement[:, j], data.force[:, j]
+        n_fit = int(0.8 * d.size)
+        base = _path_force(element.model(), d, dt)
+        scale = float(np.dot(base[:n_fit], f[:n_fit]) / max(np.dot(base[:n_fit], base[:n_fit]), 1e-300))
+        scaled = _scaled(element.model(), scale)
+        options = [("structure's model scaled by %.3f" % scale, scaled, {"scale": scale})]
+        try:
+            diag = diagnose_specimen(SpecimenRecord(f"{data.source}#{element.name}", dt, d, f))
+            from hsio.diagnose.specimen_fit import specimen_table
+
+            table = {k: v for k, v in specimen_table(diag.extended).items() if k != "kind"}
+            options.append((f"diagnosed: {diag.extended.name} (cause {diag.cause})", Diagnosed(**table),
+                            {"cause": diag.cause, "params": table}))
+        except (HsioError, ValueError):
+            pass
+        scored = []
+        for name, model, info in options:
+            pred = _path_force(model, d, dt)
+            scored.append((_rms(f[n_fit:] - pred[n_fit:]), name, model, info))
+        err, name, model, info = min(scored, key=lambda s: s[0])
+        models.append(model)
+        notes.append({"element": element.name, "model": name, "rms_force_kN": err,
+                      "rms_force_structure_model_kN": _rms(f[n_fit:] - base[n_fit:]), **info})
+    return models, notes
+
+
+class _Scaled:
+    """A specimen whose force is ``scale`` times another's (a stiffer or weaker copy)."""
+
+    def __init__(self, inner, scale: float):
+        self.inner, self.scale = inner, scale
+
+    @property
+    def initial_stiffness(self) -> float:
+        return self.scale * self.inner.initial_stiffness
+
+    def trial(self, u, dt=0.0):
+        return self.scale * self.inner.trial(u, dt)
+
+    def commit(self):
+        self.inner.commit()
+
+    def revert_to_start(self):
+        self.inner.revert_to_start()
+
+    def force(self, u, dt=0.0):
+        return self.scale * self.inner.force(u, dt)
+
+
+def _scaled(specimen, scale: float):
+    return _Scaled(specimen, scale)
+
+
+def force_noise(data: RunData, models) -> np.ndarray:
+    """The measured force's noise: the model's residual on the measured path minus its running
+    mean over 5 steps (what varies faster than the response)."""
+    dt = data.structure.dt
+    noise = np.zeros_like(data.force)
+    for j, model in enumerate(models):
+        r = data.force[:, j] - _path_force(model, data.displacement[:, j], dt)
+        smooth = np.convolve(np.pad(r, 2, mode="edge"), np.ones(5) / 5, mode="valid")
+        noise[:, j] = r - smooth
+    return noise
+
+
+@dataclass
+class Budget:
+    source: str
+    t: np.ndarray
+    u_hs: np.ndarray
+    u_ns: np.ndarray
+    replays: dict  # source -> u history with that source alone
+    u_all: np.ndarray
+    specimen_notes: list = field(default_factory=list)
+
+    @property
+    def difference(self) -> np.ndarray:
+        return self.u_hs - self.u_ns
+
+    def share(self, u: np.ndarray) -> float:
+        d = _rms(self.difference)
+        return 1.0 - _rms(self.u_hs - u) / d if d > 0 else 0.0
+
+    @property
+    def accounted(self) -> float:
+        return self.share(self.u_all)
+
+    @property
+    def main_source(self) -> str:
+        return max(self.replays, key=lambda s: self.share(self.replays[s]))
+
+    def rows(self) -> list[dict]:
+        out = []
+        for s, u in self.replays.items():
+            out.append({"source": s, "title": TITLES[s], "rms_mm": _rms(u - self.u_ns), "peak_mm": float(np.max(np.abs(u - self.u_ns))),
+                        "share": self.share(u)})
+        rest = self.u_hs - self.u_all
+        out.append({"source": "rest", "title": TITLES["rest"], "rms_mm": _rms(rest), "peak_mm": float(np.max(np.abs(rest))),
+                    "share": 1.0 - self.accounted})
+        return out
+
+    def to_json(self) -> dict:
+        return {"source": self.source, "rms_difference_mm": _rms(self.difference),
+                "peak_difference_mm": float(np.max(np.abs(self.difference))), "sources": self.rows(),
+                "accounted": self.accounted, "main_source": self.main_source, "specimen_models": self.specimen_notes,
+                "method": "NS replayed with one measured source at a time; share = 1 - RMS(HS - replay) / RMS(HS - NS)"}
+
+    def table(self) -> str:
+        lines = [f"error budget of {self.source}: HS - NS RMS {_rms(self.difference):.4f} mm, peak "
+                 f"{np.max(np.abs(self.difference)):.4f} mm", "",
+                 f"{'source':<40} {'RMS (mm)':>10} {'peak (mm)':>10} {'share':>8}"]
+        for r in self.rows():
+            lines.append(f"{r['title']:<40} {r['rms_mm']:10.4f} {r['peak_mm']:10.4f} {100 * r['share']:7.1f}%")
+        lines += ["", f"all sources together account for {100 * self.accounted:.1f} % of the difference; "
+                      f"main source: {TITLES[self.main_source]}"]
+        return "\n".join(lines)
+
+
+def error_budget(run_dir: str | Path) -> Budget:
+    data = load_run(run_dir)
+    n = data.u_hs.shape[0]
+    models, notes = specimen_models(data)
+    structure_models = lambda: [e.model() for e in data.structure.experimental]  # noqa: E731
+    error = data.targets - data.displacement
+    noise = force_noise(data, models)
+    replays = {"tracking": replay(data, structure_models(), tracking_error=error),
+               "force_noise": replay(data, structure_models(), force_noise=noise),
+               "specimen": replay(data, models)}
+    u_all = replay(data, models, tracking_error=error, force_noise=noise)
+    m = min(n, data.u_ns.shape[0], u_all.shape[0], *(u.shape[0] for u in replays.values()))
+    return Budget(data.source, data.t[:m], data.u_hs[:m], data.u_ns[:m], {k: u[:m] for k, u in replays.items()}, u_all[:m], notes)
+
+
+def write_budget(b: Budget, out_dir: str | Path) -> dict:
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
+    dof = int(np.argmax(np.max(np.abs(b.difference), axis=0)))
+    axes[0].plot(b.t, b.difference[:, dof], color="k", lw=1.4, label="HS - NS")
+    for i, (s, u) in enumerate(b.replays.items()):
+        axes[0].plot(b.t, (u - b.u_ns)[:, dof], lw=0.9, color=f"C{i}", label=TITLES[s])
+    axes[0].plot(b.t, (b.u_all - b.u_ns)[:, dof], lw=0.9, ls="--", color="C3", label="all sources")
+    axes[0].set_ylabel("displacement difference (mm)")
+    axes[0].legend(fontsize=8)
+    axes[0].grid(alpha=0.3)
+    axes[1].plot(b.t, (b.u_hs - b.u_all)[:, dof], color="0.4", lw=0.8, label=TITLES["rest"])
+    axes[1].set_xlabel("time (s)")
+    axes[1].set_ylabel("unaccounted (mm)")
+    axes[1].legend(fontsize=8)
+    axes[1].grid(alpha=0.3)
+    fig.suptitle(f"Error budget: {100 * b.accounted:.1f} % of HS - NS accounted; main source {TITLES[b.main_source]}")
+    fig.tight_layout()
+    fig.savefig(out / "budget.png", dpi=100)
+    plt.close(fig)
+    (out / "budget.md").write_text("# Error budget\n\n```\n" + b.table() + "\n```\n", encoding="utf-8")
+    (out / "budget.json").write_text(json.dumps(b.to_json(), indent=2), encoding="utf-8")
+    return {"plot": str(out / "budget.png"), "text": str(out / "budget.md"), "json": str(out / "budget.json")}

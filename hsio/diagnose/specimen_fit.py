@@ -1,0 +1,349 @@
+"""Specimen diagnosis: a linear spring and dashpot fitted to measured displacement and force, and
+the effects it misses (docs/diagnose.md, "Specimen diagnosis").
+
+The model is that of :class:`hsio.specimens.diagnosed.Diagnosed`. Given its shape parameters
+(theta: yield displacement, gap, exponent, skew, ...), the force is linear in its amplitudes
+(k, c, F_c, m, k_gap, f_y and a load-cell offset), so each evaluation solves them by bounded
+linear least squares (physical signs: a dashpot, a friction, a mass and a strength are not
+negative) and the optimiser moves theta only (variable projection).
+
+The velocity and acceleration are backward differences, as in the specimen model, of the
+measured displacement low-passed without phase shift (Butterworth, forward and backward) at a
+few times the frequency that holds 99.5 % of its power: the sensor's noise would otherwise
+swamp the acceleration. Honest scoring as for the actuator: fit on the first 60 %, choose on
+the next 20 %, score on the last 20 % (hsio.diagnose.fitting.blocks).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, signal
+
+from hsio.diagnose import residual as residual_mod
+from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, blocks, rms
+from hsio.diagnose.specimen_effects import EFFECTS, NAMES, Effect  # noqa: F401 (the library, re-exported)
+from hsio.diagnose.specimen_record import SpecimenRecord
+from hsio.errors import RecordError
+from hsio.specimens.diagnosed import bouc_wen_step
+
+MARGIN = 1.10
+PARSIMONY = 1.02
+NONE, UNEXPLAINED = "none", "unexplained"
+
+
+@dataclass(frozen=True)
+class Signals:
+    u: np.ndarray  # mm, centred
+    v: np.ndarray  # mm/s
+    a: np.ndarray  # mm/s^2
+    force: np.ndarray
+    dt: float
+    v_ref: float  # 95th percentile of |v|
+    u_peak: float  # 99.5th percentile of |u|
+    travel: float  # total sum |du| of the smoothed displacement
+    cutoff_hz: float
+    u_noise: float  # RMS of the displacement above the cutoff: the transducer's noise, mm
+
+
+def signals(record: SpecimenRecord) -> Signals:
+    u = record.displacement_mm
+    fs = record.rate_hz
+    f, p = signal.welch(u - u.mean(), fs=fs, nperseg=int(min(u.size, 2 ** int(np.log2(max(4 * fs, 64))))))
+    cum = np.cumsum(p) / max(np.sum(p), 1e-300)
+    f995 = float(f[min(np.searchsorted(cum, 0.995), f.size - 1)])
+    cutoff = min(max(4.0 * f995, 2.0), 0.3 * fs)
+    b, a = signal.butter(4, cutoff, fs=fs)
+    us = signal.filtfilt(b, a, u)
+    v = np.r_[0.0, np.diff(us)] / record.dt
+    acc = np.r_[0.0, np.diff(v)] / record.dt
+    v_ref = max(float(np.percentile(np.abs(v), 95)), 1e-9)
+    return Signals(us, v, acc, record.force_kN, record.dt, v_ref, max(float(np.percentile(np.abs(u), 99.5)), 1e-9),
+                   float(np.sum(np.abs(np.diff(us)))), cutoff, rms(u - us))
+
+
+def bouc_wen(u: np.ndarray, u_y: float) -> np.ndarray:
+    """z along a displacement history, from rest (the specimen model's exact step)."""
+    out = [0.0] * u.size
+    z, prev = 0.0, 0.0
+    for i, x in enumerate(u.tolist()):
+        z = bouc_wen_step(z, x - prev, u_y)
+        prev = x
+        out[i] = z
+    return np.array(out)
+
+
+def _shift(x: np.ndarray, samples: float) -> np.ndarray:
+    if samples == 0.0:
+        return x
+    k = np.arange(x.size, dtype=float)
+    return np.interp(k - samples, k, x)
+
+
+def design(sig: Signals, effects: tuple[str, ...], theta: dict) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Names, columns (n x m) and lower bounds of the linear amplitudes, given theta."""
+    skew = theta.get("skew_s", 0.0) / sig.dt if "channel_skew" in effects else 0.0
+    u, v, a = _shift(sig.u, skew), _shift(sig.v, skew), _shift(sig.a, skew)
+    d = np.ones_like(u)
+    if "degradation" in effects:
+        s = np.cumsum(np.abs(np.r_[0.0, np.diff(u)]))
+        d = 1.0 / (1.0 + theta["degradation_per_mm"] * s)
+    names, cols, lower = ["offset_kN", "k"], [np.ones_like(u), d * u], [-np.inf, -np.inf]
+    if "rate_dependence" in effects:
+        damp = sig.v_ref * np.sign(v) * np.abs(v / sig.v_ref) ** theta["alpha"]
+    else:
+        damp = v
+    names.append("c"), cols.append(damp), lower.append(0.0)
+    if "friction" in effects:
+        names.append("friction_kN"), cols.append(np.tanh(v / theta["friction_v0_mm_s"])), lower.append(0.0)
+    if "inertia" in effects:
+        names.append("mass_kg"), cols.append(1e-6 * a), lower.append(0.0)
+    if "gap" in effects:
+        names.append("k_gap"), cols.append(d * np.sign(u) * np.maximum(np.abs(u) - theta["gap_mm"], 0.0)), lower.append(0.0)
+    if "hysteresis" in effects or "pinching" in effects:
+        uy = theta["uy_mm"]
+        z = bouc_wen(u, uy) / uy
+        if "pinching" in effects:
+            z = z * (1.0 - theta["pinch"] * np.exp(-((u / theta["pinch_width_mm"]) ** 2)))
+        names.append("fy_kN"), cols.append(d * z), lower.append(0.0)
+    return names, np.column_stack(cols), np.array(lower)
+
+
+def _theta_specs(effects: tuple[str, ...], sig: Signals) -> list[tuple[str, float, float]]:
+    specs, seen = [], set()
+    for e in effects:
+        for name, lo, hi in EFFECTS[e].theta:
+            if name not in seen:
+                seen.add(name)
+                specs.append((name, lo(sig), hi(sig)))
+    return specs
+
+
+@dataclass
+class SpecimenFit:
+    effects: tuple[str, ...]
+    params: dict
+    rms_train_kN: float
+    rms_choose_kN: float
+    rms_test_kN: float
+    prediction: np.ndarray
+
+    @property
+    def name(self) -> str:
+        return "spring + dashpot" + "".join(f" + {e}" for e in self.effects)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.params)
+
+    def summary(self) -> dict:
+        return {"model": self.name, "effects": list(self.effects), "params": dict(self.params),
+                "rms_train_kN": self.rms_train_kN, "rms_choose_kN": self.rms_choose_kN, "rms_test_kN": self.rms_test_kN}
+
+
+def _solve(names, cols, lower, f):
+    res = optimize.lsq_linear(cols, f, bounds=(lower, np.full(lower.size, np.inf)), method="bvls")
+    return res.x
+
+
+def fit(sig: Signals, effects: tuple[str, ...], n_train: int, n_choose: int, starts: list[dict] | None = None,
+        max_nfev: int = 60) -> SpecimenFit:
+    """Fit theta (least squares, bounded) with the amplitudes solved at each evaluation."""
+    specs = _theta_specs(effects, sig)
+    f_train = sig.force[:n_train]
+    # The optimiser sees the training block only (the model is causal: its prefix is the same).
+    train = Signals(sig.u[:n_train], sig.v[:n_train], sig.a[:n_train], f_train, sig.dt, sig.v_ref, sig.u_peak, sig.travel,
+                    sig.cutoff_hz, sig.u_noise)
+
+    def amplitudes(theta, signals_=sig):
+        names, cols, lower = design(signals_, effects, theta)
+        return names, cols, _solve(names, cols[:n_train], lower, f_train)
+
+    def residual(x):
+        theta = {s[0]: xi * (s[2] - s[1]) + s[1] for s, xi in zip(specs, x)}
+        names, cols, coef = amplitudes(theta, train)
+        return f_train - cols @ coef
+
+    best_theta = {}
+    if specs:
+        best = None
+        for start in starts or [{}]:
+            x0 = np.array([(start.get(n, 0.5 * (lo + hi)) - lo) / (hi - lo) for n, lo, hi in specs])
+            x0 = np.clip(x0, 1e-6, 1 - 1e-6)
+            sol = optimize.least_squares(residual, x0, bounds=(0.0, 1.0), max_nfev=max_nfev, diff_step=1e-3,
+                                         xtol=1e-8, ftol=1e-10)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        best_theta = {s[0]: float(xi * (s[2] - s[1]) + s[1]) for s, xi in zip(specs, best.x)}
+    names, cols, coef = amplitudes(best_theta)
+    pred = cols @ coef
+    r = sig.force - pred
+    params = {**dict(zip(names, map(float, coef))), **best_theta}
+    if "rate_dependence" in effects:
+        params["v_ref_mm_s"] = sig.v_ref
+    return SpecimenFit(tuple(effects), params, rms(r[:n_train]), rms(r[n_train:n_choose]), rms(r[n_choose:]), pred)
+
+
+@dataclass
+class SpecimenCandidate:
+    cause: str
+    fit: SpecimenFit
+    gain: float
+    choose_gain: float
+    named: bool
+
+    def summary(self) -> dict:
+        return {"cause": self.cause, "params": dict(self.fit.params), "rms_choose_kN": self.fit.rms_choose_kN,
+                "rms_test_kN": self.fit.rms_test_kN, "gain": self.gain, "choose_gain": self.choose_gain,
+                "clears_margin": self.named}
+
+
+@dataclass
+class SpecimenDiagnosis:
+    record: SpecimenRecord
+    sig: Signals
+    n_train: int
+    n_choose: int
+    margin: float
+    baseline: SpecimenFit
+    candidates: list
+    cause: str
+    extended: SpecimenFit
+    floor: residual_mod.Floor
+    structure: residual_mod.Structure
+    elapsed_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def gain(self) -> float:
+        return self.baseline.rms_test_kN / self.extended.rms_test_kN
+
+    @property
+    def single(self):
+        return next((c for c in self.candidates if c.cause == self.cause), None)
+
+    @property
+    def explained(self) -> bool:
+        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
+                    and not self.structure.structured)
+
+    def to_json(self) -> dict:
+        s, fl = self.structure, self.floor
+        single = self.single
+        return {
+            "source": self.record.source, "samples": self.record.n, "rate_hz": self.record.rate_hz,
+            "n_train": self.n_train, "n_choose": self.n_choose, "margin": self.margin,
+            "scoring": (f"fit on samples [0, {self.n_train}), choose on [{self.n_train}, {self.n_choose}), score on "
+                        f"[{self.n_choose}, {self.record.n}): the gain is measured on data used neither to fit nor to choose"),
+            "baseline": self.baseline.summary(), "cause": self.cause,
+            "single": single.summary() if single else None,
+            "combination": list(self.extended.effects), "extended": self.extended.summary(), "gain": self.gain,
+            "candidates": [c.summary() for c in self.candidates],
+            "residual": {"sensor_floor_kN": fl.sensor_floor_mm, "quantisation_kN": fl.quantisation_mm,
+                         "rms_test_kN": s.rms_test_mm, "floors": s.rms_test_mm / fl.sensor_floor_mm,
+                         "explained": self.explained, "lines_hz": [x["hz"] for x in s.lines],
+                         "lines": [{"hz": x["hz"], "amplitude_kN": x["amplitude_mm"]} for x in s.lines],
+                         "trend_kN_per_s": s.trend_mm_per_s, "r2_motion": s.r2_motion, "correlations": s.correlations},
+            "specimen": specimen_table(self.extended), "elapsed_s": self.elapsed_s,
+        }
+
+
+def specimen_table(f: SpecimenFit) -> dict:
+    """The extended fit as a specimen table for hsio.specimens.make_specimen (kind 'diagnosed').
+    The load-cell offset and a channel skew are measurement effects, not the specimen's."""
+    p = f.params
+    table = {"kind": "diagnosed", "k": p["k"], "c": p["c"]}
+    for key in ("alpha", "v_ref_mm_s", "friction_kN", "friction_v0_mm_s", "mass_kg", "gap_mm", "k_gap", "fy_kN", "uy_mm",
+                "pinch", "pinch_width_mm", "degradation_per_mm"):
+        if key in p:
+            table[key] = float(p[key])
+    return table
+
+
+def _choose(named: list, ctx_order: tuple) -> SpecimenCandidate:
+    best = min(named, key=lambda c: c.fit.rms_choose_kN)
+    close = [c for c in named if c.fit.rms_choose_kN <= PARSIMONY * best.fit.rms_choose_kN]
+    return min(close, key=lambda c: (c.fit.n_params, ctx_order.index(c.cause)))
+
+
+MAX_SAMPLES = 8000  # longer records are thinned after the low-pass (the Bouc-Wen replay is a loop)
+
+
+def moving_part(record: SpecimenRecord, margin_s: float = 0.1) -> SpecimenRecord:
+    """The record from the first to the last motion (rests before and after say nothing of the
+    specimen, and would fill the scoring block)."""
+    u = record.displacement_mm
+    w = max(int(round(0.1 / record.dt)), 5)
+    n = u.size // w
+    spans = np.ptp(u[: n * w].reshape(n, w), axis=1)
+    moving = np.flatnonzero(spans > 0.05 * np.max(spans))
+    if moving.size == 0:
+        return record
+    m = int(round(margin_s / record.dt))
+    a, b = max(moving[0] * w - m, 0), min((moving[-1] + 1) * w + m, u.size)
+    if b - a < 100 or (a == 0 and b == u.size):
+        return record
+    return SpecimenRecord(record.source, record.dt, u[a:b], record.force_kN[a:b])
+
+
+def thinned(sig: Signals, force: np.ndarray) -> tuple[Signals, int]:
+    """Every q-th sample of the low-passed signals when the record is long (q keeps the cutoff
+    below 0.8 of the new Nyquist frequency)."""
+    n = sig.u.size
+    q = int(min(math.ceil(n / MAX_SAMPLES), max(math.floor(0.4 / (sig.dt * sig.cutoff_hz)), 1)))
+    if q <= 1:
+        return sig, 1
+    return Signals(sig.u[::q], sig.v[::q], sig.a[::q], force[::q], sig.dt * q, sig.v_ref, sig.u_peak, sig.travel,
+                   sig.cutoff_hz, sig.u_noise), q
+
+
+def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRACTION,
+                      choose_fraction: float = CHOOSE_FRACTION, margin: float = MARGIN,
+                      effects: tuple[str, ...] | None = None, max_combination: int = 3) -> SpecimenDiagnosis:
+    t0 = time.perf_counter()
+    record = moving_part(record)
+    sig, q = thinned(signals(record), record.force_kN)
+    record = SpecimenRecord(record.source, sig.dt, record.displacement_mm[::q], record.force_kN[::q])
+    n_train, n_choose = blocks(record.n, train_fraction, choose_fraction)
+    if np.ptp(record.displacement_mm[:n_train]) <= 0:
+        raise RecordError(f"{record.source}: the displacement does not move in the training part")
+    baseline = fit(sig, (), n_train, n_choose)
+    names = list(effects or NAMES)
+    candidates = []
+    for name in names:
+        f = fit(sig, (name,), n_train, n_choose, EFFECTS[name].starts(sig))
+        cg = baseline.rms_choose_kN / f.rms_choose_kN
+        candidates.append(SpecimenCandidate(name, f, baseline.rms_test_kN / f.rms_test_kN, cg, cg >= margin))
+    named = [c for c in candidates if c.named]
+    floor = residual_mod.sensor_floor(record.displacement_mm, record.force_kN, record.force_kN - baseline.prediction, record.dt)
+    # The displacement transducer's noise reaches the force prediction through the stiffness.
+    floor = residual_mod.Floor(math.hypot(floor.sensor_floor_mm, baseline.params["k"] * sig.u_noise), floor.quantisation_mm,
+                               floor.still_rms_mm, floor.high_frequency_rms_mm)
+    cause, current = None, baseline
+    if named:
+        best = _choose(named, NAMES)
+        cause, current = best.cause, best.fit
+        singles = {c.cause: c.fit for c in candidates}
+        while len(current.effects) < max_combination:
+            trials = []
+            for name in names:
+                if name in current.effects or {name, *current.effects} >= {"hysteresis", "pinching"}:
+                    continue
+                start = {k: v for k, v in {**singles[name].params, **current.params}.items()}
+                trials.append(fit(sig, (*current.effects, name), n_train, n_choose, [start]))
+            if not trials:
+                break
+            trial = min(trials, key=lambda f: f.rms_choose_kN)
+            if current.rms_choose_kN / trial.rms_choose_kN < margin:
+                break
+            current = trial
+    r = record.force_kN - current.prediction
+    s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, sig.v, None)
+    if cause is None:
+        reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
+        cause = NONE if reached else UNEXPLAINED
+    return SpecimenDiagnosis(record, sig, n_train, n_choose, margin, baseline, candidates, cause, current, floor, s,
+                             time.perf_counter() - t0)

@@ -1,0 +1,161 @@
+"""A measured specimen record (displacement and force of a physical substructure) and its readers.
+
+* CSV: a header row ``time_s,displacement_mm,force_kN`` (any order), uniform time step.
+* DAQ text export: the displacement and force channels, scaled; a record paused and resumed
+  (``DAQ Pause`` / ``DAQ Resume`` events) is cut into segments, each tested on its own (the
+  specimen's settings may change while the DAQ is paused, e.g. a damper's coil current).
+* hsio's own recordings (``run.sqlite``): the measured displacement and force of one actuator.
+
+The displacement is taken relative to its median (a static offset of the transducer is no
+deformation of the specimen).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hsio.errors import RecordError
+
+CSV_COLUMNS = ("time_s", "displacement_mm", "force_kN")
+
+
+@dataclass(frozen=True)
+class SpecimenRecord:
+    source: str
+    dt: float
+    displacement_mm: np.ndarray
+    force_kN: np.ndarray
+
+    def __post_init__(self):
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise RecordError(f"{self.source}: sampling interval must be positive, got {self.dt!r}")
+        u = np.asarray(self.displacement_mm, dtype=float)
+        f = np.asarray(self.force_kN, dtype=float)
+        if u.ndim != 1 or f.shape != u.shape:
+            raise RecordError(f"{self.source}: displacement and force must be one-dimensional and of equal length")
+        for name, a in (("displacement_mm", u), ("force_kN", f)):
+            bad = np.flatnonzero(~np.isfinite(a))
+            if bad.size:
+                raise RecordError(f"{self.source}: {name} sample {bad[0]} is {a[bad[0]]!r}")
+        if u.size < 100:
+            raise RecordError(f"{self.source}: needs at least 100 samples, has {u.size}")
+        object.__setattr__(self, "displacement_mm", u)
+        object.__setattr__(self, "force_kN", f)
+
+    @property
+    def n(self) -> int:
+        return self.displacement_mm.size
+
+    @property
+    def rate_hz(self) -> float:
+        return 1.0 / self.dt
+
+    @property
+    def duration_s(self) -> float:
+        return self.n * self.dt
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return np.arange(self.n) * self.dt
+
+
+def _centred(source: str, dt: float, u: np.ndarray, f: np.ndarray) -> SpecimenRecord:
+    return SpecimenRecord(source, dt, u - np.median(u), f)
+
+
+def read_csv(path: str | Path) -> SpecimenRecord:
+    from hsio.diagnose.readers import _number, uniform_step
+
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise RecordError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    header, rows, lines = None, [], []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        fields = [x.strip() for x in stripped.split(",")]
+        if header is None:
+            if sorted(fields) != sorted(CSV_COLUMNS):
+                raise RecordError(f"{path}:{lineno}: header must be {','.join(CSV_COLUMNS)}, got {stripped!r}")
+            header = fields
+            continue
+        if len(fields) != len(header):
+            raise RecordError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {len(fields)}")
+        rows.append([_number(x, path, lineno, name) for x, name in zip(fields, header)])
+        lines.append(lineno)
+    if header is None:
+        raise RecordError(f"{path}: empty file (no header row {','.join(CSV_COLUMNS)})")
+    data = np.array(rows, dtype=float).reshape(-1, 3)
+    col = {name: data[:, i] for i, name in enumerate(header)}
+    dt = uniform_step(col["time_s"], lines, path)
+    return _centred(str(path), dt, col["displacement_mm"], col["force_kN"])
+
+
+def write_csv(record: SpecimenRecord, path: str | Path) -> Path:
+    path = Path(path)
+    np.savetxt(path, np.column_stack([record.time_s, record.displacement_mm, record.force_kN]), delimiter=",",
+               header=",".join(CSV_COLUMNS), comments="", fmt="%.9g")
+    return path
+
+
+def daq_segments(path: Path) -> list[int]:
+    """Row indices (0-based, data rows) where the DAQ resumed after a pause."""
+    text = path.read_bytes().decode("latin-1")
+    lines = text.splitlines()
+    header_size = int(lines[0].split(":", 1)[1])
+    starts, row = [], 0
+    for line in lines[header_size:]:
+        if not line.strip():
+            continue
+        if "resume" in line.lower() and row > 0:
+            starts.append(row)
+        row += 1
+    return starts
+
+
+def read_daq(path: str | Path, displacement: str, force: str, displacement_scale: float,
+             force_scale: float) -> list[SpecimenRecord]:
+    """The segments of a DAQ export (one when it was never paused)."""
+    from hsio.diagnose.readers import DaqChannels
+    from hsio.diagnose.readers import read_daq as read_channels
+
+    path = Path(path)
+    rec = read_channels(path, DaqChannels(displacement, displacement, force, displacement_scale, displacement_scale, force_scale))
+    bounds = [0, *daq_segments(path), rec.n]
+    records = []
+    for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        if b - a < 100:
+            continue
+        name = str(path) if len(bounds) == 2 else f"{path}#segment{i + 1}"
+        records.append(_centred(name, rec.dt, rec.measured_mm[a:b], rec.force_kN[a:b]))
+    if not records:
+        raise RecordError(f"{path}: no segment of at least 100 samples")
+    return records
+
+
+def read_specimen(path: str | Path, fmt: str | None = None, displacement: str = "CHANNEL0", force: str = "CHANNEL1",
+                  displacement_scale: float = 10.0, force_scale: float = 9.80665,
+                  actuator: str | None = None) -> list[SpecimenRecord]:
+    """The record(s) in ``path``: csv, daq (one per segment) or an hsio run."""
+    from hsio.diagnose.readers import detect_format, read_run
+
+    fmt = fmt or detect_format(path)
+    if fmt == "csv":
+        return [read_csv(path)]
+    if fmt == "daq":
+        return read_daq(path, displacement, force, displacement_scale, force_scale)
+    if fmt == "run":
+        rec = read_run(path, actuator)
+        return [_centred(rec.source, rec.dt, rec.measured_mm, rec.force_kN)]
+    raise RecordError(f"{path}: unknown format {fmt!r}; known: csv, daq, run")
