@@ -115,6 +115,24 @@ def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> l
     parameters of the URL override it, e.g. ``emulator://?lag_s=0.03&noise_mm=0``.
     Each controller gets its own noise seed (seed + index).
     """
-    controllers = make_controllers(elements, _settings(url, options))
-    return [EmulatedActuator(e.name, c, clock) for e, c in zip(elements, controllers)]
+    table = _settings(url, options)
+    if not any(getattr(e, "has_setup", False) or getattr(e, "is_multi_dof", False) for e in elements):
+        controllers = make_controllers(elements, table)
+        return [EmulatedActuator(e.name, c, clock) for e, c in zip(elements, controllers)]
+    # elements loaded through setups: one rig each, one emulated controller per actuator (docs/setups.md)
+    from hsio.emulators.rig import rig_for
+
+    actuators: list[Actuator] = []
+    seed = int(table.get("seed", 0))
+    for e in elements:
+        if getattr(e, "has_setup", False) or getattr(e, "is_multi_dof", False):
+            rig = rig_for(e, table, seed)
+            for name, c in zip(e.actuator_names, rig.controllers):
+                actuators.append(EmulatedActuator(name, c, clock))
+            seed += len(rig.controllers)
+        else:
+            (c,) = make_controllers([e], {**table, "seed": seed})
+            actuators.append(EmulatedActuator(e.name, c, clock))
+            seed += 1
+    return actuators
 

@@ -26,6 +26,7 @@ from hsio.recording import Recorder
 from hsio.result import Result
 from hsio.secant import SecantEstimator
 from hsio.sites import ActuatorSite, NumericalSite
+from hsio.sites.setup_map import SetupMap
 from hsio.structures import Structure
 
 __all__ = ["make_integrator", "run_numerical", "open_site", "simulate"]
@@ -44,7 +45,14 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     if method not in METHODS:
         raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
     dofs = structure.experimental_dofs
-    K_EI = [e.K_EI for e in structure.experimental]
+    if structure.has_setups:
+        if method != "alpha_os":
+            coupled = [e.name for e in structure.experimental if e.has_setup or e.is_multi_dof]
+            raise ConfigError(f"structure {structure.name!r}: elements loaded through setups ({', '.join(coupled)}) "
+                              f"run with method = 'alpha_os'; {method!r} iterates per actuator (docs/setups.md)")
+        K_EI = structure.K_EI_basic
+    else:
+        K_EI = [e.K_EI for e in structure.experimental]
     if method == "alpha_os" and rule is not None:
         raise ConfigError("a switching rule applies to method = 'mixed', not to 'alpha_os'")
     if method != "alpha_os" and not correct_measured_displacement:
@@ -105,7 +113,8 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
                 pass
         raise
     try:
-        return ActuatorSite(loop, estimator, compensation)
+        setups = SetupMap.of(structure) if structure.has_setups else None
+        return ActuatorSite(loop, estimator, compensation, setups)
     except BaseException:
         loop.close()
         raise

@@ -9,7 +9,10 @@ against the limits, generated at the controller rate and reached after t_d = TR 
 * the measurement of a trial: the loop's average over its last ``n_avg`` periods, or, with a
   :class:`~hsio.secant.SecantEstimator`, the estimator's pair and secant stiffness (eq. 11)
   from the controller-rate samples (docs/method.md section 5);
-* bumpless mode switches (:meth:`hsio.control_loop.ControlLoop.set_mode`).
+* bumpless mode switches (:meth:`hsio.control_loop.ControlLoop.set_mode`);
+* with a :class:`~hsio.sites.setup_map.SetupMap`, the setups between the integrator's channels
+  (basic DOFs) and the actuators: exact strokes out, basic displacements and forces back
+  (docs/setups.md). Elements with setups run in displacement control.
 """
 
 from __future__ import annotations
@@ -24,18 +27,28 @@ from hsio.sites.base import Daq
 
 
 class ActuatorSite:
-    """One actuator per experimental element (identity setup), driven trial by trial."""
+    """The experimental channels on actuators, driven trial by trial: one actuator per channel,
+    or several per element through its setup (``setups``)."""
 
-    def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None):
+    def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None,
+                 setups=None):
         self.loop = loop
-        self.n_elements = len(loop.actuators)
+        self.setups = setups
+        if setups is not None and setups.n_actuators != len(loop.actuators):
+            raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {len(loop.actuators)}")
+        if setups is not None and estimator is not None:
+            raise ConfigError("the secant estimator works per actuator; elements with setups take the "
+                              "averaged measurement (no estimator)")
+        self.n_elements = setups.n_channels if setups is not None else len(loop.actuators)
         self.estimator = estimator
         if estimator is not None and not loop.keep_samples:
             raise ConfigError("the secant stiffness is estimated from the controller-rate samples: "
                               "set [output] samples = true")
         self.compensation = compensation  # hsio.compensation.stage.CompensationStage or None
         feedback = loop.feedback()
-        self._committed = (np.array([f.displacement_mm for f in feedback]), np.array([f.force_kN for f in feedback]))
+        self._committed = self._to_channels(np.array([f.displacement_mm for f in feedback]),
+                                            np.array([f.force_kN for f in feedback]))
+        self.actuator_samples: list[np.ndarray] = []
         self._last = self._committed
         if estimator is not None:
             estimator.begin_step(*self._committed)
@@ -66,25 +79,42 @@ class ActuatorSite:
                 switched.append(index)
         return switched
 
+    def _to_channels(self, strokes: np.ndarray, forces: np.ndarray):
+        if self.setups is None:
+            return strokes, forces
+        return self.setups.basic(strokes, forces)
+
     def set_trial(self, commands, modes) -> None:
-        self.set_modes(modes)
         targets = np.asarray(commands, dtype=float)
+        if self.setups is not None:
+            if any(m is not ControlMode.DISPLACEMENT for m in modes):
+                raise ConfigError("elements loaded through setups run in displacement control")
+            actuator_targets = self.setups.strokes(targets)
+        else:
+            self.set_modes(modes)
+            actuator_targets = targets
         compensate = self.compensation is not None and all(m is ControlMode.DISPLACEMENT for m in self.modes)
         if compensate:
-            d_a = self.compensation.adjust(targets)
+            d_a = self.compensation.adjust(actuator_targets)
             fb = self.loop.execute(d_a)
-            self.compensation.observe(targets, d_a, fb.displacement)
+            self.compensation.observe(actuator_targets, d_a, fb.displacement)
         else:
-            fb = self.loop.execute(targets)
+            fb = self.loop.execute(actuator_targets)
         if fb.samples is not None:
-            self._samples.append(fb.samples)
+            if self.setups is not None:
+                self.actuator_samples.append(fb.samples)
+                self._samples.append(self.setups.linearised_samples(fb.samples))
+            else:
+                self._samples.append(fb.samples)
         if self.estimator is not None:
             u, R, k = self.estimator.update(fb.samples[:, :, 1], fb.samples[:, :, 2])
         else:
-            u, R = fb.displacement, fb.force
+            u, R = self._to_channels(fb.displacement, fb.force)
             k = secant_stiffness(u, R, *self._committed)
         self._last = (u, R)
-        self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=fb.commands, samples=fb.samples)
+        commands = fb.commands if self.setups is None else self.setups.basic(fb.commands, fb.force)[0]
+        self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=commands, samples=fb.samples)
+        self.last_actuator_feedback = fb
 
     def get_daq(self) -> Daq:
         if self._daq is None:
