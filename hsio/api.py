@@ -101,7 +101,8 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
-    actuators = open_hardware(hardware, structure.experimental, ticker, options or {})
+    elements = list(structure.experimental) + list(structure.static)  # static preloads after the channels
+    actuators = open_hardware(hardware, elements, ticker, options or {})
     try:
         loop = ControlLoop(actuators, ticker, structure.dt, test_rate, n_avg=n_avg, keep_samples=keep_samples,
                            hold_fraction=hold_fraction)
@@ -114,7 +115,7 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
         raise
     try:
         setups = SetupMap.of(structure) if structure.has_setups else None
-        return ActuatorSite(loop, estimator, compensation, setups)
+        return ActuatorSite(loop, estimator, compensation, setups, structure.static)
     except BaseException:
         loop.close()
         raise
@@ -130,4 +131,36 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     """
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
-    return run_steps(structure, ground, integrator, site, recorder, progress)
+    static = getattr(site, "static", None)
+    if not static:
+        return run_steps(structure, ground, integrator, site, recorder, progress)
+    # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off
+    try:
+        site.preload()
+    except BaseException:
+        site.hold()
+        raise
+    try:
+        result = run_steps(structure, ground, integrator, site, recorder, progress)
+        site.release()
+    finally:
+        if recorder is not None:
+            write_static(recorder, site)
+    result.static_log = site.static_log
+    result.static_hold_error = site.static_hold_error()
+    return result
+
+
+PHASES = {"ramp_in": 0, "test": 1, "ramp_off": 2}
+
+
+def write_static(recorder: Recorder, site) -> None:
+    """The static actuators' log as the record's ``static`` table: one row per loop step, with
+    the phase (0 ramp in, 1 test, 2 ramp off), lab time, and per actuator the preload target,
+    measured force and displacement."""
+    names = [s.actuator for s in site.static]
+    for k, (phase, time_s, targets, forces, disps) in enumerate(site.static_log):
+        row = {"phase": PHASES[phase], "lab_time_s": time_s}
+        for j, name in enumerate(names):
+            row.update({f"target_{name}": targets[j], f"force_{name}": forces[j], f"disp_{name}": disps[j]})
+        recorder.write_row("static", k, row)

@@ -28,24 +28,28 @@ from hsio.sites.base import Daq
 
 class ActuatorSite:
     """The experimental channels on actuators, driven trial by trial: one actuator per channel,
-    or several per element through its setup (``setups``)."""
+    or several per element through its setup (``setups``); ``static`` preloads
+    (:class:`hsio.structures.StaticLoad`) on the actuators after those of the channels."""
 
     def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None,
-                 setups=None):
+                 setups=None, static=()):
         self.loop = loop
         self.setups = setups
-        if setups is not None and setups.n_actuators != len(loop.actuators):
-            raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {len(loop.actuators)}")
-        if setups is not None and estimator is not None:
-            raise ConfigError("the secant estimator works per actuator; elements with setups take the "
-                              "averaged measurement (no estimator)")
-        self.n_elements = setups.n_channels if setups is not None else len(loop.actuators)
+        self.static = list(static)
+        self.n_dynamic = len(loop.actuators) - len(self.static)
+        if setups is not None and setups.n_actuators != self.n_dynamic:
+            raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {self.n_dynamic} "
+                              f"beside the static ones")
+        if (setups is not None or self.static) and estimator is not None:
+            raise ConfigError("the secant estimator works per actuator; elements with setups or static preloads "
+                              "take the averaged measurement (no estimator)")
+        self.n_elements = setups.n_channels if setups is not None else self.n_dynamic
         self.estimator = estimator
         if estimator is not None and not loop.keep_samples:
             raise ConfigError("the secant stiffness is estimated from the controller-rate samples: "
                               "set [output] samples = true")
         self.compensation = compensation  # hsio.compensation.stage.CompensationStage or None
-        feedback = loop.feedback()
+        feedback = loop.feedback()[: self.n_dynamic]
         self._committed = self._to_channels(np.array([f.displacement_mm for f in feedback]),
                                             np.array([f.force_kN for f in feedback]))
         self.actuator_samples: list[np.ndarray] = []
@@ -54,10 +58,13 @@ class ActuatorSite:
             estimator.begin_step(*self._committed)
         self._samples: list[np.ndarray] = []
         self._daq: Daq | None = None
+        self.static_targets = np.zeros(len(self.static))
+        self.static_log: list[tuple] = []  # (phase, lab time s, targets, forces, displacements)
+        self._phase = "test"
 
     @property
     def modes(self) -> list[ControlMode]:
-        return [a.mode for a in self.loop.actuators]
+        return [a.mode for a in self.loop.actuators[: self.n_dynamic]]
 
     @property
     def late_steps(self) -> int:
@@ -73,7 +80,7 @@ class ActuatorSite:
 
     def set_modes(self, modes) -> list[int]:
         switched = []
-        for index, (actuator, mode) in enumerate(zip(self.loop.actuators, modes)):
+        for index, (actuator, mode) in enumerate(zip(self.loop.actuators[: self.n_dynamic], modes)):
             if actuator.mode is not mode:
                 self.loop.set_mode(index, mode)
                 switched.append(index)
@@ -84,6 +91,54 @@ class ActuatorSite:
             return strokes, forces
         return self.setups.basic(strokes, forces)
 
+    def _execute(self, dynamic_targets: np.ndarray):
+        """One step of the loop: the dynamic actuators' targets and the static ones' preloads."""
+        fb = self.loop.execute(np.concatenate([dynamic_targets, self.static_targets]))
+        if self.static:
+            n = self.n_dynamic
+            self.static_log.append((self._phase, self.lab_time_s, self.static_targets.copy(),
+                                    fb.force[n:].copy(), fb.displacement[n:].copy()))
+        return fb
+
+    # -- static preloads ------------------------------------------------------------------------
+    def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str) -> None:
+        self._phase = phase
+        ramp_s = max(s.ramp_s for s in self.static)
+        steps = max(int(np.ceil(ramp_s / self.loop.t_d)), 1)
+        hold = np.array([g.command for g in self.loop.generators[: self.n_dynamic]])
+        for k in range(1, steps + 1):
+            self.static_targets = start + (end - start) * k / steps
+            self._execute(hold)
+        self._phase = "test"
+
+    def preload(self) -> None:
+        """Switch the static actuators to force control and ramp their preloads in, the others
+        holding where they stand (docs/setups.md)."""
+        if not self.static:
+            return
+        for j, load in enumerate(self.static):  # refused before anything moves
+            actuator = self.loop.actuators[self.n_dynamic + j]
+            actuator.limits.check(ControlMode.FORCE, load.force_kN, f"static preload {load.name!r} on actuator {actuator.name!r}")
+        for j in range(len(self.static)):
+            self.loop.set_mode(self.n_dynamic + j, ControlMode.FORCE)
+        self._ramp(np.zeros(len(self.static)), np.array([s.force_kN for s in self.static]), "ramp_in")
+
+    def release(self) -> None:
+        """Ramp the static preloads off, the others holding where they stand."""
+        if not self.static:
+            return
+        self._ramp(self.static_targets.copy(), np.zeros(len(self.static)), "ramp_off")
+
+    def static_hold_error(self) -> np.ndarray:
+        """Per static actuator: the largest |measured - preload| / |preload| while the test ran."""
+        held = [(t, f) for phase, _, t, f, _ in self.static_log if phase == "test"]
+        if not held:
+            return np.full(len(self.static), np.nan)
+        targets = np.array([t for t, _ in held])
+        forces = np.array([f for _, f in held])
+        return np.max(np.abs(forces - targets), axis=0) / np.abs([s.force_kN for s in self.static])
+
+    # -- trials -------------------------------------------------------------------------------
     def set_trial(self, commands, modes) -> None:
         targets = np.asarray(commands, dtype=float)
         if self.setups is not None:
@@ -93,27 +148,27 @@ class ActuatorSite:
         else:
             self.set_modes(modes)
             actuator_targets = targets
+        n = self.n_dynamic
         compensate = self.compensation is not None and all(m is ControlMode.DISPLACEMENT for m in self.modes)
         if compensate:
             d_a = self.compensation.adjust(actuator_targets)
-            fb = self.loop.execute(d_a)
-            self.compensation.observe(actuator_targets, d_a, fb.displacement)
+            fb = self._execute(d_a)
+            self.compensation.observe(actuator_targets, d_a, fb.displacement[:n])
         else:
-            fb = self.loop.execute(actuator_targets)
-        if fb.samples is not None:
-            if self.setups is not None:
+            fb = self._execute(actuator_targets)
+        samples = fb.samples[:, :n] if fb.samples is not None else None
+        if samples is not None:
+            if self.setups is not None or self.static:
                 self.actuator_samples.append(fb.samples)
-                self._samples.append(self.setups.linearised_samples(fb.samples))
-            else:
-                self._samples.append(fb.samples)
+            self._samples.append(self.setups.linearised_samples(samples) if self.setups is not None else samples)
         if self.estimator is not None:
-            u, R, k = self.estimator.update(fb.samples[:, :, 1], fb.samples[:, :, 2])
+            u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
         else:
-            u, R = self._to_channels(fb.displacement, fb.force)
+            u, R = self._to_channels(fb.displacement[:n], fb.force[:n])
             k = secant_stiffness(u, R, *self._committed)
         self._last = (u, R)
-        commands = fb.commands if self.setups is None else self.setups.basic(fb.commands, fb.force)[0]
-        self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=commands, samples=fb.samples)
+        commands = fb.commands[:n] if self.setups is None else self.setups.basic(fb.commands[:n], fb.force[:n])[0]
+        self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=commands, samples=samples)
         self.last_actuator_feedback = fb
 
     def get_daq(self) -> Daq:
