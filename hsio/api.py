@@ -115,10 +115,33 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
         raise
     try:
         setups = SetupMap.of(structure) if structure.has_setups else None
-        return ActuatorSite(loop, estimator, compensation, setups, structure.static)
+        instruments = external = None
+        if structure.instruments:
+            instruments = open_instruments(hardware, structure, elements, actuators, options or {})
+            external = [None] * len(structure.experimental_dofs)
+            if setups is None:
+                external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
+                            for e in structure.experimental]
+        return ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external)
     except BaseException:
         loop.close()
         raise
+
+
+def open_instruments(hardware: str, structure: Structure, elements, actuators, options: dict):
+    """The DAQ of ``structure``'s external instruments: emulated beside ``emulator://`` actuators,
+    else the Modbus DAQ module named by ``options['instruments']`` (docs/setups.md)."""
+    if hardware.startswith("emulator://"):
+        from hsio.emulators.local import open_instruments as emulated
+
+        return emulated(structure.instruments, elements, actuators)
+    url = options.get("instruments")
+    if not url:
+        raise ConfigError(f"structure {structure.name!r} names instruments; give the DAQ module's URL as the "
+                          f"driver option 'instruments' (modbus+tcp://HOST:PORT)")
+    from hsio.drivers.modbus_daq import open_daq
+
+    return open_daq(url, structure.instruments, options.get("instrument_map"))
 
 
 def simulate(structure: Structure, ground: GroundMotion, site, method: str = "alpha_os", alpha: float = -0.05,
@@ -132,7 +155,7 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
     static = getattr(site, "static", None)
-    if not static:
+    if not static and getattr(site, "instruments", None) is None:
         return run_steps(structure, ground, integrator, site, recorder, progress)
     # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off
     try:
@@ -145,22 +168,11 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         site.release()
     finally:
         if recorder is not None:
-            write_static(recorder, site)
-    result.static_log = site.static_log
-    result.static_hold_error = site.static_hold_error()
+            for table, rows in site.record_tables().items():
+                for k, row in rows:
+                    recorder.write_row(table, k, row)
+    if static:
+        result.static_log = site.static_log
+        result.static_hold_error = site.static_hold_error()
+    result.instrument_log = site.instrument_log
     return result
-
-
-PHASES = {"ramp_in": 0, "test": 1, "ramp_off": 2}
-
-
-def write_static(recorder: Recorder, site) -> None:
-    """The static actuators' log as the record's ``static`` table: one row per loop step, with
-    the phase (0 ramp in, 1 test, 2 ramp off), lab time, and per actuator the preload target,
-    measured force and displacement."""
-    names = [s.actuator for s in site.static]
-    for k, (phase, time_s, targets, forces, disps) in enumerate(site.static_log):
-        row = {"phase": PHASES[phase], "lab_time_s": time_s}
-        for j, name in enumerate(names):
-            row.update({f"target_{name}": targets[j], f"force_{name}": forces[j], f"disp_{name}": disps[j]})
-        recorder.write_row("static", k, row)

@@ -22,7 +22,8 @@ import scipy.linalg
 
 from hsio.errors import ConfigError
 from hsio.specimens import SPECIMEN_KINDS, make_specimen
-from hsio.structures import DAMPING_KINDS, Damping, ExperimentalElement, NumericalElement, Spring, StaticLoad, Structure
+from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, ExperimentalElement, Instrument, NumericalElement,
+                             OuterLoop, Spring, StaticLoad, Structure)
 
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
@@ -37,10 +38,12 @@ TABLES = {
     "damping": {"kind", "zeta", "modes"},
     "spring": {"name", "dof", "to", "k"},
     "numerical": {"name", "dof", "to", "model"},
-    "experimental": {"name", "dof", "dofs", "actuator", "actuators", "K_EI", "model", "setup"},
+    "experimental": {"name", "dof", "dofs", "actuator", "actuators", "K_EI", "model", "setup", "displacement_from",
+                     "outer_loop"},
     "static": {"name", "actuator", "force_kN", "ramp_s", "model"},
+    "instrument": {"name", "kind", "element", "scale", "noise", "resolution"},
 }
-ARRAYS = ("dof", "spring", "numerical", "experimental", "static")
+ARRAYS = ("dof", "spring", "numerical", "experimental", "static", "instrument")
 
 
 def shipped_names() -> list[str]:
@@ -196,6 +199,26 @@ class _Reader:
         numerical = tuple(self.numerical(k, e) for k, e in enumerate(doc.get("numerical", [])))
         experimental = tuple(self.experimental(k, e) for k, e in enumerate(doc.get("experimental", [])))
         static = tuple(self.static(k, e) for k, e in enumerate(doc.get("static", [])))
+        instruments = tuple(self.instrument(k, e) for k, e in enumerate(doc.get("instrument", [])))
+        by_name = {}
+        for k, inst in enumerate(instruments):
+            if inst.name in by_name:
+                raise self.error(f"instrument[{k}].name", f"{inst.name!r} already names instrument[{by_name[inst.name]}]")
+            by_name[inst.name] = k
+            if inst.element and inst.element not in {e.name for e in experimental}:
+                raise self.error(f"instrument[{k}].element", f"no experimental element {inst.element!r}")
+        for k, e in enumerate(experimental):
+            if e.displacement_from:
+                if e.displacement_from not in by_name:
+                    raise self.error(f"experimental[{k}].displacement_from", f"no instrument {e.displacement_from!r}; "
+                                     f"instruments: {', '.join(by_name) or 'none'}")
+                inst = instruments[by_name[e.displacement_from]]
+                if inst.unit != "mm":
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} is a {inst.kind} ({inst.unit}), not a displacement")
+                if e.has_setup:
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     "an external displacement is taken for elements without setups only")
         named = [(f"spring[{k}]", s.name) for k, s in enumerate(springs) if s.name]
         named += [(f"numerical[{k}]", e.name) for k, e in enumerate(numerical)]
         named += [(f"experimental[{k}]", e.name) for k, e in enumerate(experimental)]
@@ -222,7 +245,7 @@ class _Reader:
         structure = Structure(name=name, dof_names=tuple(dof_names), masses=tuple(masses), experimental=experimental,
                               springs=springs, numerical=numerical, damping=damping, dt=dt, description=description,
                               mass_matrix=matrix, influence=None if all(v == 1.0 for v in iota) else tuple(iota),
-                              source=self.file, static=static)
+                              source=self.file, static=static, instruments=instruments)
         self.check_stable(structure)
         return structure
 
@@ -340,7 +363,18 @@ class _Reader:
         actuator = self.string(f"{where}.actuator", entry.get("actuator", name))
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
         K_EI = self.number(f"{where}.K_EI", entry["K_EI"], positive=True) if "K_EI" in entry else None
-        return ExperimentalElement(name, i, spec, actuator, K_EI)
+        source = self.string(f"{where}.displacement_from", entry["displacement_from"]) if "displacement_from" in entry else ""
+        outer = None
+        if "outer_loop" in entry:
+            if not source:
+                raise self.error(f"{where}.outer_loop", "needs displacement_from (the instrument it closes on)")
+            table = self.table(f"{where}.outer_loop", entry["outer_loop"], {"tolerance_mm", "max_iterations"})
+            tol = self.number(f"{where}.outer_loop.tolerance_mm", table.get("tolerance_mm", 0.02), positive=True)
+            n_max = table.get("max_iterations", 5)
+            if isinstance(n_max, bool) or not isinstance(n_max, int) or not 1 <= n_max <= 50:
+                raise self.error(f"{where}.outer_loop.max_iterations", f"must be a whole number in 1..50, got {n_max!r}")
+            outer = OuterLoop(tol, n_max)
+        return ExperimentalElement(name, i, spec, actuator, K_EI, displacement_from=source, outer_loop=outer)
 
     def experimental_setup(self, k: int, where: str, entry: dict) -> ExperimentalElement:
         """An element loaded through a setup: dofs, actuators, setup, a multi-DOF model (docs/setups.md)."""
@@ -426,6 +460,20 @@ class _Reader:
                 K_EI = tuple(tuple(float(v) for v in r) for r in K)
         return ExperimentalElement(name, dofs[0], spec, actuators[0], K_EI, dofs=dofs, actuators=actuators,
                                    setup=dict(table))
+
+    def instrument(self, k: int, entry) -> Instrument:
+        """An external instrument (docs/setups.md)."""
+        where = f"instrument[{k}]"
+        entry = self.table(where, entry, TABLES["instrument"])
+        name = self.string(f"{where}.name", self.required(where, entry, "name"))
+        kind = self.required(where, entry, "kind")
+        if kind not in INSTRUMENT_KINDS:
+            raise self.error(f"{where}.kind", f"unknown instrument {kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
+        element = self.string(f"{where}.element", entry["element"]) if "element" in entry else ""
+        scale = self.number(f"{where}.scale", entry.get("scale", 1.0))
+        noise = self.number(f"{where}.noise", entry.get("noise", 0.0), non_negative=True)
+        resolution = self.number(f"{where}.resolution", entry.get("resolution", 0.0), non_negative=True)
+        return Instrument(name, kind, element, scale, noise, resolution)
 
     def static(self, k: int, entry) -> StaticLoad:
         """An actuator that holds a preload in force control (docs/setups.md)."""

@@ -44,6 +44,8 @@ class ExperimentalElement:
     dofs: tuple[int, ...] = ()
     actuators: tuple[str, ...] = ()
     setup: dict | None = None
+    displacement_from: str = ""  # an external instrument's name; "" = the actuator's transducer
+    outer_loop: OuterLoop | None = None
 
     def __post_init__(self):
         if not self.actuator:
@@ -131,6 +133,37 @@ class StaticLoad:
 
     def model(self) -> Specimen:
         return make_specimen(self.specimen)
+
+
+INSTRUMENT_KINDS = {"lvdt": "mm", "string_pot": "mm", "load_cell": "kN", "strain_gauge": "microstrain"}
+
+
+@dataclass(frozen=True)
+class Instrument:
+    """An external instrument read every step (docs/setups.md): an LVDT or string pot (mm) on
+    the specimen, a load cell (kN), a strain gauge (microstrain). ``element`` is what it measures
+    in emulation: the specimen displacement of that element's actuator (lvdt, string_pot), its
+    force (load_cell) or ``scale`` microstrain per kN of it (strain_gauge)."""
+
+    name: str
+    kind: str
+    element: str = ""
+    scale: float = 1.0
+    noise: float = 0.0
+    resolution: float = 0.0
+
+    @property
+    def unit(self) -> str:
+        return INSTRUMENT_KINDS[self.kind]
+
+
+@dataclass(frozen=True)
+class OuterLoop:
+    """Correct the command until the external instrument reads the target within
+    ``tolerance_mm``, at most ``max_iterations`` extra commands per step (docs/setups.md)."""
+
+    tolerance_mm: float = 0.02
+    max_iterations: int = 5
 
 
 @dataclass(frozen=True)
@@ -263,6 +296,7 @@ class Structure:
     influence: tuple[float, ...] | None = None
     source: str = ""
     static: tuple[StaticLoad, ...] = ()
+    instruments: tuple[Instrument, ...] = ()
 
     def __post_init__(self):
         n = len(self.dof_names)

@@ -32,8 +32,17 @@ class ActuatorSite:
     (:class:`hsio.structures.StaticLoad`) on the actuators after those of the channels."""
 
     def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None,
-                 setups=None, static=()):
+                 setups=None, static=(), instruments=None, external=None):
         self.loop = loop
+        self.instruments = instruments  # a DAQ of external instruments, read every trial
+        # per channel: None (the actuator's transducer) or (instrument name, OuterLoop or None)
+        self.external = list(external) if external is not None else []
+        if any(x is not None for x in self.external) and instruments is None:
+            raise ConfigError("an element takes its displacement from an external instrument: open the instruments' DAQ")
+        if any(x is not None for x in self.external) and setups is not None:
+            raise ConfigError("an external displacement is taken for elements without setups only")
+        self.instrument_log: list[tuple] = []  # (trial, iterations, readings)
+        self._trials = 0
         self.setups = setups
         self.static = list(static)
         self.n_dynamic = len(loop.actuators) - len(self.static)
@@ -156,6 +165,7 @@ class ActuatorSite:
             self.compensation.observe(actuator_targets, d_a, fb.displacement[:n])
         else:
             fb = self._execute(actuator_targets)
+        fb, readings, iterations = self._outer_loop(targets, actuator_targets, fb)
         samples = fb.samples[:, :n] if fb.samples is not None else None
         if samples is not None:
             if self.setups is not None or self.static:
@@ -165,11 +175,61 @@ class ActuatorSite:
             u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
         else:
             u, R = self._to_channels(fb.displacement[:n], fb.force[:n])
+            for j, source in enumerate(self.external):
+                if source is not None:
+                    u[j] = readings[source[0]]
             k = secant_stiffness(u, R, *self._committed)
         self._last = (u, R)
         commands = fb.commands[:n] if self.setups is None else self.setups.basic(fb.commands[:n], fb.force[:n])[0]
         self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=commands, samples=samples)
         self.last_actuator_feedback = fb
+
+    def read_instruments(self) -> dict[str, float]:
+        return self.instruments.read() if self.instruments is not None else {}
+
+    def _outer_loop(self, targets, actuator_targets, fb):
+        """Read the instruments; where an element closes an outer loop on one, correct its
+        command by the instrument's error and run the step's command again until the instrument
+        reads the target within the tolerance, at most max_iterations times (docs/setups.md).
+        Each extra command is one more trial of the loop (t_d of lab time)."""
+        readings = self.read_instruments()
+        iterations = 0
+        loops = [(j, src) for j, src in enumerate(self.external) if src is not None and src[1] is not None]
+        if loops and all(m is ControlMode.DISPLACEMENT for m in self.modes):
+            commands = np.array(actuator_targets, dtype=float)
+            max_iterations = max(src[1].max_iterations for _, src in loops)
+            while iterations < max_iterations:
+                errors = {j: targets[j] - readings[src[0]] for j, src in loops}
+                if all(abs(errors[j]) <= src[1].tolerance_mm for j, src in loops):
+                    break
+                for j, src in loops:
+                    commands[j] += errors[j]
+                fb = self._execute(commands)
+                readings = self.read_instruments()
+                iterations += 1
+        self._trials += 1
+        if self.instruments is not None:
+            self.instrument_log.append((self._trials, iterations, readings))
+        return fb, readings, iterations
+
+    def record_tables(self) -> dict[str, list[tuple[int, dict]]]:
+        """Extra tables for the record: ``static`` (the preloads' log) and ``instruments`` (every
+        trial's readings and outer-loop iterations)."""
+        tables = {}
+        if self.static:
+            phases = {"ramp_in": 0, "test": 1, "ramp_off": 2}
+            rows = []
+            for k, (phase, time_s, targets, forces, disps) in enumerate(self.static_log):
+                row = {"phase": phases[phase], "lab_time_s": time_s}
+                for j, load in enumerate(self.static):
+                    name = load.actuator
+                    row.update({f"target_{name}": targets[j], f"force_{name}": forces[j], f"disp_{name}": disps[j]})
+                rows.append((k, row))
+            tables["static"] = rows
+        if self.instruments is not None:
+            tables["instruments"] = [(trial, {"iterations": iterations, **readings})
+                                     for trial, iterations, readings in self.instrument_log]
+        return tables
 
     def get_daq(self) -> Daq:
         if self._daq is None:
