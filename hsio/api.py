@@ -29,7 +29,7 @@ from hsio.sites import ActuatorSite, NumericalSite
 from hsio.sites.setup_map import SetupMap
 from hsio.structures import Structure
 
-__all__ = ["make_integrator", "run_numerical", "open_site", "simulate"]
+__all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_readback"]
 
 
 def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float = -0.05, *,
@@ -91,11 +91,14 @@ def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alp
 def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str = "lockstep",
               test_rate: float = 20.0, hold_fraction: float = 0.5, n_avg: int = 4, keep_samples: bool = True,
               options: dict | None = None, estimator: SecantEstimator | None = None,
-              compensation=None) -> ActuatorSite:
+              compensation=None, relative: bool = False) -> ActuatorSite:
     """Open the actuators of ``structure``'s experimental elements at ``hardware`` (a URL:
     ``emulator://``, ``modbus+tcp://HOST:PORT``, ...) behind the controller-rate loop.
 
     ``options`` is the [emulator] table for ``emulator://`` and the [driver] table otherwise.
+    ``relative``: every displacement command and measurement is taken from the actuators'
+    positions when the site opens (docs/setups.md); ``site.readback`` holds the reading of every
+    channel taken then, before the first command (:func:`format_readback` shows it).
     Use it as a context manager (or call ``close()``): the actuators are left holding.
     """
     if clock not in ("lockstep", "realtime"):
@@ -122,10 +125,22 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
             if setups is None:
                 external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
                             for e in structure.experimental]
-        return ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external)
+        return ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
     except BaseException:
         loop.close()
         raise
+
+
+def format_readback(readback: dict[str, float], units: dict[str, str] | None = None) -> str:
+    """The initial reading of every channel as a table, one channel a line, to be checked before
+    the test starts (docs/setups.md)."""
+    units = units or {}
+    width = max((len(k) for k in readback), default=7)
+    lines = [f"{'channel':<{width}}  {'value':>12}  unit"]
+    for name, value in readback.items():
+        unit = units.get(name) or ("mm" if name.endswith(".displacement") else "kN" if name.endswith(".force") else "")
+        lines.append(f"{name:<{width}}  {value:>12.4f}  {unit}")
+    return "\n".join(lines)
 
 
 def open_instruments(hardware: str, structure: Structure, elements, actuators, options: dict):

@@ -32,7 +32,7 @@ class ActuatorSite:
     (:class:`hsio.structures.StaticLoad`) on the actuators after those of the channels."""
 
     def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None,
-                 setups=None, static=(), instruments=None, external=None):
+                 setups=None, static=(), instruments=None, external=None, relative: bool = False):
         self.loop = loop
         self.instruments = instruments  # a DAQ of external instruments, read every trial
         # per channel: None (the actuator's transducer) or (instrument name, OuterLoop or None)
@@ -58,8 +58,11 @@ class ActuatorSite:
             raise ConfigError("the secant stiffness is estimated from the controller-rate samples: "
                               "set [output] samples = true")
         self.compensation = compensation  # hsio.compensation.stage.CompensationStage or None
+        self.readback = self.read_back()  # every channel, before the first command
         feedback = loop.feedback()[: self.n_dynamic]
-        self._committed = self._to_channels(np.array([f.displacement_mm for f in feedback]),
+        # relative trials: the actuators' positions now (at enabling) are the zero of every command
+        self.zero = (np.array([f.displacement_mm for f in feedback]) if relative else np.zeros(self.n_dynamic))
+        self._committed = self._to_channels(np.array([f.displacement_mm for f in feedback]) - self.zero,
                                             np.array([f.force_kN for f in feedback]))
         self.actuator_samples: list[np.ndarray] = []
         self._last = self._committed
@@ -100,9 +103,29 @@ class ActuatorSite:
             return strokes, forces
         return self.setups.basic(strokes, forces)
 
+    def read_back(self) -> dict[str, float]:
+        """One reading of every channel: each actuator's displacement and force, each instrument
+        (shown before the test starts; docs/setups.md)."""
+        out = {}
+        for actuator, fb in zip(self.loop.actuators, self.loop.feedback()):
+            out[f"{actuator.name}.displacement"] = fb.displacement_mm
+            out[f"{actuator.name}.force"] = fb.force_kN
+        out.update(self.read_instruments())
+        return out
+
     def _execute(self, dynamic_targets: np.ndarray):
-        """One step of the loop: the dynamic actuators' targets and the static ones' preloads."""
-        fb = self.loop.execute(np.concatenate([dynamic_targets, self.static_targets]))
+        """One step of the loop: the dynamic actuators' targets (relative to their zero) and the
+        static ones' preloads. Returns the feedback with displacements relative to the zero."""
+        n = self.n_dynamic
+        relative = bool(np.any(self.zero != 0.0))
+        targets = dynamic_targets + self.zero if relative else dynamic_targets
+        fb = self.loop.execute(np.concatenate([targets, self.static_targets]))
+        if relative:
+            fb.displacement[:n] -= self.zero
+            fb.commands[:n] -= self.zero
+            if fb.samples is not None:
+                fb.samples[:, :n, 0] -= self.zero
+                fb.samples[:, :n, 1] -= self.zero
         if self.static:
             n = self.n_dynamic
             self.static_log.append((self._phase, self.lab_time_s, self.static_targets.copy(),
@@ -114,7 +137,7 @@ class ActuatorSite:
         self._phase = phase
         ramp_s = max(s.ramp_s for s in self.static)
         steps = max(int(np.ceil(ramp_s / self.loop.t_d)), 1)
-        hold = np.array([g.command for g in self.loop.generators[: self.n_dynamic]])
+        hold = np.array([g.command for g in self.loop.generators[: self.n_dynamic]]) - self.zero
         for k in range(1, steps + 1):
             self.static_targets = start + (end - start) * k / steps
             self._execute(hold)
