@@ -531,4 +531,4 @@ def open_link(url: str, names: list[str], clock: Clock | None, options: dict | N
 
 def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:
     """``canopen+virtual://CHANNEL/NODE``: one CiA 402 drive per experimental element."""
-    return open_link(url, [e.name for e in elements], clock, options)
+    return open_link(url, [n for e in elements for n in getattr(e, "actuator_names", (e.name,))], clock, options)

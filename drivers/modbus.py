@@ -435,4 +435,4 @@ def open_link(url: str, names: list[str], clock: Clock | None, options: dict | N
 
 def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:
     """``modbus+tcp://`` / ``modbus+rtu://``: one actuator per experimental element."""
-    return open_link(url, [e.name for e in elements], clock, options)
+    return open_link(url, [n for e in elements for n in getattr(e, "actuator_names", (e.name,))], clock, options)

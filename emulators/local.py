@@ -9,10 +9,12 @@ from __future__ import annotations
 import threading
 from urllib.parse import parse_qsl, urlsplit
 
-from hsio.emulators.servo import ServoConfig, ServoController, make_controllers, parse_value
+import numpy as np
+
+from hsio.emulators.servo import ServoConfig, ServoController, make_controllers, parse_value, quantise
 from hsio.clock import Clock, RealTimeClock
 from hsio.errors import ConfigError, InterlockError
-from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
+from hsio.interfaces import DAQ, Actuator, ActuatorChannels, Channel, ControlMode, Feedback, Limits
 
 
 class RealTimeLoop:
@@ -108,6 +110,12 @@ def check_options(url: str, options: dict | None = None) -> None:
     ServoConfig.from_dict(_settings(url, options))
 
 
+def _actuator_name(element) -> str:
+    """The name of the one actuator behind ``element`` (the structure file's ``actuator``)."""
+    names = getattr(element, "actuator_names", None)
+    return names[0] if names else element.name
+
+
 def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> list[Actuator]:
     """Open ``emulator://`` with one emulated controller per experimental element.
 
@@ -115,6 +123,72 @@ def open_url(url: str, elements, clock: Clock, options: dict | None = None) -> l
     parameters of the URL override it, e.g. ``emulator://?lag_s=0.03&noise_mm=0``.
     Each controller gets its own noise seed (seed + index).
     """
-    controllers = make_controllers(elements, _settings(url, options))
-    return [EmulatedActuator(e.name, c, clock) for e, c in zip(elements, controllers)]
+    table = _settings(url, options)
+    if not any(getattr(e, "has_setup", False) or getattr(e, "is_multi_dof", False) for e in elements):
+        controllers = make_controllers(elements, table)
+        return [EmulatedActuator(_actuator_name(e), c, clock) for e, c in zip(elements, controllers)]
+    # elements loaded through setups: one rig each, one emulated controller per actuator (docs/setups.md)
+    from hsio.emulators.rig import rig_for
 
+    actuators: list[Actuator] = []
+    seed = int(table.get("seed", 0))
+    for e in elements:
+        if getattr(e, "has_setup", False) or getattr(e, "is_multi_dof", False):
+            rig = rig_for(e, table, seed)
+            for name, c in zip(e.actuator_names, rig.controllers):
+                actuators.append(EmulatedActuator(name, c, clock))
+            seed += len(rig.controllers)
+        else:
+            (c,) = make_controllers([e], {**table, "seed": seed})
+            actuators.append(EmulatedActuator(_actuator_name(e), c, clock))
+            seed += 1
+    return actuators
+
+
+
+class EmulatedInstruments(DAQ):
+    """External instruments on the emulated specimens, read like a DAQ module (docs/setups.md).
+
+    An ``lvdt`` or ``string_pot`` reads the specimen displacement of its element's controller
+    (after the load train: what the rod's own transducer does not see when the load train is
+    compliant), a ``load_cell`` its force, a ``strain_gauge`` ``scale`` microstrain per kN. Each
+    adds its own Gaussian noise and quantises to its resolution.
+    """
+
+    def __init__(self, instruments, controllers: dict, seed: int = 1000):
+        self.instruments = list(instruments)
+        self.controllers = controllers
+        self._rng = np.random.default_rng(seed)
+        for inst in self.instruments:
+            if inst.element not in controllers:
+                raise ConfigError(f"instrument {inst.name!r}: no emulated element {inst.element!r} to read "
+                                  f"(elements: {', '.join(controllers)})")
+
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        return tuple(Channel(i.name, i.unit) for i in self.instruments)
+
+    def value(self, inst) -> float:
+        c = self.controllers[inst.element]
+        if inst.kind in ("lvdt", "string_pot"):
+            true = inst.scale * c.d_spec
+        else:
+            true = inst.scale * c.force
+        noisy = true + (self._rng.normal(0.0, inst.noise) if inst.noise > 0 else 0.0)
+        return quantise(noisy, inst.resolution)
+
+    def read(self) -> dict[str, float]:
+        return {inst.name: self.value(inst) for inst in self.instruments}
+
+
+def open_instruments(instruments, elements, actuators) -> EmulatedInstruments:
+    """The emulated DAQ of ``instruments`` on the controllers behind ``actuators`` (one per element,
+    in the elements' order; elements with setups are not read)."""
+    controllers = {}
+    k = 0
+    for e in elements:
+        names = getattr(e, "actuator_names", (e.name,))
+        if len(names) == 1 and not getattr(e, "has_setup", False):
+            controllers[e.name] = actuators[k].controller
+        k += len(names)
+    return EmulatedInstruments(instruments, controllers)

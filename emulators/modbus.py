@@ -96,9 +96,25 @@ class RegisterContext(ModbusServerContext):
     def device_ids(self):
         return [self.map.device_id]
 
+    def add_instruments(self, daq, daq_map) -> None:
+        """Serve the instruments of ``daq`` (a DAQ such as hsio.emulators.local.EmulatedInstruments)
+        on this device, at the inputs of ``daq_map`` (hsio.drivers.modbus_daq), in the
+        instruments' order (docs/setups.md)."""
+        if daq_map.device_id != self.map.device_id:
+            raise ValueError(f"the DAQ map's device id {daq_map.device_id} is not the controller's {self.map.device_id}")
+        self.instrument_daq = daq
+        self.instrument_map = daq_map
+        for inst, reg in zip(daq.instruments, daq_map.inputs):
+            for a in range(reg.address, reg.address + reg.words):
+                if a in self.readable or a in self.writable:
+                    raise ValueError(f"DAQ input {reg.name!r} at {a} overlaps the controller's registers")
+            self.readable[reg.address] = ("instrument", inst, reg)
+
     # -- reads -------------------------------------------------------------------------------------
     def _value(self, kind: str, axis, reg) -> float:
         bank = self.bank
+        if kind == "instrument":  # axis: the instrument
+            return self.instrument_daq.value(axis)
         if kind == "info":
             c = bank.controllers[0].config
             return {"map_version": 1.0, "axes": float(self.n), "rate_hz": bank.rate_hz, "boot_id": bank.boot_id,
@@ -139,7 +155,9 @@ class RegisterContext(ModbusServerContext):
                 if entry is None:
                     return self._exception(ExcCodes.ILLEGAL_ADDRESS, f"read of unmapped register {at}")
                 kind, axis, reg = entry
-                out += self.map.encode(reg, self._value(kind, axis, reg))
+                value = self._value(kind, axis, reg)
+                word_order = self.instrument_map.word_order if kind == "instrument" else self.map.word_order
+                out += reg.encode(value, word_order)
                 at += reg.words
         if fault is not None and fault.kind == "corrupt":
             return out[:count - 1]  # a reply cut short

@@ -27,9 +27,10 @@ from hsio.recording import Recorder
 from hsio.result import Result
 from hsio.secant import SecantEstimator
 from hsio.sites import ActuatorSite, NumericalSite
+from hsio.sites.setup_map import SetupMap
 from hsio.structures import Structure
 
-__all__ = ["make_integrator", "run_numerical", "open_site", "simulate"]
+__all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_readback"]
 
 
 def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float = -0.05, *,
@@ -45,7 +46,14 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     if method not in METHODS:
         raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
     dofs = structure.experimental_dofs
-    K_EI = [e.K_EI for e in structure.experimental]
+    if structure.has_setups:
+        if method != "alpha_os":
+            coupled = [e.name for e in structure.experimental if e.has_setup or e.is_multi_dof]
+            raise ConfigError(f"structure {structure.name!r}: elements loaded through setups ({', '.join(coupled)}) "
+                              f"run with method = 'alpha_os'; {method!r} iterates per actuator (docs/setups.md)")
+        K_EI = structure.K_EI_basic
+    else:
+        K_EI = [e.K_EI for e in structure.experimental]
     if method == "alpha_os" and rule is not None:
         raise ConfigError("a switching rule applies to method = 'mixed', not to 'alpha_os'")
     if method != "alpha_os" and not correct_measured_displacement:
@@ -84,18 +92,21 @@ def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alp
 def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str = "lockstep",
               test_rate: float = 20.0, hold_fraction: float = 0.5, n_avg: int = 4, keep_samples: bool = True,
               options: dict | None = None, estimator: SecantEstimator | None = None,
-              compensation=None) -> ActuatorSite:
+              compensation=None, relative: bool = False) -> ActuatorSite:
     """Open the actuators of ``structure``'s experimental elements at ``hardware`` (a URL:
     ``emulator://``, ``modbus+tcp://HOST:PORT``, ...) behind the controller-rate loop.
 
     ``options`` is the [emulator] table for ``emulator://`` and the [driver] table otherwise.
+    ``relative``: every displacement command and measurement is taken from the actuators'
+    positions when the site opens (docs/setups.md); ``site.readback`` holds the reading of every
+    channel taken then, before the first command (:func:`format_readback` shows it).
     Use it as a context manager (or call ``close()``): the actuators are left holding.
     """
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
-    specs = [ActuatorSpec(e.actuator, e.specimen) for e in structure.experimental]
-    actuators = open_hardware(hardware, specs, ticker, options or {})
+    elements = list(structure.experimental) + list(structure.static)  # static preloads after the channels
+    actuators = open_hardware(hardware, elements, ticker, options or {})
     try:
         loop = ControlLoop(actuators, ticker, structure.dt, test_rate, n_avg=n_avg, keep_samples=keep_samples,
                            hold_fraction=hold_fraction)
@@ -107,10 +118,46 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
                 pass
         raise
     try:
-        return ActuatorSite(loop, estimator, compensation)
+        setups = SetupMap.of(structure) if structure.has_setups else None
+        instruments = external = None
+        if structure.instruments:
+            instruments = open_instruments(hardware, structure, elements, actuators, options or {})
+            external = [None] * len(structure.experimental_dofs)
+            if setups is None:
+                external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
+                            for e in structure.experimental]
+        return ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
     except BaseException:
         loop.close()
         raise
+
+
+def format_readback(readback: dict[str, float], units: dict[str, str] | None = None) -> str:
+    """The initial reading of every channel as a table, one channel a line, to be checked before
+    the test starts (docs/setups.md)."""
+    units = units or {}
+    width = max((len(k) for k in readback), default=7)
+    lines = [f"{'channel':<{width}}  {'value':>12}  unit"]
+    for name, value in readback.items():
+        unit = units.get(name) or ("mm" if name.endswith(".displacement") else "kN" if name.endswith(".force") else "")
+        lines.append(f"{name:<{width}}  {value:>12.4f}  {unit}")
+    return "\n".join(lines)
+
+
+def open_instruments(hardware: str, structure: Structure, elements, actuators, options: dict):
+    """The DAQ of ``structure``'s external instruments: emulated beside ``emulator://`` actuators,
+    else the Modbus DAQ module named by ``options['instruments']`` (docs/setups.md)."""
+    if hardware.startswith("emulator://"):
+        from hsio.emulators.local import open_instruments as emulated
+
+        return emulated(structure.instruments, elements, actuators)
+    url = options.get("instruments")
+    if not url:
+        raise ConfigError(f"structure {structure.name!r} names instruments; give the DAQ module's URL as the "
+                          f"driver option 'instruments' (modbus+tcp://HOST:PORT)")
+    from hsio.drivers.modbus_daq import open_daq
+
+    return open_daq(url, structure.instruments, options.get("instrument_map"))
 
 
 def simulate(structure: Structure, ground: GroundMotion, site, method: str = "alpha_os", alpha: float = -0.05,
@@ -123,4 +170,25 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     """
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
-    return run_steps(structure, ground, integrator, site, recorder, progress)
+    static = getattr(site, "static", None)
+    if not static and getattr(site, "instruments", None) is None:
+        return run_steps(structure, ground, integrator, site, recorder, progress)
+    # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off
+    try:
+        site.preload()
+    except BaseException:
+        site.hold()
+        raise
+    try:
+        result = run_steps(structure, ground, integrator, site, recorder, progress)
+        site.release()
+    finally:
+        if recorder is not None:
+            for table, rows in site.record_tables().items():
+                for k, row in rows:
+                    recorder.write_row(table, k, row)
+    if static:
+        result.static_log = site.static_log
+        result.static_hold_error = site.static_hold_error()
+    result.instrument_log = site.instrument_log
+    return result

@@ -99,7 +99,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
     t, P = excitation(structure, ground)
     n_steps = len(t)
     dofs = structure.experimental_dofs
-    names = [e.name for e in structure.experimental]
+    names = structure.experimental_names
     numerical = structure.numerical_assembly()
     h = _Histories(n_steps, structure.n_dof, len(dofs))
     switches: list[Switch] = []

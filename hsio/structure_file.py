@@ -22,7 +22,8 @@ import scipy.linalg
 
 from hsio.errors import ConfigError
 from hsio.specimens import SPECIMEN_KINDS, make_specimen
-from hsio.structures import DAMPING_KINDS, Damping, ExperimentalElement, NumericalElement, Spring, Structure
+from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, ExperimentalElement, Instrument, NumericalElement,
+                             OuterLoop, Spring, StaticLoad, Structure)
 
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
@@ -37,9 +38,12 @@ TABLES = {
     "damping": {"kind", "zeta", "modes"},
     "spring": {"name", "dof", "to", "k"},
     "numerical": {"name", "dof", "to", "model"},
-    "experimental": {"name", "dof", "actuator", "K_EI", "model"},
+    "experimental": {"name", "dof", "dofs", "actuator", "actuators", "K_EI", "model", "setup", "displacement_from",
+                     "outer_loop"},
+    "static": {"name", "actuator", "force_kN", "ramp_s", "model"},
+    "instrument": {"name", "kind", "element", "scale", "noise", "resolution"},
 }
-ARRAYS = ("dof", "spring", "numerical", "experimental")
+ARRAYS = ("dof", "spring", "numerical", "experimental", "static", "instrument")
 
 
 def shipped_names() -> list[str]:
@@ -194,9 +198,31 @@ class _Reader:
         springs = tuple(self.spring(k, e) for k, e in enumerate(doc.get("spring", [])))
         numerical = tuple(self.numerical(k, e) for k, e in enumerate(doc.get("numerical", [])))
         experimental = tuple(self.experimental(k, e) for k, e in enumerate(doc.get("experimental", [])))
+        static = tuple(self.static(k, e) for k, e in enumerate(doc.get("static", [])))
+        instruments = tuple(self.instrument(k, e) for k, e in enumerate(doc.get("instrument", [])))
+        by_name = {}
+        for k, inst in enumerate(instruments):
+            if inst.name in by_name:
+                raise self.error(f"instrument[{k}].name", f"{inst.name!r} already names instrument[{by_name[inst.name]}]")
+            by_name[inst.name] = k
+            if inst.element and inst.element not in {e.name for e in experimental}:
+                raise self.error(f"instrument[{k}].element", f"no experimental element {inst.element!r}")
+        for k, e in enumerate(experimental):
+            if e.displacement_from:
+                if e.displacement_from not in by_name:
+                    raise self.error(f"experimental[{k}].displacement_from", f"no instrument {e.displacement_from!r}; "
+                                     f"instruments: {', '.join(by_name) or 'none'}")
+                inst = instruments[by_name[e.displacement_from]]
+                if inst.unit != "mm":
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} is a {inst.kind} ({inst.unit}), not a displacement")
+                if e.has_setup:
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     "an external displacement is taken for elements without setups only")
         named = [(f"spring[{k}]", s.name) for k, s in enumerate(springs) if s.name]
         named += [(f"numerical[{k}]", e.name) for k, e in enumerate(numerical)]
         named += [(f"experimental[{k}]", e.name) for k, e in enumerate(experimental)]
+        named += [(f"static[{k}]", e.name) for k, e in enumerate(static)]
         first: dict[str, str] = {}
         for where, element_name in named:
             if element_name in first:
@@ -205,15 +231,21 @@ class _Reader:
         for key in ("dof", "actuator"):
             seen: dict = {}
             for k, e in enumerate(experimental):
-                value = e.dof if key == "dof" else e.actuator
-                if value in seen:
-                    raise self.error(f"experimental[{k}].{key}", f"already used by experimental[{seen[value]}]")
-                seen[value] = k
+                for value in (e.basic_dofs if key == "dof" else e.actuator_names):
+                    if value in seen:
+                        plural = "s" if (e.dofs if key == "dof" else e.actuators) else ""
+                        raise self.error(f"experimental[{k}].{key}{plural}", f"already used by experimental[{seen[value]}]")
+                    seen[value] = k
+        used = {a: f"experimental[{k}]" for k, e in enumerate(experimental) for a in e.actuator_names}
+        for k, e in enumerate(static):
+            if e.actuator in used:
+                raise self.error(f"static[{k}].actuator", f"actuator {e.actuator!r} already used by {used[e.actuator]}")
+            used[e.actuator] = f"static[{k}]"
 
         structure = Structure(name=name, dof_names=tuple(dof_names), masses=tuple(masses), experimental=experimental,
                               springs=springs, numerical=numerical, damping=damping, dt=dt, description=description,
                               mass_matrix=matrix, influence=None if all(v == 1.0 for v in iota) else tuple(iota),
-                              source=self.file)
+                              source=self.file, static=static, instruments=instruments)
         self.check_stable(structure)
         return structure
 
@@ -324,12 +356,137 @@ class _Reader:
     def experimental(self, k: int, entry) -> ExperimentalElement:
         where = f"experimental[{k}]"
         entry = self.table(where, entry, TABLES["experimental"])
+        if "dofs" in entry or "actuators" in entry or "setup" in entry:
+            return self.experimental_setup(k, where, entry)
         i = self.dof(f"{where}.dof", self.required(where, entry, "dof"))
         name = self.string(f"{where}.name", entry.get("name", list(self.dof_index)[i]))
         actuator = self.string(f"{where}.actuator", entry.get("actuator", name))
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
         K_EI = self.number(f"{where}.K_EI", entry["K_EI"], positive=True) if "K_EI" in entry else None
-        return ExperimentalElement(name, i, spec, actuator, K_EI)
+        source = self.string(f"{where}.displacement_from", entry["displacement_from"]) if "displacement_from" in entry else ""
+        outer = None
+        if "outer_loop" in entry:
+            if not source:
+                raise self.error(f"{where}.outer_loop", "needs displacement_from (the instrument it closes on)")
+            table = self.table(f"{where}.outer_loop", entry["outer_loop"], {"tolerance_mm", "max_iterations"})
+            tol = self.number(f"{where}.outer_loop.tolerance_mm", table.get("tolerance_mm", 0.02), positive=True)
+            n_max = table.get("max_iterations", 5)
+            if isinstance(n_max, bool) or not isinstance(n_max, int) or not 1 <= n_max <= 50:
+                raise self.error(f"{where}.outer_loop.max_iterations", f"must be a whole number in 1..50, got {n_max!r}")
+            outer = OuterLoop(tol, n_max)
+        return ExperimentalElement(name, i, spec, actuator, K_EI, displacement_from=source, outer_loop=outer)
+
+    def experimental_setup(self, k: int, where: str, entry: dict) -> ExperimentalElement:
+        """An element loaded through a setup: dofs, actuators, setup, a multi-DOF model (docs/setups.md)."""
+        from hsio.setups import make_setup
+        from hsio.specimens.matrix import MATRIX_KINDS, make_matrix_specimen
+
+        if "dof" in entry and "dofs" in entry:
+            raise self.error(f"{where}.dof", "give either dof or dofs, not both")
+        if "actuator" in entry and "actuators" in entry:
+            raise self.error(f"{where}.actuator", "give either actuator or actuators, not both")
+        if "dofs" in entry:
+            names = entry["dofs"]
+            if not isinstance(names, list) or not names:
+                raise self.error(f"{where}.dofs", f"must be a non-empty array of DOF names, got {names!r}")
+            dofs = tuple(self.dof(f"{where}.dofs[{j}]", v) for j, v in enumerate(names))
+            if len(set(dofs)) != len(dofs):
+                raise self.error(f"{where}.dofs", f"a DOF appears twice in {names!r}")
+        else:
+            dofs = (self.dof(f"{where}.dof", self.required(where, entry, "dof")),)
+        n = len(dofs)
+        name = self.string(f"{where}.name", entry.get("name", list(self.dof_index)[dofs[0]]))
+        table = entry.get("setup", {"kind": "none"})
+        try:
+            setup = make_setup(table, n, f"{where}.setup")
+        except ConfigError as exc:
+            raise ConfigError(f"{self.file}: {exc}") from None
+        if "actuators" in entry:
+            actuators = entry["actuators"]
+            if not isinstance(actuators, list):
+                raise self.error(f"{where}.actuators", f"must be an array of actuator names, got {actuators!r}")
+            actuators = tuple(self.string(f"{where}.actuators[{j}]", a) for j, a in enumerate(actuators))
+        elif "actuator" in entry:
+            actuators = (self.string(f"{where}.actuator", entry["actuator"]),)
+        else:
+            actuators = tuple(f"{name}.{getattr(a, 'name', j)}" for j, a in enumerate(getattr(setup, "actuators", ())))
+            actuators = actuators or ((name,) if n == 1 else tuple(f"{name}.{j}" for j in range(n)))
+        if len(actuators) != setup.n_actuators:
+            raise self.error(f"{where}.actuators", f"{len(actuators)} actuator(s); setup "
+                             f"{table.get('kind', 'none')!r} drives {setup.n_actuators}")
+        if len(set(actuators)) != len(actuators):
+            raise self.error(f"{where}.actuators", f"an actuator appears twice in {list(actuators)}")
+        model = self.required(where, entry, "model")
+        if isinstance(model, dict) and model.get("kind") in MATRIX_KINDS:
+            spec = dict(model)
+            if spec.get("kind") == "matrix":
+                K = spec.get("K")
+                if (not isinstance(K, list) or len(K) != n
+                        or any(not isinstance(r, list) or len(r) != n for r in K)):
+                    raise self.error(f"{where}.model.K", f"must be {n} rows of {n} numbers (one per basic DOF)")
+                spec["K"] = tuple(tuple(self.number(f"{where}.model.K[{i}][{j}]", v) for j, v in enumerate(r))
+                                  for i, r in enumerate(K))
+            else:
+                for key, v in spec.items():
+                    if key != "kind":
+                        self.number(f"{where}.model.{key}", v)
+            try:
+                specimen = make_matrix_specimen(spec, getattr(setup, "basic", None) or None)
+            except ConfigError as exc:
+                raise self.error(f"{where}.model", str(exc)) from None
+            if specimen.n != n:
+                raise self.error(f"{where}.model", f"the model has {specimen.n} basic DOFs; dofs names {n}")
+        elif n == 1:
+            spec = self.model(f"{where}.model", model)
+        else:
+            raise self.error(f"{where}.model.kind", f"an element with {n} basic DOFs needs a multi-DOF model: "
+                             f"one of {', '.join(MATRIX_KINDS)}")
+        K_EI = None
+        if "K_EI" in entry:
+            value = entry["K_EI"]
+            if n == 1 and not isinstance(value, list):
+                K_EI = self.number(f"{where}.K_EI", value, positive=True)
+            else:
+                if not isinstance(value, list) or len(value) != n or any(not isinstance(r, list) or len(r) != n for r in value):
+                    raise self.error(f"{where}.K_EI", f"must be {n} rows of {n} numbers (one per basic DOF)")
+                K = np.array([[self.number(f"{where}.K_EI[{i}][{j}]", v) for j, v in enumerate(r)]
+                              for i, r in enumerate(value)])
+                if not np.allclose(K, K.T, rtol=0, atol=1e-12 * np.max(np.abs(K))):
+                    raise self.error(f"{where}.K_EI", "must be symmetric")
+                try:
+                    np.linalg.cholesky(K)
+                except np.linalg.LinAlgError:
+                    raise self.error(f"{where}.K_EI", "must be positive definite") from None
+                K_EI = tuple(tuple(float(v) for v in r) for r in K)
+        return ExperimentalElement(name, dofs[0], spec, actuators[0], K_EI, dofs=dofs, actuators=actuators,
+                                   setup=dict(table))
+
+    def instrument(self, k: int, entry) -> Instrument:
+        """An external instrument (docs/setups.md)."""
+        where = f"instrument[{k}]"
+        entry = self.table(where, entry, TABLES["instrument"])
+        name = self.string(f"{where}.name", self.required(where, entry, "name"))
+        kind = self.required(where, entry, "kind")
+        if kind not in INSTRUMENT_KINDS:
+            raise self.error(f"{where}.kind", f"unknown instrument {kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
+        element = self.string(f"{where}.element", entry["element"]) if "element" in entry else ""
+        scale = self.number(f"{where}.scale", entry.get("scale", 1.0))
+        noise = self.number(f"{where}.noise", entry.get("noise", 0.0), non_negative=True)
+        resolution = self.number(f"{where}.resolution", entry.get("resolution", 0.0), non_negative=True)
+        return Instrument(name, kind, element, scale, noise, resolution)
+
+    def static(self, k: int, entry) -> StaticLoad:
+        """An actuator that holds a preload in force control (docs/setups.md)."""
+        where = f"static[{k}]"
+        entry = self.table(where, entry, TABLES["static"])
+        name = self.string(f"{where}.name", self.required(where, entry, "name"))
+        actuator = self.string(f"{where}.actuator", entry.get("actuator", name))
+        force = self.number(f"{where}.force_kN", self.required(where, entry, "force_kN"))
+        if force == 0:
+            raise self.error(f"{where}.force_kN", "a preload of zero needs no static actuator")
+        ramp = self.number(f"{where}.ramp_s", entry.get("ramp_s", 5.0), positive=True)
+        spec = self.model(f"{where}.model", self.required(where, entry, "model"))
+        return StaticLoad(name, force, spec, ramp, actuator)
 
     def check_stable(self, structure: Structure) -> None:
         w2, phi = scipy.linalg.eigh(structure.K_init, structure.M)

@@ -23,32 +23,147 @@ from hsio.specimens import Specimen, make_specimen
 
 @dataclass(frozen=True)
 class ExperimentalElement:
-    """A physical element at one DOF, loaded by one actuator.
+    """A physical element at one or more DOFs, loaded by one or more actuators.
 
     ``specimen`` describes it (for the emulator and for NS). K^EI is its initial stiffness: the
     declared ``K_EI_declared`` when the structure states one (the integrator then uses it even if
     the specimen model's differs), else the specimen model's. ``actuator`` names the actuator
     that drives it (default: the element's name).
+
+    An element with ``dofs`` (its basic DOFs, structure DOF indices), ``actuators`` and a
+    ``setup`` table is loaded through an experimental setup (docs/setups.md): its specimen is a
+    multi-DOF model (q = K d) and K^EI a matrix over its basic DOFs. ``dof`` is then the first
+    basic DOF.
     """
 
     name: str
     dof: int
     specimen: dict
     actuator: str = ""
-    K_EI_declared: float | None = None
+    K_EI_declared: float | tuple | None = None
+    dofs: tuple[int, ...] = ()
+    actuators: tuple[str, ...] = ()
+    setup: dict | None = None
+    displacement_from: str = ""  # an external instrument's name; "" = the actuator's transducer
+    outer_loop: OuterLoop | None = None
+
+    def __post_init__(self):
+        if not self.actuator:
+            object.__setattr__(self, "actuator", self.actuators[0] if self.actuators else self.name)
+        if self.dofs and self.dof != self.dofs[0]:
+            object.__setattr__(self, "dof", self.dofs[0])
+
+    @property
+    def basic_dofs(self) -> tuple[int, ...]:
+        """The structure DOFs of the element's basic DOFs, in order."""
+        return tuple(self.dofs) if self.dofs else (self.dof,)
+
+    @property
+    def actuator_names(self) -> tuple[str, ...]:
+        return tuple(self.actuators) if self.actuators else (self.actuator,)
+
+    @property
+    def has_setup(self) -> bool:
+        """Loaded through a setup (strokes are not the basic displacements one to one)."""
+        return self.setup is not None or len(self.basic_dofs) > 1
+
+    @property
+    def is_multi_dof(self) -> bool:
+        from hsio.specimens.matrix import MATRIX_KINDS
+
+        return self.specimen.get("kind") in MATRIX_KINDS
+
+    def make_setup(self):
+        """The element's setup (identity when it names none)."""
+        from hsio.setups import make_setup
+
+        return make_setup(self.setup if self.setup is not None else {"kind": "none"}, len(self.basic_dofs),
+                          f"experimental element {self.name!r}: setup")
+
+    def model(self):
+        if self.is_multi_dof:
+            from hsio.specimens.matrix import make_matrix_specimen
+
+            basic = getattr(self.make_setup(), "basic", None) or None
+            return make_matrix_specimen(self.specimen, basic)
+        return make_specimen(self.specimen)
+
+    @property
+    def K_EI(self):
+        """A number for a one-DOF element, the matrix over the basic DOFs otherwise."""
+        if self.K_EI_declared is not None:
+            if isinstance(self.K_EI_declared, (int, float)):
+                return float(self.K_EI_declared)
+            return np.array(self.K_EI_declared, dtype=float)
+        return self.model().initial_stiffness
+
+    @property
+    def K_EI_matrix(self) -> np.ndarray:
+        """K^EI over the basic DOFs, always a matrix."""
+        n = len(self.basic_dofs)
+        K = np.atleast_2d(np.asarray(self.K_EI, dtype=float))
+        if K.shape == (1, 1) and n > 1:
+            raise ConfigError(f"experimental element {self.name!r}: K_EI must be a {n} x {n} matrix")
+        return K
+
+
+@dataclass(frozen=True)
+class StaticLoad:
+    """An actuator tied to no dynamic DOF: it ramps a preload (an axial gravity load, say) in force
+    control before the test, holds it while the other DOFs run, and ramps it off at the end
+    (docs/setups.md). ``specimen`` is what it loads (the emulator's model of it), ``force_kN`` the
+    preload, ``ramp_s`` the lab time of each ramp."""
+
+    name: str
+    force_kN: float
+    specimen: dict
+    ramp_s: float = 5.0
+    actuator: str = ""
 
     def __post_init__(self):
         if not self.actuator:
             object.__setattr__(self, "actuator", self.name)
 
+    has_setup = False
+    is_multi_dof = False
+
+    @property
+    def actuator_names(self) -> tuple[str, ...]:
+        return (self.actuator,)
+
     def model(self) -> Specimen:
         return make_specimen(self.specimen)
 
+
+INSTRUMENT_KINDS = {"lvdt": "mm", "string_pot": "mm", "load_cell": "kN", "strain_gauge": "microstrain"}
+
+
+@dataclass(frozen=True)
+class Instrument:
+    """An external instrument read every step (docs/setups.md): an LVDT or string pot (mm) on
+    the specimen, a load cell (kN), a strain gauge (microstrain). ``element`` is what it measures
+    in emulation: the specimen displacement of that element's actuator (lvdt, string_pot), its
+    force (load_cell) or ``scale`` microstrain per kN of it (strain_gauge)."""
+
+    name: str
+    kind: str
+    element: str = ""
+    scale: float = 1.0
+    noise: float = 0.0
+    resolution: float = 0.0
+
     @property
-    def K_EI(self) -> float:
-        if self.K_EI_declared is not None:
-            return float(self.K_EI_declared)
-        return self.model().initial_stiffness
+    def unit(self) -> str:
+        return INSTRUMENT_KINDS[self.kind]
+
+
+@dataclass(frozen=True)
+class OuterLoop:
+    """Correct the command until the external instrument reads the target within
+    ``tolerance_mm``, at most ``max_iterations`` extra commands per step (docs/setups.md)."""
+
+    tolerance_mm: float = 0.02
+    max_iterations: int = 5
 
 
 @dataclass(frozen=True)
@@ -180,6 +295,8 @@ class Structure:
     mass_matrix: tuple[tuple[float, ...], ...] | None = None
     influence: tuple[float, ...] | None = None
     source: str = ""
+    static: tuple[StaticLoad, ...] = ()
+    instruments: tuple[Instrument, ...] = ()
 
     def __post_init__(self):
         n = len(self.dof_names)
@@ -192,15 +309,16 @@ class Structure:
         if self.influence is not None and len(self.influence) != n:
             raise ConfigError(f"structure {self.name!r}: {len(self.influence)} influence coefficients for {n} DOF")
         for element in self.experimental:
-            if not 0 <= element.dof < n:
-                raise ConfigError(f"structure {self.name!r}: element {element.name!r} is at DOF {element.dof}, not in 0..{n - 1}")
+            for dof in element.basic_dofs:
+                if not 0 <= dof < n:
+                    raise ConfigError(f"structure {self.name!r}: element {element.name!r} is at DOF {dof}, not in 0..{n - 1}")
         for e in (*self.springs, *self.numerical):
             if not 0 <= e.i < n or (e.j is not None and not 0 <= e.j < n) or e.i == e.j:
                 raise ConfigError(f"structure {self.name!r}: {e} must join a DOF in 0..{n - 1} to another or to the ground")
-        dofs = [e.dof for e in self.experimental]
+        dofs = self.experimental_dofs
         if len(set(dofs)) != len(dofs):
             raise ConfigError(f"structure {self.name!r}: two experimental elements share a DOF")
-        actuators = [e.actuator for e in self.experimental]
+        actuators = [a for e in (*self.experimental, *self.static) for a in e.actuator_names]
         if len(set(actuators)) != len(actuators):
             raise ConfigError(f"structure {self.name!r}: two experimental elements share an actuator")
         if not self.dt > 0:
@@ -233,11 +351,23 @@ class Structure:
 
     @property
     def K_EI(self) -> np.ndarray:
-        """Initial stiffness of the experimental elements, K^EI (diagonal)."""
+        """Initial stiffness of the experimental elements, K^EI (diagonal but for elements with
+        several basic DOFs, whose blocks couple them)."""
         K = np.zeros((self.n_dof, self.n_dof))
         for e in self.experimental:
-            K[e.dof, e.dof] += e.K_EI
+            index = list(e.basic_dofs)
+            K[np.ix_(index, index)] += e.K_EI_matrix
         return K
+
+    @property
+    def K_EI_basic(self) -> np.ndarray:
+        """K^EI over the experimental channels (every element's basic DOFs, in order): block diagonal."""
+        blocks = [e.K_EI_matrix for e in self.experimental]
+        return scipy.linalg.block_diag(*blocks) if blocks else np.zeros((0, 0))
+
+    @property
+    def has_setups(self) -> bool:
+        return any(e.has_setup or e.is_multi_dof for e in self.experimental)
 
     @property
     def K_num_init(self) -> np.ndarray:
@@ -272,7 +402,20 @@ class Structure:
 
     @property
     def experimental_dofs(self) -> list[int]:
-        return [e.dof for e in self.experimental]
+        """The structure DOF of each experimental channel: every element's basic DOFs, in order."""
+        return [d for e in self.experimental for d in e.basic_dofs]
+
+    @property
+    def experimental_names(self) -> list[str]:
+        """One name per experimental channel: the element's name, or ``element.dof`` for an
+        element with several basic DOFs."""
+        names = []
+        for e in self.experimental:
+            if len(e.basic_dofs) == 1:
+                names.append(e.name)
+            else:
+                names += [f"{e.name}.{self.dof_names[d]}" for d in e.basic_dofs]
+        return names
 
     def numerical_assembly(self) -> "NumericalAssembly":
         """The numerical part of the restoring force, R^N (fresh models in the virgin state)."""

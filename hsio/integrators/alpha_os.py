@@ -127,7 +127,10 @@ class OperatorSplitting:
 
         R~^E = R_measured + K^EI (u~ - u_measured)
 
-    The numerical part adds R~^N at u~_{i+1}; eq. (4) gives the acceleration.
+    The numerical part adds R~^N at u~_{i+1}; eq. (4) gives the acceleration. ``K_EI`` is one
+    stiffness per channel, or a matrix over the channels when an element loaded through a setup
+    couples its basic DOFs (docs/setups.md): the correction is then K^EI (u~ - u_measured) as a
+    matrix product.
     """
 
     method = "alpha_os"
@@ -138,6 +141,9 @@ class OperatorSplitting:
         self.core = AlphaOS(M, C, K_init, dt, alpha)
         self.dofs = np.asarray(element_dofs, dtype=int)
         self.K_EI = np.asarray(K_EI, dtype=float)
+        n_e = self.dofs.size
+        if self.K_EI.shape not in ((n_e,), (n_e, n_e)):
+            raise ConfigError(f"alpha-OS: K_EI must be {n_e} stiffnesses or a {n_e} x {n_e} matrix, got shape {self.K_EI.shape}")
         self.correct_measured_displacement = bool(correct_measured_displacement)
 
     def _outcome(self, state: AlphaOSState, daq, iterations: int):
@@ -164,7 +170,7 @@ class OperatorSplitting:
         daq = site.get_daq()
         F = daq.R.copy()
         if self.correct_measured_displacement:
-            F += self.K_EI * (targets - daq.u)
+            F += (self.K_EI @ (targets - daq.u)) if self.K_EI.ndim == 2 else self.K_EI * (targets - daq.u)
         R_E = np.zeros(self.core.n_dof)
         for dof, f in zip(self.dofs, F):
             R_E[dof] += f

@@ -9,7 +9,10 @@ against the limits, generated at the controller rate and reached after t_d = TR 
 * the measurement of a trial: the loop's average over its last ``n_avg`` periods, or, with a
   :class:`~hsio.secant.SecantEstimator`, the estimator's pair and secant stiffness (eq. 11)
   from the controller-rate samples (docs/method.md section 5);
-* bumpless mode switches (:meth:`hsio.control_loop.ControlLoop.set_mode`).
+* bumpless mode switches (:meth:`hsio.control_loop.ControlLoop.set_mode`);
+* with a :class:`~hsio.sites.setup_map.SetupMap`, the setups between the integrator's channels
+  (basic DOFs) and the actuators: exact strokes out, basic displacements and forces back
+  (docs/setups.md). Elements with setups run in displacement control.
 """
 
 from __future__ import annotations
@@ -24,27 +27,56 @@ from hsio.sites.base import Daq
 
 
 class ActuatorSite:
-    """One actuator per experimental element (identity setup), driven trial by trial."""
+    """The experimental channels on actuators, driven trial by trial: one actuator per channel,
+    or several per element through its setup (``setups``); ``static`` preloads
+    (:class:`hsio.structures.StaticLoad`) on the actuators after those of the channels."""
 
-    def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None):
+    def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None,
+                 setups=None, static=(), instruments=None, external=None, relative: bool = False):
         self.loop = loop
-        self.n_elements = len(loop.actuators)
+        self.instruments = instruments  # a DAQ of external instruments, read every trial
+        # per channel: None (the actuator's transducer) or (instrument name, OuterLoop or None)
+        self.external = list(external) if external is not None else []
+        if any(x is not None for x in self.external) and instruments is None:
+            raise ConfigError("an element takes its displacement from an external instrument: open the instruments' DAQ")
+        if any(x is not None for x in self.external) and setups is not None:
+            raise ConfigError("an external displacement is taken for elements without setups only")
+        self.instrument_log: list[tuple] = []  # (trial, iterations, readings)
+        self._trials = 0
+        self.setups = setups
+        self.static = list(static)
+        self.n_dynamic = len(loop.actuators) - len(self.static)
+        if setups is not None and setups.n_actuators != self.n_dynamic:
+            raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {self.n_dynamic} "
+                              f"beside the static ones")
+        if (setups is not None or self.static) and estimator is not None:
+            raise ConfigError("the secant estimator works per actuator; elements with setups or static preloads "
+                              "take the averaged measurement (no estimator)")
+        self.n_elements = setups.n_channels if setups is not None else self.n_dynamic
         self.estimator = estimator
         if estimator is not None and not loop.keep_samples:
             raise ConfigError("the secant stiffness is estimated from the controller-rate samples: "
                               "set [output] samples = true")
         self.compensation = compensation  # hsio.compensation.stage.CompensationStage or None
-        feedback = loop.feedback()
-        self._committed = (np.array([f.displacement_mm for f in feedback]), np.array([f.force_kN for f in feedback]))
+        self.readback = self.read_back()  # every channel, before the first command
+        feedback = loop.feedback()[: self.n_dynamic]
+        # relative trials: the actuators' positions now (at enabling) are the zero of every command
+        self.zero = (np.array([f.displacement_mm for f in feedback]) if relative else np.zeros(self.n_dynamic))
+        self._committed = self._to_channels(np.array([f.displacement_mm for f in feedback]) - self.zero,
+                                            np.array([f.force_kN for f in feedback]))
+        self.actuator_samples: list[np.ndarray] = []
         self._last = self._committed
         if estimator is not None:
             estimator.begin_step(*self._committed)
         self._samples: list[np.ndarray] = []
         self._daq: Daq | None = None
+        self.static_targets = np.zeros(len(self.static))
+        self.static_log: list[tuple] = []  # (phase, lab time s, targets, forces, displacements)
+        self._phase = "test"
 
     @property
     def modes(self) -> list[ControlMode]:
-        return [a.mode for a in self.loop.actuators]
+        return [a.mode for a in self.loop.actuators[: self.n_dynamic]]
 
     @property
     def late_steps(self) -> int:
@@ -60,31 +92,167 @@ class ActuatorSite:
 
     def set_modes(self, modes) -> list[int]:
         switched = []
-        for index, (actuator, mode) in enumerate(zip(self.loop.actuators, modes)):
+        for index, (actuator, mode) in enumerate(zip(self.loop.actuators[: self.n_dynamic], modes)):
             if actuator.mode is not mode:
                 self.loop.set_mode(index, mode)
                 switched.append(index)
         return switched
 
+    def _to_channels(self, strokes: np.ndarray, forces: np.ndarray):
+        if self.setups is None:
+            return strokes, forces
+        return self.setups.basic(strokes, forces)
+
+    def read_back(self) -> dict[str, float]:
+        """One reading of every channel: each actuator's displacement and force, each instrument
+        (shown before the test starts; docs/setups.md)."""
+        out = {}
+        for actuator, fb in zip(self.loop.actuators, self.loop.feedback()):
+            out[f"{actuator.name}.displacement"] = fb.displacement_mm
+            out[f"{actuator.name}.force"] = fb.force_kN
+        out.update(self.read_instruments())
+        return out
+
+    def _execute(self, dynamic_targets: np.ndarray):
+        """One step of the loop: the dynamic actuators' targets (relative to their zero) and the
+        static ones' preloads. Returns the feedback with displacements relative to the zero."""
+        n = self.n_dynamic
+        relative = bool(np.any(self.zero != 0.0))
+        targets = dynamic_targets + self.zero if relative else dynamic_targets
+        fb = self.loop.execute(np.concatenate([targets, self.static_targets]))
+        if relative:
+            fb.displacement[:n] -= self.zero
+            fb.commands[:n] -= self.zero
+            if fb.samples is not None:
+                fb.samples[:, :n, 0] -= self.zero
+                fb.samples[:, :n, 1] -= self.zero
+        if self.static:
+            n = self.n_dynamic
+            self.static_log.append((self._phase, self.lab_time_s, self.static_targets.copy(),
+                                    fb.force[n:].copy(), fb.displacement[n:].copy()))
+        return fb
+
+    # -- static preloads ------------------------------------------------------------------------
+    def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str) -> None:
+        self._phase = phase
+        ramp_s = max(s.ramp_s for s in self.static)
+        steps = max(int(np.ceil(ramp_s / self.loop.t_d)), 1)
+        hold = np.array([g.command for g in self.loop.generators[: self.n_dynamic]]) - self.zero
+        for k in range(1, steps + 1):
+            self.static_targets = start + (end - start) * k / steps
+            self._execute(hold)
+        self._phase = "test"
+
+    def preload(self) -> None:
+        """Switch the static actuators to force control and ramp their preloads in, the others
+        holding where they stand (docs/setups.md)."""
+        if not self.static:
+            return
+        for j, load in enumerate(self.static):  # refused before anything moves
+            actuator = self.loop.actuators[self.n_dynamic + j]
+            actuator.limits.check(ControlMode.FORCE, load.force_kN, f"static preload {load.name!r} on actuator {actuator.name!r}")
+        for j in range(len(self.static)):
+            self.loop.set_mode(self.n_dynamic + j, ControlMode.FORCE)
+        self._ramp(np.zeros(len(self.static)), np.array([s.force_kN for s in self.static]), "ramp_in")
+
+    def release(self) -> None:
+        """Ramp the static preloads off, the others holding where they stand."""
+        if not self.static:
+            return
+        self._ramp(self.static_targets.copy(), np.zeros(len(self.static)), "ramp_off")
+
+    def static_hold_error(self) -> np.ndarray:
+        """Per static actuator: the largest |measured - preload| / |preload| while the test ran."""
+        held = [(t, f) for phase, _, t, f, _ in self.static_log if phase == "test"]
+        if not held:
+            return np.full(len(self.static), np.nan)
+        targets = np.array([t for t, _ in held])
+        forces = np.array([f for _, f in held])
+        return np.max(np.abs(forces - targets), axis=0) / np.abs([s.force_kN for s in self.static])
+
+    # -- trials -------------------------------------------------------------------------------
     def set_trial(self, commands, modes) -> None:
-        self.set_modes(modes)
         targets = np.asarray(commands, dtype=float)
+        if self.setups is not None:
+            if any(m is not ControlMode.DISPLACEMENT for m in modes):
+                raise ConfigError("elements loaded through setups run in displacement control")
+            actuator_targets = self.setups.strokes(targets)
+        else:
+            self.set_modes(modes)
+            actuator_targets = targets
+        n = self.n_dynamic
         compensate = self.compensation is not None and all(m is ControlMode.DISPLACEMENT for m in self.modes)
         if compensate:
-            d_a = self.compensation.adjust(targets)
-            fb = self.loop.execute(d_a)
-            self.compensation.observe(targets, d_a, fb.displacement)
+            d_a = self.compensation.adjust(actuator_targets)
+            fb = self._execute(d_a)
+            self.compensation.observe(actuator_targets, d_a, fb.displacement[:n])
         else:
-            fb = self.loop.execute(targets)
-        if fb.samples is not None:
-            self._samples.append(fb.samples)
+            fb = self._execute(actuator_targets)
+        fb, readings, iterations = self._outer_loop(targets, actuator_targets, fb)
+        samples = fb.samples[:, :n] if fb.samples is not None else None
+        if samples is not None:
+            if self.setups is not None or self.static:
+                self.actuator_samples.append(fb.samples)
+            self._samples.append(self.setups.linearised_samples(samples) if self.setups is not None else samples)
         if self.estimator is not None:
-            u, R, k = self.estimator.update(fb.samples[:, :, 1], fb.samples[:, :, 2])
+            u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
         else:
-            u, R = fb.displacement, fb.force
+            u, R = self._to_channels(fb.displacement[:n], fb.force[:n])
+            for j, source in enumerate(self.external):
+                if source is not None:
+                    u[j] = readings[source[0]]
             k = secant_stiffness(u, R, *self._committed)
         self._last = (u, R)
-        self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=fb.commands, samples=fb.samples)
+        commands = fb.commands[:n] if self.setups is None else self.setups.basic(fb.commands[:n], fb.force[:n])[0]
+        self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=commands, samples=samples)
+        self.last_actuator_feedback = fb
+
+    def read_instruments(self) -> dict[str, float]:
+        return self.instruments.read() if self.instruments is not None else {}
+
+    def _outer_loop(self, targets, actuator_targets, fb):
+        """Read the instruments; where an element closes an outer loop on one, correct its
+        command by the instrument's error and run the step's command again until the instrument
+        reads the target within the tolerance, at most max_iterations times (docs/setups.md).
+        Each extra command is one more trial of the loop (t_d of lab time)."""
+        readings = self.read_instruments()
+        iterations = 0
+        loops = [(j, src) for j, src in enumerate(self.external) if src is not None and src[1] is not None]
+        if loops and all(m is ControlMode.DISPLACEMENT for m in self.modes):
+            commands = np.array(actuator_targets, dtype=float)
+            max_iterations = max(src[1].max_iterations for _, src in loops)
+            while iterations < max_iterations:
+                errors = {j: targets[j] - readings[src[0]] for j, src in loops}
+                if all(abs(errors[j]) <= src[1].tolerance_mm for j, src in loops):
+                    break
+                for j, src in loops:
+                    commands[j] += errors[j]
+                fb = self._execute(commands)
+                readings = self.read_instruments()
+                iterations += 1
+        self._trials += 1
+        if self.instruments is not None:
+            self.instrument_log.append((self._trials, iterations, readings))
+        return fb, readings, iterations
+
+    def record_tables(self) -> dict[str, list[tuple[int, dict]]]:
+        """Extra tables for the record: ``static`` (the preloads' log) and ``instruments`` (every
+        trial's readings and outer-loop iterations)."""
+        tables = {}
+        if self.static:
+            phases = {"ramp_in": 0, "test": 1, "ramp_off": 2}
+            rows = []
+            for k, (phase, time_s, targets, forces, disps) in enumerate(self.static_log):
+                row = {"phase": phases[phase], "lab_time_s": time_s}
+                for j, load in enumerate(self.static):
+                    name = load.actuator
+                    row.update({f"target_{name}": targets[j], f"force_{name}": forces[j], f"disp_{name}": disps[j]})
+                rows.append((k, row))
+            tables["static"] = rows
+        if self.instruments is not None:
+            tables["instruments"] = [(trial, {"iterations": iterations, **readings})
+                                     for trial, iterations, readings in self.instrument_log]
+        return tables
 
     def get_daq(self) -> Daq:
         if self._daq is None:

@@ -61,7 +61,14 @@ class NumericalSite:
 
     def __init__(self, models: list[Specimen]):
         self.models = list(models)
-        self.n_elements = len(self.models)
+        # a multi-DOF model (hsio.specimens.matrix) takes as many channels as it has basic DOFs
+        self._sizes = [getattr(m, "n", 1) if not isinstance(m, Specimen) else 1 for m in self.models]
+        self._slices = []
+        start = 0
+        for size in self._sizes:
+            self._slices.append(slice(start, start + size))
+            start += size
+        self.n_elements = start
         self.modes = [ControlMode.DISPLACEMENT] * self.n_elements
         self._committed = (np.zeros(self.n_elements), np.zeros(self.n_elements))
         self._daq: Daq | None = None
@@ -85,7 +92,20 @@ class NumericalSite:
         u_b, R_b = self._committed
         u = np.empty(self.n_elements)
         R = np.empty(self.n_elements)
-        for j, (model, value, mode) in enumerate(zip(self.models, commands, self.modes)):
+        for model, block in zip(self.models, self._slices):
+            if not isinstance(model, Specimen):  # multi-DOF: q = K d, or d for q in force control
+                force = [m is ControlMode.FORCE for m in self.modes[block]]
+                if all(force):
+                    u[block] = model.displacement_for_force(commands[block])
+                    R[block] = model.trial(u[block])
+                elif not any(force):
+                    u[block] = commands[block]
+                    R[block] = model.trial(commands[block])
+                else:
+                    raise HsioError("numerical site: a multi-DOF element runs all its basic DOFs in one mode")
+                continue
+            j = block.start
+            value, mode = commands[j], self.modes[j]
             if mode is ControlMode.FORCE:
                 u[j] = displacement_for_force(model, float(value), float(u_b[j]), float(R_b[j]), model.initial_stiffness)
                 R[j] = float(value)

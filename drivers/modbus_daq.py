@@ -1,0 +1,104 @@
+"""A Modbus DAQ module of external instruments, described by a TOML register map (docs/setups.md).
+
+The map (``drivers/maps/daq_default.toml`` is the default and a template) lists analog inputs
+as holding registers with a type and a scale, in the same register format as the servo
+controller's map (docs/modbus.md). The structure's instruments are assigned to the inputs in
+their order. :class:`ModbusDAQ` reads every input in one request and returns engineering values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from hsio.config import read_toml
+from hsio.drivers.modbus_map import MAPS_DIR, Register, _check_overlap, _register
+from hsio.errors import CommunicationError, ConfigError
+from hsio.interfaces import DAQ, Channel
+
+DEFAULT_DAQ_MAP = MAPS_DIR / "daq_default.toml"
+
+
+@dataclass(frozen=True)
+class DaqMap:
+    name: str
+    word_order: str
+    device_id: int
+    inputs: tuple[Register, ...]
+    source: str = ""
+
+    def span(self, n: int) -> tuple[int, int]:
+        """First address and count of the registers of the first ``n`` inputs."""
+        regs = self.inputs[:n]
+        start = min(r.address for r in regs)
+        return start, max(r.address + r.words for r in regs) - start
+
+
+def daq_map_from_dict(data: dict, source: str = "<dict>") -> DaqMap:
+    """Check a DAQ map; errors name the file, the table and the register."""
+    unknown = set(data) - {"map", "inputs"}
+    if unknown:
+        raise ConfigError(f"{source}: unknown table(s) {', '.join(sorted(unknown))}; known: inputs, map")
+    head = data.get("map", {})
+    word_order = head.get("word_order", "big")
+    if word_order not in ("big", "little"):
+        raise ConfigError(f"{source}: [map] word_order must be 'big' or 'little', got {word_order!r}")
+    device_id = head.get("device_id", 1)
+    if not isinstance(device_id, int) or not 0 <= device_id <= 247:
+        raise ConfigError(f"{source}: [map] device_id must be an integer in 0..247, got {device_id!r}")
+    table = data.get("inputs")
+    if not isinstance(table, dict) or not table:
+        raise ConfigError(f"{source}: [inputs] missing: one register per analog input")
+    inputs = tuple(_register(f"{source}: [inputs]", n, t, "address") for n, t in table.items())
+    _check_overlap(f"{source}: [inputs]", inputs)
+    return DaqMap(str(head.get("name", Path(source).stem)), word_order, device_id, inputs, source)
+
+
+def load_daq_map(path: str | Path | None = None) -> DaqMap:
+    path = Path(path) if path else DEFAULT_DAQ_MAP
+    return daq_map_from_dict(read_toml(path, "DAQ map"), str(path))
+
+
+class ModbusDAQ(DAQ):
+    """The instruments behind a Modbus DAQ module (TCP), read through its register map."""
+
+    def __init__(self, url: str, instruments, daq_map: DaqMap | None = None, timeout_s: float = 1.0):
+        from pymodbus.client import ModbusTcpClient
+
+        self.map = daq_map or load_daq_map()
+        self.instruments = list(instruments)
+        if len(self.instruments) > len(self.map.inputs):
+            raise ConfigError(f"DAQ map {self.map.name!r} has {len(self.map.inputs)} inputs for "
+                              f"{len(self.instruments)} instruments")
+        parts = urlsplit(url)
+        if parts.scheme != "modbus+tcp" or not parts.hostname:
+            raise ConfigError(f"{url!r}: a DAQ module is read at modbus+tcp://HOST:PORT")
+        self.url = url
+        self.client = ModbusTcpClient(parts.hostname, port=parts.port or 502, timeout=timeout_s, retries=0)
+        if not self.client.connect():
+            raise CommunicationError(f"{url}: cannot connect to the DAQ module")
+        self._span = self.map.span(len(self.instruments))
+
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        return tuple(Channel(i.name, i.unit) for i in self.instruments)
+
+    def read(self) -> dict[str, float]:
+        start, count = self._span
+        rr = self.client.read_holding_registers(start, count=count, device_id=self.map.device_id)
+        if rr.isError():
+            raise CommunicationError(f"{self.url}: read of the DAQ inputs {start}..{start + count - 1} failed: {rr}")
+        words = rr.registers
+        out = {}
+        for inst, reg in zip(self.instruments, self.map.inputs):
+            at = reg.address - start
+            out[inst.name] = reg.decode(words[at:at + reg.words], self.map.word_order)
+        return out
+
+    def close(self) -> None:
+        self.client.close()
+
+
+def open_daq(url: str, instruments, map_path=None) -> ModbusDAQ:
+    return ModbusDAQ(url, instruments, load_daq_map(map_path) if map_path else None)

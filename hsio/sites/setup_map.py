@@ -1,0 +1,91 @@
+"""Experimental channels <-> actuators through the elements' setups (docs/setups.md).
+
+A channel is one basic DOF of one experimental element, in the structure's order
+(:attr:`hsio.structures.Structure.experimental_dofs`); an element loaded through a setup has as
+many actuators as basic DOFs. :class:`SetupMap` sends the exact strokes of every setup to its
+actuators and turns the measured strokes and forces back into basic displacements (Newton on the
+exact geometry) and basic forces (q = J(d)^T f at the measured pose).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hsio.errors import ConfigError
+
+
+@dataclass
+class _Block:
+    name: str
+    channels: slice
+    actuators: slice
+    setup: object
+
+
+class SetupMap:
+    """The setups of a structure's experimental elements, channel by channel."""
+
+    def __init__(self, elements):
+        self.blocks: list[_Block] = []
+        c = a = 0
+        for e in elements:
+            setup = e.make_setup()
+            self.blocks.append(_Block(e.name, slice(c, c + setup.n_basic), slice(a, a + setup.n_actuators), setup))
+            c += setup.n_basic
+            a += setup.n_actuators
+        self.n_channels, self.n_actuators = c, a
+        self.actuator_names = [n for e in elements for n in e.actuator_names]
+        self._J0 = [b.setup.jacobian(np.zeros(b.setup.n_basic)) for b in self.blocks]
+
+    @classmethod
+    def of(cls, structure) -> "SetupMap":
+        return cls(structure.experimental)
+
+    def strokes(self, d) -> np.ndarray:
+        """Actuator strokes (lab mm) for channel displacements ``d`` (exact geometry)."""
+        d = np.asarray(d, dtype=float)
+        if d.shape != (self.n_channels,):
+            raise ConfigError(f"setups: {d.size} displacements for {self.n_channels} channels")
+        out = np.empty(self.n_actuators)
+        for b in self.blocks:
+            out[b.actuators] = b.setup.strokes(d[b.channels])
+        return out
+
+    def basic(self, strokes, forces) -> tuple[np.ndarray, np.ndarray]:
+        """Channel displacements and forces from measured actuator strokes and forces."""
+        strokes = np.asarray(strokes, dtype=float)
+        forces = np.asarray(forces, dtype=float)
+        u = np.empty(self.n_channels)
+        q = np.empty(self.n_channels)
+        for b in self.blocks:
+            d = b.setup.basic_displacements(strokes[b.actuators])
+            u[b.channels] = d
+            q[b.channels] = b.setup.basic_forces(forces[b.actuators], d)
+        return u, q
+
+    def forces_for(self, q, d) -> np.ndarray:
+        """Actuator forces (lab kN) that carry basic forces ``q`` at basic displacements ``d``:
+        the solution of q = J(d)^T f (square setups)."""
+        q = np.asarray(q, dtype=float)
+        d = np.asarray(d, dtype=float)
+        f = np.empty(self.n_actuators)
+        for b in self.blocks:
+            s = b.setup
+            J = s.jacobian(d[b.channels]) * s.factors.force * s.factors.displacement
+            f[b.actuators] = np.linalg.solve(J.T, q[b.channels])
+        return f
+
+    def linearised_samples(self, samples: np.ndarray) -> np.ndarray:
+        """Controller-rate samples (n x actuators x 3: command, stroke, force) in channel space
+        by the linearised geometry J(0): what the recorder's per-channel columns hold."""
+        n = samples.shape[0]
+        out = np.empty((n, self.n_channels, 3))
+        for b, J0 in zip(self.blocks, self._J0):
+            s = b.setup
+            inv = np.linalg.inv(J0)
+            out[:, b.channels, 0] = samples[:, b.actuators, 0] @ inv.T
+            out[:, b.channels, 1] = samples[:, b.actuators, 1] @ inv.T
+            out[:, b.channels, 2] = samples[:, b.actuators, 2] @ J0 * s.factors.force * s.factors.displacement
+        return out

@@ -1,0 +1,141 @@
+"""External instruments: read every trial and recorded, served over Modbus TCP by the emulator and
+read through a register map, and an outer loop that closes on an external LVDT (docs/setups.md)."""
+
+from importlib import resources
+
+import numpy as np
+import pytest
+
+import hsio
+from hsio.drivers import modbus_map
+from hsio.drivers.modbus_daq import ModbusDAQ, daq_map_from_dict, load_daq_map
+from hsio.emulators.bank import ControllerBank
+from hsio.emulators.local import EmulatedInstruments
+from hsio.emulators.modbus import ModbusEmulator
+from hsio.emulators.servo import make_controllers
+from hsio.errors import ConfigError
+from hsio.recording import Recorder, Run
+from hsio.result import max_error_pct
+from hsio.structure_file import parse_structure
+
+WALL = (resources.files("hsio") / "library" / "structure_I.toml").read_text()
+INSTRUMENTS = """
+[[instrument]]
+name = "wall_lvdt"
+kind = "lvdt"
+element = "wall"
+resolution = 0.005
+[[instrument]]
+name = "wall_load_cell"
+kind = "load_cell"
+element = "wall"
+[[instrument]]
+name = "wall_gauge"
+kind = "strain_gauge"
+element = "wall"
+scale = 12.5
+"""
+
+
+def with_lvdt(tolerance=0.05, iterations=4):
+    text = WALL.replace('[[experimental]]\nname = "wall"', '[[experimental]]\nname = "wall"\n'
+                        'displacement_from = "wall_lvdt"\n'
+                        f'outer_loop = {{ tolerance_mm = {tolerance}, max_iterations = {iterations} }}')
+    return parse_structure(text + INSTRUMENTS, "wall_lvdt.toml")
+
+
+def test_emulator_serves_instruments_over_modbus_tcp():
+    structure = parse_structure(WALL + INSTRUMENTS, "wall.toml")
+    (controller,) = make_controllers(structure.experimental, {"noise_mm": 0.0, "force_noise_kN": 0.0, "resolution_mm": 0.0,
+                                                              "compliance_mm_per_kN": 0.05})
+    controller.set_command(12.0)
+    controller.advance(400)
+    daq = EmulatedInstruments(structure.instruments, {"wall": controller})
+    bank = ControllerBank([controller], ["wall"], lockstep=True, watchdog_s=0)
+    with ModbusEmulator(bank, modbus_map.load()) as emu:
+        emu.context.add_instruments(daq, load_daq_map())
+        reader = ModbusDAQ(emu.url, structure.instruments)
+        try:
+            assert [c.unit for c in reader.channels] == ["mm", "kN", "microstrain"]
+            values = reader.read()
+        finally:
+            reader.close()
+    # the LVDT sees the specimen, short of the rod by the load train's compliance x force
+    assert controller.d_rod == pytest.approx(12.0, abs=0.01)
+    assert values["wall_lvdt"] == pytest.approx(controller.d_spec, abs=0.0051)
+    assert controller.d_rod - values["wall_lvdt"] == pytest.approx(0.05 * controller.force, abs=0.01)
+    assert values["wall_load_cell"] == pytest.approx(controller.force, abs=0.051)  # int16, 0.1 kN a count
+    assert values["wall_gauge"] == pytest.approx(12.5 * controller.force, rel=1e-6, abs=0.5)
+
+
+def test_daq_map_errors_name_the_register():
+    with pytest.raises(ConfigError, match=r"daq.toml: \[inputs\]: register 'ai0': type"):
+        daq_map_from_dict({"inputs": {"ai0": {"address": 600, "type": "int12"}}}, "daq.toml")
+    with pytest.raises(ConfigError, match="overlap"):
+        daq_map_from_dict({"inputs": {"ai0": {"address": 600, "type": "float32"}, "ai1": {"address": 601}}}, "daq.toml")
+
+
+@pytest.mark.parametrize("change, where", [
+    (lambda t: t.replace('displacement_from = "wall_lvdt"', 'displacement_from = "wall_pot"'),
+     "experimental[0].displacement_from"),
+    (lambda t: t.replace('displacement_from = "wall_lvdt"', 'displacement_from = "wall_load_cell"'),
+     "experimental[0].displacement_from"),
+    (lambda t: t.replace('max_iterations = 4', 'max_iterations = 0'), "experimental[0].outer_loop.max_iterations"),
+    (lambda t: t.replace('kind = "lvdt"', 'kind = "laser"'), "instrument[0].kind"),
+    (lambda t: t.replace('element = "wall"', 'element = "roof"', 1), "instrument[0].element"),
+])
+def test_instrument_errors_name_the_key(change, where):
+    text = WALL.replace('[[experimental]]\nname = "wall"', '[[experimental]]\nname = "wall"\n'
+                        'displacement_from = "wall_lvdt"\nouter_loop = { tolerance_mm = 0.05, max_iterations = 4 }')
+    with pytest.raises(ConfigError) as info:
+        parse_structure(change(text + INSTRUMENTS), "f.toml")
+    assert str(info.value).startswith(f"f.toml: {where}"), str(info.value)
+
+
+@pytest.fixture(scope="module")
+def compliant(tmp_path_factory):
+    """Structure I on a load train of 0.05 mm/kN: with and without the external LVDT."""
+    plain = hsio.load_structure("structure_I")
+    ground = hsio.synthetic_record(duration_s=2.5, dt=plain.dt, pga_g=0.3, seed=1)
+    ns = hsio.run_numerical(plain, ground)
+    runs = {}
+    for label, structure, compliance in (("stiff", plain, 0.0), ("compliant", plain, 0.05),
+                                         ("lvdt", with_lvdt(), 0.05)):
+        recorder = None
+        if label == "lvdt":
+            path = tmp_path_factory.mktemp("lvdt") / "run.sqlite"
+            recorder = Recorder(path, structure.dof_names, structure.experimental_names)
+        with hsio.open_site(structure, "emulator://", test_rate=10,
+                            options={"compliance_mm_per_kN": compliance}) as site:
+            runs[label] = hsio.simulate(structure, ground, site, recorder=recorder)
+        if recorder is not None:
+            recorder.close()
+            runs["path"] = path
+    return ns, runs
+
+
+def test_outer_loop_on_the_lvdt_removes_the_load_train_error(compliant):
+    ns, runs = compliant
+    stiff = max_error_pct(runs["stiff"].u, ns.u)[0]
+    compliant_error = max_error_pct(runs["compliant"].u, ns.u)[0]
+    lvdt = max_error_pct(runs["lvdt"].u, ns.u)[0]
+    assert compliant_error > 3 * stiff  # the compliance does the damage
+    assert lvdt < compliant_error / 3
+    assert lvdt < stiff + 0.5  # back to what the stiff load train gives
+
+
+def test_outer_loop_iterations_bounded_and_recorded(compliant):
+    _, runs = compliant
+    hs = runs["lvdt"]
+    iterations = np.array([n for _, n, _ in hs.instrument_log])
+    readings = np.array([r["wall_lvdt"] for _, _, r in hs.instrument_log])
+    assert len(iterations) == len(hs.t) - 1 and iterations.max() <= 4 and iterations.mean() > 0.5
+    converged = iterations < 4
+    # where the loop stopped before its bound, the LVDT reads the target within the tolerance
+    assert np.all(np.abs(readings - hs.targets[1:, 0])[converged] <= 0.05 + 1e-9)
+    # the element's measured displacement is the LVDT's, not the rod's
+    np.testing.assert_allclose(hs.measured_displacement[1:, 0], readings)
+    table = Run(runs["path"]).table("instruments")
+    np.testing.assert_array_equal(table["iterations"], iterations)
+    np.testing.assert_allclose(table["wall_lvdt"], readings)
+    assert np.max(np.abs(table["wall_load_cell"])) > 10.0

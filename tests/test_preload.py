@@ -1,0 +1,83 @@
+"""Static actuators: a preload ramped in force control, held through the record, ramped off."""
+
+import numpy as np
+import pytest
+
+import hsio
+from hsio.errors import ConfigError, LimitError
+from hsio.recording import Recorder, Run
+from hsio.result import max_error_pct
+from hsio.structure_file import parse_structure
+
+
+@pytest.fixture(scope="module")
+def preloaded(tmp_path_factory):
+    structure = hsio.load_structure("preloaded_column")
+    ground = hsio.synthetic_record(duration_s=3.0, dt=structure.dt, pga_g=0.3, seed=2)
+    ns = hsio.run_numerical(structure, ground)
+    path = tmp_path_factory.mktemp("preload") / "run.sqlite"
+    recorder = Recorder(path, structure.dof_names, structure.experimental_names)
+    with hsio.open_site(structure, "emulator://", test_rate=10) as site:
+        hs = hsio.simulate(structure, ground, site, recorder=recorder)
+    recorder.close()
+    return structure, ns, hs, path
+
+
+def test_preload_held_within_1_percent_through_the_record(preloaded):
+    structure, ns, hs, _ = preloaded
+    (load,) = structure.static
+    assert load.force_kN == 0.5 * 250.0  # half the emulated actuator's capacity
+    assert hs.static_hold_error[0] < 0.01
+    phases = [p for p, *_ in hs.static_log]
+    assert phases[0] == "ramp_in" and phases[-1] == "ramp_off" and "test" in phases
+    test_forces = np.array([f[0] for p, _, _, f, _ in hs.static_log if p == "test"])
+    assert len(test_forces) == len(hs.t) - 1  # one per step of the record
+    np.testing.assert_allclose(test_forces, 125.0, rtol=0.01)
+    # ramped off: the last target is zero and the force follows it
+    _, _, target, force, _ = hs.static_log[-1]
+    assert target[0] == 0.0 and abs(force[0]) < 0.01 * 125.0
+    # the lateral DOF ran the earthquake in displacement control, unaffected
+    error, _ = max_error_pct(hs.u, ns.u)
+    assert error < 5.0 and np.max(np.abs(ns.u)) > 5.0
+
+
+def test_preload_recorded(preloaded):
+    structure, _, hs, path = preloaded
+    table = Run(path).table("static")
+    assert len(table["phase"]) == len(hs.static_log)
+    held = table["phase"] == 1
+    np.testing.assert_allclose(table["force_axial"][held], 125.0, rtol=0.01)
+    assert np.max(table["target_axial"]) == pytest.approx(125.0)
+
+
+def test_preload_beyond_capacity_refused_before_anything_moves():
+    structure = hsio.load_structure("preloaded_column")
+    ground = hsio.synthetic_record(duration_s=0.5, dt=structure.dt, pga_g=0.3, seed=2)
+    with hsio.open_site(structure, "emulator://", test_rate=10, options={"force_limit_kN": 100.0}) as site:
+        with pytest.raises(LimitError, match="static preload 'axial'"):
+            hsio.simulate(structure, ground, site)
+        assert site.static_log == []  # nothing moved
+
+
+def test_static_table_errors_name_the_key():
+    text = """
+[structure]
+dt = 0.01
+[[dof]]
+name = "x"
+mass = 1.0
+[[experimental]]
+name = "x"
+dof = "x"
+model = { kind = "linear", k = 1.0 }
+[[static]]
+name = "axial"
+actuator = "x"
+force_kN = 10.0
+model = { kind = "linear", k = 1.0 }
+"""
+    with pytest.raises(ConfigError, match=r"^f.toml: static\[0\].actuator: actuator 'x' already used by experimental\[0\]"):
+        parse_structure(text, "f.toml")
+    with pytest.raises(ConfigError, match=r"^f.toml: static\[0\].force_kN: missing"):
+        parse_structure(text.replace('actuator = "x"\n', "").replace("force_kN = 10.0\n", ""), "f.toml")
+
