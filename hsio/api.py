@@ -10,6 +10,13 @@
     hs.to_dataframe()                                        # pandas (optional extra)
     hs.plot("hs.png", reference=ns)
 
+Several records on one specimen: keep the site open and start each record from where the
+specimen stands (docs/safety.md section 6):
+
+    with hsio.open_site(structure, "emulator://") as site:
+        first = hsio.simulate(structure, small, site)
+        second = hsio.simulate(structure, large, site, start="present")
+
 ``hsio run`` is a thin shell over these functions (:mod:`hsio.runner`).
 """
 
@@ -24,6 +31,8 @@ from hsio.hardware import open_hardware
 from hsio.integrators import IMPLICIT_METHODS, METHODS, ImplicitMethod, OperatorSplitting, SwitchingRule
 from hsio.recording import Recorder
 from hsio.result import Result
+from hsio.safety.interlocks import InterlockMonitor
+from hsio.safety.settings import SafetySettings
 from hsio.secant import SecantEstimator
 from hsio.sites import ActuatorSite, NumericalSite
 from hsio.structures import Structure
@@ -59,7 +68,7 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
 
 
 def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alpha_os", alpha: float = -0.05,
-                  **options) -> Result:
+                  control=None, **options) -> Result:
     """NS: the run with the specimen models in place of the actuators.
 
     For the implicit methods the reference is implicit DC iterated to 1e-10 (at most 20
@@ -70,26 +79,30 @@ def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alp
                                      tol_force=1e-10)
     else:
         integrator = make_integrator(structure, method, alpha, **options)
-    return simulate(structure, ground, NumericalSite.of(structure), integrator=integrator)
+    return simulate(structure, ground, NumericalSite.of(structure), integrator=integrator, control=control)
 
 
 def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str = "lockstep",
               test_rate: float = 20.0, hold_fraction: float = 0.5, n_avg: int = 4, keep_samples: bool = True,
               options: dict | None = None, estimator: SecantEstimator | None = None,
-              compensation=None) -> ActuatorSite:
+              compensation=None, safety: SafetySettings | None = None) -> ActuatorSite:
     """Open the actuators of ``structure``'s experimental elements at ``hardware`` (a URL:
     ``emulator://``, ``modbus+tcp://HOST:PORT``, ...) behind the controller-rate loop.
 
     ``options`` is the [emulator] table for ``emulator://`` and the [driver] table otherwise.
     Use it as a context manager (or call ``close()``): the actuators are left holding.
+    ``safety`` sets the interlocks checked every controller period (docs/safety.md section 3;
+    default: the documented defaults, on).
     """
+    safety = safety or SafetySettings()
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
     actuators = open_hardware(hardware, structure.experimental, ticker, options or {})
     try:
+        monitor = InterlockMonitor(actuators, safety) if safety.interlocks else None
         loop = ControlLoop(actuators, ticker, structure.dt, test_rate, n_avg=n_avg, keep_samples=keep_samples,
-                           hold_fraction=hold_fraction)
+                           hold_fraction=hold_fraction, monitor=monitor)
     except BaseException:
         for actuator in actuators:
             try:
@@ -105,13 +118,18 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
 
 
 def simulate(structure: Structure, ground: GroundMotion, site, method: str = "alpha_os", alpha: float = -0.05,
-             recorder: Recorder | None = None, progress=None, integrator=None, **options) -> Result:
+             recorder: Recorder | None = None, progress=None, integrator=None, control=None, start: str = "rest",
+             **options) -> Result:
     """``method`` over the whole record against ``site``: HS on actuators (from :func:`open_site`),
     NS on a :class:`~hsio.sites.NumericalSite`.
+
+    ``start="present"`` starts from where the specimen stands (the site's committed state, e.g.
+    after an earlier record on the same open site); ``control`` (a
+    :class:`hsio.safety.control.RunControl`) pauses, resumes or stops the run between steps.
 
     ``options`` go to :func:`make_integrator` (or pass a ready ``integrator``). Raises :class:`hsio.experiment.ExperimentStopped`
     (carrying the steps made, the actuators holding) if the run stops early.
     """
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
-    return run_steps(structure, ground, integrator, site, recorder, progress)
+    return run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start)

@@ -40,6 +40,7 @@ class ActuatorSite:
         if estimator is not None:
             estimator.begin_step(*self._committed)
         self._samples: list[np.ndarray] = []
+        self._sample_meta: list[tuple] = []  # (lab times, phases) beside each block of samples
         self._daq: Daq | None = None
 
     @property
@@ -78,6 +79,7 @@ class ActuatorSite:
             fb = self.loop.execute(targets)
         if fb.samples is not None:
             self._samples.append(fb.samples)
+            self._sample_meta.append((fb.sample_time, fb.phases))
         if self.estimator is not None:
             u, R, k = self.estimator.update(fb.samples[:, :, 1], fb.samples[:, :, 2])
         else:
@@ -103,9 +105,31 @@ class ActuatorSite:
         self._samples = []
         return out
 
-    def hold(self) -> None:
-        """Every actuator holds (confirmed by each actuator's own hold)."""
+    def take_sample_meta(self) -> tuple[np.ndarray, list] | None:
+        """Lab time and generator phases of the samples of the last :meth:`take_samples`."""
+        if not self._sample_meta or any(t is None for t, _ in self._sample_meta):
+            self._sample_meta = []
+            return None
+        times = np.concatenate([t for t, _ in self._sample_meta])
+        phases = [p for _, ps in self._sample_meta for p in ps]
+        self._sample_meta = []
+        return times, phases
+
+    def take_events(self) -> list[dict]:
+        """Interlock warnings and trips since the last call (docs/safety.md section 3)."""
+        return self.loop.take_events()
+
+    def pause(self):
+        """Finish nothing more, hold every actuator and read the hold back (a HoldReport)."""
+        return self.loop.pause()
+
+    def resume(self) -> None:
+        self.loop.resume()
+
+    def hold(self):
+        """Every actuator holds; returns the read-back (:class:`hsio.safety.hold.HoldReport`)."""
         self.loop.hold_all()
+        return self.loop.confirm_hold()
 
     def close(self) -> None:
         self.loop.close()
