@@ -171,7 +171,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             control.check_stop()
             ns = None
             if config["output"]["ns"] or safety.dry_run:
-                control.phase = "NS"
+                control.enter("NS")
                 ns, report = predict(config, structure, ground, control)
                 if safety.dry_run:
                     recorder.write_event(None, 0, "dry_run", "", report.text())
@@ -184,7 +184,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                     ns = None
             if ns is not None:
                 recorder.write_ns(ns.t, ns.u)
-            control.phase = "start-up"
+            control.enter("start-up")
             control.check_stop()
             estimator = (SecantEstimator(integ["secant"], integ["secant_n_avg"], integ["secant_min_increment_mm"])
                          if implicit else None)
@@ -200,13 +200,13 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                 ledger.update(run_id, start_state=start_state)
             compensation.sink = recorder.write_compensation
             control.check_stop()
-            control.phase = "HS"
+            control.enter("HS")
             try:
                 hs = api.simulate(structure, ground, site, method, alpha, recorder, progress, control=control,
                                   start=test["start"], **integrator_options(config, structure))
             except ExperimentStopped as exc:
                 hs, error = exc.result, exc
-            control.phase = "closing"
+            control.enter("closing")
             end_state = _state(site)
             site.close()
             summary = summarise(structure, config, ground, hs, ns, out)

@@ -79,6 +79,11 @@ class RunControl:
                 pass
 
     # -- the experiment loop's side (main thread) -----------------------------------------
+    def enter(self, phase: str) -> None:
+        """A new phase of the run (start-up, NS, HS, closing); steps count from zero again."""
+        self.phase = phase
+        self.step = 0
+
     def check_stop(self) -> None:
         """Raise :class:`OperatorStop` if a stop was asked (start-up and between phases)."""
         if self.state == STOPPING:
