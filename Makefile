@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/hsio run --out runs/default
+	$(BIN)/hsio run
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
