@@ -119,7 +119,7 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
 
 def simulate(structure: Structure, ground: GroundMotion, site, method: str = "alpha_os", alpha: float = -0.05,
              recorder: Recorder | None = None, progress=None, integrator=None, control=None, start: str = "rest",
-             **options) -> Result:
+             resume_state=None, **options) -> Result:
     """``method`` over the whole record against ``site``: HS on actuators (from :func:`open_site`),
     NS on a :class:`~hsio.sites.NumericalSite`.
 
@@ -132,4 +132,5 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     """
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
-    return run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start)
+    return run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
+                     resume_state=resume_state)

@@ -117,6 +117,28 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         _print_summary(summary)
 
 
+@main.command()
+@click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
+def resume(run_dir: str) -> None:
+    """Continue a run interrupted by a crash, a kill or a power loss, from its last committed step,
+    into the same record and on the same hardware (docs/safety.md). Exit statuses as for run."""
+    from hsio.experiment import ExperimentStopped
+    from hsio.safety.control import RunControl
+    from hsio.safety.resume import resume as resume_run
+    from hsio.safety.status import exit_status
+
+    control = RunControl()
+    notify = lambda line: click.echo(f"hsio resume: {line}", err=True)  # noqa: E731
+    control.listeners.append(notify)
+    try:
+        summary = resume_run(run_dir, control=control, notify=notify)
+    except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
+        status = exit_status(exc)
+        click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{exc or 'interrupted'}", err=True)
+        sys.exit(status)
+    click.echo(f"resumed from step {summary['resumed_from']}: {summary['steps']} steps in {run_dir}/run.sqlite")
+
+
 def _where(exc: BaseException) -> None:
     run_dir = getattr(exc, "run_dir", None)
     if run_dir is not None:

@@ -147,11 +147,13 @@ def _write_events(recorder, site, step: int) -> list[dict]:
 
 def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator, site,
               recorder: Recorder | None = None, progress: Callable[[int], None] | None = None,
-              control=None, start: str = "rest") -> Result:
+              control=None, start: str = "rest", resume_state=None) -> Result:
     """Run ``integrator`` over the whole record against ``site`` (actuators or specimen models).
 
     ``control`` (a :class:`hsio.safety.control.RunControl`) is obeyed between steps; ``start`` is
-    ``"rest"`` or ``"present"``. Returns the :class:`Result`; raises :class:`ExperimentStopped`
+    ``"rest"`` or ``"present"``; ``resume_state`` (an alpha-OS state read back from a record,
+    docs/safety.md section 8) continues a run after its last committed step, the rows before it
+    left empty. Returns the :class:`Result`; raises :class:`ExperimentStopped`
     carrying the steps made if the run stops early (the actuators behind ``site`` hold first).
     """
     if start not in ("rest", "present"):
@@ -173,12 +175,19 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
         if recorder is not None:
             recorder.write_event(site.lab_time_s, last, kind, "", message)
 
+    first = 0 if resume_state is None else int(resume_state.i)
+    last = first
     try:
-        if start == "present":
+        if resume_state is not None:
+            integrator.core.state = resume_state
+            numerical.trial(resume_state.u)
+            numerical.commit()
+            h.put(first, integrator._outcome(resume_state, None, 0), dofs)
+        elif start == "present":
             h.put(0, start_present(integrator, structure, P[0], site, numerical), dofs)
         else:
             h.put(0, integrator.start(P[0], site, numerical), dofs)
-        for i in range(n_steps - 1):
+        for i in range(first, n_steps - 1):
             k = i + 1
             t0 = time.perf_counter()
             out = integrator.step(P[k], site, numerical, k, float(t[k]))

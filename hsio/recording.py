@@ -132,6 +132,29 @@ class Recorder:
         self.steps_written = 0
         self._extra_tables: dict[str, list[str]] = {}
 
+    @classmethod
+    def append(cls, path: str | Path) -> "Recorder":
+        """Reopen the record at ``path`` to continue it after its last committed step (a resumed
+        run, docs/safety.md section 8)."""
+        self = cls.__new__(cls)
+        self.path = Path(path)
+        self.db = sqlite3.connect(self.path, check_same_thread=False)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=FULL")
+        meta = {k: json.loads(v) for k, v in self.db.execute("SELECT key, value FROM meta")}
+        self.dof_names, self.actuator_names = list(meta["dof_names"]), list(meta["actuator_names"])
+        cols = lambda table: [r[1] for r in self.db.execute(f"PRAGMA table_info({table})")]  # noqa: E731
+        self._step_cols, self._sample_cols, self._ns_cols = cols("steps"), cols("samples"), cols("ns")
+        self._insert_step = f"INSERT INTO steps VALUES ({', '.join('?' * len(self._step_cols))})"
+        self._insert_sample = f"INSERT INTO samples VALUES ({', '.join('?' * len(self._sample_cols))})"
+        self._insert_ns = f"INSERT INTO ns VALUES ({', '.join('?' * len(self._ns_cols))})"
+        self.steps_written = self.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
+        self._extra_tables = {}
+        for (name,) in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'").fetchall():
+            if name in ("compensation", "implicit"):
+                self._extra_tables[name] = cols(name)[1:]
+        return self
+
     def write_step(self, step: int, time_s: float, u, v, a, u_pred, r, modes, targets, commands, disp, force, samples=None,
                    sample_meta=None, late_steps: int = 0, flags=()) -> None:
         """One integration step; ``samples`` is n x n_actuators x 3 (command, disp, force),

@@ -44,6 +44,12 @@ class ControlServer:
         self.control = control
         self.path = socket_path(run_dir)
         self._stop = threading.Event()
+        if self.path.exists():  # left by a run that was killed: nobody answers on it
+            try:
+                send(self.path, "status", timeout_s=0.5)
+                raise OSError(f"{self.path}: another run is using this control socket")
+            except (ConnectionRefusedError, FileNotFoundError, socket.timeout, TimeoutError):
+                self.path.unlink(missing_ok=True)
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o177)
         try:
