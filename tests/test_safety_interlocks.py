@@ -26,9 +26,11 @@ ROOT = Path(__file__).resolve().parents[1]
 FAULT_TICK = 800  # controller periods: about a third into the run below
 
 
-def run_with_fault(tmp_path, emulator: dict | None = None, safety: dict | None = None, fault=None):
+def run_with_fault(tmp_path, emulator: dict | None = None, safety: dict | None = None, fault=None,
+                   hook: str = "_measure"):
     """2 s of the validation structure at TR 10 on the in-process emulator, with ``fault(controller)``
-    applied to every measurement from FAULT_TICK on. Returns (result or ExperimentStopped, site, Run)."""
+    applied after every measurement (or before every controller period, ``hook="step"``) from
+    FAULT_TICK on. Returns (result or ExperimentStopped, holding read back, Run)."""
     s = validation()
     g = synthetic_record(duration_s=2.0, dt=s.dt)
     site = api.open_site(s, "emulator://", test_rate=10.0, options=emulator or {},
@@ -36,14 +38,16 @@ def run_with_fault(tmp_path, emulator: dict | None = None, safety: dict | None =
     if fault is not None:
         for actuator in site.loop.actuators:
             controller = actuator.controller
-            original = controller._measure
+            original = getattr(controller, hook)
 
             def faulty(controller=controller, original=original):
+                if hook == "step" and controller.ticks >= FAULT_TICK:
+                    fault(controller)
                 original()
-                if controller.ticks >= FAULT_TICK:
+                if hook != "step" and controller.ticks >= FAULT_TICK:
                     fault(controller)
 
-            controller._measure = faulty
+            setattr(controller, hook, faulty)
     rec = Recorder(tmp_path / "run.sqlite", s.dof_names, [e.name for e in s.experimental])
     try:
         try:
@@ -91,6 +95,16 @@ def test_a_dead_transducer_trips(tmp_path):
         c.measured_displacement = frozen.setdefault(id(c), c.measured_displacement)
 
     out, holding, run = run_with_fault(tmp_path, {}, {"following_error_mm": 1.0, "following_time_s": 0.1}, stuck)
+    assert_tripped(out, holding, run, "following", "does not follow its command")
+
+
+def test_a_second_client_commanding_the_controller_trips(tmp_path):
+    """Another program writes its own command (here: hold at zero) every period."""
+    def intruder(c):
+        c.command = 0.0
+
+    out, holding, run = run_with_fault(tmp_path, {}, {"following_error_mm": 1.0, "following_time_s": 0.1}, intruder,
+                                       hook="step")
     assert_tripped(out, holding, run, "following", "does not follow its command")
 
 
