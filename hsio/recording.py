@@ -57,7 +57,7 @@ def refuse_recorded_folder(folder: str | Path) -> Path:
     folder = Path(folder)
     if holds_record(folder):
         raise RecordExistsError(f"{folder / RUN_FILE} already holds the record of an earlier run; records are "
-                                f"never overwritten: choose another --out folder (or leave --out out for a "
+                                f"never overwritten: choose another --out folder (or omit --out for a "
                                 f"new numbered folder)")
     return folder
 
