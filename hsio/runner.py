@@ -144,8 +144,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
         raise ConfigError(f"{config.source}: [compensation] applies to the alpha_os method, not to {method!r}")
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
-    ledger = open_ledger(config, specimen_dir)
     out = run_folder(config, structure, out_dir)
+    ledger = open_ledger(config, specimen_dir)
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,
