@@ -19,6 +19,7 @@ actuator holds, the hold is read back) and resume from where the commands stand.
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,11 +216,9 @@ class ControlLoop:
         if self._held:
             raise self._error or HsioError("the control loop holds the actuators after an earlier stop")
         if self._thread is not None:
-            deadline = self.PAUSE_SETTLE_STEPS * self.t_d + 1.0
-            waited = 0.0
-            while waited < deadline and not all(g.phase.value == "hold" for g in self.generators):
-                self._done.wait(0.01)
-                waited += 0.01
+            deadline = time.monotonic() + self.PAUSE_SETTLE_STEPS * self.t_d + 1.0
+            while time.monotonic() < deadline and not all(g.phase.value == "hold" for g in self.generators):
+                time.sleep(0.005)
                 if self._error is not None:
                     raise self._error
         with self._lock:
