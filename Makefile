@@ -23,7 +23,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/hsio run --out runs/default
+	$(BIN)/hsio run
 
 test: debian $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -29,7 +29,7 @@ def main() -> None:
         for keep in (True, False):
             cfg["output"]["samples"] = keep
             t0 = time.perf_counter()
-            summary = run(cfg, out)
+            summary = run(cfg, f"{out}/{'samples' if keep else 'steps'}")  # a new folder per run
             wall = time.perf_counter() - t0
             steps = summary["steps"]
             quake = steps * structure.dt

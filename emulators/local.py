@@ -82,6 +82,11 @@ class EmulatedActuator(Actuator, ActuatorChannels):
         with self._lock:
             self.controller.hold()
 
+    def holding(self) -> bool:
+        """The emulated controller's own hold flag (set by a hold or a trip, cleared by a command)."""
+        with self._lock:
+            return bool(self.controller.holding)
+
     def close(self) -> None:
         self.hold()
         if self._loop is not None:

@@ -10,6 +10,13 @@
     hs.to_dataframe()                                        # pandas (optional extra)
     hs.plot("hs.png", reference=ns)
 
+Several records on one specimen: keep the site open and start each record from where the
+specimen stands (docs/safety.md section 6):
+
+    with hsio.open_site(structure, "emulator://") as site:
+        first = hsio.simulate(structure, small, site)
+        second = hsio.simulate(structure, large, site, start="present")
+
 ``hsio run`` is a thin shell over these functions (:mod:`hsio.runner`).
 """
 
@@ -25,6 +32,8 @@ from hsio.interfaces import ActuatorSpec
 from hsio.integrators import IMPLICIT_METHODS, METHODS, ImplicitMethod, OperatorSplitting, SwitchingRule
 from hsio.recording import Recorder
 from hsio.result import Result
+from hsio.safety.interlocks import InterlockMonitor
+from hsio.safety.settings import SafetySettings
 from hsio.secant import SecantEstimator
 from hsio.sites import ActuatorSite, NumericalSite
 from hsio.sites.setup_map import SetupMap
@@ -72,7 +81,7 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
 
 
 def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alpha_os", alpha: float = -0.05,
-                  **options) -> Result:
+                  control=None, **options) -> Result:
     """NS: the run with the specimen models in place of the actuators.
 
     For the implicit methods the reference is implicit DC iterated to 1e-10 (at most 20
@@ -86,13 +95,13 @@ def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alp
                                      tol_force=1e-10)
     else:
         integrator = make_integrator(structure, method, alpha, **options)
-    return simulate(structure, ground, NumericalSite.of(structure), integrator=integrator)
+    return simulate(structure, ground, NumericalSite.of(structure), integrator=integrator, control=control)
 
 
 def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str = "lockstep",
               test_rate: float = 20.0, hold_fraction: float = 0.5, n_avg: int = 4, keep_samples: bool = True,
               options: dict | None = None, estimator: SecantEstimator | None = None,
-              compensation=None, relative: bool = False) -> ActuatorSite:
+              compensation=None, relative: bool = False, safety: SafetySettings | None = None) -> ActuatorSite:
     """Open the actuators of ``structure``'s experimental elements at ``hardware`` (a URL:
     ``emulator://``, ``modbus+tcp://HOST:PORT``, ...) behind the controller-rate loop.
 
@@ -101,15 +110,19 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     positions when the site opens (docs/setups.md); ``site.readback`` holds the reading of every
     channel taken then, before the first command (:func:`format_readback` shows it).
     Use it as a context manager (or call ``close()``): the actuators are left holding.
+    ``safety`` sets the interlocks checked every controller period (docs/safety.md section 3;
+    default: the documented defaults, on).
     """
+    safety = safety or SafetySettings()
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
     elements = list(structure.experimental) + list(structure.static)  # static preloads after the channels
     actuators = open_hardware(hardware, elements, ticker, options or {})
     try:
+        monitor = InterlockMonitor(actuators, safety) if safety.interlocks else None
         loop = ControlLoop(actuators, ticker, structure.dt, test_rate, n_avg=n_avg, keep_samples=keep_samples,
-                           hold_fraction=hold_fraction)
+                           hold_fraction=hold_fraction, monitor=monitor)
     except BaseException:
         for actuator in actuators:
             try:
@@ -161,9 +174,14 @@ def open_instruments(hardware: str, structure: Structure, elements, actuators, o
 
 
 def simulate(structure: Structure, ground: GroundMotion, site, method: str = "alpha_os", alpha: float = -0.05,
-             recorder: Recorder | None = None, progress=None, integrator=None, **options) -> Result:
+             recorder: Recorder | None = None, progress=None, integrator=None, control=None, start: str = "rest",
+             resume_state=None, **options) -> Result:
     """``method`` over the whole record against ``site``: HS on actuators (from :func:`open_site`),
     NS on a :class:`~hsio.sites.NumericalSite`.
+
+    ``start="present"`` starts from where the specimen stands (the site's committed state, e.g.
+    after an earlier record on the same open site); ``control`` (a
+    :class:`hsio.safety.control.RunControl`) pauses, resumes or stops the run between steps.
 
     ``options`` go to :func:`make_integrator` (or pass a ready ``integrator``). Raises :class:`hsio.experiment.ExperimentStopped`
     (carrying the steps made, the actuators holding) if the run stops early.
@@ -172,7 +190,8 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         integrator = make_integrator(structure, method, alpha, **options)
     static = getattr(site, "static", None)
     if not static and getattr(site, "instruments", None) is None:
-        return run_steps(structure, ground, integrator, site, recorder, progress)
+        return run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
+                         resume_state=resume_state)
     # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off
     try:
         site.preload()
@@ -180,7 +199,8 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         site.hold()
         raise
     try:
-        result = run_steps(structure, ground, integrator, site, recorder, progress)
+        result = run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
+                         resume_state=resume_state)
         site.release()
     finally:
         if recorder is not None:

@@ -59,36 +59,119 @@ def main() -> None:
 
 @main.command()
 @click.argument("config_file", required=False, type=click.Path(dir_okay=False))
-@click.option("--out", "out_dir", default="runs/latest", show_default=True, type=click.Path(file_okay=False),
-              help="Folder for run.sqlite, summary.json and the plots.")
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+              help="Folder for run.sqlite, summary.json and the plots; refused if it holds a record. "
+                   "Default: a new numbered folder runs/<structure>/run-NNNN.")
+@click.option("--specimen", "specimen_dir", default=None, type=click.Path(file_okay=False),
+              help="The specimen folder whose ledger lists this run (else [specimen] folder / id).")
+@click.option("--override-dry-run", is_flag=True,
+              help="Run even if the dry run predicts a limit is exceeded (recorded in the run and the ledger).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
-def run(config_file: str | None, out_dir: str, as_json: bool) -> None:
-    """Run a hybrid simulation (default: the validation structure on emulated actuators)."""
+def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, override_dry_run: bool,
+        as_json: bool) -> None:
+    """Run a hybrid simulation (default: the validation structure on emulated actuators).
+
+    Keys p (pause), r (resume), s (stop) on a terminal; the control socket in the run folder
+    (docs/safety.md). Exit status: 0 done, 2 bad input or refused by the dry run, 3 stopped by a
+    limit or fault, 4 stopped by an interlock, 5 stopped by the operator or a signal.
+    """
     from hsio import config as config_mod
     from hsio import runner
     from hsio.experiment import ExperimentStopped, excitation
+    from hsio.safety.control import RunControl
+    from hsio.safety.status import DryRunRefused, exit_status
+    from hsio.safety.terminal import KeyReader
+
+    control = RunControl()
+    notify = lambda line: click.echo(f"hsio run: {line}", err=True)  # noqa: E731
+    control.listeners.append(notify)
+    try:
+        cfg = config_mod.load(config_file)
+        if override_dry_run:
+            cfg["safety"]["override"] = True
+        structure = runner.load_run_structure(cfg)
+        ground = runner.build_record(cfg, structure)
+        steps = len(excitation(structure, ground)[0]) - 1
+        progress = _Progress(steps, f"HS {structure.name}")
+        keys = KeyReader(control, notify) if cfg["safety"]["keys"] else None
+        try:
+            summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
+                                 notify=notify if not as_json else (lambda line: None))
+        finally:
+            progress.close()
+            if keys is not None:
+                keys.close()
+    except DryRunRefused as exc:
+        click.echo(f"hsio run: {exc}", err=True)
+        _where(exc)
+        sys.exit(2)
+    except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
+        status = exit_status(exc)
+        if isinstance(exc, ExperimentStopped) or status != 2:
+            click.echo(f"hsio run: {exc or 'interrupted'}", err=True)
+        else:
+            click.echo(f"hsio run: error: {exc}", err=True)
+        _where(exc)
+        sys.exit(status)
+    if as_json:
+        click.echo(json.dumps(summary, indent=2))
+    else:
+        _print_summary(summary)
+
+
+@main.command()
+@click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
+def resume(run_dir: str) -> None:
+    """Continue a run interrupted by a crash, a kill or a power loss, from its last committed step,
+    into the same record and on the same hardware (docs/safety.md). Exit statuses as for run."""
+    from hsio.experiment import ExperimentStopped
+    from hsio.safety.control import RunControl
+    from hsio.safety.resume import resume as resume_run
+    from hsio.safety.status import exit_status
+
+    control = RunControl()
+    notify = lambda line: click.echo(f"hsio resume: {line}", err=True)  # noqa: E731
+    control.listeners.append(notify)
+    try:
+        summary = resume_run(run_dir, control=control, notify=notify)
+    except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
+        status = exit_status(exc)
+        click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{exc or 'interrupted'}", err=True)
+        sys.exit(status)
+    click.echo(f"resumed from step {summary['resumed_from']}: {summary['steps']} steps in {run_dir}/run.sqlite")
+
+
+def _where(exc: BaseException) -> None:
+    run_dir = getattr(exc, "run_dir", None)
+    if run_dir is not None:
+        click.echo(f"hsio run: the record is in {run_dir}/run.sqlite", err=True)
+
+
+@main.command()
+@click.argument("config_file", required=False, type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the dry run's report as JSON on stdout.")
+def check(config_file: str | None, as_json: bool) -> None:
+    """Dry run: predict the test with NS and the command generator, compare with the limits.
+
+    Nothing opens or moves. Exit status 0 if within the limits less the [safety] margins, 2 if
+    the test would be refused (or the configuration is bad).
+    """
+    from hsio import config as config_mod
+    from hsio import runner
 
     try:
         cfg = config_mod.load(config_file)
         structure = runner.load_run_structure(cfg)
         ground = runner.build_record(cfg, structure)
-        steps = len(excitation(structure, ground)[0]) - 1
-        progress = _Progress(steps, f"HS {structure.name}")
-        try:
-            summary = runner.run(cfg, out_dir, progress, ground=ground)
-        finally:
-            progress.close()
-    except ExperimentStopped as exc:
-        click.echo(f"hsio run: {exc}", err=True)
-        click.echo(f"hsio run: recorded steps are in {out_dir}/run.sqlite", err=True)
-        sys.exit(3)
+        _, report = runner.predict(cfg, structure, ground)
     except HsioError as exc:
-        click.echo(f"hsio run: error: {exc}", err=True)
+        click.echo(f"hsio check: error: {exc}", err=True)
         sys.exit(2)
     if as_json:
-        click.echo(json.dumps(summary, indent=2))
+        click.echo(json.dumps(report.as_dict(), indent=2))
     else:
-        _print_summary(summary)
+        click.echo(report.text())
+    sys.exit(2 if report.refused else 0)
 
 
 def _print_summary(s: dict) -> None:
@@ -116,6 +199,8 @@ def _print_summary(s: dict) -> None:
                    f"{s['nonconverged_steps']} steps at j_max without convergence")
     click.echo(f"wall time      {s['wall_time_s']:.1f} s (the lab would take {s['test_time_s']:.1f} s)")
     click.echo(f"record file    {s['run_file']}")
+    if s.get("dry_run_override"):
+        click.echo("dry run        overridden by the operator (recorded)")
     for p in s.get("plots", []):
         click.echo(f"plot           {p}")
 

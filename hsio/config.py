@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hsio.errors import ConfigError
+from hsio.safety.settings import DEFAULTS as SAFETY_DEFAULTS
+from hsio.safety.settings import check_table as check_safety_table
 
 DEFAULTS: dict[str, dict] = {
     "structure": {"name": "validation", "file": ""},
@@ -28,7 +30,12 @@ DEFAULTS: dict[str, dict] = {
     "compensation": {"mode": "off", "a_mm_s": 0.0, "b_s_mm": 0.0, "actuators": [], "form": "lead", "d_max_mm": 254.0,
                      "window": 400, "update_every": 10, "min_samples": 40, "min_beyond": 20, "max_rel_std": 0.25,
                      "lag_max_s": 0.1, "a_max_mm_s": 50.0, "lag_step_s": 0.005, "a_step_mm_s": 2.0},
+    # Safe lab sessions (docs/safety.md): the dry run, the interlocks, operator control; the
+    # specimen ledger; [test] start (below) picks a start at rest or from where the specimen stands.
+    "safety": dict(SAFETY_DEFAULTS),
+    "specimen": {"id": "", "folder": ""},
 }
+DEFAULTS["test"]["start"] = "rest"
 # The [emulator] table is passed to the emulated controller (hsio.emulators.servo.ServoConfig), which
 # checks its own keys; [drivers] likewise goes to the driver named by hardware.url.
 FREE_TABLES = ("emulator", "driver")
@@ -151,6 +158,9 @@ def _check_ranges(t: dict, source: str) -> None:
     from hsio.compensation.stage import CompensationSettings
 
     CompensationSettings.from_table(t["compensation"], f"{source}: [compensation]")
+    check_safety_table(t["safety"], f"{source}: [safety]")
+    if t["test"]["start"] not in ("rest", "present"):
+        raise ConfigError(f"{source}: [test] start must be 'rest' or 'present', got {t['test']['start']!r}")
     if t["compensation"]["mode"] == "offline" and t["test"]["hold_fraction"] > 0:
         raise ConfigError(f"{source}: [compensation] mode = 'offline' compensates continuous motion (a and b are "
                           f"calibrated on continuous ramps): set [test] hold_fraction = 0, or use mode = 'online'")
@@ -209,4 +219,7 @@ def load(path: str | Path | None) -> RunConfig:
     if model_file and not Path(model_file).is_absolute():
         config["hardware"]["actuator_model"] = str((path.parent / model_file).resolve())
     _resolve_beside(config, path)
+    folder = config["specimen"]["folder"]
+    if folder and not Path(folder).is_absolute():
+        config["specimen"]["folder"] = str((path.parent / folder).resolve())
     return config

@@ -10,11 +10,16 @@ In lockstep the loop runs in the caller's thread and the clock steps the emulato
 time it runs in its own thread: while the integrator computes, the commands are extrapolated.
 Any error (a refused command, an interlock, a lost link) makes every actuator hold, and is
 raised in the caller's thread.
+
+Every period the interlock monitor (:mod:`hsio.safety.interlocks`, docs/safety.md section 3)
+checks the command and the measurement of each actuator. Between steps the loop can pause (every
+actuator holds, the hold is read back) and resume from where the commands stand.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +28,7 @@ from hsio.clock import Clock
 from hsio.command import PredictorCorrector
 from hsio.errors import HsioError
 from hsio.interfaces import Actuator, ControlMode
+from hsio.safety.hold import HoldReport, read_back
 
 
 @dataclass
@@ -34,6 +40,8 @@ class StepFeedback:
     displacement: np.ndarray  # measured, averaged over the last n_avg periods
     force: np.ndarray
     samples: np.ndarray | None  # n_samples x n_actuators x 3 (command, displacement, force)
+    sample_time: np.ndarray | None = None  # lab time of each sample (s)
+    phases: list | None = None  # per sample, the command generator's phase of each actuator
 
 
 class ControlLoop:
@@ -42,7 +50,7 @@ class ControlLoop:
     STEP_TIMEOUT_STEPS = 4  # a step that has not landed after this many t_d is an error
 
     def __init__(self, actuators: list[Actuator], clock: Clock, dt: float, test_rate: float,
-                 n_avg: int = 1, keep_samples: bool = True, hold_fraction: float = 0.0):
+                 n_avg: int = 1, keep_samples: bool = True, hold_fraction: float = 0.0, monitor=None):
         if not test_rate > 0:
             raise ValueError(f"test rate must be positive, got {test_rate!r}")
         self.actuators = actuators
@@ -53,7 +61,11 @@ class ControlLoop:
         self.hold_fraction = hold_fraction
         initial = [a.feedback().displacement_mm for a in actuators]
         self.generators = [PredictorCorrector(self.t_d, clock.period_s, x0, hold_fraction=hold_fraction) for x0 in initial]
+        self.monitor = monitor  # hsio.safety.interlocks.InterlockMonitor or None
         self._samples: list[tuple] = []  # every period since the last step landed
+        self._sample_meta: list[tuple] = []  # (lab time, phases) of each of those periods
+        self._phases: list[str] = []
+        self._paused = False
         self._commands: list[float] = []
         self._thread: threading.Thread | None = None
         self._lock = threading.RLock()
@@ -115,6 +127,7 @@ class ControlLoop:
     def _send(self) -> None:
         """One command per actuator for this period (velocity and limits checked first)."""
         self._commands = []
+        self._phases = []
         try:
             for g, actuator in zip(self.generators, self.actuators):
                 previous = g.command
@@ -123,21 +136,27 @@ class ControlLoop:
                     actuator.limits.check_velocity((c - previous) / self.clock.period_s, f"actuator {actuator.name!r}")
                 actuator.command(c)
                 self._commands.append(c)
+                self._phases.append(g.phase.value)
         except BaseException as exc:
             self._fail(exc)
 
     def _collect(self) -> bool:
         """Read the period's measurements. True when every command has landed on its target."""
+        commands = self._commands
         try:
             feedback = [a.feedback() for a in self.actuators]
+            if self.monitor is not None:
+                self.monitor.check(self.clock.now_s, commands, feedback, [a.mode for a in self.actuators])
         except BaseException as exc:
             self._fail(exc)
-        commands = self._commands
         self._samples.append((commands, [f.displacement_mm for f in feedback], [f.force_kN for f in feedback]))
+        if self.keep_samples:
+            self._sample_meta.append((self.clock.now_s, self._phases))
         if not all(g.reached for g in self.generators):
             return False
         tail = np.array(self._samples[-self.n_avg:])  # n x 3 x n_act
         samples = np.array(self._samples).transpose(0, 2, 1) if self.keep_samples else None
+        meta, self._sample_meta = self._sample_meta, []
         self._samples = []
         self._result = StepFeedback(
             targets=self._targets.copy(),
@@ -145,6 +164,8 @@ class ControlLoop:
             displacement=tail[:, 1, :].mean(axis=0),
             force=tail[:, 2, :].mean(axis=0),
             samples=samples,
+            sample_time=np.array([m[0] for m in meta]) if self.keep_samples else None,
+            phases=[m[1] for m in meta] if self.keep_samples else None,
         )
         return True
 
@@ -159,13 +180,13 @@ class ControlLoop:
         try:
             while not self._stop.is_set():
                 with self._lock:
-                    active = not self._held
+                    active = not self._held and not self._paused
                     if active:
                         self._send()
                 self.clock.tick()  # the wait for the next period, outside the lock
                 if active:
                     with self._lock:
-                        if not self._held and self._collect():
+                        if not self._held and not self._paused and self._collect():
                             self._done.set()
         except BaseException as exc:  # surfaced in the caller's thread
             self._error = exc if isinstance(exc, HsioError) else HsioError(f"control loop stopped: {exc!r}")
@@ -186,6 +207,42 @@ class ControlLoop:
             present = fb.force_kN if mode is ControlMode.FORCE else fb.displacement_mm
             old = self.generators[index]
             self.generators[index] = PredictorCorrector(old.t_d, old.period, present, hold_fraction=self.hold_fraction)
+
+    PAUSE_SETTLE_STEPS = 3  # a pause waits at most this many t_d for the commands to come to rest
+
+    def pause(self) -> HoldReport:
+        """Between steps: let the commands come to rest (real time), stop commanding, and every
+        actuator holds; the hold is read back. :meth:`resume` carries on from the same commands."""
+        if self._held:
+            raise self._error or HsioError("the control loop holds the actuators after an earlier stop")
+        if self._thread is not None:
+            deadline = time.monotonic() + self.PAUSE_SETTLE_STEPS * self.t_d + 1.0
+            while time.monotonic() < deadline and not all(g.phase.value == "hold" for g in self.generators):
+                time.sleep(0.005)
+                if self._error is not None:
+                    raise self._error
+        with self._lock:
+            self._paused = True
+            for actuator in self.actuators:
+                try:
+                    actuator.hold()
+                except Exception:
+                    pass
+        return read_back(self.actuators)
+
+    def resume(self) -> None:
+        """Command again after :meth:`pause`: the generators go on from where they stand."""
+        with self._lock:
+            self._paused = False
+
+    def confirm_hold(self) -> HoldReport:
+        """Ask every actuator whether it holds (True, False or None: cannot tell)."""
+        with self._lock:
+            return read_back(self.actuators)
+
+    def take_events(self) -> list[dict]:
+        """What the interlock monitor saw since the last call (warnings, trips)."""
+        return self.monitor.take_events() if self.monitor is not None else []
 
     def hold_all(self) -> None:
         """Stop commanding, and every actuator holds (each is tried; errors while holding are

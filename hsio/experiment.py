@@ -3,9 +3,16 @@
 Each step the method (:mod:`hsio.integrators`) imposes trials on the experimental site
 (:mod:`hsio.sites`: actuators, or the specimen models for NS), reads the measurements, solves and
 commits; the loop records the step and reports progress (E&M 2007 Figures 9 and 11;
-docs/method.md sections 2, 3 and 5). Any error or interrupt stops the run in a safe state: the
-actuators hold, every step already made stays in the record, and :class:`ExperimentStopped`
-carries the partial :class:`~hsio.result.Result`.
+docs/method.md sections 2, 3 and 5). Between two steps it obeys the operator (pause, resume,
+stop: :class:`hsio.safety.control.RunControl`) and records what the interlocks saw. Any error,
+interlock, stop or interrupt stops the run in a safe state: the actuators hold (read back, and
+said only when confirmed), every step already made stays in the record, and
+:class:`ExperimentStopped` carries the partial :class:`~hsio.result.Result` and the cause
+(docs/safety.md).
+
+A run starts at rest (``start="rest"``) or from where the specimen stands
+(``start="present"``, docs/safety.md section 6): the integrator starts from the measured
+displacement and restoring force, the numerical DOFs in static equilibrium.
 """
 
 from __future__ import annotations
@@ -15,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from hsio.errors import HsioError
+from hsio.errors import ConfigError, HsioError
 from hsio.ground_motion import GroundMotion
 from hsio.integrators.base import Integrator, StepOutcome
 from hsio.interfaces import ControlMode
@@ -27,11 +34,14 @@ __all__ = ["ExperimentStopped", "excitation", "run_steps", "max_error_pct", "sto
 
 
 class ExperimentStopped(HsioError):
-    """The run stopped before the end; ``result`` holds every step made."""
+    """The run stopped before the end; ``result`` holds every step made, ``cause`` is the error
+    (or interrupt) that stopped it and ``hold`` the read-back of the actuators' hold (or None)."""
 
-    def __init__(self, message: str, result: Result):
+    def __init__(self, message: str, result: Result, cause: BaseException | None = None, hold=None):
         super().__init__(message)
         self.result = result
+        self.cause = cause
+        self.hold = hold
 
 
 def excitation(structure: Structure, ground: GroundMotion) -> tuple[np.ndarray, np.ndarray]:
@@ -47,6 +57,10 @@ def stop_reason(exc: BaseException, last: int, dt: float) -> str:
     """Why a run stopped after step ``last``: an HsioError says it plainly; anything else is named."""
     if isinstance(exc, KeyboardInterrupt):
         return f"interrupted at step {last + 1}"
+    from hsio.safety.status import OperatorStop
+
+    if isinstance(exc, OperatorStop):
+        return f"step {last + 1} (t = {(last + 1) * dt:.3f} s): {exc}"
     what = str(exc) if isinstance(exc, HsioError) else f"unexpected {exc!r}"
     return f"step {last + 1} (t = {(last + 1) * dt:.3f} s): {what}"
 
@@ -89,13 +103,61 @@ def _implicit_row(names, out: StepOutcome) -> dict:
     return row
 
 
+def start_present(integrator, structure: Structure, P0: np.ndarray, site, numerical) -> StepOutcome:
+    """Step 0 from where the specimen stands: u_0 and R_0 measured at the experimental DOFs, the
+    numerical DOFs in static equilibrium of the linear numerical part, v_0 = 0 (docs/safety.md
+    section 6)."""
+    if getattr(integrator, "method", "") != "alpha_os" or not hasattr(integrator, "core"):
+        raise ConfigError(f"start = 'present' is available for the alpha_os method, not {integrator.method!r}")
+    dofs = list(structure.experimental_dofs)
+    u_e, R_e = (np.asarray(x, dtype=float) for x in site.committed())
+    n = structure.n_dof
+    u0 = np.zeros(n)
+    R_E = np.zeros(n)
+    for j, d in enumerate(dofs):
+        u0[d] = u_e[j]
+        R_E[d] += R_e[j]
+    free = [d for d in range(n) if d not in dofs]
+    if free:
+        if not numerical.is_linear:
+            raise ConfigError(f"structure {structure.name!r}: start = 'present' needs a linear numerical part to put "
+                              f"the numerical DOFs in static equilibrium")
+        K = np.asarray(numerical.K_linear, dtype=float)
+        K_ff = K[np.ix_(free, free)]
+        if np.linalg.matrix_rank(K_ff) < len(free):
+            raise ConfigError(f"structure {structure.name!r}: start = 'present': the numerical stiffness of the DOFs "
+                              f"{', '.join(structure.dof_names[d] for d in free)} is singular; no static equilibrium")
+        u0[free] = np.linalg.solve(K_ff, -K[np.ix_(free, dofs)] @ u0[dofs])
+    R0 = R_E + numerical.trial(u0)
+    numerical.commit()
+    state = integrator.core.start(P0, u0, np.zeros(n), R0)
+    out = integrator._outcome(state, None, 0)
+    out.measured_u, out.measured_R = u_e.copy(), R_e.copy()
+    return out
+
+
+def _write_events(recorder, site, step: int) -> list[dict]:
+    take = getattr(site, "take_events", None)
+    events = take() if take is not None else []
+    if recorder is not None:
+        for e in events:
+            recorder.write_event(e["time_s"], step, e["kind"], e["actuator"], e["message"], commit=False)
+    return events
+
+
 def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator, site,
-              recorder: Recorder | None = None, progress: Callable[[int], None] | None = None) -> Result:
+              recorder: Recorder | None = None, progress: Callable[[int], None] | None = None,
+              control=None, start: str = "rest", resume_state=None) -> Result:
     """Run ``integrator`` over the whole record against ``site`` (actuators or specimen models).
 
-    Returns the :class:`Result`; raises :class:`ExperimentStopped` carrying the steps made if the
-    run stops early (the actuators behind ``site`` hold first).
+    ``control`` (a :class:`hsio.safety.control.RunControl`) is obeyed between steps; ``start`` is
+    ``"rest"`` or ``"present"``; ``resume_state`` (an alpha-OS state read back from a record,
+    docs/safety.md section 8) continues a run after its last committed step, the rows before it
+    left empty. Returns the :class:`Result`; raises :class:`ExperimentStopped`
+    carrying the steps made if the run stops early (the actuators behind ``site`` hold first).
     """
+    if start not in ("rest", "present"):
+        raise ConfigError(f"start must be 'rest' or 'present', got {start!r}")
     t, P = excitation(structure, ground)
     n_steps = len(t)
     dofs = structure.experimental_dofs
@@ -106,9 +168,26 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
     started = time.perf_counter()
     last = 0
     stopped = ""
+    cause: BaseException | None = None
+    hold_report = None
+
+    def log(kind: str, message: str) -> None:
+        if recorder is not None:
+            recorder.write_event(site.lab_time_s, last, kind, "", message)
+
+    first = 0 if resume_state is None else int(resume_state.i)
+    last = first
     try:
-        h.put(0, integrator.start(P[0], site, numerical), dofs)
-        for i in range(n_steps - 1):
+        if resume_state is not None:
+            integrator.core.state = resume_state
+            numerical.trial(resume_state.u)
+            numerical.commit()
+            h.put(first, integrator._outcome(resume_state, None, 0), dofs)
+        elif start == "present":
+            h.put(0, start_present(integrator, structure, P[0], site, numerical), dofs)
+        else:
+            h.put(0, integrator.start(P[0], site, numerical), dofs)
+        for i in range(first, n_steps - 1):
             k = i + 1
             t0 = time.perf_counter()
             out = integrator.step(P[k], site, numerical, k, float(t[k]))
@@ -119,15 +198,31 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
             if recorder is not None:
                 if integrator.method != "alpha_os":
                     recorder.write_row("implicit", k, _implicit_row(names, out))
+                meta = site.take_sample_meta() if hasattr(site, "take_sample_meta") else None
+                events = _write_events(recorder, site, k)
                 recorder.write_step(k, float(t[k]), h.u[k], h.v[k], h.a[k], h.u_pred[k], h.R[k], h.modes[k],
                                     h.targets[k], h.commands[k], h.measured_displacement[k], h.measured_force[k],
-                                    samples)
+                                    samples, sample_meta=meta, late_steps=site.late_steps,
+                                    flags=sorted({e["kind"] for e in events}))
             last = k
             if progress is not None:
                 progress(1)
+            if control is not None:
+                control.checkpoint(site, k, log)
     except (Exception, KeyboardInterrupt) as exc:
         stopped = stop_reason(exc, last, structure.dt)
-        site.hold()
+        cause = exc
+        hold = getattr(site, "hold", None)
+        if hold is not None:
+            hold_report = hold()
+        if recorder is not None:
+            try:
+                _write_events(recorder, site, last + 1)
+                if hold_report is not None:
+                    recorder.write_event(site.lab_time_s, last + 1, "hold", "", hold_report.message, commit=False)
+                recorder.write_event(site.lab_time_s, last + 1, "stop", "", stopped)
+            except Exception:
+                pass  # the record keeps what it has; the stop is reported below
     result = Result(
         structure=structure.name, method=integrator.method, dt=structure.dt,
         dof_names=tuple(structure.dof_names), element_names=tuple(names), element_dofs=tuple(dofs),
@@ -136,5 +231,6 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
         stopped=stopped,
     )
     if stopped:
-        raise ExperimentStopped(f"run stopped at {stopped}; the actuators hold; {last} steps recorded", result)
+        held = hold_report.message if hold_report is not None else "no actuators to hold"
+        raise ExperimentStopped(f"run stopped at {stopped}; {held}; {last} steps recorded", result, cause, hold_report)
     return result

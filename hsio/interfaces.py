@@ -129,6 +129,11 @@ class Actuator(ABC):
     def hold(self) -> None:
         """Hold the present position in displacement control."""
 
+    def holding(self) -> bool | None:
+        """Read back whether the controller holds: True, False, or None when this actuator cannot
+        tell (the hold could then not be confirmed; docs/safety.md section 3)."""
+        return None
+
     def close(self) -> None:
         """Release the connection. The actuator is left holding."""
 

@@ -5,28 +5,83 @@ One file per run (``run.sqlite``), readable by any SQLite tool, pandas or MATLAB
 * ``meta``: key/value (JSON) - configuration, structure, DOF and actuator names, units, versions.
 * ``steps``: one row per integration step - time, and per DOF ``u_``, ``v_``, ``a_``,
   ``u_pred_`` (mm, mm/s, mm/s^2), ``r_`` (restoring force, kN), ``mode_`` (displacement or force);
-  per actuator ``target_``, ``command_``, ``disp_`` (mm or kN by mode), ``force_`` (kN).
+  per actuator ``target_``, ``command_``, ``disp_`` (mm or kN by mode), ``force_`` (kN); then
+  ``late_steps`` (late steps of the command generator so far) and ``flags`` (the kinds of the
+  events of the step, e.g. ``warning``, comma-separated; empty when none).
 * ``samples``: one row per controller period - step, sample index, per actuator ``cmd_``,
-  ``disp_``, ``force_``.
+  ``disp_``, ``force_``; then ``lab_time_s`` (the controller clock) and per actuator ``phase_``,
+  the command generator's phase as a code (meta ``phase_codes``: 0 interpolate, 1 dwell,
+  2 extrapolate, 3 slow, 4 hold).
 * ``ns``: the purely numerical simulation, per step ``u_`` per DOF.
 * ``summary``: key/value (JSON), written at the end.
+* ``events``: what the safety layer saw (docs/safety.md) - time (s of lab time), step, kind
+  (``warning``, ``trip``, ``hold``, ``pause``, ``resume``, ``stop``, ``dry_run``, ...), actuator
+  (or empty), message.
 * ``compensation`` (when the run has a compensation stage): one row per step - per actuator
   ``dc_``, ``da_`` (command and adjusted command, mm), ``v_`` (mm/s), ``er_cc_`` or ``er_ca_`` and
   ``er_aa_`` (execution errors / d_max), ``a_``, ``b_`` (parameters used), see hsio.compensation.
 
-Each step is committed (WAL journal): a run that stops for any reason keeps every step it made.
+Each step is committed durably (WAL journal, ``synchronous=FULL``) before the next begins: a run
+that stops for any reason, a killed process or a power loss included, keeps every step it made.
+A record is never overwritten: the Recorder refuses a file that exists, and
+:func:`new_run_folder` creates a fresh numbered folder per run (docs/safety.md section 1).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import sqlite3
 from pathlib import Path
 
 import numpy as np
 
+from hsio.errors import HsioError
+
+RUN_FILE = "run.sqlite"
+MAX_RUN_NUMBER = 9999
+
+
+class RecordExistsError(HsioError):
+    """A run would overwrite an earlier record; nothing was written."""
+
+
+def holds_record(folder: str | Path) -> bool:
+    """True if ``folder`` holds a run record."""
+    return (Path(folder) / RUN_FILE).exists()
+
+
+def refuse_recorded_folder(folder: str | Path) -> Path:
+    """``folder`` for a new run, or :class:`RecordExistsError` if it already holds a record."""
+    folder = Path(folder)
+    if holds_record(folder):
+        raise RecordExistsError(f"{folder / RUN_FILE} already holds the record of an earlier run; records are "
+                                f"never overwritten: choose another --out folder (or omit --out for a "
+                                f"new numbered folder)")
+    return folder
+
+
+def new_run_folder(root: str | Path) -> Path:
+    """A new, empty folder ``root/run-NNNN`` (the next free number), created atomically: two
+    runs started together never share a folder."""
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    taken = [int(p.name[4:]) for p in root.glob("run-[0-9][0-9][0-9][0-9]") if p.name[4:].isdigit()]
+    n = max(taken, default=0) + 1
+    for _ in range(MAX_RUN_NUMBER):
+        if n > MAX_RUN_NUMBER:
+            break
+        folder = root / f"run-{n:04d}"
+        try:
+            folder.mkdir()  # atomic: fails if another run took the number first
+            return folder
+        except FileExistsError:
+            n += 1
+    raise RecordExistsError(f"{root}: no free run number up to run-{MAX_RUN_NUMBER:04d}; use --out")
+
 _NAME = re.compile(r"[^0-9A-Za-z_]")
+PHASE_CODES = {"interpolate": 0, "dwell": 1, "extrapolate": 2, "slow": 3, "hold": 4}
 
 
 def column(prefix: str, name: str) -> str:
@@ -39,30 +94,36 @@ class Recorder:
     def __init__(self, path: str | Path, dof_names, actuator_names, meta: dict | None = None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        if self.path.exists():
-            self.path.unlink()
+        try:  # created exclusively: an earlier record is never replaced
+            os.close(os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+        except FileExistsError:
+            raise RecordExistsError(f"{self.path} already holds a record; records are never overwritten") from None
         self.dof_names = list(dof_names)
         self.actuator_names = list(actuator_names)
-        self.db = sqlite3.connect(self.path)
+        self.db = sqlite3.connect(self.path, check_same_thread=False)
         self.db.execute("PRAGMA journal_mode=WAL")
-        self.db.execute("PRAGMA synchronous=NORMAL")
+        self.db.execute("PRAGMA synchronous=FULL")  # each commit on disk before the next step
         dof_cols = [column(p, d) for d in self.dof_names for p in ("u", "v", "a", "u_pred", "r")]
         mode_cols = [column("mode", d) for d in self.dof_names]
         act_cols = [column(p, a) for a in self.actuator_names for p in ("target", "command", "disp", "force")]
-        self._step_cols = ["step", "time_s", *dof_cols, *mode_cols, *act_cols]
-        self._sample_cols = ["step", "k", *[column(p, a) for a in self.actuator_names for p in ("cmd", "disp", "force")]]
+        self._step_cols = ["step", "time_s", *dof_cols, *mode_cols, *act_cols, "late_steps", "flags"]
+        self._sample_cols = ["step", "k", *[column(p, a) for a in self.actuator_names for p in ("cmd", "disp", "force")],
+                             "lab_time_s", *[column("phase", a) for a in self.actuator_names]]
         self._ns_cols = ["step", "time_s", *[column("u", d) for d in self.dof_names]]
         self.db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
         self.db.execute("CREATE TABLE summary (key TEXT PRIMARY KEY, value TEXT)")
         self.db.execute(
             "CREATE TABLE steps (step INTEGER PRIMARY KEY, time_s REAL, "
-            + ", ".join(f"{c} {'TEXT' if c.startswith('mode_') else 'REAL'}" for c in self._step_cols[2:]) + ")"
+            + ", ".join(f"{c} {'TEXT' if c.startswith('mode_') or c == 'flags' else 'REAL'}" for c in self._step_cols[2:])
+            + ")"
         )
         self.db.execute("CREATE TABLE samples (step INTEGER, k INTEGER, " + ", ".join(f"{c} REAL" for c in self._sample_cols[2:]) + ")")
+        self.db.execute("CREATE TABLE events (time_s REAL, step INTEGER, kind TEXT, actuator TEXT, message TEXT)")
         self.db.execute("CREATE TABLE ns (step INTEGER PRIMARY KEY, time_s REAL, " + ", ".join(f"{c} REAL" for c in self._ns_cols[2:]) + ")")
         meta = dict(meta or {})
         meta.update(dof_names=self.dof_names, actuator_names=self.actuator_names,
-                    units={"displacement": "mm", "force": "kN", "time": "s", "mass": "kN s^2/mm"})
+                    units={"displacement": "mm", "force": "kN", "time": "s", "mass": "kN s^2/mm"},
+                    phase_codes=PHASE_CODES)
         self.db.executemany("INSERT INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in meta.items()])
         self.db.commit()
         self._insert_step = f"INSERT INTO steps VALUES ({', '.join('?' * len(self._step_cols))})"
@@ -71,18 +132,51 @@ class Recorder:
         self.steps_written = 0
         self._extra_tables: dict[str, list[str]] = {}
 
-    def write_step(self, step: int, time_s: float, u, v, a, u_pred, r, modes, targets, commands, disp, force, samples=None) -> None:
-        """One integration step; ``samples`` is n x n_actuators x 3 (command, disp, force)."""
+    @classmethod
+    def append(cls, path: str | Path) -> "Recorder":
+        """Reopen the record at ``path`` to continue it after its last committed step (a resumed
+        run, docs/safety.md section 8)."""
+        self = cls.__new__(cls)
+        self.path = Path(path)
+        self.db = sqlite3.connect(self.path, check_same_thread=False)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=FULL")
+        meta = {k: json.loads(v) for k, v in self.db.execute("SELECT key, value FROM meta")}
+        self.dof_names, self.actuator_names = list(meta["dof_names"]), list(meta["actuator_names"])
+        cols = lambda table: [r[1] for r in self.db.execute(f"PRAGMA table_info({table})")]  # noqa: E731
+        self._step_cols, self._sample_cols, self._ns_cols = cols("steps"), cols("samples"), cols("ns")
+        self._insert_step = f"INSERT INTO steps VALUES ({', '.join('?' * len(self._step_cols))})"
+        self._insert_sample = f"INSERT INTO samples VALUES ({', '.join('?' * len(self._sample_cols))})"
+        self._insert_ns = f"INSERT INTO ns VALUES ({', '.join('?' * len(self._ns_cols))})"
+        self.steps_written = self.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
+        self._extra_tables = {}
+        for (name,) in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'").fetchall():
+            if name in ("compensation", "implicit"):
+                self._extra_tables[name] = cols(name)[1:]
+        return self
+
+    def write_step(self, step: int, time_s: float, u, v, a, u_pred, r, modes, targets, commands, disp, force, samples=None,
+                   sample_meta=None, late_steps: int = 0, flags=()) -> None:
+        """One integration step; ``samples`` is n x n_actuators x 3 (command, disp, force),
+        ``sample_meta`` (lab times, per-sample phases) beside them when known."""
         row = [step, time_s]
         for k in range(len(self.dof_names)):
             row += [float(u[k]), float(v[k]), float(a[k]), float(u_pred[k]), float(r[k])]
         row += [str(m) for m in modes]
         for j in range(len(self.actuator_names)):
             row += [float(targets[j]), float(commands[j]), float(disp[j]), float(force[j])]
+        row += [int(late_steps), ",".join(flags)]
         self.db.execute(self._insert_step, row)
         if samples is not None and len(samples):
             flat = np.asarray(samples, dtype=float).reshape(len(samples), -1)
-            self.db.executemany(self._insert_sample, [(step, k, *map(float, r_)) for k, r_ in enumerate(flat)])
+            n_act = len(self.actuator_names)
+            if sample_meta is not None and len(sample_meta[0]) == len(flat):
+                times, phases = sample_meta
+                extra = [(float(t), *(PHASE_CODES.get(p, -1) for p in ph)) for t, ph in zip(times, phases)]
+            else:
+                extra = [(None, *([None] * n_act))] * len(flat)
+            self.db.executemany(self._insert_sample,
+                                [(step, k, *map(float, r_), *e) for k, (r_, e) in enumerate(zip(flat, extra))])
         self.db.commit()
         self.steps_written += 1
 
@@ -100,6 +194,19 @@ class Recorder:
     def write_compensation(self, step: int, row: dict) -> None:
         """One step of the compensation stage (Er^cc, or Er^ca and Er^aa, per actuator)."""
         self.write_row("compensation", step, row)
+
+    def write_event(self, time_s: float | None, step: int | None, kind: str, actuator: str, message: str,
+                    commit: bool = True) -> None:
+        """One event (docs/safety.md): committed at once unless ``commit`` is false (then with the step)."""
+        self.db.execute("INSERT INTO events VALUES (?, ?, ?, ?, ?)",
+                        (None if time_s is None else float(time_s), step, kind, actuator or "", message))
+        if commit:
+            self.db.commit()
+
+    def write_meta(self, items: dict) -> None:
+        """Add or replace metadata (e.g. an override of the dry run, the control socket)."""
+        self.db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in items.items()])
+        self.db.commit()
 
     def write_ns(self, t: np.ndarray, u: np.ndarray) -> None:
         self.db.executemany(self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
@@ -143,7 +250,9 @@ class Run:
         out = {}
         for i, c in enumerate(cols):
             values = [r[i] for r in rows]
-            out[c] = np.array(values, dtype=object if c.startswith("mode_") else float)
+            text = c.startswith("mode_") or c == "flags"
+            out[c] = np.array([v if v is not None else np.nan for v in values] if not text else values,
+                              dtype=object if text else float)
         return out
 
     def samples(self) -> dict[str, np.ndarray]:
@@ -158,7 +267,8 @@ class Run:
     def _table_samples(db) -> dict[str, np.ndarray]:
         cur = db.execute("SELECT * FROM samples ORDER BY step, k")
         cols = [c[0] for c in cur.description]
-        data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
+        data = np.array([[np.nan if x is None else x for x in row] for row in cur.fetchall()],
+                        dtype=float).reshape(-1, len(cols))
         return {c: data[:, i] for i, c in enumerate(cols)}
 
     def table(self, name: str) -> dict[str, np.ndarray]:
@@ -172,6 +282,17 @@ class Run:
             cols = [c[0] for c in cur.description]
             data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
             return {c: data[:, i] for i, c in enumerate(cols)}
+        finally:
+            db.close()
+
+    def events(self) -> list[dict]:
+        """The events table as a list of dicts (time_s, step, kind, actuator, message)."""
+        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+        try:
+            if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='events'").fetchone():
+                return []
+            cur = db.execute("SELECT time_s, step, kind, actuator, message FROM events ORDER BY rowid")
+            return [dict(zip(("time_s", "step", "kind", "actuator", "message"), row)) for row in cur.fetchall()]
         finally:
             db.close()
 

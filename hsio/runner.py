@@ -1,5 +1,10 @@
 """`hsio run`: a configuration in, the library calls of :mod:`hsio.api` (NS, open the site, HS),
-the record, summary and plots out."""
+the record, summary and plots out.
+
+Around them, the safe lab session of docs/safety.md: a new run folder that never replaces a
+record, the specimen ledger, the dry run before any hardware opens, the interlocks, the control
+socket and signals (pause, resume, stop), and an exit status per cause.
+"""
 
 from __future__ import annotations
 
@@ -10,15 +15,22 @@ from pathlib import Path
 
 import numpy as np
 
+import hsio
 from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
-from hsio.errors import ConfigError
+from hsio.errors import ConfigError, HsioError
 from hsio.experiment import ExperimentStopped
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
-from hsio.recording import Recorder
+from hsio.ledger import Ledger
+from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
+from hsio.safety.control import RunControl, stop_on_signals
+from hsio.safety.dry_run import dry_run, enforce
+from hsio.safety.settings import SafetySettings
+from hsio.safety.socket import ControlServer
+from hsio.safety.status import exit_status, outcome_name
 from hsio.result import Result, max_error_pct
 from hsio.secant import SecantEstimator
 from hsio.structures import Structure, get_structure, load_structure
@@ -44,6 +56,18 @@ def load_run_structure(config: RunConfig) -> Structure:
     return load_structure(table["file"]) if table["file"] else get_structure(table["name"])
 
 
+def channel_names(structure: Structure) -> list[str]:
+    """The recorded channels: an element on one DOF without a setup is recorded under its
+    actuator's name; an element with several basic DOFs under ``element.dof`` per DOF."""
+    names = []
+    for e in structure.experimental:
+        if len(e.basic_dofs) == 1 and not e.has_setup:
+            names.append(e.actuator)
+        else:
+            names += [f"{e.name}.{structure.dof_names[d]}" for d in e.basic_dofs]
+    return names
+
+
 def switching_rule(structure: Structure, integ: dict) -> SwitchingRule:
     """K_f / K_d in kN/mm (0: 1.2 and 0.8 times each element's K^EI), or R_f / R_d in kN."""
     n = len(structure.experimental)
@@ -62,16 +86,64 @@ def integrator_options(config: RunConfig, structure: Structure) -> dict:
             "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"], "tol_force": integ["tol_force_kN"]}
 
 
-def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMotion | None = None) -> dict:
-    """Run a hybrid simulation as configured; write run.sqlite, plots and summary.json in out_dir.
+def _state(site) -> dict | None:
+    """Measured displacement and force per actuator, where the specimen stands now."""
+    if site is None:
+        return None
+    try:
+        feedback = site.loop.feedback()
+    except Exception as exc:  # a lost link: say so rather than guess
+        return {"error": str(exc)}
+    return {a.name: {"displacement_mm": f.displacement_mm, "force_kN": f.force_kN}
+            for a, f in zip(site.loop.actuators, feedback)}
 
-    ``ground`` replaces the configured [record] (a record built in code, e.g. a harmonic test).
 
-    Returns the summary. Raises ExperimentStopped (after writing what was recorded) if the run
-    stopped early.
-    """
-    out = Path(out_dir)
+def run_folder(config: RunConfig, structure: Structure, out_dir: str | Path | None) -> Path:
+    """The folder of a new run: ``out_dir`` if it holds no record (else RecordExistsError), or a
+    new numbered folder runs/<structure>/run-NNNN (docs/safety.md section 1)."""
+    if out_dir is None:
+        return new_run_folder(Path("runs") / structure.name)
+    out = refuse_recorded_folder(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Ledger | None:
+    """The specimen ledger of ``--specimen DIR`` or [specimen] folder / id (None: no ledger)."""
+    spec = config["specimen"]
+    folder = specimen_dir or spec["folder"] or (str(Path("specimens") / spec["id"]) if spec["id"] else "")
+    return Ledger(folder, spec["id"]) if folder else None
+
+
+def predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):
+    """NS and the dry run of the configured test (docs/safety.md section 2): (NS result, report)."""
+    integ, test, hardware = config["integrator"], config["test"], config["hardware"]
+    ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
+    emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
+    report = dry_run(ns, test["rate"] * structure.dt, test["hold_fraction"], hardware["url"], emulator,
+                     config["driver"], SafetySettings.from_table(config["safety"]))
+    return ns, report
+
+
+def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, ground: GroundMotion | None = None,
+        control: RunControl | None = None, specimen_dir: str | Path | None = None, notify=None) -> dict:
+    """Run a hybrid simulation as configured; write run.sqlite, plots and summary.json in a new
+    run folder (``out_dir``, refused if it holds a record; None: runs/<structure>/run-NNNN).
+
+    ``ground`` replaces the configured [record] (a record built in code, e.g. a harmonic test);
+    ``control`` takes pause / resume / stop requests (a new one if None); SIGTERM and SIGINT stop
+    the run; ``notify`` (a callable taking a line of text) hears the dry run, pauses and stops.
+
+    Returns the summary. Raises (after writing what was recorded, the actuators holding):
+    ExperimentStopped if the run stopped early, DryRunRefused if the dry run refused the test,
+    OperatorStop if a stop came before the steps began; each carries ``run_dir``.
+    """
+    control = control or RunControl()
+    with stop_on_signals(control):
+        return _run(config, out_dir, progress, ground, control, specimen_dir, notify or (lambda line: None))
+
+
+def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> dict:
     structure = load_run_structure(config)
     ground = ground if ground is not None else build_record(config, structure)
     integ = config["integrator"]
@@ -79,56 +151,111 @@ def run(config: RunConfig, out_dir: str | Path, progress=None, ground: GroundMot
     implicit = method in IMPLICIT_METHODS
     test = config["test"]
     hardware = config["hardware"]
-
-    ns = api.run_numerical(structure, ground, method, alpha) if config["output"]["ns"] else None
-    compensation = CompensationStage([e.actuator for e in structure.experimental], test["rate"] * structure.dt,
+    safety = SafetySettings.from_table(config["safety"])
+    compensation = CompensationStage(channel_names(structure), test["rate"] * structure.dt,
                                      CompensationSettings.from_table(config["compensation"]))
     if implicit and compensation.settings.mode != "off":
         raise ConfigError(f"{config.source}: [compensation] applies to the alpha_os method, not to {method!r}")
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
+    out = run_folder(config, structure, out_dir)
+    ledger = open_ledger(config, specimen_dir)
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,
-        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "version": hsio.__version__,
+        "specimen_id": ledger.specimen_id if ledger else config["specimen"]["id"],
+        "dry_run_override": safety.override, "start": test["start"],
     }
-    estimator = (SecantEstimator(integ["secant"], integ["secant_n_avg"], integ["secant_min_increment_mm"])
-                 if implicit else None)
+    site = None
+    summary: dict = {}
+    error: BaseException | None = None
     with contextlib.ExitStack() as cleanup:
         # Whatever fails from here on, what was opened is closed (the actuators left holding).
-        site = api.open_site(structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
-                             hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
-                             keep_samples=config["output"]["samples"],
-                             options=emulator if hardware["url"].startswith("emulator") else config["driver"],
-                             estimator=estimator, compensation=None if implicit else compensation)
-        cleanup.callback(site.close)
-        recorder = Recorder(out / "run.sqlite", structure.dof_names, [e.actuator for e in structure.experimental], meta)
+        recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
         cleanup.callback(recorder.close)
-        compensation.sink = recorder.write_compensation
-        if ns is not None:
-            recorder.write_ns(ns.t, ns.u)
-        stopped = None
+        run_id = ledger.begin(out, config.tables, structure.name, ground.name, hsio.__version__) if ledger else None
+        if ledger:
+            cleanup.callback(ledger.close)
+        if safety.control_socket:
+            server = ControlServer(out, control)
+            cleanup.callback(server.close)
+            recorder.write_meta({"control_socket": str(server.path)})
         try:
-            hs = api.simulate(structure, ground, site, method, alpha, recorder, progress,
-                                **integrator_options(config, structure))
-        except ExperimentStopped as exc:
-            hs, stopped = exc.result, exc
-        site.close()
-        summary = summarise(structure, config, ground, hs, ns, out)
-        summary["clock_overruns"] = getattr(site.loop.clock, "overruns", 0)
-        summary["compensation"] = compensation.summary()
-        if implicit:
-            summary.update(implicit_summary(hs))
-        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+            control.check_stop()
+            ns = None
+            if config["output"]["ns"] or safety.dry_run:
+                control.enter("NS")
+                ns, report = predict(config, structure, ground, control)
+                if safety.dry_run:
+                    recorder.write_event(None, 0, "dry_run", "", report.text())
+                    recorder.write_meta({"dry_run": report.as_dict()})
+                    if ledger:
+                        ledger.update(run_id, dry_run=report.as_dict(), override=int(bool(report.exceeded and report.override)))
+                    notify(report.text())
+                    enforce(report)
+                if not config["output"]["ns"]:
+                    ns = None
+            if ns is not None:
+                recorder.write_ns(ns.t, ns.u)
+            control.enter("start-up")
+            control.check_stop()
+            estimator = (SecantEstimator(integ["secant"], integ["secant_n_avg"], integ["secant_min_increment_mm"])
+                         if implicit else None)
+            site = api.open_site(structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
+                                 hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
+                                 keep_samples=config["output"]["samples"],
+                                 options=emulator if hardware["url"].startswith("emulator") else config["driver"],
+                                 estimator=estimator, compensation=None if implicit else compensation, safety=safety)
+            cleanup.callback(site.close)
+            start_state = _state(site)
+            recorder.write_meta({"start_state": start_state})
+            if ledger:
+                ledger.update(run_id, start_state=start_state)
+            compensation.sink = recorder.write_compensation
+            control.check_stop()
+            control.enter("HS")
+            try:
+                hs = api.simulate(structure, ground, site, method, alpha, recorder, progress, control=control,
+                                  start=test["start"], **integrator_options(config, structure))
+            except ExperimentStopped as exc:
+                hs, error = exc.result, exc
+            control.enter("closing")
+            end_state = _state(site)
+            site.close()
+            summary = summarise(structure, config, ground, hs, ns, out)
+            summary["clock_overruns"] = getattr(site.loop.clock, "overruns", 0)
+            summary["compensation"] = compensation.summary()
+            summary["start_state"], summary["end_state"] = start_state, end_state
+            if implicit:
+                summary.update(implicit_summary(hs))
+        except (Exception, KeyboardInterrupt) as exc:  # before or around the steps: hold, record, re-raise
+            error = exc
+            hold = site.hold() if site is not None else None
+            reason = str(exc) if isinstance(exc, HsioError) else f"unexpected {exc!r}"
+            if hold is not None:
+                reason += f"; {hold.message}"
+            recorder.write_event(None, 0, "stop", "", reason)
+            summary = {"structure": structure.name, "record": ground.name, "steps": 0, "stopped": reason,
+                       "run_file": str(out / RUN_FILE), "end_state": _state(site)}
+        status = exit_status(error)
+        summary.update(exit_status=status, outcome=outcome_name(status), run_dir=str(out),
+                       dry_run_override=safety.override, version=hsio.__version__)
+        if error is not None and not summary.get("stopped"):
+            summary["stopped"] = str(error)
+        (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
         recorder.write_summary(summary)
-        if config["output"]["plots"] and hs.steps > 0:
+        if ledger:
+            ledger.finish(run_id, summary["outcome"], status, summary.get("stopped", ""), summary.get("end_state"))
+        if config["output"]["plots"] and summary.get("steps", 0) > 0 and not isinstance(error, KeyboardInterrupt):
             summary["plots"] = make_plots(out, structure, hs, ns, config)
             if implicit:
                 summary["plots"].append(str(plots.control_modes(out / "modes.png", hs)))
-            (out / "summary.json").write_text(json.dumps(summary, indent=2))
+            (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
             recorder.write_summary(summary)
-    if stopped is not None:
-        raise stopped
+    if error is not None:
+        error.run_dir = out
+        raise error
     return summary
 
 
@@ -189,7 +316,7 @@ def implicit_summary(hs: Result) -> dict:
 
 
 def make_plots(out: Path, structure: Structure, hs: Result, ns: Result | None, config: RunConfig) -> list[str]:
-    actuators = [e.actuator for e in structure.experimental]
+    actuators = channel_names(structure)
     title = f"{structure.name}: HS vs NS, TR = {config['test']['rate']:g}"
     if ns is not None:
         worst, _ = max_error_pct(hs.u, ns.u)

@@ -95,10 +95,11 @@ def test_nan_in_a_record_array_is_refused():
 
 
 def test_target_beyond_stroke_stops_the_run_holding_and_keeps_the_record(tmp_path):
-    """A record scaled far too large: the first target beyond +/-127 mm is refused unsent."""
+    """A record scaled far too large: the first target beyond +/-127 mm is refused unsent (the dry
+    run, which would refuse the test before anything moves, overridden)."""
     cfg = tmp_path / "big.toml"
     cfg.write_text("[record]\nscale = 12.0\nsynthetic_duration_s = 8.0\n[test]\nrate = 6.25\n"
-                   "[emulator]\nvelocity_limit_mm_s = 5000.0\n")
+                   "[emulator]\nvelocity_limit_mm_s = 5000.0\n[safety]\noverride = true\n")
     out = tmp_path / "o"
     proc = hsio("run", str(cfg), "--out", str(out), "--json")
     assert proc.returncode == 3, proc.stderr
@@ -128,7 +129,8 @@ def commands_reaching_the_emulator(monkeypatch) -> list[float]:
 def test_no_command_beyond_the_stroke_reaches_the_actuator(tmp_path, monkeypatch):
     seen = commands_reaching_the_emulator(monkeypatch)
     cfg = config.from_dict({"record": {"scale": 12.0, "synthetic_duration_s": 8.0}, "test": {"rate": 6.25},
-                            "emulator": {"velocity_limit_mm_s": 5000.0}, "output": {"plots": False}})
+                            "emulator": {"velocity_limit_mm_s": 5000.0}, "output": {"plots": False},
+                            "safety": {"override": True}})
     with pytest.raises(ExperimentStopped, match="beyond the stroke"):
         runner.run(cfg, tmp_path / "o")
     assert len(seen) > 1000
@@ -138,7 +140,8 @@ def test_no_command_beyond_the_stroke_reaches_the_actuator(tmp_path, monkeypatch
 def test_no_command_faster_than_the_actuator_reaches_it(tmp_path, monkeypatch):
     seen = commands_reaching_the_emulator(monkeypatch)
     cfg = config.from_dict({"record": {"synthetic_duration_s": 4.0}, "test": {"rate": 1.0},
-                            "emulator": {"velocity_limit_mm_s": 100.0}, "output": {"plots": False}})
+                            "emulator": {"velocity_limit_mm_s": 100.0}, "output": {"plots": False},
+                            "safety": {"override": True}})
     with pytest.raises(ExperimentStopped, match="command velocity"):
         runner.run(cfg, tmp_path / "o")
     for controller in {c for c, _ in seen}:
@@ -151,7 +154,7 @@ def test_command_faster_than_the_actuator_is_refused(tmp_path):
     """A test rate too fast for the servo-valve: refused before the command is sent, not clamped."""
     cfg = tmp_path / "fast.toml"
     cfg.write_text("[record]\nsynthetic_duration_s = 4.0\n[test]\nrate = 1.0\n[emulator]\nvelocity_limit_mm_s = 100.0\n"
-                   "[output]\nplots = false\n")
+                   "[output]\nplots = false\n[safety]\noverride = true\n")
     out = tmp_path / "o"
     proc = hsio("run", str(cfg), "--out", str(out))
     assert proc.returncode == 3, proc.stderr

@@ -118,7 +118,8 @@ def test_interlock_emcy_stops_the_run_with_steps_kept(tmp_path):
     cfg = write_config(tmp_path, duration=1.0, extra="[emulator]\nstroke_mm = 1.6\n")
     emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), channel()).start()
     try:
-        result, recorded = run(cfg, tmp_path / "wire", url=emu.url, driver={"stroke_mm": 10.0})
+        result, recorded = run(cfg, tmp_path / "wire", url=emu.url, driver={"stroke_mm": 10.0},
+                               safety={"override": True})  # the dry run would refuse it before anything moves
         assert isinstance(result, ExperimentStopped)
         assert "EMCY 0x" in str(result) and ("stroke" in str(result) or "out of range" in str(result))
         assert len(recorded.steps["step"]) == result.result.steps > 5

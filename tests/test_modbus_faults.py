@@ -141,7 +141,9 @@ def test_restarted_controller_is_detected_and_the_run_stops(monkeypatch, tmp_pat
 
 
 def test_out_of_range_command_is_refused_and_the_actuators_hold(tmp_path, cfg, emulator):
-    result, recorded = run(cfg, tmp_path / "wire", url=emulator.url, driver={"stroke_mm": 1.0})
+    # The dry run would refuse this test before anything moves: overridden, the command is refused.
+    result, recorded = run(cfg, tmp_path / "wire", url=emulator.url, driver={"stroke_mm": 1.0},
+                           safety={"override": True})
     assert_stopped_with_steps_kept(result, recorded, r"beyond the stroke \(\+/-0.5 mm\); not sent")
     assert all(c.holding for c in emulator.bank.controllers)
     assert all(abs(c.command) <= 0.5 for c in emulator.bank.controllers)  # nothing beyond was sent

@@ -49,13 +49,16 @@ def refused_port():
         yield s.getsockname()[1]
 
 
-def run(config_path: Path, out: Path, url: str | None = None, driver: dict | None = None):
+def run(config_path: Path, out: Path, url: str | None = None, driver: dict | None = None,
+        safety: dict | None = None):
     """hsio run's pipeline in process; returns (summary or the ExperimentStopped, Run)."""
     cfg = config_mod.load(config_path)
     if url is not None:
         cfg["hardware"]["url"] = url
     if driver:
         cfg["driver"].update(driver)
+    if safety:
+        cfg["safety"].update(safety)
     try:
         result = runner.run(cfg, out)
     except ExperimentStopped as exc:

@@ -69,6 +69,7 @@ class ActuatorSite:
         if estimator is not None:
             estimator.begin_step(*self._committed)
         self._samples: list[np.ndarray] = []
+        self._sample_meta: list[tuple] = []  # (lab times, phases) beside each block of samples
         self._daq: Daq | None = None
         self.static_targets = np.zeros(len(self.static))
         self.static_log: list[tuple] = []  # (phase, lab time s, targets, forces, displacements)
@@ -194,6 +195,9 @@ class ActuatorSite:
             if self.setups is not None or self.static:
                 self.actuator_samples.append(fb.samples)
             self._samples.append(self.setups.linearised_samples(samples) if self.setups is not None else samples)
+            # phases per recorded channel: the first n actuators' (with setups, the channels' own)
+            phases = None if fb.phases is None else [list(ph[:n]) for ph in fb.phases]
+            self._sample_meta.append((fb.sample_time, phases if self.setups is None else None))
         if self.estimator is not None:
             u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
         else:
@@ -271,9 +275,31 @@ class ActuatorSite:
         self._samples = []
         return out
 
-    def hold(self) -> None:
-        """Every actuator holds (confirmed by each actuator's own hold)."""
+    def take_sample_meta(self) -> tuple[np.ndarray, list] | None:
+        """Lab time and generator phases of the samples of the last :meth:`take_samples`."""
+        if not self._sample_meta or any(t is None or p is None for t, p in self._sample_meta):
+            self._sample_meta = []
+            return None
+        times = np.concatenate([t for t, _ in self._sample_meta])
+        phases = [p for _, ps in self._sample_meta for p in ps]
+        self._sample_meta = []
+        return times, phases
+
+    def take_events(self) -> list[dict]:
+        """Interlock warnings and trips since the last call (docs/safety.md section 3)."""
+        return self.loop.take_events()
+
+    def pause(self):
+        """Finish nothing more, hold every actuator and read the hold back (a HoldReport)."""
+        return self.loop.pause()
+
+    def resume(self) -> None:
+        self.loop.resume()
+
+    def hold(self):
+        """Every actuator holds; returns the read-back (:class:`hsio.safety.hold.HoldReport`)."""
         self.loop.hold_all()
+        return self.loop.confirm_hold()
 
     def close(self) -> None:
         self.loop.close()

@@ -1,0 +1,117 @@
+"""The specimen ledger: one SQLite file per specimen folder listing every run made on it
+(docs/safety.md section 1).
+
+A specimen is usually tested several times in a row (small, design-level, then large
+earthquakes) and only once in its life: the ledger says what was done to it, in order. Each run
+gets a row when it starts (outcome ``running``) and is completed when it ends: the run folder,
+the configuration, the software version, the state of the specimen at the start and at the end
+(measured displacement and force per actuator), whether the dry run was overridden, the outcome
+and the exit status. A row left ``running`` belongs to a run that was killed or lost power.
+
+Every write is committed durably (WAL, ``synchronous=FULL``).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from pathlib import Path
+
+from hsio.errors import ConfigError
+
+LEDGER_FILE = "ledger.sqlite"
+
+_COLUMNS = ("id", "specimen", "run_dir", "started", "ended", "version", "structure", "record", "config",
+            "start_state", "end_state", "dry_run", "override", "outcome", "exit_status", "message")
+_JSON = {"config", "start_state", "end_state", "dry_run"}
+
+
+def _now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S%z")
+
+
+class Ledger:
+    """The ledger of the specimen kept in ``folder`` (created if needed)."""
+
+    def __init__(self, folder: str | Path, specimen_id: str = ""):
+        self.folder = Path(folder)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(f"specimen folder {self.folder}: cannot create it: {exc.strerror}") from None
+        self.path = self.folder / LEDGER_FILE
+        self.db = sqlite3.connect(self.path, timeout=10.0)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=FULL")
+        self.db.execute("CREATE TABLE IF NOT EXISTS specimen (key TEXT PRIMARY KEY, value TEXT)")
+        self.db.execute("CREATE TABLE IF NOT EXISTS runs (id INTEGER PRIMARY KEY AUTOINCREMENT, specimen TEXT, "
+                        "run_dir TEXT, started TEXT, ended TEXT, version TEXT, structure TEXT, record TEXT, "
+                        "config TEXT, start_state TEXT, end_state TEXT, dry_run TEXT, override INTEGER, "
+                        "outcome TEXT, exit_status INTEGER, message TEXT)")
+        row = self.db.execute("SELECT value FROM specimen WHERE key = 'id'").fetchone()
+        wanted = specimen_id or self.folder.resolve().name
+        if row is None:
+            self.db.execute("INSERT INTO specimen VALUES ('id', ?)", (wanted,))
+            self.db.execute("INSERT INTO specimen VALUES ('created', ?)", (_now(),))
+            self.specimen_id = wanted
+        else:
+            self.specimen_id = row[0]
+            if specimen_id and specimen_id != self.specimen_id:
+                self.db.close()
+                raise ConfigError(f"specimen folder {self.folder} keeps the ledger of specimen {self.specimen_id!r}, "
+                                  f"not {specimen_id!r}: check [specimen] id and folder")
+        self.db.commit()
+
+    def begin(self, run_dir: str | Path, config: dict, structure: str, record: str, version: str) -> int:
+        """A new row for a run that starts now; returns its id."""
+        cur = self.db.execute(
+            "INSERT INTO runs (specimen, run_dir, started, version, structure, record, config, override, outcome) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, 0, 'running')",
+            (self.specimen_id, str(Path(run_dir).resolve()), _now(), version, structure, record,
+             json.dumps(config, default=str)))
+        self.db.commit()
+        return int(cur.lastrowid)
+
+    def update(self, run_id: int, **values) -> None:
+        """Set columns of a run's row (start_state, end_state, dry_run, override, ...)."""
+        bad = set(values) - set(_COLUMNS)
+        if bad:
+            raise ValueError(f"ledger: unknown columns {sorted(bad)}")
+        cols = ", ".join(f"{k} = ?" for k in values)
+        args = [json.dumps(v, default=str) if k in _JSON else v for k, v in values.items()]
+        self.db.execute(f"UPDATE runs SET {cols} WHERE id = ?", (*args, run_id))
+        self.db.commit()
+
+    def finish(self, run_id: int, outcome: str, exit_status: int, message: str = "", end_state=None) -> None:
+        self.update(run_id, ended=_now(), outcome=outcome, exit_status=int(exit_status), message=message,
+                    end_state=end_state)
+
+    def runs(self) -> list[dict]:
+        """Every run on the specimen, oldest first."""
+        cur = self.db.execute(f"SELECT {', '.join(_COLUMNS)} FROM runs ORDER BY id")
+        out = []
+        for row in cur.fetchall():
+            entry = dict(zip(_COLUMNS, row))
+            for k in _JSON:
+                if entry[k] is not None:
+                    entry[k] = json.loads(entry[k])
+            out.append(entry)
+        return out
+
+    def close(self) -> None:
+        if self.db is not None:
+            self.db.close()
+            self.db = None
+
+
+def read(folder: str | Path) -> list[dict]:
+    """The runs listed in the ledger of ``folder`` (read only)."""
+    path = Path(folder) / LEDGER_FILE
+    if not path.exists():
+        raise ConfigError(f"{folder}: no specimen ledger ({LEDGER_FILE})")
+    ledger = Ledger(folder)
+    try:
+        return ledger.runs()
+    finally:
+        ledger.close()

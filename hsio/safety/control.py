@@ -1,0 +1,146 @@
+"""Operator control of a run: pause, resume, stop (docs/safety.md section 4).
+
+A :class:`RunControl` takes requests from any thread (the terminal keys, the control socket) and
+from signal handlers (SIGTERM, SIGINT); the experiment loop acts on them between two steps
+(:meth:`RunControl.checkpoint`): a pause finishes the step, holds the actuators and waits for
+resume or stop, for as long as the operator wants; a stop holds the actuators and closes the
+record. A second SIGINT while a stop is pending interrupts at once.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+from typing import Callable
+
+from hsio.safety.status import OperatorStop
+
+RUNNING, PAUSING, PAUSED, STOPPING = "running", "pausing", "paused", "stopping"
+
+
+class RunControl:
+    """Pause / resume / stop requests, and where the run stands."""
+
+    WAIT_SLICE_S = 0.2  # a paused run wakes this often to look for a stop
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self.state = RUNNING
+        self.phase = "start-up"  # start-up, NS, HS, closing
+        self.step = 0
+        self.stop_reason = ""
+        self._pause_wanted = False
+        self.listeners: list[Callable[[str], None]] = []  # told of each pause, resume and stop
+
+    # -- requests (any thread) ------------------------------------------------------------
+    def request_pause(self, source: str = "operator") -> str:
+        with self._lock:
+            if self.state in (STOPPING,):
+                return f"error: the run is stopping ({self.stop_reason})"
+            self._pause_wanted = True
+            if self.state == RUNNING:
+                self.state = PAUSING
+        self._wake.set()
+        return f"ok {self.state}"
+
+    def request_resume(self, source: str = "operator") -> str:
+        with self._lock:
+            if self.state == STOPPING:
+                return f"error: the run is stopping ({self.stop_reason})"
+            self._pause_wanted = False
+            if self.state == PAUSING:
+                self.state = RUNNING
+        self._wake.set()
+        return f"ok {self.state if self.state != PAUSED else 'resuming'}"
+
+    def request_stop(self, reason: str = "stopped by the operator") -> str:
+        with self._lock:
+            if self.state != STOPPING:
+                self.state = STOPPING
+                self.stop_reason = reason
+        self._wake.set()
+        return "ok stopping"
+
+    @property
+    def stop_requested(self) -> bool:
+        return self.state == STOPPING
+
+    def status(self) -> str:
+        return f"ok {self.state} phase {self.phase} step {self.step}"
+
+    def _tell(self, message: str) -> None:
+        for listener in list(self.listeners):
+            try:
+                listener(message)
+            except Exception:
+                pass
+
+    # -- the experiment loop's side (main thread) -----------------------------------------
+    def enter(self, phase: str) -> None:
+        """A new phase of the run (start-up, NS, HS, closing); steps count from zero again."""
+        self.phase = phase
+        self.step = 0
+
+    def check_stop(self) -> None:
+        """Raise :class:`OperatorStop` if a stop was asked (start-up and between phases)."""
+        if self.state == STOPPING:
+            raise OperatorStop(self.stop_reason)
+
+    def checkpoint(self, site, step: int, log: Callable[[str, str], None] | None = None) -> None:
+        """Between two steps: stop, or pause (hold, wait, resume), as requested."""
+        self.step = step
+        self.check_stop()
+        if not self._pause_wanted:
+            return
+        pause = getattr(site, "pause", None)
+        report = pause() if pause is not None else None
+        message = f"paused after step {step}: " + (report.message if report is not None else "no actuators to hold")
+        with self._lock:
+            if self.state != STOPPING:
+                self.state = PAUSED
+        if log:
+            log("pause", message)
+        self._tell(message)
+        started = time.monotonic()
+        while True:  # as long as the operator wants; each wait is bounded
+            self._wake.wait(self.WAIT_SLICE_S)
+            self._wake.clear()
+            if self.state == STOPPING:
+                raise OperatorStop(self.stop_reason)
+            if not self._pause_wanted:
+                break
+        resume = getattr(site, "resume", None)
+        if resume is not None:
+            resume()
+        with self._lock:
+            if self.state != STOPPING:
+                self.state = RUNNING
+        message = f"resumed after {time.monotonic() - started:.1f} s of pause"
+        if log:
+            log("resume", message)
+        self._tell(message)
+
+
+@contextlib.contextmanager
+def stop_on_signals(control: RunControl):
+    """SIGTERM and SIGINT ask ``control`` to stop (the run holds and closes its record); a second
+    SIGINT interrupts at once. Installed only in the main thread; the old handlers come back."""
+    if threading.current_thread() is not threading.main_thread():
+        yield control
+        return
+
+    def handler(signum, frame):
+        name = signal.Signals(signum).name
+        if control.stop_requested and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        control.request_stop(f"stopped by {name} during {control.phase}")
+
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield control
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)

@@ -1,0 +1,107 @@
+"""Resume a run after a crash, SIGKILL or power loss (docs/safety.md section 8).
+
+Every step is durable before the next begins (docs/safety.md section 1), so the record holds the
+alpha-OS state of its last committed step k: u_k, v_k, a_k, u~_k and R~_k per DOF; v~_k follows
+from the corrector (v_k = v~_k + dt gamma a_k) and P_k from the record. The run goes on from step
+k + 1 into the same record, against the same hardware: the command generators start from where
+the actuators stand (they hold since the host fell silent) and the next target is approached over
+a whole step, so the actuators come back smoothly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+
+import hsio
+from hsio import api, config as config_mod
+from hsio.errors import ConfigError, HsioError
+from hsio.experiment import ExperimentStopped, excitation
+from hsio.integrators.alpha_os import AlphaOSState
+from hsio.recording import RUN_FILE, Recorder, Run, column
+from hsio.safety.control import RunControl, stop_on_signals
+from hsio.safety.settings import SafetySettings
+from hsio.safety.socket import ControlServer
+from hsio.safety.status import exit_status, outcome_name
+
+
+def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
+    """The alpha-OS state after the record's last committed step."""
+    steps = run.steps["step"]
+    if len(steps) == 0:
+        raise ConfigError(f"{run.path}: no committed step to resume from; start the run again")
+    k = int(steps[-1])
+    row = lambda prefix: np.array([run.steps[column(prefix, d)][-1] for d in structure.dof_names])  # noqa: E731
+    u, v, a, u_pred, R = row("u"), row("v"), row("a"), row("u_pred"), row("r")
+    v_pred = v - structure.dt * integrator.core.gamma * a
+    return AlphaOSState(k, u, v, a, u_pred, v_pred, R, P[k].copy())
+
+
+def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None) -> dict:
+    """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary."""
+    from hsio.runner import build_record, integrator_options, load_run_structure
+
+    run_dir = Path(run_dir)
+    path = run_dir / RUN_FILE
+    try:
+        run = Run(path)
+    except (FileNotFoundError, sqlite3.DatabaseError, KeyError) as exc:
+        raise ConfigError(f"{path}: not a run record that can be resumed ({exc})") from None
+    if run.summary.get("exit_status") == 0:
+        raise ConfigError(f"{path}: the run finished; nothing to resume")
+    cfg = config_mod.from_dict(run.meta["config"], f"{path} (meta config)")
+    if cfg["integrator"]["method"] != "alpha_os":
+        raise ConfigError(f"{path}: resume is available for the alpha_os method, not {cfg['integrator']['method']!r}")
+    structure = load_run_structure(cfg)
+    if not structure.numerical_assembly().is_linear:
+        raise ConfigError(f"{path}: resume needs a linear numerical part (its state is not in the record)")
+    ground = build_record(cfg, structure)
+    _, P = excitation(structure, ground)
+    integrator = api.make_integrator(structure, "alpha_os", cfg["integrator"]["alpha"], **integrator_options(cfg, structure))
+    state = last_state(run, structure, P, integrator)
+    control = control or RunControl()
+    notify = notify or (lambda line: None)
+    test, hardware = cfg["test"], cfg["hardware"]
+    safety = SafetySettings.from_table(cfg["safety"])
+    error = None
+    with stop_on_signals(control), contextlib.ExitStack() as cleanup:
+        recorder = Recorder.append(path)
+        cleanup.callback(recorder.close)
+        if safety.control_socket:
+            server = ControlServer(run_dir, control)
+            cleanup.callback(server.close)
+        recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
+        notify(f"resuming {path} after step {state.i}")
+        control.enter("start-up")
+        site = api.open_site(structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
+                             hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
+                             keep_samples=cfg["output"]["samples"],
+                             options=run.meta.get("emulator_settings", {}) if hardware["url"].startswith("emulator")
+                             else cfg["driver"], safety=safety)
+        cleanup.callback(site.close)
+        control.check_stop()
+        control.enter("HS")
+        try:
+            api.simulate(structure, ground, site, recorder=recorder, progress=progress, integrator=integrator,
+                         control=control, resume_state=state)
+        except ExperimentStopped as exc:
+            error = exc
+        site.close()
+        status = exit_status(error)
+        steps = recorder.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
+        summary = dict(run.summary)
+        summary.update(steps=steps, resumed_from=state.i, exit_status=status, outcome=outcome_name(status),
+                       stopped=str(error) if error else "", run_dir=str(run_dir))
+        peaks = recorder.db.execute("SELECT " + ", ".join(f"MAX(ABS(u_{d}))" for d in structure.dof_names)
+                                    + " FROM steps").fetchone()
+        summary["peak_displacement_mm"] = [float(x) for x in peaks]
+        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+        recorder.write_summary(summary)
+    if error is not None:
+        error.run_dir = run_dir
+        raise error
+    return summary

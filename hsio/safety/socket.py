@@ -1,0 +1,122 @@
+"""The local control socket of a run (docs/safety.md section 4).
+
+A UNIX stream socket in the run folder (``control.sock``; if that path is too long for a UNIX
+socket, in a short temporary folder, and the run's meta ``control_socket`` names it). One
+request per connection, one line of text each way:
+
+    pause      -> ok pausing | ok paused | error ...
+    resume     -> ok running | ok resuming | error ...
+    stop       -> ok stopping
+    status     -> ok <running|pausing|paused|stopping> phase <phase> step <n>
+
+Anything else gets ``error unknown command ...``. Only local processes of the same user can
+reach it (file permissions 0600).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import tempfile
+import threading
+from pathlib import Path
+
+from hsio.safety.control import RunControl
+
+MAX_PATH = 100  # sun_path holds 108 bytes on Linux
+
+
+def socket_path(run_dir: str | Path) -> Path:
+    path = Path(run_dir).resolve() / "control.sock"
+    if len(os.fsencode(str(path))) <= MAX_PATH:
+        return path
+    return Path(tempfile.mkdtemp(prefix="hsio-")) / "control.sock"
+
+
+class ControlServer:
+    """Serves :class:`RunControl` requests on a UNIX socket in a daemon thread."""
+
+    ACCEPT_SLICE_S = 0.2
+    READ_TIMEOUT_S = 2.0
+    MAX_LINE = 256
+
+    def __init__(self, run_dir: str | Path, control: RunControl):
+        self.control = control
+        self.path = socket_path(run_dir)
+        self._stop = threading.Event()
+        if self.path.exists():  # left by a run that was killed: nobody answers on it
+            try:
+                send(self.path, "status", timeout_s=0.5)
+                raise OSError(f"{self.path}: another run is using this control socket")
+            except (ConnectionRefusedError, FileNotFoundError, socket.timeout, TimeoutError):
+                self.path.unlink(missing_ok=True)
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        old = os.umask(0o177)
+        try:
+            self.sock.bind(str(self.path))
+        finally:
+            os.umask(old)
+        self.sock.listen(4)
+        self.sock.settimeout(self.ACCEPT_SLICE_S)
+        self._thread = threading.Thread(target=self._serve, name="hsio-control-socket", daemon=True)
+        self._thread.start()
+
+    def handle(self, line: str) -> str:
+        word = line.strip().lower()
+        if word == "pause":
+            return self.control.request_pause("socket")
+        if word == "resume":
+            return self.control.request_resume("socket")
+        if word == "stop":
+            return self.control.request_stop("stopped by the operator (control socket)")
+        if word == "status":
+            return self.control.status()
+        return f"error unknown command {line.strip()[:40]!r}; known: pause, resume, stop, status"
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                break
+            with conn:
+                try:
+                    conn.settimeout(self.READ_TIMEOUT_S)
+                    data = b""
+                    while b"\n" not in data and len(data) < self.MAX_LINE:
+                        chunk = conn.recv(self.MAX_LINE)
+                        if not chunk:
+                            break
+                        data += chunk
+                    reply = self.handle(data.decode("utf-8", "replace").partition("\n")[0])
+                    conn.sendall((reply + "\n").encode())
+                except OSError:
+                    pass
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        try:
+            self.sock.close()
+        finally:
+            try:
+                self.path.unlink()
+            except OSError:
+                pass
+
+
+def send(path: str | Path, command: str, timeout_s: float = 2.0) -> str:
+    """Send one command to a run's control socket; returns the reply line."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(timeout_s)
+        s.connect(str(path))
+        s.sendall((command.strip() + "\n").encode())
+        data = b""
+        while b"\n" not in data and len(data) < ControlServer.MAX_LINE:
+            chunk = s.recv(ControlServer.MAX_LINE)
+            if not chunk:
+                break
+            data += chunk
+    return data.decode().strip()

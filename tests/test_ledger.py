@@ -1,0 +1,46 @@
+"""The specimen ledger (docs/safety.md section 1): every run on a specimen, in order."""
+
+from __future__ import annotations
+
+import pytest
+
+import hsio
+from hsio import config, ledger, runner
+from hsio.errors import ConfigError
+from hsio.safety.status import DryRunRefused
+
+
+def test_the_ledger_lists_every_run_with_its_state_and_outcome(tmp_path):
+    spec = {"id": "wall-07", "folder": str(tmp_path / "wall-07")}
+    base = {"record": {"duration_s": 0.3}, "output": {"plots": False}, "specimen": spec}
+    runner.run(config.from_dict(base), tmp_path / "a")
+    runner.run(config.from_dict({**base, "record": {"duration_s": 0.3, "scale": 2.0}}), tmp_path / "b")
+    with pytest.raises(DryRunRefused):  # far too large: refused before anything moves
+        runner.run(config.from_dict({**base, "record": {"duration_s": 3.0, "scale": 20.0}}), tmp_path / "c")
+    runs = ledger.read(tmp_path / "wall-07")
+    assert [r["outcome"] for r in runs] == ["finished", "finished", "refused"]
+    assert [r["exit_status"] for r in runs] == [0, 0, 2]
+    assert all(r["specimen"] == "wall-07" and r["version"] == hsio.__version__ for r in runs)
+    assert runs[1]["config"]["record"]["scale"] == 2.0 and runs[1]["run_dir"].endswith("b")
+    first = runs[0]
+    assert set(first["start_state"]) == {"C1", "C2"} and "displacement_mm" in first["end_state"]["C1"]
+    assert runs[2]["start_state"] is None and runs[2]["dry_run"]["refused"]
+    assert all(r["started"] and r["ended"] for r in runs)
+
+
+def test_an_overridden_dry_run_is_in_the_ledger(tmp_path):
+    spec = {"id": "wall-08", "folder": str(tmp_path / "wall-08")}
+    cfg = config.from_dict({"record": {"duration_s": 1.0}, "output": {"plots": False}, "specimen": spec,
+                            "emulator": {"stroke_mm": 1.0}, "safety": {"override": True}})
+    try:
+        runner.run(cfg, tmp_path / "a")
+    except Exception:
+        pass  # the stroke stops the run; what matters here is the ledger
+    (entry,) = ledger.read(tmp_path / "wall-08")
+    assert entry["override"] == 1 and entry["dry_run"]["exceeded"]
+
+
+def test_a_ledger_belongs_to_one_specimen(tmp_path):
+    ledger.Ledger(tmp_path / "s", "wall-01").close()
+    with pytest.raises(ConfigError, match="keeps the ledger of specimen 'wall-01', not 'wall-02'"):
+        ledger.Ledger(tmp_path / "s", "wall-02")

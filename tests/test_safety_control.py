@@ -1,0 +1,189 @@
+"""Operator control (docs/safety.md section 4): pause and resume a real-time run, stop by the
+control socket, SIGTERM during NS, start-up and mid-run."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hsio import api, config, runner
+from hsio.experiment import ExperimentStopped
+from hsio.ground_motion import synthetic_record
+from hsio.recording import Run
+from hsio.result import max_error_pct
+from hsio.safety import socket as control_socket
+from hsio.safety.control import PAUSED, RunControl
+from hsio.safety.status import OPERATOR, OperatorStop, exit_status
+from hsio.structures import validation
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+QUIET = {"noise_mm": 0.0, "resolution_mm": 0.0, "force_noise_kN": 0.0, "force_resolution_kN": 0.0}
+
+
+def realtime_run(control=None, pause_at_step=None, pause_s=2.0):
+    """1.2 s of record at TR 2 in real time (about 2.4 s of lab time); with ``pause_at_step``, a
+    pause of ``pause_s`` of wall time there, the rods' positions sampled throughout the pause."""
+    s = validation()
+    g = synthetic_record(duration_s=1.2, dt=s.dt, pga_g=0.6)
+    control = control or RunControl()
+    rods: list[list[float]] = []
+    paused_for = []
+    with api.open_site(s, "emulator://", clock="realtime", test_rate=2.0, options=QUIET) as site:
+        def operator():
+            deadline = time.monotonic() + 30
+            while control.step < pause_at_step and time.monotonic() < deadline:
+                time.sleep(0.005)
+            control.request_pause("test")
+            while control.state != PAUSED and time.monotonic() < deadline:
+                time.sleep(0.005)
+            began = time.monotonic()
+            end = began + pause_s
+            while time.monotonic() < end:
+                rods.append([a.controller.d_rod for a in site.loop.actuators])
+                time.sleep(0.05)
+            rods.append([a.controller.d_rod for a in site.loop.actuators])
+            paused_for.append(time.monotonic() - began)
+            control.request_resume("test")
+
+        thread = threading.Thread(target=operator, daemon=True) if pause_at_step else None
+        if thread:
+            thread.start()
+        started = time.monotonic()
+        hs = api.simulate(s, g, site, control=control)
+        wall = time.monotonic() - started
+        if thread:
+            thread.join(timeout=30)
+    return hs, wall, np.array(rods), paused_for
+
+
+def test_a_paused_real_time_run_holds_and_resumes_to_the_same_result():
+    reference, wall_ref, _, _ = realtime_run()
+    paused, wall, rods, paused_for = realtime_run(pause_at_step=50, pause_s=2.0)
+    assert paused.steps == reference.steps == 120
+    assert paused_for and paused_for[0] >= 2.0 and wall >= paused_for[0]  # the pause lasted
+    assert len(rods) > 30
+    motion = float(np.max(np.ptp(rods, axis=0)))
+    assert motion < 1e-6  # the rods did not move while paused (the emulator's own rod position)
+    err, _ = max_error_pct(paused.u, reference.u)
+    print(f"pause test: wall {wall:.2f} s vs {wall_ref:.2f} s, motion during the pause {motion:.2e} mm, "
+          f"max |paused - unpaused| {err:.3f} % of peak")
+    assert err < 2.0  # real-time tracking noise of a loaded machine
+
+
+def test_stop_by_the_control_socket_holds_and_closes_the_record(tmp_path):
+    cfg = config.from_dict({"record": {"duration_s": 3.0}, "output": {"plots": False}})
+    control = RunControl()
+    replies = []
+
+    def operator():
+        deadline = time.monotonic() + 60
+        path = tmp_path / "o" / "control.sock"
+        while time.monotonic() < deadline:
+            if path.exists() and control.phase == "HS" and control.step > 20:
+                replies.append(control_socket.send(path, "status"))
+                replies.append(control_socket.send(path, "stop"))
+                return
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=operator, daemon=True)
+    thread.start()
+    with pytest.raises(ExperimentStopped) as info:
+        runner.run(cfg, tmp_path / "o", control=control)
+    thread.join(timeout=10)
+    assert replies[0].startswith("ok running phase HS step") and replies[1] == "ok stopping"
+    assert exit_status(info.value) == OPERATOR == 5
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert run.summary["exit_status"] == 5 and 20 < run.summary["steps"] < 300
+    kinds = [e["kind"] for e in run.events()]
+    assert kinds[-2:] == ["hold", "stop"] and "confirmed" in run.events()[-2]["message"]
+    assert not (tmp_path / "o" / "control.sock").exists()
+
+
+def test_unknown_socket_command_is_answered_plainly(tmp_path):
+    server = control_socket.ControlServer(tmp_path, RunControl())
+    try:
+        assert control_socket.send(server.path, "jump").startswith("error unknown command 'jump'; known:")
+        assert control_socket.send(server.path, "pause") == "ok pausing"
+        assert control_socket.send(server.path, "resume") == "ok running"
+    finally:
+        server.close()
+
+
+def start_run(tmp_path, record: str):
+    cfg = tmp_path / "run.toml"
+    cfg.write_text(record + "[output]\nplots = false\n")
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "hsio.cli", "run", str(cfg), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=tmp_path)
+    return proc, out
+
+
+def wait_for(out: Path, proc, predicate, timeout_s: float = 120.0) -> str:
+    """Poll the run's control socket until ``predicate(status line)``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        path = out / "control.sock"
+        if path.exists():
+            try:
+                status = control_socket.send(path, "status")
+                if predicate(status):
+                    return status
+            except OSError:
+                pass
+        time.sleep(0.02)
+    raise AssertionError(f"the run never reached the state wanted; it printed {proc.communicate(timeout=30)}")
+
+
+@pytest.mark.parametrize("when", ["NS", "HS"])
+def test_sigterm_holds_and_closes_the_record(tmp_path, when):
+    proc, out = start_run(tmp_path, '[structure]\nname = "structure_I"\n[record]\nsynthetic_duration_s = 30.0\n')
+    try:
+        if when == "NS":
+            wait_for(out, proc, lambda s: "phase NS" in s)
+        else:
+            wait_for(out, proc, lambda s: "phase HS" in s and int(s.rpartition(" ")[2]) > 10)
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 5, stderr
+    assert f"stopped by SIGTERM during {when}" in stderr
+    run = Run(out / "run.sqlite")
+    assert run.summary["exit_status"] == 5 and run.summary["outcome"] == "stopped by the operator"
+    assert run.events()[-1]["kind"] == "stop" and "SIGTERM" in run.events()[-1]["message"]
+    if when == "HS":
+        assert run.summary["steps"] > 10 and len(run.steps["step"]) == run.summary["steps"]
+        assert "the actuators hold (confirmed by read-back)" in stderr
+    else:
+        assert run.summary["steps"] == 0 and run.summary["end_state"] is None  # nothing was opened
+
+
+def test_sigterm_during_start_up_holds_the_actuators(tmp_path, monkeypatch):
+    """The signal arrives while the hardware opens: the run stops as soon as it is open, holding."""
+    opened = []
+    real_open = api.open_hardware
+
+    def open_and_signal(*args, **kwargs):
+        actuators = real_open(*args, **kwargs)
+        opened.extend(actuators)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return actuators
+
+    monkeypatch.setattr(api, "open_hardware", open_and_signal)
+    cfg = config.from_dict({"record": {"duration_s": 1.0}, "output": {"plots": False}})
+    with pytest.raises(OperatorStop, match="SIGTERM during start-up"):
+        runner.run(cfg, tmp_path / "o")
+    assert opened and all(a.holding() for a in opened)
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert run.summary["exit_status"] == 5 and "the actuators hold (confirmed" in run.events()[-1]["message"]
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the handler is restored

@@ -1,0 +1,99 @@
+"""The dry run before the hydraulics (docs/safety.md section 2)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hsio import api, config, runner
+from hsio.command import PredictorCorrector
+from hsio.recording import Run
+from hsio.safety.dry_run import check, known_limits, peak_command_velocity, predict
+from hsio.safety.settings import SafetySettings
+from hsio.safety.status import DryRunRefused
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def el_centro_x35(shared_data: Path, tmp_path: Path) -> Path:
+    cfg = tmp_path / "elcentro.toml"
+    cfg.write_text(f'[structure]\nname = "structure_I"\n[record]\nfile = "{shared_data / "ground_motions" / "I-ELC180.AT2"}"\n'
+                   f"scale = 3.5\n[output]\nplots = false\n")
+    return cfg
+
+
+def test_hsio_check_refuses_el_centro_x35_on_structure_I(shared_data, tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "check", str(el_centro_x35(shared_data, tmp_path))],
+                          capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "dry run: REFUSED, nothing moved" in proc.stdout
+    assert "wall displacement predicted   165.3" in proc.stdout and "limit +/-127 mm" in proc.stdout
+    assert "--override-dry-run" in proc.stdout
+
+
+def test_hsio_run_refuses_before_any_hardware_opens(shared_data, tmp_path, monkeypatch):
+    def no_hardware(*args, **kwargs):
+        raise AssertionError("the hardware was opened")
+
+    monkeypatch.setattr(api, "open_hardware", no_hardware)
+    cfg = config.load(el_centro_x35(shared_data, tmp_path))
+    with pytest.raises(DryRunRefused, match="165.3"):
+        runner.run(cfg, tmp_path / "o")
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert run.summary["exit_status"] == 2 and run.summary["steps"] == 0
+    assert run.meta["dry_run"]["refused"] and [e["kind"] for e in run.events()] == ["dry_run", "stop"]
+
+
+def test_the_peak_velocity_is_that_of_the_command_generator():
+    rng = np.random.default_rng(3)
+    targets = np.cumsum(rng.normal(0.0, 0.5, 120))
+    for hold_fraction in (0.0, 0.5):
+        g = PredictorCorrector(0.05, 1 / 1024, 0.0, hold_fraction=hold_fraction)
+        peak = 0.0
+        for t in targets:
+            g.new_target(t)
+            for _ in range(1000):
+                before = g.command
+                peak = max(peak, abs(g.next_sample() - before))
+                if g.reached:
+                    break
+        assert peak_command_velocity(targets, 0.05, 1 / 1024, hold_fraction) == pytest.approx(peak * 1024, rel=1e-12)
+
+
+def test_velocity_beyond_the_margin_is_refused():
+    cfg = config.from_dict({"record": {"duration_s": 2.0}, "test": {"rate": 1.0},
+                            "emulator": {"velocity_limit_mm_s": 100.0}})
+    s = runner.load_run_structure(cfg)
+    _, report = runner.predict(cfg, s, runner.build_record(cfg, s))
+    assert report.refused and any("velocity" in e for e in report.exceeded)
+
+
+def test_unknown_limits_are_named_not_guessed():
+    limits, source = known_limits("modbus+tcp://127.0.0.1:5020", {}, {"stroke_mm": 200.0})
+    assert limits == {"stroke_mm": 200.0, "force_kN": None, "velocity_mm_s": None} and source == "[driver]"
+    cfg = config.from_dict({"record": {"duration_s": 1.0}})
+    s = runner.load_run_structure(cfg)
+    ns = api.run_numerical(s, runner.build_record(cfg, s))
+    report = check(predict(ns, 0.2, 0.5), limits, source, SafetySettings())
+    text = report.text()
+    assert "not checked: force" in text and "velocity (no [driver] velocity_mm_s" in text
+    assert not report.refused
+
+
+def test_margins_are_fractions_of_the_limit():
+    limits, source = known_limits("emulator://", {"stroke_mm": 50.0}, {})
+    cfg = config.from_dict({"record": {"duration_s": 4.0}})
+    s = runner.load_run_structure(cfg)
+    ns = api.run_numerical(s, runner.build_record(cfg, s))
+    p = predict(ns, 0.2, 0.5)
+    peak = float(p.displacement.max())
+    assert peak < 25.0
+    margin_ok = 1.0 - peak / 25.0 - 0.01
+    assert not check(p, limits, source, SafetySettings(stroke_margin=margin_ok)).refused
+    assert check(p, limits, source, SafetySettings(stroke_margin=margin_ok + 0.02)).refused

@@ -1,0 +1,76 @@
+"""Several records on one specimen (docs/safety.md section 6): the second record starts from where
+the specimen stands, with no command jump, and the pair matches NS of the two records back to back."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hsio import api
+from hsio.errors import ConfigError
+from hsio.experiment import start_present
+from hsio.ground_motion import read_at2
+from hsio.recording import Recorder, Run
+from hsio.result import max_error_pct
+from hsio.sites import NumericalSite
+from hsio.structures import get_structure
+
+# A near-ideal, noise-free actuator: what is compared is the hand-over between the records.
+QUIET = {"lag_s": 0.002, "noise_mm": 0.0, "resolution_mm": 0.0, "force_noise_kN": 0.0, "force_resolution_kN": 0.0}
+
+
+def test_two_earthquakes_back_to_back_on_the_hysteretic_wall(shared_data, tmp_path):
+    s = get_structure("structure_I")
+    record = read_at2(shared_data / "ground_motions" / "I-ELC180.AT2").truncated(8.0)
+    small, large = record.scaled(1.0), record.scaled(1.5)
+    ns_site = NumericalSite.of(s)  # NS of the two records back to back: the wall keeps its state
+    ns1 = api.simulate(s, small, ns_site)
+    ns2 = api.simulate(s, large, ns_site, start="present")
+    with api.open_site(s, "emulator://", test_rate=10.0, options=QUIET) as site:
+        hs1 = api.simulate(s, small, site)
+        standing = float(site.loop.feedback()[0].displacement_mm)
+        last_command = site.loop.generators[0].command
+        rec = Recorder(tmp_path / "second.sqlite", s.dof_names, ["wall"])
+        try:
+            hs2 = api.simulate(s, large, site, recorder=rec, start="present")
+        finally:
+            rec.close()
+    assert abs(standing) > 1.0  # the wall yielded: a residual displacement
+    assert hs2.u[0, 0] == pytest.approx(standing, abs=1e-4)  # where the wall stands (averaged measurement)
+    assert hs2.R[0, 0] == pytest.approx(hs2.measured_force[0, 0], abs=1e-9)
+    first_command = Run(tmp_path / "second.sqlite").samples()["cmd_wall"][0]
+    assert abs(first_command - last_command) < 0.01  # no jump: one controller period of motion at most
+    pair_hs = np.vstack([hs1.u, hs2.u[1:]])
+    pair_ns = np.vstack([ns1.u, ns2.u[1:]])
+    err, _ = max_error_pct(pair_hs, pair_ns)
+    print(f"back to back: residual {standing:.3f} mm, max |HS - NS| {err:.4f} % of peak")
+    assert err < 2.0
+
+
+class _Standing:
+    """A site whose specimen stands displaced and loaded."""
+
+    def __init__(self, u, R):
+        self._c = (np.asarray(u, float), np.asarray(R, float))
+
+    def committed(self):
+        return self._c
+
+
+def test_numerical_dofs_start_in_static_equilibrium():
+    s = get_structure("structure_II")
+    integrator = api.make_integrator(s)
+    numerical = s.numerical_assembly()
+    n_e = len(s.experimental)
+    out = start_present(integrator, s, np.zeros(s.n_dof), _Standing(np.full(n_e, 2.0), np.full(n_e, 30.0)), numerical)
+    free = [d for d in range(s.n_dof) if d not in s.experimental_dofs]
+    assert free and np.allclose(out.R[free], 0.0, atol=1e-9)  # no unbalanced force on the numerical DOFs
+    assert np.allclose(s.M @ out.a, -out.R)  # a_0 from M a_0 = P_0 - R_0, at rest
+    assert np.allclose(out.v, 0.0)
+
+
+def test_present_start_needs_alpha_os():
+    s = get_structure("structure_I")
+    integrator = api.make_integrator(s, "implicit_dc")
+    with pytest.raises(ConfigError, match="start = 'present' is available for the alpha_os method"):
+        start_present(integrator, s, np.zeros(s.n_dof), _Standing([1.0], [2.0]), s.numerical_assembly())
