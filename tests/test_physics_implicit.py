@@ -1,0 +1,182 @@
+"""The implicit alpha method by secant iteration (E&M 2007, eqs. (7)-(12); docs/method.md
+sections 3 and 5) against a small site of linear springs whose secant estimate can be made to
+spike: the step's solution is the alpha method's (computed here by alpha-OS with the exact
+stiffness, which for a linear system is the same method), an implausible secant is refused, and
+an FC element that softens within a step goes on in DC."""
+
+import numpy as np
+import pytest
+
+from hsio.errors import ConfigError
+from hsio.integrators import AlphaOS, ImplicitAlpha, ImplicitMethod, SwitchingRule
+from hsio.interfaces import ControlMode
+from hsio.sites import Daq
+
+DC = ControlMode.DISPLACEMENT
+FC = ControlMode.FORCE
+
+
+class SpringSite:
+    """One linear spring per element (stiffness ``k``). ``spikes`` maps (step, trial) to a secant
+    estimate reported in place of the measured one. Every trial is logged."""
+
+    def __init__(self, k, spikes=None):
+        self.k = np.asarray(k, dtype=float)
+        self.spikes = dict(spikes or {})
+        self._committed = (np.zeros(self.k.size), np.zeros(self.k.size))
+        self.step = 1
+        self.trial = 0
+        self.log = []  # (step, trial, commands, modes)
+        self._daq = None
+
+    def committed(self):
+        return self._committed
+
+    def set_trial(self, commands, modes):
+        commands = np.asarray(commands, dtype=float).copy()
+        fc = np.array([m is FC for m in modes])
+        u = np.where(fc, commands / self.k, commands)
+        R = np.where(fc, commands, self.k * commands)
+        u_b, R_b = self._committed
+        with np.errstate(divide="ignore", invalid="ignore"):
+            k = (R - R_b) / (u - u_b)
+        self.trial += 1
+        spike = self.spikes.get((self.step, self.trial))
+        if spike is not None:
+            k = np.where(np.isnan(spike), np.nan, np.asarray(spike, dtype=float))
+        self.log.append((self.step, self.trial, commands, list(modes)))
+        self._daq = Daq(u=u, R=R, k=k, targets=commands, commands=commands)
+
+    def get_daq(self):
+        return self._daq
+
+    def set_modes(self, modes):
+        self.modes = list(modes)
+        return []
+
+    def commit(self):
+        self._committed = (self._daq.u.copy(), self._daq.R.copy())
+        self.step += 1
+        self.trial = 0
+
+
+M2 = np.diag([0.011, 0.007])
+C2 = np.array([[0.02, -0.005], [-0.005, 0.015]])
+K_N2 = np.array([[1.5, -1.5], [-1.5, 1.5]])
+K_EI2 = np.array([2.6, 1.8])
+LOADS = [np.array([0.0, 0.0]), np.array([3.0, -1.0]), np.array([4.0, 2.0]), np.array([-1.0, 2.5]), np.array([0.5, 0.0])]
+
+
+def reference(k_site, alpha, dt, loads=LOADS):
+    """The alpha method on the linear structure K = K_N + diag(k_site): alpha-OS with the exact
+    stiffness as its implicit part."""
+    K = K_N2 + np.diag(k_site)
+    integ = AlphaOS(M2, C2, K, dt, alpha)
+    integ.start(loads[0])
+    return [integ.step(P, lambda u: K @ u).u for P in loads[1:]]
+
+
+def run(k_site, modes, spikes=None, j_max=10, alpha=-0.1, dt=0.01, fallback_below=None, **kw):
+    site = SpringSite(k_site, spikes)
+    integ = ImplicitAlpha(M2, C2, K_N2, [0, 1], K_EI2, dt, alpha, j_max=j_max, tol_displacement=1e-11,
+                          tol_force=1e-11, **kw)
+    integ.start(LOADS[0], site)
+    out = [integ.step(P, site, list(modes), fallback_below) for P in LOADS[1:]]
+    return out, site
+
+
+@pytest.mark.parametrize("modes", [(DC, DC), (FC, FC), (DC, FC)])
+def test_converged_steps_are_the_alpha_methods_solution(modes):
+    k_site = np.array([1.3, 2.7])  # one softer, one stiffer than K^EI
+    out, _ = run(k_site, modes)
+    for (state, report), u_ref in zip(out, reference(k_site, -0.1, 0.01)):
+        assert report.converged
+        assert np.allclose(state.u, u_ref, rtol=1e-9, atol=1e-12)
+        assert np.allclose(report.k, k_site, rtol=1e-9)
+        assert np.allclose(state.R, (K_N2 + np.diag(k_site)) @ state.u, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("modes", [(DC, DC), (FC, FC)])
+def test_a_secant_spike_on_the_last_iteration_is_refused(modes):
+    """j_max = 2: the second measurement spikes to 100 K^EI; the step keeps the first secant."""
+    k_site = np.array([1.3, 2.7])
+    spikes = {(1, 2): 100 * K_EI2}
+    out, site = run(k_site, modes, spikes, j_max=2)
+    ref = reference(k_site, -0.1, 0.01)
+    for (state, report), u_ref in zip(out, ref):
+        assert np.allclose(report.k, k_site, rtol=1e-9)
+        assert np.allclose(state.u, u_ref, rtol=1e-9, atol=1e-12)
+
+
+def test_a_spike_within_the_step_changes_no_command():
+    """A spike on iteration 2 of 10: every command after it is still the converged one."""
+    k_site = np.array([1.3, 2.7])
+    out, site = run(k_site, (FC, DC), {(1, 2): np.array([100 * K_EI2[0], np.nan])})
+    state, report = out[0]
+    commands = [c for step, trial, c, m in site.log if step == 1]
+    assert report.converged and report.iterations.tolist() == [2, 2]
+    assert len(commands) == 2  # the first guess (K^EI), then the converged solution only
+    assert np.allclose(state.u, reference(k_site, -0.1, 0.01)[0], rtol=1e-9, atol=1e-12)
+
+
+def test_secant_up_to_the_plausibility_ratio_is_accepted():
+    """A stiffening element at 3 K^EI is real, not a spike: it is used (ratio 20 by default); with
+    the ratio at 2 it is refused and the iteration stays on K^EI."""
+    k_site = 3.0 * K_EI2
+    out, _ = run(k_site, (DC, DC))
+    assert np.allclose(out[-1][1].k, k_site, rtol=1e-9)
+    assert np.allclose(out[-1][0].u, reference(k_site, -0.1, 0.01)[-1], rtol=1e-9, atol=1e-12)
+    out, _ = run(k_site, (DC, DC), max_stiffness_ratio=2.0)
+    assert np.allclose(out[-1][1].k, K_EI2, rtol=0)
+    out, _ = run(k_site, (DC, DC), max_stiffness_ratio=3.0 * (1 + 1e-12))
+    assert np.allclose(out[-1][1].k, k_site, rtol=1e-9)
+    with pytest.raises(ConfigError, match="max_stiffness_ratio"):
+        ImplicitAlpha(M2, C2, K_N2, [0, 1], K_EI2, 0.01, max_stiffness_ratio=1.0)
+
+
+def test_fc_element_falls_back_to_dc_within_the_step_when_it_softens():
+    """fallback_below 0.8 K^EI: element 0 (secant 0.5 K^EI) goes on in DC from its second trial;
+    element 1 (0.9 K^EI) stays in FC; the step converges to the alpha method's solution."""
+    k_site = np.array([0.5, 0.9]) * K_EI2
+    out, site = run(k_site, (FC, FC), fallback_below=0.8 * K_EI2)
+    state, report = out[0]
+    assert report.fell_back.tolist() == [True, False]
+    assert report.modes == [DC, FC]
+    step1 = [(trial, m) for step, trial, c, m in site.log if step == 1]
+    assert step1[0][1] == [FC, FC]
+    assert all(m == [DC, FC] for trial, m in step1[1:])
+    assert report.converged
+    assert np.allclose(state.u, reference(k_site, -0.1, 0.01)[0], rtol=1e-9, atol=1e-12)
+    # each step starts again in the modes it is given
+    for _, r in out[1:]:
+        assert r.fell_back.tolist() == [True, False]
+
+
+def test_without_fallback_an_fc_element_stays_in_fc():
+    k_site = np.array([0.5, 0.9]) * K_EI2
+    out, site = run(k_site, (FC, FC))
+    assert all(r.modes == [FC, FC] and not r.fell_back.any() for _, r in out)
+    assert all(m == [FC, FC] for *_, m in site.log)
+    out, site = run(k_site, (FC, FC), fallback_below=0.4 * K_EI2)  # not soft enough to fall back
+    assert all(r.modes == [FC, FC] and not r.fell_back.any() for _, r in out)
+
+
+def test_mixed_method_falls_back_within_the_step_and_reports_the_switch():
+    """Mixed control, thresholds 1.2 and 0.8 K^EI: a stiff element (1.5 K^EI) goes to FC after the
+    first step; when the specimen softens to 0.5 K^EI the element falls back to DC inside the step
+    (reported as a switch within the step) and the step converges to the alpha method's solution."""
+    site = SpringSite([1.5 * K_EI2[0], 1.0 * K_EI2[1]])
+    method = ImplicitMethod(M2, C2, K_N2, [0, 1], K_EI2, 0.01, -0.1, "mixed",
+                            SwitchingRule.from_initial_stiffness(K_EI2), ("a", "b"), j_max=10,
+                            tol_displacement=1e-11, tol_force=1e-11)
+    method.start(LOADS[0], site, None)
+    out = method.step(LOADS[1], site, None, 1, 0.01)
+    assert out.modes == [DC, DC] and method.modes == [FC, DC]
+    assert [(s.dof, s.to, s.within_step) for s in out.switches] == [("a", "force", False)]
+    site.k = np.array([0.5 * K_EI2[0], K_EI2[1]])  # the element softens
+    out = method.step(LOADS[2], site, None, 2, 0.02)
+    assert [(s.dof, s.to, s.within_step) for s in out.switches] == [("a", "displacement", True)]
+    assert out.modes == [DC, DC] and method.modes == [DC, DC]
+    step2 = [m for step, trial, c, m in site.log if step == 2]
+    assert step2[0] == [FC, DC] and all(m == [DC, DC] for m in step2[1:])
+    assert out.converged
