@@ -101,3 +101,68 @@ def test_a_target_beyond_the_stroke_is_refused_before_any_command_is_sent():
     assert actuator.sent == []
     loop.execute(np.array([10.0]))  # at the edge of the stroke: accepted
     assert actuator.sent[-1] == 10.0
+
+
+def test_commands_start_from_the_actuators_present_position():
+    actuator = LaggingSpring("a", offset=5.0, gain=1.0)
+    loop = loop_over([actuator], n_avg=1)
+    fb = loop.execute(np.array([5.5]))
+    assert min(actuator.sent) >= 5.0 - 1e-12 and max(actuator.sent) <= 5.5 + 1e-12
+    assert fb.displacement[0] == pytest.approx(5.5)
+
+
+def test_ramp_hold_dwells_on_the_target_for_the_hold_fraction():
+    actuator = LaggingSpring("a", gain=0.5)
+    clock = LockstepClock()
+    clock.attach(actuator)
+    loop = ControlLoop([actuator], clock, 0.01, 6.25, n_avg=4, hold_fraction=0.5)
+    loop.execute(np.array([1.0]))
+    assert len(actuator.sent) == 64
+    assert actuator.sent[-33:] == [1.0] * 33 and actuator.sent[-34] != 1.0
+    assert actuator.position == pytest.approx(1.0, abs=1e-9)  # settled during the dwell
+
+
+def test_displacement_commands_faster_than_the_actuator_are_refused_and_hold():
+    actuator = LaggingSpring("a", limits=Limits(velocity_mm_s=10.0))
+    loop = loop_over([actuator], n_avg=1)
+    loop.execute(np.array([0.3]))  # about 5 mm/s
+    with pytest.raises(LimitError, match="velocity"):
+        loop.execute(np.array([2.0]))  # about 30 mm/s
+    assert actuator.holding
+    assert max(np.abs(np.diff([0.0] + actuator.sent))) * 1024 <= 10.0
+
+
+def test_force_commands_are_not_checked_against_the_displacement_velocity():
+    actuator = LaggingSpring("a", limits=Limits(velocity_mm_s=10.0))
+    loop = loop_over([actuator], n_avg=1)
+    loop.set_mode(0, ControlMode.FORCE)
+    fb = loop.execute(np.array([20.0]))  # kN: a fast force ramp
+    assert actuator.mode is ControlMode.FORCE and actuator.sent[-1] == 20.0
+    assert fb.targets[0] == 20.0
+
+
+def test_a_mode_switch_starts_the_new_command_at_the_present_measurement():
+    actuator = LaggingSpring("a", k=4.0, gain=1.0)
+    loop = loop_over([actuator], n_avg=1, )
+    loop.execute(np.array([0.5]))
+    loop.set_mode(0, ControlMode.FORCE)
+    assert loop.generators[0].command == pytest.approx(2.0)  # 4 kN/mm x 0.5 mm
+    assert loop.generators[0].period == pytest.approx(1 / 1024)
+    loop.execute(np.array([2.4]))
+    assert min(actuator.sent[-64:]) >= 2.0 - 1e-12
+    loop.set_mode(0, ControlMode.FORCE)  # already in force control: nothing changes
+    assert actuator.mode is ControlMode.FORCE
+
+
+def test_loop_arguments():
+    actuator = LaggingSpring("a")
+    clock = LockstepClock()
+    clock.attach(actuator)
+    with pytest.raises(ValueError, match="test rate must be positive"):
+        ControlLoop([actuator], clock, 0.01, 0.0)
+    slow = ControlLoop([actuator], clock, 0.1, 0.625, n_avg=0, keep_samples=False)  # TR below 1 is allowed
+    assert slow.t_d == pytest.approx(0.0625) and slow.n_avg == 1
+    before = len(actuator.log)
+    fb = slow.execute(np.array([0.2]))
+    assert fb.samples is None
+    assert fb.displacement[0] == actuator.log[-1][0] and len(actuator.log) - before == 64
