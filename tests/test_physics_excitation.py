@@ -110,3 +110,62 @@ def test_energy_balance_of_a_nonlinear_elastic_sdof_under_a_record():
     assert E_input.max() > 10.0  # kN mm
     # measured: 7.5e-5 of the peak input energy
     assert np.max(np.abs(balance)) < 1.5e-4 * E_input.max()
+
+
+class FailingSite:
+    """Specimen models that fail on the trial of step ``fail_at`` with ``error``."""
+
+    def __init__(self, structure, fail_at, error):
+        from hsio.sites import NumericalSite
+
+        self.inner = NumericalSite.of(structure)
+        self.fail_at, self.error = fail_at, error
+        self.trials = 0
+        self.held = False
+        self.late_steps, self.lab_time_s = 0, None
+
+    def committed(self):
+        return self.inner.committed()
+
+    def set_trial(self, commands, modes):
+        self.trials += 1
+        if self.trials == self.fail_at:
+            raise self.error
+        self.inner.set_trial(commands, modes)
+
+    def get_daq(self):
+        return self.inner.get_daq()
+
+    def commit(self):
+        self.inner.commit()
+
+    def set_modes(self, modes):
+        return self.inner.set_modes(modes)
+
+    def take_samples(self):
+        return None
+
+    def hold(self):
+        self.held = True
+
+
+@pytest.mark.parametrize("error, reason", [
+    (ValueError("boom"), r"step 5 \(t = 0\.050 s\): unexpected ValueError\('boom'\)"),
+    (KeyboardInterrupt(), r"interrupted at step 5"),
+])
+def test_a_run_that_stops_keeps_every_step_made_and_holds(error, reason):
+    from hsio.api import make_integrator
+    from hsio.experiment import ExperimentStopped, run_steps
+
+    structure = sdof(m=0.011, k=2.6, zeta=0.05, dt=0.01)
+    ground = constant_ground(0.1, 0.01, 0.2)
+    full = run_numerical(structure, ground, alpha=-0.05)
+    site = FailingSite(structure, 5, error)
+    with pytest.raises(ExperimentStopped, match=reason) as stopped:
+        run_steps(structure, ground, make_integrator(structure, "alpha_os", -0.05), site)
+    result = stopped.value.result
+    assert site.held
+    assert len(result.t) == 5 and np.array_equal(result.u, full.u[:5])
+    assert np.array_equal(result.t, full.t[:5])
+    assert result.stopped and "4 steps recorded" in str(stopped.value)
+    assert full.stopped == "" and len(full.t) == 21
