@@ -180,3 +180,85 @@ def test_mixed_method_falls_back_within_the_step_and_reports_the_switch():
     step2 = [m for step, trial, c, m in site.log if step == 2]
     assert step2[0] == [FC, DC] and all(m == [DC, DC] for m in step2[1:])
     assert out.converged
+
+
+def test_independent_dofs_stop_iterating_on_their_own_convergence():
+    """independent=True: several SDOF side by side (diagonal M, C), each element converging on its
+    own: the one whose spring equals K^EI needs one command, the other two."""
+    M, C = np.diag([0.011, 0.007]), np.diag([0.02, 0.01])
+    k_site = np.array([K_EI2[0], 0.6 * K_EI2[1]])
+    loads = [np.zeros(2), np.array([3.0, -1.0]), np.array([4.0, 2.0]), np.array([-1.0, 2.5])]
+    site = SpringSite(k_site)
+    integ = ImplicitAlpha(M, C, None, [0, 1], K_EI2, 0.01, -0.1, j_max=10, tol_displacement=1e-11,
+                          tol_force=1e-11, independent=True)
+    integ.start(loads[0], site)
+    ref = AlphaOS(M, C, np.diag(k_site), 0.01, -0.1)
+    ref.start(loads[0])
+    for i, P in enumerate(loads[1:]):
+        state, report = integ.step(P, site, [FC, DC])
+        u_ref = ref.step(P, lambda u: k_site * u).u
+        assert report.converged
+        assert np.allclose(state.u, u_ref, rtol=1e-9, atol=1e-12)
+        assert np.allclose(state.R, k_site * state.u, rtol=1e-9, atol=1e-12)
+        assert np.allclose(report.measured_u, site.get_daq().u, rtol=0, atol=1e-12)
+        if i == 0:
+            assert report.iterations.tolist() == [1, 2]
+    assert integ.state.i == 3
+
+
+def test_report_holds_the_last_commands_and_measurements():
+    k_site = np.array([1.3, 2.7])
+    out, site = run(k_site, (FC, DC), j_max=10)
+    for step, (state, report) in enumerate(out, start=1):
+        last = [c for s, t, c, m in site.log if s == step][-1]
+        assert np.array_equal(report.commands, last)
+        assert report.commands[0] == pytest.approx(report.R_solution[0], rel=1e-12)  # FC: the force
+        assert report.commands[1] == pytest.approx(report.u_solution[1], rel=1e-12)  # DC: the displacement
+        assert report.measured_u[0] == pytest.approx(last[0] / k_site[0], rel=1e-12)
+        assert report.measured_R[1] == pytest.approx(last[1] * k_site[1], rel=1e-12)
+
+
+def test_one_command_per_step_when_j_max_is_one():
+    k_site = np.array([1.3, 2.7])
+    out, site = run(k_site, (DC, DC), j_max=1)
+    state, report = out[0]
+    assert report.iterations.tolist() == [1, 1] and not report.converged
+    assert len([1 for s, *_ in site.log if s == 1]) == 1
+    # the step is accepted on the secant measured by that one command: the exact solution here
+    assert np.allclose(state.u, reference(k_site, -0.1, 0.01)[0], rtol=1e-9, atol=1e-12)
+
+
+def test_zero_tolerance_converges_when_the_command_repeats_exactly():
+    k_site = np.array([1.3, 2.7])
+    site = SpringSite(k_site)
+    integ = ImplicitAlpha(M2, C2, K_N2, [0, 1], K_EI2, 0.01, -0.1, j_max=10, tol_displacement=0.0, tol_force=0.0)
+    integ.start(LOADS[0], site)
+    _, report = integ.step(LOADS[1], site, [DC, DC])
+    assert report.converged and report.iterations.tolist() == [2, 2]
+
+
+def test_a_secant_at_exactly_the_plausibility_limit_is_used():
+    k_site = np.array([1.3, 2.7])
+    limit = 20.0 * K_EI2
+    out, _ = run(k_site, (DC, DC), {(1, 2): limit}, j_max=2)
+    assert np.array_equal(out[0][1].k, limit)
+
+
+def test_a_soft_dc_element_does_not_fall_back():
+    k_site = np.array([0.5, 0.5]) * K_EI2
+    out, site = run(k_site, (FC, DC), fallback_below=0.8 * K_EI2)
+    assert out[0][1].fell_back.tolist() == [True, False] and out[0][1].modes == [DC, DC]
+
+
+def test_start_from_a_displaced_moving_state():
+    site = SpringSite([1.3, 2.7])
+    site._committed = (np.array([0.4, -0.2]), np.array([0.52, -0.54]))
+    integ = ImplicitAlpha(M2, C2, K_N2, [0, 1], K_EI2, 0.01, -0.1)
+    u0, v0, P0 = np.array([0.4, -0.2]), np.array([5.0, -3.0]), np.array([1.0, 0.5])
+    s = integ.start(P0, site, u0=u0, v0=v0)
+    R0 = np.array([0.52, -0.54]) + K_N2 @ u0
+    assert s.i == 0 and np.array_equal(s.u_pred, u0) and np.array_equal(s.v, v0)
+    assert np.allclose(s.R, R0, rtol=1e-14)
+    assert np.allclose(s.a, np.linalg.solve(M2, P0 - C2 @ v0 - R0), rtol=1e-12)
+    with pytest.raises(ConfigError, match="3 modes for 2 elements"):
+        integ.step(P0, site, [DC, DC, DC])
