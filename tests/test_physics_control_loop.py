@@ -75,6 +75,7 @@ def test_step_measurement_is_the_mean_of_exactly_the_last_n_avg_periods(n_avg):
                 assert fb.displacement[j] != pytest.approx(step_log[-n_avg - 1:, 0].mean(), rel=1e-9)
                 assert fb.displacement[j] != pytest.approx(step_log[-n_avg + 1:, 0].mean(), rel=1e-9)
             assert a.sent[-1] == targets[j]  # the last command is the target
+            assert fb.commands[j] == targets[j]
             assert np.allclose(fb.samples[:, j, 1], step_log[:, 0], rtol=0, atol=0)
         assert np.array_equal(fb.targets, targets)
 
@@ -152,6 +153,17 @@ def test_a_mode_switch_starts_the_new_command_at_the_present_measurement():
     assert min(actuator.sent[-64:]) >= 2.0 - 1e-12
     loop.set_mode(0, ControlMode.FORCE)  # already in force control: nothing changes
     assert actuator.mode is ControlMode.FORCE
+    loop.set_mode(0, ControlMode.DISPLACEMENT)  # back: from the present displacement
+    assert loop.generators[0].command == pytest.approx(actuator.position) and actuator.k * actuator.position > 2 * actuator.position
+
+
+def test_a_mode_switch_keeps_the_ramp_hold():
+    actuator = LaggingSpring("a")
+    clock = LockstepClock()
+    clock.attach(actuator)
+    loop = ControlLoop([actuator], clock, 0.01, 6.25, hold_fraction=0.5)
+    loop.set_mode(0, ControlMode.FORCE)
+    assert loop.generators[0].dwell_samples == 32
 
 
 def test_loop_arguments():
