@@ -1,4 +1,4 @@
-"""alpha-OS as the experiment loop runs it (E&M 2007, eqs. (3)-(6); docs/method.md section 2),
+"""alpha-OS as the experiment loop runs it (E&M 2007, eqs. (3)-(6) and Figure 9),
 step by step against eq. (3) solved directly here, with the restoring force of operator
 splitting R_{i+1} = R~_{i+1} + K_I (u_{i+1} - u~_{i+1}); the force correction with the measured
 displacement; what a run records; the start and the arguments."""

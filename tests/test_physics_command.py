@@ -1,4 +1,4 @@
-"""The predictor-corrector (docs/method.md section 1) on targets that lie on a quadratic in time:
+"""The predictor-corrector (E&M 2007, Figure 2; docs/method.md) on targets that lie on a quadratic in time:
 the Hermite segments and the extrapolation both reproduce the quadratic exactly, and a late
 integrator makes the command slow down exponentially, then hold."""
 

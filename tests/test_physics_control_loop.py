@@ -1,4 +1,4 @@
-"""The controller-rate loop's measurement of a step (docs/method.md section 5): the mean of
+"""The controller-rate loop's measurement of a step (E&M 2007: N_avg samples averaged): the mean of
 exactly the last n_avg controller periods, over an actuator whose samples differ period by
 period; the commands land on the targets, and limits are checked before anything moves."""
 

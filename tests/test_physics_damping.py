@@ -1,5 +1,5 @@
 """Viscous damping of the structures: the modal damping ratios that the damping kinds give
-(mass, stiffness, Rayleigh on modes 1-2; docs/method.md section 6), and the natural frequencies,
+(mass, stiffness, Rayleigh on modes 1-2; E&M 2007, Tables I-III), and the natural frequencies,
 against eigenvectors computed here from M and K."""
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""The ground excitation P = -M iota a_g (E&M 2007, eq. (3); docs/method.md section 2) against
+"""The ground excitation P = -M iota a_g (E&M 2007, eq. (3)) against
 independent references: the closed-form response of an undamped SDOF to a constant ground
 acceleration, scipy's solution of a 2-DOF shear building, and the energy balance of a nonlinear
 elastic SDOF."""

@@ -1,5 +1,5 @@
-"""The implicit alpha method by secant iteration (E&M 2007, eqs. (7)-(12); docs/method.md
-sections 3 and 5) against a small site of linear springs whose secant estimate can be made to
+"""The implicit alpha method by secant iteration (E&M 2007, eqs. (7)-(12) and
+Figure 11) against a small site of linear springs whose secant estimate can be made to
 spike: the step's solution is the alpha method's (computed here by alpha-OS with the exact
 stiffness, which for a linear system is the same method), an implausible secant is refused, and
 an FC element that softens within a step goes on in DC."""

@@ -1,6 +1,6 @@
 """Actuator limits: a command beyond the stroke, the force capacity or the velocity limit, or not a
 finite number, is refused before it is sent (the actuator keeps its last command); a command at
-the limit is sent. The stroke is centred on zero (docs/method.md section 4: d_max = 254 mm)."""
+the limit is sent. The stroke is centred on zero (E&M 2007, eq. (2): d_max = 254 mm)."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""The switching rule of mixed control (E&M 2007, section 5; docs/method.md section 5): two
+"""The switching rule of mixed control (E&M 2007, mixed variables): two
 thresholds per element with hysteresis, on the secant stiffness or on |R|."""
 
 import numpy as np

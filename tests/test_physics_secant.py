@@ -1,4 +1,4 @@
-"""The secant stiffness of eq. (11) (E&M 2007, eq. (11) and section 5; docs/method.md section 5)
+"""The secant stiffness of eq. (11) (E&M 2007, eq. (11))
 from controller-rate samples, by the three estimators, against values computed here; and the
 refusal rules (increment too small, not a finite positive number)."""
 
