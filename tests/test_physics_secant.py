@@ -102,3 +102,12 @@ def test_secant_of_exact_values():
     k = secant_stiffness([1.0, 2.0, 3.0, 4.0], [2.0, -1.0, 5.0, 0.0], [0.0, 0.0, 3.0, 2.0], [0.0, 0.0, 1.0, 0.0])
     assert k[0] == pytest.approx(2.0) and np.isnan(k[1]) and np.isnan(k[2]) and np.isnan(k[3])
     assert secant_stiffness([3.0], [7.0], [1.0], [1.0])[0] == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("method", ["raw", "average", "least_squares"])
+def test_a_soft_secant_below_one_is_accepted(method):
+    est = SecantEstimator(method, n_avg=2)
+    est.begin_step([2.0], [1.0])
+    _, _, k = est.update(np.array([[2.5], [3.0]]), np.array([[1.25], [1.5]]))
+    assert k[0] == pytest.approx(0.5, rel=1e-12)
+    assert secant_stiffness([3.0], [1.5], [2.0], [1.0])[0] == pytest.approx(0.5, rel=1e-12)
