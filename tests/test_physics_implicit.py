@@ -262,3 +262,38 @@ def test_start_from_a_displaced_moving_state():
     assert np.allclose(s.a, np.linalg.solve(M2, P0 - C2 @ v0 - R0), rtol=1e-12)
     with pytest.raises(ConfigError, match="3 modes for 2 elements"):
         integ.step(P0, site, [DC, DC, DC])
+
+
+def test_converged_steps_on_a_nonlinear_spring_solve_eq7():
+    """A Menegotto-Pinto SDOF (E&M 2007, eq. (13)) in DC and FC: each converged step solves
+    eq. (7), K* u + (1+alpha) R(u) = P*, here by a scalar root search on the spring itself."""
+    import scipy.optimize
+
+    from hsio.sites import NumericalSite
+    from hsio.specimens import make_specimen
+
+    m, c, alpha, dt = 0.011, 0.02, -0.1, 0.01
+    spec = {"kind": "menegotto_pinto", "k0": 2.6, "u_y": 2.0, "theta": 0.2}
+    spring = make_specimen(spec)
+    beta, gamma = (1 - alpha) ** 2 / 4, 0.5 - alpha
+    K_star = m / (beta * dt**2) + (1 + alpha) * gamma * c / (beta * dt)
+    loads = [0.0] + [6.0 * np.sin(2 * np.pi * 2.0 * i * dt) for i in range(1, 30)]
+    for mode in (DC, FC):
+        site = NumericalSite([make_specimen(spec)])
+        integ = ImplicitAlpha([[m]], [[c]], None, [0], [2.6], dt, alpha, j_max=50, tol_displacement=1e-12,
+                              tol_force=1e-12)
+        integ.start(np.array([0.0]), site)
+        u, v, a, R = 0.0, 0.0, 0.0, 0.0
+        peak = 0.0
+        for i in range(1, len(loads)):
+            state, report = integ.step(np.array([loads[i]]), site, [mode])
+            u_p, v_p = u + dt * v + dt**2 * (0.5 - beta) * a, v + dt * (1 - gamma) * a
+            P_star = (1 + alpha) * loads[i] - alpha * loads[i - 1] - (1 + alpha) * c * v_p + alpha * c * v + K_star * u_p + alpha * R
+            u1 = scipy.optimize.brentq(lambda x: K_star * x + (1 + alpha) * spring.trial(x) - P_star, -100, 100, xtol=1e-14)
+            a1 = (u1 - u_p) / (beta * dt**2)
+            u, v, a, R = u1, v_p + gamma * dt * a1, a1, spring.trial(u1)
+            assert report.converged
+            assert state.u[0] == pytest.approx(u, rel=1e-9, abs=1e-12)
+            assert state.R[0] == pytest.approx(R, rel=1e-9, abs=1e-12)
+            peak = max(peak, abs(u))
+        assert peak > 2 * 2.0  # beyond u_y: the secant is far from K^EI
