@@ -32,7 +32,7 @@ def test_sdof_damped_free_vibration_matches_closed_form(alpha):
     u = integrate_linear([[m]], [[c]], [[k]], dt, np.zeros((n, 1)), alpha, [u0], [v0])[:, 0]
     t = np.arange(n) * dt
     exact = np.exp(-zeta * w * t) * (u0 * np.cos(wd * t) + (v0 + zeta * w * u0) / wd * np.sin(wd * t))
-    assert np.max(np.abs(u - exact)) < 0.01 * u0
+    assert np.max(np.abs(u - exact)) < 3e-4 * u0  # measured 1.5e-4 (alpha = -1/3)
 
 
 def test_second_order_accuracy():
@@ -59,7 +59,7 @@ def test_two_dof_undamped_matches_modal_closed_form():
     t = np.arange(n) * dt
     q0 = phi.T @ M @ u0
     exact = (phi @ (q0[:, None] * np.cos(np.outer(w, t)))).T
-    assert np.max(np.abs(u - exact)) < 0.01 * np.max(np.abs(u0))
+    assert np.max(np.abs(u - exact)) < 0.008 * np.max(np.abs(u0))  # measured 0.0038
 
 
 def test_two_dof_earthquake_matches_scipy_solve_ivp():
@@ -80,7 +80,7 @@ def test_two_dof_earthquake_matches_scipy_solve_ivp():
 
     sol = scipy.integrate.solve_ivp(rhs, (0, t[-1]), np.zeros(4), t_eval=t, method="DOP853", rtol=1e-10, atol=1e-12)
     peak = np.max(np.abs(sol.y[:2]))
-    assert np.max(np.abs(u - sol.y[:2].T)) < 0.005 * peak
+    assert np.max(np.abs(u - sol.y[:2].T)) < 3e-4 * peak  # measured 1.5e-4
 
 
 def test_operator_splitting_uses_measured_force_not_stiffness():
