@@ -254,3 +254,19 @@ def test_emulate_config_not_utf8(tmp_path):
     bad.write_bytes(b"\xff\xfe[test]\n")
     proc = hsio("emulate", "modbus", bad)
     assert proc.returncode == 2 and "bad.toml" in proc.stderr and "not UTF-8" in proc.stderr
+
+
+def test_diagnose_csv_not_utf8_is_named(tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_bytes(b"time_s,command_mm,measured_mm\n0,\xff\xfe1,2\n")
+    assert_clear_error(hsio("diagnose", str(path)), "bad.csv", "UTF-8")
+
+
+def test_diagnose_daq_header_line_without_a_colon(tmp_path):
+    lines = ["Header Size:  7", "Version  2", "Sampling Interval:  0.001", "Sampling Rate:  1000",
+             "Sample Count:  3", "Device Serial Number:  0",
+             "Sample Number, Date/Time, CHANNEL0, CHANNEL1, CHANNEL2, Events"]
+    lines += [f"{k},   06/29/2022 04:05:36.67{k} PM, 0.0{k}, 0.0{k}, 0.0{k}" for k in (1, 2, 3)]
+    path = tmp_path / "daq.txt"
+    path.write_text("\n".join(lines) + "\n")
+    assert_clear_error(hsio("diagnose", str(path)), "daq.txt")
