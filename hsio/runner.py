@@ -28,6 +28,7 @@ from hsio.ledger import Ledger
 from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
 from hsio.safety.dry_run import dry_run, enforce
+from hsio.sites.setup_map import SetupMap
 from hsio.safety.settings import SafetySettings
 from hsio.safety.socket import ControlServer
 from hsio.safety.status import exit_status, outcome_name
@@ -120,8 +121,9 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     integ, test, hardware = config["integrator"], config["test"], config["hardware"]
     ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
+    setups = SetupMap.of(structure) if structure.has_setups else None
     report = dry_run(ns, test["rate"] * structure.dt, test["hold_fraction"], hardware["url"], emulator,
-                     config["driver"], SafetySettings.from_table(config["safety"]))
+                     config["driver"], SafetySettings.from_table(config["safety"]), setups)
     return ns, report
 
 

@@ -104,14 +104,34 @@ def peak_command_velocity(targets: np.ndarray, t_d: float, period: float, hold_f
     return peak / period
 
 
-def predict(ns, t_d: float, hold_fraction: float, period: float = 1.0 / CONTROLLER_RATE_HZ) -> Prediction:
-    """Peaks of the NS result ``ns`` (a :class:`hsio.result.Result`) per experimental element."""
+def predict(ns, t_d: float, hold_fraction: float, period: float = 1.0 / CONTROLLER_RATE_HZ,
+            setups=None) -> Prediction:
+    """Peaks of the NS result ``ns`` (a :class:`hsio.result.Result`) per actuator.
+
+    With ``setups`` (a :class:`hsio.sites.setup_map.SetupMap`: elements loaded through
+    experimental setups, docs/setups.md), the NS channels are turned into actuator strokes and
+    forces by the setups' exact geometry first, so that strokes are checked against the stroke
+    and forces against the capacity, never a rotation or a moment."""
+    if setups is not None:
+        return _predict_actuators(ns, t_d, hold_fraction, period, setups)
     targets = np.asarray(ns.targets, dtype=float)
     disp = np.max(np.abs(np.vstack([targets, ns.measured_displacement])), axis=0) if len(targets) else np.zeros(0)
     force = np.max(np.abs(ns.measured_force), axis=0) if len(targets) else np.zeros(0)
     velocity = np.array([peak_command_velocity(targets[1:, j], t_d, period, hold_fraction, targets[0, j])
                          for j in range(targets.shape[1])])
     return Prediction(tuple(ns.element_names), disp, force, velocity, ns.steps)
+
+
+def _predict_actuators(ns, t_d: float, hold_fraction: float, period: float, setups) -> Prediction:
+    d = np.asarray(ns.measured_displacement, dtype=float)
+    q = np.asarray(ns.measured_force, dtype=float)
+    strokes = np.array([setups.strokes(row) for row in np.asarray(ns.targets, dtype=float)])
+    forces = np.array([setups.forces_for(qr, dr) for qr, dr in zip(q, d)])
+    disp = np.max(np.abs(strokes), axis=0)
+    force = np.max(np.abs(forces), axis=0)
+    velocity = np.array([peak_command_velocity(strokes[1:, j], t_d, period, hold_fraction, strokes[0, j])
+                         for j in range(strokes.shape[1])])
+    return Prediction(tuple(setups.actuator_names), disp, force, velocity, ns.steps)
 
 
 def known_limits(url: str, emulator: dict, driver: dict) -> tuple[dict, str]:
@@ -151,10 +171,10 @@ def check(prediction: Prediction, limits: dict, source: str, settings: SafetySet
 
 
 def dry_run(ns, t_d: float, hold_fraction: float, url: str, emulator: dict, driver: dict,
-            settings: SafetySettings) -> DryRunReport:
+            settings: SafetySettings, setups=None) -> DryRunReport:
     """Predict and check; the report says whether the test is refused."""
     limits, source = known_limits(url, emulator, driver)
-    return check(predict(ns, t_d, hold_fraction), limits, source, settings)
+    return check(predict(ns, t_d, hold_fraction, setups=setups), limits, source, settings)
 
 
 def enforce(report: DryRunReport) -> None:
