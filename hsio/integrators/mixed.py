@@ -68,6 +68,24 @@ class SwitchingRule:
         lower = np.full(K_EI.shape, K_d) if K_d > 0 else ratio_d * K_EI
         return cls(upper, lower, "stiffness")
 
+    @classmethod
+    def from_instruments(cls, K_EI, resolution_mm: float, force_resolution_kN: float, margin: float = 20.0,
+                         hysteresis: float = 2.0, tol_force: float = 0.0) -> "SwitchingRule":
+        """Thresholds from the instruments (docs/force_control.md, "choosing K_f and K_d").
+
+        In DC the transducer's resolution delta_u becomes a force error k delta_u on a branch of
+        stiffness k; in FC the force error is the load cell's delta_F (or the force tolerance of
+        the iteration, whichever is larger). FC pays off where k delta_u > c delta_F with a margin
+        c that covers what FC costs besides (a slower force loop, a secant iteration that
+        converges linearly, E&M 2007 section 3): K_f = c delta_F / delta_u, and K_d = K_f / h with
+        h > 1 the hysteresis. Both are per element (the same instruments on every actuator).
+        """
+        if not (resolution_mm > 0 and force_resolution_kN > 0 and margin > 0 and hysteresis > 1):
+            raise ConfigError("switching rule: resolutions and margin must be positive, hysteresis above 1")
+        K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
+        K_f = margin * max(force_resolution_kN, tol_force) / resolution_mm
+        return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness")
+
     def next_modes(self, modes: list[ControlMode], k: np.ndarray, R: np.ndarray) -> list[ControlMode]:
         q = np.asarray(k, dtype=float) if self.on == "stiffness" else np.abs(np.asarray(R, dtype=float))
         upper = np.broadcast_to(self.upper, q.shape)
@@ -90,16 +108,23 @@ class ImplicitMethod:
     eq. 9 covers the experimental elements only). In ``mixed``, an element in FC whose secant
     falls below the lower threshold during a step goes on in DC for the rest of the step
     (:meth:`ImplicitAlpha.step`, ``fallback_below``).
+
+    Non-converged FC (``fallback_after``, None: off): an FC element still not converged after
+    that many commands of a step finishes the step in DC; it is listed in ``not_converged`` (and
+    as a within-step switch) and stays in DC for ``refractory_steps`` steps. ``fc_blend``: the
+    base displacement of FC elements (:class:`ImplicitAlpha`). The defaults are the behaviour
+    without these guards.
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = -0.05, method: str = "mixed",
                  rule: SwitchingRule | None = None, dof_names=None, j_max: int = 3,
-                 tol_displacement: float = 0.02, tol_force: float = 0.05):
+                 tol_displacement: float = 0.02, tol_force: float = 0.05, fc_blend: float = 1.0,
+                 fallback_after: int | None = None, refractory_steps: int = 0):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         self.method = method
         self.core = ImplicitAlpha(M, C, K_N, element_dofs, K_EI, dt, alpha, j_max=j_max,
-                                  tol_displacement=tol_displacement, tol_force=tol_force)
+                                  tol_displacement=tol_displacement, tol_force=tol_force, fc_blend=fc_blend)
         if method == "mixed" and rule is None:
             rule = SwitchingRule.from_initial_stiffness(self.core.K_EI)
         self.rule = rule if method == "mixed" else None
@@ -107,6 +132,10 @@ class ImplicitMethod:
         n_e = self.dofs.size
         self.dof_names = list(dof_names) if dof_names is not None else [str(d) for d in range(self.core.n_dof)]
         self.modes = [FC if method == "force_control" else DC] * n_e
+        self.fallback_after = fallback_after
+        self.refractory_steps = int(refractory_steps)
+        self._dc_until = np.zeros(n_e, dtype=int)  # an element that did not converge in FC stays in DC
+        self.not_converged: list[dict] = []  # FC elements that did not converge and went on in DC
         self.fallback = self.rule.lower if self.rule is not None and self.rule.on == "stiffness" else None
         self.thresholds = None if self.rule is None else {"on": self.rule.on, "upper": self.rule.upper.tolist(),
                                                           "lower": self.rule.lower.tolist()}
@@ -126,13 +155,18 @@ class ImplicitMethod:
                       within_step=within, secant_kN_mm=float(k[j]), force_kN=float(R[j]))
 
     def step(self, P_next, site, numerical, step: int = 0, time_s: float = 0.0) -> StepOutcome:
-        state, report = self.core.step(P_next, site, self.modes, self.fallback)
+        state, report = self.core.step(P_next, site, self.modes, self.fallback, self.fallback_after)
+        for j in np.flatnonzero(report.not_converging):
+            self.not_converged.append({"step": step, "time_s": float(time_s), "dof": self.dof_names[self.dofs[j]]})
+            self._dc_until[j] = step + self.refractory_steps
         switches = [self._switch(step, time_s, j, DC, True, report.k, report.measured_R)
                     for j in np.flatnonzero(report.fell_back)]
         self.modes = report.modes
         ended_in = list(self.modes)
         if self.rule is not None:
             new = self.rule.next_modes(self.modes, report.k, report.measured_R)
+            new = [DC if (m is FC and self.modes[j] is DC and step < self._dc_until[j]) else m
+                   for j, m in enumerate(new)]
             changed = [j for j in range(len(new)) if new[j] is not self.modes[j]]
             if changed:
                 site.set_modes(new)
