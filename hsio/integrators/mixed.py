@@ -112,19 +112,27 @@ class ImplicitMethod:
     Non-converged FC (``fallback_after``, None: off): an FC element still not converged after
     that many commands of a step finishes the step in DC; it is listed in ``not_converged`` (and
     as a within-step switch) and stays in DC for ``refractory_steps`` steps. ``fc_blend``: the
-    base displacement of FC elements (:class:`ImplicitAlpha`). The defaults are the behaviour
+    base displacement of FC elements (:class:`ImplicitAlpha`). ``explored_fraction`` (rho, None:
+    off): an FC element whose force would leave rho times the force range it has carried so far
+    runs that step in DC (``fc_force_range``; a cracking specimen softens in new territory, and
+    its strength deteriorates with cycles, hence rho < 1). ``fc_force_limit`` (kN per element,
+    None: off): FC only while the step's force stays within +/- this limit (e.g. a fraction of
+    the cracking force that the infill models predict); with ``explored_fraction`` the larger
+    of the two ranges. The defaults are the behaviour
     without these guards.
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = -0.05, method: str = "mixed",
                  rule: SwitchingRule | None = None, dof_names=None, j_max: int = 3,
                  tol_displacement: float = 0.02, tol_force: float = 0.05, fc_blend: float = 1.0,
-                 fallback_after: int | None = None, refractory_steps: int = 0):
+                 fallback_after: int | None = None, refractory_steps: int = 0,
+                 explored_fraction: float | None = None, blend_dc: bool = False, fc_force_limit=None):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         self.method = method
         self.core = ImplicitAlpha(M, C, K_N, element_dofs, K_EI, dt, alpha, j_max=j_max,
-                                  tol_displacement=tol_displacement, tol_force=tol_force, fc_blend=fc_blend)
+                                  tol_displacement=tol_displacement, tol_force=tol_force, fc_blend=fc_blend,
+                                  blend_dc=blend_dc)
         if method == "mixed" and rule is None:
             rule = SwitchingRule.from_initial_stiffness(self.core.K_EI)
         self.rule = rule if method == "mixed" else None
@@ -135,6 +143,11 @@ class ImplicitMethod:
         self.fallback_after = fallback_after
         self.refractory_steps = int(refractory_steps)
         self._dc_until = np.zeros(n_e, dtype=int)  # an element that did not converge in FC stays in DC
+        self.explored_fraction = explored_fraction
+        self.fc_force_limit = None if fc_force_limit is None else np.broadcast_to(
+            np.asarray(fc_force_limit, dtype=float), (n_e,)).copy()
+        self._explored = (np.zeros(n_e), np.zeros(n_e))  # the force range measured so far, per element
+        self.guarded_steps = 0
         self.not_converged: list[dict] = []  # FC elements that did not converge and went on in DC
         self.fallback = self.rule.lower if self.rule is not None and self.rule.on == "stiffness" else None
         self.thresholds = None if self.rule is None else {"on": self.rule.on, "upper": self.rule.upper.tolist(),
@@ -155,7 +168,16 @@ class ImplicitMethod:
                       within_step=within, secant_kN_mm=float(k[j]), force_kN=float(R[j]))
 
     def step(self, P_next, site, numerical, step: int = 0, time_s: float = 0.0) -> StepOutcome:
-        state, report = self.core.step(P_next, site, self.modes, self.fallback, self.fallback_after)
+        rng = None
+        if self.explored_fraction is not None:
+            rng = (self.explored_fraction * self._explored[0], self.explored_fraction * self._explored[1])
+        if self.fc_force_limit is not None:
+            lim = self.fc_force_limit
+            rng = (-lim, lim) if rng is None else (np.minimum(rng[0], -lim), np.maximum(rng[1], lim))
+        state, report = self.core.step(P_next, site, self.modes, self.fallback, self.fallback_after, rng)
+        self._explored = (np.minimum(self._explored[0], report.measured_R),
+                          np.maximum(self._explored[1], report.measured_R))
+        self.guarded_steps += int(report.guarded.any())
         for j in np.flatnonzero(report.not_converging):
             self.not_converged.append({"step": step, "time_s": float(time_s), "dof": self.dof_names[self.dofs[j]]})
             self._dc_until[j] = step + self.refractory_steps
