@@ -44,7 +44,7 @@ class Recipe:
     hysteresis: float = 2.0  # K_d = K_f / h
     fc_blend: float = 0.01  # lambda of the complementary estimate
     fallback_after: int = 2  # FC commands before a non-converging FC element goes on in DC
-    refractory_steps: int = 20
+    refractory_steps: int = 10**9  # an element that failed in FC stays in DC for the rest of the run
     j_max: int = 3
     tol_displacement: float = 0.02
     tol_force: float = 0.05
@@ -94,8 +94,10 @@ def infill_sdof(k0: float, dt: float = 0.005, f_hz: float = 8.0) -> Structure:
 
 
 def run_case(case: str, structure: Structure, ground, methods, resolution_mm: float, force_resolution_kN: float,
-             test_rate: float = 10.0, hold_fraction: float = 0.5, recipe: Recipe = Recipe(), ns=None) -> list[Row]:
-    """HS of each method on the emulator with the given instruments, against NS."""
+             test_rate: float = 10.0, hold_fraction: float = 0.5, recipe: Recipe = Recipe(), ns=None,
+             force_noise_kN: float | None = None) -> list[Row]:
+    """HS of each method on the emulator with the given instruments (the load cell's noise
+    standard deviation equal to its resolution unless given), against NS."""
     from hsio.api import open_site, run_numerical, simulate
     from hsio.experiment import ExperimentStopped
     from hsio.result import max_error_pct
@@ -105,7 +107,7 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
         ns = run_numerical(structure, ground, "mixed", recipe.alpha)
     peak = float(np.max(np.abs(ns.u)))
     options = {"resolution_mm": resolution_mm, "force_resolution_kN": force_resolution_kN,
-               "force_noise_kN": force_resolution_kN}
+               "force_noise_kN": force_resolution_kN if force_noise_kN is None else force_noise_kN}
     k0 = float(max(e.K_EI for e in structure.experimental))
     rows = []
     for method in methods:

@@ -111,7 +111,9 @@ class ImplicitMethod:
 
     Non-converged FC (``fallback_after``, None: off): an FC element still not converged after
     that many commands of a step finishes the step in DC; it is listed in ``not_converged`` (and
-    as a within-step switch) and stays in DC for ``refractory_steps`` steps. ``fc_blend``: the
+    as a within-step switch). An element that went on in DC within a step (not converging, or
+its secant below K_d) stays in DC for ``refractory_steps`` steps: it has shown that it softens
+faster than FC can follow. ``fc_blend``: the
     base displacement of FC elements (:class:`ImplicitAlpha`). ``explored_fraction`` (rho, None:
     off): an FC element whose force would leave rho times the force range it has carried so far
     runs that step in DC (``fc_force_range``; a cracking specimen softens in new territory, and
@@ -180,6 +182,7 @@ class ImplicitMethod:
         self.guarded_steps += int(report.guarded.any())
         for j in np.flatnonzero(report.not_converging):
             self.not_converged.append({"step": step, "time_s": float(time_s), "dof": self.dof_names[self.dofs[j]]})
+        for j in np.flatnonzero(report.fell_back & ~report.guarded):
             self._dc_until[j] = step + self.refractory_steps
         switches = [self._switch(step, time_s, j, DC, True, report.k, report.measured_R)
                     for j in np.flatnonzero(report.fell_back)]
