@@ -95,7 +95,7 @@ def infill_sdof(k0: float, dt: float = 0.005, f_hz: float = 8.0) -> Structure:
 
 def run_case(case: str, structure: Structure, ground, methods, resolution_mm: float, force_resolution_kN: float,
              test_rate: float = 10.0, hold_fraction: float = 0.5, recipe: Recipe = Recipe(), ns=None,
-             force_noise_kN: float | None = None) -> list[Row]:
+             force_noise_kN: float | None = None, emulator: dict | None = None) -> list[Row]:
     """HS of each method on the emulator with the given instruments (the load cell's noise
     standard deviation equal to its resolution unless given), against NS."""
     from hsio.api import open_site, run_numerical, simulate
@@ -107,7 +107,7 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
         ns = run_numerical(structure, ground, "mixed", recipe.alpha)
     peak = float(np.max(np.abs(ns.u)))
     options = {"resolution_mm": resolution_mm, "force_resolution_kN": force_resolution_kN,
-               "force_noise_kN": force_resolution_kN if force_noise_kN is None else force_noise_kN}
+               "force_noise_kN": force_resolution_kN if force_noise_kN is None else force_noise_kN, **(emulator or {})}
     k0 = float(max(e.K_EI for e in structure.experimental))
     rows = []
     for method in methods:
@@ -160,7 +160,9 @@ def structures(names=STRUCTURES, duration_s: float = 4.0, resolution_mm: float =
         structure = get_structure(name)
         g = (pga or default_pga).get(name, 0.3)
         ground = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=g, seed=1994)
-        rows += run_case(name, structure, ground, methods, resolution_mm, force_resolution_kN, recipe=recipe)
+        emulator = {"force_limit_kN": 1000.0} if name == "three_storey" else None  # as examples/run_three_storey.toml
+        rows += run_case(name, structure, ground, methods, resolution_mm, force_resolution_kN, recipe=recipe,
+                         emulator=emulator)
         if progress:
             progress(rows[-len(methods):])
     return rows
