@@ -45,6 +45,7 @@ class Recipe:
     fc_blend: float = 0.01  # lambda of the complementary estimate
     fallback_after: int = 2  # FC commands before a non-converging FC element goes on in DC
     refractory_steps: int = 10**9  # an element that failed in FC stays in DC for the rest of the run
+    no_fc_at_reversal: bool = True
     j_max: int = 3
     tol_displacement: float = 0.02
     tol_force: float = 0.05
@@ -63,7 +64,8 @@ def make_method(structure: Structure, method: str, resolution_mm: float, force_r
     blend = r.fc_blend if method != "implicit_dc" else 1.0
     extra = {}
     if method == "mixed":
-        extra = {"fallback_after": r.fallback_after, "refractory_steps": r.refractory_steps}
+        extra = {"fallback_after": r.fallback_after, "refractory_steps": r.refractory_steps,
+                 "no_fc_at_reversal": r.no_fc_at_reversal}
     return ImplicitMethod(structure.M, structure.C, structure.numerical_assembly().K_linear,
                           structure.experimental_dofs, K_EI, structure.dt, r.alpha, method, rule, structure.dof_names,
                           j_max=r.j_max, tol_displacement=r.tol_displacement, tol_force=r.tol_force, fc_blend=blend,

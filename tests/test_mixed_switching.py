@@ -193,3 +193,62 @@ def test_switch_does_not_jolt(order):
     dF = 122.6 * du if second is DC else 122.6 * du + 4 * c.force_noise_kN
     assert np.max(np.abs(u - before_u)) <= du
     assert np.max(np.abs(F - before_F)) <= dF
+
+
+# -- no switch to FC at a reversal ---------------------------------------------------------------
+class _LinearSite:
+    """One linear element, exact; the secant is reported as ``k_seen`` (what the rule reads)."""
+
+    def __init__(self, k=100.0):
+        self.k, self.k_seen = k, k
+        self.base = self.last = (np.zeros(1), np.zeros(1))
+
+    def committed(self):
+        return self.base
+
+    def set_modes(self, modes):
+        return []
+
+    def set_trial(self, commands, modes):
+        u = commands / self.k if modes[0] is FC else np.asarray(commands, dtype=float)
+        self.last = (u, self.k * u)
+        self._daq = Daq(u=u, R=self.k * u, k=np.array([self.k_seen]), targets=commands, commands=commands,
+                        samples=None)
+
+    def get_daq(self):
+        return self._daq
+
+    def commit(self):
+        self.base = self.last
+
+
+def _free_vibration(guard, stiff_from=None, steps=40):
+    from hsio.integrators import ImplicitMethod
+
+    site = _LinearSite()
+    rule = SwitchingRule(np.array([150.0]), np.array([50.0]))
+    m = ImplicitMethod(np.eye(1) * 0.01, np.zeros((1, 1)), None, [0], [100.0], 0.005, 0.0, "mixed", rule,
+                       no_fc_at_reversal=guard)
+    m.start(np.zeros(1), site, None)
+    us, modes = [], []
+    for i in range(1, steps):
+        if stiff_from is not None and i >= stiff_from:
+            site.k_seen = 200.0  # the element now reads stiffer than K_f
+        out = m.step(np.array([30.0]), site, None, step=i)  # a step load: oscillation about 0.3 mm
+        us.append(out.u[0])
+        modes.append(m.modes[0])
+    return np.array(us), modes, m
+
+
+@pytest.mark.parametrize("guard", [False, True])
+def test_no_switch_to_fc_at_a_reversal(guard):
+    """The secant read rises above K_f exactly at the step where the motion reverses: without the
+    guard the element switches there; with it the switch waits one step and is counted."""
+    us, _, _ = _free_vibration(False)
+    du = np.diff(np.concatenate([[0.0], us]))
+    r = int(np.flatnonzero(du[1:] * du[:-1] < 0)[0]) + 2  # the step (1-based) whose increment reverses
+    _, modes, m = _free_vibration(guard, stiff_from=r)
+    if guard:
+        assert modes[r - 1] is DC and modes[r] is FC and m.deferred_at_reversal == 1
+    else:
+        assert modes[r - 1] is FC and m.deferred_at_reversal == 0

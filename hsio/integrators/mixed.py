@@ -120,7 +120,11 @@ faster than FC can follow. ``fc_blend``: the
     its strength deteriorates with cycles, hence rho < 1). ``fc_force_limit`` (kN per element,
     None: off): FC only while the step's force stays within +/- this limit (e.g. a fraction of
     the cracking force that the infill models predict); with ``explored_fraction`` the larger
-    of the two ranges. The defaults are the behaviour
+    of the two ranges. ``no_fc_at_reversal``: no switch DC -> FC in a step where the element's
+    displacement reverses (near a peak the increments are of the order of the transducer's
+    resolution and the secant of eq. 11 is stale or noisy, so it says little about the branch
+    ahead); the rule decides again the next step. FC -> DC is never deferred: the secant below
+    K_d is the rule's reason (the specimen softens). The defaults are the behaviour
     without these guards.
     """
 
@@ -128,7 +132,8 @@ faster than FC can follow. ``fc_blend``: the
                  rule: SwitchingRule | None = None, dof_names=None, j_max: int = 3,
                  tol_displacement: float = 0.02, tol_force: float = 0.05, fc_blend: float = 1.0,
                  fallback_after: int | None = None, refractory_steps: int = 0,
-                 explored_fraction: float | None = None, blend_dc: bool = False, fc_force_limit=None):
+                 explored_fraction: float | None = None, blend_dc: bool = False, fc_force_limit=None,
+                 no_fc_at_reversal: bool = False):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         self.method = method
@@ -150,6 +155,10 @@ faster than FC can follow. ``fc_blend``: the
             np.asarray(fc_force_limit, dtype=float), (n_e,)).copy()
         self._explored = (np.zeros(n_e), np.zeros(n_e))  # the force range measured so far, per element
         self.guarded_steps = 0
+        self.no_fc_at_reversal = bool(no_fc_at_reversal)
+        self._last_u = np.zeros(n_e)
+        self._last_du = np.zeros(n_e)
+        self.deferred_at_reversal = 0
         self.not_converged: list[dict] = []  # FC elements that did not converge and went on in DC
         self.fallback = self.rule.lower if self.rule is not None and self.rule.on == "stiffness" else None
         self.thresholds = None if self.rule is None else {"on": self.rule.on, "upper": self.rule.upper.tolist(),
@@ -192,6 +201,14 @@ faster than FC can follow. ``fc_blend``: the
             new = self.rule.next_modes(self.modes, report.k, report.measured_R)
             new = [DC if (m is FC and self.modes[j] is DC and step < self._dc_until[j]) else m
                    for j, m in enumerate(new)]
+            if self.no_fc_at_reversal:
+                du = report.u_solution - self._last_u
+                reversal = du * self._last_du < 0
+                deferred = [j for j, m in enumerate(new) if m is FC and self.modes[j] is DC and reversal[j]]
+                self.deferred_at_reversal += len(deferred)
+                new = [DC if j in deferred else m for j, m in enumerate(new)]
+                self._last_du = np.where(du != 0, du, self._last_du)
+                self._last_u = report.u_solution.copy()
             changed = [j for j in range(len(new)) if new[j] is not self.modes[j]]
             if changed:
                 site.set_modes(new)
