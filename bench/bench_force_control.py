@@ -5,6 +5,9 @@
    implicit DC, FC, mixed (K_f = 1.2 K^EI, K_d = 0.8 K^EI), and alpha-OS, each against its NS
    (the iterated alpha method on the specimen model; alpha-OS against alpha-OS on the model).
 3. The fc-vs-dc study as a whole (the time `hsio study fc-vs-dc` takes).
+4. Stiff specimens (docs/force_control.md): structure_II_infill with a 0.025 mm transducer and a
+   0.01 kN load cell, DC, FC and mixed as `hsio study mixed` builds them (thresholds from the
+   instruments, complementary FC base, non-converged FC finished in DC).
 
 Run: PYTHONPATH=. python bench/bench_force_control.py
 """
@@ -83,7 +86,25 @@ def whole_study() -> None:
           f"max Er {top:.2f} % at dt = 0.02, {top_fine:.2f} % at dt = 0.005")
 
 
+def stiff_infill(duration_s: float = 4.0) -> None:
+    from hsio import study_mixed
+    from hsio.structures import get_structure
+
+    structure = get_structure("structure_II_infill")
+    print("\n4. structure_II_infill, delta_u 0.025 mm, load cell 0.01 kN, TR 10 ramp-hold")
+    print(f"{'PGA g':>6} {'method':>14} {'error %':>9} {'switches':>9} {'not conv':>9} {'FC share':>9} {'wall (s)':>9}")
+    for pga in (0.15, 0.2):
+        ground = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=pga, seed=1994)
+        t0 = time.perf_counter()
+        rows = study_mixed.run_case("structure_II_infill", structure, ground, study_mixed.METHODS, 0.025, 0.01)
+        wall = (time.perf_counter() - t0) / len(rows)
+        for r in rows:
+            print(f"{pga:6.2f} {r.method:>14} {r.error_pct:9.3f} {r.switches:9d} {r.not_converged_steps:9d} "
+                  f"{100 * r.fc_fraction:8.0f}% {wall:9.1f}")
+
+
 if __name__ == "__main__":
     numerical_sdof()
     emulated_structure_I()
     whole_study()
+    stiff_infill()

@@ -15,7 +15,11 @@ Physics per period dt = 1/rate (explicit, one tick at a time):
   specimen's initial stiffness so that the force follows with ``force_lag_s``.
 * Load train: the specimen sees the rod through a backlash gap and a compliance
   (d_spec = backlash(d_rod) - compliance F); the displacement transducer on the specimen reads
-  gain * d_spec. Sensors add Gaussian noise and quantise to their resolution.
+  gain * d_spec. Sensors add Gaussian noise and quantise to their resolution; the load cell and
+  the transducer may have a finite bandwidth (first-order, ``force_bandwidth_hz``,
+  ``displacement_bandwidth_hz``; 0, the default, is ideal). The force loop closes on the load
+  cell's reading, so its resolution, noise and bandwidth are what force control can achieve; the
+  displacement loop closes on the rod transducer (``resolution_mm``, ``noise_mm``).
 * Further effects, off by default: a dead band (the loop ignores errors below
   ``dead_band_mm``: e' = e - clip(e, -w, w)); a second-order servo-valve or oil-column mode
   between the rod and the specimen (natural frequency ``servo_frequency_hz``, damping
@@ -78,6 +82,10 @@ class ServoConfig:
     noise_mm: float = 0.01  # standard deviation
     force_resolution_kN: float = 0.001
     force_noise_kN: float = 0.002
+    # Sensor bandwidths (first-order low-pass before noise and quantisation; 0: ideal, today's
+    # behaviour). The force loop closes on the load cell, so its bandwidth also slows that loop.
+    force_bandwidth_hz: float = 0.0  # load cell
+    displacement_bandwidth_hz: float = 0.0  # displacement transducer on the specimen
     seed: int = 0
     dead_band_mm: float = 0.0  # the displacement loop ignores errors smaller than this
     servo_frequency_hz: float = 0.0  # second-order servo-valve / oil-column mode (0: none)
@@ -100,7 +108,8 @@ class ServoConfig:
                 raise ConfigError(f"emulator: {name} must be positive, got {getattr(self, name)!r}")
         non_negative = ("ki_per_s2", "velocity_threshold_mm_s", "transport_delay_s", "backlash_mm",
                         "compliance_mm_per_kN", "resolution_mm", "noise_mm", "force_resolution_kN", "force_noise_kN",
-                        "dead_band_mm", "servo_frequency_hz", "servo_damping", "channel_skew_s")
+                        "dead_band_mm", "servo_frequency_hz", "servo_damping", "channel_skew_s",
+                        "force_bandwidth_hz", "displacement_bandwidth_hz")
         for name in non_negative:
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"emulator: {name} must be zero or positive, got {getattr(self, name)!r}")
@@ -213,6 +222,8 @@ class ServoController:
         self._noise_d = np.empty(0)
         self._noise_f = np.empty(0)
         self._noise_i = 0
+        self._sensed_d = 0.0  # sensor outputs before noise (low-passed when a bandwidth is set)
+        self._sensed_f = 0.0
         self.measured_displacement = 0.0
         self.measured_force = 0.0
         self._measure()
@@ -321,6 +332,11 @@ class ServoController:
         self._noise_i += 1
         return float(self._noise_d[i]), float(self._noise_f[i])
 
+    def _sense(self, previous: float, value: float, bandwidth_hz: float) -> float:
+        if bandwidth_hz <= 0.0:
+            return value
+        return previous + (1.0 - math.exp(-2.0 * math.pi * bandwidth_hz * self.dt)) * (value - previous)
+
     def _measure(self) -> None:
         c = self.config
         nd, nf = self._next_noise()
@@ -334,8 +350,10 @@ class ServoController:
             shown = (1.0 - self._skew_frac) * newer + self._skew_frac * older
         if c.sensor_drift_mm_s != 0.0:
             shown += c.sensor_drift_mm_s * self.time_s
-        self.measured_displacement = quantise(shown + nd, c.resolution_mm)
-        self.measured_force = quantise(self.force + nf, c.force_resolution_kN)
+        self._sensed_d = self._sense(self._sensed_d, shown, c.displacement_bandwidth_hz)
+        self._sensed_f = self._sense(self._sensed_f, self.force, c.force_bandwidth_hz)
+        self.measured_displacement = quantise(self._sensed_d + nd, c.resolution_mm)
+        self.measured_force = quantise(self._sensed_f + nf, c.force_resolution_kN)
         # The loop is closed on the rod's own transducer (same sensor quality).
         self._rod_feedback = quantise(self.d_rod + nd, c.resolution_mm)
 

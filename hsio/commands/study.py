@@ -1,4 +1,4 @@
-"""`hsio study`: parametric studies of the integrators (METHOD.md section 3)."""
+"""`hsio study`: parametric studies of the integrators (METHOD.md sections 3 and 5)."""
 
 from __future__ import annotations
 
@@ -40,5 +40,45 @@ def fc_vs_dc(as_json: bool, plot_path: str | None, n_theta: int) -> None:
                    f"{r.er_fc_pct - r.er_dc_pct:11.2e}")
     worst = max(abs(r.er_fc_pct - r.er_dc_pct) for r in rows)
     click.echo(f"largest |Er FC - Er DC| = {worst:.2e} percentage points")
+    if plot_path:
+        click.echo(f"plot: {plot_path}")
+
+
+@study.command("mixed")
+@click.option("--json", "as_json", is_flag=True, help="Print the rows as JSON on stdout.")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Write the error maps to this PNG.")
+@click.option("--stiffness", "stiffnesses", multiple=True, type=float, help="k0 of the grid (kN/mm); repeat.")
+@click.option("--resolution", "resolutions", multiple=True, type=float, help="Transducer resolution (mm); repeat.")
+@click.option("--force-resolution", "force_resolutions", multiple=True, type=float,
+              help="Load-cell resolution (kN); repeat.")
+@click.option("--duration", default=2.0, show_default=True, type=click.FloatRange(0.1, 60.0),
+              help="Record length of the grid runs (s).")
+@click.option("--structures/--no-structures", default=False, show_default=True,
+              help="Also run the shipped structures with every method (4 s records).")
+def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, duration, structures) -> None:
+    """HS-vs-NS error of DC, FC and mixed over stiffness x transducer x load-cell resolution."""
+    from hsio import study_mixed as sm
+
+    try:
+        rows = sm.grid(stiffnesses or (7.2, 122.6), resolutions or (0.0025, 0.025),
+                       force_resolutions or (0.002, 0.02), duration_s=duration)
+        if structures:
+            rows += sm.structures()
+    except HsioError as exc:
+        click.echo(f"hsio study mixed: error: {exc}", err=True)
+        sys.exit(2)
+    if plot_path:
+        sm.plot(rows, plot_path)
+    if as_json:
+        click.echo(json.dumps({"rows": sm.rows_as_dicts(rows),
+                               "winners": [{"case": k[0], "k0_kN_mm": k[1], "resolution_mm": k[2],
+                                            "force_resolution_kN": k[3], **v} for k, v in sm.winners(rows).items()]},
+                              indent=1))
+        return
+    click.echo(f"{'case':>20} {'k0':>7} {'du mm':>7} {'dF kN':>7} {'method':>14} {'error %':>9} {'switches':>8} "
+               f"{'not conv':>8} {'FC %':>5}")
+    for r in rows:
+        click.echo(f"{r.case:>20} {r.k0_kN_mm:7.1f} {r.resolution_mm:7.4f} {r.force_resolution_kN:7.3f} {r.method:>14} "
+                   f"{r.error_pct:9.3f} {r.switches:8d} {r.not_converged_steps:8d} {100 * r.fc_fraction:5.0f}")
     if plot_path:
         click.echo(f"plot: {plot_path}")

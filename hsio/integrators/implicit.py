@@ -76,6 +76,8 @@ class StepReport:
     measured_R: np.ndarray
     modes: list = field(default_factory=list)  # the modes at the end of the step
     fell_back: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # FC -> DC within the step
+    not_converging: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # of those: FC did not converge
+    guarded: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # of those: force outside the range
 
 
 class ImplicitAlpha:
@@ -88,14 +90,28 @@ class ImplicitAlpha:
     ``M``, ``C``, ``K_N`` are n x n; ``element_dofs`` gives the DOF of each experimental element;
     ``K_EI`` their initial stiffness (a vector, or a matrix that must be diagonal).
     A secant estimate above ``max_stiffness_ratio`` K^EI (a noise spike) is refused and the
-    previous secant kept. ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
+    previous secant kept.
+
+    ``fc_blend`` (lambda, in (0, 1]) sets the base displacement u_b of eq. (9) for an element in
+    FC. With 1 (the default) it is the measured displacement, so the transducer's resolution
+    delta_u enters the force model as k delta_u, exactly as in DC. With lambda < 1 it is the
+    complementary estimate u_b = u_s + lambda (u_meas - u_s) of the step before, where
+    u_s = u_sol + (R_meas - R_sol) / k is the element's solution of eq. (7) moved along its secant
+    to the measured force (carried by the accurate load cell; the transducer only corrects its
+    drift): the transducer noise enters scaled by about sqrt(lambda / (2 - lambda)).
+    The estimate is kept for every element, so that one switching from DC to FC starts from
+    its DC solution moved to the measured force (within the transducer's noise of the
+    measurement, not offset by it). ``blend_dc=True`` uses
+    the same estimate for elements in DC (their measured force, through the secant, locates the
+    specimen better than a coarse transducer), so that the base stays continuous across switches.
+    ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
     per DOF) and stops iterating each one on its own convergence: used to run many single-DOF
     cases side by side (the parametric study).
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = 0.0, j_max: int = 10,
                  tol_displacement: float = 1e-10, tol_force: float = 1e-10, independent: bool = False,
-                 max_stiffness_ratio: float = 20.0):
+                 max_stiffness_ratio: float = 20.0, fc_blend: float = 1.0, blend_dc: bool = False):
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
             raise ConfigError(f"force control: alpha must be in [-1/3, 0], got {alpha!r}")
         if not dt > 0:
@@ -139,6 +155,11 @@ class ImplicitAlpha:
         if not max_stiffness_ratio > 1:
             raise ConfigError(f"force control: max_stiffness_ratio must exceed 1, got {max_stiffness_ratio!r}")
         self.max_stiffness_ratio = float(max_stiffness_ratio)  # secant estimates above ratio x K^EI are refused
+        if not 0 < fc_blend <= 1:
+            raise ConfigError(f"force control: fc_blend must be in (0, 1], got {fc_blend!r}")
+        self.fc_blend = float(fc_blend)
+        self.blend_dc = bool(blend_dc)
+        self._u_fc = np.full(self.dofs.size, np.nan)  # base displacement of FC elements (fc_blend < 1)
         self.tol_displacement = float(tol_displacement)
         self.tol_force = float(tol_force)
         a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
@@ -188,7 +209,8 @@ class ImplicitAlpha:
         return u, ue, R_b + k * (ue - u_b)
 
     def step(self, P_next, site, modes: list[ControlMode],
-             fallback_below=None) -> tuple[ImplicitState, StepReport]:
+             fallback_below=None, fallback_after: int | None = None,
+             fc_force_range=None) -> tuple[ImplicitState, StepReport]:
         """One step: iterate eq. (7) with the elements in ``modes``; accept and advance.
 
         ``fallback_below`` (per element, kN/mm; None: off): an FC element whose secant estimate
@@ -196,6 +218,16 @@ class ImplicitAlpha:
         converges only while the secant it uses is below twice the stiffness of the branch
         ahead; at the end of a stiff branch (the specimen softens within the step) it would
         oscillate, whereas the DC iteration, dominated by K*, converges.
+
+        ``fallback_after`` (None: off): an FC element whose force command still changes by more
+        than the tolerance after this many commands goes on in DC for the remaining commands of
+        the step (``StepReport.not_converging``), so that the step ends with the specimen at the
+        displacement of the accepted solution rather than at an unconverged force.
+
+        ``fc_force_range`` ((lo, hi) per element, kN; None: off): an FC element whose first force
+        command of the step falls outside [lo, hi] runs the whole step in DC
+        (``StepReport.guarded``): force control only where the specimen has already carried
+        that force, never into new territory where it may crack and soften within the step.
         """
         s = self._require_state()
         a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
@@ -207,16 +239,31 @@ class ImplicitAlpha:
         u_pred, v_pred = self.predict()
         P_star = (1 + a) * P_next - a * s.P - (1 + a) * self.C @ v_pred + a * self.C @ s.v + self.K_star @ u_pred + a * s.R  # eq. (10)
         u_b, R_b = (np.asarray(x, dtype=float) for x in site.committed())
+        u_b_measured = u_b
+        if self.fc_blend < 1:
+            u_b = np.where((fc | self.blend_dc) & np.isfinite(self._u_fc), self._u_fc, u_b)
         k = self.k.copy()
         active = np.ones(self.dofs.size, dtype=bool)
         iterations = np.zeros(self.dofs.size, dtype=int)
         previous = None
         fell_back = np.zeros(self.dofs.size, dtype=bool)
+        not_converging = np.zeros(self.dofs.size, dtype=bool)
         if fallback_below is not None:
             fallback_below = np.broadcast_to(np.asarray(fallback_below, dtype=float), self.dofs.shape)
         u_m, R_m = u_b.copy(), R_b.copy()
         converged = False
         u, ue, Re = self._solve(P_star, k, u_b, R_b)
+        guarded = np.zeros(self.dofs.size, dtype=bool)
+        if fc_force_range is not None:  # FC only inside the force range already explored
+            lo, hi = (np.broadcast_to(np.asarray(x, dtype=float), self.dofs.shape) for x in fc_force_range)
+            guarded = fc & ((Re > hi) | (Re < lo))
+            if guarded.any():
+                modes = [DC if guarded[e] else m for e, m in enumerate(modes)]
+                fc = fc & ~guarded
+                tol = np.where(fc, self.tol_force, self.tol_displacement)
+                u_b = np.where(guarded, u_b_measured, u_b)
+                u, ue, Re = self._solve(P_star, k, u_b, R_b)
+                fell_back |= guarded
         sent = np.where(fc, Re, ue)
         for j in range(self.j_max + 1):
             if j > 0:
@@ -238,6 +285,15 @@ class ImplicitAlpha:
                 elif change.all():
                     converged = True
                     break
+                elif fallback_after is not None and j >= fallback_after and j < self.j_max:
+                    stuck = fc & ~change  # FC not converging: the remaining commands in DC
+                    if stuck.any():
+                        modes = [DC if stuck[e] else m for e, m in enumerate(modes)]
+                        fc = fc & ~stuck
+                        tol = np.where(fc, self.tol_force, self.tol_displacement)
+                        commands = np.where(fc, Re, ue)
+                        fell_back |= stuck
+                        not_converging |= stuck
             if j == self.j_max:
                 break
             site.set_trial(commands, modes)
@@ -260,12 +316,15 @@ class ImplicitAlpha:
                     fell_back |= soft
         site.commit()
         self.k = k
+        if self.fc_blend < 1:  # the complementary estimate of the FC elements' displacement
+            on_secant = ue + (R_m - Re) / k  # the solution moved along the secant to the measured force
+            self._u_fc = on_secant + self.fc_blend * (u_m - on_secant)  # every element: ready for a switch
         acc = (u - u_pred) / (b * h**2)
         vel = v_pred + g * h * acc
         R = self._E.T @ Re + self.K_N @ u
         self.state = ImplicitState(s.i + 1, u, vel, acc, R, P_next.copy(), u_pred)
         report = StepReport(iterations, converged, k.copy(), ue.copy(), Re.copy(), sent.copy(), u_m, R_m,
-                            list(modes), fell_back)
+                            list(modes), fell_back, not_converging, guarded)
         return self.state, report
 
     def _require_state(self) -> ImplicitState:

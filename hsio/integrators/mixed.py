@@ -68,6 +68,24 @@ class SwitchingRule:
         lower = np.full(K_EI.shape, K_d) if K_d > 0 else ratio_d * K_EI
         return cls(upper, lower, "stiffness")
 
+    @classmethod
+    def from_instruments(cls, K_EI, resolution_mm: float, force_resolution_kN: float, margin: float = 20.0,
+                         hysteresis: float = 2.0, tol_force: float = 0.0) -> "SwitchingRule":
+        """Thresholds from the instruments (docs/force_control.md, "choosing K_f and K_d").
+
+        In DC the transducer's resolution delta_u becomes a force error k delta_u on a branch of
+        stiffness k; in FC the force error is the load cell's delta_F (or the force tolerance of
+        the iteration, whichever is larger). FC pays off where k delta_u > c delta_F with a margin
+        c that covers what FC costs besides (a slower force loop, a secant iteration that
+        converges linearly, E&M 2007 section 3): K_f = c delta_F / delta_u, and K_d = K_f / h with
+        h > 1 the hysteresis. Both are per element (the same instruments on every actuator).
+        """
+        if not (resolution_mm > 0 and force_resolution_kN > 0 and margin > 0 and hysteresis > 1):
+            raise ConfigError("switching rule: resolutions and margin must be positive, hysteresis above 1")
+        K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
+        K_f = margin * max(force_resolution_kN, tol_force) / resolution_mm
+        return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness")
+
     def next_modes(self, modes: list[ControlMode], k: np.ndarray, R: np.ndarray) -> list[ControlMode]:
         q = np.asarray(k, dtype=float) if self.on == "stiffness" else np.abs(np.asarray(R, dtype=float))
         upper = np.broadcast_to(self.upper, q.shape)
@@ -90,16 +108,38 @@ class ImplicitMethod:
     eq. 9 covers the experimental elements only). In ``mixed``, an element in FC whose secant
     falls below the lower threshold during a step goes on in DC for the rest of the step
     (:meth:`ImplicitAlpha.step`, ``fallback_below``).
+
+    Non-converged FC (``fallback_after``, None: off): an FC element still not converged after
+    that many commands of a step finishes the step in DC; it is listed in ``not_converged`` (and
+    as a within-step switch). An element that went on in DC within a step (not converging, or
+its secant below K_d) stays in DC for ``refractory_steps`` steps: it has shown that it softens
+faster than FC can follow. ``fc_blend``: the
+    base displacement of FC elements (:class:`ImplicitAlpha`). ``explored_fraction`` (rho, None:
+    off): an FC element whose force would leave rho times the force range it has carried so far
+    runs that step in DC (``fc_force_range``; a cracking specimen softens in new territory, and
+    its strength deteriorates with cycles, hence rho < 1). ``fc_force_limit`` (kN per element,
+    None: off): FC only while the step's force stays within +/- this limit (e.g. a fraction of
+    the cracking force that the infill models predict); with ``explored_fraction`` the larger
+    of the two ranges. ``no_fc_at_reversal``: no switch DC -> FC in a step where the element's
+    displacement reverses (near a peak the increments are of the order of the transducer's
+    resolution and the secant of eq. 11 is stale or noisy, so it says little about the branch
+    ahead); the rule decides again the next step. FC -> DC is never deferred: the secant below
+    K_d is the rule's reason (the specimen softens). The defaults are the behaviour
+    without these guards.
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = -0.05, method: str = "mixed",
                  rule: SwitchingRule | None = None, dof_names=None, j_max: int = 3,
-                 tol_displacement: float = 0.02, tol_force: float = 0.05):
+                 tol_displacement: float = 0.02, tol_force: float = 0.05, fc_blend: float = 1.0,
+                 fallback_after: int | None = None, refractory_steps: int = 0,
+                 explored_fraction: float | None = None, blend_dc: bool = False, fc_force_limit=None,
+                 no_fc_at_reversal: bool = False):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         self.method = method
         self.core = ImplicitAlpha(M, C, K_N, element_dofs, K_EI, dt, alpha, j_max=j_max,
-                                  tol_displacement=tol_displacement, tol_force=tol_force)
+                                  tol_displacement=tol_displacement, tol_force=tol_force, fc_blend=fc_blend,
+                                  blend_dc=blend_dc)
         if method == "mixed" and rule is None:
             rule = SwitchingRule.from_initial_stiffness(self.core.K_EI)
         self.rule = rule if method == "mixed" else None
@@ -107,6 +147,19 @@ class ImplicitMethod:
         n_e = self.dofs.size
         self.dof_names = list(dof_names) if dof_names is not None else [str(d) for d in range(self.core.n_dof)]
         self.modes = [FC if method == "force_control" else DC] * n_e
+        self.fallback_after = fallback_after
+        self.refractory_steps = int(refractory_steps)
+        self._dc_until = np.zeros(n_e, dtype=int)  # an element that did not converge in FC stays in DC
+        self.explored_fraction = explored_fraction
+        self.fc_force_limit = None if fc_force_limit is None else np.broadcast_to(
+            np.asarray(fc_force_limit, dtype=float), (n_e,)).copy()
+        self._explored = (np.zeros(n_e), np.zeros(n_e))  # the force range measured so far, per element
+        self.guarded_steps = 0
+        self.no_fc_at_reversal = bool(no_fc_at_reversal)
+        self._last_u = np.zeros(n_e)
+        self._last_du = np.zeros(n_e)
+        self.deferred_at_reversal = 0
+        self.not_converged: list[dict] = []  # FC elements that did not converge and went on in DC
         self.fallback = self.rule.lower if self.rule is not None and self.rule.on == "stiffness" else None
         self.thresholds = None if self.rule is None else {"on": self.rule.on, "upper": self.rule.upper.tolist(),
                                                           "lower": self.rule.lower.tolist()}
@@ -126,13 +179,36 @@ class ImplicitMethod:
                       within_step=within, secant_kN_mm=float(k[j]), force_kN=float(R[j]))
 
     def step(self, P_next, site, numerical, step: int = 0, time_s: float = 0.0) -> StepOutcome:
-        state, report = self.core.step(P_next, site, self.modes, self.fallback)
+        rng = None
+        if self.explored_fraction is not None:
+            rng = (self.explored_fraction * self._explored[0], self.explored_fraction * self._explored[1])
+        if self.fc_force_limit is not None:
+            lim = self.fc_force_limit
+            rng = (-lim, lim) if rng is None else (np.minimum(rng[0], -lim), np.maximum(rng[1], lim))
+        state, report = self.core.step(P_next, site, self.modes, self.fallback, self.fallback_after, rng)
+        self._explored = (np.minimum(self._explored[0], report.measured_R),
+                          np.maximum(self._explored[1], report.measured_R))
+        self.guarded_steps += int(report.guarded.any())
+        for j in np.flatnonzero(report.not_converging):
+            self.not_converged.append({"step": step, "time_s": float(time_s), "dof": self.dof_names[self.dofs[j]]})
+        for j in np.flatnonzero(report.fell_back & ~report.guarded):
+            self._dc_until[j] = step + self.refractory_steps
         switches = [self._switch(step, time_s, j, DC, True, report.k, report.measured_R)
                     for j in np.flatnonzero(report.fell_back)]
         self.modes = report.modes
         ended_in = list(self.modes)
         if self.rule is not None:
             new = self.rule.next_modes(self.modes, report.k, report.measured_R)
+            new = [DC if (m is FC and self.modes[j] is DC and step < self._dc_until[j]) else m
+                   for j, m in enumerate(new)]
+            if self.no_fc_at_reversal:
+                du = report.u_solution - self._last_u
+                reversal = du * self._last_du < 0
+                deferred = [j for j, m in enumerate(new) if m is FC and self.modes[j] is DC and reversal[j]]
+                self.deferred_at_reversal += len(deferred)
+                new = [DC if j in deferred else m for j, m in enumerate(new)]
+                self._last_du = np.where(du != 0, du, self._last_du)
+                self._last_u = report.u_solution.copy()
             changed = [j for j in range(len(new)) if new[j] is not self.modes[j]]
             if changed:
                 site.set_modes(new)

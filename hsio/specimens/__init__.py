@@ -13,10 +13,11 @@ from hsio.specimens.base import Specimen
 from hsio.specimens.degrading import PeakOriented
 from hsio.specimens.elastic import BilinearGap, Linear, MenegottoPinto
 from hsio.specimens.diagnosed import Diagnosed
+from hsio.specimens.infill import CrackingInfill
 from hsio.specimens.wood import PinchedWood
 
 SPECIMEN_KINDS: dict[str, type[Specimen]] = {
-    cls.kind: cls for cls in (Linear, BilinearGap, MenegottoPinto, PinchedWood, PeakOriented, Diagnosed)
+    cls.kind: cls for cls in (Linear, BilinearGap, MenegottoPinto, PinchedWood, PeakOriented, Diagnosed, CrackingInfill)
 }
 
 
@@ -42,4 +43,4 @@ def specimen_spec(specimen: Specimen) -> dict:
 
 
 __all__ = ["Specimen", "SPECIMEN_KINDS", "make_specimen", "specimen_spec",
-           "Linear", "BilinearGap", "MenegottoPinto", "PinchedWood", "PeakOriented", "Diagnosed"]
+           "Linear", "BilinearGap", "MenegottoPinto", "PinchedWood", "PeakOriented", "Diagnosed", "CrackingInfill"]

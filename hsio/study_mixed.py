@@ -1,0 +1,237 @@
+"""When mixed control earns its place: DC, FC and mixed against NS over the instruments
+(docs/force_control.md, "hsio study mixed"; E&M 2007 section 5).
+
+Two parts:
+
+* a grid over the specimen's stiffness k0 x the transducer's resolution delta_u x the load cell's
+  resolution delta_F: a single-DOF frame with a cracking infill (:class:`hsio.specimens.CrackingInfill`
+  scaled to k0: cracking at 0.49 mm, the peak at 2.5 mm, the same force ratios), its mass set for a
+  natural frequency of 8 Hz, 5 % damping, on the emulated controller; the synthetic record is
+  scaled so that the NS peak is about the cracking displacement (the infill just cracks);
+* the shipped structures (``structure_I``, ``structure_II``, ``structure_II_infill``,
+  ``three_storey``) with every method.
+
+Each run is HS on the emulator (lockstep) against NS (implicit DC converged, the specimen models),
+error = max over time and DOF of |u_HS - u_NS| / peak |u_NS| (``hsio.result.max_error_pct``).
+The methods, as :func:`make_method` builds them from the instruments:
+
+* ``implicit_dc``: every element in DC;
+* ``force_control``: every element in FC, base displacement from the complementary estimate
+  (``fc_blend``);
+* ``mixed``: thresholds from the instruments (:meth:`SwitchingRule.from_instruments`), the
+  complementary estimate in FC, non-converged FC steps finished in DC with a refractory period.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from hsio.integrators import ImplicitMethod, SwitchingRule
+from hsio.structures import Structure, get_structure, sdof
+
+METHODS = ("implicit_dc", "force_control", "mixed")
+STRUCTURES = ("structure_I", "structure_II", "structure_II_infill", "three_storey")
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """How the methods use the instruments (the defaults of ``hsio study mixed``)."""
+
+    margin: float = 3.0  # c in K_f = c max(delta_F, tol_F) / delta_u
+    hysteresis: float = 2.0  # K_d = K_f / h
+    fc_blend: float = 0.01  # lambda of the complementary estimate
+    fallback_after: int = 2  # FC commands before a non-converging FC element goes on in DC
+    refractory_steps: int = 10**9  # an element that failed in FC stays in DC for the rest of the run
+    no_fc_at_reversal: bool = True
+    j_max: int = 3
+    tol_displacement: float = 0.02
+    tol_force: float = 0.05
+    alpha: float = -0.05
+
+
+def make_method(structure: Structure, method: str, resolution_mm: float, force_resolution_kN: float,
+                recipe: Recipe = Recipe()) -> ImplicitMethod:
+    """The integrator of ``method`` for ``structure`` with the given instruments."""
+    K_EI = [e.K_EI for e in structure.experimental]
+    r = recipe
+    rule = None
+    if method == "mixed":
+        rule = SwitchingRule.from_instruments(K_EI, resolution_mm, force_resolution_kN, r.margin, r.hysteresis,
+                                              r.tol_force)
+    blend = r.fc_blend if method != "implicit_dc" else 1.0
+    extra = {}
+    if method == "mixed":
+        extra = {"fallback_after": r.fallback_after, "refractory_steps": r.refractory_steps,
+                 "no_fc_at_reversal": r.no_fc_at_reversal}
+    return ImplicitMethod(structure.M, structure.C, structure.numerical_assembly().K_linear,
+                          structure.experimental_dofs, K_EI, structure.dt, r.alpha, method, rule, structure.dof_names,
+                          j_max=r.j_max, tol_displacement=r.tol_displacement, tol_force=r.tol_force, fc_blend=blend,
+                          **extra)
+
+
+@dataclass
+class Row:
+    case: str
+    k0_kN_mm: float
+    resolution_mm: float
+    force_resolution_kN: float
+    method: str
+    error_pct: float  # inf when the run stopped (an interlock or a command beyond the limits)
+    switches: int
+    not_converged_steps: int
+    fc_fraction: float
+    ns_peak_mm: float
+
+
+def infill_sdof(k0: float, dt: float = 0.005, f_hz: float = 8.0) -> Structure:
+    """The grid's specimen: a single-DOF frame whose infill has initial stiffness ``k0``."""
+    s = k0 / 122.6
+    spec = {"kind": "cracking_infill", "k0": k0, "F_cr": 60.0 * s, "F_max": 85.0 * s, "u_max": 2.5,
+            "F_res": 40.0 * s, "u_res": 10.0, "gamma": 40.0}
+    m = k0 / (2 * math.pi * f_hz) ** 2
+    return sdof(m=m, k=k0, zeta=0.05, dt=dt, specimen=spec)
+
+
+def run_case(case: str, structure: Structure, ground, methods, resolution_mm: float, force_resolution_kN: float,
+             test_rate: float = 10.0, hold_fraction: float = 0.5, recipe: Recipe = Recipe(), ns=None,
+             force_noise_kN: float | None = None, emulator: dict | None = None) -> list[Row]:
+    """HS of each method on the emulator with the given instruments (the load cell's noise
+    standard deviation equal to its resolution unless given), against NS."""
+    from hsio.api import open_site, run_numerical, simulate
+    from hsio.experiment import ExperimentStopped
+    from hsio.result import max_error_pct
+    from hsio.secant import SecantEstimator
+
+    if ns is None:
+        ns = run_numerical(structure, ground, "mixed", recipe.alpha)
+    peak = float(np.max(np.abs(ns.u)))
+    options = {"resolution_mm": resolution_mm, "force_resolution_kN": force_resolution_kN,
+               "force_noise_kN": force_resolution_kN if force_noise_kN is None else force_noise_kN, **(emulator or {})}
+    k0 = float(max(e.K_EI for e in structure.experimental))
+    rows = []
+    for method in methods:
+        integrator = make_method(structure, method, resolution_mm, force_resolution_kN, recipe)
+        with open_site(structure, "emulator://", test_rate=test_rate, hold_fraction=hold_fraction, options=options,
+                       estimator=SecantEstimator("average", 16, 0.1)) as site:
+            try:
+                hs = simulate(structure, ground, site, integrator=integrator)
+            except ExperimentStopped:
+                rows.append(Row(case, k0, resolution_mm, force_resolution_kN, method, math.inf, 0, 0, 1.0, peak))
+                continue
+        error, _ = max_error_pct(hs.u, ns.u)
+        modes = np.asarray(hs.modes[1:])
+        rows.append(Row(case, k0, resolution_mm, force_resolution_kN, method, float(error), len(hs.switches),
+                        int(np.sum(~np.asarray(hs.converged[1:]))), float(np.mean(modes == "force")), peak))
+    return rows
+
+
+def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolutions=(0.002, 0.02),
+         duration_s: float = 2.0, methods=METHODS, recipe: Recipe = Recipe(), progress=None) -> list[Row]:
+    """The grid study: every combination, every method (the record scaled to just crack the infill)."""
+    from hsio.api import run_numerical
+    from hsio.ground_motion import synthetic_record
+
+    rows = []
+    for k0 in stiffnesses:
+        structure = infill_sdof(float(k0))
+        base = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=0.1, seed=1994)
+        ns = run_numerical(structure, base, "mixed", recipe.alpha)
+        scale = 0.49 / max(float(np.max(np.abs(ns.u))), 1e-9)
+        ground = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=0.1 * scale, seed=1994)
+        ns = run_numerical(structure, ground, "mixed", recipe.alpha)
+        for du in resolutions:
+            for dF in force_resolutions:
+                rows += run_case("grid", structure, ground, methods, float(du), float(dF), recipe=recipe, ns=ns)
+                if progress:
+                    progress(rows[-len(methods):])
+    return rows
+
+
+def structures(names=STRUCTURES, duration_s: float = 4.0, resolution_mm: float = 0.025,
+               force_resolution_kN: float = 0.01, methods=METHODS, recipe: Recipe = Recipe(),
+               pga=None, progress=None) -> list[Row]:
+    """The shipped structures with every method (synthetic record, seed 1994)."""
+    from hsio.ground_motion import synthetic_record
+
+    default_pga = {"structure_I": 0.6, "structure_II": 0.15, "structure_II_infill": 0.15, "three_storey": 0.3}
+    rows = []
+    for name in names:
+        structure = get_structure(name)
+        g = (pga or default_pga).get(name, 0.3)
+        ground = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=g, seed=1994)
+        emulator = {"force_limit_kN": 1000.0} if name == "three_storey" else None  # as examples/run_three_storey.toml
+        rows += run_case(name, structure, ground, methods, resolution_mm, force_resolution_kN, recipe=recipe,
+                         emulator=emulator)
+        if progress:
+            progress(rows[-len(methods):])
+    return rows
+
+
+def winners(rows: list[Row]) -> dict:
+    """Per configuration: the method with the smallest error, and whether mixed is within 20 %
+    (relative) or 0.1 percentage point of the better of DC and FC."""
+    out = {}
+    for row in rows:
+        out.setdefault((row.case, row.k0_kN_mm, row.resolution_mm, row.force_resolution_kN), {})[row.method] = row
+    summary = {}
+    for key, by in out.items():
+        best = min(by.values(), key=lambda r: r.error_pct)
+        ok = None
+        if {"implicit_dc", "force_control", "mixed"} <= set(by):
+            ref = min(by["implicit_dc"].error_pct, by["force_control"].error_pct)
+            ok = by["mixed"].error_pct <= max(1.2 * ref, ref + 0.1)
+        summary[key] = {"best": best.method, "mixed_ok": ok}
+    return summary
+
+
+def rows_as_dicts(rows: list[Row]) -> list[dict]:
+    return [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(r).items()}
+            for r in rows]
+
+
+def plot(rows: list[Row], path: str) -> None:
+    """Error maps: per load-cell resolution, the error of each method over k0 x delta_u, and the winner."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grid_rows = [r for r in rows if r.case == "grid"]
+    if not grid_rows:
+        return
+    ks = sorted({r.k0_kN_mm for r in grid_rows})
+    dus = sorted({r.resolution_mm for r in grid_rows})
+    dFs = sorted({r.force_resolution_kN for r in grid_rows})
+    fig, axes = plt.subplots(len(dFs), len(METHODS) + 1, figsize=(4 * (len(METHODS) + 1), 3.2 * len(dFs)),
+                             squeeze=False)
+    colours = {"implicit_dc": 0, "force_control": 1, "mixed": 2}
+    for i, dF in enumerate(dFs):
+        errs = {}
+        for j, method in enumerate(METHODS):
+            E = np.full((len(dus), len(ks)), np.nan)
+            for r in grid_rows:
+                if r.method == method and r.force_resolution_kN == dF:
+                    E[dus.index(r.resolution_mm), ks.index(r.k0_kN_mm)] = min(r.error_pct, 1e3)
+            errs[method] = E
+            ax = axes[i][j]
+            im = ax.imshow(np.log10(np.maximum(E, 1e-3)), origin="lower", aspect="auto", cmap="viridis")
+            fig.colorbar(im, ax=ax, label="log10 error (%)")
+            ax.set_title(f"{method}, dF = {dF:g} kN")
+        stack = np.stack([np.nan_to_num(errs[m], nan=np.inf) for m in METHODS])
+        best = np.argmin(stack, axis=0)
+        ax = axes[i][-1]
+        ax.imshow(best, origin="lower", aspect="auto", vmin=0, vmax=2, cmap="Set1")
+        ax.set_title(f"winner (0 DC, 1 FC, 2 mixed), dF = {dF:g} kN")
+        for a in axes[i]:
+            a.set_xticks(range(len(ks)), [f"{k:g}" for k in ks])
+            a.set_yticks(range(len(dus)), [f"{d:g}" for d in dus])
+            a.set_xlabel("k0 (kN/mm)")
+            a.set_ylabel("delta_u (mm)")
+        del colours
+        colours = {}
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
