@@ -1,4 +1,4 @@
-"""Feed-forward compensation (METHOD.md section 4) on the emulated hockey-stick actuators.
+"""Feed-forward compensation (docs/method.md section 4) on the emulated hockey-stick actuators.
 
 For each structure, record and test rate, three continuous runs (hold_fraction = 0) on the same
 emulated actuator: uncompensated; offline-compensated with a and b calibrated from the

@@ -1,4 +1,4 @@
-"""Iterations per step and wall time per step of implicit FC and DC (METHOD.md sections 3 and 5).
+"""Iterations per step and wall time per step of implicit FC and DC (docs/method.md sections 3 and 5).
 
 1. The parametric-study SDOF (Menegotto-Pinto, n = 1, step load): numerical, one system at a time.
 2. Test structure I (pinched wood wall) on the emulated controller, lockstep, TR = 10:

@@ -10,7 +10,7 @@ Physics per period dt = 1/rate (explicit, one tick at a time):
   with K_p = 1 / (lag + dt) because the loop sees the rod position of the previous period. A
   ramp at velocity v then lags by lag (|v| - a) beyond the feed-forward threshold a, and not at
   all below it, between a command and the measurement that follows it: the hockey stick of
-  METHOD.md eq. 1 with b d_max = lag. The flow limit saturates |v|.
+  docs/method.md eq. 1 with b d_max = lag. The flow limit saturates |v|.
 * Force control: the loop is closed on the load cell, v = K_f (F_c - F_m), with K_f tuned on the
   specimen's initial stiffness so that the force follows with ``force_lag_s``.
 * Load train: the specimen sees the rod through a backlash gap and a compliance
@@ -47,7 +47,7 @@ from hsio.interfaces import ControlMode
 from hsio.specimens import Specimen
 
 
-# Hockey-stick actuators measured in the paper (METHOD.md section 4, eq. 1): velocity threshold a
+# Hockey-stick actuators measured in the paper (docs/method.md section 4, eq. 1): velocity threshold a
 # (mm/s) and slope b (s/mm) of the execution error normalised by the stroke d_max = 254 mm.
 # Select one with ``preset = "structure_I"``; explicit settings override it.
 PRESETS: dict[str, dict] = {
@@ -66,7 +66,7 @@ class ServoConfig:
     """Parameters of the emulated controller, actuator, load train and sensors (kN, mm, s)."""
 
     rate_hz: float = CONTROLLER_RATE_HZ
-    lag_s: float = 0.020  # displacement-loop lag when extending (b d_max of METHOD.md eq. 1)
+    lag_s: float = 0.020  # displacement-loop lag when extending (b d_max of docs/method.md eq. 1)
     lag_retract_s: float | None = None  # lag when retracting (asymmetric lag); None: same
     ki_per_s2: float = 0.0  # integral gain of the displacement loop
     velocity_threshold_mm_s: float = 0.0  # a: velocity feed-forward up to this speed

@@ -1,4 +1,4 @@
-"""Command generation at the controller rate: the predictor-corrector of METHOD.md section 1.
+"""Command generation at the controller rate: the predictor-corrector of docs/method.md section 1.
 
 Between two integration steps the actuator must keep moving smoothly. For each actuator, one
 :class:`PredictorCorrector` turns the sequence of targets d_i (one per integration step, every
@@ -15,7 +15,7 @@ t_d = TR dt seconds) into one command per controller period:
 
 A target that arrives while slow or holding is approached over a whole t_d.
 
-Ramp-hold (``hold_fraction`` h > 0, one of the remedies of METHOD.md section 2): the Hermite
+Ramp-hold (``hold_fraction`` h > 0, one of the remedies of docs/method.md section 2): the Hermite
 segment ends at rest after (1 - h) t_d, the command dwells on the target for h t_d so that the
 actuator settles before the measurement, and then holds there until the next target.
 """

@@ -1,4 +1,4 @@
-"""Secant stiffness of each experimental DOF from controller-rate feedback (METHOD.md eq. 11, section 5).
+"""Secant stiffness of each experimental DOF from controller-rate feedback (docs/method.md eq. 11, section 5).
 
 Within integration step i+1, iteration j, the secant stiffness of an element is
 

@@ -1,4 +1,4 @@
-"""The parametric study of METHOD.md section 3 (the paper's Figure 12): FC against DC.
+"""The parametric study of docs/method.md section 3 (the paper's Figure 12): FC against DC.
 
 SDOF, unit mass, unit initial period (k0 = 4 pi^2), nonlinear elastic Menegotto-Pinto spring
 (eq. 13, normalised: u_y = 1, n = 1), secondary-to-initial stiffness ratio theta, damping ratio

@@ -1,4 +1,4 @@
-"""alpha-OS (METHOD.md eqs. 3-6) against closed-form responses and scipy's solution."""
+"""alpha-OS (docs/method.md eqs. 3-6) against closed-form responses and scipy's solution."""
 
 import numpy as np
 import pytest

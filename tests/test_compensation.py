@@ -1,4 +1,4 @@
-"""Feed-forward compensation of actuator error (METHOD.md section 4): model, fit, eq. 2, online
+"""Feed-forward compensation of actuator error (docs/method.md section 4): model, fit, eq. 2, online
 estimation, and the whole loop on the emulated hockey-stick actuators of structures I and II."""
 
 import json

@@ -48,7 +48,7 @@ def test_paper_structures_run_on_realistic_actuators(name):
 
 
 def test_lag_without_correction_acts_like_negative_damping():
-    """METHOD.md section 2: a 20 ms lag with continuous ramps and no correction gives a large error."""
+    """docs/method.md section 2: a 20 ms lag with continuous ramps and no correction gives a large error."""
     s = validation()
     g = synthetic_record(duration_s=6.0, dt=s.dt, pga_g=0.6)
     ns = run_numerical(s, g)

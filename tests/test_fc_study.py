@@ -1,4 +1,4 @@
-"""The FC-vs-DC parametric study (METHOD.md section 3, the paper's Figure 12), on a reduced grid."""
+"""The FC-vs-DC parametric study (docs/method.md section 3, the paper's Figure 12), on a reduced grid."""
 
 import json
 

@@ -1,4 +1,4 @@
-"""Secant stiffness from controller-rate feedback (METHOD.md eq. 11, section 5)."""
+"""Secant stiffness from controller-rate feedback (docs/method.md eq. 11, section 5)."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""`hsio calibrate`: fit the hockey stick of METHOD.md eq. 1 to a recorded run (or a CSV file)."""
+"""`hsio calibrate`: fit the hockey stick of docs/method.md eq. 1 to a recorded run (or a CSV file)."""
 
 from __future__ import annotations
 

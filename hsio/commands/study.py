@@ -1,4 +1,4 @@
-"""`hsio study`: parametric studies of the integrators (METHOD.md sections 3 and 5)."""
+"""`hsio study`: parametric studies of the integrators (docs/method.md sections 3 and 5)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Feed-forward compensation of actuator execution error (METHOD.md section 4).
+"""Feed-forward compensation of actuator execution error (docs/method.md section 4).
 
 * :mod:`~hsio.compensation.hockey_stick`: the error model (eq. 1) and its least-squares fit.
 * :mod:`~hsio.compensation.feedforward`: the adjusted command (eq. 2).

@@ -1,4 +1,4 @@
-"""Calibration of the hockey stick (METHOD.md section 4, eq. 1) from a recorded run or a CSV file.
+"""Calibration of the hockey stick (docs/method.md section 4, eq. 1) from a recorded run or a CSV file.
 
 Sources:
 

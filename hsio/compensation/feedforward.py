@@ -1,4 +1,4 @@
-"""The adjusted command of METHOD.md section 4, eq. 2, for one actuator.
+"""The adjusted command of docs/method.md section 4, eq. 2, for one actuator.
 
 With the hockey stick of eq. 1 (threshold a, lag L = b d_max) the actuator ends a step short of
 its command by L (|v| - a) sign(v). Sending d^a instead of d^c makes it land on d^c:

@@ -1,4 +1,4 @@
-"""The hockey-stick model of actuator execution error (METHOD.md section 4, eq. 1) and its fit.
+"""The hockey-stick model of actuator execution error (docs/method.md section 4, eq. 1) and its fit.
 
 Execution error normalised by the stroke, Er = (d_c - d_m) / d_max, against the command
 velocity v:

@@ -1,4 +1,4 @@
-"""Online estimation of the hockey stick (METHOD.md section 4, eq. 1) during the test.
+"""Online estimation of the hockey stick (docs/method.md section 4, eq. 1) during the test.
 
 The paper calibrated a and b in a separate run and named online estimation as future work. Here
 every step adds one sample of the actuator's own execution error e = d^a - d^m (the command it

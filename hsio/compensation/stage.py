@@ -1,4 +1,4 @@
-"""The compensation stage between the integrator's commands and the actuators (METHOD.md section 4).
+"""The compensation stage between the integrator's commands and the actuators (docs/method.md section 4).
 
 Per step, for each actuator: the integrator's command d^c goes in, the adjusted command d^a
 (eq. 2, :mod:`~hsio.compensation.feedforward`) goes to the control loop, and after the step the

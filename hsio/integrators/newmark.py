@@ -1,6 +1,6 @@
 """Newmark's average-acceleration method with Newton iterations: the reference ("exact") solution.
 
-Used as the error-free reference of the parametric studies (METHOD.md section 3: average
+Used as the error-free reference of the parametric studies (docs/method.md section 3: average
 acceleration at dt = 0.0002 s). Implicit, unconditionally stable, iterated to equilibrium.
 """
 
