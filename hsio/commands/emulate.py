@@ -9,12 +9,11 @@ The clock follows CONFIG's [hardware] clock (lockstep or realtime) unless --cloc
 
 from __future__ import annotations
 
-import signal
 import sys
-import threading
 
 import click
 
+from hsio.commands import wait_for_stop
 from hsio.errors import HsioError
 
 
@@ -85,14 +84,8 @@ def _serve(emulator, bank, lines: list[str]) -> None:
     click.echo(f"watchdog  {bank.watchdog_s:g} s" if bank.watchdog_s else "watchdog  off")
     click.echo("Ctrl-C stops the emulator.")
     sys.stdout.flush()
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
     try:
-        while not done.wait(0.5):
-            pass
-    except KeyboardInterrupt:
-        pass
+        wait_for_stop()
     finally:
         emulator.stop()
         if bank.faults:

@@ -7,12 +7,11 @@ port, printed at start-up; the server runs until interrupted.
 
 from __future__ import annotations
 
-import signal
 import sys
-import threading
 
 import click
 
+from hsio.commands import wait_for_stop
 from hsio.errors import HsioError
 
 
@@ -59,14 +58,8 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
     click.echo(f"records   {settings.out}")
     click.echo("Ctrl-C stops the server.")
     sys.stdout.flush()
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
     try:
-        while not done.wait(0.5):
-            pass
-    except KeyboardInterrupt:
-        pass
+        wait_for_stop()
     finally:
         server.close()
         click.echo("server stopped; the actuators hold.")

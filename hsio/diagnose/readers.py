@@ -57,8 +57,9 @@ def uniform_step(time_s: np.ndarray, lines: list[int], path) -> float:
     return (float(time_s[-1]) - float(time_s[0])) / (time_s.size - 1)
 
 
-def read_csv(path: str | Path) -> ActuatorRecord:
-    """A CSV record with the header ``time_s,command_mm,measured_mm[,force_kN]``."""
+def read_text(path: str | Path) -> tuple[Path, str]:
+    """The text of a record file (UTF-8, a byte-order mark allowed); a RecordError naming the
+    file when it cannot be read or is not UTF-8."""
     path = Path(path)
     try:
         raw = path.read_bytes()
@@ -68,6 +69,12 @@ def read_csv(path: str | Path) -> ActuatorRecord:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise RecordError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    return path, text
+
+
+def read_csv(path: str | Path) -> ActuatorRecord:
+    """A CSV record with the header ``time_s,command_mm,measured_mm[,force_kN]``."""
+    path, text = read_text(path)
     header = None
     rows: list[list[float]] = []
     lines: list[int] = []

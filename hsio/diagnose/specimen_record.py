@@ -68,17 +68,9 @@ def _centred(source: str, dt: float, u: np.ndarray, f: np.ndarray) -> SpecimenRe
 
 
 def read_csv(path: str | Path) -> SpecimenRecord:
-    from hsio.diagnose.readers import _number, uniform_step
+    from hsio.diagnose.readers import _number, read_text, uniform_step
 
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise RecordError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    path, text = read_text(path)
     header, rows, lines = None, [], []
     for lineno, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
