@@ -1,5 +1,7 @@
 """Shared fixtures: paths to the data beside the repository (skipped where absent)."""
 
+import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -18,6 +20,26 @@ def shared_data() -> Path:
 # plain `pytest -q` stays bounded.
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: a long test; runs only when the environment sets HSIO_SLOW=1")
+    _records_in_memory(config)
+
+
+# Records are durable: every committed step waits for SQLite's fsync. On a disk that costs several
+# milliseconds a step and dominates the suite's wall time; tests that need no power-loss safety
+# keep their temporary folders in memory (/dev/shm) where it has room, the same code path with a
+# cheap fsync. HSIO_TEST_TMP=disk keeps them on disk.
+MEMORY_ROOT = Path("/dev/shm")
+MEMORY_NEEDED = 2 << 30
+
+
+def _records_in_memory(config) -> None:
+    if config.option.basetemp or os.environ.get("PYTEST_DEBUG_TEMPROOT") or os.environ.get("HSIO_TEST_TMP") == "disk":
+        return
+    try:
+        if shutil.disk_usage(MEMORY_ROOT).free < MEMORY_NEEDED or not os.access(MEMORY_ROOT, os.W_OK):
+            return
+    except OSError:
+        return
+    os.environ["PYTEST_DEBUG_TEMPROOT"] = str(MEMORY_ROOT)
 
 
 def pytest_collection_modifyitems(config, items):
