@@ -259,10 +259,10 @@ def test_secant_stiffness_is_answered_when_configured(tmp_path):
         assert wait_for(lambda: session_over(srv))
 
 
-def test_a_two_dof_element_is_refused_with_the_reason(server):
+def test_an_element_with_more_basic_dofs_than_served_is_refused_with_the_reason(server):
     c = RawClient(server.ports[0])
-    c.setup(n=2)  # e.g. '-node 1 2 -dof 1 -dof 1': needs a geometric setup, not an identity
+    c.setup(n=2)  # e.g. '-node 1 2 -dof 1 -dof 1' for C1, a one-DOF element on one actuator
     assert c.closed_by_server()
     c.close()
-    assert any("has 2 basic DOFs" in line and "one actuator per basic DOF" in line for line in server.lines)
+    assert any("has 2 basic DOFs" in line and "served element has 1: C1" in line for line in server.lines)
     good_step_works(server)
