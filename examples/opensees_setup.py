@@ -9,9 +9,10 @@ two actuators of the library structure column_two_actuators, through its setup
 The model is planar (ndm 2, ndf 3) in kN, mm, s: one node at the column top, at (0, L), with the
 structure's masses on x and on the rotation, its vertical DOF fixed; the genericClient sits on
 that node with `-dof 1 3` (x, then the rotation: the order of the element's `dofs`). Damping is
-mass-proportional, ratio zeta on the first mode. `--numerical` builds the same model with
-OpenSees' own elasticBeamColumn (EI, L of the specimen, fixed base) in place of the genericClient:
-the reference. `--integrator alphaos` (default) is AlphaOS with one update per step;
+mass-proportional, ratio zeta on the first mode. The ground motion is `hsio run`'s default
+record scaled to `--pga` (0.2 g). `--numerical` builds the same model with OpenSees' own
+elasticBeamColumn (EI, L of the specimen, fixed base) in place of the genericClient: the
+reference. `--integrator alphaos` (default) is AlphaOS with one update per step;
 `--integrator newmark` is Newmark (average acceleration) with Newton iterations: the element
 moves to every iterate, and only the committed ones are steps of the server's record. Writes the
 top's history (one row per step: x in mm, rotation in rad) to --out (.npy); `--reference PATH`
@@ -69,7 +70,8 @@ def build(ops, structure, ground_mm_s2: np.ndarray, port: int | None, host: str 
     ops.analysis("Transient")
 
 
-def run(port: int | None, host: str = "127.0.0.1", duration_s: float = 20.0, integrator: str = "alphaos"):
+def run(port: int | None, host: str = "127.0.0.1", duration_s: float = 20.0, integrator: str = "alphaos",
+        pga_g: float = 0.2):
     """The top's history (steps + 1 x 2: mm, rad) and the wall time of the analysis (s)."""
     import openseespy.opensees as ops
 
@@ -77,7 +79,7 @@ def run(port: int | None, host: str = "127.0.0.1", duration_s: float = 20.0, int
     from hsio.structures import get_structure
 
     structure = get_structure(STRUCTURE)
-    record = synthetic_record(duration_s=20.0, dt=structure.dt, pga_g=0.6, seed=1994)  # hsio run's default
+    record = synthetic_record(duration_s=20.0, dt=structure.dt, pga_g=pga_g, seed=1994)  # hsio run's, scaled
     ag = (record.truncated(duration_s) if duration_s < 20.0 else record).resampled(structure.dt).acceleration_mm_s2()
     build(ops, structure, ag, port, host, integrator)
     n_steps = len(ag) - 1
@@ -100,11 +102,14 @@ def main(argv=None) -> int:
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--duration", type=float, default=20.0, help="seconds of the record (default: all of it)")
     parser.add_argument("--integrator", default="alphaos", choices=["alphaos", "newmark"])
+    parser.add_argument("--pga", type=float, default=0.2,
+                        help="peak ground acceleration, g (hsio run's default record, scaled: at 0.2 g the upper "
+                             "actuator needs about 95 mm of its 127 mm stroke over the 20 s; at 0.6 g, 280 mm)")
     parser.add_argument("--out", default=None, help="write the history (mm, rad) here (.npy)")
     parser.add_argument("--reference", default=None,
                         help="also run the numerical twin, write its history here (.npy) and compare")
     args = parser.parse_args(argv)
-    u, wall = run(None if args.numerical else args.port, args.host, args.duration, args.integrator)
+    u, wall = run(None if args.numerical else args.port, args.host, args.duration, args.integrator, args.pga)
     steps = len(u) - 1
     print(f"{STRUCTURE}: {steps} steps in {wall:.2f} s ({wall / max(steps, 1) * 1e3:.2f} ms per step)")
     peak = np.max(np.abs(u), axis=0)
@@ -112,7 +117,7 @@ def main(argv=None) -> int:
     if args.out:
         np.save(args.out, u)
     if args.reference:
-        twin, _ = run(None, duration_s=args.duration, integrator=args.integrator)
+        twin, _ = run(None, duration_s=args.duration, integrator=args.integrator, pga_g=args.pga)
         np.save(args.reference, twin)
         difference = np.max(np.abs(u - twin), axis=0) / np.max(np.abs(twin), axis=0) * 100.0
         print(f"against OpenSees' own elasticBeamColumn: x {difference[0]:.3f} %, rotation {difference[1]:.3f} % "

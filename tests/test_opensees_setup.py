@@ -31,7 +31,7 @@ def run_column(tmp_path, port: int, duration_s: float = 1.0, integrator: str = "
     ``port``, then that of its numerical twin (OpenSees' own elasticBeamColumn)."""
     out, reference = tmp_path / "hs.npy", tmp_path / "ns.npy"
     proc = subprocess.run([sys.executable, str(SETUP_EXAMPLE), "--port", str(port), "--duration", str(duration_s),
-                           "--integrator", integrator, "--out", str(out), "--reference", str(reference)],
+                           "--integrator", integrator, "--pga", "0.6", "--out", str(out), "--reference", str(reference)],
                           capture_output=True, text=True, timeout=300, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return np.load(out), np.load(reference)
