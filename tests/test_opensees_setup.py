@@ -10,10 +10,13 @@ import random
 import subprocess
 import sys
 import threading
+import time
 
 import numpy as np
 import pytest
 
+from hsio import config as config_mod
+from hsio import runner
 from hsio.opensees import protocol as p
 from hsio.recording import Run
 from hsio.result import max_error_pct
@@ -37,23 +40,50 @@ def run_column(tmp_path, port: int, duration_s: float = 1.0, integrator: str = "
     return np.load(out), np.load(reference)
 
 
-def test_column_on_two_actuators_through_its_setup_matches_opensees_own_beam(tmp_path):
+@pytest.fixture(scope="module")
+def served_column(tmp_path_factory):
+    """The column served on two emulated actuators to examples/opensees_setup.py (AlphaOS, 1 s):
+    (folder of the server's record, OpenSees' history, its numerical twin's), shared."""
+    need_openseespy()
+    tmp = tmp_path_factory.mktemp("column")
+    config = write_config(tmp, COLUMN, ["column"], extra=FAST + QUIET)
+    with serving(config) as server:
+        u, reference = run_column(tmp, server.ports[0])
+    return tmp, u, reference
+
+
+def test_column_on_two_actuators_through_its_setup_matches_opensees_own_beam(served_column):
     """The genericClient with two basic DOFs (x, rotation) on hsio's two emulated actuators, through
     the two_actuators setup, against the same model with OpenSees' elasticBeamColumn."""
-    need_openseespy()
-    config = write_config(tmp_path, COLUMN, ["column"], extra=FAST + QUIET)
-    with serving(config) as server:
-        u, reference = run_column(tmp_path, server.ports[0])
+    tmp, u, reference = served_column
     worst, per_dof = max_error_pct(u[1:], reference[1:])
     assert worst < 1.0, per_dof
     assert np.max(np.abs(reference[:, 1])) > 0.003  # the rotation is a real part of the response
-    record = Run(tmp_path / "records" / "run.sqlite")
+    record = Run(tmp / "records" / "run.sqlite")
     assert record.actuator_names == CHANNELS and len(record.steps["step"]) == len(u) - 1
     targets = np.column_stack([record.actuator("target", c) for c in CHANNELS])
     answered = np.column_stack([record.dof("r", c) for c in CHANNELS])
     # the linear column: the basic forces that came back through the setup are K d, within what
     # the emulated load trains and lag leave after the force correction
     assert max_error_pct(answered, targets @ K_COLUMN.T)[0] < 5.0
+
+
+def test_column_served_to_opensees_matches_hsio_run_of_the_same_structure(tmp_path, served_column):
+    """`hsio run` of column_two_actuators, with the OpenSees model's damping (mass-proportional,
+    2 % on mode 1), on the same emulated rig and record."""
+    _, u, _ = served_column
+    library = (ROOT / "hsio" / "library" / f"{COLUMN}.toml").read_text()
+    assert 'kind = "rayleigh"' in library
+    structure = tmp_path / "column_mass_damped.toml"
+    structure.write_text(library.replace('kind = "rayleigh"', 'kind = "mass"'))
+    run_toml = tmp_path / "run.toml"
+    run_toml.write_text(f'[structure]\nfile = "{structure}"\n[record]\nduration_s = 1.0\n'
+                        "[output]\nplots = false\nns = false\n" + FAST + QUIET)
+    runner.run(config_mod.load(run_toml), tmp_path / "hsio")
+    run = Run(tmp_path / "hsio" / "run.sqlite")
+    hsio_u = np.column_stack([run.dof("u", d) for d in ("top_x", "top_rot")])
+    worst, per_dof = max_error_pct(u[1:], hsio_u)
+    assert worst < 1.0, per_dof
 
 
 def test_two_dof_element_in_newtons_and_metres_with_the_exact_geometry(tmp_path):
@@ -157,3 +187,29 @@ def test_two_elements_of_one_server_step_together_and_each_keeps_one_client(tmp_
     assert record.steps["step"].tolist() == list(range(1, steps + 1))
     for name in ("C1", "C2"):
         assert record.actuator("target", name).tolist() == pytest.approx(plans[name])
+
+
+def test_an_element_waiting_for_the_step_is_released_when_another_is_refused(tmp_path):
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 30.0\n" + QUIET)
+    with serving(config) as server:
+        c1, c2 = RawClient(server.ports[0]), RawClient(server.ports[1])
+        try:
+            c1.setup()
+            c2.setup()
+            c1.step(0.5, 0.01)  # C1 committed; it waits for C2 to commit the step
+            c2.send(p.SET_TRIAL, [500.0], t=0.01)  # beyond the stroke: refused, the actuators hold
+            c2.send(p.GET_FORCE)
+            assert c2.closed_by_server()
+            started = time.monotonic()
+            c1.send(p.SET_TRIAL, [0.6], t=0.02)
+            c1.send(p.GET_FORCE)
+            assert c1.closed_by_server(timeout_s=10.0)  # told at once, not after timeout_s
+            assert time.monotonic() - started < 10.0
+        finally:
+            c1.close()
+            c2.close()
+        assert wait_for(lambda: session_over(server))
+    assert any("beyond the stroke" in line for line in server.lines)
+    assert any("session stopped earlier" in line for line in server.lines)
+    record = Run(tmp_path / "records" / "run.sqlite")
+    assert record.summary["steps"] == 0 and "beyond the stroke" in record.summary["stopped"]

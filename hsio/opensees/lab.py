@@ -129,8 +129,7 @@ class Lab:
     def _detach(self, j: int, reason: str) -> None:
         """Element ``j`` leaves; the last one ends the session: actuators hold, record closed."""
         self.active.discard(j)
-        self.committed_flags[j] = False
-        self.snapshots[j] = None
+        self.committed_flags[j] = False  # its snapshot, if it committed this step, stays in the step's row
         self.log(f"element {self.names[j]}: {reason}")
         if not self.active:
             self._close(reason)
@@ -193,6 +192,8 @@ class Lab:
                 self.site.hold()
             except Exception:
                 pass
+        with self._stepped:  # elements waiting for the step go on, to be told the session stopped
+            self._stepped.notify_all()
 
     # --- units ----------------------------------------------------------------------------
     # Per basic DOF of element j, hsio's units per model unit are units[j] (length_factor for a
@@ -378,7 +379,8 @@ class Lab:
         OpenSees model do. commitState has no reply, so the model is never held up by the wait.
         Raises HsioError after ``timeout_s``."""
         with self._stepped:
-            done = self._stepped.wait_for(lambda: not self.committed_flags[j] or self.site is None, timeout_s)
+            done = self._stepped.wait_for(lambda: not self.committed_flags[j] or self.site is None or self.failed,
+                                          timeout_s)
         if not done:
             waiting = [self.names[k] for k in sorted(self.active) if not self.committed_flags[k]]
             raise HsioError(f"element {self.names[j]} committed a step; {', '.join(waiting) or 'another element'} "
