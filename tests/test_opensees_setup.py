@@ -213,3 +213,39 @@ def test_an_element_waiting_for_the_step_is_released_when_another_is_refused(tmp
     assert any("session stopped earlier" in line for line in server.lines)
     record = Run(tmp_path / "records" / "run.sqlite")
     assert record.summary["steps"] == 0 and "beyond the stroke" in record.summary["stopped"]
+
+
+def test_three_dof_joint_on_three_actuators(tmp_path):
+    """A genericClient with three basic DOFs (x, y, rotation) on the three actuators of
+    joint_three_actuators: forces K d through the setup, the matrices n x n column-major."""
+    K = np.array([[3.0, 0.5, 3000.0], [0.5, 6.0, 1500.0], [3000.0, 1500.0, 5.0e6]])
+    config = write_config(tmp_path, "joint_three_actuators", ["joint"], extra=QUIET)
+    with serving(config) as server:
+        c = RawClient(server.ports[0])
+        try:
+            c.setup(n=3)
+            assert c.ask(p.GET_INITIAL_STIFF)[:9].reshape(3, 3, order="F") == pytest.approx(K)
+            assert c.ask(p.GET_TANGENT_STIFF)[:9].reshape(3, 3, order="F") == pytest.approx(K)
+            d = np.array([1.5, -0.8, 0.0012])
+            for k in range(2):
+                c.send(p.SET_TRIAL, d.tolist(), t=0.01 * (k + 1))
+                q = c.ask(p.GET_FORCE)[:3]
+                c.send(p.COMMIT)
+            assert q == pytest.approx(K @ d, rel=0.02)
+            assert c.ask(p.GET_DISP)[:3] == pytest.approx(d, rel=0.02)
+            c.send(p.DIE)
+        finally:
+            c.close()
+        assert wait_for(lambda: session_over(server))
+    record = Run(tmp_path / "records" / "run.sqlite")
+    assert record.actuator_names == ["joint.joint_x", "joint.joint_y", "joint.joint_rot"]
+    assert record.summary["steps"] == 2
+
+
+def test_an_element_read_by_an_external_instrument_is_refused_clearly(tmp_path):
+    from hsio.errors import ConfigError
+    from hsio.opensees.lab import served_structure
+    from test_instruments import with_lvdt
+
+    with pytest.raises(ConfigError, match="'wall' takes its displacement from the external instrument 'wall_lvdt'"):
+        served_structure(with_lvdt(), ["wall"])

@@ -54,10 +54,14 @@ def served_structure(structure: Structure, names) -> Structure:
     elements, dof_names = [], []
     for name in names:
         e = by_name[name]
+        if e.displacement_from:
+            raise ConfigError(f"[opensees] elements: {name!r} takes its displacement from the external instrument "
+                              f"{e.displacement_from!r}; hsio serve opensees reads the actuators' own transducers "
+                              f"only: serve it without displacement_from")
         first = len(dof_names)
         index = tuple(range(first, first + len(e.basic_dofs)))
         dof_names += [structure.dof_names[d] for d in e.basic_dofs]
-        elements.append(replace(e, dof=first, dofs=index if e.dofs else (), displacement_from="", outer_loop=None))
+        elements.append(replace(e, dof=first, dofs=index if e.dofs else ()))
     return Structure(name=structure.name, dof_names=tuple(dof_names), masses=(1.0,) * len(dof_names),
                      experimental=tuple(elements), dt=structure.dt, description=f"served elements of {structure.name}")
 
