@@ -53,8 +53,10 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
     click.echo(f"structure {lab.structure.name}, hardware {config['hardware']['url']} ({config['hardware']['clock']}), "
                f"TR = {config['test']['rate']:g}")
     click.echo(f"units     model length x {settings.length_factor:g} = mm, model force x {f:g} = kN")
-    for name, bound in zip(lab.names, server.ports):
-        click.echo(f"element {name} on {host}:{bound}")
+    for j, (name, bound) in enumerate(zip(lab.names, server.ports)):
+        dofs = [lab.structure.dof_names[d] for d in lab.structure.experimental[j].basic_dofs]
+        basic = f" ({lab.n_basic[j]} basic DOFs, in this order: {', '.join(dofs)})" if lab.n_basic[j] > 1 else ""
+        click.echo(f"element {name} on {host}:{bound}{basic}")
     click.echo(f"records   {settings.out}")
     click.echo("Ctrl-C stops the server.")
     sys.stdout.flush()

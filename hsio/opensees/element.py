@@ -1,10 +1,10 @@
 """One genericClient element served: its messages answered from the lab (docs/opensees.md).
 
-Identity setup: basic DOF j of the element is actuator j of the element (hsio's experimental
-elements have one actuator each, so an element has one basic DOF). Units are converted at this
-boundary: trial displacements times ``length_factor`` give mm; forces in kN divided by
-``force_factor`` and stiffnesses in kN/mm times ``length_factor / force_factor`` give the model's
-units. Matrices go out column-major.
+Basic DOF i of the genericClient is basic DOF i of the served element, in the order of its
+``dofs`` (one DOF: the actuator's; several: through its setup, docs/setups.md). Units are
+converted at this boundary (:meth:`hsio.opensees.lab.Lab.to_mm` and the like): translations
+times ``length_factor`` give mm, rotations are radians on both sides; basic forces and matrices
+go back in the model's units. Matrices go out column-major.
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ class Done(Exception):
 class ElementHandler:
     """Answers one connected element ``j`` of ``lab``; :meth:`serve` runs until it leaves."""
 
-    def __init__(self, lab: Lab, j: int, framer: p.Framer, n: int = 1):
+    def __init__(self, lab: Lab, j: int, framer: p.Framer):
         self.lab = lab
         self.j = j
         self.name = lab.names[j]
         self.framer = framer
-        self.n = n
+        self.n = lab.n_basic[j]
         self.messages = 0
 
     def serve(self) -> str:
@@ -55,20 +55,21 @@ class ElementHandler:
             return None
         if action == p.COMMIT:
             lab.commit(j)
+            lab.wait_for_step(j, lab.settings.timeout_s)
             return None
         if action == p.GET_FORCE:
-            return lab.force_to_model([lab.force(j)])
+            return lab.force_to_model(j, lab.force(j))
         if action == p.GET_DISP:
-            return np.array([lab.displacement(j)]) / lab.settings.length_factor
+            return lab.to_model(j, lab.displacement(j))
         if action == p.GET_TIME:
             return np.array([lab.latest_time(j)])
         if action in (p.GET_INITIAL_STIFF, p.GET_TANGENT_STIFF):
-            k = lab.K_EI[j] if action == p.GET_INITIAL_STIFF else lab.tangent(j)
-            return p.matrix_payload(lab.stiffness_to_model(np.eye(n) * k))
+            K = lab.K_EI[j] if action == p.GET_INITIAL_STIFF else lab.tangent(j)
+            return p.matrix_payload(lab.stiffness_to_model(j, K))
         if action == p.GET_DAMP:
             c = lab.settings.damping.get(self.name, 0.0)
-            return p.matrix_payload(lab.stiffness_to_model(np.eye(n) * c))  # kN s/mm -> model (time in s)
+            return p.matrix_payload(lab.stiffness_to_model(j, np.eye(n) * c))  # kN s/mm -> model (time in s)
         if action == p.GET_MASS:
             m = lab.settings.mass.get(self.name, 0.0)
-            return p.matrix_payload(lab.stiffness_to_model(np.eye(n) * m))  # kN s^2/mm -> model
+            return p.matrix_payload(lab.stiffness_to_model(j, np.eye(n) * m))  # kN s^2/mm -> model
         raise p.ProtocolError(f"{where}: action {action} is not served")

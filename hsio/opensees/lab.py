@@ -7,6 +7,11 @@ loop, feed-forward compensation, limits), and records each committed step with
 :class:`hsio.recording.Recorder`. At its end the actuators hold and are released, and the record
 is closed; a trial that was never committed is not written (docs/opensees.md).
 
+A served element has as many basic DOFs as in its structure: one, on one actuator, or several,
+on the actuators of its setup (docs/setups.md). Its basic displacements go through the setup's
+exact geometry to strokes, and the measured strokes and forces come back as basic displacements
+and forces, as in `hsio run` (the site's :class:`hsio.sites.setup_map.SetupMap`).
+
 Trials are imposed lazily: a setTrialResponse is stored, and the actuators move when a force is
 asked for (getForce), once per step unless the trial displacement changes within the step. OpenSees'
 AlphaOS sends the predicted displacement twice per step (before and after its corrector, with
@@ -16,7 +21,9 @@ section 2).
 
 from __future__ import annotations
 
+import threading
 import time
+from dataclasses import replace
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -31,20 +38,39 @@ from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder
+from hsio.runner import channel_names
 from hsio.structures import ExperimentalElement, Structure
 
 
 def served_structure(structure: Structure, names) -> Structure:
-    """The experimental elements ``names`` of ``structure`` as a structure of their own (one DOF each):
-    what :func:`hsio.api.open_site` needs to open their actuators."""
+    """The experimental elements ``names`` of ``structure`` as a structure of their own: each
+    keeps its basic DOFs (renumbered in the order served), actuators, setup and K^EI; what
+    :func:`hsio.api.open_site` needs to open their actuators (docs/setups.md)."""
     by_name = {e.name: e for e in structure.experimental}
     unknown = [n for n in names if n not in by_name]
     if unknown:
         raise ConfigError(f"[opensees] elements: {unknown[0]!r} is not an experimental element of structure "
                           f"{structure.name!r}; known: {', '.join(by_name)}")
-    elements = tuple(ExperimentalElement(n, j, by_name[n].specimen) for j, n in enumerate(names))
-    return Structure(name=structure.name, dof_names=tuple(names), masses=(1.0,) * len(names),
-                     experimental=elements, dt=structure.dt, description=f"served elements of {structure.name}")
+    elements, dof_names = [], []
+    for name in names:
+        e = by_name[name]
+        if e.displacement_from:
+            raise ConfigError(f"[opensees] elements: {name!r} takes its displacement from the external instrument "
+                              f"{e.displacement_from!r}; hsio serve opensees reads the actuators' own transducers "
+                              f"only: serve it without displacement_from")
+        first = len(dof_names)
+        index = tuple(range(first, first + len(e.basic_dofs)))
+        dof_names += [structure.dof_names[d] for d in e.basic_dofs]
+        elements.append(replace(e, dof=first, dofs=index if e.dofs else ()))
+    return Structure(name=structure.name, dof_names=tuple(dof_names), masses=(1.0,) * len(dof_names),
+                     experimental=tuple(elements), dt=structure.dt, description=f"served elements of {structure.name}")
+
+
+def length_units(element: ExperimentalElement, length_factor: float) -> np.ndarray:
+    """Per basic DOF of ``element``, hsio's units per model unit: ``length_factor`` (mm per model
+    length) for a translation, 1 for a rotation (a setup's ``theta``: radians on both sides)."""
+    basic = getattr(element.make_setup(), "basic", ()) or ("",) * len(element.basic_dofs)
+    return np.array([1.0 if b == "theta" else length_factor for b in basic])
 
 
 class Lab:
@@ -60,11 +86,21 @@ class Lab:
         self.structure = served_structure(structure, settings.elements)
         self.names = list(settings.elements)
         self.n = len(self.names)
-        self.K_EI = np.array([e.K_EI for e in self.structure.experimental])
+        elements = self.structure.experimental
+        self.channels = channel_names(self.structure)  # one per basic DOF, as `hsio run` records them
+        self.blocks: list[slice] = []  # per element, its channels
+        for e in elements:
+            start = self.blocks[-1].stop if self.blocks else 0
+            self.blocks.append(slice(start, start + len(e.basic_dofs)))
+        self.n_basic = [b.stop - b.start for b in self.blocks]
+        self.n_channels = len(self.channels)
+        self.K_EI = [e.K_EI_matrix for e in elements]  # per element, over its basic DOFs (hsio units)
+        self.units = [length_units(e, settings.length_factor) for e in elements]
         self.correct = (config["test"]["measured_displacement_correction"] if settings.force_correction is None
                         else settings.force_correction)
         self.log = log
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hsio-opensees-lab")
+        self._stepped = threading.Condition()  # notified when a step is recorded or an element leaves
         self.site = None
         self.recorder: Recorder | None = None
         self.sessions = 0
@@ -75,13 +111,14 @@ class Lab:
     def _reset_session(self) -> None:
         n = self.n
         self.latest: list[Trial | None] = [None] * n
-        self.imposed = np.zeros(n)  # targets sent to the site, mm
-        self.has_imposed = np.zeros(n, dtype=bool)
+        self.imposed = np.zeros(self.n_channels)  # targets sent to the site per channel, mm (rad)
+        self.has_imposed = False
         self.moved_this_step = np.zeros(n, dtype=bool)
         self.committed_flags = np.zeros(n, dtype=bool)
         self.snapshots: list[tuple | None] = [None] * n  # per element, its state at its commit
-        self.answered = np.zeros(n)  # the last force answered, kN
+        self.answered = np.zeros(self.n_channels)  # the last basic forces answered, kN (kN mm)
         self.steps = 0
+        self.trials = 0  # motions of the actuators, committed or not
         self.failed = ""
         self.site_s = 0.0
         self.record_s = 0.0
@@ -96,16 +133,21 @@ class Lab:
     def _detach(self, j: int, reason: str) -> None:
         """Element ``j`` leaves; the last one ends the session: actuators hold, record closed."""
         self.active.discard(j)
+        self.committed_flags[j] = False  # its snapshot, if it committed this step, stays in the step's row
         self.log(f"element {self.names[j]}: {reason}")
         if not self.active:
             self._close(reason)
+        elif self.site is not None and not self.failed:
+            self._record_if_all_committed(self.site)
+        with self._stepped:
+            self._stepped.notify_all()
 
     def _open(self) -> None:
         self._reset_session()
         self.sessions += 1
         cfg, test, hardware = self.config, self.config["test"], self.config["hardware"]
         emulator = merged_emulator_table(hardware["actuator_model"], cfg["emulator"])
-        compensation = CompensationStage(self.names, test["rate"] * self.structure.dt,
+        compensation = CompensationStage(self.channels, test["rate"] * self.structure.dt,
                                          CompensationSettings.from_table(cfg["compensation"]))
         self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
                                   hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
@@ -115,12 +157,12 @@ class Lab:
         out = Path(self.settings.out)
         path = out / ("run.sqlite" if self.sessions == 1 else f"run-{self.sessions}.sqlite")
         meta = {"config": cfg.tables, "config_source": cfg.source, "structure": self.structure.name,
-                "source": "opensees genericClient", "elements": self.names, "dt": self.structure.dt,
+                "source": "opensees genericClient", "elements": self.names, "channels": self.channels, "dt": self.structure.dt,
                 "test_rate": test["rate"], "length_factor": self.settings.length_factor,
                 "force_factor": self.settings.force_factor, "force_correction": self.correct,
                 "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         try:
-            self.recorder = Recorder(path, self.names, self.names, meta)
+            self.recorder = Recorder(path, self.channels, self.channels, meta)
         except BaseException:
             self.site.close()
             self.site = None
@@ -143,6 +185,8 @@ class Lab:
             self.recorder.close()
             self.log(f"session {self.sessions} ended ({reason}): {self.steps} committed steps recorded")
             self.recorder = None
+        with self._stepped:
+            self._stepped.notify_all()
 
     def _hold(self, reason: str) -> None:
         """Stop the session's motion: every actuator holds; later force requests fail."""
@@ -152,16 +196,30 @@ class Lab:
                 self.site.hold()
             except Exception:
                 pass
+        with self._stepped:  # elements waiting for the step go on, to be told the session stopped
+            self._stepped.notify_all()
 
     # --- units ----------------------------------------------------------------------------
-    def to_mm(self, x):
-        return np.asarray(x, dtype=float) * self.settings.length_factor
+    # Per basic DOF of element j, hsio's units per model unit are units[j] (length_factor for a
+    # translation, 1 for a rotation); a basic force is work-conjugate to its displacement, so
+    # q_model = q_hsio units / (force_factor length_factor) and K_model = K_hsio u u^T / (ff lf).
+    def to_mm(self, j: int, x) -> np.ndarray:
+        """Element ``j``'s displacements (or velocities, accelerations) from model units to mm (rad)."""
+        return np.asarray(x, dtype=float) * self.units[j]
 
-    def force_to_model(self, F):
-        return np.asarray(F, dtype=float) / self.settings.force_factor
+    def to_model(self, j: int, x) -> np.ndarray:
+        """Element ``j``'s displacements from mm (rad) to model units."""
+        return np.asarray(x, dtype=float) / self.units[j]
 
-    def stiffness_to_model(self, K):
-        return np.asarray(K, dtype=float) * self.settings.length_factor / self.settings.force_factor
+    def force_to_model(self, j: int, q) -> np.ndarray:
+        """Element ``j``'s basic forces from kN (kN mm for a moment) to model units."""
+        s = self.settings
+        return np.asarray(q, dtype=float) * self.units[j] / (s.force_factor * s.length_factor)
+
+    def stiffness_to_model(self, j: int, K) -> np.ndarray:
+        """An n x n matrix over element ``j``'s basic DOFs (stiffness, damping or mass) to model units."""
+        s = self.settings
+        return np.asarray(K, dtype=float) * np.outer(self.units[j], self.units[j]) / (s.force_factor * s.length_factor)
 
     # --- actions --------------------------------------------------------------------------
     def _require_site(self):
@@ -171,57 +229,64 @@ class Lab:
             raise HsioError("no session is open")
         return self.site
 
-    def _force(self, j: int) -> float:
-        """Element ``j``'s force (kN) at its latest trial, moving the actuators if needed."""
+    def _force(self, j: int) -> np.ndarray:
+        """Element ``j``'s basic forces (kN, kN mm) at its latest trial, moving the actuators if needed."""
         site = self._require_site()
+        b = self.blocks[j]
         trial = self.latest[j]
         if trial is None:
-            return float(site.committed()[1][j])
-        target = float(self.to_mm(trial.d)[0])
-        if not self.moved_this_step[j] or target != self.imposed[j]:
+            return site.committed()[1][b].copy()
+        if not self.moved_this_step[j] or np.any(self.to_mm(j, trial.d) != self.imposed[b]):
             self._impose(site)
         daq = site.get_daq()
-        F = float(daq.R[j])
+        q = daq.R[b].copy()
         if self.correct:
-            F += float(self.K_EI[j] * (self.imposed[j] - daq.u[j]))
-        self.answered[j] = F
-        return F
+            q += self.K_EI[j] @ (self.imposed[b] - daq.u[b])
+        self.answered[b] = q
+        return q
 
     def _impose(self, site) -> None:
-        """Every element with a new trial moves to it; the others stay at their last target."""
+        """Every element with a new trial moves to it; the others stay at their last target. The
+        setups turn the basic displacements into strokes (exact geometry); every stroke is
+        checked against its actuator's limits before anything moves."""
         latest = list(self.latest)
-        targets = np.where(self.has_imposed, self.imposed, site.committed()[0])
+        targets = (self.imposed if self.has_imposed else site.committed()[0]).copy()
         for k, trial in enumerate(latest):
             if trial is not None:
-                targets[k] = float(self.to_mm(trial.d)[0])
-        for actuator, value in zip(site.loop.actuators, targets):  # refused before anything moves
-            actuator.limits.check(ControlMode.DISPLACEMENT, float(value), f"element {actuator.name!r} trial")
+                targets[self.blocks[k]] = self.to_mm(k, trial.d)
+        strokes = site.setups.strokes(targets) if site.setups is not None else targets
+        for actuator, value in zip(site.loop.actuators, strokes):  # refused before anything moves
+            actuator.limits.check(ControlMode.DISPLACEMENT, float(value), f"actuator {actuator.name!r} trial")
         t0 = time.perf_counter()
-        site.set_trial(targets, [ControlMode.DISPLACEMENT] * self.n)
+        site.set_trial(targets, [ControlMode.DISPLACEMENT] * self.n_channels)
         self.site_s += time.perf_counter() - t0
+        self.trials += 1
         self.imposed = targets
-        self.has_imposed[:] = True
+        self.has_imposed = True
         for k, trial in enumerate(latest):
             if trial is not None:
                 self.moved_this_step[k] = True
 
-    def _displacement(self, j: int) -> float:
-        """The measured displacement (mm) of element ``j`` after its last trial."""
+    def _displacement(self, j: int) -> np.ndarray:
+        """The measured basic displacements (mm, rad) of element ``j`` after its last trial."""
         site = self._require_site()
+        b = self.blocks[j]
         try:
-            return float(site.get_daq().u[j])
+            return site.get_daq().u[b].copy()
         except RuntimeError:
-            return float(site.committed()[0][j])
+            return site.committed()[0][b].copy()
 
-    def _tangent(self, j: int) -> float:
-        if self.settings.stiffness == "secant" and self.site is not None:
+    def _tangent(self, j: int) -> np.ndarray:
+        """A one-DOF element's secant of its last trial where it is finite and positive; K^EI otherwise
+        (and always for an element with several basic DOFs)."""
+        if self.n_basic[j] == 1 and self.site is not None:
             try:
-                k = float(self.site.get_daq().k[j])
+                k = float(self.site.get_daq().k[self.blocks[j].start])
             except RuntimeError:  # no trial yet
                 k = float("nan")
             if np.isfinite(k) and k > 0:
-                return k
-        return float(self.K_EI[j])
+                return np.array([[k]])
+        return self.K_EI[j]
 
     def _commit(self, j: int) -> None:
         """Element ``j`` accepts the step: its state is kept as it is now (the next trial may come
@@ -230,28 +295,37 @@ class Lab:
         site = self._require_site()
         if self.moved_this_step[j]:
             daq = site.get_daq()
+            b = self.blocks[j]
             trial = self.latest[j]
-            motion = (float(self.to_mm(x)[0]) if x.size else 0.0 for x in (trial.d, trial.v, trial.a))
-            self.snapshots[j] = (trial.t, *motion, float(self.imposed[j]), float(self.answered[j]),
-                                 float(daq.commands[j]), float(daq.u[j]), float(daq.R[j]))
+            motion = [self.to_mm(j, x) if x.size else np.zeros(self.n_basic[j]) for x in (trial.d, trial.v, trial.a)]
+            self.snapshots[j] = (trial.t, *motion, self.imposed[b].copy(), self.answered[b].copy(),
+                                 daq.commands[b].copy(), daq.u[b].copy(), daq.R[b].copy())
         self.committed_flags[j] = True
         self.moved_this_step[j] = False
-        if not all(self.committed_flags[k] for k in self.active):
+        self._record_if_all_committed(site)
+
+    def _record_if_all_committed(self, site) -> None:
+        """Once every connected element has committed, the step is one row of the record; the
+        elements waiting in :meth:`wait_for_step` go on."""
+        if not self.active or not all(self.committed_flags[k] for k in self.active):
             return
-        rows = [self.snapshots[k] for k in range(self.n)]
+        rows = list(self.snapshots)
         self.snapshots = [None] * self.n
-        self.committed_flags[:] = False
+        with self._stepped:
+            self.committed_flags[:] = False
+            self._stepped.notify_all()
         if all(r is None for r in rows):
             return
         samples = site.take_samples()
         site.commit()
         self.steps += 1
         t0 = time.perf_counter()
-        blank = (0.0,) * 9
-        t, u, v, a, target, answered, command, disp, force = (np.array(c) for c in zip(*(r or blank for r in rows)))
+        columns = [np.concatenate([r[c] if r is not None else np.zeros(n) for r, n in zip(rows, self.n_basic)])
+                   for c in range(1, 9)]
+        u, v, a, target, answered, command, disp, force = columns
         self.recorder.write_step(self.steps, float(next(r[0] for r in rows if r is not None)), u, v, a, target,
-                                 answered, [ControlMode.DISPLACEMENT.value] * self.n, target, command, disp, force,
-                                 samples)
+                                 answered, [ControlMode.DISPLACEMENT.value] * self.n_channels, target, command, disp,
+                                 force, samples)
         self.record_s += time.perf_counter() - t0
 
     def _stop(self) -> None:
@@ -283,23 +357,39 @@ class Lab:
         one reference is replaced, and :meth:`_impose` works on a copy of the list."""
         self.latest[j] = trial
 
-    def force(self, j: int) -> float:
-        """Element ``j``'s force (kN) at its latest trial, moving the actuators if needed."""
+    def force(self, j: int) -> np.ndarray:
+        """Element ``j``'s basic forces (kN, kN mm) at its latest trial, moving the actuators if needed."""
         return self._call(self._force, j)
 
-    def displacement(self, j: int) -> float:
-        """The measured displacement (mm) of element ``j`` after its last trial."""
+    def displacement(self, j: int) -> np.ndarray:
+        """The measured basic displacements (mm, rad) of element ``j`` after its last trial."""
         return self._call(self._displacement, j)
 
-    def tangent(self, j: int) -> float:
-        """kN/mm: K^EI, or the secant of the last trial where it is finite and positive."""
+    def tangent(self, j: int) -> np.ndarray:
+        """Over element ``j``'s basic DOFs (hsio units): K^EI, or for a one-DOF element the secant
+        of the last trial where it is finite and positive (``stiffness = "secant"``)."""
         if self.settings.stiffness == "initial":
-            return float(self.K_EI[j])
+            return self.K_EI[j]
         return self._call(self._tangent, j)
 
     def commit(self, j: int) -> None:
         """Element ``j`` accepts the step; once every connected element has, the step is recorded."""
         self._call(self._commit, j)
+
+    def wait_for_step(self, j: int, timeout_s: float) -> None:
+        """After its commit, element ``j`` waits until every connected element has committed the
+        same step (the step is recorded), so that no element's next trial runs into a step the
+        others have not finished: the served elements step together, as the elements of one
+        OpenSees model do. commitState has no reply, so the model is never held up by the wait.
+        Raises HsioError after ``timeout_s``."""
+        with self._stepped:
+            done = self._stepped.wait_for(lambda: not self.committed_flags[j] or self.site is None or self.failed,
+                                          timeout_s)
+        if not done:
+            waiting = [self.names[k] for k in sorted(self.active) if not self.committed_flags[k]]
+            raise HsioError(f"element {self.names[j]} committed a step; {', '.join(waiting) or 'another element'} "
+                            f"did not commit it within {timeout_s:g} s (the elements of one server must belong "
+                            f"to one model and step together)")
 
     def latest_time(self, j: int) -> float:
         trial = self.latest[j]

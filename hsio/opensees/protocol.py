@@ -77,15 +77,17 @@ class Setup:
     def encode(self) -> bytes:
         return struct.pack(SETUP_FORMAT, *self.ctrl, *self.daq, self.data_size)
 
-    def check(self, n_expected: int, where: str) -> None:
-        """Refuse sizes that do not fit an element of ``n_expected`` basic DOFs or that are hostile."""
+    def check(self, n_expected: int, where: str, basic=()) -> None:
+        """Refuse sizes that do not fit an element of ``n_expected`` basic DOFs (named ``basic``)
+        or that are hostile."""
         names = ("disp", "vel", "accel", "force", "time")
         values = [*self.ctrl, *self.daq, self.data_size]
         if any(x < 0 for x in values):
             raise ProtocolError(f"{where}: setup message has a negative size: {values}")
         if self.n != n_expected:
-            raise ProtocolError(f"{where}: the element has {self.n} basic DOFs (sizeCtrl disp), the server "
-                                f"maps {n_expected} (one actuator per basic DOF)")
+            listed = f": {', '.join(basic)}" if basic else ""
+            raise ProtocolError(f"{where}: the element has {self.n} basic DOFs (sizeCtrl disp); the served "
+                                f"element has {n_expected}{listed} (the genericClient's -dof list must match)")
         for label, sizes in (("sizeCtrl", self.ctrl), ("sizeDaq", self.daq)):
             for name, size in zip(names[:4], sizes[:4]):
                 if size not in (0, n_expected):

@@ -104,7 +104,7 @@ class OpenSeesServer:
             conn.settimeout(min(SETUP_TIMEOUT_S, self.lab.settings.timeout_s))
             try:
                 setup = p.Setup.decode(bytes(p.recv_exact(conn, p.SETUP_BYTES)))
-                setup.check(1, who)
+                setup.check(self.lab.n_basic[j], who, self.lab.channels[self.lab.blocks[j]])
             except (p.ProtocolError, p.PeerClosed, OSError) as exc:
                 self._refuse(conn, f"{who}: refused: {_describe(exc)}")
                 return
