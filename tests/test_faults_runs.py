@@ -111,9 +111,6 @@ def reference(transport, tmp_path_factory):
 def test_recoverable_faults_change_nothing(transport, reference, tmp_path):
     """Lost requests, late and cut-short replies, repeated frames: retried, and the run is the
     fault-free run, step for step."""
-    if transport == "canopen":
-        pytest.xfail("over SLCAN the whole schedule ends in 'lockstep lost' after the repeated frame at "
-                     "tick 900 (each fault alone recovers); under investigation")
     proc, summary, steps = run_over(tmp_path, transport, RECOVERABLE, "faulty")
     assert proc.returncode == 0, proc.stderr
     assert f"faults    injected {RECOVERABLE.count('@')}:" in proc.emulator_said, proc.emulator_said
