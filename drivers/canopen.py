@@ -534,26 +534,29 @@ class CanopenActuator(Actuator, ActuatorChannels):
         if self.drive.halt:
             self.drive.send_targets()
 
-    def holding(self) -> bool:
+    def holding(self) -> bool | None:
         """Read back the statusword 0x6041 by SDO: the drive holds in OPERATION ENABLED with bit
         12 clear (cyclic synchronous modes: "drive follows the target" off, i.e. halted), and in
-        SWITCHED ON, QUICK STOP ACTIVE and FAULT; not in SWITCH ON DISABLED, NOT READY or READY
-        TO SWITCH ON (power stage off: nothing holds the axis). docs/canopen.md."""
+        SWITCHED ON, QUICK STOP ACTIVE and FAULT; it does not while it follows its targets; with
+        the power stage off (SWITCH ON DISABLED, NOT READY, READY TO SWITCH ON) it cannot tell
+        (None). docs/canopen.md."""
         return statusword_holds(int(self.drive.sdo_read(0x6041, what="statusword")))
 
     def close(self) -> None:
         common.close_axis(self)
 
 
-def statusword_holds(word: int) -> bool:
-    """Whether a CiA 402 statusword shows a drive holding its position (see
-    :meth:`CanopenActuator.holding`)."""
+def statusword_holds(word: int) -> bool | None:
+    """Whether a CiA 402 statusword shows a drive holding its position: True, False (it follows
+    its targets) or None (power stage off: it cannot tell). See :meth:`CanopenActuator.holding`."""
     if word & 0x4F == 0x08:  # FAULT
         return True
     state = word & 0x6F
     if state == 0x27:  # OPERATION ENABLED: holding only while not following its targets
         return not word & 0x1000
-    return state in (0x23, 0x07)  # SWITCHED ON, QUICK STOP ACTIVE
+    if state in (0x23, 0x07):  # SWITCHED ON, QUICK STOP ACTIVE
+        return True
+    return None
 
 
 
