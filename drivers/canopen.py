@@ -539,7 +539,7 @@ class CanopenActuator(Actuator, ActuatorChannels):
         12 clear (cyclic synchronous modes: "drive follows the target" off, i.e. halted), and in
         SWITCHED ON, QUICK STOP ACTIVE and FAULT; it does not while it follows its targets; with
         the power stage off (SWITCH ON DISABLED, NOT READY, READY TO SWITCH ON) it cannot tell
-        (None). docs/canopen.md."""
+        (None). docs/safety.md section 3."""
         return statusword_holds(int(self.drive.sdo_read(0x6041, what="statusword")))
 
     def close(self) -> None:

@@ -125,7 +125,7 @@ def test_a_real_time_modbus_run_paused_for_2_s_holds_still_and_resumes_to_the_sa
     tracking = max(summary["rms_tracking_error_mm"] + ref_summary["rms_tracking_error_mm"])
     peak = max(ref_summary["peak_displacement_mm"])
     diff = max_abs_diff(ref, run)
-    print(f"pause over Modbus TCP: max |paused - unpaused| {diff:.4f} mm, tracking RMS {tracking:.4f} mm, "
+    print(f"pause over Modbus TCP: max |paused - unpaused| {diff:.2e} mm, tracking RMS {tracking:.4f} mm, "
           f"peak {peak:.3f} mm")
     assert peak > 1.0
     assert diff <= max(5 * tracking, 0.02 * peak)
