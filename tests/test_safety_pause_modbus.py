@@ -22,15 +22,15 @@ from hsio.recording import Run
 from hsio.safety import socket as control_socket
 from wire import QUIET_SENSORS, max_abs_diff, write_config
 
-WATCHDOG_S = 0.5  # well under the pause: without the keep-alive the watchdog would latch
+WATCHDOG_S = 1.0  # the emulator's default, half the pause: without the keep-alive it would latch
 PAUSE_S = 2.0
 PAUSE_AFTER = 20  # steps
 SAFETY = "[safety]\ndry_run = false\nkeys = false\n[output]\nplots = false\nns = false\n"
 
 
-def strict_emulator(cfg):
+def strict_emulator(cfg, watchdog_s: float = WATCHDOG_S):
     """A real-time emulated controller whose host watchdog also watches the axes it holds."""
-    bank = bank_from_config(cfg, lockstep=False, watchdog_s=WATCHDOG_S)
+    bank = bank_from_config(cfg, lockstep=False, watchdog_s=watchdog_s)
     bank.watch_holding = True
     return ModbusEmulator(bank, modbus_map.load()).start()
 
@@ -99,7 +99,7 @@ def test_a_real_time_modbus_run_paused_for_2_s_holds_still_and_resumes_to_the_sa
     assert float(np.max(np.ptp(rods, axis=0))) < 1e-9
     assert not any(any(e) for e in seen["expired"]) and not seen["latched_after"]
     counters = [c for c in seen["counters"] if c is not None]
-    assert len(set(counters)) > PAUSE_S / WATCHDOG_S  # fed throughout the pause
+    assert len(set(counters)) >= 10  # fed throughout the pause (every 0.1 s, sampled every 0.05 s)
 
     # The record: one pause and one resume, the hold confirmed by read-back; across the gap in
     # lab time (the pause) the measured displacement of each actuator did not change.
@@ -112,7 +112,7 @@ def test_a_real_time_modbus_run_paused_for_2_s_holds_still_and_resumes_to_the_sa
     # the pause, between two samples: the controller clock (ticks of its own loop, which can
     # run late on a loaded machine) advanced by most of the 2 s, against 1 ms between samples
     assert np.diff(lab)[gap] >= 0.5 * PAUSE_S
-    assert abs(samples["step"][gap] - PAUSE_AFTER) <= 2
+    assert PAUSE_AFTER <= samples["step"][gap] < 60  # asked at step 20, acted on at a step boundary
     for name in (k for k in samples if k.startswith("disp_")):
         before, after = samples[name][gap - 5:gap + 1], samples[name][gap + 1]
         creep = float(np.max(np.abs(np.diff(before))))  # the servo's last approach, per sample
@@ -135,18 +135,19 @@ def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path):
     """The keep-alive is the host's doing: a host that holds its axes and then falls silent gets
     them latched by the watchdog; one that keeps them alive does not."""
     cfg = write_config(tmp_path, duration=0.3, clock="realtime")
-    emu = strict_emulator(cfg)
+    watchdog_s = 0.3
+    emu = strict_emulator(cfg, watchdog_s)
     try:
         actuators = open_link(emu.url, ["C1", "C2"], RealTimeClock())
         for a in actuators:
             a.hold()
         assert all(a.holding() for a in actuators)  # read back from the status word
-        for _ in range(round(3 * WATCHDOG_S / 0.1)):  # a pause of 3 watchdog times, fed
+        for _ in range(round(3 * watchdog_s / 0.05)):  # a pause of 3 watchdog times, fed
             for a in actuators:
                 a.keep_alive()
-            time.sleep(0.1)
+            time.sleep(0.05)
         assert not any(a.watchdog_expired for a in emu.bank.axes)
-        time.sleep(2.5 * WATCHDOG_S)  # the host falls silent
+        time.sleep(3 * watchdog_s)  # the host falls silent
         assert all(a.watchdog_expired for a in emu.bank.axes)
         actuators[0].link.read_status()
         assert all(actuators[0].link.map.bit(st["status_word"], "watchdog") for st in actuators[0].link.status)
