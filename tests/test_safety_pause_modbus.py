@@ -6,17 +6,21 @@ still trips that watchdog."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
 import numpy as np
+import pytest
 
 from hsio import config as config_mod
 from hsio import runner
 from hsio.clock import RealTimeClock
 from hsio.commands.emulate import bank_from_config
+from hsio.drivers import canopen as canopen_driver
 from hsio.drivers import modbus_map
 from hsio.drivers.modbus import open_link
+from hsio.emulators.canopen import CanopenEmulator
 from hsio.emulators.modbus import ModbusEmulator
 from hsio.recording import Run
 from hsio.safety import socket as control_socket
@@ -131,27 +135,44 @@ def test_a_real_time_modbus_run_paused_for_2_s_holds_still_and_resumes_to_the_sa
     assert diff <= max(5 * tracking, 0.02 * peak)
 
 
-def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path):
-    """The keep-alive is the host's doing: a host that holds its axes and then falls silent gets
-    them latched by the watchdog; one that keeps them alive does not."""
+@pytest.mark.parametrize("protocol", ["modbus", "canopen"])
+def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path, protocol):
+    """The keep-alive is the host's doing: a host that holds its axes and keeps them alive (Modbus:
+    the watchdog register alone; CANopen: the halted drive's RPDO2) does not get them latched; one
+    that then falls silent does (Modbus: the watchdog bit; CANopen: FAULT with EMCY 0x8130)."""
     cfg = write_config(tmp_path, duration=0.3, clock="realtime")
     watchdog_s = 0.3
-    emu = strict_emulator(cfg, watchdog_s)
-    try:
+    if protocol == "modbus":
+        emu = strict_emulator(cfg, watchdog_s)
         actuators = open_link(emu.url, ["C1", "C2"], RealTimeClock())
+    else:
+        bank = bank_from_config(cfg, lockstep=False, watchdog_s=watchdog_s)
+        bank.watch_holding = True
+        emu = CanopenEmulator(bank, f"hsio-keep-alive-{os.getpid()}").start()
+        actuators = canopen_driver.open_link(emu.url, ["C1", "C2"], RealTimeClock())
+    try:
         for a in actuators:
             a.hold()
-        assert all(a.holding() for a in actuators)  # read back from the status word
+        assert all(a.holding() for a in actuators)  # read back from the controller
         for _ in range(round(3 * watchdog_s / 0.05)):  # a pause of 3 watchdog times, fed
             for a in actuators:
                 a.keep_alive()
             time.sleep(0.05)
         assert not any(a.watchdog_expired for a in emu.bank.axes)
+        assert all(c.holding for c in emu.bank.controllers)
         time.sleep(3 * watchdog_s)  # the host falls silent
         assert all(a.watchdog_expired for a in emu.bank.axes)
-        actuators[0].link.read_status()
-        assert all(actuators[0].link.map.bit(st["status_word"], "watchdog") for st in actuators[0].link.status)
+        if protocol == "modbus":
+            actuators[0].link.read_status()
+            assert all(actuators[0].link.map.bit(st["status_word"], "watchdog") for st in actuators[0].link.status)
+        else:
+            words = [d.sdo_read(0x6041, what="statusword") for d in actuators[0].link.drives]
+            assert all(w & 0x4F == 0x08 for w in words)  # FAULT
+        assert all(a.holding() for a in actuators)  # a latched watchdog holds
         for a in actuators:
-            a.close()
+            try:
+                a.close()
+            except Exception:
+                pass  # a drive in FAULT does not confirm the halt; it holds anyway
     finally:
         emu.stop()
