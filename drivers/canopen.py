@@ -113,6 +113,8 @@ class DriveNode:
         self.target_torque = 0
         self.halt = False
         self.actual = (0, 0, 0)  # counts, per mille, cycle
+        self.expected_cycle: int | None = None  # lockstep: the cycle the awaited TPDO2 carries
+        self.stale = 0  # TPDO2 frames of an earlier cycle (a repeated frame), not taken
         self.received = threading.Event()
         self.status_received = threading.Event()
         self.emcy: list = []
@@ -155,13 +157,23 @@ class DriveNode:
         self.tpdo2.add_callback(self.on_tpdo2)
 
     def on_tpdo2(self, pdo) -> None:
+        """The actual values of one SYNC. In lockstep only the frame of the awaited cycle is an
+        answer: a repeated frame of the cycle before (it may arrive after the next SYNC went out)
+        is dropped, so it cannot pass for the next cycle's reply."""
         try:
             if len(pdo.data) < self.tpdo2_length:
                 raise ValueError(f"{len(pdo.data)} bytes, the mapping has {self.tpdo2_length}")
-            self.actual = (pdo[0x6064].raw, pdo[0x6077].raw, pdo[cod.CYCLE].raw if self.cycle_mapped else 0)
+            actual = (pdo[0x6064].raw, pdo[0x6077].raw, pdo[cod.CYCLE].raw if self.cycle_mapped else 0)
         except Exception as exc:  # a malformed frame is not an answer: the exchange retries
             log.warning("node %d: malformed TPDO2 %r (%s)", self.id, bytes(pdo.data), exc)
             return
+        expected = self.expected_cycle
+        if expected is not None and self.cycle_mapped and actual[2] != expected:
+            self.stale += 1
+            log.debug("node %d: TPDO2 of cycle %d while awaiting %d (a repeated frame): dropped",
+                      self.id, actual[2], expected)
+            return
+        self.actual = actual
         self.received.set()
 
     @property
@@ -418,6 +430,7 @@ class CanopenLink(common.AxisLink):
                 except CommunicationError:
                     continue
             for d in self.drives:
+                d.expected_cycle = expected if self.lockstep else None
                 d.received.clear()
                 d.check_events()
                 d.send_targets()
@@ -515,8 +528,35 @@ class CanopenActuator(Actuator, ActuatorChannels):
         if not d.send_control():
             raise CommunicationError(f"CANopen node {d.id}: no confirmation of the halt within {self.link.options['timeout_s']:g} s")
 
+    def keep_alive(self) -> None:
+        """While the drive is halted (a pause): send the same targets again (RPDO2), so a drive
+        that watches its RPDOs does not time out; a halted drive does not follow them."""
+        if self.drive.halt:
+            self.drive.send_targets()
+
+    def holding(self) -> bool | None:
+        """Read back the statusword 0x6041 by SDO: the drive holds in OPERATION ENABLED with bit
+        12 clear (cyclic synchronous modes: "drive follows the target" off, i.e. halted), and in
+        SWITCHED ON, QUICK STOP ACTIVE and FAULT; it does not while it follows its targets; with
+        the power stage off (SWITCH ON DISABLED, NOT READY, READY TO SWITCH ON) it cannot tell
+        (None). docs/safety.md section 3."""
+        return statusword_holds(int(self.drive.sdo_read(0x6041, what="statusword")))
+
     def close(self) -> None:
         common.close_axis(self)
+
+
+def statusword_holds(word: int) -> bool | None:
+    """Whether a CiA 402 statusword shows a drive holding its position: True, False (it follows
+    its targets) or None (power stage off: it cannot tell). See :meth:`CanopenActuator.holding`."""
+    if word & 0x4F == 0x08:  # FAULT
+        return True
+    state = word & 0x6F
+    if state == 0x27:  # OPERATION ENABLED: holding only while not following its targets
+        return not word & 0x1000
+    if state in (0x23, 0x07):  # SWITCHED ON, QUICK STOP ACTIVE
+        return True
+    return None
 
 
 

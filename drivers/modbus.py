@@ -416,6 +416,24 @@ class ModbusActuator(Actuator, ActuatorChannels):
         self._mode = ControlMode.DISPLACEMENT
         self.link.write_axis(self.axis, ("mode", "enable", "watchdog"), what=f"hold of axis {self.axis}")
 
+    def keep_alive(self) -> None:
+        """While the axis holds (a pause): change the host watchdog counter, and nothing else, so
+        a controller whose watchdog also watches a holding axis does not latch it. Only the
+        watchdog register is written; the axis stays disabled (docs/safety.md section 4)."""
+        cmd = self.link.commands[self.axis]
+        if cmd["enable"]:
+            return  # a commanded axis is kept alive by its commands
+        cmd["watchdog"] = (cmd["watchdog"] + 1.0) % SEQ_MOD
+        self.link.write_axis(self.axis, ("watchdog",), what=f"watchdog of holding axis {self.axis}")
+
+    def holding(self) -> bool:
+        """Read back the controller's status word: the axis holds when its holding bit is set and
+        its enabled bit clear (docs/modbus.md, status bits)."""
+        link = self.link
+        link.read_status()
+        word = link.status[self.axis]["status_word"]
+        return link.map.bit(word, "holding") and not link.map.bit(word, "enabled")
+
     def close(self) -> None:
         common.close_axis(self)
 

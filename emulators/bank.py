@@ -54,6 +54,10 @@ class ControllerBank:
         self.axes = [AxisState() for _ in controllers]
         self.lockstep = lockstep
         self.watchdog_s = float(watchdog_s)
+        # False: the watchdog watches the axes the host commands (enabled); True: also the axes it
+        # holds, as on controllers whose watchdog watches the host link itself. Either way a host
+        # that stops changing the counter of a watched axis latches its watchdog bit (docs/modbus.md).
+        self.watch_holding = False
         self.rate_hz = controllers[0].config.rate_hz
         self.boot_id = float(random.SystemRandom().randrange(1, 1 << 24))
         self.lock = threading.RLock()
@@ -156,7 +160,7 @@ class ControllerBank:
             return
         now = time.monotonic()
         for state, c in zip(self.axes, self.controllers):
-            if state.enabled and state.watchdog_value is not None and not state.watchdog_expired \
+            if (state.enabled or self.watch_holding) and state.watchdog_value is not None and not state.watchdog_expired \
                     and now - state.watchdog_seen > self.watchdog_s:
                 state.watchdog_expired = True
                 c.hold()

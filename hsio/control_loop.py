@@ -235,6 +235,17 @@ class ControlLoop:
         with self._lock:
             self._paused = False
 
+    def keep_alive(self) -> None:
+        """While paused: each actuator that has a host watchdog is kept alive (it keeps holding).
+        Called by the pause's wait (hsio.safety.control); an error is raised to that wait."""
+        with self._lock:
+            if not self._paused:
+                return
+            for actuator in self.actuators:
+                keep = getattr(actuator, "keep_alive", None)
+                if keep is not None:
+                    keep()
+
     def confirm_hold(self) -> HoldReport:
         """Ask every actuator whether it holds (True, False or None: cannot tell)."""
         with self._lock:

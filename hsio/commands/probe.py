@@ -2,8 +2,10 @@
 
 Reports the connection and identity, the state of each axis, and the round-trip latency of the
 driver's requests (median, p99 and max over N requests, in ms). Without --move it only reads:
-no axis is enabled and nothing is commanded. With --move, axis 0 makes a small step and a slow
-sine from where it stands (rise time, overshoot, RMS tracking error) and comes back.
+no axis is enabled and nothing is commanded. With --move, axis 0 makes a small step (ramped at the
+velocity limit) and a slow sine from where it stands (rise time, overshoot, RMS tracking error) and
+comes back; every command goes through the limit checks and interlocks of a run, and a refusal
+or a trip holds the axis and ends the probe with exit status 2.
 """
 
 from __future__ import annotations
@@ -91,38 +93,70 @@ def _latency(link, n: int) -> dict:
     return {"what": what, **latency_stats(times)}
 
 
-def _drive(actuator, clock, commands) -> np.ndarray:
-    """Command each sample at the controller rate; return measured displacements."""
-    out = np.empty(len(commands))
-    for i, c in enumerate(commands):
-        actuator.command(float(c))
-        clock.tick()
-        out[i] = actuator.feedback().displacement_mm
-    return out
+class _Guard:
+    """The checks every command of a run goes through (docs/safety.md section 3), for probe's
+    motion: the stroke and force limits (:meth:`hsio.interfaces.Actuator.command`), the velocity
+    limit against the previous command, and the interlocks of the control loop (following error,
+    implausible measurement) on every sample. A refusal or a trip raises; the caller holds."""
+
+    def __init__(self, actuator, clock):
+        from hsio.safety.interlocks import InterlockMonitor
+        from hsio.safety.settings import SafetySettings
+
+        self.actuator = actuator
+        self.clock = clock
+        self.monitor = InterlockMonitor([actuator], SafetySettings.from_table({}))
+        self.previous = actuator.feedback().displacement_mm
+
+    def send(self, command: float) -> float:
+        """One checked command; the measured displacement after one controller period."""
+        a = self.actuator
+        a.limits.check_velocity((command - self.previous) / self.clock.period_s, f"actuator {a.name!r}")
+        a.command(command)
+        self.previous = command
+        self.clock.tick()
+        fb = a.feedback()
+        self.monitor.check(self.clock.now_s, [command], [fb], [a.mode])
+        return fb.displacement_mm
+
+
+def _drive(guard: _Guard, commands) -> np.ndarray:
+    """Command each sample at the controller rate, checked; return measured displacements."""
+    return np.array([guard.send(float(c)) for c in commands])
+
+
+def _ramp(x_from: float, x_to: float, speed_mm_s: float, rate: float) -> np.ndarray:
+    """From ``x_from`` (excluded) to ``x_to`` at ``speed_mm_s``: the fastest "step" the velocity
+    limit allows."""
+    n = max(int(math.ceil(abs(x_to - x_from) / (speed_mm_s / rate))), 1)
+    return x_from + (x_to - x_from) * np.arange(1, n + 1) / n
 
 
 def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> dict:
+    """A step (ramped at 90 % of the velocity limit), back, a slow sine, back: every command
+    checked as in a run (:class:`_Guard`)."""
     rate = clock.rate_hz
-    x0 = actuator.feedback().displacement_mm
-    hold = np.full(int(0.05 * rate), x0)
-    _drive(actuator, clock, hold)
-    step = np.full(int(0.5 * rate), x0 + step_mm)
-    y = _drive(actuator, clock, step) - x0
+    guard = _Guard(actuator, clock)
+    x0 = guard.previous
+    _drive(guard, np.full(int(0.05 * rate), x0))
+    rise_cmd = _ramp(x0, x0 + step_mm, 0.9 * actuator.limits.velocity_mm_s, rate)
+    step = np.concatenate([rise_cmd, np.full(max(int(0.5 * rate) - len(rise_cmd), 1), x0 + step_mm)])
+    y = _drive(guard, step) - x0
     t = np.arange(len(y)) / rate
     i10 = np.argmax(y >= 0.1 * step_mm) if np.any(y >= 0.1 * step_mm) else None
     i90 = np.argmax(y >= 0.9 * step_mm) if np.any(y >= 0.9 * step_mm) else None
     rise = float(t[i90] - t[i10]) if i10 is not None and i90 is not None else math.nan
     overshoot = float(max(y.max() - step_mm, 0.0) / step_mm * 100.0)
-    _drive(actuator, clock, np.linspace(x0 + step_mm, x0, int(0.25 * rate)))  # back, slowly
+    _drive(guard, np.linspace(x0 + step_mm, x0, int(0.25 * rate)))  # back, slowly
     n = int(2.0 / sine_hz * rate)
     ts = np.arange(n) / rate
     cmd = x0 + sine_mm * np.sin(2 * np.pi * sine_hz * ts)
-    meas = _drive(actuator, clock, cmd)
+    meas = _drive(guard, cmd)
     settle = int(0.25 / sine_hz * rate)
     rms = float(np.sqrt(np.mean((cmd[settle:] - meas[settle:]) ** 2)))
-    _drive(actuator, clock, np.full(int(0.1 * rate), x0))
+    _drive(guard, np.full(int(0.1 * rate), x0))
     actuator.hold()
-    return {"step_mm": step_mm, "rise_time_s": rise, "overshoot_pct": overshoot,
+    return {"step_mm": step_mm, "step_ramp_s": len(rise_cmd) / rate, "rise_time_s": rise, "overshoot_pct": overshoot,
             "sine_amplitude_mm": sine_mm, "sine_hz": sine_hz, "rms_tracking_error_mm": rms}
 
 

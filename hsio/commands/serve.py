@@ -64,4 +64,4 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
         wait_for_stop()
     finally:
         server.close()
-        click.echo("server stopped; the actuators hold.")
+        click.echo(f"server stopped; {lab.hold_message}.")

@@ -103,6 +103,7 @@ class Lab:
         self._stepped = threading.Condition()  # notified when a step is recorded or an element leaves
         self.site = None
         self.recorder: Recorder | None = None
+        self.hold_message = "no session was open: no actuators to hold"  # the last session's hold, read back
         self.sessions = 0
         self.active: set[int] = set()
         self._reset_session()
@@ -171,6 +172,12 @@ class Lab:
 
     def _close(self, reason: str) -> None:
         if self.site is not None:
+            try:
+                report = self.site.hold()  # every actuator holds; the hold is read back
+                self.hold_message = report.message if report is not None else "no actuators to hold"
+            except Exception as exc:
+                self.hold_message = f"the hold could not be confirmed ({exc})"
+            self.log(f"session {self.sessions}: {self.hold_message}")
             try:
                 self.site.close()  # every actuator holds, then is released
             except Exception as exc:  # closing must not stop the server

@@ -5,6 +5,10 @@ from signal handlers (SIGTERM, SIGINT); the experiment loop acts on them between
 (:meth:`RunControl.checkpoint`): a pause finishes the step, holds the actuators and waits for
 resume or stop, for as long as the operator wants; a stop holds the actuators and closes the
 record. A second SIGINT while a stop is pending interrupts at once.
+
+While paused, the wait feeds the controllers' host watchdogs every :attr:`RunControl.WAIT_SLICE_S`
+(the site's ``keep_alive``: the axes keep holding), so a pause may last any time; a host that
+dies stops feeding them, and the controllers' watchdogs trip as they should.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ RUNNING, PAUSING, PAUSED, STOPPING = "running", "pausing", "paused", "stopping"
 class RunControl:
     """Pause / resume / stop requests, and where the run stands."""
 
-    WAIT_SLICE_S = 0.2  # a paused run wakes this often to look for a stop
+    WAIT_SLICE_S = 0.1  # a paused run wakes this often to look for a stop and feed the watchdogs
 
     def __init__(self):
         self._lock = threading.Lock()
@@ -105,6 +109,7 @@ class RunControl:
             log("pause", message)
         self._tell(message)
         started = time.monotonic()
+        keep_alive = getattr(site, "keep_alive", None)
         while True:  # as long as the operator wants; each wait is bounded
             self._wake.wait(self.WAIT_SLICE_S)
             self._wake.clear()
@@ -112,6 +117,8 @@ class RunControl:
                 raise OperatorStop(self.stop_reason)
             if not self._pause_wanted:
                 break
+            if keep_alive is not None:  # the controllers' host watchdogs see a live host
+                keep_alive()
         resume = getattr(site, "resume", None)
         if resume is not None:
             resume()

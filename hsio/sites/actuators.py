@@ -296,6 +296,10 @@ class ActuatorSite:
     def resume(self) -> None:
         self.loop.resume()
 
+    def keep_alive(self) -> None:
+        """While paused: keep the controllers' host watchdogs fed (the actuators keep holding)."""
+        self.loop.keep_alive()
+
     def hold(self):
         """Every actuator holds; returns the read-back (:class:`hsio.safety.hold.HoldReport`)."""
         self.loop.hold_all()
