@@ -96,11 +96,9 @@ def test_dropped_link_reconnects_and_the_run_is_unchanged(monkeypatch, tmp_path,
 
 def test_reply_later_than_the_timeout_is_retried(monkeypatch, tmp_path, cfg, proxy, reference):
     fault_at(monkeypatch, FAULT_TICK, lambda: proxy.delay_next(0.5))
-    started = time.perf_counter()
     summary, b = run(cfg, tmp_path / "wire", url=f"modbus+tcp://127.0.0.1:{proxy.port}", driver={"timeout_s": 0.15})
     assert proxy.connections >= 2  # the late reply was abandoned with its connection
     assert summary["steps"] == reference[0]["steps"] and same_run(reference, b)
-    assert time.perf_counter() - started < 20
 
 
 def test_corrupted_reply_is_rejected_and_retried(monkeypatch, tmp_path, cfg, proxy, reference):
