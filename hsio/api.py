@@ -51,7 +51,7 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     ``mixed``: the implicit alpha method by secant iteration (at most ``j_max`` commands per
     step, tolerances in mm and kN); ``rule`` gives the switching thresholds of ``mixed``
     (default 1.2 and 0.8 times each element's K^EI). Further keywords go to
-    :class:`hsio.integrators.ImplicitMethod` (``fc_blend``, ``anchor_dc``; for ``mixed`` the guards
+    :class:`hsio.integrators.ImplicitMethod` (``fc_blend``, ``anchor_dc``, ``blend_dc``; for ``mixed`` the guards
     ``fallback_after``, ``refractory_steps``, ``no_fc_at_reversal``, ``explored_fraction``,
     ``fc_force_limit``; docs/force_control.md).
     """
@@ -71,10 +71,10 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     if method != "alpha_os" and not correct_measured_displacement:
         raise ConfigError(f"correct_measured_displacement applies to alpha_os; {method!r} iterates to the target")
     guards = {"fallback_after", "refractory_steps", "no_fc_at_reversal", "explored_fraction", "fc_force_limit"}
-    unknown = sorted(set(implicit) - guards - {"fc_blend", "anchor_dc"})
+    unknown = sorted(set(implicit) - guards - {"fc_blend", "anchor_dc", "blend_dc"})
     if unknown:
         raise ConfigError(f"make_integrator: unknown option(s) {', '.join(unknown)}")
-    allowed = ({"fc_blend", "anchor_dc"} if method != "alpha_os" else set()) | (guards if method == "mixed" else set())
+    allowed = ({"fc_blend", "anchor_dc", "blend_dc"} if method != "alpha_os" else set()) | (guards if method == "mixed" else set())
     misplaced = sorted(k for k, v in implicit.items() if k not in allowed and v not in (None, False, 0, 1.0))
     if misplaced:
         raise ConfigError(f"{', '.join(misplaced)}: not an option of method = {method!r}")

@@ -27,7 +27,7 @@ DEFAULTS: dict[str, dict] = {
                    "switch_rule": "initial_stiffness", "switch_margin": 3.0, "switch_hysteresis": 2.0,
                    "switch_resolution_mm": 0.0, "switch_force_resolution_kN": 0.0,
                    "fc_blend": 1.0, "fc_fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False,
-                   "explored_fraction": 0.0, "fc_force_limit_kN": 0.0},
+                   "explored_fraction": 0.0, "fc_force_limit_kN": 0.0, "anchor_dc": False, "blend_dc": False},
     "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
     "hardware": {"url": "emulator://", "clock": "lockstep", "actuator_model": ""},
     "output": {"samples": True, "plots": True, "ns": True},
@@ -218,8 +218,11 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
     for key, off in guards.items():
         if i["method"] != "mixed" and i[key] != off:
             raise ConfigError(f"{source}: [integrator] {key} applies to method = 'mixed', not to {i['method']!r}")
-    if i["method"] == "alpha_os" and i["fc_blend"] != 1.0:
-        raise ConfigError(f"{source}: [integrator] fc_blend applies to the implicit methods, not to 'alpha_os'")
+    for key, off in (("fc_blend", 1.0), ("anchor_dc", False), ("blend_dc", False)):
+        if i["method"] == "alpha_os" and i[key] != off:
+            raise ConfigError(f"{source}: [integrator] {key} applies to the implicit methods, not to 'alpha_os'")
+    if i["blend_dc"] and not i["fc_blend"] < 1:
+        raise ConfigError(f"{source}: [integrator] blend_dc needs fc_blend below 1 (the estimate it uses)")
     if i["fc_fallback_after"] > i["j_max"]:
         raise ConfigError(f"{source}: [integrator] fc_fallback_after ({i['fc_fallback_after']}) must not exceed "
                           f"j_max ({i['j_max']}); 0: off")

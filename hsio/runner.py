@@ -92,7 +92,8 @@ def integrator_options(config: RunConfig, structure: Structure) -> dict:
     emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
     options = {"rule": switching_rule(structure, integ, emulator) if integ["method"] == "mixed" else None,
                "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"],
-               "tol_force": integ["tol_force_kN"], "fc_blend": integ["fc_blend"]}
+               "tol_force": integ["tol_force_kN"], "fc_blend": integ["fc_blend"], "anchor_dc": integ["anchor_dc"],
+               "blend_dc": integ["blend_dc"]}
     if integ["method"] == "mixed":
         options.update(fallback_after=integ["fc_fallback_after"] or None, refractory_steps=integ["refractory_steps"],
                        no_fc_at_reversal=integ["no_fc_at_reversal"],

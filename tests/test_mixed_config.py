@@ -12,7 +12,7 @@ from hsio.errors import ConfigError
 
 MIXED = {"method": "mixed", "switch_rule": "instruments", "switch_margin": 3.0, "switch_hysteresis": 2.0,
          "fc_blend": 0.01, "fc_fallback_after": 2, "refractory_steps": 1000, "no_fc_at_reversal": True,
-         "explored_fraction": 0.9, "fc_force_limit_kN": 30.0}
+         "explored_fraction": 0.9, "fc_force_limit_kN": 30.0, "anchor_dc": True, "blend_dc": True}
 INSTRUMENTS = {"resolution_mm": 0.025, "noise_mm": 0.01, "force_resolution_kN": 0.01, "force_noise_kN": 0.01,
                "force_bandwidth_hz": 200.0, "displacement_bandwidth_hz": 200.0}
 
@@ -57,6 +57,7 @@ def test_the_integrator_gets_the_guards():
     options = integrator_options(cfg, get_structure("structure_II_infill"))
     assert options["fallback_after"] == 2 and options["refractory_steps"] == 1000 and options["no_fc_at_reversal"]
     assert options["fc_blend"] == 0.01 and options["explored_fraction"] == 0.9 and options["fc_force_limit"] == 30.0
+    assert options["anchor_dc"] and options["blend_dc"]
     assert options["rule"].upper.tolist() == pytest.approx([3 * 0.05 / 0.0025] * 2)  # from the [emulator] instruments
     explicit = from_dict({"integrator": {**MIXED, "switch_resolution_mm": 0.01, "switch_force_resolution_kN": 0.1},
                           "structure": {"name": "structure_II_infill"}})
@@ -78,9 +79,11 @@ def test_the_integrator_gets_the_guards():
     ("no_fc_at_reversal", 1, "no_fc_at_reversal must be true or false"),
     ("explored_fraction", 1.5, "explored_fraction = 1.5 is out of bounds"),
     ("fc_force_limit_kN", -5.0, "fc_force_limit_kN = -5.0 is out of bounds"),
+    ("anchor_dc", "yes", "anchor_dc must be true or false"),
+    ("blend_dc", 0, "blend_dc must be true or false"),
 ])
 def test_bad_integrator_values_exit_2_naming_the_key(tmp_path, key, value, says):
-    out = _run(tmp_path, {**MIXED, key: value})
+    out = _run(tmp_path, {**MIXED, "blend_dc": False, key: value})
     assert out.exit_code == 2, out.output
     assert "[integrator]" in out.output and says in out.output
 
@@ -99,6 +102,10 @@ def test_guards_of_mixed_are_refused_with_other_methods():
         from_dict({"integrator": {"method": "implicit_dc", "no_fc_at_reversal": True}})
     with pytest.raises(ConfigError, match=r"fc_blend applies to the implicit methods"):
         from_dict({"integrator": {"fc_blend": 0.5}})
+    with pytest.raises(ConfigError, match=r"blend_dc needs fc_blend below 1"):
+        from_dict({"integrator": {"method": "mixed", "blend_dc": True}})
+    with pytest.raises(ConfigError, match=r"anchor_dc applies to the implicit methods"):
+        from_dict({"integrator": {"anchor_dc": True}})
     with pytest.raises(ConfigError, match=r"leave K_f, K_d at 0"):
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "K_f": 5.0}})
     with pytest.raises(ConfigError, match=r"on real hardware needs switch_resolution_mm"):
