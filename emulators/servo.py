@@ -113,6 +113,13 @@ class ServoConfig:
         for name in non_negative:
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"emulator: {name} must be zero or positive, got {getattr(self, name)!r}")
+        instruments = {"resolution_mm": (10.0, "mm"), "noise_mm": (10.0, "mm"), "force_resolution_kN": (100.0, "kN"),
+                       "force_noise_kN": (100.0, "kN"), "force_bandwidth_hz": (self.rate_hz / 2, "Hz"),
+                       "displacement_bandwidth_hz": (self.rate_hz / 2, "Hz")}  # bandwidths up to Nyquist
+        for name, (high, unit) in instruments.items():
+            if not getattr(self, name) <= high:
+                raise ConfigError(f"emulator: {name} = {getattr(self, name)!r} is out of bounds: it must be "
+                                  f"within 0..{high:g} {unit}")
         if self.lag_retract_s is not None and not self.lag_retract_s > 0:
             raise ConfigError(f"emulator: lag_retract_s must be positive, got {self.lag_retract_s!r}")
 

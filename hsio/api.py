@@ -44,13 +44,16 @@ __all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_
 
 def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float = -0.05, *,
                     correct_measured_displacement: bool = True, rule: SwitchingRule | None = None,
-                    j_max: int = 3, tol_displacement: float = 0.02, tol_force: float = 0.05):
+                    j_max: int = 3, tol_displacement: float = 0.02, tol_force: float = 0.05, **implicit):
     """The integration method ``method`` for ``structure`` (docs/method.md sections 2, 3 and 5).
 
     ``alpha_os``: operator splitting, one trial per step. ``implicit_dc``, ``force_control``,
     ``mixed``: the implicit alpha method by secant iteration (at most ``j_max`` commands per
     step, tolerances in mm and kN); ``rule`` gives the switching thresholds of ``mixed``
-    (default 1.2 and 0.8 times each element's K^EI).
+    (default 1.2 and 0.8 times each element's K^EI). Further keywords go to
+    :class:`hsio.integrators.ImplicitMethod` (``fc_blend``, ``anchor_dc``, ``blend_dc``; for ``mixed`` the guards
+    ``fallback_after``, ``refractory_steps``, ``no_fc_at_reversal``, ``explored_fraction``,
+    ``fc_force_limit``; docs/force_control.md).
     """
     if method not in METHODS:
         raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -67,6 +70,15 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         raise ConfigError("a switching rule applies to method = 'mixed', not to 'alpha_os'")
     if method != "alpha_os" and not correct_measured_displacement:
         raise ConfigError(f"correct_measured_displacement applies to alpha_os; {method!r} iterates to the target")
+    guards = {"fallback_after", "refractory_steps", "no_fc_at_reversal", "explored_fraction", "fc_force_limit"}
+    unknown = sorted(set(implicit) - guards - {"fc_blend", "anchor_dc", "blend_dc"})
+    if unknown:
+        raise ConfigError(f"make_integrator: unknown option(s) {', '.join(unknown)}")
+    allowed = ({"fc_blend", "anchor_dc", "blend_dc"} if method != "alpha_os" else set()) | (guards if method == "mixed" else set())
+    misplaced = sorted(k for k, v in implicit.items() if k not in allowed and v not in (None, False, 0, 1.0))
+    if misplaced:
+        raise ConfigError(f"{', '.join(misplaced)}: not an option of method = {method!r}")
+    implicit = {k: v for k, v in implicit.items() if k in allowed}
     if method == "alpha_os":
         return OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha, dofs, K_EI,
                                  correct_measured_displacement)
@@ -77,7 +89,7 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
                           f"elements); use method = 'alpha_os'")
     return ImplicitMethod(structure.M, structure.C, numerical.K_linear, dofs, K_EI, structure.dt, alpha, method,
                           rule, structure.dof_names, j_max=j_max, tol_displacement=tol_displacement,
-                          tol_force=tol_force)
+                          tol_force=tol_force, **implicit)
 
 
 def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alpha_os", alpha: float = -0.05,

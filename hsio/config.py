@@ -21,7 +21,13 @@ DEFAULTS: dict[str, dict] = {
     "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.6, "seed": 1994, "synthetic_duration_s": 20.0},
     "integrator": {"alpha": -0.05, "method": "alpha_os", "j_max": 3, "tol_displacement_mm": 0.02, "tol_force_kN": 0.05,
                    "secant": "average", "secant_n_avg": 16, "secant_min_increment_mm": 0.1,
-                   "switch_on": "stiffness", "K_f": 0.0, "K_d": 0.0, "R_f": 0.0, "R_d": 0.0},
+                   "switch_on": "stiffness", "K_f": 0.0, "K_d": 0.0, "R_f": 0.0, "R_d": 0.0,
+                   # mixed control (docs/force_control.md, "Running it"): where K_f / K_d come from,
+                   # and the guards of ImplicitMethod; the defaults are the behaviour without them
+                   "switch_rule": "initial_stiffness", "switch_margin": 3.0, "switch_hysteresis": 2.0,
+                   "switch_resolution_mm": 0.0, "switch_force_resolution_kN": 0.0,
+                   "fc_blend": 1.0, "fc_fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False,
+                   "explored_fraction": 0.0, "fc_force_limit_kN": 0.0, "anchor_dc": False, "blend_dc": False},
     "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
     "hardware": {"url": "emulator://", "clock": "lockstep", "actuator_model": ""},
     "output": {"samples": True, "plots": True, "ns": True},
@@ -107,6 +113,15 @@ BOUNDS: dict[tuple[str, str], tuple[float, float, str]] = {
     ("integrator", "tol_displacement_mm"): (0.0, 1000.0, "mm"),
     ("integrator", "tol_force_kN"): (0.0, 1e5, "kN"),
     ("integrator", "secant_min_increment_mm"): (0.0, 1000.0, "mm"),
+    ("integrator", "switch_margin"): (0.01, 1000.0, ""),
+    ("integrator", "switch_hysteresis"): (1.0001, 100.0, ""),
+    ("integrator", "switch_resolution_mm"): (0.0, 10.0, "mm"),
+    ("integrator", "switch_force_resolution_kN"): (0.0, 100.0, "kN"),
+    ("integrator", "fc_blend"): (0.0001, 1.0, ""),
+    ("integrator", "fc_fallback_after"): (0, 100, "commands"),
+    ("integrator", "refractory_steps"): (0, 10**9, "steps"),
+    ("integrator", "explored_fraction"): (0.0, 1.0, ""),
+    ("integrator", "fc_force_limit_kN"): (0.0, 1e5, "kN"),
 }
 
 
@@ -131,7 +146,7 @@ def _check_ranges(t: dict, source: str) -> None:
     alpha = t["integrator"]["alpha"]
     if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
         raise ConfigError(f"{source}: [integrator] alpha must be in [-1/3, 0], got {alpha}")
-    _check_implicit(t["integrator"], source)
+    _check_implicit(t["integrator"], source, t["hardware"]["url"])
     if not t["test"]["rate"] > 0:
         raise ConfigError(f"{source}: [test] rate (TR) must be positive, got {t['test']['rate']}")
     if not 0.0 <= t["test"]["hold_fraction"] < 1.0:
@@ -166,7 +181,7 @@ def _check_ranges(t: dict, source: str) -> None:
                           f"calibrated on continuous ramps): set [test] hold_fraction = 0, or use mode = 'online'")
 
 
-def _check_implicit(i: dict, source: str) -> None:
+def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
     """[integrator] keys of the implicit FC / mixed methods (docs/force_control.md)."""
     methods = ("alpha_os", "implicit_dc", "force_control", "mixed")
     if i["method"] not in methods:
@@ -187,6 +202,30 @@ def _check_implicit(i: dict, source: str) -> None:
         raise ConfigError(f"{source}: [integrator] switch_on = 'force' needs R_f > 0 (kN)")
     if i[upper] > 0 and i[lower] > 0 and not i[lower] < i[upper]:
         raise ConfigError(f"{source}: [integrator] {lower} ({i[lower]}) must be below {upper} ({i[upper]})")
+    if i["switch_rule"] not in ("initial_stiffness", "instruments"):
+        raise ConfigError(f"{source}: [integrator] switch_rule must be 'initial_stiffness' or 'instruments', "
+                          f"got {i['switch_rule']!r}")
+    if i["switch_rule"] == "instruments" and (i["switch_on"] != "stiffness" or i["K_f"] > 0 or i["K_d"] > 0):
+        raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' sets K_f and K_d from the instruments: "
+                          f"leave K_f, K_d at 0 and switch_on = 'stiffness'")
+    if i["switch_rule"] == "instruments" and not (i["switch_resolution_mm"] > 0 and i["switch_force_resolution_kN"] > 0) \
+            and not url.startswith("emulator"):
+        raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' on real hardware needs "
+                          f"switch_resolution_mm and switch_force_resolution_kN (the transducer's and the load "
+                          f"cell's resolution)")
+    guards = {"fc_fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False, "explored_fraction": 0.0,
+              "fc_force_limit_kN": 0.0, "switch_rule": "initial_stiffness"}
+    for key, off in guards.items():
+        if i["method"] != "mixed" and i[key] != off:
+            raise ConfigError(f"{source}: [integrator] {key} applies to method = 'mixed', not to {i['method']!r}")
+    for key, off in (("fc_blend", 1.0), ("anchor_dc", False), ("blend_dc", False)):
+        if i["method"] == "alpha_os" and i[key] != off:
+            raise ConfigError(f"{source}: [integrator] {key} applies to the implicit methods, not to 'alpha_os'")
+    if i["blend_dc"] and not i["fc_blend"] < 1:
+        raise ConfigError(f"{source}: [integrator] blend_dc needs fc_blend below 1 (the estimate it uses)")
+    if i["fc_fallback_after"] > i["j_max"]:
+        raise ConfigError(f"{source}: [integrator] fc_fallback_after ({i['fc_fallback_after']}) must not exceed "
+                          f"j_max ({i['j_max']}); 0: off")
 
 
 def read_toml(path: str | Path, what: str) -> dict:
@@ -223,3 +262,19 @@ def load(path: str | Path | None) -> RunConfig:
     if folder and not Path(folder).is_absolute():
         config["specimen"]["folder"] = str((path.parent / folder).resolve())
     return config
+
+
+def switch_resolutions(integrator: dict, emulator: dict) -> tuple[float, float]:
+    """delta_u (mm) and delta_F (kN) of ``switch_rule = "instruments"``: the [integrator] keys, or
+    (where 0) the emulated controller's transducer and load cell ([emulator] resolution_mm,
+    force_resolution_kN, or their defaults)."""
+    from hsio.emulators.servo import ServoConfig
+
+    du, dF = integrator["switch_resolution_mm"], integrator["switch_force_resolution_kN"]
+    servo = ServoConfig()
+    du = du if du > 0 else float(emulator.get("resolution_mm", servo.resolution_mm))
+    dF = dF if dF > 0 else float(emulator.get("force_resolution_kN", servo.force_resolution_kN))
+    if not (du > 0 and dF > 0):
+        raise ConfigError("[integrator] switch_rule = 'instruments' needs a transducer and a load-cell resolution "
+                          "above 0: set switch_resolution_mm and switch_force_resolution_kN")
+    return du, dF

@@ -18,7 +18,7 @@ import numpy as np
 import hsio
 from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
-from hsio.config import RunConfig
+from hsio.config import RunConfig, switch_resolutions
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.errors import ConfigError, HsioError
 from hsio.experiment import ExperimentStopped
@@ -69,13 +69,19 @@ def channel_names(structure: Structure) -> list[str]:
     return names
 
 
-def switching_rule(structure: Structure, integ: dict) -> SwitchingRule:
-    """K_f / K_d in kN/mm (0: 1.2 and 0.8 times each element's K^EI), or R_f / R_d in kN."""
+def switching_rule(structure: Structure, integ: dict, emulator: dict | None = None) -> SwitchingRule:
+    """K_f / K_d in kN/mm (0: 1.2 and 0.8 times each element's K^EI), or R_f / R_d in kN; with
+    ``switch_rule = "instruments"`` from the transducer's and the load cell's resolutions."""
     n = len(structure.experimental)
+    K_EI = [e.K_EI for e in structure.experimental]
+    if integ["switch_rule"] == "instruments":
+        du, dF = switch_resolutions(integ, emulator or {})
+        return SwitchingRule.from_instruments(K_EI, du, dF, integ["switch_margin"], integ["switch_hysteresis"],
+                                              integ["tol_force_kN"])
     if integ["switch_on"] == "force":
         lower = integ["R_d"] if integ["R_d"] > 0 else 0.5 * integ["R_f"]
         return SwitchingRule(np.full(n, integ["R_f"]), np.full(n, lower), "force")
-    return SwitchingRule.from_initial_stiffness([e.K_EI for e in structure.experimental], integ["K_f"], integ["K_d"])
+    return SwitchingRule.from_initial_stiffness(K_EI, integ["K_f"], integ["K_d"])
 
 
 def integrator_options(config: RunConfig, structure: Structure) -> dict:
@@ -83,8 +89,17 @@ def integrator_options(config: RunConfig, structure: Structure) -> dict:
     integ = config["integrator"]
     if integ["method"] == "alpha_os":
         return {"correct_measured_displacement": config["test"]["measured_displacement_correction"]}
-    return {"rule": switching_rule(structure, integ) if integ["method"] == "mixed" else None,
-            "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"], "tol_force": integ["tol_force_kN"]}
+    emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
+    options = {"rule": switching_rule(structure, integ, emulator) if integ["method"] == "mixed" else None,
+               "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"],
+               "tol_force": integ["tol_force_kN"], "fc_blend": integ["fc_blend"], "anchor_dc": integ["anchor_dc"],
+               "blend_dc": integ["blend_dc"]}
+    if integ["method"] == "mixed":
+        options.update(fallback_after=integ["fc_fallback_after"] or None, refractory_steps=integ["refractory_steps"],
+                       no_fc_at_reversal=integ["no_fc_at_reversal"],
+                       explored_fraction=integ["explored_fraction"] or None,
+                       fc_force_limit=integ["fc_force_limit_kN"] or None)
+    return options
 
 
 def _state(site) -> dict | None:

@@ -97,9 +97,11 @@ def infill_sdof(k0: float, dt: float = 0.005, f_hz: float = 8.0) -> Structure:
 
 def run_case(case: str, structure: Structure, ground, methods, resolution_mm: float, force_resolution_kN: float,
              test_rate: float = 10.0, hold_fraction: float = 0.5, recipe: Recipe = Recipe(), ns=None,
-             force_noise_kN: float | None = None, emulator: dict | None = None) -> list[Row]:
+             force_noise_kN: float | None = None, emulator: dict | None = None,
+             noise_mm: float | None = None) -> list[Row]:
     """HS of each method on the emulator with the given instruments (the load cell's noise
-    standard deviation equal to its resolution unless given), against NS."""
+    standard deviation equal to its resolution unless given; the transducer's likewise when
+    ``noise_mm`` is "resolution", else as given, None: the emulator's default), against NS."""
     from hsio.api import open_site, run_numerical, simulate
     from hsio.experiment import ExperimentStopped
     from hsio.result import max_error_pct
@@ -110,6 +112,8 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
     peak = float(np.max(np.abs(ns.u)))
     options = {"resolution_mm": resolution_mm, "force_resolution_kN": force_resolution_kN,
                "force_noise_kN": force_resolution_kN if force_noise_kN is None else force_noise_kN, **(emulator or {})}
+    if noise_mm is not None:
+        options["noise_mm"] = resolution_mm if noise_mm == "resolution" else float(noise_mm)
     k0 = float(max(e.K_EI for e in structure.experimental))
     rows = []
     for method in methods:
@@ -129,7 +133,8 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
 
 
 def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolutions=(0.002, 0.02),
-         duration_s: float = 2.0, methods=METHODS, recipe: Recipe = Recipe(), progress=None) -> list[Row]:
+         duration_s: float = 2.0, methods=METHODS, recipe: Recipe = Recipe(), progress=None,
+         noise_mm=None) -> list[Row]:
     """The grid study: every combination, every method (the record scaled to just crack the infill)."""
     from hsio.api import run_numerical
     from hsio.ground_motion import synthetic_record
@@ -144,7 +149,8 @@ def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolution
         ns = run_numerical(structure, ground, "mixed", recipe.alpha)
         for du in resolutions:
             for dF in force_resolutions:
-                rows += run_case("grid", structure, ground, methods, float(du), float(dF), recipe=recipe, ns=ns)
+                rows += run_case("grid", structure, ground, methods, float(du), float(dF), recipe=recipe, ns=ns,
+                                 noise_mm=noise_mm)
                 if progress:
                     progress(rows[-len(methods):])
     return rows

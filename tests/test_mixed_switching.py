@@ -252,3 +252,34 @@ def test_no_switch_to_fc_at_a_reversal(guard):
         assert modes[r - 1] is DC and modes[r] is FC and m.deferred_at_reversal == 1
     else:
         assert modes[r - 1] is FC and m.deferred_at_reversal == 0
+
+
+# -- DC with a refused secant estimate ---------------------------------------------------------
+class _RefusingSite(_SofteningSite):
+    """The softening element read by an estimator that refuses every secant (increments below its
+    min_increment): the DAQ gives the measured pair but k = nan."""
+
+    def set_trial(self, commands, modes):
+        super().set_trial(commands, modes)
+        self._daq = Daq(u=self._daq.u, R=self._daq.R, k=np.full(1, np.nan), targets=commands, commands=commands,
+                        samples=None)
+
+
+@pytest.mark.parametrize("anchor", [True, False])
+def test_dc_force_comes_from_the_measurement_when_the_secant_is_refused(anchor):
+    """Past the stiff branch with the initial secant kept (every estimate refused): anchored at
+    the measurement, the accepted force is the specimen's force at the accepted displacement; the
+    line through the base extrapolates the stiff branch and overestimates it several times."""
+    site = _RefusingSite()
+    alg = ImplicitAlpha(np.eye(1) * 0.01, np.zeros((1, 1)), None, [0], [100.0], 0.01, 0.0, j_max=4,
+                        tol_displacement=1e-9, tol_force=1e-6, anchor_dc=anchor)
+    alg.start(np.zeros(1), site)
+    state, report = alg.step(np.array([400.0]), site, [DC])
+    u = report.u_solution[0]
+    assert u > 0.5  # past the stiff branch
+    true_R = float(site.R(np.array([u]))[0])
+    if anchor:
+        assert report.R_solution[0] == pytest.approx(true_R, rel=0.02)
+        assert state.u[0] * 400.0 + true_R == pytest.approx(400.0, rel=0.02)  # eq. (7) with the specimen's force
+    else:
+        assert report.R_solution[0] > 1.5 * true_R

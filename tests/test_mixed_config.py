@@ -1,0 +1,113 @@
+"""The [integrator] keys of mixed control and the [emulator] instrument keys in `hsio run` configs
+(docs/force_control.md, "Running it")."""
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from hsio.cli import main
+from hsio.config import from_dict
+from hsio.errors import ConfigError
+
+MIXED = {"method": "mixed", "switch_rule": "instruments", "switch_margin": 3.0, "switch_hysteresis": 2.0,
+         "fc_blend": 0.01, "fc_fallback_after": 2, "refractory_steps": 1000, "no_fc_at_reversal": True,
+         "explored_fraction": 0.9, "fc_force_limit_kN": 30.0, "anchor_dc": True, "blend_dc": True}
+INSTRUMENTS = {"resolution_mm": 0.025, "noise_mm": 0.01, "force_resolution_kN": 0.01, "force_noise_kN": 0.01,
+               "force_bandwidth_hz": 200.0, "displacement_bandwidth_hz": 200.0}
+
+
+def _toml(tables: dict) -> str:
+    lines = []
+    for name, values in tables.items():
+        lines.append(f"[{name}]")
+        for key, value in values.items():
+            text = json.dumps(value) if not isinstance(value, bool) else str(value).lower()
+            lines.append(f"{key} = {text}")
+    return "\n".join(lines) + "\n"
+
+
+def _run(tmp_path, integrator: dict, emulator: dict | None = None, name: str = "c.toml"):
+    tables = {"structure": {"name": "structure_II_infill"},
+              "record": {"synthetic_duration_s": 0.25, "pga_g": 0.15},
+              "test": {"rate": 10.0}, "integrator": integrator, "output": {"plots": False}}
+    if emulator:
+        tables["emulator"] = emulator
+    cfg = tmp_path / name
+    cfg.write_text(_toml(tables))
+    return CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / (name + ".out"))])
+
+
+def test_every_key_runs_and_reaches_the_integrator(tmp_path):
+    out = _run(tmp_path, MIXED, INSTRUMENTS)
+    assert out.exit_code == 0, out.output
+    summary = json.loads((tmp_path / "c.toml.out" / "summary.json").read_text())
+    # K_f = c max(delta_F, tol_F) / delta_u = 3 x 0.05 / 0.025, K_d = K_f / 2, per element (BF, IF)
+    assert summary["thresholds"]["upper"] == pytest.approx([6.0, 6.0])
+    assert summary["thresholds"]["lower"] == pytest.approx([3.0, 3.0])
+    assert summary["method"] == "mixed"
+
+
+def test_the_integrator_gets_the_guards():
+    from hsio.runner import integrator_options
+    from hsio.structures import get_structure
+
+    cfg = from_dict({"structure": {"name": "structure_II_infill"}, "integrator": MIXED,
+                     "emulator": {"resolution_mm": 0.0025, "force_resolution_kN": 0.02}})
+    options = integrator_options(cfg, get_structure("structure_II_infill"))
+    assert options["fallback_after"] == 2 and options["refractory_steps"] == 1000 and options["no_fc_at_reversal"]
+    assert options["fc_blend"] == 0.01 and options["explored_fraction"] == 0.9 and options["fc_force_limit"] == 30.0
+    assert options["anchor_dc"] and options["blend_dc"]
+    assert options["rule"].upper.tolist() == pytest.approx([3 * 0.05 / 0.0025] * 2)  # from the [emulator] instruments
+    explicit = from_dict({"integrator": {**MIXED, "switch_resolution_mm": 0.01, "switch_force_resolution_kN": 0.1},
+                          "structure": {"name": "structure_II_infill"}})
+    rule = integrator_options(explicit, get_structure("structure_II_infill"))["rule"]
+    assert rule.upper.tolist() == pytest.approx([30.0, 30.0]) and rule.lower.tolist() == pytest.approx([15.0, 15.0])
+
+
+@pytest.mark.parametrize("key, value, says", [
+    ("switch_rule", "magic", "switch_rule must be"),
+    ("switch_margin", 0.0, "switch_margin = 0.0 is out of bounds"),
+    ("switch_hysteresis", 1.0, "switch_hysteresis = 1.0 is out of bounds"),
+    ("switch_resolution_mm", -0.1, "switch_resolution_mm = -0.1 is out of bounds"),
+    ("switch_force_resolution_kN", 1000.0, "switch_force_resolution_kN = 1000.0 is out of bounds"),
+    ("fc_blend", 0.0, "fc_blend = 0.0 is out of bounds"),
+    ("fc_blend", 1.5, "fc_blend = 1.5 is out of bounds"),
+    ("fc_fallback_after", 4, "fc_fallback_after (4) must not exceed j_max (3)"),
+    ("fc_fallback_after", 1.5, "fc_fallback_after must be a whole number"),
+    ("refractory_steps", -1, "refractory_steps = -1 is out of bounds"),
+    ("no_fc_at_reversal", 1, "no_fc_at_reversal must be true or false"),
+    ("explored_fraction", 1.5, "explored_fraction = 1.5 is out of bounds"),
+    ("fc_force_limit_kN", -5.0, "fc_force_limit_kN = -5.0 is out of bounds"),
+    ("anchor_dc", "yes", "anchor_dc must be true or false"),
+    ("blend_dc", 0, "blend_dc must be true or false"),
+])
+def test_bad_integrator_values_exit_2_naming_the_key(tmp_path, key, value, says):
+    out = _run(tmp_path, {**MIXED, "blend_dc": False, key: value})
+    assert out.exit_code == 2, out.output
+    assert "[integrator]" in out.output and says in out.output
+
+
+@pytest.mark.parametrize("key", ["resolution_mm", "noise_mm", "force_resolution_kN", "force_noise_kN",
+                                 "force_bandwidth_hz", "displacement_bandwidth_hz"])
+@pytest.mark.parametrize("value", [-1.0, 1e4])
+def test_bad_instrument_values_exit_2_naming_the_key(tmp_path, key, value):
+    out = _run(tmp_path, {"method": "implicit_dc"}, {key: value})
+    assert out.exit_code == 2, out.output
+    assert "[emulator]" in out.output and key in out.output
+
+
+def test_guards_of_mixed_are_refused_with_other_methods():
+    with pytest.raises(ConfigError, match=r"\[integrator\] no_fc_at_reversal applies to method = 'mixed'"):
+        from_dict({"integrator": {"method": "implicit_dc", "no_fc_at_reversal": True}})
+    with pytest.raises(ConfigError, match=r"fc_blend applies to the implicit methods"):
+        from_dict({"integrator": {"fc_blend": 0.5}})
+    with pytest.raises(ConfigError, match=r"blend_dc needs fc_blend below 1"):
+        from_dict({"integrator": {"method": "mixed", "blend_dc": True}})
+    with pytest.raises(ConfigError, match=r"anchor_dc applies to the implicit methods"):
+        from_dict({"integrator": {"anchor_dc": True}})
+    with pytest.raises(ConfigError, match=r"leave K_f, K_d at 0"):
+        from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "K_f": 5.0}})
+    with pytest.raises(ConfigError, match=r"on real hardware needs switch_resolution_mm"):
+        from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments"},
+                   "hardware": {"url": "modbus-tcp://127.0.0.1:1502"}})
