@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from hsio.errors import HsioError, RecordError
+from hsio.diagnose.threads import one_blas_thread
 
 SOURCES = ("tracking", "force_noise", "specimen")
 TITLES = {"tracking": "actuator tracking error", "force_noise": "force measurement noise",
@@ -294,6 +295,7 @@ class Budget:
         return "\n".join(lines)
 
 
+@one_blas_thread
 def error_budget(run_dir: str | Path) -> Budget:
     data = load_run(run_dir)
     n = data.u_hs.shape[0]

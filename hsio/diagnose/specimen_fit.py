@@ -29,6 +29,7 @@ from hsio.diagnose.specimen_effects import EFFECTS, NAMES, Effect  # noqa: F401 
 from hsio.diagnose.specimen_record import SpecimenRecord
 from hsio.errors import RecordError
 from hsio.specimens.diagnosed import bouc_wen_step
+from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10
 PARSIMONY = 1.02
@@ -300,6 +301,7 @@ def thinned(sig: Signals, force: np.ndarray) -> tuple[Signals, int]:
                    sig.cutoff_hz, sig.u_noise), q
 
 
+@one_blas_thread
 def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRACTION,
                       choose_fraction: float = CHOOSE_FRACTION, margin: float = MARGIN,
                       effects: tuple[str, ...] | None = None, max_combination: int = 3) -> SpecimenDiagnosis:
