@@ -28,6 +28,7 @@ from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, blocks, rms
 from hsio.diagnose.specimen_effects import EFFECTS, NAMES, Effect  # noqa: F401 (the library, re-exported)
 from hsio.diagnose.specimen_record import SpecimenRecord
 from hsio.errors import RecordError
+from hsio.rths.jit import jit
 from hsio.specimens.diagnosed import bouc_wen_step
 from hsio.diagnose.threads import one_blas_thread
 
@@ -66,15 +67,20 @@ def signals(record: SpecimenRecord) -> Signals:
                    float(np.sum(np.abs(np.diff(us)))), cutoff, rms(u - us))
 
 
+@jit
+def _bouc_wen_path(u: np.ndarray, u_y: float) -> np.ndarray:
+    out = np.empty(u.size)
+    z, prev = 0.0, 0.0
+    for i in range(u.size):
+        z = bouc_wen_step(z, u[i] - prev, u_y)
+        prev = u[i]
+        out[i] = z
+    return out
+
+
 def bouc_wen(u: np.ndarray, u_y: float) -> np.ndarray:
     """z along a displacement history, from rest (the specimen model's exact step)."""
-    out = [0.0] * u.size
-    z, prev = 0.0, 0.0
-    for i, x in enumerate(u.tolist()):
-        z = bouc_wen_step(z, x - prev, u_y)
-        prev = x
-        out[i] = z
-    return np.array(out)
+    return _bouc_wen_path(np.ascontiguousarray(u, dtype=np.float64), float(u_y))
 
 
 def _shift(x: np.ndarray, samples: float) -> np.ndarray:
