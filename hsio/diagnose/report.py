@@ -17,6 +17,7 @@ from scipy import signal  # noqa: E402
 from hsio.diagnose.effects import EFFECTS  # noqa: E402
 from hsio.diagnose.modelfile import write_model  # noqa: E402
 from hsio.diagnose.selection import NONE, UNEXPLAINED, Diagnosis  # noqa: E402
+from hsio.diagnose.timing import EXTRA_CHANNEL as TIMING_CHANNEL, OPEN  # noqa: E402
 
 MAX_POINTS = 20000  # scatter plots thin the record to this many points
 
@@ -181,12 +182,8 @@ def text(d: Diagnosis, ev: dict) -> str:
                   f"Physically: {effect.cause}.",
                   f"Fitted: {effect.describe(single.fit.params)}. Held-out RMS error {single.fit.rms_test_mm:.4f} mm: "
                   f"{single.gain:.2f} times better than the baseline (a cause is named only above {d.margin:g}x).", ""]
-        if d.equivalent is not None:
-            other = EFFECTS[d.equivalent.cause]
-            lines += [f"Equivalently: {other.describe(d.equivalent.fit.params)} ({d.equivalent.cause}) predicts the "
-                      "displacement as well: a delay inside the loop and a late displacement channel cannot be told apart "
-                      "from the command and the displacement alone. The force-displacement relation can tell them "
-                      "(`hsio diagnose --specimen` names a channel skew).", ""]
+        if d.timing is not None:
+            lines += _timing_text(d)
         if len(d.extended.effects) > 1:
             lines += [f"## Best combination: {d.extended.name}", "",
                       "; ".join(EFFECTS[e].describe(d.extended.params) for e in d.extended.effects) + ".",
@@ -212,6 +209,23 @@ def text(d: Diagnosis, ev: dict) -> str:
               "([hardware] actuator_model = \"actuator_model.toml\")",
               "- diagnosis.json: every number above", ""]
     return "\n".join(lines)
+
+
+def _timing_text(d: Diagnosis) -> list[str]:
+    """A transport delay against a late displacement channel: what the force's timing says."""
+    t = d.timing
+    if t.verdict != OPEN:
+        other = "a late displacement channel" if t.verdict == "transport_delay" else "a delay in the loop"
+        return [f"A delay in the loop and a late displacement channel predict the same displacement; the force tells them "
+                f"apart: {t.reason}. So it is not {other}.", ""]
+    lines = ["A delay in the loop and a late displacement channel predict the same displacement from the command "
+             f"(a delay commutes with the loop): {t.reason}."]
+    if d.equivalent is not None:
+        other = EFFECTS[d.equivalent.cause]
+        lines.append(f"Equivalently: {other.describe(d.equivalent.fit.params)} ({d.equivalent.cause}) predicts the "
+                     "displacement as well.")
+    lines += [f"The channel that would tell them apart: {TIMING_CHANNEL}.", ""]
+    return lines
 
 
 def provenance(d: Diagnosis) -> dict:
