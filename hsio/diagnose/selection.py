@@ -26,17 +26,15 @@ from scipy import signal
 from hsio.diagnose.effects import EFFECTS, NAMES, Context, context
 from hsio.diagnose import residual as residual_mod
 from hsio.diagnose import timing as timing_mod
+from hsio.diagnose.outcome import NONE, PARSIMONY, UNEXPLAINED, Outcome, grow, parsimonious, scoring_text, unnamed  # noqa: F401
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, Fit, blocks, fit
 from hsio.diagnose.record import ActuatorRecord
 from hsio.errors import RecordError
 from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10  # held-out RMS must fall by at least this factor for a cause to be named
-PARSIMONY = 1.02  # a candidate within this factor of the best, with fewer parameters or earlier in the library, wins
 HELPS = 1.01  # an effect whose single fit gains less than this on the choosing block joins no combination
 RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signature no delay mimics
-NONE = "none"
-UNEXPLAINED = "unexplained"
 
 
 @dataclass
@@ -54,7 +52,7 @@ class Candidate:
 
 
 @dataclass
-class Diagnosis:
+class Diagnosis(Outcome):
     record: ActuatorRecord
     n_train: int
     margin: float
@@ -82,12 +80,6 @@ class Diagnosis:
             return None
         return c if c.fit.rms_choose_mm <= PARSIMONY * single.fit.rms_choose_mm else None
 
-    @property
-    def explained(self) -> bool:
-        """The extended model's held-out error is within FLOOR_FACTOR sensor floors."""
-        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
-                    and not self.structure.structured)
-
     def residual_json(self) -> dict:
         s = self.structure
         return {**self.floor.to_json(), "rms_test_mm": s.rms_test_mm, "floors": s.rms_test_mm / self.floor.sensor_floor_mm,
@@ -101,10 +93,6 @@ class Diagnosis:
     def gain(self) -> float:
         return self.baseline.rms_test_mm / self.extended.rms_test_mm
 
-    @property
-    def single(self) -> Candidate | None:
-        return next((c for c in self.candidates if c.cause == self.cause), None)
-
     def to_json(self) -> dict:
         single = self.single
         return {
@@ -114,8 +102,7 @@ class Diagnosis:
             "train_fraction": self.n_train / self.record.n,
             "n_train": self.n_train,
             "n_choose": self.n_choose,
-            "scoring": (f"fit on samples [0, {self.n_train}), choose on [{self.n_train}, {self.n_choose}), "
-                        f"score on [{self.n_choose}, {self.record.n}): the gain is measured on data used neither to fit nor to choose"),
+            "scoring": scoring_text(self.n_train, self.n_choose, self.record.n),
             "margin": self.margin,
             "baseline": {"model": self.baseline.name, "params": dict(self.baseline.params),
                          "rms_train_mm": self.baseline.rms_train_mm, "rms_choose_mm": self.baseline.rms_choose_mm,
@@ -171,11 +158,9 @@ def choose_single(named: list[Candidate], ctx: Context, record: ActuatorRecord) 
     the same displacement from the command (a delay commutes with the loop), so they tie; the
     tie goes to transport_delay here, and :func:`settle_timing` settles it by the force."""
     best = min(named, key=lambda c: c.fit.rms_choose_mm)
-    if not _distinct(best):
-        close = [c for c in named if c.fit.rms_choose_mm <= PARSIMONY * best.fit.rms_choose_mm]
-        order = list(NAMES)
-        best = min(close, key=lambda c: (len(EFFECTS[c.cause].params(ctx)), order.index(c.cause)))
-    return best
+    if _distinct(best):
+        return best
+    return parsimonious(named, lambda c: c.fit.rms_choose_mm, lambda c: len(EFFECTS[c.cause].params(ctx)), NAMES)
 
 
 EQUIVALENT = {"transport_delay": "channel_skew", "channel_skew": "transport_delay"}
@@ -202,8 +187,7 @@ def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, 
     r = record.measured_mm - extended.prediction
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
-        reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
-        cause = NONE if reached else UNEXPLAINED
+        cause = unnamed(s, floor)
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
                      n_choose, floor, s, timing)
 
@@ -236,19 +220,13 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     best, timing = settle_timing(choose_single(named, ctx, record), named, record, floor)
     singles = {c.cause: c.fit for c in candidates}
     gains = {c.cause: c.choose_gain for c in candidates}
-    current = best.fit
-    while len(current.effects) < max_combination:
-        trials = []
-        for name in names:
-            # An effect that did nothing alone, or one the record cannot tell from an effect
-            # already in, is not tried (it saves most of the time on long records).
-            if name in current.effects or gains[name] < HELPS or EQUIVALENT.get(name) in current.effects:
-                continue
-            trials.append(fit(record, (*current.effects, name), ctx, n_train, _merged_starts(current, singles[name])))
-        if not trials:
-            break
-        trial = min(trials, key=lambda f: f.rms_choose_mm)
-        if current.rms_choose_mm / trial.rms_choose_mm < margin:
-            break
-        current = trial
+
+    def may_join(current: Fit, name: str) -> bool:
+        # An effect that did nothing alone, or one the record cannot tell from an effect
+        # already in, is not tried (it saves most of the time on long records).
+        return not (name in current.effects or gains[name] < HELPS or EQUIVALENT.get(name) in current.effects)
+
+    current = grow(best.fit, names, may_join,
+                   lambda current, name: fit(record, (*current.effects, name), ctx, n_train, _merged_starts(current, singles[name])),
+                   lambda f: f.rms_choose_mm, margin, max_combination)
     return _finish(record, n_train, n_choose, margin, baseline, candidates, best.cause, current, t0, ctx, floor, timing)
