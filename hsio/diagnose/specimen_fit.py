@@ -29,7 +29,7 @@ from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, blocks, rms
 from hsio.diagnose.specimen_effects import EFFECTS, NAMES, Effect  # noqa: F401 (the library, re-exported)
 from hsio.diagnose.specimen_record import SpecimenRecord
 from hsio.errors import RecordError
-from hsio.rths.jit import jit
+from hsio.rths.jit import helper, jit
 from hsio.specimens.diagnosed import bouc_wen_step
 from hsio.diagnose.threads import one_blas_thread
 
@@ -66,12 +66,16 @@ def signals(record: SpecimenRecord) -> Signals:
                    float(np.sum(np.abs(np.diff(us)))), cutoff, rms(u - us))
 
 
+# The specimen model's exact step, compiled inline with the path below (the model itself stays plain Python).
+_step = helper(bouc_wen_step)
+
+
 @jit
 def _bouc_wen_path(u: np.ndarray, u_y: float) -> np.ndarray:
     out = np.empty(u.size)
     z, prev = 0.0, 0.0
     for i in range(u.size):
-        z = bouc_wen_step(z, u[i] - prev, u_y)
+        z = _step(z, u[i] - prev, u_y)
         prev = u[i]
         out[i] = z
     return out

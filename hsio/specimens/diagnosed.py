@@ -25,14 +25,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from hsio.rths.jit import helper
 from hsio.specimens.base import Specimen
 
 BETA = GAMMA = 0.5
 _EDGE = 1.0 - 1e-12
 
 
-@helper
 def bouc_wen_step(z: float, du: float, u_y: float) -> float:
     """The hysteretic displacement after a move du, integrated exactly: unloading (du z < 0) has
     dz/du = 1 - (beta - gamma) |z/u_y|^2 = 1 until z crosses zero; loading has
