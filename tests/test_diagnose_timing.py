@@ -77,3 +77,24 @@ def test_without_force_it_stays_open(commands):
     record = _record(commands["chirp"], channel_skew_s=TAU_S)
     t = timing.tell(dataclasses.replace(record, force_kN=None), TAU_S, 0.01)
     assert t.verdict == timing.OPEN and "no force" in t.reason
+
+
+def test_violations_vanish_at_the_true_lead():
+    """A force that is a rising function of the displacement read 8 ms later (a late channel):
+    V is zero at that lead and not at zero lead, and the verdict names the late channel; read
+    in time, the same force names the delay."""
+    from hsio.diagnose.record import ActuatorRecord
+
+    rate, lead = 1000.0, 0.008
+    t = np.arange(8000) / rate
+    true = 3.0 * np.sin(2 * np.pi * 1.3 * t) + 1.0 * np.sin(2 * np.pi * 3.1 * t)
+    force = 2.0 * true + 0.3 * np.tanh(true)
+    late = np.interp(t - lead, t, true)  # the displacement channel, 8 ms late
+    mask, count = timing.reversal_mask(late, 1 / rate, 0.1)
+    assert count >= timing.MIN_REVERSALS
+    at_lead = timing.violations(force, late, mask, lead, 1 / rate)
+    assert at_lead < 1e-3 and timing.violations(force, late, mask, 0.0, 1 / rate) > 0.005 + 5 * at_lead
+    record = ActuatorRecord("synthetic", 1 / rate, late, late, force)
+    assert timing.tell(record, lead, 0.001).verdict == timing.SKEW
+    in_time = ActuatorRecord("synthetic", 1 / rate, true, true, force)
+    assert timing.tell(in_time, lead, 0.001).verdict == timing.DELAY
