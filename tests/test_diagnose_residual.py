@@ -95,12 +95,3 @@ def test_new_effect_is_named_and_measured(commands, effect):
     assert d.single.gain > 1.0
     if effect == "sensor_drift":  # the signature: the baseline's residual trends at the drift rate
         assert d.to_json()["residual"]["trend_mm_per_s"] == pytest.approx(value, rel=0.20)
-
-
-def test_a_late_displacement_channel_is_measured_as_its_equivalent_delay(commands):
-    """A late displacement channel predicts what a delay in the loop does: the skew is measured,
-    and the diagnosis names both."""
-    d = diagnose(_record(commands["chirp"], channel_skew_s=0.006))
-    assert d.cause == "transport_delay" and d.equivalent is not None and d.equivalent.cause == "channel_skew"
-    assert d.equivalent.fit.params["channel_skew_s"] == pytest.approx(0.006, rel=0.20)
-    assert d.to_json()["equivalent"]["cause"] == "channel_skew"

@@ -86,6 +86,8 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
         click.echo(f"candidate   {c.cause:<20} scored {c.fit.rms_test_mm:.4f} mm  gain {c.gain:6.3f}  "
                    f"(choosing {c.choose_gain:6.3f}){'  *' if c.named else ''}")
     click.echo(f"cause       {d.cause}")
+    if d.timing is not None:
+        click.echo(f"timing      {d.timing.verdict}: {d.timing.reason}")
     click.echo(f"residual    {d.residual_json()['remains']}")
     click.echo(f"extended    {e.name}: scored {e.rms_test_mm:.4f} mm, gain {d.gain:.2f}")
     click.echo(f"            {', '.join(f'{k} = {v:.5g}' for k, v in e.params.items())}")

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from hsio.errors import HsioError, RecordError
+from hsio.diagnose.threads import one_blas_thread
 
 SOURCES = ("tracking", "force_noise", "specimen")
 TITLES = {"tracking": "actuator tracking error", "force_noise": "force measurement noise",
@@ -294,6 +295,7 @@ class Budget:
         return "\n".join(lines)
 
 
+@one_blas_thread
 def error_budget(run_dir: str | Path) -> Budget:
     data = load_run(run_dir)
     n = data.u_hs.shape[0]
@@ -312,31 +314,21 @@ def error_budget(run_dir: str | Path) -> Budget:
 def write_budget(b: Budget, out_dir: str | Path) -> dict:
     import json
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from hsio.diagnose.plotting import figure, label, save
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
+    fig, axes = figure(2, 1, (11, 6.5), sharex=True)
     dof = int(np.argmax(np.max(np.abs(b.difference), axis=0)))
     axes[0].plot(b.t, b.difference[:, dof], color="k", lw=1.4, label="HS - NS")
     for i, (s, u) in enumerate(b.replays.items()):
         axes[0].plot(b.t, (u - b.u_ns)[:, dof], lw=0.9, color=f"C{i}", label=TITLES[s])
     axes[0].plot(b.t, (b.u_all - b.u_ns)[:, dof], lw=0.9, ls="--", color="C3", label="all sources")
-    axes[0].set_ylabel("displacement difference (mm)")
-    axes[0].legend(fontsize=8)
-    axes[0].grid(alpha=0.3)
+    label(axes[0], None, "displacement difference (mm)")
     axes[1].plot(b.t, (b.u_hs - b.u_all)[:, dof], color="0.4", lw=0.8, label=TITLES["rest"])
-    axes[1].set_xlabel("time (s)")
-    axes[1].set_ylabel("unaccounted (mm)")
-    axes[1].legend(fontsize=8)
-    axes[1].grid(alpha=0.3)
-    fig.suptitle(f"Error budget: {100 * b.accounted:.1f} % of HS - NS accounted; main source {TITLES[b.main_source]}")
-    fig.tight_layout()
-    fig.savefig(out / "budget.png", dpi=100)
-    plt.close(fig)
+    label(axes[1], "time (s)", "unaccounted (mm)")
+    save(fig, out / "budget.png",
+         f"Error budget: {100 * b.accounted:.1f} % of HS - NS accounted; main source {TITLES[b.main_source]}")
     (out / "budget.md").write_text("# Error budget\n\n```\n" + b.table() + "\n```\n", encoding="utf-8")
     (out / "budget.json").write_text(json.dumps(b.to_json(), indent=2), encoding="utf-8")
     return {"plot": str(out / "budget.png"), "text": str(out / "budget.md"), "json": str(out / "budget.json")}

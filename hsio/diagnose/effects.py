@@ -57,6 +57,26 @@ def _lag_param(ctx: Context, name: str = "lag_s") -> Param:
 
 BASELINE_PARAMS = _lag_param
 
+
+def _time_offset(ctx: Context, name: str) -> tuple[Param]:
+    """A delay (s): up to four lags or half a second, in steps of about a third of the lag."""
+    return (Param(name, 0.0, max(0.5, 4.0 * ctx.lag_s), max(0.3 * ctx.lag_s, ctx.record.dt)),)
+
+
+def _width(ctx: Context, name: str, share_of_stroke: float) -> tuple[Param]:
+    """A width (mm) up to a share of the stroke, in steps of the baseline's residual."""
+    return (Param(name, 0.0, share_of_stroke * max(ctx.stroke_mm, 1e-6), max(ctx.residual_rms_mm, 1e-4)),)
+
+
+def _residual_sized(ctx: Context, name: str, fractions: tuple[float, ...]) -> list[dict]:
+    """Starts with ``name`` at fractions of the baseline's residual RMS."""
+    return [{name: f * ctx.residual_rms_mm, "lag_s": ctx.lag_s} for f in fractions]
+
+
+def _lag_shared(ctx: Context, name: str, fractions: tuple[float, ...]) -> list[dict]:
+    """Starts that give a fraction f of the baseline's lag to the delay ``name`` and keep the rest as lag."""
+    return [{name: f * ctx.lag_s, "lag_s": max((1.0 - f) * ctx.lag_s, 2.0 * ctx.record.dt)} for f in fractions]
+
 EFFECTS: dict[str, Effect] = {}
 
 
@@ -70,8 +90,8 @@ _register(Effect(
     "a pure delay in the loop (controller cycle, DAQ and communication latency, valve dead time): "
     "the actuator answers a fixed time late at every frequency, so the phase error grows with frequency "
     "faster than a first-order lag allows",
-    lambda c: (Param("transport_delay_s", 0.0, max(0.5, 4.0 * c.lag_s), max(0.3 * c.lag_s, c.record.dt)),),
-    lambda c: [{"transport_delay_s": f * c.lag_s, "lag_s": max((1.0 - f) * c.lag_s, 2.0 * c.record.dt)} for f in (0.3, 0.7)],
+    lambda c: _time_offset(c, "transport_delay_s"),
+    lambda c: _lag_shared(c, "transport_delay_s", (0.3, 0.7)),
     lambda p: f"transport delay {1e3 * p['transport_delay_s']:.2f} ms on top of a lag of {1e3 * p['lag_s']:.2f} ms",
     primary="transport_delay_s",
 ))
@@ -102,8 +122,8 @@ _register(Effect(
     "backlash", "backlash",
     "slop in the load train (clevises, pins, swivels): at each reversal the rod travels across a gap "
     "before the specimen moves, so the measured displacement stalls after every change of direction",
-    lambda c: (Param("backlash_mm", 0.0, 0.5 * max(c.stroke_mm, 1e-6), max(c.residual_rms_mm, 1e-4)),),
-    lambda c: [{"backlash_mm": f * c.residual_rms_mm, "lag_s": c.lag_s} for f in (1.0, 3.0)],
+    lambda c: _width(c, "backlash_mm", 0.5),
+    lambda c: _residual_sized(c, "backlash_mm", (1.0, 3.0)),
     lambda p: f"gap of {p['backlash_mm']:.4g} mm taken up at each reversal",
     primary="backlash_mm",
 ))
@@ -171,8 +191,8 @@ _register(Effect(
     "the measured displacement channel is recorded late against the command and force channels (a "
     "filtered transducer, a conditioning amplifier or DAQ channel with its own delay): the actuator "
     "moves in time with the force, only its displacement reading is late",
-    lambda c: (Param("channel_skew_s", 0.0, max(0.5, 4.0 * c.lag_s), max(0.3 * c.lag_s, c.record.dt)),),
-    lambda c: [{"channel_skew_s": 0.5 * c.lag_s, "lag_s": max(0.5 * c.lag_s, 2.0 * c.record.dt)}],
+    lambda c: _time_offset(c, "channel_skew_s"),
+    lambda c: _lag_shared(c, "channel_skew_s", (0.5,)),
     lambda p: f"displacement channel {1e3 * p['channel_skew_s']:.2f} ms late, lag {1e3 * p['lag_s']:.2f} ms",
     primary="channel_skew_s",
 ))
@@ -181,8 +201,8 @@ _register(Effect(
     "dead_band", "dead band",
     "the loop does not answer errors smaller than a width (servo-valve overlap, spool stiction, a "
     "controller dead zone): the actuator stops short of small commands and moves in steps",
-    lambda c: (Param("dead_band_mm", 0.0, 0.25 * max(c.stroke_mm, 1e-6), max(c.residual_rms_mm, 1e-4)),),
-    lambda c: [{"dead_band_mm": f * c.residual_rms_mm, "lag_s": c.lag_s} for f in (0.5, 2.0)],
+    lambda c: _width(c, "dead_band_mm", 0.25),
+    lambda c: _residual_sized(c, "dead_band_mm", (0.5, 2.0)),
     lambda p: f"no response to loop errors below {p['dead_band_mm']:.4g} mm",
     primary="dead_band_mm",
 ))

@@ -29,6 +29,8 @@ import math
 import numpy as np
 from scipy import signal
 
+from hsio.rths.jit import jit
+
 # Every parameter of the model, with its neutral value (the effect is absent). Names are the
 # emulator's ServoConfig fields, so a fitted model configures the emulator directly.
 NEUTRAL: dict[str, float | None] = {
@@ -74,40 +76,53 @@ def _linear_lag(cd: np.ndarray, vff: np.ndarray | None, dt: float, lag: float) -
     return signal.lfilter([1.0], [1.0, -(1.0 - k)], u, zi=[(1.0 - k) * cd[0]])[0]
 
 
-def _loop_lag(cd: np.ndarray, vff: np.ndarray | None, dt: float, lag: float, lag_retract: float, vmax: float,
-              dead_band: float = 0.0) -> np.ndarray:
-    kp_e, kp_r = 1.0 / (lag + dt), 1.0 / (lag_retract + dt)
-    w = dead_band
-    lo = -vmax
-    x = float(cd[0])
-    out = [0.0] * cd.size
-    ff = vff.tolist() if vff is not None else [0.0] * cd.size
-    for i, (c, f) in enumerate(zip(cd.tolist(), ff)):
-        e = c - x
+@jit
+def _loop_kernel(cd: np.ndarray, ff: np.ndarray, dt: float, kp_e: float, kp_r: float, vmax: float,
+                 w: float) -> np.ndarray:
+    x = cd[0]
+    out = np.empty(cd.size)
+    for i in range(cd.size):
+        e = cd[i] - x
         if w > 0.0:
-            e = 0.0 if -w <= e <= w else (e - w if e > 0.0 else e + w)
-        v = (kp_e if e >= 0.0 else kp_r) * e + f
+            if -w <= e <= w:
+                e = 0.0
+            elif e > 0.0:
+                e = e - w
+            else:
+                e = e + w
+        v = (kp_e if e >= 0.0 else kp_r) * e + ff[i]
         if v > vmax:
             v = vmax
-        elif v < lo:
-            v = lo
+        elif v < -vmax:
+            v = -vmax
         x += v * dt
         out[i] = x
-    return np.array(out)
+    return out
+
+
+def _loop_lag(cd: np.ndarray, vff: np.ndarray | None, dt: float, lag: float, lag_retract: float, vmax: float,
+              dead_band: float = 0.0) -> np.ndarray:
+    ff = vff if vff is not None else np.zeros(cd.size)
+    return _loop_kernel(np.ascontiguousarray(cd, dtype=np.float64), np.ascontiguousarray(ff, dtype=np.float64),
+                        dt, 1.0 / (lag + dt), 1.0 / (lag_retract + dt), vmax, dead_band)
+
+
+@jit
+def _play_kernel(x: np.ndarray, h: float) -> np.ndarray:
+    y = x[0]
+    out = np.empty(x.size)
+    for i in range(x.size):
+        if x[i] - y > h:
+            y = x[i] - h
+        elif x[i] - y < -h:
+            y = x[i] + h
+        out[i] = y
+    return out
 
 
 def play(x: np.ndarray, gap: float) -> np.ndarray:
     """Backlash (play operator): the output follows x only once the gap is taken up."""
-    h = 0.5 * gap
-    y = float(x[0])
-    out = [0.0] * x.size
-    for i, xi in enumerate(x.tolist()):
-        if xi - y > h:
-            y = xi - h
-        elif xi - y < -h:
-            y = xi + h
-        out[i] = y
-    return np.array(out)
+    return _play_kernel(np.ascontiguousarray(x, dtype=np.float64), 0.5 * gap)
 
 
 def simulate(command: np.ndarray, dt: float, params: dict, force: np.ndarray | None = None,
@@ -142,9 +157,20 @@ def simulate(command: np.ndarray, dt: float, params: dict, force: np.ndarray | N
     return m + p["offset_mm"]
 
 
+def mode_filter(frequency_hz: float, damping: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(b, a) of w^2 / (s^2 + 2 zeta w s + w^2) by the bilinear transform s = K (z - 1) / (z + 1),
+    K = 2 / dt: the emulator's filter (emulators/servo.py, servo_mode_filter) in closed form."""
+    w = 2.0 * math.pi * frequency_hz
+    k = 2.0 / dt
+    a0 = k * k + 2.0 * damping * w * k + w * w
+    b = np.array([w * w, 2.0 * w * w, w * w]) / a0
+    a = np.array([1.0, (2.0 * w * w - 2.0 * k * k) / a0, (k * k - 2.0 * damping * w * k + w * w) / a0])
+    return b, a
+
+
 def servo_mode(x: np.ndarray, dt: float, frequency_hz: float, damping: float) -> np.ndarray:
     """The rod's motion through a second-order mode (the emulator's filter), at rest on x[0]."""
-    from hsio.emulators.servo import servo_mode_filter
-
-    b, a = servo_mode_filter(frequency_hz, damping, 1.0 / dt)
-    return signal.lfilter(b, a, x, zi=signal.lfilter_zi(b, a) * x[0])[0]
+    b, a = mode_filter(frequency_hz, damping, dt)
+    # At rest on x[0] (unit DC gain): the direct form II transposed state of a constant input.
+    zi = x[0] * np.array([b[1] + b[2] - a[1] - a[2], b[2] - a[2]])
+    return signal.lfilter(b, a, x, zi=zi)[0]

@@ -72,8 +72,9 @@ def read_text(path: str | Path) -> tuple[Path, str]:
     return path, text
 
 
-def read_csv(path: str | Path) -> ActuatorRecord:
-    """A CSV record with the header ``time_s,command_mm,measured_mm[,force_kN]``."""
+def read_csv_table(path: str | Path, header_error) -> tuple[Path, dict[str, np.ndarray], float]:
+    """The columns of a CSV record with a header row (blank and ``#`` lines skipped) and its
+    uniform time step. ``header_error(fields)`` says what is wrong with a header (None: fine)."""
     path, text = read_text(path)
     header = None
     rows: list[list[float]] = []
@@ -84,21 +85,33 @@ def read_csv(path: str | Path) -> ActuatorRecord:
             continue
         fields = [f.strip() for f in stripped.split(",")]
         if header is None:
+            wrong = header_error(fields)
+            if wrong:
+                raise RecordError(f"{path}:{lineno}: header must be {wrong}, got {stripped!r}")
             header = fields
-            missing = [c for c in CSV_REQUIRED if c not in header]
-            unknown = [c for c in header if c not in CSV_REQUIRED + CSV_OPTIONAL]
-            if missing or unknown or len(set(header)) != len(header):
-                raise RecordError(f"{path}:{lineno}: header must be {','.join(CSV_REQUIRED)}[,force_kN], got {stripped!r}")
             continue
         if len(fields) != len(header):
             raise RecordError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {len(fields)}")
         rows.append([_number(f, path, lineno, name) for f, name in zip(fields, header)])
         lines.append(lineno)
     if header is None:
-        raise RecordError(f"{path}: empty file (no header row {','.join(CSV_REQUIRED)})")
+        raise RecordError(f"{path}: empty file (no header row {header_error([])})")
     data = np.array(rows, dtype=float).reshape(-1, len(header))
     col = {name: data[:, i] for i, name in enumerate(header)}
-    dt = uniform_step(col["time_s"], lines, path)
+    return path, col, uniform_step(col["time_s"], lines, path)
+
+
+def _actuator_header_error(fields: list[str]) -> str | None:
+    missing = [c for c in CSV_REQUIRED if c not in fields]
+    unknown = [c for c in fields if c not in CSV_REQUIRED + CSV_OPTIONAL]
+    if missing or unknown or len(set(fields)) != len(fields):
+        return f"{','.join(CSV_REQUIRED)}[,force_kN]"
+    return None
+
+
+def read_csv(path: str | Path) -> ActuatorRecord:
+    """A CSV record with the header ``time_s,command_mm,measured_mm[,force_kN]``."""
+    path, col, dt = read_csv_table(path, _actuator_header_error)
     return ActuatorRecord(str(path), dt, col["command_mm"], col["measured_mm"], col.get("force_kN"))
 
 

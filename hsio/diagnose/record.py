@@ -10,42 +10,36 @@ import numpy as np
 from hsio.errors import RecordError
 
 
-@dataclass(frozen=True)
-class ActuatorRecord:
-    """``command_mm[k]`` is the command in force during sample k, ``measured_mm[k]`` the
-    displacement measured at its end (mm); ``force_kN`` the measured force or None."""
+MIN_SAMPLES = 100
 
-    source: str
-    dt: float
-    command_mm: np.ndarray
-    measured_mm: np.ndarray
-    force_kN: np.ndarray | None = None
 
-    def __post_init__(self):
-        if not (math.isfinite(self.dt) and self.dt > 0):
-            raise RecordError(f"{self.source}: sampling interval must be positive, got {self.dt!r}")
-        arrays = {"command_mm": self.command_mm, "measured_mm": self.measured_mm}
-        if self.force_kN is not None:
-            arrays["force_kN"] = self.force_kN
-        n = None
-        for name, values in arrays.items():
-            a = np.asarray(values, dtype=float)
-            if a.ndim != 1:
-                raise RecordError(f"{self.source}: {name} must be one-dimensional")
-            bad = np.flatnonzero(~np.isfinite(a))
-            if bad.size:
-                raise RecordError(f"{self.source}: {name} sample {bad[0]} is {a[bad[0]]!r}")
-            if n is None:
-                n = a.size
-            elif a.size != n:
-                raise RecordError(f"{self.source}: {name} has {a.size} samples, command_mm has {n}")
-            object.__setattr__(self, name, a)
-        if n < 100:
-            raise RecordError(f"{self.source}: needs at least 100 samples, has {n}")
+def checked_channels(record, names: tuple[str, ...]) -> None:
+    """Check a record's sampling interval and channels (``names``; None skipped): each one-dimensional,
+    finite and as long as the first, at least MIN_SAMPLES; store them as float arrays."""
+    if not (math.isfinite(record.dt) and record.dt > 0):
+        raise RecordError(f"{record.source}: sampling interval must be positive, got {record.dt!r}")
+    n = None
+    for name in names:
+        values = getattr(record, name)
+        if values is None:
+            continue
+        a = np.asarray(values, dtype=float)
+        if a.ndim != 1:
+            raise RecordError(f"{record.source}: {name} must be one-dimensional")
+        bad = np.flatnonzero(~np.isfinite(a))
+        if bad.size:
+            raise RecordError(f"{record.source}: {name} sample {bad[0]} is {a[bad[0]]!r}")
+        if n is None:
+            n = a.size
+        elif a.size != n:
+            raise RecordError(f"{record.source}: {name} has {a.size} samples, {names[0]} has {n}")
+        object.__setattr__(record, name, a)
+    if n < MIN_SAMPLES:
+        raise RecordError(f"{record.source}: needs at least {MIN_SAMPLES} samples, has {n}")
 
-    @property
-    def n(self) -> int:
-        return self.command_mm.size
+
+class Sampled:
+    """Time base of a uniformly sampled record (``dt`` and ``n`` given by the record)."""
 
     @property
     def rate_hz(self) -> float:
@@ -58,6 +52,25 @@ class ActuatorRecord:
     @property
     def duration_s(self) -> float:
         return self.n * self.dt
+
+
+@dataclass(frozen=True)
+class ActuatorRecord(Sampled):
+    """``command_mm[k]`` is the command in force during sample k, ``measured_mm[k]`` the
+    displacement measured at its end (mm); ``force_kN`` the measured force or None."""
+
+    source: str
+    dt: float
+    command_mm: np.ndarray
+    measured_mm: np.ndarray
+    force_kN: np.ndarray | None = None
+
+    def __post_init__(self):
+        checked_channels(self, ("command_mm", "measured_mm", "force_kN"))
+
+    @property
+    def n(self) -> int:
+        return self.command_mm.size
 
     def command_velocity(self) -> np.ndarray:
         """Backward difference of the command, mm/s (E&M 2007, section 4: v_i = (d_i - d_{i-1}) / t_d)."""

@@ -7,16 +7,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from scipy import signal
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from scipy import signal  # noqa: E402
-
-from hsio.diagnose.effects import EFFECTS  # noqa: E402
-from hsio.diagnose.modelfile import write_model  # noqa: E402
-from hsio.diagnose.selection import NONE, UNEXPLAINED, Diagnosis  # noqa: E402
+from hsio.diagnose.effects import EFFECTS
+from hsio.diagnose.modelfile import write_model
+from hsio.diagnose.plotting import figure, label, mark_blocks, save
+from hsio.diagnose.selection import NONE, UNEXPLAINED, Diagnosis
+from hsio.diagnose.timing import EXTRA_CHANNEL as TIMING_CHANNEL, OPEN
 
 MAX_POINTS = 20000  # scatter plots thin the record to this many points
 
@@ -34,7 +32,7 @@ def plot_time(d: Diagnosis, path: Path) -> Path:
     t = rec.time_s
     before, after = _residuals(d)
     t_split = d.n_train * rec.dt
-    fig, axes = plt.subplots(2, 1, figsize=(11, 6.5))
+    fig, axes = figure(2, 1, (11, 6.5))
     ax = axes[0]
     # A window of the held-out part where the baseline is worst, to see the departure itself.
     w = max(int(round(1.0 / rec.dt)), 50)
@@ -45,64 +43,38 @@ def plot_time(d: Diagnosis, path: Path) -> Path:
     ax.plot(t[span], rec.measured_mm[span], color="k", lw=1.6, label="measured")
     ax.plot(t[span], d.baseline.prediction[span], lw=1.0, ls="--", **BEFORE)
     ax.plot(t[span], d.extended.prediction[span], lw=1.0, **AFTER)
-    ax.set_ylabel("displacement (mm)")
-    ax.set_xlabel("time (s)")
-    ax.set_title("held-out part, where the baseline is worst")
-    ax.legend(fontsize=8, loc="upper right")
-    ax.grid(alpha=0.3)
+    label(ax, "time (s)", "displacement (mm)", "held-out part, where the baseline is worst", loc="upper right")
     ax = axes[1]
     ax.plot(t, before, lw=0.5, alpha=0.8, **BEFORE)
     ax.plot(t, after, lw=0.5, alpha=0.8, **AFTER)
-    ax.axvline(t_split, color="k", ls=":", lw=1.0)
-    ax.text(t_split, ax.get_ylim()[1], "  fit | held out", va="top", fontsize=8)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("measured - model (mm)")
-    ax.legend(fontsize=8, loc="lower left")
-    ax.grid(alpha=0.3)
-    fig.suptitle(f"Residual against time: RMS held out {d.baseline.rms_test_mm:.4f} -> {d.extended.rms_test_mm:.4f} mm")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    mark_blocks(ax, [(t_split, "fit | held out")])
+    label(ax, "time (s)", "measured - model (mm)", loc="lower left")
+    return save(fig, path, f"Residual against time: RMS held out {d.baseline.rms_test_mm:.4f} -> {d.extended.rms_test_mm:.4f} mm")
 
 
 def _scatter(d: Diagnosis, x: np.ndarray, xlabel: str, title: str, path: Path) -> Path:
     before, after = _residuals(d)
     step = max(1, x.size // MAX_POINTS)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
+    fig, axes = figure(1, 2, (11, 4.2), sharey=True)
     for ax, r, style, name in ((axes[0], before, BEFORE, "before"), (axes[1], after, AFTER, "after")):
         ax.plot(x[::step], r[::step], ".", ms=1.5, alpha=0.4, color=style["color"])
-        ax.set_title(f"{name}: {style['label']}")
-        ax.set_xlabel(xlabel)
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("measured - model (mm)")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+        label(ax, xlabel, "measured - model (mm)" if ax is axes[0] else None, f"{name}: {style['label']}", legend=False)
+    return save(fig, path, title)
 
 
 def plot_spectrum(d: Diagnosis, path: Path) -> Path:
     before, after = _residuals(d)
     fs = d.record.rate_hz
     nper = int(min(d.record.n, 2 ** int(np.log2(max(fs * 4, 64)))))
-    fig, ax = plt.subplots(figsize=(9, 4.2))
+    fig, ax = figure(1, 1, (9, 4.2))
     for r, style in ((before, BEFORE), (after, AFTER)):
         f, p = signal.welch(r, fs=fs, nperseg=nper)
         ax.semilogy(f[1:], np.sqrt(p[1:]), lw=1.0, **style)
     f, p = signal.welch(d.record.command_mm, fs=fs, nperseg=nper)
     ax.semilogy(f[1:], np.sqrt(p[1:]), color="0.6", lw=0.8, label="command")
     ax.set_xlim(0, min(fs / 2, 50.0))
-    ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("amplitude density (mm/sqrt(Hz))")
-    ax.set_title("Residual against frequency")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    label(ax, "frequency (Hz)", "amplitude density (mm/sqrt(Hz))", "Residual against frequency", which="both")
+    return save(fig, path)
 
 
 def evidence(d: Diagnosis) -> dict:
@@ -181,12 +153,8 @@ def text(d: Diagnosis, ev: dict) -> str:
                   f"Physically: {effect.cause}.",
                   f"Fitted: {effect.describe(single.fit.params)}. Held-out RMS error {single.fit.rms_test_mm:.4f} mm: "
                   f"{single.gain:.2f} times better than the baseline (a cause is named only above {d.margin:g}x).", ""]
-        if d.equivalent is not None:
-            other = EFFECTS[d.equivalent.cause]
-            lines += [f"Equivalently: {other.describe(d.equivalent.fit.params)} ({d.equivalent.cause}) predicts the "
-                      "displacement as well: a delay inside the loop and a late displacement channel cannot be told apart "
-                      "from the command and the displacement alone. The force-displacement relation can tell them "
-                      "(`hsio diagnose --specimen` names a channel skew).", ""]
+        if d.timing is not None:
+            lines += _timing_text(d)
         if len(d.extended.effects) > 1:
             lines += [f"## Best combination: {d.extended.name}", "",
                       "; ".join(EFFECTS[e].describe(d.extended.params) for e in d.extended.effects) + ".",
@@ -212,6 +180,23 @@ def text(d: Diagnosis, ev: dict) -> str:
               "([hardware] actuator_model = \"actuator_model.toml\")",
               "- diagnosis.json: every number above", ""]
     return "\n".join(lines)
+
+
+def _timing_text(d: Diagnosis) -> list[str]:
+    """A transport delay against a late displacement channel: what the force's timing says."""
+    t = d.timing
+    if t.verdict != OPEN:
+        other = "a late displacement channel" if t.verdict == "transport_delay" else "a delay in the loop"
+        return [f"A delay in the loop and a late displacement channel predict the same displacement; the force tells them "
+                f"apart: {t.reason}. So it is not {other}.", ""]
+    lines = ["A delay in the loop and a late displacement channel predict the same displacement from the command "
+             f"(a delay commutes with the loop): {t.reason}."]
+    if d.equivalent is not None:
+        other = EFFECTS[d.equivalent.cause]
+        lines.append(f"Equivalently: {other.describe(d.equivalent.fit.params)} ({d.equivalent.cause}) predicts the "
+                     "displacement as well.")
+    lines += [f"The channel that would tell them apart: {TIMING_CHANNEL}.", ""]
+    return lines
 
 
 def provenance(d: Diagnosis) -> dict:

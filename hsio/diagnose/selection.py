@@ -25,16 +25,16 @@ from scipy import signal
 
 from hsio.diagnose.effects import EFFECTS, NAMES, Context, context
 from hsio.diagnose import residual as residual_mod
+from hsio.diagnose import timing as timing_mod
+from hsio.diagnose.outcome import NONE, PARSIMONY, UNEXPLAINED, Outcome, grow, parsimonious, scoring_text, unnamed  # noqa: F401
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, Fit, blocks, fit
 from hsio.diagnose.record import ActuatorRecord
 from hsio.errors import RecordError
+from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10  # held-out RMS must fall by at least this factor for a cause to be named
-PARSIMONY = 1.02  # a candidate within this factor of the best, with fewer parameters or earlier in the library, wins
 HELPS = 1.01  # an effect whose single fit gains less than this on the choosing block joins no combination
 RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signature no delay mimics
-NONE = "none"
-UNEXPLAINED = "unexplained"
 
 
 @dataclass
@@ -52,7 +52,7 @@ class Candidate:
 
 
 @dataclass
-class Diagnosis:
+class Diagnosis(Outcome):
     record: ActuatorRecord
     n_train: int
     margin: float
@@ -65,23 +65,20 @@ class Diagnosis:
     n_choose: int = 0  # [n_train, n_choose) chooses, [n_choose, n) scores
     floor: residual_mod.Floor | None = None
     structure: residual_mod.Structure | None = None
+    timing: timing_mod.Timing | None = None  # a late channel against a delay in the loop, by the force
 
     @property
     def equivalent(self) -> Candidate | None:
         """A candidate that predicts the displacement as well as the cause (within PARSIMONY) and
-        differs only where the record cannot tell (a delay in the loop or in the channel)."""
+        that the force's timing could not tell from it (a delay in the loop or in the channel)."""
+        if self.timing is not None and self.timing.verdict != timing_mod.OPEN:
+            return None
         other = EQUIVALENT.get(self.cause)
         c = next((c for c in self.candidates if c.cause == other), None)
         single = self.single
         if c is None or single is None or not c.named:
             return None
         return c if c.fit.rms_choose_mm <= PARSIMONY * single.fit.rms_choose_mm else None
-
-    @property
-    def explained(self) -> bool:
-        """The extended model's held-out error is within FLOOR_FACTOR sensor floors."""
-        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
-                    and not self.structure.structured)
 
     def residual_json(self) -> dict:
         s = self.structure
@@ -96,10 +93,6 @@ class Diagnosis:
     def gain(self) -> float:
         return self.baseline.rms_test_mm / self.extended.rms_test_mm
 
-    @property
-    def single(self) -> Candidate | None:
-        return next((c for c in self.candidates if c.cause == self.cause), None)
-
     def to_json(self) -> dict:
         single = self.single
         return {
@@ -109,8 +102,7 @@ class Diagnosis:
             "train_fraction": self.n_train / self.record.n,
             "n_train": self.n_train,
             "n_choose": self.n_choose,
-            "scoring": (f"fit on samples [0, {self.n_train}), choose on [{self.n_train}, {self.n_choose}), "
-                        f"score on [{self.n_choose}, {self.record.n}): the gain is measured on data used neither to fit nor to choose"),
+            "scoring": scoring_text(self.n_train, self.n_choose, self.record.n),
             "margin": self.margin,
             "baseline": {"model": self.baseline.name, "params": dict(self.baseline.params),
                          "rms_train_mm": self.baseline.rms_train_mm, "rms_choose_mm": self.baseline.rms_choose_mm,
@@ -118,6 +110,7 @@ class Diagnosis:
             "cause": self.cause,
             "single": single.summary() if single else None,
             "equivalent": self.equivalent.summary() if self.equivalent else None,
+            "timing": self.timing.to_json() if self.timing else None,
             "combination": list(self.extended.effects),
             "extended": self.extended.summary(),
             "gain": self.gain,
@@ -162,32 +155,44 @@ def choose_single(named: list[Candidate], ctx: Context, record: ActuatorRecord) 
     """The best named candidate on the choosing block; among those within PARSIMONY of it, the one
     with the fewest parameters (then the earliest in the library), unless the best shows a
     distinct signature. A late displacement channel (channel_skew) and a transport delay predict
-    the same displacement from the command (a delay commutes with the linear lag), so they tie;
-    the tie goes to transport_delay and the diagnosis names channel_skew as its equivalent."""
+    the same displacement from the command (a delay commutes with the loop), so they tie; the
+    tie goes to transport_delay here, and :func:`settle_timing` settles it by the force."""
     best = min(named, key=lambda c: c.fit.rms_choose_mm)
-    if not _distinct(best):
-        close = [c for c in named if c.fit.rms_choose_mm <= PARSIMONY * best.fit.rms_choose_mm]
-        order = list(NAMES)
-        best = min(close, key=lambda c: (len(EFFECTS[c.cause].params(ctx)), order.index(c.cause)))
-    return best
+    if _distinct(best):
+        return best
+    return parsimonious(named, lambda c: c.fit.rms_choose_mm, lambda c: len(EFFECTS[c.cause].params(ctx)), NAMES)
 
 
 EQUIVALENT = {"transport_delay": "channel_skew", "channel_skew": "transport_delay"}
 
 
+def settle_timing(best: Candidate, named: list[Candidate], record: ActuatorRecord,
+                  floor: residual_mod.Floor) -> tuple[Candidate, timing_mod.Timing | None]:
+    """When a transport delay and a channel skew tie on the displacement, the force's timing
+    (hsio/diagnose/timing.py) names the one it shows; undecided, ``best`` stays."""
+    other = next((c for c in named if c.cause == EQUIVALENT.get(best.cause)), None)
+    if other is None or other.fit.rms_choose_mm > PARSIMONY * best.fit.rms_choose_mm:
+        return best, None
+    skew = best if best.cause == timing_mod.SKEW else other
+    t = timing_mod.tell(record, skew.fit.params["channel_skew_s"], floor.sensor_floor_mm)
+    if t.verdict == timing_mod.OPEN:
+        return best, t
+    return (best if best.cause == t.verdict else other), t
+
+
 def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, baseline: Fit, candidates: list,
-            cause: str | None, extended: Fit, t0: float, ctx: Context) -> Diagnosis:
-    """Measure the floor and the residual's structure, and settle none against unexplained."""
-    floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
+            cause: str | None, extended: Fit, t0: float, ctx: Context, floor: residual_mod.Floor,
+            timing: timing_mod.Timing | None = None) -> Diagnosis:
+    """Measure the residual's structure, and settle none against unexplained."""
     r = record.measured_mm - extended.prediction
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
-        reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
-        cause = NONE if reached else UNEXPLAINED
+        cause = unnamed(s, floor)
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
-                     n_choose, floor, s)
+                     n_choose, floor, s, timing)
 
 
+@one_blas_thread
 def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, margin: float = MARGIN,
              effects: tuple[str, ...] | None = None, max_combination: int = 3,
              choose_fraction: float = CHOOSE_FRACTION) -> Diagnosis:
@@ -209,24 +214,19 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
         choose_gain = baseline.rms_choose_mm / f.rms_choose_mm
         candidates.append(Candidate(name, f, baseline.rms_test_mm / f.rms_test_mm, choose_gain >= margin, choose_gain))
     named = [c for c in candidates if c.named]
+    floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
     if not named:
-        return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx)
-    best = choose_single(named, ctx, record)
+        return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx, floor)
+    best, timing = settle_timing(choose_single(named, ctx, record), named, record, floor)
     singles = {c.cause: c.fit for c in candidates}
     gains = {c.cause: c.choose_gain for c in candidates}
-    current = best.fit
-    while len(current.effects) < max_combination:
-        trials = []
-        for name in names:
-            # An effect that did nothing alone, or one the record cannot tell from an effect
-            # already in, is not tried (it saves most of the time on long records).
-            if name in current.effects or gains[name] < HELPS or EQUIVALENT.get(name) in current.effects:
-                continue
-            trials.append(fit(record, (*current.effects, name), ctx, n_train, _merged_starts(current, singles[name])))
-        if not trials:
-            break
-        trial = min(trials, key=lambda f: f.rms_choose_mm)
-        if current.rms_choose_mm / trial.rms_choose_mm < margin:
-            break
-        current = trial
-    return _finish(record, n_train, n_choose, margin, baseline, candidates, best.cause, current, t0, ctx)
+
+    def may_join(current: Fit, name: str) -> bool:
+        # An effect that did nothing alone, or one the record cannot tell from an effect
+        # already in, is not tried (it saves most of the time on long records).
+        return not (name in current.effects or gains[name] < HELPS or EQUIVALENT.get(name) in current.effects)
+
+    current = grow(best.fit, names, may_join,
+                   lambda current, name: fit(record, (*current.effects, name), ctx, n_train, _merged_starts(current, singles[name])),
+                   lambda f: f.rms_choose_mm, margin, max_combination)
+    return _finish(record, n_train, n_choose, margin, baseline, candidates, best.cause, current, t0, ctx, floor, timing)

@@ -24,15 +24,16 @@ import numpy as np
 from scipy import optimize, signal
 
 from hsio.diagnose import residual as residual_mod
+from hsio.diagnose.outcome import NONE, UNEXPLAINED, Outcome, grow, parsimonious, scoring_text, unnamed  # noqa: F401 (re-exported)
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, blocks, rms
 from hsio.diagnose.specimen_effects import EFFECTS, NAMES, Effect  # noqa: F401 (the library, re-exported)
 from hsio.diagnose.specimen_record import SpecimenRecord
 from hsio.errors import RecordError
+from hsio.rths.jit import helper, jit
 from hsio.specimens.diagnosed import bouc_wen_step
+from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10
-PARSIMONY = 1.02
-NONE, UNEXPLAINED = "none", "unexplained"
 
 
 @dataclass(frozen=True)
@@ -65,15 +66,24 @@ def signals(record: SpecimenRecord) -> Signals:
                    float(np.sum(np.abs(np.diff(us)))), cutoff, rms(u - us))
 
 
+# The specimen model's exact step, compiled inline with the path below (the model itself stays plain Python).
+_step = helper(bouc_wen_step)
+
+
+@jit
+def _bouc_wen_path(u: np.ndarray, u_y: float) -> np.ndarray:
+    out = np.empty(u.size)
+    z, prev = 0.0, 0.0
+    for i in range(u.size):
+        z = _step(z, u[i] - prev, u_y)
+        prev = u[i]
+        out[i] = z
+    return out
+
+
 def bouc_wen(u: np.ndarray, u_y: float) -> np.ndarray:
     """z along a displacement history, from rest (the specimen model's exact step)."""
-    out = [0.0] * u.size
-    z, prev = 0.0, 0.0
-    for i, x in enumerate(u.tolist()):
-        z = bouc_wen_step(z, x - prev, u_y)
-        prev = x
-        out[i] = z
-    return np.array(out)
+    return _bouc_wen_path(np.ascontiguousarray(u, dtype=np.float64), float(u_y))
 
 
 def _shift(x: np.ndarray, samples: float) -> np.ndarray:
@@ -202,7 +212,7 @@ class SpecimenCandidate:
 
 
 @dataclass
-class SpecimenDiagnosis:
+class SpecimenDiagnosis(Outcome):
     record: SpecimenRecord
     sig: Signals
     n_train: int
@@ -221,23 +231,13 @@ class SpecimenDiagnosis:
     def gain(self) -> float:
         return self.baseline.rms_test_kN / self.extended.rms_test_kN
 
-    @property
-    def single(self):
-        return next((c for c in self.candidates if c.cause == self.cause), None)
-
-    @property
-    def explained(self) -> bool:
-        return bool(self.structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * self.floor.sensor_floor_mm
-                    and not self.structure.structured)
-
     def to_json(self) -> dict:
         s, fl = self.structure, self.floor
         single = self.single
         return {
             "source": self.record.source, "samples": self.record.n, "rate_hz": self.record.rate_hz,
             "n_train": self.n_train, "n_choose": self.n_choose, "margin": self.margin,
-            "scoring": (f"fit on samples [0, {self.n_train}), choose on [{self.n_train}, {self.n_choose}), score on "
-                        f"[{self.n_choose}, {self.record.n}): the gain is measured on data used neither to fit nor to choose"),
+            "scoring": scoring_text(self.n_train, self.n_choose, self.record.n),
             "baseline": self.baseline.summary(), "cause": self.cause,
             "single": single.summary() if single else None,
             "combination": list(self.extended.effects), "extended": self.extended.summary(), "gain": self.gain,
@@ -264,9 +264,7 @@ def specimen_table(f: SpecimenFit) -> dict:
 
 
 def _choose(named: list, ctx_order: tuple) -> SpecimenCandidate:
-    best = min(named, key=lambda c: c.fit.rms_choose_kN)
-    close = [c for c in named if c.fit.rms_choose_kN <= PARSIMONY * best.fit.rms_choose_kN]
-    return min(close, key=lambda c: (c.fit.n_params, ctx_order.index(c.cause)))
+    return parsimonious(named, lambda c: c.fit.rms_choose_kN, lambda c: c.fit.n_params, ctx_order)
 
 
 MAX_SAMPLES = 8000  # longer records are thinned after the low-pass (the Bouc-Wen replay is a loop)
@@ -300,6 +298,7 @@ def thinned(sig: Signals, force: np.ndarray) -> tuple[Signals, int]:
                    sig.cutoff_hz, sig.u_noise), q
 
 
+@one_blas_thread
 def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRACTION,
                       choose_fraction: float = CHOOSE_FRACTION, margin: float = MARGIN,
                       effects: tuple[str, ...] | None = None, max_combination: int = 3) -> SpecimenDiagnosis:
@@ -327,23 +326,18 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
         best = _choose(named, NAMES)
         cause, current = best.cause, best.fit
         singles = {c.cause: c.fit for c in candidates}
-        while len(current.effects) < max_combination:
-            trials = []
-            for name in names:
-                if name in current.effects or {name, *current.effects} >= {"hysteresis", "pinching"}:
-                    continue
-                start = {k: v for k, v in {**singles[name].params, **current.params}.items()}
-                trials.append(fit(sig, (*current.effects, name), n_train, n_choose, [start]))
-            if not trials:
-                break
-            trial = min(trials, key=lambda f: f.rms_choose_kN)
-            if current.rms_choose_kN / trial.rms_choose_kN < margin:
-                break
-            current = trial
+
+        def may_join(current: SpecimenFit, name: str) -> bool:
+            return not (name in current.effects or {name, *current.effects} >= {"hysteresis", "pinching"})
+
+        def fit_with(current: SpecimenFit, name: str) -> SpecimenFit:
+            start = {**singles[name].params, **current.params}
+            return fit(sig, (*current.effects, name), n_train, n_choose, [start])
+
+        current = grow(current, names, may_join, fit_with, lambda f: f.rms_choose_kN, margin, max_combination)
     r = record.force_kN - current.prediction
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, sig.v, None)
     if cause is None:
-        reached = s.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not s.structured
-        cause = NONE if reached else UNEXPLAINED
+        cause = unnamed(s, floor)
     return SpecimenDiagnosis(record, sig, n_train, n_choose, margin, baseline, candidates, cause, current, floor, s,
                              time.perf_counter() - t0)

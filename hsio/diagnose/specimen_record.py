@@ -12,55 +12,30 @@ deformation of the specimen).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from hsio.diagnose.record import Sampled, checked_channels
 from hsio.errors import RecordError
 
 CSV_COLUMNS = ("time_s", "displacement_mm", "force_kN")
 
 
 @dataclass(frozen=True)
-class SpecimenRecord:
+class SpecimenRecord(Sampled):
     source: str
     dt: float
     displacement_mm: np.ndarray
     force_kN: np.ndarray
 
     def __post_init__(self):
-        if not (math.isfinite(self.dt) and self.dt > 0):
-            raise RecordError(f"{self.source}: sampling interval must be positive, got {self.dt!r}")
-        u = np.asarray(self.displacement_mm, dtype=float)
-        f = np.asarray(self.force_kN, dtype=float)
-        if u.ndim != 1 or f.shape != u.shape:
-            raise RecordError(f"{self.source}: displacement and force must be one-dimensional and of equal length")
-        for name, a in (("displacement_mm", u), ("force_kN", f)):
-            bad = np.flatnonzero(~np.isfinite(a))
-            if bad.size:
-                raise RecordError(f"{self.source}: {name} sample {bad[0]} is {a[bad[0]]!r}")
-        if u.size < 100:
-            raise RecordError(f"{self.source}: needs at least 100 samples, has {u.size}")
-        object.__setattr__(self, "displacement_mm", u)
-        object.__setattr__(self, "force_kN", f)
+        checked_channels(self, ("displacement_mm", "force_kN"))
 
     @property
     def n(self) -> int:
         return self.displacement_mm.size
-
-    @property
-    def rate_hz(self) -> float:
-        return 1.0 / self.dt
-
-    @property
-    def duration_s(self) -> float:
-        return self.n * self.dt
-
-    @property
-    def time_s(self) -> np.ndarray:
-        return np.arange(self.n) * self.dt
 
 
 def _centred(source: str, dt: float, u: np.ndarray, f: np.ndarray) -> SpecimenRecord:
@@ -68,29 +43,12 @@ def _centred(source: str, dt: float, u: np.ndarray, f: np.ndarray) -> SpecimenRe
 
 
 def read_csv(path: str | Path) -> SpecimenRecord:
-    from hsio.diagnose.readers import _number, read_text, uniform_step
+    from hsio.diagnose.readers import read_csv_table
 
-    path, text = read_text(path)
-    header, rows, lines = None, [], []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        fields = [x.strip() for x in stripped.split(",")]
-        if header is None:
-            if sorted(fields) != sorted(CSV_COLUMNS):
-                raise RecordError(f"{path}:{lineno}: header must be {','.join(CSV_COLUMNS)}, got {stripped!r}")
-            header = fields
-            continue
-        if len(fields) != len(header):
-            raise RecordError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {len(fields)}")
-        rows.append([_number(x, path, lineno, name) for x, name in zip(fields, header)])
-        lines.append(lineno)
-    if header is None:
-        raise RecordError(f"{path}: empty file (no header row {','.join(CSV_COLUMNS)})")
-    data = np.array(rows, dtype=float).reshape(-1, 3)
-    col = {name: data[:, i] for i, name in enumerate(header)}
-    dt = uniform_step(col["time_s"], lines, path)
+    def header_error(fields):
+        return None if sorted(fields) == sorted(CSV_COLUMNS) else ",".join(CSV_COLUMNS)
+
+    path, col, dt = read_csv_table(path, header_error)
     return _centred(str(path), dt, col["displacement_mm"], col["force_kN"])
 
 

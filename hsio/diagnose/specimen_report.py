@@ -49,39 +49,24 @@ def load_specimen_model(path: str | Path):
 
 
 def plot(d: SpecimenDiagnosis, path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from hsio.diagnose.plotting import figure, label, mark_blocks, save
 
     rec = d.record
     held = slice(d.n_choose, rec.n)
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
+    fig, axes = figure(1, 2, (12, 4.6))
     ax = axes[0]
     ax.plot(rec.displacement_mm[held], rec.force_kN[held], color="k", lw=1.4, label="measured")
     ax.plot(rec.displacement_mm[held], d.baseline.prediction[held], color="C3", lw=0.9, ls="--", label="spring + dashpot")
     ax.plot(rec.displacement_mm[held], d.extended.prediction[held], color="C0", lw=0.9, label=d.extended.name)
-    ax.set_xlabel("displacement (mm)")
-    ax.set_ylabel("force (kN)")
-    ax.set_title("scoring block (neither fitted nor chosen on)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
+    label(ax, "displacement (mm)", "force (kN)", "scoring block (neither fitted nor chosen on)")
     ax = axes[1]
     t = rec.time_s
     ax.plot(t, rec.force_kN - d.baseline.prediction, color="C3", lw=0.5, label="baseline")
     ax.plot(t, rec.force_kN - d.extended.prediction, color="C0", lw=0.5, label="extended")
-    for k, label in ((d.n_train, "fit | choose"), (d.n_choose, "choose | score")):
-        ax.axvline(k * rec.dt, color="k", ls=":", lw=1.0)
-        ax.text(k * rec.dt, ax.get_ylim()[1], " " + label, va="top", fontsize=7)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("measured - model (kN)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.suptitle(f"{Path(rec.source).name}: RMS on the scoring block {d.baseline.rms_test_kN:.4f} -> {d.extended.rms_test_kN:.4f} kN")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    mark_blocks(ax, [(d.n_train * rec.dt, "fit | choose"), (d.n_choose * rec.dt, "choose | score")], fontsize=7)
+    label(ax, "time (s)", "measured - model (kN)")
+    return save(fig, path, f"{Path(rec.source).name}: RMS on the scoring block {d.baseline.rms_test_kN:.4f} -> "
+                           f"{d.extended.rms_test_kN:.4f} kN")
 
 
 def section(d: SpecimenDiagnosis) -> list[str]:

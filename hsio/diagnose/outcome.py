@@ -1,0 +1,68 @@
+"""What the actuator and the specimen diagnoses share: the answers besides a named cause, the
+choice among the candidates that clear the margin, and the verdict on the sensor floor
+(docs/diagnose.md, "Honest selection" and "What the model cannot explain")."""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+from hsio.diagnose import residual as residual_mod
+
+NONE = "none"
+UNEXPLAINED = "unexplained"
+PARSIMONY = 1.02  # a candidate within this factor of the best, with fewer parameters or earlier in the library, wins
+
+
+def parsimonious(named: Sequence, error: Callable, size: Callable, order: Sequence[str]):
+    """The candidate with the lowest choosing error; among those within PARSIMONY of it, the one
+    with the fewest parameters (``size``), then the earliest in the library (``order``)."""
+    best = min(named, key=error)
+    close = [c for c in named if error(c) <= PARSIMONY * error(best)]
+    return min(close, key=lambda c: (size(c), list(order).index(c.cause)))
+
+
+def grow(current, names, may_join: Callable, fit_with: Callable, error: Callable, margin: float, most: int):
+    """The best combination, grown greedily from the single cause ``current``: each round fits
+    every effect of ``names`` that ``may_join`` on top (``fit_with(current, name)``) and adds the
+    one with the lowest choosing ``error``, while it clears ``margin`` over the combination so
+    far, up to ``most`` effects."""
+    while len(current.effects) < most:
+        trials = [fit_with(current, name) for name in names if may_join(current, name)]
+        if not trials:
+            break
+        trial = min(trials, key=error)
+        if error(current) / error(trial) < margin:
+            break
+        current = trial
+    return current
+
+
+def unnamed(structure: residual_mod.Structure, floor: residual_mod.Floor) -> str:
+    """The answer when no candidate clears the margin: none when the held-out error reaches the
+    sensor floor with no structure left, unexplained otherwise."""
+    return NONE if reaches_floor(structure, floor) else UNEXPLAINED
+
+
+def reaches_floor(structure: residual_mod.Structure, floor: residual_mod.Floor) -> bool:
+    """The held-out error is within FLOOR_FACTOR sensor floors, with no line or trend left."""
+    return bool(structure.rms_test_mm <= residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm and not structure.structured)
+
+
+def scoring_text(n_train: int, n_choose: int, n: int) -> str:
+    return (f"fit on samples [0, {n_train}), choose on [{n_train}, {n_choose}), score on [{n_choose}, {n}): "
+            "the gain is measured on data used neither to fit nor to choose")
+
+
+class Outcome:
+    """The parts of a diagnosis that do not depend on what was diagnosed; the dataclass using it
+    holds ``candidates``, ``cause``, ``floor`` and ``structure``."""
+
+    @property
+    def single(self):
+        """The named cause's candidate (None for none and unexplained)."""
+        return next((c for c in self.candidates if c.cause == self.cause), None)
+
+    @property
+    def explained(self) -> bool:
+        """The extended model reaches the sensor floor."""
+        return reaches_floor(self.structure, self.floor)
