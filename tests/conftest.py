@@ -21,6 +21,17 @@ def shared_data() -> Path:
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: a long test; runs only when the environment sets HSIO_SLOW=1")
     _records_in_memory(config)
+    _one_blas_thread()
+
+
+# The tests' matrices are small and the suite shares a few cores with the emulators and servers it
+# starts: BLAS thread pools only fight each other. One thread here and in every subprocess.
+def _one_blas_thread() -> None:
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
 
 
 # Records are durable: every committed step waits for SQLite's fsync. On a disk that costs several
