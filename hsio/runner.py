@@ -27,11 +27,11 @@ from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
 from hsio.ledger import Ledger
 from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
-from hsio.safety.dry_run import dry_run, enforce
+from hsio.safety.dry_run import check, dry_run, enforce, from_present
 from hsio.sites.setup_map import SetupMap
 from hsio.safety.settings import SafetySettings
 from hsio.safety.socket import ControlServer
-from hsio.safety.status import exit_status, outcome_name
+from hsio.safety.status import DryRunRefused, exit_status, outcome_name
 from hsio.result import Result, max_error_pct
 from hsio.secant import SecantEstimator
 from hsio.structures import Structure, get_structure, load_structure
@@ -142,6 +142,21 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     return ns, report
 
 
+def _dry_run_from_present(report, start_state: dict | None, safety: SafetySettings, recorder, notify) -> None:
+    """Check the prediction again from where the specimen stands, read when the hardware opened
+    and before anything moves (docs/safety.md section 2); refuse as the dry run does."""
+    if not start_state or "error" in start_state:
+        raise DryRunRefused("dry run from the present state: the actuators' present state could not be read "
+                            f"({(start_state or {}).get('error', 'no feedback')}); nothing moved")
+    present = check(from_present(report.prediction, start_state), report.limits, report.source, safety)
+    text = "from the present state (NS from rest plus where each actuator stands):\n" + present.text()
+    recorder.write_event(None, 0, "dry_run", "", text)
+    recorder.write_meta({"dry_run_present": present.as_dict()})
+    notify(text)
+    if present.refused:
+        raise DryRunRefused(text)
+
+
 def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, ground: GroundMotion | None = None,
         control: RunControl | None = None, specimen_dir: str | Path | None = None, notify=None) -> dict:
     """Run a hybrid simulation as configured; write run.sqlite, plots and summary.json in a new
@@ -200,11 +215,13 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             recorder.write_meta({"control_socket": str(server.path)})
         try:
             control.check_stop()
-            ns = None
+            ns = report = None
             if config["output"]["ns"] or safety.dry_run:
                 control.enter("NS")
                 ns, report = predict(config, structure, ground, control)
-                if safety.dry_run:
+                if not safety.dry_run:
+                    report = None
+                else:
                     recorder.write_event(None, 0, "dry_run", "", report.text())
                     recorder.write_meta({"dry_run": report.as_dict()})
                     if ledger:
@@ -229,6 +246,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             recorder.write_meta({"start_state": start_state})
             if ledger:
                 ledger.update(run_id, start_state=start_state)
+            if test["start"] == "present" and report is not None:
+                _dry_run_from_present(report, start_state, safety, recorder, notify)
             compensation.sink = recorder.write_compensation
             control.check_stop()
             control.enter("HS")

@@ -97,3 +97,49 @@ def test_margins_are_fractions_of_the_limit():
     margin_ok = 1.0 - peak / 25.0 - 0.01
     assert not check(p, limits, source, SafetySettings(stroke_margin=margin_ok)).refused
     assert check(p, limits, source, SafetySettings(stroke_margin=margin_ok + 0.02)).refused
+
+
+def present_run(tmp_path: Path, monkeypatch, standing_mm: float, override: bool = False):
+    """A short validation run with ``start = "present"`` on emulated actuators said to stand at
+    ``standing_mm`` (the state read when the hardware opens)."""
+    real_state = runner._state
+    calls = []
+
+    def standing(site):
+        state = real_state(site)
+        if not calls and state:
+            state = {name: {"displacement_mm": standing_mm, "force_kN": 0.0} for name in state}
+        calls.append(state)
+        return state
+
+    monkeypatch.setattr(runner, "_state", standing)
+    cfg = config.from_dict({"record": {"synthetic_duration_s": 1.0, "pga_g": 0.6},
+                            "test": {"start": "present"}, "output": {"plots": False, "samples": False},
+                            "safety": {"override": override}})
+    return runner.run(cfg, tmp_path / "o")
+
+
+def test_present_start_is_checked_from_where_the_actuators_stand(tmp_path, monkeypatch):
+    """NS from rest fits the +/-127 mm stroke; standing at 120 mm it does not: refused after the
+    present state is read and before the first command."""
+    import hsio
+
+    s = hsio.load_structure("validation")
+    ns = hsio.run_numerical(s, hsio.synthetic_record(duration_s=1.0, dt=s.dt, pga_g=0.6))
+    peak = float(np.max(np.abs(ns.targets)))
+    assert 1.0 < peak < 0.95 * 127 < peak + 120.0  # from rest it passes; from 120 mm it cannot
+    with pytest.raises(DryRunRefused, match="from the present state") as info:
+        present_run(tmp_path, monkeypatch, 120.0)
+    assert "EXCEEDS" in str(info.value)
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert run.summary["exit_status"] == 2 and run.summary["steps"] == 0
+    assert not run.meta["dry_run"]["refused"] and run.meta["dry_run_present"]["refused"]
+    shifted = run.meta["dry_run_present"]["peak_displacement_mm"]
+    np.testing.assert_allclose(shifted, np.array(run.meta["dry_run"]["peak_displacement_mm"]) + 120.0)
+
+
+def test_present_start_within_the_limits_runs(tmp_path, monkeypatch):
+    summary = present_run(tmp_path, monkeypatch, 0.0)
+    assert summary["exit_status"] == 0 and summary["steps"] > 0
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert not run.meta["dry_run_present"]["refused"]

@@ -134,6 +134,20 @@ def _predict_actuators(ns, t_d: float, hold_fraction: float, period: float, setu
     return Prediction(tuple(setups.actuator_names), disp, force, velocity, ns.steps)
 
 
+def from_present(prediction: Prediction, state: dict) -> Prediction:
+    """The prediction of a run that starts where the specimen stands (``[test] start = "present"``,
+    docs/safety.md section 2): the NS from rest plus, per actuator, the measured displacement and
+    force it starts from (superposition: exact for a linear specimen, an estimate otherwise).
+    ``state`` is the run's start state {actuator: {displacement_mm, force_kN}}. An actuator the
+    state does not name is shifted by the largest offset of those it names."""
+    offsets = {name: (abs(float(v["displacement_mm"])), abs(float(v["force_kN"])))
+               for name, v in state.items() if isinstance(v, dict)}
+    worst = (max((o[0] for o in offsets.values()), default=0.0), max((o[1] for o in offsets.values()), default=0.0))
+    shift = np.array([offsets.get(name, worst) for name in prediction.actuators]).reshape(-1, 2)
+    return Prediction(prediction.actuators, prediction.displacement + shift[:, 0], prediction.force + shift[:, 1],
+                      prediction.velocity, prediction.steps)
+
+
 def known_limits(url: str, emulator: dict, driver: dict) -> tuple[dict, str]:
     """The limits known before the hardware opens: {stroke_mm, force_kN, velocity_mm_s} (None:
     unknown) and where they come from."""
