@@ -114,6 +114,16 @@ def _state(site) -> dict | None:
             for a, f in zip(site.loop.actuators, feedback)}
 
 
+def format_state(head: str, state: dict | None) -> str:
+    """One line per actuator of a start or end state, as the operator reads it."""
+    if not state:
+        return f"{head}: no actuators"
+    if "error" in state:
+        return f"{head}: could not be read ({state['error']})"
+    return head + ": " + "; ".join(f"{name} {v['displacement_mm']:+.3f} mm {v['force_kN']:+.3f} kN"
+                                   for name, v in state.items())
+
+
 def run_folder(config: RunConfig, structure: Structure, out_dir: str | Path | None) -> Path:
     """The folder of a new run: ``out_dir`` if it holds no record (else RecordExistsError), or a
     new numbered folder runs/<structure>/run-NNNN (docs/safety.md section 1)."""
@@ -246,6 +256,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             recorder.write_meta({"start_state": start_state})
             if ledger:
                 ledger.update(run_id, start_state=start_state)
+            notify(format_state("the actuators stand at", start_state))
             if test["start"] == "present" and report is not None:
                 _dry_run_from_present(report, start_state, safety, recorder, notify)
             compensation.sink = recorder.write_compensation
