@@ -74,13 +74,12 @@ def test_a_paused_real_time_run_holds_and_resumes_to_the_same_result():
     motion = float(np.max(np.ptp(rods, axis=0)))
     assert motion < 1e-6  # the rods did not move while paused (the emulator's own rod position)
     err, _ = max_error_pct(paused.u, reference.u)
-    # In real time the two runs differ by what each actuator's tracking lets through (a loaded
-    # machine makes controller periods late): bounded by the two runs' tracking errors.
-    peak = float(np.max(np.abs(reference.u)))
-    tracking = max(float(np.max(np.abs(r.targets - r.measured_displacement))) for r in (reference, paused))
-    allowed = 0.5 + 200.0 * tracking / peak
+    # In real time the two runs agree within 1 % of peak while every controller period comes on
+    # time; periods that came late (a loaded machine) let each run's tracking differ more.
+    late = reference.late_steps + paused.late_steps
+    allowed = 1.0 if late == 0 else 5.0
     print(f"pause test: wall {wall:.2f} s vs {wall_ref:.2f} s, motion during the pause {motion:.2e} mm, "
-          f"max |paused - unpaused| {err:.3f} % of peak, allowed {allowed:.3f} % (tracking {tracking:.4f} mm)")
+          f"max |paused - unpaused| {err:.3f} % of peak, allowed {allowed:.1f} % ({late} late steps)")
     assert err < allowed
 
 
