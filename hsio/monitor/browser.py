@@ -41,6 +41,7 @@ class Browser:
             options.add_argument(flag)
         options.add_argument(f"--window-size={width},{height}")
         options.add_argument(f"--user-data-dir={self.profile}")
+        options.unhandled_prompt_behavior = "ignore"  # a confirm dialog waits for the caller's answer
         try:
             self.driver = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=options)
         except Exception:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import html
 import math
+import time
 
 import numpy as np
 from bokeh.layouts import column, gridplot, row
@@ -24,14 +25,18 @@ from hsio.monitor.indicators import error_spectrum, margin
 from hsio.monitor.operator import ACTIONS, Operator
 from hsio.recording import PHASE_CODES, column as col
 
-UPDATE_MS = 250
+UPDATE_MS = 200  # the status: step, state, rate
+PLOT_EVERY_S = 0.4  # the plots (each redraw costs the browser far more than the status)
 PHASES = {v: k for k, v in PHASE_CODES.items()}
 COLORS = Category10[10]
 CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
            "resume": "Resume the test from where it holds?",
            "stop": "STOP the test? The actuators hold and the record is closed; the run cannot continue."}
-PLOT = dict(height=230, sizing_mode="stretch_width", tools="pan,box_zoom,wheel_zoom,reset,save",
-            output_backend="canvas")
+# Fixed borders: when the tick labels change width the page is not laid out again (a relayout
+# redraws every plot, the costliest thing a browser does here).
+PLOT = dict(height=260, sizing_mode="stretch_width", tools="pan,box_zoom,wheel_zoom,reset,save",
+            output_backend="canvas", min_border_left=70, min_border_right=20, min_border_top=10,
+            min_border_bottom=50)
 
 
 def _fig(title: str, x: str, y: str, **kw) -> figure:
@@ -55,10 +60,12 @@ class MonitorPage:
         self.doc, self.feed, self.operator, self.replay = doc, feed, operator, replay
         self.decimation = Decimation(cap) if cap else Decimation()
         self.built = False
+        self._plotted = 0.0
+        # Fixed sizes: new text never re-lays out the page (which would redraw every plot).
         self.status = Div(text="<b>hsio monitor</b>: waiting for the record ...", name="status",
-                          sizing_mode="stretch_width")
-        self.actions = Div(text="", name="actions", sizing_mode="stretch_width")
-        self.events = Div(text="", name="events", sizing_mode="stretch_width")
+                          width=1000, height=170)
+        self.actions = Div(text="", name="actions", width=380, height=130)
+        self.events = Div(text="", name="events", width=1500, height=190)
         self.request = TextInput(value="", visible=False, name="request")
         self.request.on_change("value", self._on_request)
         self.buttons = []
@@ -67,9 +74,10 @@ class MonitorPage:
             b.js_on_click(CustomJS(args=dict(req=self.request, action=action, text=CONFIRM[action]), code="""
                 if (window.confirm(text)) { req.value = action + ' ' + Date.now(); }"""))
             self.buttons.append(b)
-        controls = column(row(*self.buttons), self.actions, width=380)
-        self.head = row(self.status, controls, sizing_mode="stretch_width")
-        self.root = column(self.head, self.request, sizing_mode="stretch_width", name="root")
+        controls = column(row(*self.buttons), self.actions, width=380, height=170)
+        self.head = row(self.status, controls, height=175)
+        # Three roots, each laid out on its own: new status text never re-lays out the plots.
+        self.root = column(self.head, self.request, name="root")
         doc.title = f"hsio monitor: {feed.run_dir}"
         doc.add_root(self.root)
         self.update()
@@ -88,18 +96,22 @@ class MonitorPage:
                                          name="spectrum")
         self.margins = ColumnDataSource(dict(label=[], value=[], color=[], text=[]), name="margins")
         figs = []
+        p = _fig("Displacement: HS (solid), NS (dashed)", "time (s)", "mm")
+        items = []
         for k, d in enumerate(f.dofs):
-            p = _fig(f"Displacement {d}: HS and NS prediction", "time (s)", "mm")
-            a = p.line("t", col("u", d), source=self.steps, color=COLORS[0], line_width=1.5)
-            b = p.line("t", col("u", d), source=self.ns, color="black", line_dash="dashed", line_alpha=0.7)
+            a = p.line("t", col("u", d), source=self.steps, color=COLORS[k % 10], line_width=1.5)
+            b = p.line("t", col("u", d), source=self.ns, color=COLORS[k % 10], line_dash="dashed", line_alpha=0.8)
             p.scatter("t", col("u", d), source=self.last, color="red", size=7)
-            _legend(p, [("HS", [a]), ("NS", [b])])
-            figs.append(p)
+            items.append((d, [a, b]))
+        _legend(p, items)
+        figs.append(p)
+        p = _fig("Force-displacement per element", "measured displacement (mm)", "measured force (kN)")
+        items = []
         for k, c in enumerate(f.channels):
-            p = _fig(f"Force-displacement {c}", "measured displacement (mm)", "measured force (kN)")
-            p.line(col("disp", c), col("force", c), source=self.steps, color=COLORS[k % 10])
+            items.append((c, [p.line(col("disp", c), col("force", c), source=self.steps, color=COLORS[k % 10])]))
             p.scatter(col("disp", c), col("force", c), source=self.last, color="red", size=7)
-            figs.append(p)
+        _legend(p, items)
+        figs.append(p)
         p = _fig("Tracking error (command - measured)", "time (s)", "mm (kN in force control)")
         _legend(p, [(c, [p.line("t", col("error", c), source=self.steps, color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
@@ -113,25 +125,23 @@ class MonitorPage:
         _legend(p, [(c, [p.line(col("target", c), col("disp", c), source=self.steps, color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
-        p = _fig("Tracking indicator (negative: drifting toward instability)", "time (s)", "TI (mm^2)")
+        p = _fig("Tracking indicator (falling: toward instability)", "time (s)", "TI (mm^2)")
         _legend(p, [(c, [p.line("t", col("ti", c), source=self.steps, color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
-        p = _fig("Control mode per DOF (1: force, 0: displacement)", "time (s)", "mode")
+        p = _fig("Control mode (1 force, 0 displacement)", "time (s)", "mode", y_range=(-0.1, 1.1))
         _legend(p, [(d, [p.step("t", col("fc", d), source=self.steps, color=COLORS[k % 10], mode="after")])
                     for k, d in enumerate(f.dofs)])
         figs.append(p)
-        p = _fig("Late steps of the command generator", "time (s)", "late steps (cumulative)")
-        p.step("t", "late", source=self.steps, color="darkred", mode="after")
-        figs.append(p)
         labels = [f"{c} {what}" for c in reversed(f.channels) for what in ("following", "force", "stroke")]
-        p = _fig("Margins to the limits (% of the limit left)", "% left", "", y_range=labels,
+        p = _fig("Margins (% of the limit left)", "% left", "", y_range=labels,
                  x_range=(-10, 100), height=max(160, 22 * len(labels) + 60))
         p.hbar(y="label", right="value", height=0.7, color="color", source=self.margins)
         p.text(x=2, y="label", text="text", source=self.margins, text_font_size="8pt", text_baseline="middle")
         figs.append(p)
-        grid = gridplot(figs, ncols=3, sizing_mode="stretch_width", merge_tools=False)
-        self.root.children = [self.head, grid, self.events, self.request]
+        grid = gridplot(figs, ncols=4, sizing_mode="stretch_width", merge_tools=False)
+        self.doc.add_root(grid)
+        self.doc.add_root(self.events)
         self.built = True
 
     # -- the periodic update -------------------------------------------------------------------
@@ -148,12 +158,15 @@ class MonitorPage:
             idx = np.arange(0, n_ns, Decimation(self.decimation.cap).stride_for(n_ns))
             self.ns.data = {"t": f.ns["time_s"][idx], **{col("u", d): f.ns[col("u", d)][idx] for d in f.dofs}}
         n = f.n
-        how, idx = self.decimation.update(n)
-        if how == "replace":
-            self.steps.data = self._rows(idx)
-        elif len(idx):
-            self.steps.stream(self._rows(idx))
-        if n and (len(self.last.data["step"]) == 0 or self.last.data["step"][0] != f["step"][n - 1]):
+        now = time.monotonic()
+        if n and now - self._plotted >= PLOT_EVERY_S and (
+                len(self.last.data["step"]) == 0 or self.last.data["step"][0] != f["step"][n - 1]):
+            self._plotted = now
+            how, idx = self.decimation.update(n)
+            if how == "replace":
+                self.steps.data = self._rows(idx)
+            elif len(idx):
+                self.steps.stream(self._rows(idx))
             self.last.data = self._rows(np.array([n - 1]))
             self._spectrum()
             self._margins()
@@ -238,8 +251,10 @@ class MonitorPage:
             state = "replay of a record that was not closed (the run was killed?)"
         else:
             state = "no answer from the run's control socket"
+        disabled = f.finished or self.replay or not line.startswith("ok ")
         for b in self.buttons:
-            b.disabled = f.finished or self.replay or not line.startswith("ok ")
+            if b.disabled != disabled:
+                b.disabled = disabled
         last_step = int(f["step"][n - 1]) if n else 0
         t_now = float(f["time_s"][n - 1]) if n else 0.0
         dt, tr = float(meta.get("dt", 0.0)), float(meta.get("test_rate", 0.0))
@@ -272,10 +287,13 @@ class MonitorPage:
                 modes.append(f"{html.escape(d)} {'FC' if fc[-1] > 0 else 'DC'}, {switches} switches, "
                              f"peak |u| {peak:.2f} mm{ns_peak}")
             items.append(("DOFs", "; ".join(modes)))
-        items.append(("plots", f"every {self.decimation.stride}{'st' if self.decimation.stride == 1 else 'th'} step "
+        every = "every step" if self.decimation.stride == 1 else f"every {self.decimation.stride}th step"
+        items.append(("plots", f"{every} "
                                f"({len(self.steps.data['t']) if self.built else 0} points); red dot: the newest step"))
-        self.status.text = "<table style='font-size:10pt'>" + "".join(
+        text = "<table style='font-size:10pt'>" + "".join(
             f"<tr><td><b>{k}</b></td><td>{v}</td></tr>" for k, v in items) + "</table>"
+        if self.status.text != text:
+            self.status.text = text
         if f.events:
             rows = "".join(f"<tr><td>{'' if e['time_s'] is None else format(e['time_s'], '.2f')}</td>"
                            f"<td>{e['step'] if e['step'] is not None else ''}</td><td>{html.escape(str(e['kind']))}</td>"
