@@ -27,6 +27,7 @@ from hsio.recording import PHASE_CODES, column as col
 
 UPDATE_MS = 200  # the status: step, state, rate
 PLOT_EVERY_S = 0.4  # the plots (each redraw costs the browser far more than the status)
+SPECTRUM_EVERY_S = 2.0  # the spectrum of the last seconds changes slowly
 PHASES = {v: k for k, v in PHASE_CODES.items()}
 COLORS = Category10[10]
 CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
@@ -61,6 +62,7 @@ class MonitorPage:
         self.decimation = Decimation(cap) if cap else Decimation()
         self.built = False
         self._plotted = 0.0
+        self._spectrum_at = 0.0
         # Fixed sizes: new text never re-lays out the page (which would redraw every plot).
         self.status = Div(text="<b>hsio monitor</b>: waiting for the record ...", name="status",
                           width=1000, height=170)
@@ -168,7 +170,9 @@ class MonitorPage:
             elif len(idx):
                 self.steps.stream(self._rows(idx))
             self.last.data = self._rows(np.array([n - 1]))
-            self._spectrum()
+            if now - self._spectrum_at >= SPECTRUM_EVERY_S:
+                self._spectrum_at = now
+                self._spectrum()
             self._margins()
         self._status()
 
@@ -181,6 +185,8 @@ class MonitorPage:
         for c in f.channels:
             for p in ("target", "disp", "force", "error", "ti"):
                 out[col(p, c)] = f[col(p, c)][idx]
+        if len(idx) < 64:  # a few rows travel lighter as JSON numbers than as binary buffers
+            out = {k: [None if not math.isfinite(x) else x for x in v.tolist()] for k, v in out.items()}
         return out
 
     def _spectrum(self) -> None:
@@ -196,8 +202,8 @@ class MonitorPage:
             n = min(len(out["f"]), len(amp))
             out["f"] = out["f"][:n]
             out[col("a", c)] = np.maximum(amp[:n], 1e-9)
-        for c in f.channels:
-            out[col("a", c)] = out[col("a", c)][: len(out["f"])]
+        for key in out:  # single precision: half the bytes, more than a plot can show
+            out[key] = out[key][: len(out["f"])].astype(np.float32)
         self.spectrum.data = out
 
     def limits(self) -> dict:

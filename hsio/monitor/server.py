@@ -141,7 +141,8 @@ class MonitorProcess:
             self.proc.wait(timeout=self.START_TIMEOUT_S)
             self.proc.stdout.close()
             lines = [x for x in (line + self.log_path.read_text(encoding="utf-8")).splitlines() if x.strip()]
-            raise ConfigError(lines[-1] if lines else f"the monitor did not start (exit {self.proc.returncode})")
+            reason = lines[-1].removeprefix("hsio monitor: error: ") if lines else f"exit {self.proc.returncode}"
+            raise ConfigError(f"the monitor did not start: {reason}")
         self.url = line.rpartition(" at ")[2].strip()
 
     def close(self, grace_s: float | None = None) -> None:
