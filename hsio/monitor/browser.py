@@ -4,6 +4,7 @@ background networking, no driver download), with a fresh profile each time."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -30,7 +31,7 @@ def missing() -> str:
 class Browser:
     """A headless chromium session; ``driver`` is the selenium WebDriver."""
 
-    def __init__(self, width: int = 1600, height: int = 1500):
+    def __init__(self, width: int = 1600, height: int = 1500, nice: int = 0):
         from selenium import webdriver
         from selenium.webdriver.chrome.service import Service
 
@@ -43,7 +44,10 @@ class Browser:
         options.add_argument(f"--user-data-dir={self.profile}")
         options.unhandled_prompt_behavior = "ignore"  # a confirm dialog waits for the caller's answer
         try:
-            self.driver = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=options)
+            # ``nice``: the browser (and its driver) below the priority of a run on the same machine.
+            popen = {"preexec_fn": (lambda: os.nice(nice))} if nice else {}
+            service = Service(executable_path=CHROMEDRIVER, popen_kw=popen)
+            self.driver = webdriver.Chrome(service=service, options=options)
         except Exception:
             shutil.rmtree(self.profile, ignore_errors=True)
             raise

@@ -2,9 +2,9 @@
 
 The run writes ``run.sqlite`` (:mod:`hsio.recording`), committing each step before the next; the
 feed opens it read-only and, at each :meth:`RecordFeed.poll`, reads only what was committed since
-the last poll (steps, events), plus the last controller samples. It never writes, never holds a
-transaction open between polls and never slows the run: SQLite's WAL journal lets a reader work
-beside the writer. The same code replays a finished record and follows a run in progress.
+the last poll (steps, events) and, when asked, the last controller samples. It never writes and
+never holds a transaction open between polls; the run never waits for it: SQLite's WAL journal
+lets a reader work beside the writer. The same code replays a finished record and follows a run in progress.
 
 Derived per channel as the steps arrive: the tracking error and the tracking indicator
 (:mod:`hsio.monitor.indicators`).
@@ -22,7 +22,8 @@ import numpy as np
 from hsio.monitor.indicators import tracking_indicator
 from hsio.recording import RUN_FILE, column
 
-SAMPLES_WINDOW = 4096  # controller samples read for the spectrum and the phase (4 s at 1024 Hz)
+SAMPLES_WINDOW = 4096  # controller samples read for the spectrum (4 s at 1024 Hz)
+META_EVERY_S = 2.0
 
 
 class _Columns:
@@ -70,6 +71,7 @@ class RecordFeed:
         self._last_event = 0
         self._last_sample = 0
         self._last_poll = 0.0
+        self._meta_at = 0.0
         self._ti_state: dict[str, tuple[float, tuple[float, float] | None]] = {}
 
     # -- state -------------------------------------------------------------------------------
@@ -132,7 +134,9 @@ class RecordFeed:
 
     def _read(self) -> int:
         db = self.db
-        self.meta.update({k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")})
+        if time.monotonic() - self._meta_at > META_EVERY_S:  # the run adds keys (the dry run, the socket)
+            self._meta_at = time.monotonic()
+            self.meta.update({k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")})
         if not self.ns:
             self.ns = _table(db, "SELECT * FROM ns ORDER BY step")
         steps = self._read_steps(db)
@@ -141,8 +145,6 @@ class RecordFeed:
         for r in rows:
             self.events.append(dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:])))
             self._last_event = r[0]
-        if steps or not self.samples:
-            self._read_samples(db)
         self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
         if steps:
             self.seen_at.append((time.monotonic(), self.n))
@@ -182,14 +184,29 @@ class RecordFeed:
         self._last_step = int(rows[-1][0])
         return len(rows)
 
-    def _read_samples(self, db) -> None:
-        row = db.execute("SELECT MAX(rowid) FROM samples").fetchone()
+    def read_samples(self) -> dict[str, np.ndarray]:
+        """The last SAMPLES_WINDOW controller samples (read again only if new ones were recorded)."""
+        if self.db is None:
+            return {}
+        try:
+            row = self.db.execute("SELECT MAX(rowid) FROM samples").fetchone()
+        except sqlite3.DatabaseError:
+            return self.samples
         top = row[0] if row and row[0] is not None else 0
-        if top == self._last_sample and self.samples:
-            return
-        self._last_sample = top
-        self.samples = _table(db, "SELECT * FROM (SELECT * FROM samples WHERE rowid > ? ORDER BY rowid DESC) "
-                                  "ORDER BY step, k", (top - SAMPLES_WINDOW,))
+        if top != self._last_sample or not self.samples:
+            self._last_sample = top
+            self.samples = _table(self.db, "SELECT * FROM (SELECT * FROM samples WHERE rowid > ? ORDER BY rowid DESC) "
+                                           "ORDER BY step, k", (top - SAMPLES_WINDOW,))
+        return self.samples
+
+    def phases(self) -> dict[str, float]:
+        """The command generator's phase code per channel at the last recorded sample."""
+        names = [column("phase", c) for c in self.channels]
+        try:
+            row = self.db.execute(f"SELECT {', '.join(names)} FROM samples ORDER BY rowid DESC LIMIT 1").fetchone()
+        except (sqlite3.DatabaseError, AttributeError):
+            return {}
+        return {c: v for c, v in zip(self.channels, row or ()) if v is not None}
 
     # -- derived -----------------------------------------------------------------------------
     def steps_per_second(self, window_s: float = 5.0) -> float | None:

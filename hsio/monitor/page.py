@@ -57,8 +57,8 @@ def _legend(p, items) -> None:
 class MonitorPage:
     """The document of one browser tab, fed by ``feed`` and sending requests by ``operator``."""
 
-    def __init__(self, doc, feed: RecordFeed, operator: Operator, replay: bool = False, cap: int | None = None):
-        self.doc, self.feed, self.operator, self.replay = doc, feed, operator, replay
+    def __init__(self, doc, feed: RecordFeed, operator: Operator, cap: int | None = None):
+        self.doc, self.feed, self.operator = doc, feed, operator
         self.decimation = Decimation(cap) if cap else Decimation()
         self.built = False
         self._plotted = 0.0
@@ -190,7 +190,8 @@ class MonitorPage:
         return out
 
     def _spectrum(self) -> None:
-        f, s = self.feed, self.feed.samples
+        f = self.feed
+        s = f.read_samples()
         out: dict = {}
         for c in f.channels:
             if s and col("cmd", c) in s and len(s[col("cmd", c)]) >= 64:
@@ -245,7 +246,7 @@ class MonitorPage:
         n = f.n
         total = f.total_steps
         meta = f.meta
-        line = "" if self.replay else self.operator.status()
+        line = self.operator.status()
         if f.finished:
             state = f"run over ({f.summary.get('outcome', 'ended')}); the record is closed"
             if f.summary.get("stopped"):
@@ -253,11 +254,9 @@ class MonitorPage:
         elif line.startswith("ok "):
             words = line.split()
             state = f"{words[1]} (phase {words[3]})" if len(words) >= 4 else line[3:]
-        elif self.replay:
-            state = "replay of a record that was not closed (the run was killed?)"
         else:
-            state = "no answer from the run's control socket"
-        disabled = f.finished or self.replay or not line.startswith("ok ")
+            state = "no answer from the run's control socket (a run killed, or started without one)"
+        disabled = f.finished or not line.startswith("ok ")
         for b in self.buttons:
             if b.disabled != disabled:
                 b.disabled = disabled
@@ -278,11 +277,9 @@ class MonitorPage:
             items.append(("test rate", f"TR {tr:g} configured"))
         if n:
             late = int(f["late_steps"][n - 1]) if np.isfinite(f["late_steps"][n - 1]) else 0
-            phases = []
-            for c in f.channels:
-                p = f.samples.get(col("phase", c))
-                code = int(p[-1]) if p is not None and len(p) and np.isfinite(p[-1]) else None
-                phases.append(f"{html.escape(c)} {PHASES.get(code, 'n/a')}")
+            codes = f.phases()
+            phases = [f"{html.escape(c)} {PHASES.get(int(codes[c]) if c in codes else None, 'n/a')}"
+                      for c in f.channels]
             items.append(("command generator", f"{late} late steps; phase " + ", ".join(phases)))
             modes = []
             for d in f.dofs:
@@ -310,8 +307,7 @@ class MonitorPage:
             if self.events.text != text:
                 self.events.text = text
         log = self.operator.log[-6:]
-        text = "<br>".join(html.escape(x) for x in log) if log else (
-            "replay: controls off" if self.replay else "operator requests are logged here and in operator.log")
+        text = "<br>".join(html.escape(x) for x in log) if log else "operator requests are logged here and in operator.log"
         text = f"<span style='font-size:9pt' id='hsio-actions'>{text}</span>"
         if self.actions.text != text:
             self.actions.text = text
@@ -319,7 +315,7 @@ class MonitorPage:
     # -- the operator --------------------------------------------------------------------------
     def _on_request(self, attr, old, new) -> None:
         action = new.split(" ")[0] if new else ""
-        if not action or self.replay:
+        if not action:
             return
         request = self.doc.session_context.request if self.doc.session_context else None
         who = f"the monitor page ({request.remote_ip})" if request is not None and getattr(request, "remote_ip", None) \

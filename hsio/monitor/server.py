@@ -133,9 +133,9 @@ class MonitorProcess:
         env = {**os.environ, "BOKEH_RESOURCES": "server", "PYTHONUNBUFFERED": "1"}
         self.log_path = self.run_dir / LOG_FILE  # the server's own messages
         with open(self.log_path, "a", encoding="utf-8") as log:
-            # A new session: the terminal's Ctrl-C goes to the run (which stops), not to the page.
+            # The run's own session (so its lower priority counts against the run's processes).
             self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log,
-                                         text=True, env=env, start_new_session=True)
+                                         text=True, env=env)
         line = self.proc.stdout.readline()  # the child prints READY once it listens, or exits
         if not line.startswith(READY):
             self.proc.wait(timeout=self.START_TIMEOUT_S)
