@@ -153,51 +153,60 @@ def test_live_run_paused_resumed_and_stopped_from_the_page_then_replayed(tmp_pat
                              "--monitor-port", "0"], cwd=tmp_path, env=ENV, stdin=subprocess.DEVNULL,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     err = Lines(proc.stderr)
-    committed = None
+    committed = mon = b = None
     try:
+        b = browser.Browser()  # starts while the run does its dry run
         url = err.wait_for("monitor at http://127.0.0.1:", 60).rpartition(" at ")[2].strip()
         committed = Committed(out / "run.sqlite")
-        with browser.Browser() as b:
-            b.driver.get(url)
-            # 1. New steps reach the page within 1 s of their commit: the step in the status line,
-            # and the newest step drawn on the plots (the red dot).
-            wait_page(b, lambda: b.model("head", "m.data.step.length ? m.data.step[0] : 0"), 60, "a step")
-            shown: dict[str, dict[int, float]] = {"status": {}, "plots": {}}
-            end = time.monotonic() + 2.0
-            while time.monotonic() < end:
-                for where, k in zip(("status", "plots"), b.driver.execute_script(SHOWN)):
-                    if k and int(k) not in shown[where]:
-                        shown[where][int(k)] = time.monotonic()
-                time.sleep(0.01)
-            for where, seen in shown.items():
-                lags = [t - committed.first_seen[k] for k, t in seen.items() if k in committed.first_seen]
-                assert len(lags) >= 2, (where, seen)
-                print(f"{where}: new steps shown {np.median(lags) * 1e3:.0f} ms after their commit (median), "
-                      f"{max(lags) * 1e3:.0f} ms at most, over {len(lags)} updates")
-                assert max(lags) < 1.0, where
-            assert "cdn" not in b.driver.page_source.lower()  # every asset from the local server
+        b.driver.get(url)
+        # 1. New steps reach the page within 1 s of their commit: the step in the status line,
+        # and the newest step drawn on the plots (the red dot).
+        wait_page(b, lambda: b.model("head", "m.data.step.length ? m.data.step[0] : 0"), 60, "a step")
+        shown: dict[str, dict[int, float]] = {"status": {}, "plots": {}}
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:
+            for where, k in zip(("status", "plots"), b.driver.execute_script(SHOWN)):
+                if k and int(k) not in shown[where]:
+                    shown[where][int(k)] = time.monotonic()
+            time.sleep(0.01)
+        for where, seen in shown.items():
+            lags = [t - committed.first_seen[k] for k, t in seen.items() if k in committed.first_seen]
+            assert len(lags) >= 2, (where, seen)
+            print(f"{where}: new steps shown {np.median(lags) * 1e3:.0f} ms after their commit (median), "
+                  f"{max(lags) * 1e3:.0f} ms at most, over {len(lags)} updates")
+            assert max(lags) < 1.0, where
+        assert "cdn" not in b.driver.page_source.lower()  # every asset from the local server
 
-            # 2. A pause dismissed at its confirmation does nothing; a confirmed one holds the actuators.
-            confirm(b, "pause_button", accept=False)
-            time.sleep(0.5)
-            assert not (out / "operator.log").exists() and "running" in state(b)
-            confirm(b, "pause_button")
-            wait_page(b, lambda: "paused" in state(b), 10, "the pause")
-            held_at = committed.steps()
-            time.sleep(1.5)
-            assert committed.steps() == held_at  # not a step while paused
-            assert "paused" in state(b)
+        # 2. A pause dismissed at its confirmation does nothing; a confirmed one holds the actuators.
+        confirm(b, "pause_button", accept=False)
+        time.sleep(0.3)
+        assert not (out / "operator.log").exists() and "running" in state(b)
+        confirm(b, "pause_button")
+        wait_page(b, lambda: "paused" in state(b), 10, "the pause")
+        held_at = committed.steps()
+        time.sleep(1.0)
+        assert committed.steps() == held_at  # not a step while paused
+        assert "paused" in state(b)
 
-            # 3. Resume continues.
-            confirm(b, "resume_button")
-            wait_page(b, lambda: committed.steps() > held_at + 5, 10, "steps after the resume")
-            wait_page(b, lambda: "running" in state(b), 5, "running again")
+        # 3. Resume continues.
+        confirm(b, "resume_button")
+        wait_page(b, lambda: committed.steps() > held_at + 5, 10, "steps after the resume")
+        wait_page(b, lambda: "running" in state(b), 5, "running again")
 
-            # 4. Stop ends the run, the record closed, and the page says so.
-            confirm(b, "stop_button")
-            proc.wait(timeout=60)
-            wait_page(b, lambda: "the record is closed" in state(b), 5, "the closed record")
-            live = {k: b.model("steps", f"Array.from(m.data[{k!r}])") for k in ("step", "t", "u_C1", "force_C2")}
+        # 4. Stop ends the run, the record closed, and the page says so.
+        confirm(b, "stop_button")
+        proc.wait(timeout=60)
+        wait_page(b, lambda: "the record is closed" in state(b), 5, "the closed record")
+        live = {k: b.model("steps", f"Array.from(m.data[{k!r}])") for k in ("step", "t", "u_C1", "force_C2")}
+        # The replay's server starts while the record is checked.
+        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(out), "--port", "0"], env=ENV,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    except BaseException:
+        if b is not None:
+            b.close()
+        if mon is not None:
+            mon.kill()
+        raise
     finally:
         if committed is not None:
             committed.stop.set()
@@ -231,16 +240,14 @@ def test_live_run_paused_resumed_and_stopped_from_the_page_then_replayed(tmp_pat
     np.testing.assert_allclose(live["u_C1"], run.steps["u_C1"])
 
     # 5. The replay of the record shows the same plots.
-    mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(out), "--port", "0"], env=ENV,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         url = Lines(mon.stdout).wait_for("serving", 60).rpartition(" at ")[2].strip()
-        with browser.Browser() as b:
-            b.driver.get(url)
-            wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
-            replay = {k: b.model("steps", f"Array.from(m.data[{k!r}])") for k in live}
-            assert all(b.model(f"{a}_button", "m.disabled") is True for a in ("pause", "resume", "stop"))
+        b.driver.get(url)
+        wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
+        replay = {k: b.model("steps", f"Array.from(m.data[{k!r}])") for k in live}
+        assert all(b.model(f"{a}_button", "m.disabled") is True for a in ("pause", "resume", "stop"))
     finally:
+        b.close()
         mon.terminate()
         mon.wait(timeout=10)
     assert replay == live
