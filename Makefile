@@ -4,16 +4,17 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-DEBIAN_PACKAGES := libblas3 liblapack3
+DEBIAN_PACKAGES := libblas3 liblapack3 chromium chromium-driver
 
 .PHONY: run test bench clean debian
 
-# openseespy (the OpenSees tests and examples) needs Debian's BLAS and LAPACK.
+# openseespy (the OpenSees tests and examples) needs Debian's BLAS and LAPACK; the monitor's browser
+# tests drive Debian's chromium through its chromedriver.
 debian:
 	@dpkg -s $(DEBIAN_PACKAGES) > /dev/null 2>&1 || { \
 	  echo "installing Debian packages: $(DEBIAN_PACKAGES)"; \
 	  (apt-get update -qq && apt-get install -y -qq $(DEBIAN_PACKAGES)) > /dev/null 2>&1 || \
-	  echo "could not install $(DEBIAN_PACKAGES) (not root?): the OpenSees tests will be skipped"; }
+	  echo "could not install $(DEBIAN_PACKAGES) (not root?): the OpenSees and browser tests will be skipped"; }
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)

@@ -32,6 +32,7 @@ LAZY_COMMANDS: dict[str, str] = {
     "calibrate": "hsio.commands.calibrate:calibrate",
     "diagnose": "hsio.commands.diagnose:diagnose",
     "emulate": "hsio.commands.emulate:emulate",
+    "monitor": "hsio.commands.monitor:monitor",
     "probe": "hsio.commands.probe:probe",
     "serve": "hsio.commands.serve:serve",
     "study": "hsio.commands.study:study",
@@ -67,8 +68,14 @@ def main() -> None:
 @click.option("--override-dry-run", is_flag=True,
               help="Run even if the dry run predicts a limit is exceeded (recorded in the run and the ledger).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@click.option("--monitor", "with_monitor", is_flag=True,
+              help="Serve the live monitor page during the run (docs/monitor.md).")
+@click.option("--monitor-port", default=8765, show_default=True, type=click.IntRange(0, 65535),
+              help="Port of the monitor page (0: any free port).")
+@click.option("--monitor-host", default="127.0.0.1", show_default=True,
+              help="Address of the monitor page; any but the loopback requires the token it prints.")
 def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, override_dry_run: bool,
-        as_json: bool) -> None:
+        as_json: bool, with_monitor: bool, monitor_port: int, monitor_host: str) -> None:
     """Run a hybrid simulation (default: the validation structure on emulated actuators).
 
     Keys p (pause), r (resume), s (stop) on a terminal; the control socket in the run folder
@@ -93,6 +100,13 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         ground = runner.build_record(cfg, structure)
         steps = len(excitation(structure, ground)[0]) - 1
         progress = _Progress(steps, f"HS {structure.name}")
+        page = None
+        if with_monitor:  # the page reads the record of the run's folder from its own process
+            from hsio.monitor.server import MonitorProcess
+
+            out_dir = runner.run_folder(cfg, structure, out_dir)
+            page = MonitorProcess(out_dir, monitor_host, monitor_port)
+            click.echo(f"hsio run: monitor at {page.url}", err=True)
         keys = KeyReader(control, notify) if cfg["safety"]["keys"] else None
         try:
             summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
@@ -101,6 +115,8 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
             progress.close()
             if keys is not None:
                 keys.close()
+            if page is not None:
+                page.close()
     except DryRunRefused as exc:
         click.echo(f"hsio run: {exc}", err=True)
         _where(exc)

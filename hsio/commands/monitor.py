@@ -1,0 +1,38 @@
+"""`hsio monitor RUN_DIR`: the live page of a run in progress, or the replay of a recorded run."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from hsio.errors import HsioError
+
+
+@click.command()
+@click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to listen on. Any address but the loopback requires the token printed at start-up.")
+@click.option("--port", default=8765, show_default=True, type=click.IntRange(0, 65535),
+              help="Port to listen on (0: any free port).")
+@click.option("--token", default=None, help="The token asked of browsers when not on the loopback (default: a new random one).")
+def monitor(run_dir: str, host: str, port: int, token: str | None) -> None:
+    """Serve the monitor page of the run in RUN_DIR (docs/monitor.md).
+
+    A finished record is replayed; a run in progress is followed as it commits steps, and its
+    pause, resume and stop buttons reach the run's control socket. A folder with no record yet is
+    watched until the run creates it (`hsio run --monitor` does this). Stop with Ctrl-C.
+    """
+    from hsio.monitor.server import serve
+
+    def announce(line: str) -> None:
+        click.echo(line)
+        sys.stdout.flush()
+
+    try:
+        serve(run_dir, host=host, port=port, token=token, announce=announce)
+    except HsioError as exc:
+        click.echo(f"hsio monitor: error: {exc}", err=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        pass

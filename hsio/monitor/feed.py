@@ -1,0 +1,262 @@
+"""A run's record read as it grows: the monitor's only source of data (docs/monitor.md section 2).
+
+The run writes ``run.sqlite`` (:mod:`hsio.recording`), committing each step before the next; the
+feed opens it read-only and, at each :meth:`RecordFeed.poll`, reads only what was committed since
+the last poll (steps, events) and, when asked, the last controller samples. It never writes and
+never holds a transaction open between polls; the run never waits for it: SQLite's WAL journal
+lets a reader work beside the writer. The same code replays a finished record and follows a run in progress.
+
+Derived per channel as the steps arrive: the tracking error and the tracking indicator
+(:mod:`hsio.monitor.indicators`).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hsio.monitor.indicators import tracking_indicator
+from hsio.recording import RUN_FILE, column
+
+SAMPLES_WINDOW = 4096  # controller samples read for the spectrum (4 s at 1024 Hz)
+META_EVERY_S = 2.0
+
+
+class _Columns:
+    """Growing float columns (capacity doubles: appending n rows costs O(n))."""
+
+    def __init__(self, names):
+        self.names = list(names)
+        self.n = 0
+        self._data = np.full((len(self.names), 1024), np.nan)
+
+    def append(self, block: np.ndarray) -> None:
+        m = block.shape[1]
+        if self.n + m > self._data.shape[1]:
+            grown = np.full((len(self.names), max(2 * self._data.shape[1], self.n + m)), np.nan)
+            grown[:, : self.n] = self._data[:, : self.n]
+            self._data = grown
+        self._data[:, self.n: self.n + m] = block
+        self.n += m
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._data[self.names.index(name), : self.n]
+
+
+class RecordFeed:
+    """Reads the record of the run in ``run_dir`` incrementally."""
+
+    MIN_POLL_S = 0.1  # polls closer together than this return at once
+
+    def __init__(self, run_dir: str | Path):
+        self.run_dir = Path(run_dir)
+        self.path = self.run_dir / RUN_FILE
+        self.db: sqlite3.Connection | None = None
+        self.meta: dict = {}
+        self.summary: dict = {}
+        self.dofs: list[str] = []
+        self.channels: list[str] = []
+        self.channel_dof: dict[str, str | None] = {}
+        self.columns: _Columns | None = None
+        self.modes: list[np.ndarray] = []  # per DOF, 1 in force control, 0 in displacement control
+        self.ns: dict[str, np.ndarray] = {}
+        self.events: list[dict] = []
+        self.samples: dict[str, np.ndarray] = {}
+        self.seen_at: list[tuple[float, int]] = []  # (monotonic time, steps) at each poll that found steps
+        self._last_step = -1
+        self._last_event = 0
+        self._last_sample = 0
+        self._last_poll = 0.0
+        self._meta_at = 0.0
+        self._ti_state: dict[str, tuple[float, tuple[float, float] | None]] = {}
+
+    # -- state -------------------------------------------------------------------------------
+    @property
+    def opened(self) -> bool:
+        return self.columns is not None
+
+    @property
+    def n(self) -> int:
+        return self.columns.n if self.columns is not None else 0
+
+    @property
+    def finished(self) -> bool:
+        """The run wrote its summary: the record is closed."""
+        return bool(self.summary)
+
+    @property
+    def total_steps(self) -> int | None:
+        """Steps the whole test will take (from the NS prediction; None if none was recorded)."""
+        return len(self.ns["time_s"]) - 1 if self.ns.get("time_s") is not None and len(self.ns["time_s"]) else None
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+    # -- reading -----------------------------------------------------------------------------
+    def poll(self, force: bool = False) -> int:
+        """Read what was committed since the last poll; returns the number of new steps."""
+        now = time.monotonic()
+        if not force and now - self._last_poll < self.MIN_POLL_S:
+            return 0
+        self._last_poll = now
+        if self.db is None and not self._open():
+            return 0
+        try:
+            return self._read()
+        except sqlite3.DatabaseError:  # a table not yet created or a file being replaced: next time
+            return 0
+
+    def _open(self) -> bool:
+        if not self.path.exists():
+            return False
+        try:
+            db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, check_same_thread=False)
+            meta = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
+        except sqlite3.DatabaseError:
+            return False
+        if "dof_names" not in meta:
+            db.close()
+            return False
+        self.db, self.meta = db, meta
+        self.dofs, self.channels = list(meta["dof_names"]), list(meta["actuator_names"])
+        self.channel_dof = channel_dofs(meta, self.channels)
+        names = ["step", "time_s", "late_steps"]
+        names += [column(p, d) for d in self.dofs for p in ("u", "v", "a", "u_pred", "r")]
+        names += [column(p, c) for c in self.channels for p in ("target", "command", "disp", "force", "error", "ti")]
+        names += [column("fc", d) for d in self.dofs]
+        self.columns = _Columns(names)
+        self._ti_state = {c: (0.0, None) for c in self.channels}
+        return True
+
+    def _read(self) -> int:
+        db = self.db
+        if time.monotonic() - self._meta_at > META_EVERY_S:  # the run adds keys (the dry run, the socket)
+            self._meta_at = time.monotonic()
+            self.meta.update({k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")})
+        if not self.ns:
+            self.ns = _table(db, "SELECT * FROM ns ORDER BY step")
+        steps = self._read_steps(db)
+        rows = db.execute("SELECT rowid, time_s, step, kind, actuator, message FROM events WHERE rowid > ? "
+                          "ORDER BY rowid", (self._last_event,)).fetchall()
+        for r in rows:
+            self.events.append(dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:])))
+            self._last_event = r[0]
+        self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
+        if steps:
+            self.seen_at.append((time.monotonic(), self.n))
+            del self.seen_at[:-64]
+        return steps
+
+    def _read_steps(self, db) -> int:
+        cur = db.execute("SELECT * FROM steps WHERE step > ? ORDER BY step", (self._last_step,))
+        names = [c[0] for c in cur.description]
+        rows = cur.fetchall()
+        if not rows:
+            return 0
+        raw = {name: [r[i] for r in rows] for i, name in enumerate(names)}
+        block = np.full((len(self.columns.names), len(rows)), np.nan)
+        for k, name in enumerate(self.columns.names):
+            if name in raw and not name.startswith("mode_"):
+                block[k] = np.array([np.nan if x is None else x for x in raw[name]], dtype=float)
+        fc = {d: np.array([m == "force" for m in raw.get(column("mode", d), [])], dtype=float) for d in self.dofs}
+        for d in self.dofs:
+            if len(fc[d]):
+                block[self.columns.names.index(column("fc", d))] = fc[d]
+        for c in self.channels:
+            target = block[self.columns.names.index(column("target", c))]
+            disp = block[self.columns.names.index(column("disp", c))]
+            force = block[self.columns.names.index(column("force", c))]
+            dof = self.channel_dof.get(c)
+            in_fc = fc[dof] > 0 if dof in fc and len(fc[dof]) else np.zeros(len(rows), bool)
+            error = target - np.where(in_fc, force, disp)
+            block[self.columns.names.index(column("error", c))] = error
+            # The tracking indicator of displacement control: in force control the command is a force.
+            dc = np.where(in_fc, disp, target)
+            start, previous = self._ti_state[c]
+            ti = tracking_indicator(dc, disp, start, previous)
+            block[self.columns.names.index(column("ti", c))] = ti
+            self._ti_state[c] = (float(ti[-1]), (float(dc[-1]), float(disp[-1])))
+        self.columns.append(block)
+        self._last_step = int(rows[-1][0])
+        return len(rows)
+
+    def read_samples(self) -> dict[str, np.ndarray]:
+        """The last SAMPLES_WINDOW controller samples (read again only if new ones were recorded)."""
+        if self.db is None:
+            return {}
+        try:
+            row = self.db.execute("SELECT MAX(rowid) FROM samples").fetchone()
+        except sqlite3.DatabaseError:
+            return self.samples
+        top = row[0] if row and row[0] is not None else 0
+        if top != self._last_sample or not self.samples:
+            self._last_sample = top
+            self.samples = _table(self.db, "SELECT * FROM (SELECT * FROM samples WHERE rowid > ? ORDER BY rowid DESC) "
+                                           "ORDER BY step, k", (top - SAMPLES_WINDOW,))
+        return self.samples
+
+    def phases(self) -> dict[str, float]:
+        """The command generator's phase code per channel at the last recorded sample."""
+        names = [column("phase", c) for c in self.channels]
+        try:
+            row = self.db.execute(f"SELECT {', '.join(names)} FROM samples ORDER BY rowid DESC LIMIT 1").fetchone()
+        except (sqlite3.DatabaseError, AttributeError):
+            return {}
+        return {c: v for c, v in zip(self.channels, row or ()) if v is not None}
+
+    # -- derived -----------------------------------------------------------------------------
+    def steps_per_second(self, window_s: float = 5.0) -> float | None:
+        """Steps committed per second of wall time over the last ``window_s`` (live runs only)."""
+        if len(self.seen_at) < 2:
+            return None
+        t_end, n_end = self.seen_at[-1]
+        first = next(((t, n) for t, n in self.seen_at if t >= t_end - window_s), self.seen_at[0])
+        if t_end - first[0] <= 0:
+            return None
+        return (n_end - first[1]) / (t_end - first[0])
+
+    def close(self) -> None:
+        if self.db is not None:
+            self.db.close()
+            self.db = None
+
+
+def _table(db, sql: str, args=()) -> dict[str, np.ndarray]:
+    try:
+        cur = db.execute(sql, args)
+    except sqlite3.OperationalError:  # the table does not exist (yet)
+        return {}
+    names = [c[0] for c in cur.description]
+    rows = cur.fetchall()
+    if not rows:
+        return {}
+    data = np.array([[np.nan if x is None else x for x in r] for r in rows], dtype=float)
+    return {name: data[:, i] for i, name in enumerate(names)}
+
+
+def channel_dofs(meta: dict, channels: list[str]) -> dict[str, str | None]:
+    """The structure DOF each recorded channel acts on (its control mode is that DOF's), from
+    the structure the run's configuration names; None where it cannot be told."""
+    out: dict[str, str | None] = {c: None for c in channels}
+    dofs = list(meta.get("dof_names", []))
+    for c in channels:  # ``element.dof`` channels name their DOF
+        head, _, tail = c.rpartition(".")
+        if head and tail in dofs:
+            out[c] = tail
+    if all(out.values()):
+        return out
+    try:
+        from hsio.structures import get_structure, load_structure
+
+        table = (meta.get("config") or {}).get("structure", {})
+        structure = load_structure(table["file"]) if table.get("file") else get_structure(table.get("name") or meta["structure"])
+        for e in structure.experimental:
+            if len(e.basic_dofs) == 1 and not e.has_setup and e.actuator in out:
+                out[e.actuator] = structure.dof_names[e.basic_dofs[0]]
+    except Exception:  # a structure file moved since the run: modes stay unknown
+        pass
+    return out

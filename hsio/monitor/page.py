@@ -1,0 +1,324 @@
+"""The monitor's page: one Bokeh document per browser tab (docs/monitor.md).
+
+Every ``UPDATE_MS`` the page's periodic callback polls the record feed (shared by all tabs) and
+sends the tab what changed: the new points of the decimated histories
+(:class:`hsio.monitor.decimate.Decimation`, streamed), the newest step at full resolution (one
+row), the spectrum, the margins and the status text. Nothing heavy runs on the run's side.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+import time
+
+import numpy as np
+from bokeh.layouts import column, gridplot, row
+from bokeh.models import Button, ColumnDataSource, CustomJS, Div, Legend, Slope, TextInput
+from bokeh.palettes import Category10
+from bokeh.plotting import figure
+
+from hsio.clock import CONTROLLER_RATE_HZ
+from hsio.monitor.decimate import Decimation
+from hsio.monitor.feed import RecordFeed
+from hsio.monitor.indicators import error_spectrum, margin
+from hsio.monitor.operator import ACTIONS, Operator
+from hsio.recording import PHASE_CODES, column as col
+
+UPDATE_MS = 200  # the status: step, state, rate
+PLOT_EVERY_S = 0.4  # the plots (each redraw costs the browser far more than the status)
+SPECTRUM_EVERY_S = 2.0  # the spectrum of the last seconds changes slowly
+PHASES = {v: k for k, v in PHASE_CODES.items()}
+COLORS = Category10[10]
+CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
+           "resume": "Resume the test from where it holds?",
+           "stop": "STOP the test? The actuators hold and the record is closed; the run cannot continue."}
+# Fixed borders: when the tick labels change width the page is not laid out again (a relayout
+# redraws every plot, the costliest thing a browser does here).
+PLOT = dict(height=260, sizing_mode="stretch_width", tools="pan,box_zoom,wheel_zoom,reset,save",
+            output_backend="canvas", min_border_left=70, min_border_right=20, min_border_top=10,
+            min_border_bottom=50)
+
+
+def _fig(title: str, x: str, y: str, **kw) -> figure:
+    p = figure(title=title, x_axis_label=x, y_axis_label=y, **{**PLOT, **kw})
+    p.toolbar.logo = None
+    p.title.text_font_size = "11pt"
+    return p
+
+
+def _legend(p, items) -> None:
+    if items:
+        p.add_layout(Legend(items=items, location="top_left", label_text_font_size="8pt", spacing=0, padding=2))
+        p.legend.click_policy = "hide"
+        p.legend.background_fill_alpha = 0.6
+
+
+class MonitorPage:
+    """The document of one browser tab, fed by ``feed`` and sending requests by ``operator``."""
+
+    def __init__(self, doc, feed: RecordFeed, operator: Operator, cap: int | None = None):
+        self.doc, self.feed, self.operator = doc, feed, operator
+        self.decimation = Decimation(cap) if cap else Decimation()
+        self.built = False
+        self._plotted = 0.0
+        self._spectrum_at = 0.0
+        # Fixed sizes: new text never re-lays out the page (which would redraw every plot).
+        self.status = Div(text="<b>hsio monitor</b>: waiting for the record ...", name="status",
+                          width=1000, height=170)
+        self.actions = Div(text="", name="actions", width=380, height=130)
+        self.events = Div(text="", name="events", width=1500, height=190)
+        self.request = TextInput(value="", visible=False, name="request")
+        self.request.on_change("value", self._on_request)
+        self.buttons = []
+        for action, kind in zip(ACTIONS, ("warning", "success", "danger")):
+            b = Button(label=action.capitalize(), button_type=kind, width=110, name=f"{action}_button")
+            b.js_on_click(CustomJS(args=dict(req=self.request, action=action, text=CONFIRM[action]), code="""
+                if (window.confirm(text)) { req.value = action + ' ' + Date.now(); }"""))
+            self.buttons.append(b)
+        controls = column(row(*self.buttons), self.actions, width=380, height=170)
+        self.head = row(self.status, controls, height=175)
+        # Three roots, each laid out on its own: new status text never re-lays out the plots.
+        self.root = column(self.head, self.request, name="root")
+        doc.title = f"hsio monitor: {feed.run_dir}"
+        doc.add_root(self.root)
+        self.update()
+        doc.add_periodic_callback(self.update, UPDATE_MS)
+
+    # -- building the plots once the record names its DOFs and channels ------------------------
+    def _build(self) -> None:
+        f = self.feed
+        names = ["step", "t", "late"] + [col(p, d) for d in f.dofs for p in ("u", "fc")] + \
+                [col(p, c) for c in f.channels for p in ("target", "disp", "force", "error", "ti")]
+        empty = {k: np.zeros(0) for k in names}
+        self.steps = ColumnDataSource(dict(empty), name="steps")
+        self.last = ColumnDataSource(dict(empty), name="head")
+        self.ns = ColumnDataSource({"t": np.zeros(0), **{col("u", d): np.zeros(0) for d in f.dofs}}, name="ns")
+        self.spectrum = ColumnDataSource({"f": np.zeros(0), **{col("a", c): np.zeros(0) for c in f.channels}},
+                                         name="spectrum")
+        self.margins = ColumnDataSource(dict(label=[], value=[], color=[], text=[]), name="margins")
+        figs = []
+        p = _fig("Displacement: HS (solid), NS (dashed)", "time (s)", "mm")
+        items = []
+        for k, d in enumerate(f.dofs):
+            a = p.line("t", col("u", d), source=self.steps, color=COLORS[k % 10], line_width=1.5)
+            b = p.line("t", col("u", d), source=self.ns, color=COLORS[k % 10], line_dash="dashed", line_alpha=0.8)
+            p.scatter("t", col("u", d), source=self.last, color="red", size=7)
+            items.append((d, [a, b]))
+        _legend(p, items)
+        figs.append(p)
+        p = _fig("Force-displacement per element", "measured displacement (mm)", "measured force (kN)")
+        items = []
+        for k, c in enumerate(f.channels):
+            items.append((c, [p.line(col("disp", c), col("force", c), source=self.steps, color=COLORS[k % 10])]))
+            p.scatter(col("disp", c), col("force", c), source=self.last, color="red", size=7)
+        _legend(p, items)
+        figs.append(p)
+        p = _fig("Tracking error (command - measured)", "time (s)", "mm (kN in force control)")
+        _legend(p, [(c, [p.line("t", col("error", c), source=self.steps, color=COLORS[k % 10])])
+                    for k, c in enumerate(f.channels)])
+        figs.append(p)
+        p = _fig("Tracking error spectrum", "frequency (Hz)", "amplitude", y_axis_type="log")
+        _legend(p, [(c, [p.line("f", col("a", c), source=self.spectrum, color=COLORS[k % 10])])
+                    for k, c in enumerate(f.channels)])
+        figs.append(p)
+        p = _fig("Measured vs commanded displacement", "commanded (mm)", "measured (mm)")
+        p.add_layout(Slope(gradient=1, y_intercept=0, line_color="gray", line_dash="dotted"))
+        _legend(p, [(c, [p.line(col("target", c), col("disp", c), source=self.steps, color=COLORS[k % 10])])
+                    for k, c in enumerate(f.channels)])
+        figs.append(p)
+        p = _fig("Tracking indicator (falling: toward instability)", "time (s)", "TI (mm^2)")
+        _legend(p, [(c, [p.line("t", col("ti", c), source=self.steps, color=COLORS[k % 10])])
+                    for k, c in enumerate(f.channels)])
+        figs.append(p)
+        p = _fig("Control mode (1 force, 0 displacement)", "time (s)", "mode", y_range=(-0.1, 1.1))
+        _legend(p, [(d, [p.step("t", col("fc", d), source=self.steps, color=COLORS[k % 10], mode="after")])
+                    for k, d in enumerate(f.dofs)])
+        figs.append(p)
+        labels = [f"{c} {what}" for c in reversed(f.channels) for what in ("following", "force", "stroke")]
+        p = _fig("Margins (% of the limit left)", "% left", "", y_range=labels,
+                 x_range=(-10, 100), height=max(160, 22 * len(labels) + 60))
+        p.hbar(y="label", right="value", height=0.7, color="color", source=self.margins)
+        p.text(x=2, y="label", text="text", source=self.margins, text_font_size="8pt", text_baseline="middle")
+        figs.append(p)
+        grid = gridplot(figs, ncols=4, sizing_mode="stretch_width", merge_tools=False)
+        self.doc.add_root(grid)
+        self.doc.add_root(self.events)
+        self.built = True
+
+    # -- the periodic update -------------------------------------------------------------------
+    def update(self) -> None:
+        f = self.feed
+        f.poll()
+        if not f.opened:
+            self.status.text = f"<b>hsio monitor</b>: waiting for {html.escape(str(f.path))} ..."
+            return
+        if not self.built:
+            self._build()
+        if f.ns and len(self.ns.data["t"]) == 0:
+            n_ns = len(f.ns["time_s"])
+            idx = np.arange(0, n_ns, Decimation(self.decimation.cap).stride_for(n_ns))
+            self.ns.data = {"t": f.ns["time_s"][idx], **{col("u", d): f.ns[col("u", d)][idx] for d in f.dofs}}
+        n = f.n
+        now = time.monotonic()
+        if n and now - self._plotted >= PLOT_EVERY_S and (
+                len(self.last.data["step"]) == 0 or self.last.data["step"][0] != f["step"][n - 1]):
+            self._plotted = now
+            how, idx = self.decimation.update(n)
+            if how == "replace":
+                self.steps.data = self._rows(idx)
+            elif len(idx):
+                self.steps.stream(self._rows(idx))
+            self.last.data = self._rows(np.array([n - 1]))
+            if now - self._spectrum_at >= SPECTRUM_EVERY_S:
+                self._spectrum_at = now
+                self._spectrum()
+            self._margins()
+        self._status()
+
+    def _rows(self, idx: np.ndarray) -> dict:
+        f = self.feed
+        out = {"step": f["step"][idx], "t": f["time_s"][idx], "late": f["late_steps"][idx]}
+        for d in f.dofs:
+            out[col("u", d)] = f[col("u", d)][idx]
+            out[col("fc", d)] = f[col("fc", d)][idx]
+        for c in f.channels:
+            for p in ("target", "disp", "force", "error", "ti"):
+                out[col(p, c)] = f[col(p, c)][idx]
+        if len(idx) < 64:  # a few rows travel lighter as JSON numbers than as binary buffers
+            out = {k: [None if not math.isfinite(x) else x for x in v.tolist()] for k, v in out.items()}
+        return out
+
+    def _spectrum(self) -> None:
+        f = self.feed
+        s = f.read_samples()
+        out: dict = {}
+        for c in f.channels:
+            if s and col("cmd", c) in s and len(s[col("cmd", c)]) >= 64:
+                freq, amp = error_spectrum(s[col("cmd", c)] - s[col("disp", c)], CONTROLLER_RATE_HZ)
+            else:  # no controller samples recorded: the end-of-step errors at the lab's step rate
+                step_s = float(f.meta.get("dt", 0.01)) * float(f.meta.get("test_rate", 1.0))
+                freq, amp = error_spectrum(f[col("error", c)][-1024:], 1.0 / step_s)
+            out.setdefault("f", freq)
+            n = min(len(out["f"]), len(amp))
+            out["f"] = out["f"][:n]
+            out[col("a", c)] = np.maximum(amp[:n], 1e-9)
+        for key in out:  # single precision: half the bytes, more than a plot can show
+            out[key] = out[key][: len(out["f"])].astype(np.float32)
+        self.spectrum.data = out
+
+    def limits(self) -> dict:
+        """Half stroke (mm), force capacity (kN), following-error thresholds (mm, kN)."""
+        meta = self.feed.meta
+        lim = (meta.get("dry_run") or {}).get("limits") or {}
+        safety = (meta.get("config") or {}).get("safety") or {}
+        stroke = lim.get("stroke_mm")
+        return {"half_stroke_mm": stroke / 2.0 if stroke else None, "force_kN": lim.get("force_kN"),
+                "following_error_mm": safety.get("following_error_mm", 10.0),
+                "following_error_kN": safety.get("following_error_kN", 25.0),
+                "warning_fraction": safety.get("warning_fraction", 0.9)}
+
+    def _margins(self) -> None:
+        f, lim = self.feed, self.limits()
+        n = f.n - 1
+        warn = 1.0 - lim["warning_fraction"]
+        labels, values, colors, texts = [], [], [], []
+        for c in f.channels:
+            dof = f.channel_dof.get(c)
+            in_fc = dof is not None and f[col("fc", dof)][n] > 0
+            actuator = "." not in c  # an element on a setup records its basic DOFs, not strokes
+            follow = lim["following_error_kN"] if in_fc else lim["following_error_mm"]
+            for what, value, limit in (("stroke", f[col("disp", c)][n], lim["half_stroke_mm"] if actuator else None),
+                                       ("force", f[col("force", c)][n], lim["force_kN"] if actuator else None),
+                                       ("following", f[col("error", c)][n], follow)):
+                m = margin(value, limit)
+                least = float(np.nanmin(margin(f[col({"stroke": "disp", "force": "force", "following": "error"}[what], c)],
+                                                limit))) if limit else float("nan")
+                labels.append(f"{c} {what}")
+                ok = math.isfinite(m)
+                values.append(100.0 * m if ok else 0.0)
+                colors.append("gray" if not ok else "crimson" if m < warn else "orange" if m < 2 * warn else "seagreen")
+                texts.append(f"{100 * m:.0f} % (least {100 * least:.0f} %)" if ok else "limit not known")
+        self.margins.data = dict(label=labels, value=values, color=colors, text=texts)
+
+    def _status(self) -> None:
+        f = self.feed
+        n = f.n
+        total = f.total_steps
+        meta = f.meta
+        line = self.operator.status()
+        if f.finished:
+            state = f"run over ({f.summary.get('outcome', 'ended')}); the record is closed"
+            if f.summary.get("stopped"):
+                state += f" ({f.summary['stopped']})"
+        elif line.startswith("ok "):
+            words = line.split()
+            state = f"{words[1]} (phase {words[3]})" if len(words) >= 4 else line[3:]
+        else:
+            state = "no answer from the run's control socket (a run killed, or started without one)"
+        disabled = f.finished or not line.startswith("ok ")
+        for b in self.buttons:
+            if b.disabled != disabled:
+                b.disabled = disabled
+        last_step = int(f["step"][n - 1]) if n else 0
+        t_now = float(f["time_s"][n - 1]) if n else 0.0
+        dt, tr = float(meta.get("dt", 0.0)), float(meta.get("test_rate", 0.0))
+        rate = f.steps_per_second()
+        items = [("run", f"{html.escape(str(meta.get('structure', '')))} under {html.escape(str(meta.get('record', '')))}, "
+                         f"{html.escape(str(f.run_dir))}"),
+                 ("state", f"<span id='hsio-state'>{html.escape(state)}</span>"),
+                 ("step", f"<span id='hsio-step'>{last_step}</span>" + (f" of {total} ({100.0 * last_step / total:.1f} %)"
+                                                                       if total else "") + f", t = {t_now:.3f} s")]
+        if rate and not f.finished and dt > 0:
+            items.append(("test rate", f"TR {tr:g} configured, {1.0 / (rate * dt):.2f} measured ({rate:.1f} steps/s)"))
+            if total:
+                items.append(("time to finish", f"{max(total - last_step, 0) / rate:.1f} s"))
+        else:
+            items.append(("test rate", f"TR {tr:g} configured"))
+        if n:
+            late = int(f["late_steps"][n - 1]) if np.isfinite(f["late_steps"][n - 1]) else 0
+            codes = f.phases()
+            phases = [f"{html.escape(c)} {PHASES.get(int(codes[c]) if c in codes else None, 'n/a')}"
+                      for c in f.channels]
+            items.append(("command generator", f"{late} late steps; phase " + ", ".join(phases)))
+            modes = []
+            for d in f.dofs:
+                fc = f[col("fc", d)]
+                switches = int(np.count_nonzero(np.diff(fc[np.isfinite(fc)]))) if n > 1 else 0
+                peak = float(np.nanmax(np.abs(f[col("u", d)])))
+                ns_peak = f" (NS {np.nanmax(np.abs(f.ns[col('u', d)])):.2f})" if f.ns else ""
+                modes.append(f"{html.escape(d)} {'FC' if fc[-1] > 0 else 'DC'}, {switches} switches, "
+                             f"peak |u| {peak:.2f} mm{ns_peak}")
+            items.append(("DOFs", "; ".join(modes)))
+        every = "every step" if self.decimation.stride == 1 else f"every {self.decimation.stride}th step"
+        items.append(("plots", f"{every} "
+                               f"({len(self.steps.data['t']) if self.built else 0} points); red dot: the newest step"))
+        text = "<table style='font-size:10pt'>" + "".join(
+            f"<tr><td><b>{k}</b></td><td>{v}</td></tr>" for k, v in items) + "</table>"
+        if self.status.text != text:
+            self.status.text = text
+        if f.events:
+            rows = "".join(f"<tr><td>{'' if e['time_s'] is None else format(e['time_s'], '.2f')}</td>"
+                           f"<td>{e['step'] if e['step'] is not None else ''}</td><td>{html.escape(str(e['kind']))}</td>"
+                           f"<td>{html.escape(str(e['actuator'] or ''))}</td>"
+                           f"<td>{html.escape(str(e['message'])[:300])}</td></tr>" for e in f.events[-8:])
+            text = ("<b>Events of the run</b> (lab time s, step, kind, actuator, message)"
+                    f"<table style='font-size:9pt'>{rows}</table>")
+            if self.events.text != text:
+                self.events.text = text
+        log = self.operator.log[-6:]
+        text = "<br>".join(html.escape(x) for x in log) if log else "operator requests are logged here and in operator.log"
+        text = f"<span style='font-size:9pt' id='hsio-actions'>{text}</span>"
+        if self.actions.text != text:
+            self.actions.text = text
+
+    # -- the operator --------------------------------------------------------------------------
+    def _on_request(self, attr, old, new) -> None:
+        action = new.split(" ")[0] if new else ""
+        if not action:
+            return
+        request = self.doc.session_context.request if self.doc.session_context else None
+        who = f"the monitor page ({request.remote_ip})" if request is not None and getattr(request, "remote_ip", None) \
+            else "the monitor page"
+        self.operator.request(action, who)
+        self._status()

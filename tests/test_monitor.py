@@ -1,0 +1,302 @@
+"""The monitor without a browser: the error monitors against closed forms, the decimation's
+invariants, the record feed against the recorded run, the page's update payload with 20,000
+steps recorded, the token off the loopback, and clear errors."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hsio.monitor.decimate import Decimation
+from hsio.monitor.feed import RecordFeed
+from hsio.monitor.indicators import error_spectrum, margin, tracking_indicator
+from hsio.monitor.operator import LOG_FILE, Operator
+from hsio.recording import Recorder, Run
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+# -- the error monitors ---------------------------------------------------------------------------
+@pytest.mark.parametrize("phi", [0.05, 0.3, -0.2])
+def test_tracking_indicator_of_a_lagging_sine_is_minus_pi_a_squared_sin_phi_per_cycle(phi):
+    """d_c = A sin(wt), d_m = A sin(wt - phi): the measured-vs-command loop encloses pi A^2 sin(phi)
+    counter-clockwise each cycle, so TI falls by that much (rises for a lead, phi < 0)."""
+    A, cycles, n = 3.0, 4, 4000
+    theta = np.linspace(0.0, 2 * np.pi * cycles, n * cycles + 1)
+    ti = tracking_indicator(A * np.sin(theta), A * np.sin(theta - phi))
+    expected = -np.pi * A ** 2 * np.sin(phi) * cycles
+    assert ti[-1] == pytest.approx(expected, rel=1e-4)
+    assert np.sign(ti[-1]) == -np.sign(phi)  # negative when the measurement lags: toward instability
+
+
+def test_tracking_indicator_of_perfect_tracking_is_zero():
+    d = np.sin(np.linspace(0, 20, 999)) * 5
+    np.testing.assert_allclose(tracking_indicator(d, d), 0.0, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.integers(1, 50), min_size=1, max_size=8))
+def test_tracking_indicator_continued_in_chunks_equals_the_whole(chunks):
+    rng = np.random.default_rng(len(chunks))
+    n = sum(chunks)
+    dc, dm = rng.normal(size=n), rng.normal(size=n)
+    whole = tracking_indicator(dc, dm)
+    parts, start, previous, i = [], 0.0, None, 0
+    for m in chunks:
+        ti = tracking_indicator(dc[i:i + m], dm[i:i + m], start, previous)
+        parts.append(ti)
+        start, previous, i = ti[-1], (dc[i + m - 1], dm[i + m - 1]), i + m
+    np.testing.assert_allclose(np.concatenate(parts), whole, atol=1e-9)
+
+
+def test_error_spectrum_reads_a_sine_at_its_frequency_and_amplitude():
+    rate, f0, a = 1024.0, 12.0, 0.037
+    t = np.arange(4096) / rate
+    f, amp = error_spectrum(0.5 + a * np.sin(2 * np.pi * f0 * t), rate)
+    assert f[-1] <= 100.0 and f[np.argmax(amp)] == pytest.approx(f0, abs=rate / 4096)
+    assert amp.max() == pytest.approx(a, rel=0.02)  # the mean (0.5) is removed
+
+
+def test_margin_is_the_fraction_of_the_limit_left():
+    assert margin(-90.0, 100.0) == pytest.approx(0.1)
+    assert margin(120.0, 100.0) == pytest.approx(-0.2)
+    assert np.isnan(margin(1.0, None))
+
+
+# -- decimation -------------------------------------------------------------------------------------
+@settings(max_examples=30, deadline=None)
+@given(st.integers(10, 400), st.lists(st.integers(0, 900), min_size=1, max_size=60))
+def test_decimation_keeps_the_page_equal_to_every_stride_th_step_and_under_the_cap(cap, increments):
+    d = Decimation(cap)
+    page: list[int] = []
+    n, sent = 0, 0
+    for inc in increments:
+        n += inc
+        how, idx = d.update(n)
+        page = list(idx) if how == "replace" else page + list(idx)
+        sent += len(idx)
+        assert page == list(range(0, n, d.stride))
+        assert len(page) <= cap
+    # What was sent in all: the final page plus one rebuild per doubling of the stride.
+    doublings = int(np.log2(d.stride))
+    assert sent <= len(page) + doublings * cap
+
+
+def test_decimation_of_20000_steps_streams_only_new_points():
+    d = Decimation(3000)
+    sizes = []
+    for n in range(0, 20001, 7):
+        how, idx = d.update(n)
+        sizes.append((how, len(idx)))
+    assert d.stride == 8 and -(-20000 // 8) <= 3000
+    assert max(k for how, k in sizes if how == "stream") <= 7  # at most the new steps
+    assert sum(1 for how, _ in sizes if how == "replace") <= 4
+
+
+# -- the feed and the page on a record ---------------------------------------------------------------
+def write_record(folder: Path, steps: int, ns: bool = True, commit_every: int | None = None) -> Recorder:
+    """A record of a sine test on two channels (C1, C2 on DOFs C1, C2), ``steps`` steps, in bulk."""
+    meta = {"structure": "validation", "record": "sine", "dt": 0.01, "test_rate": 2.0,
+            "config": {"structure": {"name": "validation", "file": ""},
+                       "safety": {"following_error_mm": 10.0, "following_error_kN": 25.0, "warning_fraction": 0.9}},
+            "dry_run": {"limits": {"stroke_mm": 254.0, "force_kN": 250.0, "velocity_mm_s": 500.0}}}
+    rec = Recorder(folder / "run.sqlite", ["C1", "C2"], ["C1", "C2"], meta)
+    rec.db.execute("PRAGMA synchronous=OFF")
+    t = np.arange(steps + 1) * 0.01
+    u = np.column_stack([10 * np.sin(2 * np.pi * 0.5 * t), 8 * np.sin(2 * np.pi * 0.7 * t)])
+    if ns:
+        rec.write_ns(t, u * 1.01)
+    rows = []
+    for k in range(1, steps + 1):
+        lag = u[k - 1] + 0.9 * (u[k] - u[k - 1])  # the measurement lags its command
+        row = [k, t[k]]
+        for j in range(2):
+            row += [u[k, j], 0.0, 0.0, u[k, j], 0.5 * u[k, j]]
+        row += ["displacement", "displacement"]
+        for j in range(2):
+            row += [u[k, j], u[k, j], lag[j], 0.5 * lag[j]]
+        row += [0, ""]
+        rows.append(row)
+        if commit_every and k % commit_every == 0:
+            rec.db.executemany(rec._insert_step, rows)
+            rec.db.commit()
+            rows = []
+    if rows:
+        rec.db.executemany(rec._insert_step, rows)
+        rec.db.commit()
+    return rec
+
+
+def test_the_feed_reads_a_growing_record_step_for_step(tmp_path):
+    rec = write_record(tmp_path, 0)
+    feed = RecordFeed(tmp_path)
+    assert feed.poll(force=True) == 0 and feed.opened and feed.n == 0 and feed.total_steps == 0
+    t = np.arange(1, 501) * 0.01
+    got = []
+    for k in range(1, 501):
+        rec.write_step(k, t[k - 1], [k, 2 * k], [0, 0], [0, 0], [k, 2 * k], [0, 0], ["displacement"] * 2,
+                       [k, 2 * k], [k, 2 * k], [k - 0.5, 2 * k - 1], [0.1, 0.2])
+        if k % 37 == 0 or k == 500:
+            got.append(feed.poll(force=True))
+    rec.write_event(1.0, 500, "warning", "C1", "a warning")
+    feed.poll(force=True)
+    rec.write_summary({"steps": 500, "outcome": "finished"})
+    feed.poll(force=True)
+    rec.close()
+    run = Run(tmp_path / "run.sqlite")
+    assert sum(got) == 500 and feed.n == 500 and feed.finished
+    np.testing.assert_array_equal(feed["u_C2"], run.steps["u_C2"])
+    np.testing.assert_array_equal(feed["error_C1"], run.steps["target_C1"] - run.steps["disp_C1"])
+    np.testing.assert_allclose(feed["ti_C1"], tracking_indicator(run.steps["target_C1"], run.steps["disp_C1"]))
+    assert feed.events[-1]["message"] == "a warning"
+    assert feed.channel_dof == {"C1": "C1", "C2": "C2"}
+
+
+def patch_bytes(events) -> int:
+    """The bytes of the PATCH-DOC message that carries ``events`` to a browser."""
+    from bokeh.protocol import Protocol
+
+    if not events:
+        return 0
+    msg = Protocol().create("PATCH-DOC", events)
+    return (len(msg.header_json) + len(msg.metadata_json) + len(msg.content_json)
+            + sum(len(b.to_bytes()) for b in msg.buffers))
+
+
+def test_the_page_sends_a_few_kilobytes_per_update_with_20000_steps_recorded(tmp_path):
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 20_000)
+    feed = RecordFeed(tmp_path)
+    doc = Document()
+    page = page_mod.MonitorPage(doc, feed, Operator(tmp_path))
+    assert page.built and feed.n == 20_000
+    shown = len(page.steps.data["t"])
+    assert shown <= page.decimation.cap and page.decimation.stride == 8
+    np.testing.assert_array_equal(page.steps.data["step"], np.arange(1, 20_001, 8))
+    assert np.max(np.abs(page.steps.data["u_C1"])) == pytest.approx(10.0, rel=1e-3)
+    assert page.ns.data["t"].size <= page.decimation.cap
+    events = []
+    doc.on_change(lambda e: events.append(e))
+    sizes, times = [], []
+    t = np.arange(20_001, 20_101) * 0.01
+    for i in range(10):  # ten more steps at a time, as a running test commits them
+        for k in range(20_001 + 10 * i, 20_011 + 10 * i):
+            u = [np.sin(k), np.cos(k)]
+            rec.write_step(k, t[k - 20_001], u, [0, 0], [0, 0], u, [0, 0], ["displacement"] * 2, u, u, u, u)
+        events.clear()
+        page._plotted = 0.0  # as if the plots' turn had come
+        feed._last_poll = 0.0
+        started = time.perf_counter()
+        page.update()
+        times.append(time.perf_counter() - started)
+        sizes.append(patch_bytes(events))
+    rec.close()
+    assert page.steps.data["step"][-1] == 20_097 and page.last.data["step"][0] == 20_100  # every 8th row
+    print(f"20,000 steps recorded: {shown} points shown; per update {np.median(sizes) / 1e3:.1f} kB, "
+          f"{np.median(times) * 1e3:.1f} ms on the server")
+    assert np.median(sizes) < 5_000 and max(sizes) < 20_000  # a few kB: never the record again
+
+
+# -- the server: the token, clear errors ------------------------------------------------------------
+def start_monitor(run_dir: Path, *args: str) -> tuple[subprocess.Popen, str]:
+    proc = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(run_dir), *args], env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()
+    if "serving" not in line:
+        proc.kill()
+        raise AssertionError(f"no monitor: {line}{proc.stderr.read()}")
+    return proc, line.rpartition(" at ")[2].strip()
+
+
+def get(url: str) -> tuple[int, str]:
+    try:
+        with urllib.request.urlopen(url, timeout=20) as r:
+            return r.status, r.read().decode()
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read().decode()
+
+
+def test_off_the_loopback_the_page_needs_the_token_printed_at_start_up(tmp_path):
+    write_record(tmp_path, 50).close()
+    # 127.0.0.2 is on the loopback interface but is not the loopback address the monitor trusts.
+    proc, url = start_monitor(tmp_path, "--host", "127.0.0.2", "--port", "0")
+    try:
+        base, _, token = url.partition("?token=")
+        assert len(token) >= 20
+        status, text = get(base)
+        assert status == 403 and "token" in text
+        assert get(base + "?token=wrong")[0] == 403
+        status, text = get(url)
+        assert status == 200 and "bokeh" in text.lower() and "cdn.bokeh.org" not in text
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_on_the_loopback_the_page_is_served_without_a_token_and_from_local_assets(tmp_path):
+    write_record(tmp_path, 50).close()
+    proc, url = start_monitor(tmp_path, "--port", "0")
+    try:
+        assert url.startswith("http://127.0.0.1:") and "token" not in url
+        status, text = get(url)
+        assert status == 200 and "/static/js/bokeh.min.js" in text and "cdn" not in text.lower()
+        assert get(url + "static/js/bokeh.min.js")[0] == 200
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_a_port_in_use_is_a_clear_error(tmp_path):
+    write_record(tmp_path, 5).close()
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = str(taken.getsockname()[1])
+        proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", port], env=ENV,
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and f"cannot listen on 127.0.0.1:{port}" in proc.stderr
+        assert "Traceback" not in proc.stderr
+        cfg = tmp_path / "run.toml"
+        cfg.write_text("[record]\nduration_s = 0.5\n[output]\nplots = false\n")
+        out = tmp_path / "o"
+        proc = subprocess.run([sys.executable, "-m", "hsio.cli", "run", str(cfg), "--out", str(out), "--monitor",
+                               "--monitor-port", port], env=ENV, capture_output=True, text=True, timeout=120,
+                              stdin=subprocess.DEVNULL)
+        assert proc.returncode == 2 and f"cannot listen on 127.0.0.1:{port}" in proc.stderr
+        assert "Traceback" not in proc.stderr and not (out / "run.sqlite").exists()  # nothing ran
+
+
+def test_a_request_without_a_run_to_answer_is_refused_and_logged(tmp_path):
+    op = Operator(tmp_path)
+    assert op.request("pause").startswith("error: no control socket")
+    assert op.request("jump").startswith("error unknown action 'jump'")
+    log = (tmp_path / LOG_FILE).read_text().splitlines()
+    assert len(log) == 2 and " pause from the monitor page: error" in log[0]
+    assert op.status() == ""
+
+
+def test_monitor_of_a_missing_folder_is_a_clear_error(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path / "nope")], env=ENV,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_monitor_is_listed_by_hsio():
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "--help"], env=ENV, capture_output=True, text=True,
+                          timeout=60)
+    assert "monitor" in proc.stdout

@@ -1,0 +1,253 @@
+"""The monitor page in a real headless browser (Debian's chromium): a real-time emulated run
+followed live (new steps on the page within 1 s of their commit), paused, resumed and stopped from
+the page; then the replay of its record shows the same plots."""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hsio.monitor import browser
+from hsio.recording import Run
+
+pytestmark = pytest.mark.skipif(bool(browser.missing()), reason=browser.missing() or "browser present")
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+RUN = """[structure]
+name = "validation"
+[record]
+duration_s = 20.0
+pga_g = 0.15
+[test]
+rate = 2.0
+[hardware]
+clock = "realtime"
+[emulator]
+noise_mm = 0.0
+resolution_mm = 0.0
+force_noise_kN = 0.0
+force_resolution_kN = 0.0
+[output]
+plots = false
+[safety]
+keys = false
+"""
+
+
+class Lines(threading.Thread):
+    """Collects a pipe's lines in the background."""
+
+    def __init__(self, pipe):
+        super().__init__(daemon=True)
+        self.pipe, self.lines = pipe, []
+        self.start()
+
+    def run(self):
+        for line in self.pipe:
+            self.lines.append(line)
+
+    def wait_for(self, text: str, timeout_s: float) -> str:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for line in list(self.lines):
+                if text in line:
+                    return line
+            time.sleep(0.05)
+        raise AssertionError(f"never printed {text!r}: {''.join(self.lines)}")
+
+
+class Committed(threading.Thread):
+    """Polls run.sqlite (read-only) every few ms: when each step was first seen committed."""
+
+    def __init__(self, path: Path):
+        super().__init__(daemon=True)
+        self.path, self.first_seen, self.stop = path, {}, threading.Event()
+        self.start()
+
+    def run(self):
+        db = None
+        deadline = time.monotonic() + 120
+        while not self.stop.is_set() and time.monotonic() < deadline:
+            try:
+                if db is None and self.path.exists():
+                    db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+                if db is not None:
+                    n = db.execute("SELECT MAX(step) FROM steps").fetchone()[0]
+                    if n is not None and n not in self.first_seen:
+                        self.first_seen[n] = time.monotonic()
+            except sqlite3.DatabaseError:
+                pass
+            time.sleep(0.003)
+        if db is not None:
+            db.close()
+
+    def steps(self) -> int:
+        return max(self.first_seen, default=0)
+
+
+# The rendered <button> with a given text, searched through Bokeh's shadow DOM, clicked.
+FIND_BUTTON = """
+const find = (root) => {
+  for (const el of root.querySelectorAll('*')) {
+    if (el.tagName === 'BUTTON' && el.textContent.trim() === arguments[0]) return el;
+    if (el.shadowRoot) { const hit = find(el.shadowRoot); if (hit) return hit; }
+  }
+  return null;
+};
+const button = find(document);
+if (!button) return false;
+setTimeout(() => button.click(), 0);  // after this script returns: the click opens a modal dialog
+return true;
+"""
+
+
+# The step in the status line and the newest step on the plots, as the browser holds them.
+SHOWN = """
+const d = Bokeh.documents[0];
+const m = d.get_model_by_name('status').text.match(/hsio-step'>(\\d+)/);
+const h = d.get_model_by_name('head').data.step;
+return [m ? Number(m[1]) : 0, h.length ? h[0] : 0];
+"""
+
+
+def confirm(b, name: str, accept: bool = True) -> None:
+    """Click the page's button ``name`` and answer its confirm dialog."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    label = b.model(name, "m.label")
+    clicked = b.driver.execute_script(FIND_BUTTON, label)
+    assert clicked, f"no button {label!r} on the page"
+    alert = WebDriverWait(b.driver, 5).until(lambda d: d.switch_to.alert)
+    assert "?" in alert.text
+    alert.accept() if accept else alert.dismiss()
+
+
+def state(b) -> str:
+    """The run's state as the page's status line shows it."""
+    return b.model("status", "(m.text.match(/hsio-state'>([^<]*)</) || ['', ''])[1]") or ""
+
+
+def wait_page(b, predicate, timeout_s: float, what: str):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise AssertionError(f"the page never showed {what}; status: {state(b)}")
+
+
+def test_live_run_paused_resumed_and_stopped_from_the_page_then_replayed(tmp_path):
+    (tmp_path / "run.toml").write_text(RUN)
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "hsio.cli", "run", "run.toml", "--out", str(out), "--monitor",
+                             "--monitor-port", "0"], cwd=tmp_path, env=ENV, stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    err = Lines(proc.stderr)
+    committed = mon = b = None
+    try:
+        b = browser.Browser()  # starts while the run does its dry run
+        url = err.wait_for("monitor at http://127.0.0.1:", 60).rpartition(" at ")[2].strip()
+        committed = Committed(out / "run.sqlite")
+        b.driver.get(url)
+        # 1. New steps reach the page within 1 s of their commit: the step in the status line,
+        # and the newest step drawn on the plots (the red dot).
+        wait_page(b, lambda: b.model("head", "m.data.step.length ? m.data.step[0] : 0"), 60, "a step")
+        shown: dict[str, dict[int, float]] = {"status": {}, "plots": {}}
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:
+            for where, k in zip(("status", "plots"), b.driver.execute_script(SHOWN)):
+                if k and int(k) not in shown[where]:
+                    shown[where][int(k)] = time.monotonic()
+            time.sleep(0.01)
+        for where, seen in shown.items():
+            lags = [t - committed.first_seen[k] for k, t in seen.items() if k in committed.first_seen]
+            assert len(lags) >= 2, (where, seen)
+            print(f"{where}: new steps shown {np.median(lags) * 1e3:.0f} ms after their commit (median), "
+                  f"{max(lags) * 1e3:.0f} ms at most, over {len(lags)} updates")
+            assert max(lags) < 1.0, where
+        assert "cdn" not in b.driver.page_source.lower()  # every asset from the local server
+
+        # 2. A pause dismissed at its confirmation does nothing; a confirmed one holds the actuators.
+        confirm(b, "pause_button", accept=False)
+        time.sleep(0.3)
+        assert not (out / "operator.log").exists() and "running" in state(b)
+        confirm(b, "pause_button")
+        wait_page(b, lambda: "paused" in state(b), 10, "the pause")
+        held_at = committed.steps()
+        time.sleep(1.0)
+        assert committed.steps() == held_at  # not a step while paused
+        assert "paused" in state(b)
+
+        # 3. Resume continues.
+        confirm(b, "resume_button")
+        wait_page(b, lambda: committed.steps() > held_at + 5, 10, "steps after the resume")
+        wait_page(b, lambda: "running" in state(b), 5, "running again")
+
+        # 4. Stop ends the run, the record closed, and the page says so.
+        confirm(b, "stop_button")
+        proc.wait(timeout=60)
+        wait_page(b, lambda: "the record is closed" in state(b), 5, "the closed record")
+        live = {k: b.model("steps", f"Array.from(m.data[{k!r}])") for k in ("step", "t", "u_C1", "force_C2")}
+        # The replay's server starts while the record is checked.
+        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(out), "--port", "0"], env=ENV,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    except BaseException:
+        if b is not None:
+            b.close()
+        if mon is not None:
+            mon.kill()
+        raise
+    finally:
+        if committed is not None:
+            committed.stop.set()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 5, "".join(err.lines)
+
+    run = Run(out / "run.sqlite")
+    assert run.summary["exit_status"] == 5 and run.summary["outcome"] == "stopped by the operator"
+    events = run.events()
+    kinds = [e["kind"] for e in events]
+    assert kinds.count("pause") == 1 and kinds.count("resume") == 1 and kinds[-1] == "stop"
+    pause = events[kinds.index("pause")]
+    assert "the actuators hold (confirmed by read-back)" in pause["message"]
+    assert "control socket" in events[-1]["message"]
+    # No motion while paused: the rods stand where the last sample before the pause left them.
+    samples = run.samples()
+    k = int(pause["step"])
+    before = samples["disp_C1"][samples["step"] == k][-1], samples["disp_C2"][samples["step"] == k][-1]
+    after = samples["disp_C1"][samples["step"] == k + 1][0], samples["disp_C2"][samples["step"] == k + 1][0]
+    per_period = max(np.max(np.abs(np.diff(samples["disp_C1"]))), np.max(np.abs(np.diff(samples["disp_C2"]))))
+    assert max(abs(after[0] - before[0]), abs(after[1] - before[1])) <= per_period + 1e-9
+    log = (out / "operator.log").read_text().splitlines()
+    assert [line.split()[1] for line in log] == ["pause", "resume", "stop"]
+    assert all(line[:4].isdigit() and line[19] == "Z" for line in log)  # each with its UTC time
+    assert log[-1].endswith("ok stopping")
+
+    # The page had every recorded step (a short run: no decimation).
+    assert live["step"] == [float(x) for x in run.steps["step"]]
+    np.testing.assert_allclose(live["u_C1"], run.steps["u_C1"])
+
+    # 5. The replay of the record shows the same plots.
+    try:
+        url = Lines(mon.stdout).wait_for("serving", 60).rpartition(" at ")[2].strip()
+        b.driver.get(url)
+        wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
+        replay = {k: b.model("steps", f"Array.from(m.data[{k!r}])") for k in live}
+        assert all(b.model(f"{a}_button", "m.disabled") is True for a in ("pause", "resume", "stop"))
+    finally:
+        b.close()
+        mon.terminate()
+        mon.wait(timeout=10)
+    assert replay == live
