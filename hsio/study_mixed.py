@@ -98,13 +98,18 @@ def infill_sdof(k0: float, dt: float = 0.005, f_hz: float = 8.0) -> Structure:
 def run_case(case: str, structure: Structure, ground, methods, resolution_mm: float, force_resolution_kN: float,
              test_rate: float = 10.0, hold_fraction: float = 0.5, recipe: Recipe = Recipe(), ns=None,
              force_noise_kN: float | None = None, emulator: dict | None = None,
-             noise_mm: float | None = None) -> list[Row]:
+             noise_mm: float | None = None, compensation: dict | None = None) -> list[Row]:
     """HS of each method on the emulator with the given instruments (the load cell's noise
     standard deviation equal to its resolution unless given; the transducer's likewise when
-    ``noise_mm`` is "resolution", else as given, None: the emulator's default), against NS."""
+    ``noise_mm`` is "resolution", else as given, None: the emulator's default), against NS.
+
+    ``compensation``: a [compensation] table (docs/compensation.md), e.g. ``{"mode": "online"}``:
+    feed-forward compensation of the actuators in displacement control, a new stage per run."""
     from hsio.api import open_site, run_numerical, simulate
+    from hsio.compensation.stage import CompensationSettings, CompensationStage
     from hsio.experiment import ExperimentStopped
     from hsio.result import max_error_pct
+    from hsio.runner import channel_names
     from hsio.secant import SecantEstimator
 
     if ns is None:
@@ -118,8 +123,12 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
     rows = []
     for method in methods:
         integrator = make_method(structure, method, resolution_mm, force_resolution_kN, recipe)
+        stage = None
+        if compensation is not None:
+            stage = CompensationStage(channel_names(structure), test_rate * structure.dt,
+                                      CompensationSettings.from_table(compensation, "study compensation"))
         with open_site(structure, "emulator://", test_rate=test_rate, hold_fraction=hold_fraction, options=options,
-                       estimator=SecantEstimator("average", 16, 0.1)) as site:
+                       estimator=SecantEstimator("average", 16, 0.1), compensation=stage) as site:
             try:
                 hs = simulate(structure, ground, site, integrator=integrator)
             except ExperimentStopped:

@@ -283,3 +283,49 @@ def test_dc_force_comes_from_the_measurement_when_the_secant_is_refused(anchor):
         assert state.u[0] * 400.0 + true_R == pytest.approx(400.0, rel=0.02)  # eq. (7) with the specimen's force
     else:
         assert report.R_solution[0] > 1.5 * true_R
+
+
+# -- the secant at a reversal --------------------------------------------------------------------
+class _StiffSiteNoEstimate(_LinearSite):
+    """A linear element of stiffness K^EI whose increments are all below the estimator's
+    min_increment: eq. (11) never gives a secant (as on the stiff unloading branch of the cracked
+    infill with a 0.025 mm transducer)."""
+
+    def set_trial(self, commands, modes):
+        super().set_trial(commands, modes)
+        self._daq = Daq(u=self._daq.u, R=self._daq.R, k=np.array([np.nan]), targets=commands, commands=commands,
+                        samples=None)
+
+
+def _oscillate_fc(reset, stale_after=None, steps=40):
+    site = _StiffSiteNoEstimate(k=100.0)
+    alg = ImplicitAlpha(np.eye(1) * 0.01, np.zeros((1, 1)), None, [0], [100.0], 0.005, 0.0, j_max=3,
+                        tol_displacement=1e-6, tol_force=1e-3, fc_blend=0.01, reset_at_reversal=reset)
+    alg.start(np.zeros(1), site)
+    us, errors = [], []
+    for i in range(1, steps):
+        alg.step(np.array([30.0]), site, [FC])  # a step load: free oscillation about 0.3 mm
+        if i == stale_after:
+            alg.k = np.array([10.0])  # stale: as if the last estimate came from a soft branch
+        us.append(site.base[0][0])
+        errors.append(abs(alg._u_fc[0] - site.base[0][0]))
+    return np.array(us), np.array(errors), alg
+
+
+@pytest.mark.parametrize("reset", [False, True])
+def test_stale_soft_secant_is_reset_to_k_ei_at_a_reversal(reset):
+    """FC with the complementary base (fc_blend 0.01) on a stiff element whose increments are
+    too small for eq. (11) (as on the unloading branch of the cracked infill): with the secant left
+    at a soft value (10 against 100 kN/mm) at a peak, every change of force moves the base ten times
+    too far. With ``reset_at_reversal`` the reversal of the measured force sets it back to K^EI
+    and the base stays on the specimen."""
+    us, _, _ = _oscillate_fc(False)
+    peak = int(np.argmax(us)) + 1  # the step at the first peak (the force still rising)
+    _, errors, alg = _oscillate_fc(reset, stale_after=peak)
+    after = errors[peak:]
+    if reset:
+        assert alg.k[0] == 100.0 and alg.reversal_resets == 1
+        assert np.max(after) < 0.01
+    else:
+        assert alg.k[0] == 10.0 and alg.reversal_resets == 0
+        assert np.max(after) > 1.0

@@ -57,6 +57,12 @@ class FeedForward:
         self.a = float(a_mm_s)
         self.lag = float(lag_s)
 
+    def restart(self) -> None:
+        """Forget the command history (the actuator was not in displacement control)."""
+        self._c = []
+        self.last_adjusted = None
+        self.velocity = 0.0
+
     def command_velocity(self, d_c: float) -> float:
         """The velocity of the command stream ending at d_c (without recording it)."""
         return last_velocity([*self._c[-2:], d_c], self.t_d, 1 if self.form == "eq2" else 2)

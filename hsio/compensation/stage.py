@@ -12,6 +12,12 @@ measurement d^m comes back. The stage records, normalised by the stroke d_max,
 Modes: ``off`` (record Er^cc only), ``offline`` (fixed a and b from a calibration), ``online``
 (a and b re-estimated during the test, :mod:`~hsio.compensation.online`). Each actuator can be
 left out of the compensation.
+
+With mixed control (docs/method.md section 5) only the actuators in displacement control are
+compensated: eq. 2 describes a displacement loop, and an actuator in force control is sent a
+force. A step in force control breaks the actuator's history of displacement commands, so after
+it the velocity of eq. 2 starts again from the first displacement command, and the online
+estimator takes no sample of it.
 """
 
 from __future__ import annotations
@@ -125,23 +131,41 @@ class CompensationStage:
     def active(self) -> bool:
         return any(self.enabled)
 
-    def adjust(self, d_c) -> np.ndarray:
-        """d^a for this step's commands d^c (unchanged for actuators not compensated)."""
+    def adjust(self, d_c, displacement=None) -> np.ndarray:
+        """d^a for this step's commands d^c (unchanged for actuators not compensated).
+
+        ``displacement``: per actuator, whether it is in displacement control (None: all are);
+        an actuator in force control gets its command unchanged and its history is restarted."""
         d_c = np.asarray(d_c, dtype=float)
-        return np.array([ff.adjust(x) for ff, x in zip(self.feedforward, d_c)])  # lag 0 when not compensated
+        dc = [True] * len(d_c) if displacement is None else [bool(x) for x in displacement]
+        out = np.empty(len(d_c))
+        for j, (ff, x) in enumerate(zip(self.feedforward, d_c)):
+            if dc[j]:
+                out[j] = ff.adjust(x)  # lag 0 when not compensated
+            else:
+                ff.restart()
+                self._sent[j] = []
+                out[j] = x
+        return out
 
     def _sent_velocity(self, j: int, d_a: float) -> float:
         h = self._sent[j] = [*self._sent[j][-2:], d_a]
         return last_velocity(h, self.t_d, 1 if self.settings.form == "eq2" else 2)
 
-    def observe(self, d_c, d_a, d_m) -> dict:
-        """After the step: record Er^cc or Er^ca/Er^aa, update the online estimates. Returns the row."""
+    def observe(self, d_c, d_a, d_m, displacement=None) -> dict:
+        """After the step: record Er^cc or Er^ca/Er^aa, update the online estimates. Returns the row.
+        Actuators in force control (``displacement`` False) record no error and add no sample."""
         self.step += 1
         d_max = self.settings.d_max_mm
         row: dict[str, float | None] = {}
         for j, name in enumerate(self.names):
             c, a, m = float(d_c[j]), float(d_a[j]), float(d_m[j])
             ff = self.feedforward[j]
+            if displacement is not None and not displacement[j]:
+                row.update({f"dc_{name}": None, f"da_{name}": None, f"v_{name}": None, f"er_cc_{name}": None,
+                            f"er_ca_{name}": None, f"er_aa_{name}": None, f"a_{name}": ff.a,
+                            f"b_{name}": ff.lag / d_max})
+                continue
             v_sent = self._sent_velocity(j, a)
             on = self.enabled[j]
             row[f"dc_{name}"] = c
@@ -151,7 +175,7 @@ class CompensationStage:
             row[f"er_ca_{name}"] = (c - m) / d_max if on else None
             row[f"er_aa_{name}"] = (a - m) / d_max if on else None
             est = self.estimators[j]
-            if est is not None and self.step > 2 and est.observe(v_sent, a - m):
+            if est is not None and self.step > 2 and len(self._sent[j]) > 1 and est.observe(v_sent, a - m):
                 ff.set_parameters(est.a, est.lag)
             row[f"a_{name}"] = ff.a
             row[f"b_{name}"] = ff.lag / d_max

@@ -115,6 +115,14 @@ class ImplicitAlpha:
     resolutions: the measurement carries the transducer's noise into the accepted force (DC 2.07
     against 2.53 % on the study's 7.2 kN/mm grid point with a 0.025 mm transducer), hence off by
     default. The complementary estimate below always uses the line through the base.
+    ``reset_at_reversal`` (default False): an FC element whose measured force reverses in a step
+    that gave no estimate of eq. (11) (every increment below the estimator's ``min_increment``)
+    takes K^EI as its secant from then on: the branch ahead unloads, and unloading is stiff, while
+    the secant kept from before may come from a soft branch (the cracked envelope of an infill,
+    ten times softer). A stale soft secant moves the complementary estimate ten times too far for
+    every change of force; FC alone on the cracking infill of structure II (0.18 to 0.25 g, TR 10,
+    ramp-hold) is 19 to 60 % off NS with the reset against 47 to 1066 % without
+    (docs/force_control.md).
     ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
     per DOF) and stops iterating each one on its own convergence: used to run many single-DOF
     cases side by side (the parametric study).
@@ -123,7 +131,7 @@ class ImplicitAlpha:
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = 0.0, j_max: int = 10,
                  tol_displacement: float = 1e-10, tol_force: float = 1e-10, independent: bool = False,
                  max_stiffness_ratio: float = 20.0, fc_blend: float = 1.0, blend_dc: bool = False,
-                 anchor_dc: bool = False):
+                 anchor_dc: bool = False, reset_at_reversal: bool = False):
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
             raise ConfigError(f"force control: alpha must be in [-1/3, 0], got {alpha!r}")
         if not dt > 0:
@@ -172,6 +180,9 @@ class ImplicitAlpha:
         self.fc_blend = float(fc_blend)
         self.blend_dc = bool(blend_dc)
         self.anchor_dc = bool(anchor_dc)
+        self.reset_at_reversal = bool(reset_at_reversal)
+        self._last_dR = np.zeros(self.dofs.size)  # the last nonzero measured force increment, per element
+        self.reversal_resets = 0
         self._u_fc = np.full(self.dofs.size, np.nan)  # base displacement of FC elements (fc_blend < 1)
         self.tol_displacement = float(tol_displacement)
         self.tol_force = float(tol_force)
@@ -261,6 +272,7 @@ class ImplicitAlpha:
         previous = None
         fell_back = np.zeros(self.dofs.size, dtype=bool)
         not_converging = np.zeros(self.dofs.size, dtype=bool)
+        estimated = np.zeros(self.dofs.size, dtype=bool)  # eq. (11) gave a secant in this step
         if fallback_below is not None:
             fallback_below = np.broadcast_to(np.asarray(fallback_below, dtype=float), self.dofs.shape)
         u_m, R_m = u_b.copy(), R_b.copy()
@@ -317,6 +329,7 @@ class ImplicitAlpha:
             R_m = np.where(active, m_R, R_m)
             plausible = np.isfinite(k_new) & (k_new <= self.max_stiffness_ratio * self.K_EI)
             k = np.where(active & plausible, k_new, k)
+            estimated |= active & plausible
             if self.anchor_dc:  # DC elements: the secant line through the last measurement
                 at_measured = active & ~fc & ~fell_back & ~(self.blend_dc & (self.fc_blend < 1))
                 u_b = np.where(at_measured, u_m, u_b)
@@ -333,6 +346,12 @@ class ImplicitAlpha:
                     previous = np.where(soft, np.nan, previous)  # a new kind of command: iterate again
                     fell_back |= soft
         site.commit()
+        if self.reset_at_reversal:  # a reversal without an estimate: the branch ahead unloads at K^EI
+            dR = R_m - base[1]
+            reset = fc & (dR * self._last_dR < 0) & ~estimated & (k != self.K_EI)
+            k = np.where(reset, self.K_EI, k)
+            self.reversal_resets += int(reset.sum())
+            self._last_dR = np.where(dR != 0, dR, self._last_dR)
         self.k = k
         if self.fc_blend < 1:  # the complementary estimate of the FC elements' displacement
             on_secant = base[0] + (R_m - base[1]) / k  # the base moved along the secant to the measured force

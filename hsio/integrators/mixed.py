@@ -124,7 +124,8 @@ faster than FC can follow. ``fc_blend``: the
     displacement reverses (near a peak the increments are of the order of the transducer's
     resolution and the secant of eq. 11 is stale or noisy, so it says little about the branch
     ahead); the rule decides again the next step. FC -> DC is never deferred: the secant below
-    K_d is the rule's reason (the specimen softens). The defaults are the behaviour
+    K_d is the rule's reason (the specimen softens). ``reset_at_reversal``: a stale secant is set
+    back to K^EI at a reversal (:class:`ImplicitAlpha`). The defaults are the behaviour
     without these guards.
     """
 
@@ -133,13 +134,13 @@ faster than FC can follow. ``fc_blend``: the
                  tol_displacement: float = 0.02, tol_force: float = 0.05, fc_blend: float = 1.0,
                  fallback_after: int | None = None, refractory_steps: int = 0,
                  explored_fraction: float | None = None, blend_dc: bool = False, fc_force_limit=None,
-                 no_fc_at_reversal: bool = False, anchor_dc: bool = False):
+                 no_fc_at_reversal: bool = False, anchor_dc: bool = False, reset_at_reversal: bool = False):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         self.method = method
         self.core = ImplicitAlpha(M, C, K_N, element_dofs, K_EI, dt, alpha, j_max=j_max,
                                   tol_displacement=tol_displacement, tol_force=tol_force, fc_blend=fc_blend,
-                                  blend_dc=blend_dc, anchor_dc=anchor_dc)
+                                  blend_dc=blend_dc, anchor_dc=anchor_dc, reset_at_reversal=reset_at_reversal)
         if method == "mixed" and rule is None:
             rule = SwitchingRule.from_initial_stiffness(self.core.K_EI)
         self.rule = rule if method == "mixed" else None

@@ -182,11 +182,11 @@ class ActuatorSite:
             self.set_modes(modes)
             actuator_targets = targets
         n = self.n_dynamic
-        compensate = self.compensation is not None and all(m is ControlMode.DISPLACEMENT for m in self.modes)
-        if compensate:
-            d_a = self.compensation.adjust(actuator_targets)
+        if self.compensation is not None:  # actuators in force control are not compensated
+            displacement = [m is ControlMode.DISPLACEMENT for m in self.modes]
+            d_a = self.compensation.adjust(actuator_targets, displacement)
             fb = self._execute(d_a)
-            self.compensation.observe(actuator_targets, d_a, fb.displacement[:n])
+            self.compensation.observe(actuator_targets, d_a, fb.displacement[:n], displacement)
         else:
             fb = self._execute(actuator_targets)
         fb, readings, iterations = self._outer_loop(targets, actuator_targets, fb)
