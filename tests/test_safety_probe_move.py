@@ -79,6 +79,7 @@ def test_probe_move_with_a_sine_beyond_the_velocity_limit_is_refused_before_movi
 @pytest.mark.parametrize("args, option", [
     (["--sine-hz", "0"], "--sine-hz"), (["--sine-hz", "-1"], "--sine-hz"), (["--sine-mm", "0"], "--sine-mm"),
     (["--sine-mm", "13"], "--sine-mm"), (["--step-mm", "0"], "--step-mm"), (["--step-mm", "-13"], "--step-mm"),
+    (["--sine-hz", "nan"], "--sine-hz"), (["--sine-mm", "inf"], "--sine-mm"), (["--step-mm", "nan"], "--step-mm"),
 ])
 def test_probe_move_bad_settings_are_refused_naming_the_option(tmp_path, args, option):
     """Within 5 % of the 254 mm stroke (12.7 mm); a frequency > 0."""

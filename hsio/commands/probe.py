@@ -181,6 +181,15 @@ def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> di
             "sine_amplitude_mm": sine_mm, "sine_hz": sine_hz, "rms_tracking_error_mm": rms}
 
 
+POSITIVE = click.FloatRange(min=0, min_open=True)
+
+
+def _finite(ctx, param, value: float) -> float:
+    if not math.isfinite(value):
+        raise click.BadParameter(f"{value!r} is not a finite number")
+    return value
+
+
 def _hold(actuators):
     """Every axis holds (each is tried), then the hold is read back as `hsio run` reads it
     (:func:`hsio.safety.hold.read_back`)."""
@@ -201,11 +210,11 @@ def _hold(actuators):
 @click.option("--axes", default=1, show_default=True, type=click.IntRange(1, 64), help="Number of axes to open.")
 @click.option("--requests", "n_requests", default=200, show_default=True, type=click.IntRange(1, 100000),
               help="Requests for the latency figures.")
-@click.option("--step-mm", default=1.0, show_default=True, type=float,
+@click.option("--step-mm", default=1.0, show_default=True, type=float, callback=_finite,
               help="Step of axis 0 with --move (non-zero, within 5 % of the stroke; either sign).")
-@click.option("--sine-mm", default=1.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
+@click.option("--sine-mm", default=1.0, show_default=True, type=POSITIVE, callback=_finite,
               help="Sine amplitude with --move (within 5 % of the stroke).")
-@click.option("--sine-hz", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
+@click.option("--sine-hz", default=0.5, show_default=True, type=POSITIVE, callback=_finite,
               help="Sine frequency with --move (2 pi f A within the velocity limit).")
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE", help="A [driver] setting (repeatable).")
 @click.option("--reset-interlock", is_flag=True,
