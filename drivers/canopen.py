@@ -116,6 +116,9 @@ class DriveNode:
         self.expected_cycle: int | None = None  # lockstep: the cycle the awaited TPDO2 carries
         self.stale = 0  # TPDO2 frames of an earlier cycle (a repeated frame), not taken
         self.received = threading.Event()
+        # One awaited cycle at a time: the notifier thread's (check the cycle, take, signal) and
+        # the exchange's (expect the next cycle, clear) never interleave.
+        self.cycle_lock = threading.Lock()
         self.status_received = threading.Event()
         self.emcy: list = []
         self.booted = False
@@ -167,14 +170,23 @@ class DriveNode:
         except Exception as exc:  # a malformed frame is not an answer: the exchange retries
             log.warning("node %d: malformed TPDO2 %r (%s)", self.id, bytes(pdo.data), exc)
             return
-        expected = self.expected_cycle
-        if expected is not None and self.cycle_mapped and actual[2] != expected:
-            self.stale += 1
-            log.debug("node %d: TPDO2 of cycle %d while awaiting %d (a repeated frame): dropped",
-                      self.id, actual[2], expected)
-            return
-        self.actual = actual
-        self.received.set()
+        with self.cycle_lock:
+            expected = self.expected_cycle
+            if expected is not None and self.cycle_mapped and actual[2] != expected:
+                self.stale += 1
+                log.debug("node %d: TPDO2 of cycle %d while awaiting %d (a repeated frame): dropped",
+                          self.id, actual[2], expected)
+                return
+            self.actual = actual
+            self.received.set()
+
+    def await_cycle(self, expected: int | None) -> None:
+        """Before a SYNC: the TPDO2 to take is the one of cycle ``expected`` (None: any frame).
+        Under the lock of :meth:`on_tpdo2`, so a frame checked against the previous expectation
+        cannot signal after this clear."""
+        with self.cycle_lock:
+            self.expected_cycle = expected
+            self.received.clear()
 
     @property
     def tpdo2_length(self) -> int:
@@ -208,7 +220,7 @@ class DriveNode:
         value = int(round(kN * 1e6 / self.rated_N))
         if not -PERMILLE_MAX - 1 <= value <= PERMILLE_MAX:
             raise LimitError(f"CANopen node {self.id}: force {kN:.3f} kN is {value} per mille of the rated force "
-                             f"{self.rated_N / 1e3:g} kN (0x6076), beyond the int16 range; not sent, the axis holds")
+                             f"{self.rated_N / 1e3:g} kN (0x6076), beyond the int16 range; not sent")
         return value
 
     def limits(self, url: str, options: dict):
@@ -430,8 +442,7 @@ class CanopenLink(common.AxisLink):
                 except CommunicationError:
                     continue
             for d in self.drives:
-                d.expected_cycle = expected if self.lockstep else None
-                d.received.clear()
+                d.await_cycle(expected if self.lockstep else None)
                 d.check_events()
                 d.send_targets()
             self.network.sync.transmit()
@@ -535,24 +546,33 @@ class CanopenActuator(Actuator, ActuatorChannels):
             self.drive.send_targets()
 
     def holding(self) -> bool | None:
-        """Read back the statusword 0x6041 by SDO: the drive holds in OPERATION ENABLED with bit
-        12 clear (cyclic synchronous modes: "drive follows the target" off, i.e. halted), and in
-        SWITCHED ON, QUICK STOP ACTIVE and FAULT; it does not while it follows its targets; with
-        the power stage off (SWITCH ON DISABLED, NOT READY, READY TO SWITCH ON) it cannot tell
-        (None). docs/safety.md section 3."""
-        return statusword_holds(int(self.drive.sdo_read(0x6041, what="statusword")))
+        """Read back the statusword 0x6041 by SDO (and, in OPERATION ENABLED, the mode of
+        operation display 0x6061): see :func:`statusword_holds`. docs/safety.md section 3."""
+        d = self.drive
+        word = int(d.sdo_read(0x6041, what="statusword"))
+        mode = int(d.sdo_read(0x6061, what="modes of operation display")) if word & 0x6F == 0x27 else None
+        return statusword_holds(word, mode)
 
     def close(self) -> None:
         common.close_axis(self)
 
 
-def statusword_holds(word: int) -> bool | None:
+def statusword_holds(word: int, mode: int | None = None) -> bool | None:
     """Whether a CiA 402 statusword shows a drive holding its position: True, False (it follows
-    its targets) or None (power stage off: it cannot tell). See :meth:`CanopenActuator.holding`."""
+    its targets) or None (it cannot tell).
+
+    SWITCHED ON, QUICK STOP ACTIVE and FAULT hold. In OPERATION ENABLED bit 12 means "drive
+    follows the target" only in the cyclic synchronous modes (``mode`` 8 position, 10 torque, as
+    the mode of operation display 0x6061 shows): clear, the drive is halted and holds; set, it
+    follows its targets. In any other mode bit 12 means something else (set-point acknowledge in
+    profile position), so it cannot tell; nor with the power stage off (SWITCH ON DISABLED, NOT
+    READY, READY TO SWITCH ON)."""
     if word & 0x4F == 0x08:  # FAULT
         return True
     state = word & 0x6F
     if state == 0x27:  # OPERATION ENABLED: holding only while not following its targets
+        if mode not in (cod.CSP, cod.CST):
+            return None
         return not word & 0x1000
     if state in (0x23, 0x07):  # SWITCHED ON, QUICK STOP ACTIVE
         return True

@@ -326,6 +326,15 @@ class ModbusLink(common.AxisLink):
         rr = self.request("read_holding_registers", rs, count=rc, what="read of the status")
         self._take_status(rr.registers)
 
+    def peek_status(self) -> list[dict]:
+        """The status block read and unpacked, for a look only: :attr:`status`, :attr:`fresh` and
+        the lockstep sequence check are untouched."""
+        rs, rc = self._status_span
+        rr = self.request("read_holding_registers", rs, count=rc, what="read of the status")
+        if len(rr.registers) < rc:
+            raise CommunicationError(f"{self.url}: status reply too short ({len(rr.registers)} registers)")
+        return self.map.unpack_status(rr.registers, self.n)
+
     def _take_status(self, registers) -> None:
         if len(registers) < self._status_span[1]:
             raise CommunicationError(f"{self.url}: status reply too short ({len(registers)} registers)")
@@ -428,10 +437,11 @@ class ModbusActuator(Actuator, ActuatorChannels):
 
     def holding(self) -> bool:
         """Read back the controller's status word: the axis holds when its holding bit is set and
-        its enabled bit clear (docs/modbus.md, status bits)."""
+        its enabled bit clear (docs/modbus.md, status bits). A read of its own: the cyclic
+        exchange's status (what the next :meth:`feedback` returns) and its lockstep check are
+        left alone, so a controller that stopped stepping after a trip still reads back."""
         link = self.link
-        link.read_status()
-        word = link.status[self.axis]["status_word"]
+        word = link.peek_status()[self.axis]["status_word"]
         return link.map.bit(word, "holding") and not link.map.bit(word, "enabled")
 
     def close(self) -> None:

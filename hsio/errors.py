@@ -16,7 +16,8 @@ class RecordError(HsioError):
 class LimitError(HsioError):
     """A command was refused because it is beyond an actuator limit.
 
-    Nothing was sent: the actuator holds its last position.
+    Nothing was sent. The caller stops, holds the actuators and reads the hold back
+    (docs/safety.md section 3).
     """
 
 

@@ -46,7 +46,7 @@ class Limits:
         if abs(value) > self.half_stroke_mm:
             raise LimitError(
                 f"{where}: displacement command {value:.3f} mm is beyond the stroke "
-                f"(+/-{self.half_stroke_mm:.1f} mm); not sent, the actuator holds"
+                f"(+/-{self.half_stroke_mm:.1f} mm); not sent"
             )
 
     def check_force(self, value: float, where: str) -> None:
@@ -56,7 +56,7 @@ class Limits:
         if abs(value) > self.force_kN:
             raise LimitError(
                 f"{where}: force command {value:.3f} kN is beyond the capacity "
-                f"(+/-{self.force_kN:.1f} kN); not sent, the actuator holds"
+                f"(+/-{self.force_kN:.1f} kN); not sent"
             )
 
     def check_velocity(self, value: float, where: str) -> None:
@@ -64,7 +64,7 @@ class Limits:
         if abs(value) > self.velocity_mm_s:
             raise LimitError(
                 f"{where}: command velocity {value:.1f} mm/s is beyond the limit "
-                f"({self.velocity_mm_s:.1f} mm/s); not sent, the actuator holds"
+                f"({self.velocity_mm_s:.1f} mm/s); not sent"
             )
 
     def check(self, mode: ControlMode, value: float, where: str) -> None:

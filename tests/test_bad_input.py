@@ -103,7 +103,7 @@ def test_target_beyond_stroke_stops_the_run_holding_and_keeps_the_record(tmp_pat
     out = tmp_path / "o"
     proc = hsio("run", str(cfg), "--out", str(out), "--json")
     assert proc.returncode == 3, proc.stderr
-    assert "beyond the stroke" in proc.stderr and "not sent, the actuator holds" in proc.stderr
+    assert "beyond the stroke" in proc.stderr and "; not sent; the actuators hold (confirmed by read-back)" in proc.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["stopped"]
     db = sqlite3.connect(out / "run.sqlite")

@@ -186,3 +186,73 @@ def test_watchdog_emcy_in_real_time(cfg):
 def test_bad_url_is_a_config_error():
     with pytest.raises(ConfigError, match="node id 300 is not in 1..127"):
         CanopenLink("canopen+virtual://bus/300", 1)
+
+
+def bare_drive():
+    """A DriveNode without a bus: the emulated drive's dictionary and TPDO2 map (actual position,
+    torque, cycle), nothing connected."""
+    import threading
+
+    import canopen
+
+    from hsio.drivers import canopen as driver
+
+    node = canopen.RemoteNode(1, cod.object_dictionary(1))
+    canopen.Network().add_node(node)  # not connected: the maps only need somewhere to subscribe
+    node.tpdo.read(from_od=True)
+    drive = driver.DriveNode.__new__(driver.DriveNode)
+    drive.id, drive.actual, drive.stale = 1, (0, 0, 0), 0
+    drive.received, drive.cycle_lock = threading.Event(), threading.Lock()
+    drive.rpdo2, drive.tpdo2, drive.cycle_mapped = node.rpdo[2], node.tpdo[2], True
+    drive.expected_cycle = None
+    return drive
+
+
+def tpdo2(drive, counts: int, cycle: int):
+    drive.tpdo2[0x6064].raw, drive.tpdo2[0x6077].raw, drive.tpdo2[cod.CYCLE].raw = counts, 0, cycle
+    drive.on_tpdo2(drive.tpdo2)
+
+
+def test_lockstep_tpdo2_of_the_cycle_before_is_dropped_and_of_the_awaited_cycle_taken():
+    drive = bare_drive()
+    drive.await_cycle(7)
+    tpdo2(drive, 111, 6)  # a repeat of cycle 6, late
+    assert drive.stale == 1 and not drive.received.is_set() and drive.actual == (0, 0, 0)
+    tpdo2(drive, 222, 7)
+    assert drive.stale == 1 and drive.received.is_set() and drive.actual == (222, 0, 7)
+
+
+def test_a_frame_checked_against_the_previous_cycle_cannot_signal_the_next():
+    """The notifier thread takes the frame of cycle 6 (awaited) and is about to signal when the
+    exchange moves on to cycle 7: the signal must not land after cycle 7's clear (the wait would
+    return with cycle 6's values: "lockstep lost")."""
+    import threading
+
+    class PausedEvent(threading.Event):
+        """An Event whose set() stops half way until released, like a notifier thread preempted
+        between taking a frame and signalling."""
+
+        def __init__(self):
+            super().__init__()
+            self.entered, self.release = threading.Event(), threading.Event()
+
+        def set(self):
+            if not self.entered.is_set():
+                self.entered.set()
+                self.release.wait(10)
+            super().set()
+
+    drive = bare_drive()
+    drive.received = PausedEvent()
+    drive.await_cycle(6)
+    notifier = threading.Thread(target=tpdo2, args=(drive, 333, 6))
+    notifier.start()
+    assert drive.received.entered.wait(10)
+    exchange = threading.Thread(target=drive.await_cycle, args=(7,))
+    exchange.start()
+    exchange.join(0.2)  # with the lock it waits for the notifier; without, it clears at once
+    drive.received.release.set()
+    notifier.join(10)
+    exchange.join(10)
+    assert drive.expected_cycle == 7
+    assert not drive.received.is_set() or drive.actual[2] == drive.expected_cycle, drive.actual

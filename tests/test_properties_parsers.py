@@ -317,6 +317,7 @@ def test_canopen_driver_tpdo_of_any_bytes(data):
     drive.id, drive.actual, drive.received = 1, (0, 0, 0), __import__("threading").Event()
     drive.rpdo2, drive.tpdo2, drive.cycle_mapped = node.rpdo[2], node.tpdo[2], True
     drive.expected_cycle, drive.stale = None, 0  # not in lockstep: any full frame is an answer
+    drive.cycle_lock = __import__("threading").Lock()
     drive.tpdo2.data = bytearray(data)
     drive.on_tpdo2(drive.tpdo2)
     assert drive.received.is_set() == (len(data) >= 8)

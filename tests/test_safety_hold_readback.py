@@ -12,7 +12,7 @@ import can
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from hsio.clock import RealTimeClock
+from hsio.clock import LockstepClock, RealTimeClock
 from hsio.commands.emulate import bank_from_config
 from hsio.drivers import canopen as canopen_driver
 from hsio.drivers import modbus_map
@@ -63,18 +63,90 @@ def test_modbus_hold_is_read_back_from_the_status_word(tmp_path):
         emu.stop()
 
 
-@pytest.mark.parametrize("word, holds", [
-    (0x1237, False),  # operation enabled, bit 12 set: follows its targets
-    (0x0237, True),  # operation enabled, bit 12 clear: halted, holding
-    (0x0233, True),  # switched on
-    (0x0207, True),  # quick stop active
-    (0x0208, True),  # fault
-    (0x0240, None),  # switch on disabled: power stage off, cannot tell
-    (0x0231, None),  # ready to switch on
-    (0x0200, None),  # not ready to switch on
+@pytest.mark.parametrize("word, mode, holds", [
+    (0x1237, 8, False),  # operation enabled, cyclic synchronous position, bit 12 set: follows its targets
+    (0x0237, 8, True),  # operation enabled, bit 12 clear: halted, holding
+    (0x1237, 10, False),  # cyclic synchronous torque: the same meaning of bit 12
+    (0x0237, 10, True),
+    (0x1237, 1, None),  # profile position: bit 12 is set-point acknowledge, cannot tell
+    (0x0237, 1, None),
+    (0x0237, None, None),  # mode unknown
+    (0x0233, 1, True),  # switched on (any mode)
+    (0x0207, 1, True),  # quick stop active
+    (0x0208, 1, True),  # fault
+    (0x0240, 8, None),  # switch on disabled: power stage off, cannot tell
+    (0x0231, 8, None),  # ready to switch on
+    (0x0200, 8, None),  # not ready to switch on
 ])
-def test_cia402_statusword_read_back(word, holds):
-    assert canopen_driver.statusword_holds(word) is holds
+def test_cia402_statusword_read_back(word, mode, holds):
+    assert canopen_driver.statusword_holds(word, mode) is holds
+
+
+class ObjectsByIndex:
+    """A drive whose SDO reads answer from a table (index -> value), counting the reads."""
+
+    def __init__(self, objects: dict):
+        self.objects, self.reads = objects, []
+
+    def sdo_read(self, index, sub=0, what=""):
+        self.reads.append(index)
+        return self.objects[index]
+
+
+@pytest.mark.parametrize("objects, holds, reads", [
+    ({0x6041: 0x0237, 0x6061: 8}, True, [0x6041, 0x6061]),
+    ({0x6041: 0x1237, 0x6061: 1}, None, [0x6041, 0x6061]),  # profile position: set-point acknowledged
+    ({0x6041: 0x0237, 0x6061: 1}, None, [0x6041, 0x6061]),
+    ({0x6041: 0x0233}, True, [0x6041]),  # switched on: the mode does not matter, not read
+])
+def test_canopen_holding_reads_the_mode_while_operation_is_enabled(objects, holds, reads):
+    actuator = canopen_driver.CanopenActuator.__new__(canopen_driver.CanopenActuator)
+    actuator.drive = ObjectsByIndex(objects)
+    assert actuator.holding() is holds and actuator.drive.reads == reads
+
+
+def test_modbus_hold_read_back_leaves_the_cyclic_status_alone(tmp_path):
+    """The read-back is a read of its own: the next feedback() reads the controller again (it
+    does not return the read-back's status, older by then)."""
+    cfg = write_config(tmp_path, clock="realtime")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0), modbus_map.load()).start()
+    try:
+        clock = RealTimeClock()
+        actuators = open_modbus(emu.url, ["C1", "C2"], clock)
+        command_a_while(actuators, clock)
+        for a in actuators:
+            a.hold()
+        a = actuators[0]
+        a.feedback()
+        assert a.holding() is True
+        time.sleep(0.05)  # the controller's clock runs on
+        with emu.bank.lock:
+            ticks = emu.bank.ticks
+        assert a.feedback().time_s * a.link.rate_hz >= ticks  # read after `ticks`, not at the read-back
+        for a in actuators:
+            a.close()
+    finally:
+        emu.stop()
+
+
+def test_modbus_hold_read_back_after_lockstep_was_lost(tmp_path):
+    """A lockstep exchange that failed half way (the host's tick count one ahead of the
+    controller's, as after a trip) does not stop the read-back: the controller holds, and says so."""
+    cfg = write_config(tmp_path, extra=QUIET_SENSORS)
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load()).start()
+    try:
+        clock = LockstepClock()
+        actuators = open_modbus(emu.url, ["C1", "C2"], clock)
+        command_a_while(actuators, clock)
+        for a in actuators:
+            a.hold()
+        actuators[0].link.ticks += 1
+        report = read_back(actuators)
+        assert report.confirmed, report.message
+        for a in actuators:
+            a.close()
+    finally:
+        emu.stop()
 
 
 def test_canopen_hold_is_read_back_from_the_statusword(tmp_path):

@@ -1,7 +1,7 @@
 """A real-time run over Modbus TCP paused for 2 s of wall time through the control socket
 (docs/safety.md section 4): nothing moves while paused, the controller's host watchdog is kept
 fed (a controller whose watchdog also watches holding axes does not latch), and the resumed run
-equals the unpaused one within the tracking noise. A host that goes silent while its axes hold
+equals the unpaused one (to 0.1 % of its peak). A host that goes silent while its axes hold
 still trips that watchdog."""
 
 from __future__ import annotations
@@ -125,14 +125,15 @@ def test_a_real_time_modbus_run_paused_for_2_s_holds_still_and_resumes_to_the_sa
         # further away); the sensors are noise-free, so within a few samples' creep
         assert abs(after - before[-1]) <= 3 * creep + 1e-5, name
 
-    # The result equals the unpaused run within the real-time tracking noise.
-    tracking = max(summary["rms_tracking_error_mm"] + ref_summary["rms_tracking_error_mm"])
+    # The result equals the unpaused run: the pause leaves no trace (measured 2e-8 mm, against a
+    # peak of 1.7 mm); 0.1 % of the unpaused run's peak is the bound.
+    tracking = max(ref_summary["rms_tracking_error_mm"])
     peak = max(ref_summary["peak_displacement_mm"])
     diff = max_abs_diff(ref, run)
-    print(f"pause over Modbus TCP: max |paused - unpaused| {diff:.2e} mm, tracking RMS {tracking:.4f} mm, "
+    print(f"pause over Modbus TCP: max |paused - unpaused| {diff:.2e} mm, unpaused tracking RMS {tracking:.4f} mm, "
           f"peak {peak:.3f} mm")
     assert peak > 1.0
-    assert diff <= max(5 * tracking, 0.02 * peak)
+    assert diff < 1e-3 * peak
 
 
 @pytest.mark.parametrize("protocol", ["modbus", "canopen"])
@@ -141,7 +142,7 @@ def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path, protocol):
     the watchdog register alone; CANopen: the halted drive's RPDO2) does not get them latched; one
     that then falls silent does (Modbus: the watchdog bit; CANopen: FAULT with EMCY 0x8130)."""
     cfg = write_config(tmp_path, duration=0.3, clock="realtime")
-    watchdog_s = 0.3
+    watchdog_s = 1.0  # fed every 0.05 s: a 20-fold margin on a loaded machine
     if protocol == "modbus":
         emu = strict_emulator(cfg, watchdog_s)
         actuators = open_link(emu.url, ["C1", "C2"], RealTimeClock())
@@ -154,13 +155,13 @@ def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path, protocol):
         for a in actuators:
             a.hold()
         assert all(a.holding() for a in actuators)  # read back from the controller
-        for _ in range(round(3 * watchdog_s / 0.05)):  # a pause of 3 watchdog times, fed
+        for _ in range(round(1.5 * watchdog_s / 0.05)):  # a pause of 1.5 watchdog times, fed
             for a in actuators:
                 a.keep_alive()
             time.sleep(0.05)
         assert not any(a.watchdog_expired for a in emu.bank.axes)
         assert all(c.holding for c in emu.bank.controllers)
-        time.sleep(3 * watchdog_s)  # the host falls silent
+        time.sleep(2 * watchdog_s)  # the host falls silent
         assert all(a.watchdog_expired for a in emu.bank.axes)
         if protocol == "modbus":
             actuators[0].link.read_status()

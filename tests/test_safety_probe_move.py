@@ -1,11 +1,13 @@
 """`hsio probe --move` goes through the checks of a run (docs/safety.md section 3): the velocity
-limit and the interlocks, not only the stroke. A refusal or a trip holds the axis and exits 2."""
+limit and the interlocks, not only the stroke. A refusal or a trip exits 2; the axis is held and
+the hold read back. Bad settings are refused before anything moves."""
 
 from __future__ import annotations
 
 import json
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from hsio.commands.emulate import bank_from_config
@@ -15,16 +17,26 @@ from hsio.emulators.modbus import ModbusEmulator
 from wire import QUIET_SENSORS, write_config
 
 
-def probe_move(tmp_path, *args, emulator: str = ""):
+def invoke_probe(tmp_path, *args, emulator: str = ""):
+    """`hsio probe --move` against a lockstep Modbus emulator; the result, the emulator's hold
+    flags and where its rods stand at the end (furthest from zero)."""
     cfg = write_config(tmp_path, extra=QUIET_SENSORS + emulator)
     emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load()).start()
     try:
-        result = CliRunner().invoke(probe, [emu.url, "--move", "--json", "--requests", "5", *args])
+        result = CliRunner().invoke(probe, [emu.url, "--move", "--requests", "5", *args])
         holding = [c.holding for c in emu.bank.controllers]
-        peak = max(abs(c.d_rod) for c in emu.bank.controllers)
+        rod = max(abs(c.d_rod) for c in emu.bank.controllers)
     finally:
         emu.stop()
-    return result, json.loads(result.stdout), holding, peak
+    return result, holding, rod
+
+
+def probe_move(tmp_path, *args, emulator: str = ""):
+    result, holding, rod = invoke_probe(tmp_path, "--json", *args, emulator=emulator)
+    return result, json.loads(result.stdout), holding, rod
+
+
+CONFIRMED = {"confirmed": True, "states": {"axis0": True}, "message": "the actuators hold (confirmed by read-back)"}
 
 
 def test_probe_move_within_the_limits_ramps_its_step_at_the_velocity_limit(tmp_path):
@@ -32,24 +44,57 @@ def test_probe_move_within_the_limits_ramps_its_step_at_the_velocity_limit(tmp_p
     assert result.exit_code == 0, result.output
     move = report["move"]
     assert 0 < move["step_ramp_s"] < 0.01 and move["rise_time_s"] > 0 and move["rms_tracking_error_mm"] < 0.5
-    assert all(holding)
+    assert all(holding) and report["hold"] == CONFIRMED
     ramp = _ramp(0.0, 10.0, 450.0, 1024.0)
     assert ramp[-1] == 10.0 and np.max(np.diff(np.r_[0.0, ramp])) * 1024.0 <= 450.0 + 1e-9
 
 
-def test_probe_move_beyond_the_velocity_limit_is_refused_and_holds(tmp_path):
+def test_probe_move_comes_back_from_a_step_at_a_low_velocity_limit(tmp_path):
+    """20 mm/s: the 6 mm step ramps over 6 / 18 s, and so does the way back (a fixed 0.25 s
+    return, 24 mm/s, would be refused with the axis left 6 mm away)."""
+    result, report, holding, rod = probe_move(tmp_path, "--step-mm", "6", "--sine-mm", "0.5", "--sine-hz", "2",
+                                              "--option", "velocity_mm_s=20", emulator="velocity_limit_mm_s = 20.0\n")
+    assert result.exit_code == 0, report.get("error")
+    assert report["move"]["step_ramp_s"] == pytest.approx(6 / 18, abs=2 / 1024)
+    assert rod < 0.01 and all(holding) and report["hold"] == CONFIRMED
+
+
+def test_probe_move_text_reports_the_ramp_and_the_hold(tmp_path):
+    result, _, _ = invoke_probe(tmp_path, "--sine-hz", "2.0")  # 1 mm at 450 mm/s: 3 samples at 1024 Hz
+    assert result.exit_code == 0, result.output
+    assert "1 mm, ramped over 2.9 ms" in result.stdout and "ramp included" in result.stdout
+    assert "hold       the actuators hold (confirmed by read-back)" in result.stdout
+
+
+def test_probe_move_with_a_sine_beyond_the_velocity_limit_is_refused_before_moving(tmp_path):
     # 5 mm at 20 Hz: 2 pi 20 x 5 = 628 mm/s, beyond the 500 mm/s limit
-    result, report, holding, peak = probe_move(tmp_path, "--sine-mm", "5", "--sine-hz", "20")
+    result, report, holding, rod = probe_move(tmp_path, "--sine-mm", "5", "--sine-hz", "20")
     assert result.exit_code == 2
-    assert "command velocity" in report["error"] and "beyond the limit (500.0 mm/s)" in report["error"]
-    assert all(holding) and peak < 5.0  # refused before the sine came near its peak velocity
+    assert report["error"] == ("--sine-mm 5 at --sine-hz 20: peak velocity 2 pi f A = 628.3 mm/s is beyond the "
+                               "velocity limit (500.0 mm/s); refused, nothing moved")
+    assert "move" not in report and rod < 1e-9
+    assert all(holding) and report["hold"] == CONFIRMED
+
+
+@pytest.mark.parametrize("args, option", [
+    (["--sine-hz", "0"], "--sine-hz"), (["--sine-hz", "-1"], "--sine-hz"), (["--sine-mm", "0"], "--sine-mm"),
+    (["--sine-mm", "13"], "--sine-mm"), (["--step-mm", "0"], "--step-mm"), (["--step-mm", "-13"], "--step-mm"),
+    (["--sine-hz", "nan"], "--sine-hz"), (["--sine-mm", "inf"], "--sine-mm"), (["--step-mm", "nan"], "--step-mm"),
+])
+def test_probe_move_bad_settings_are_refused_naming_the_option(tmp_path, args, option):
+    """Within 5 % of the 254 mm stroke (12.7 mm); a frequency > 0."""
+    result, holding, rod = invoke_probe(tmp_path, *args)
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
+    assert f"Invalid value for '{option}'" in result.stderr or f"Invalid value for {option}" in result.stderr, \
+        result.stderr
+    assert rod < 1e-9 and all(holding)
 
 
 def test_probe_move_trips_on_an_actuator_that_does_not_follow(tmp_path):
     """A servo that lags by 1000 s: the following-error interlock of a run trips the probe."""
     # |12 sin| stays above the 10 mm following-error threshold for 0.6 s of each 3.3 s period
-    result, report, holding, peak = probe_move(tmp_path, "--sine-mm", "12", "--sine-hz", "0.3",
-                                               emulator="lag_s = 1000.0\n")
+    result, report, holding, _ = probe_move(tmp_path, "--sine-mm", "12", "--sine-hz", "0.3",
+                                            emulator="lag_s = 1000.0\n")
     assert result.exit_code == 2
     assert "interlock (following)" in report["error"] and "does not follow its command" in report["error"]
-    assert all(holding)
+    assert all(holding) and report["hold"] == CONFIRMED

@@ -2,10 +2,13 @@
 
 Reports the connection and identity, the state of each axis, and the round-trip latency of the
 driver's requests (median, p99 and max over N requests, in ms). Without --move it only reads:
-no axis is enabled and nothing is commanded. With --move, axis 0 makes a small step (ramped at the
-velocity limit) and a slow sine from where it stands (rise time, overshoot, RMS tracking error) and
-comes back; every command goes through the limit checks and interlocks of a run, and a refusal
-or a trip holds the axis and ends the probe with exit status 2.
+no axis is enabled and nothing is commanded. With --move, axis 0 makes a small step (ramped at 90 %
+of the velocity limit, there and back) and a slow sine from where it stands (rise time, overshoot,
+RMS tracking error) and comes back; a sine whose peak velocity 2 pi f A is beyond the velocity
+limit is refused before anything moves. Every command goes through the limit checks and
+interlocks of a run, and a refusal or a trip ends the probe with exit status 2. At the end every
+axis is told to hold and the hold is read back from the controller (docs/safety.md section 3):
+the report says the axes hold only when the controller confirms it.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from urllib.parse import urlsplit
 import click
 import numpy as np
 
-from hsio.errors import HsioError
+from hsio.errors import HsioError, LimitError
 
 
 def latency_stats(samples_s: list[float]) -> dict:
@@ -132,14 +135,32 @@ def _ramp(x_from: float, x_to: float, speed_mm_s: float, rate: float) -> np.ndar
     return x_from + (x_to - x_from) * np.arange(1, n + 1) / n
 
 
+def check_move(limits, step_mm: float, sine_mm: float, sine_hz: float) -> None:
+    """Before anything moves: the step and the sine amplitude within 5 % of the stroke, and the
+    sine's peak velocity 2 pi f A within the velocity limit (a sine beyond it would be refused
+    part way through, with the axis away from where it stood)."""
+    small = 0.05 * limits.stroke_mm
+    if step_mm == 0 or abs(step_mm) > small:
+        raise click.BadParameter(f"{step_mm:g} mm: must be non-zero and within 5 % of the stroke "
+                                 f"(+/-{small:g} mm)", param_hint="--step-mm")
+    if sine_mm > small:
+        raise click.BadParameter(f"{sine_mm:g} mm: must be within 5 % of the stroke ({small:g} mm)",
+                                 param_hint="--sine-mm")
+    peak = 2.0 * math.pi * sine_hz * sine_mm
+    if peak > limits.velocity_mm_s:
+        raise LimitError(f"--sine-mm {sine_mm:g} at --sine-hz {sine_hz:g}: peak velocity 2 pi f A = {peak:.1f} mm/s "
+                         f"is beyond the velocity limit ({limits.velocity_mm_s:.1f} mm/s); refused, nothing moved")
+
+
 def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> dict:
-    """A step (ramped at 90 % of the velocity limit), back, a slow sine, back: every command
-    checked as in a run (:class:`_Guard`)."""
+    """A step and back (each ramped at 90 % of the velocity limit), a slow sine, back: every
+    command checked as in a run (:class:`_Guard`). The caller holds the axis afterwards."""
     rate = clock.rate_hz
+    speed = 0.9 * actuator.limits.velocity_mm_s
     guard = _Guard(actuator, clock)
     x0 = guard.previous
     _drive(guard, np.full(int(0.05 * rate), x0))
-    rise_cmd = _ramp(x0, x0 + step_mm, 0.9 * actuator.limits.velocity_mm_s, rate)
+    rise_cmd = _ramp(x0, x0 + step_mm, speed, rate)
     step = np.concatenate([rise_cmd, np.full(max(int(0.5 * rate) - len(rise_cmd), 1), x0 + step_mm)])
     y = _drive(guard, step) - x0
     t = np.arange(len(y)) / rate
@@ -147,7 +168,8 @@ def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> di
     i90 = np.argmax(y >= 0.9 * step_mm) if np.any(y >= 0.9 * step_mm) else None
     rise = float(t[i90] - t[i10]) if i10 is not None and i90 is not None else math.nan
     overshoot = float(max(y.max() - step_mm, 0.0) / step_mm * 100.0)
-    _drive(guard, np.linspace(x0 + step_mm, x0, int(0.25 * rate)))  # back, slowly
+    back = _ramp(x0 + step_mm, x0, speed, rate)
+    _drive(guard, np.concatenate([back, np.full(max(int(0.25 * rate) - len(back), 1), x0)]))
     n = int(2.0 / sine_hz * rate)
     ts = np.arange(n) / rate
     cmd = x0 + sine_mm * np.sin(2 * np.pi * sine_hz * ts)
@@ -155,9 +177,30 @@ def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> di
     settle = int(0.25 / sine_hz * rate)
     rms = float(np.sqrt(np.mean((cmd[settle:] - meas[settle:]) ** 2)))
     _drive(guard, np.full(int(0.1 * rate), x0))
-    actuator.hold()
     return {"step_mm": step_mm, "step_ramp_s": len(rise_cmd) / rate, "rise_time_s": rise, "overshoot_pct": overshoot,
             "sine_amplitude_mm": sine_mm, "sine_hz": sine_hz, "rms_tracking_error_mm": rms}
+
+
+POSITIVE = click.FloatRange(min=0, min_open=True)
+
+
+def _finite(ctx, param, value: float) -> float:
+    if not math.isfinite(value):
+        raise click.BadParameter(f"{value!r} is not a finite number")
+    return value
+
+
+def _hold(actuators):
+    """Every axis holds (each is tried), then the hold is read back as `hsio run` reads it
+    (:func:`hsio.safety.hold.read_back`)."""
+    from hsio.safety.hold import read_back
+
+    for a in actuators:
+        try:
+            a.hold()
+        except Exception:
+            pass  # the read-back says whether it holds
+    return read_back(actuators)
 
 
 @click.command()
@@ -167,9 +210,12 @@ def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> di
 @click.option("--axes", default=1, show_default=True, type=click.IntRange(1, 64), help="Number of axes to open.")
 @click.option("--requests", "n_requests", default=200, show_default=True, type=click.IntRange(1, 100000),
               help="Requests for the latency figures.")
-@click.option("--step-mm", default=1.0, show_default=True, type=float)
-@click.option("--sine-mm", default=1.0, show_default=True, type=float)
-@click.option("--sine-hz", default=0.5, show_default=True, type=float)
+@click.option("--step-mm", default=1.0, show_default=True, type=float, callback=_finite,
+              help="Step of axis 0 with --move (non-zero, within 5 % of the stroke; either sign).")
+@click.option("--sine-mm", default=1.0, show_default=True, type=POSITIVE, callback=_finite,
+              help="Sine amplitude with --move (within 5 % of the stroke).")
+@click.option("--sine-hz", default=0.5, show_default=True, type=POSITIVE, callback=_finite,
+              help="Sine frequency with --move (2 pi f A within the velocity limit).")
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE", help="A [driver] setting (repeatable).")
 @click.option("--reset-interlock", is_flag=True,
               help="Modbus: hold every axis and clear the latched interlocks (docs/modbus.md, Interlock reset).")
@@ -200,12 +246,13 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
         if move:
             clock = LockstepClock() if link.lockstep else RealTimeClock()
             clock.attach(link)
-            if step_mm == 0 or abs(step_mm) > 0.05 * actuators[0].limits.stroke_mm:
-                raise click.BadParameter(f"--step-mm {step_mm}: must be non-zero and within 5 % of the stroke")
+            check_move(actuators[0].limits, step_mm, sine_mm, sine_hz)
             report["move"] = _move(actuators[0], clock, step_mm, sine_mm, sine_hz)
     except HsioError as exc:
         report["error"] = str(exc)
     finally:
+        if actuators and move:
+            report["hold"] = _hold(actuators).as_dict()
         for a in actuators:
             try:
                 a.close() if move else None
@@ -235,9 +282,11 @@ def _print(r: dict) -> None:
                    f"max {lat['max_ms']:.3f} ms over {lat['requests']} requests")
     if "move" in r:
         m = r["move"]
-        click.echo(f"step       {m['step_mm']:g} mm: rise time (10-90 %) {m['rise_time_s'] * 1e3:.1f} ms, "
-                   f"overshoot {m['overshoot_pct']:.2f} %")
+        click.echo(f"step       {m['step_mm']:g} mm, ramped over {m['step_ramp_s'] * 1e3:.1f} ms: rise time "
+                   f"(10-90 %, ramp included) {m['rise_time_s'] * 1e3:.1f} ms, overshoot {m['overshoot_pct']:.2f} %")
         click.echo(f"sine       {m['sine_amplitude_mm']:g} mm at {m['sine_hz']:g} Hz: RMS tracking error "
                    f"{m['rms_tracking_error_mm']:.4f} mm")
+    if "hold" in r:
+        click.echo(f"hold       {r['hold']['message']}")
     if "error" in r:
         click.echo(f"error      {r['error']}", err=True)
