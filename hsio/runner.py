@@ -35,7 +35,7 @@ from hsio.safety.socket import ControlServer
 from hsio.safety.status import DryRunRefused, exit_status, outcome_name
 from hsio.result import Result, max_error_pct
 from hsio.secant import SecantEstimator
-from hsio.structures import Structure, get_structure, load_structure
+from hsio.structures import Structure, channel_names, get_structure, load_structure  # channel_names: re-exported
 
 
 def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
@@ -56,18 +56,6 @@ def load_run_structure(config: RunConfig) -> Structure:
     docs/structures.md) or else ``name`` (a shipped structure)."""
     table = config["structure"]
     return load_structure(table["file"]) if table["file"] else get_structure(table["name"])
-
-
-def channel_names(structure: Structure) -> list[str]:
-    """The recorded channels: an element on one DOF without a setup is recorded under its
-    actuator's name; an element with several basic DOFs under ``element.dof`` per DOF."""
-    names = []
-    for e in structure.experimental:
-        if len(e.basic_dofs) == 1 and not e.has_setup:
-            names.append(e.actuator)
-        else:
-            names += [f"{e.name}.{structure.dof_names[d]}" for d in e.basic_dofs]
-    return names
 
 
 def switch_resolutions(integrator: dict, emulator: dict) -> tuple[float, float]:
