@@ -22,6 +22,10 @@ specimen stands (docs/safety.md section 6):
 
 from __future__ import annotations
 
+import numbers
+
+import numpy as np
+
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
@@ -40,6 +44,26 @@ from hsio.sites.setup_map import SetupMap
 from hsio.structures import Structure
 
 __all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_readback"]
+
+
+# The options of ImplicitMethod and the value that leaves each off. A method that does not take an
+# option accepts it only at that value (None: not given): a switched-on option is refused, never
+# dropped. The comparison minds the type, as True == 1 == 1.0 in Python.
+IMPLICIT_OPTIONS = {"fc_blend": 1.0, "anchor_dc": False, "blend_dc": False}
+GUARDS = {"fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False, "explored_fraction": 0.0,
+          "fc_force_limit": 0.0}
+OPTIONS_OFF = {**IMPLICIT_OPTIONS, **GUARDS}
+
+
+def is_off(key: str, value) -> bool:
+    """Whether ``value`` leaves option ``key`` off: None, or its off value of the same kind (a
+    switch is off only at ``False``, a number only at its off number, never at a bool)."""
+    off = OPTIONS_OFF[key]
+    if value is None:
+        return True
+    if isinstance(off, bool):
+        return isinstance(value, (bool, np.bool_)) and not value
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and value == off
 
 
 def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float = -0.05, *,
@@ -70,14 +94,15 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         raise ConfigError("a switching rule applies to method = 'mixed', not to 'alpha_os'")
     if method != "alpha_os" and not correct_measured_displacement:
         raise ConfigError(f"correct_measured_displacement applies to alpha_os; {method!r} iterates to the target")
-    guards = {"fallback_after", "refractory_steps", "no_fc_at_reversal", "explored_fraction", "fc_force_limit"}
-    unknown = sorted(set(implicit) - guards - {"fc_blend", "anchor_dc", "blend_dc"})
+    unknown = sorted(set(implicit) - set(OPTIONS_OFF))
     if unknown:
         raise ConfigError(f"make_integrator: unknown option(s) {', '.join(unknown)}")
-    allowed = ({"fc_blend", "anchor_dc", "blend_dc"} if method != "alpha_os" else set()) | (guards if method == "mixed" else set())
-    misplaced = sorted(k for k, v in implicit.items() if k not in allowed and v not in (None, False, 0, 1.0))
+    allowed = (set(IMPLICIT_OPTIONS) if method != "alpha_os" else set()) | (set(GUARDS) if method == "mixed" else set())
+    misplaced = sorted(k for k, v in implicit.items() if k not in allowed and not is_off(k, v))
     if misplaced:
-        raise ConfigError(f"{', '.join(misplaced)}: not an option of method = {method!r}")
+        takes = "the implicit methods" if misplaced[0] in IMPLICIT_OPTIONS else "method = 'mixed'"
+        raise ConfigError(f"{', '.join(misplaced)}: not an option of method = {method!r} "
+                          f"({misplaced[0]} applies to {takes})")
     implicit = {k: v for k, v in implicit.items() if k in allowed}
     if method == "alpha_os":
         return OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha, dofs, K_EI,

@@ -205,16 +205,14 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
     if i["switch_rule"] not in ("initial_stiffness", "instruments"):
         raise ConfigError(f"{source}: [integrator] switch_rule must be 'initial_stiffness' or 'instruments', "
                           f"got {i['switch_rule']!r}")
-    if i["switch_rule"] == "instruments" and (i["switch_on"] != "stiffness" or i["K_f"] > 0 or i["K_d"] > 0):
-        raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' sets K_f and K_d from the instruments: "
-                          f"leave K_f, K_d at 0 and switch_on = 'stiffness'")
+    _check_switching(i, source)
     if i["switch_rule"] == "instruments" and not (i["switch_resolution_mm"] > 0 and i["switch_force_resolution_kN"] > 0) \
             and not url.startswith("emulator"):
         raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' on real hardware needs "
                           f"switch_resolution_mm and switch_force_resolution_kN (the transducer's and the load "
                           f"cell's resolution)")
     guards = {"fc_fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False, "explored_fraction": 0.0,
-              "fc_force_limit_kN": 0.0, "switch_rule": "initial_stiffness"}
+              "fc_force_limit_kN": 0.0}
     for key, off in guards.items():
         if i["method"] != "mixed" and i[key] != off:
             raise ConfigError(f"{source}: [integrator] {key} applies to method = 'mixed', not to {i['method']!r}")
@@ -226,6 +224,45 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
     if i["fc_fallback_after"] > i["j_max"]:
         raise ConfigError(f"{source}: [integrator] fc_fallback_after ({i['fc_fallback_after']}) must not exceed "
                           f"j_max ({i['j_max']}); 0: off")
+
+
+# The keys of the switching rule of mixed control (docs/force_control.md, "Running it"), by the
+# rule that reads them; each is refused where no rule reads it rather than silently ignored.
+BY_STIFFNESS = ("K_f", "K_d")
+BY_FORCE = ("R_f", "R_d")
+BY_INSTRUMENTS = ("switch_margin", "switch_hysteresis", "switch_resolution_mm", "switch_force_resolution_kN")
+
+
+def _check_switching(i: dict, source: str) -> None:
+    """The switching keys apply to ``method = "mixed"`` only, and each to the rule that reads it:
+    K_f / K_d to ``switch_on = "stiffness"``, R_f / R_d to ``switch_on = "force"`` (both with
+    ``switch_rule = "initial_stiffness"``), the margin, hysteresis and resolutions to
+    ``switch_rule = "instruments"``, which sets the thresholds on the stiffness itself."""
+    off = DEFAULTS["integrator"]
+    given = [k for k in ("switch_on", "switch_rule") + BY_STIFFNESS + BY_FORCE + BY_INSTRUMENTS if i[k] != off[k]]
+    if i["method"] != "mixed":
+        if given:
+            raise ConfigError(f"{source}: [integrator] {given[0]} applies to method = 'mixed', not to "
+                              f"{i['method']!r}: the other methods do not switch")
+        return
+    if i["switch_rule"] == "instruments":
+        if i["switch_on"] != "stiffness":
+            raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' switches on the stiffness: "
+                              f"leave switch_on = 'stiffness'")
+        for key in BY_STIFFNESS + BY_FORCE:
+            if i[key] != off[key]:
+                raise ConfigError(f"{source}: [integrator] {key} is not read with switch_rule = 'instruments', which "
+                                  f"sets K_f and K_d from the instruments: leave K_f, K_d, R_f, R_d at 0")
+        return
+    for key in BY_INSTRUMENTS:
+        if i[key] != off[key]:
+            raise ConfigError(f"{source}: [integrator] {key} applies to switch_rule = 'instruments', not to "
+                              f"{i['switch_rule']!r}")
+    unread, reads = (BY_FORCE, "force") if i["switch_on"] == "stiffness" else (BY_STIFFNESS, "stiffness")
+    for key in unread:
+        if i[key] != off[key]:
+            raise ConfigError(f"{source}: [integrator] {key} applies to switch_on = {reads!r}, not to "
+                              f"{i['switch_on']!r}")
 
 
 def read_toml(path: str | Path, what: str) -> dict:
@@ -263,18 +300,3 @@ def load(path: str | Path | None) -> RunConfig:
         config["specimen"]["folder"] = str((path.parent / folder).resolve())
     return config
 
-
-def switch_resolutions(integrator: dict, emulator: dict) -> tuple[float, float]:
-    """delta_u (mm) and delta_F (kN) of ``switch_rule = "instruments"``: the [integrator] keys, or
-    (where 0) the emulated controller's transducer and load cell ([emulator] resolution_mm,
-    force_resolution_kN, or their defaults)."""
-    from hsio.emulators.servo import ServoConfig
-
-    du, dF = integrator["switch_resolution_mm"], integrator["switch_force_resolution_kN"]
-    servo = ServoConfig()
-    du = du if du > 0 else float(emulator.get("resolution_mm", servo.resolution_mm))
-    dF = dF if dF > 0 else float(emulator.get("force_resolution_kN", servo.force_resolution_kN))
-    if not (du > 0 and dF > 0):
-        raise ConfigError("[integrator] switch_rule = 'instruments' needs a transducer and a load-cell resolution "
-                          "above 0: set switch_resolution_mm and switch_force_resolution_kN")
-    return du, dF

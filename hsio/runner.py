@@ -18,8 +18,9 @@ import numpy as np
 import hsio
 from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
-from hsio.config import RunConfig, switch_resolutions
+from hsio.config import RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
+from hsio.emulators.servo import ServoConfig
 from hsio.errors import ConfigError, HsioError
 from hsio.experiment import ExperimentStopped
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
@@ -34,7 +35,7 @@ from hsio.safety.socket import ControlServer
 from hsio.safety.status import DryRunRefused, exit_status, outcome_name
 from hsio.result import Result, max_error_pct
 from hsio.secant import SecantEstimator
-from hsio.structures import Structure, get_structure, load_structure
+from hsio.structures import Structure, channel_names, get_structure, load_structure  # channel_names: re-exported
 
 
 def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
@@ -57,16 +58,18 @@ def load_run_structure(config: RunConfig) -> Structure:
     return load_structure(table["file"]) if table["file"] else get_structure(table["name"])
 
 
-def channel_names(structure: Structure) -> list[str]:
-    """The recorded channels: an element on one DOF without a setup is recorded under its
-    actuator's name; an element with several basic DOFs under ``element.dof`` per DOF."""
-    names = []
-    for e in structure.experimental:
-        if len(e.basic_dofs) == 1 and not e.has_setup:
-            names.append(e.actuator)
-        else:
-            names += [f"{e.name}.{structure.dof_names[d]}" for d in e.basic_dofs]
-    return names
+def switch_resolutions(integrator: dict, emulator: dict) -> tuple[float, float]:
+    """delta_u (mm) and delta_F (kN) of ``switch_rule = "instruments"``: the [integrator] keys, or
+    (where 0) the emulated controller's transducer and load cell ([emulator] resolution_mm,
+    force_resolution_kN, or their defaults)."""
+    du, dF = integrator["switch_resolution_mm"], integrator["switch_force_resolution_kN"]
+    servo = ServoConfig()
+    du = du if du > 0 else float(emulator.get("resolution_mm", servo.resolution_mm))
+    dF = dF if dF > 0 else float(emulator.get("force_resolution_kN", servo.force_resolution_kN))
+    if not (du > 0 and dF > 0):
+        raise ConfigError("[integrator] switch_rule = 'instruments' needs a transducer and a load-cell resolution "
+                          "above 0: set switch_resolution_mm and switch_force_resolution_kN")
+    return du, dF
 
 
 def switching_rule(structure: Structure, integ: dict, emulator: dict | None = None) -> SwitchingRule:

@@ -455,6 +455,17 @@ class NumericalAssembly:
             model.commit()
 
 
+def channel_names(structure: Structure) -> list[str]:
+    """The recorded channels: an element on one DOF without a setup is recorded under its
+    actuator's name; an element with several basic DOFs under ``element.dof`` per DOF."""
+    names = []
+    for e in structure.experimental:
+        if len(e.basic_dofs) == 1 and not e.has_setup:
+            names.append(e.actuator)
+        else:
+            names += [f"{e.name}.{structure.dof_names[d]}" for d in e.basic_dofs]
+    return names
+
 def sdof(m: float = 1.0, k: float = 4 * np.pi**2, zeta: float = 0.0, dt: float = 0.01, specimen: dict | None = None) -> Structure:
     """A single-DOF structure with one experimental element (linear unless ``specimen`` says)."""
     return Structure(

@@ -97,3 +97,18 @@ def test_force_coupling_and_scale_error_act_on_the_measurement():
     assert measured == pytest.approx(10.0 / (1 + 0.05 * 2.0), rel=1e-4)  # the spring pushes the load train back
     out = _drive(ServoConfig(lag_s=0.02, displacement_gain=1.03, **QUIET), hold)
     assert out[-1, 0] == pytest.approx(1.03 * out[-1, 1], rel=1e-9)
+
+
+@pytest.mark.parametrize("frequency_hz, damping, rate_hz", [
+    (12.0, 0.15, 1024.0), (20.0, 0.3, 500.0), (3.0, 0.7, 200.0), (60.0, 0.05, 1000.0)])
+def test_the_mode_filter_is_the_emulators(frequency_hz, damping, rate_hz):
+    """diagnose's closed-form bilinear transform of the servo mode and the emulator's
+    (scipy.signal.bilinear) give the same coefficients, and unit gain at rest."""
+    from hsio.diagnose.model import mode_filter
+    from hsio.emulators.servo import servo_mode_filter
+
+    b, a = mode_filter(frequency_hz, damping, 1.0 / rate_hz)
+    b_emulator, a_emulator = servo_mode_filter(frequency_hz, damping, rate_hz)
+    np.testing.assert_allclose(b, b_emulator, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(a, a_emulator, rtol=1e-12, atol=1e-15)
+    assert sum(b) / sum(a) == pytest.approx(1.0, rel=1e-12)

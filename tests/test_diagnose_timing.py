@@ -98,3 +98,23 @@ def test_violations_vanish_at_the_true_lead():
     assert timing.tell(record, lead, 0.001).verdict == timing.SKEW
     in_time = ActuatorRecord("synthetic", 1 / rate, true, true, force)
     assert timing.tell(in_time, lead, 0.001).verdict == timing.DELAY
+
+
+def test_a_coarse_load_cell_leaves_it_open():
+    """An in-time record whose load cell reads in 2 kN steps: no force change ever goes against
+    the motion at either lead (V(0) = V(tau) = 0), so there is nothing to compare and the force
+    is not said to turn before the displacement."""
+    from hsio.diagnose.record import ActuatorRecord
+
+    rate = 1000.0
+    t = np.arange(8000) / rate
+    u = 6.5 * 2 / 3 / np.cos(2 * np.pi * 0.015) * np.sin(2 * np.pi * 1.0 * t)  # peaks between two steps
+    force = np.round(3.0 * u / 2.0) * 2.0  # 3 kN/mm read in 2 kN steps
+    result = timing.tell(ActuatorRecord("synthetic", 1 / rate, u, u, force), 0.004, 0.001)
+    assert result.reversals >= timing.MIN_REVERSALS
+    assert result.violations_at_zero == result.violations_at_tau == 0.0
+    assert result.verdict == timing.OPEN and "too close to tell" in result.reason
+    assert np.isnan(result.ratio)
+    # where the force does not change near the reversals at all, it stays open too
+    flat = timing.tell(ActuatorRecord("synthetic", 1 / rate, u, u, np.round(u / 8.0) * 8.0), 0.004, 0.001)
+    assert flat.verdict == timing.OPEN and "does not change near the reversals" in flat.reason

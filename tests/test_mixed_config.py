@@ -2,13 +2,16 @@
 (docs/force_control.md, "Running it")."""
 
 import json
+import re
 
 import pytest
 from click.testing import CliRunner
 
+from hsio.api import make_integrator
 from hsio.cli import main
 from hsio.config import from_dict
 from hsio.errors import ConfigError
+from hsio.structures import get_structure
 
 MIXED = {"method": "mixed", "switch_rule": "instruments", "switch_margin": 3.0, "switch_hysteresis": 2.0,
          "fc_blend": 0.01, "fc_fallback_after": 2, "refractory_steps": 1000, "no_fc_at_reversal": True,
@@ -106,8 +109,63 @@ def test_guards_of_mixed_are_refused_with_other_methods():
         from_dict({"integrator": {"method": "mixed", "blend_dc": True}})
     with pytest.raises(ConfigError, match=r"anchor_dc applies to the implicit methods"):
         from_dict({"integrator": {"anchor_dc": True}})
-    with pytest.raises(ConfigError, match=r"leave K_f, K_d at 0"):
+    with pytest.raises(ConfigError, match=r"K_f is not read with switch_rule = 'instruments'"):
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "K_f": 5.0}})
     with pytest.raises(ConfigError, match=r"on real hardware needs switch_resolution_mm"):
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments"},
                    "hardware": {"url": "modbus-tcp://127.0.0.1:1502"}})
+
+
+@pytest.mark.parametrize("integrator, says", [
+    ({"method": "implicit_dc", "switch_margin": 10.0}, "switch_margin applies to method = 'mixed', not to 'implicit_dc'"),
+    ({"method": "alpha_os", "switch_hysteresis": 5.0}, "switch_hysteresis applies to method = 'mixed', not to 'alpha_os'"),
+    ({"method": "force_control", "switch_resolution_mm": 0.5}, "switch_resolution_mm applies to method = 'mixed'"),
+    ({"method": "implicit_dc", "K_f": 3.0}, "K_f applies to method = 'mixed'"),
+    ({"method": "implicit_dc", "switch_rule": "instruments"}, "switch_rule applies to method = 'mixed'"),
+    ({"method": "mixed", "switch_margin": 10.0}, "switch_margin applies to switch_rule = 'instruments', not to "
+                                                 "'initial_stiffness'"),
+    ({"method": "mixed", "switch_hysteresis": 5.0}, "switch_hysteresis applies to switch_rule = 'instruments'"),
+    ({"method": "mixed", "switch_resolution_mm": 0.5, "switch_force_resolution_kN": 1.0},
+     "switch_resolution_mm applies to switch_rule = 'instruments'"),
+    ({"method": "mixed", "switch_force_resolution_kN": 1.0}, "switch_force_resolution_kN applies to switch_rule"),
+    ({"method": "mixed", "switch_rule": "instruments", "R_f": 5.0}, "R_f is not read with switch_rule = 'instruments'"),
+    ({"method": "mixed", "switch_rule": "instruments", "R_d": 1.0}, "R_d is not read with switch_rule = 'instruments'"),
+    ({"method": "mixed", "R_f": 5.0}, "R_f applies to switch_on = 'force', not to 'stiffness'"),
+    ({"method": "mixed", "switch_on": "force", "R_f": 5.0, "K_f": 3.0}, "K_f applies to switch_on = 'stiffness'"),
+])
+def test_switching_keys_no_rule_reads_exit_2_naming_the_key(tmp_path, integrator, says):
+    """docs/force_control.md: the switching keys apply to mixed only, each to the rule that reads
+    it; one given where nothing reads it is refused, not ignored."""
+    with pytest.raises(ConfigError, match=re.escape(says)):
+        from_dict({"integrator": integrator})
+    out = _run(tmp_path, integrator)
+    assert out.exit_code == 2, out.output
+    assert "[integrator]" in out.output and says in out.output
+
+
+def test_switching_keys_where_read_are_accepted():
+    from_dict({"integrator": {"method": "mixed", "switch_on": "force", "R_f": 5.0, "R_d": 2.0}})
+    from_dict({"integrator": {"method": "mixed", "K_f": 3.0, "K_d": 2.0}})
+    from_dict({"integrator": {**MIXED, "switch_margin": 5.0, "switch_hysteresis": 3.0, "switch_resolution_mm": 0.01,
+                              "switch_force_resolution_kN": 0.1}})
+
+
+@pytest.mark.parametrize("method, option, value", [
+    ("implicit_dc", "no_fc_at_reversal", True), ("implicit_dc", "fallback_after", 1),
+    ("implicit_dc", "refractory_steps", 1), ("force_control", "refractory_steps", True),
+    ("implicit_dc", "explored_fraction", 1.0), ("implicit_dc", "fc_force_limit", 1),
+    ("alpha_os", "anchor_dc", True), ("alpha_os", "blend_dc", True), ("alpha_os", "anchor_dc", 1),
+    ("alpha_os", "fc_blend", 0.5), ("alpha_os", "fc_blend", True),
+])
+def test_make_integrator_refuses_an_option_the_method_does_not_take(method, option, value):
+    """A switched-on option is refused by name, never dropped, even where it equals 1 (True == 1 == 1.0)."""
+    with pytest.raises(ConfigError, match=rf"^{option}: not an option of method = '{method}'"):
+        make_integrator(get_structure("structure_II_infill"), method, **{option: value})
+
+
+def test_make_integrator_accepts_an_option_left_off():
+    structure = get_structure("structure_II_infill")
+    make_integrator(structure, "alpha_os", fc_blend=1.0, anchor_dc=False, blend_dc=None, no_fc_at_reversal=False,
+                    fallback_after=None, refractory_steps=0, explored_fraction=0.0, fc_force_limit=None)
+    integrator = make_integrator(structure, "mixed", fallback_after=1, no_fc_at_reversal=True)
+    assert integrator.fallback_after == 1 and integrator.no_fc_at_reversal is True

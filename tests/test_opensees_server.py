@@ -269,3 +269,20 @@ def test_an_element_with_more_basic_dofs_than_served_is_refused_with_the_reason(
     c.close()
     assert any("has 2 basic DOFs" in line and "served element has 1: C1" in line for line in server.lines)
     good_step_works(server)
+
+
+def test_the_server_does_not_import_the_runner():
+    """The served elements' channels are named where structures live (hsio.structures), as `hsio
+    run` names them (hsio.runner re-exports the same function); the server does not load the runner."""
+    import subprocess
+    import sys
+
+    code = ("import sys, hsio.opensees.lab, hsio.opensees.server; "
+            "assert 'hsio.runner' not in sys.modules, 'hsio.runner imported'")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    from hsio import runner, structures
+
+    assert runner.channel_names is structures.channel_names
+    assert structures.channel_names(structures.get_structure("column_two_actuators")) == ["column.top_x",
+                                                                                          "column.top_rot"]

@@ -19,7 +19,8 @@ each reversal unless s is its true lead. The share of violations,
 
 (increments over about 2 ms, summed near the reversals of the displacement), is smallest at
 s = 0 for a delay in the loop and at s = tau for a late channel. The verdict compares V(0)
-with V(tau), tau being the fitted skew. A damper or another rate-dependent specimen, whose
+with V(tau), tau being the fitted skew; where both are nearly 0 (a coarse load cell whose steps
+never go against the motion) there is nothing to compare and the question stays open. A damper or another rate-dependent specimen, whose
 force leads its displacement by itself, violates at both and leaves the question open; so do
 records without force or with too few reversals. The channel that settles it then is the
 displacement the controller closes its loop on (its feedback), recorded beside the measured
@@ -41,6 +42,7 @@ OPEN = "undecided"
 LATE_RATIO = 1.2  # V(0) / V(tau) at least this: the force leads, the channel is late
 IN_TIME_RATIO = 1.0 / 1.1  # at most this: the force moves with the displacement, the delay is in the loop
 FOLLOWS = 0.15  # the force follows the motion when the better of V(0), V(tau) is below this share
+MIN_SHARE = 0.002  # the worse of V(0), V(tau) below this share: too few violations either way to tell
 MIN_REVERSALS = 6
 INCREMENT_S = 0.002
 WINDOW_S = 0.025  # samples this close to a reversal count
@@ -60,7 +62,11 @@ class Timing:
 
     @property
     def ratio(self) -> float:
-        return self.violations_at_zero / self.violations_at_tau if self.violations_at_tau > 0 else float("inf")
+        """V(0) / V(tau): inf when only V(tau) is 0, nan when both are (nothing to compare)."""
+        v0, vt = self.violations_at_zero, self.violations_at_tau
+        if vt > 0:
+            return v0 / vt
+        return float("inf") if v0 > 0 else float("nan")
 
     def to_json(self) -> dict:
         return {"verdict": self.verdict, "tau_s": self.tau_s, "violations_at_zero": self.violations_at_zero,
@@ -89,7 +95,8 @@ def reversal_mask(u: np.ndarray, dt: float, min_excursion_mm: float) -> tuple[np
 
 def violations(force: np.ndarray, u: np.ndarray, mask: np.ndarray, lead_s: float, dt: float) -> float:
     """V(lead): the share of force increments against the direction of the displacement
-    increments ``lead_s`` later (linear interpolation between whole samples)."""
+    increments ``lead_s`` later (linear interpolation between whole samples); nan where the
+    force does not change near the reversals."""
     h = max(1, int(round(INCREMENT_S / dt)))
     df, du, near = force[h:] - force[:-h], u[h:] - u[:-h], mask[h:]
 
@@ -98,7 +105,7 @@ def violations(force: np.ndarray, u: np.ndarray, mask: np.ndarray, lead_s: float
         a, b, m = (df[:n], du[s:], near[s:]) if s >= 0 else (df[-s:], du[:n], near[:n])
         ab = (a * b)[m]
         total = float(np.abs(ab).sum())
-        return float(np.maximum(0.0, -ab).sum()) / total if total > 0 else 1.0
+        return float(np.maximum(0.0, -ab).sum()) / total if total > 0 else float("nan")
 
     x = lead_s / dt
     s = int(np.floor(x))
@@ -121,10 +128,18 @@ def tell(record: ActuatorRecord, tau_s: float, floor_mm: float) -> Timing:
     vt = violations(record.force_kN, u, mask, tau_s, record.dt)
     t = Timing(OPEN, tau_s, v0, vt, count, "")
     lead = f"{1e3 * tau_s:.2f} ms"
+    if not (np.isfinite(v0) and np.isfinite(vt)):
+        return Timing(OPEN, tau_s, v0, vt, count, "the force does not change near the reversals of the displacement "
+                      "(a load cell coarser than the force's swing there), so its timing cannot tell")
     if min(v0, vt) > FOLLOWS:
         reason = (f"the force does not follow the direction of the motion ({100 * min(v0, vt):.0f} % of its changes "
                   "go against it: a damper or a rate-dependent specimen), so its timing cannot tell")
         return Timing(OPEN, tau_s, v0, vt, count, reason)
+    if max(v0, vt) < MIN_SHARE:  # e.g. a coarse load cell whose steps never go against the motion
+        return Timing(OPEN, tau_s, v0, vt, count,
+                      f"the force's timing is too close to tell: almost none of its changes go against the motion "
+                      f"({100 * v0:.2f} % against the measured motion, {100 * vt:.2f} % against it read {lead} "
+                      f"earlier; at least {100 * MIN_SHARE:.1f} % are needed on one side)")
     if t.ratio >= LATE_RATIO:
         return Timing(SKEW, tau_s, v0, vt, count,
                       f"the force turns {lead} before the measured displacement does ({100 * v0:.2f} % of the force changes "

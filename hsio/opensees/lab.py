@@ -38,8 +38,7 @@ from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder
-from hsio.runner import channel_names
-from hsio.structures import ExperimentalElement, Structure
+from hsio.structures import ExperimentalElement, Structure, channel_names
 
 
 def served_structure(structure: Structure, names) -> Structure:
@@ -101,6 +100,7 @@ class Lab:
         self.log = log
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hsio-opensees-lab")
         self._stepped = threading.Condition()  # notified when a step is recorded or an element leaves
+        self.stopping = False  # the server is closing: no element waits for a step any more
         self.site = None
         self.recorder: Recorder | None = None
         self.hold_message = "no session was open: no actuators to hold"  # the last session's hold, read back
@@ -388,15 +388,24 @@ class Lab:
         same step (the step is recorded), so that no element's next trial runs into a step the
         others have not finished: the served elements step together, as the elements of one
         OpenSees model do. commitState has no reply, so the model is never held up by the wait.
-        Raises HsioError after ``timeout_s``."""
+        Raises HsioError after ``timeout_s``, or at once when the server stops (:meth:`release`)."""
         with self._stepped:
-            done = self._stepped.wait_for(lambda: not self.committed_flags[j] or self.site is None or self.failed,
-                                          timeout_s)
+            done = self._stepped.wait_for(lambda: not self.committed_flags[j] or self.site is None or self.failed
+                                          or self.stopping, timeout_s)
+            if self.stopping:
+                raise HsioError("the server is stopping")
         if not done:
             waiting = [self.names[k] for k in sorted(self.active) if not self.committed_flags[k]]
             raise HsioError(f"element {self.names[j]} committed a step; {', '.join(waiting) or 'another element'} "
                             f"did not commit it within {timeout_s:g} s (the elements of one server must belong "
                             f"to one model and step together)")
+
+    def release(self) -> None:
+        """The server is stopping: every element waiting in :meth:`wait_for_step` goes on at once
+        (to be told so), and none waits again."""
+        with self._stepped:
+            self.stopping = True
+            self._stepped.notify_all()
 
     def latest_time(self, j: int) -> float:
         trial = self.latest[j]

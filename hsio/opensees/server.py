@@ -82,7 +82,8 @@ class OpenSeesServer:
                 self._refuse(conn, f"element {self.lab.names[j]}: connection from {peer[0]}:{peer[1]} refused: "
                                    f"{MAX_PENDING} connections already wait for their setup message")
                 continue
-            t = threading.Thread(target=self._connection, args=(j, conn, peer), daemon=True)
+            t = threading.Thread(target=self._connection, args=(j, conn, peer), daemon=True,
+                                 name=f"hsio-opensees-{j}-{peer[0]}:{peer[1]}")
             t.start()
             with self._lock:
                 self._threads = [x for x in self._threads if x.is_alive()] + [t]
@@ -165,8 +166,14 @@ class OpenSeesServer:
                 pass
 
     def close(self, timeout_s: float = 5.0) -> None:
-        """Stop listening, drop every client, end the session (actuators hold, record closed)."""
+        """Stop listening, drop every client, end the session (actuators hold, record closed).
+        Every connection's thread is woken (its socket shut down, its wait for a step or for its
+        element released) and given ``timeout_s`` to end; one still running then is logged."""
+        if self._stop.is_set():  # closed already
+            return
         self._stop.set()
+        with self._freed:  # a client waiting to claim its element is refused at once
+            self._freed.notify_all()
         for s in self.listeners:
             try:
                 s.close()
@@ -180,8 +187,11 @@ class OpenSeesServer:
                 c.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
+        self.lab.release()  # an element waiting for the others to commit a step
         for t in threads:
             t.join(timeout_s)
+            if t.is_alive():
+                self.log(f"{t.name}: still running {timeout_s:g} s after the server was asked to close")
         self.lab.close()
 
     def __enter__(self) -> "OpenSeesServer":
