@@ -199,8 +199,6 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     safety = SafetySettings.from_table(config["safety"])
     compensation = CompensationStage(channel_names(structure), test["rate"] * structure.dt,
                                      CompensationSettings.from_table(config["compensation"]))
-    if implicit and compensation.settings.mode != "off":
-        raise ConfigError(f"{config.source}: [compensation] applies to the alpha_os method, not to {method!r}")
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     out = run_folder(config, structure, out_dir)
@@ -253,7 +251,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                                  hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
                                  keep_samples=config["output"]["samples"],
                                  options=emulator if hardware["url"].startswith("emulator") else config["driver"],
-                                 estimator=estimator, compensation=None if implicit else compensation, safety=safety)
+                                 estimator=estimator, compensation=compensation if not implicit or compensation.settings.mode != "off" else None,
+                                 safety=safety)
             cleanup.callback(site.close)
             start_state = _state(site)
             recorder.write_meta({"start_state": start_state})
