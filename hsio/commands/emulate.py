@@ -13,7 +13,7 @@ import sys
 
 import click
 
-from hsio.commands import wait_for_stop
+from hsio.commands import stop_requested, wait_for_stop
 from hsio.errors import HsioError
 
 
@@ -77,6 +77,7 @@ def _fault_line(bank) -> list[str]:
 
 
 def _serve(emulator, bank, lines: list[str]) -> None:
+    done = stop_requested()
     for line in lines:
         click.echo(line)
     click.echo(f"axes      {', '.join(bank.names)}")
@@ -85,7 +86,7 @@ def _serve(emulator, bank, lines: list[str]) -> None:
     click.echo("Ctrl-C stops the emulator.")
     sys.stdout.flush()
     try:
-        wait_for_stop()
+        wait_for_stop(done)
     finally:
         emulator.stop()
         if bank.faults:

@@ -11,7 +11,7 @@ import sys
 
 import click
 
-from hsio.commands import wait_for_stop
+from hsio.commands import stop_requested, wait_for_stop
 from hsio.errors import HsioError
 
 
@@ -49,6 +49,7 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
     except HsioError as exc:
         click.echo(f"hsio serve opensees: error: {exc}", err=True)
         sys.exit(2)
+    done = stop_requested()
     f = settings.force_factor
     click.echo(f"structure {lab.structure.name}, hardware {config['hardware']['url']} ({config['hardware']['clock']}), "
                f"TR = {config['test']['rate']:g}")
@@ -61,7 +62,7 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
     click.echo("Ctrl-C stops the server.")
     sys.stdout.flush()
     try:
-        wait_for_stop()
+        wait_for_stop(done)
     finally:
         server.close()
         click.echo(f"server stopped; {lab.hold_message}.")
