@@ -26,8 +26,11 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/hsio run
 
+# The suite runs on every core up to four (pytest-xdist): most tests wait on emulators, sockets
+# and subprocesses. HSIO_TEST_WORKERS=0 runs it in one process.
+HSIO_TEST_WORKERS ?= auto
 test: debian $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(HSIO_TEST_WORKERS) --maxprocesses 4
 
 bench: $(STAMP)
 	for b in bench/bench_*.py; do $(BIN)/python $$b || exit 1; done
