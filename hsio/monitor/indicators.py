@@ -44,7 +44,8 @@ def tracking_indicator(command: np.ndarray, measured: np.ndarray, start: float =
 def error_spectrum(error: np.ndarray, rate_hz: float, f_max_hz: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
     """One-sided amplitude spectrum of ``error`` sampled at ``rate_hz``: (frequency in Hz,
     amplitude in the error's unit), with a Hann window (amplitude corrected by its mean, so a sine
-    of amplitude A reads A at its frequency), the mean removed, up to ``f_max_hz``."""
+    of amplitude A reads A when its frequency falls on a bin, a multiple of rate_hz / len(error);
+    half-way between two bins its peak reads 0.85 A), the mean removed, up to ``f_max_hz``."""
     e = np.asarray(error, dtype=float)
     e = e[np.isfinite(e)]
     if e.size < 8 or rate_hz <= 0:
