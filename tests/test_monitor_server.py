@@ -259,3 +259,50 @@ def test_a_resumed_record_is_open_and_stop_stays_available_while_the_run_answers
     assert op.answers is False and all(b.disabled for b in page.buttons)
     assert "the record is closed" in page.status.text
     op.close()
+
+
+# -- a hung run does not hold up the page ---------------------------------------------------------
+def test_a_run_that_does_not_answer_never_blocks_the_page_and_stop_stays_available(tmp_path, monkeypatch):
+    """The socket is spoken to only from worker threads: with a run that never answers, the
+    page's update returns (it would block for as long as the run is hung otherwise), the state
+    is unknown, and Stop stays available."""
+    import threading
+
+    from bokeh.document import Document
+
+    from hsio.monitor import operator as operator_mod
+    from hsio.monitor.page import MonitorPage
+
+    write_record(tmp_path, 30).close()
+    (tmp_path / "control.sock").touch()  # a socket is there; the run behind it is hung
+    release, callers = threading.Event(), []
+
+    def hung(path, command, timeout_s=2.0):
+        callers.append((command, threading.current_thread()))
+        release.wait(30)
+        raise TimeoutError("timed out")
+
+    monkeypatch.setattr(operator_mod.control_socket, "send", hung)
+    op = Operator(tmp_path)
+    try:
+        page = MonitorPage(Document(), RecordFeed(tmp_path), op)
+        page._on_request("value", "", "stop 123")  # the operator presses Stop: returns at once
+        for _ in range(200):
+            if len(callers) >= 2:
+                break
+            time.sleep(0.01)
+        page.update()
+        assert not release.is_set()  # both calls are still waiting for the run ...
+        assert {c for c, _ in callers} == {"status", "stop"}
+        assert all(t is not threading.main_thread() for _, t in callers)  # ... in worker threads
+        assert op.answers is None and "busy, or hung" in page.status.text
+        assert {b.name: b.disabled for b in page.buttons} == {"pause_button": True, "resume_button": True,
+                                                               "stop_button": False}
+    finally:
+        release.set()
+        op.close()
+    for _ in range(200):  # the timed-out request is logged
+        if op.log:
+            break
+        time.sleep(0.01)
+    assert "stop from the monitor page: error: the run does not answer" in op.log[0]

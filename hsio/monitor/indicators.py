@@ -14,6 +14,10 @@
   the test (negative damping), so a falling, negative TI warns of a drift toward instability; a
   lead (overshoot) makes it grow.
 * margins: how far each channel stands from its limits, as a fraction of the limit.
+
+At the end of each step the monitor takes as d_c the target, the integrator's command to the
+actuator before any compensation adjusts it (``target_`` in the record); over controller samples,
+the command the controller was given (``cmd_``).
 """
 
 from __future__ import annotations
