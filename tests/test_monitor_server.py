@@ -144,7 +144,7 @@ class Babbling(Stalled):
 
 
 @pytest.mark.parametrize("kind", [Stalled, Babbling])
-def test_a_server_that_never_says_it_is_ready_is_a_clear_error_and_is_ended(tmp_path, kind):
+def test_a_server_that_never_says_it_is_ready_is_a_clear_error_and_is_ended(tmp_path, kind, monkeypatch):
     started = []
     original = subprocess.Popen
 
@@ -152,12 +152,10 @@ def test_a_server_that_never_says_it_is_ready_is_a_clear_error_and_is_ended(tmp_
         started.append(original(*args, **kwargs))
         return started[-1]
 
-    subprocess.Popen = popen
-    try:
-        with pytest.raises(ConfigError, match="the monitor did not start") as caught:
-            kind(tmp_path, port=0)
-    finally:
-        subprocess.Popen = original
+    monkeypatch.setattr(subprocess, "Popen", popen)
+    with pytest.raises(ConfigError, match="the monitor did not start") as caught:
+        kind(tmp_path, port=0)
+    monkeypatch.undo()
     assert isinstance(caught.value, HsioError)
     assert started and started[0].poll() is not None  # not left running
     if kind is Stalled:
