@@ -62,7 +62,7 @@ class Operator:
                 answers = bool(line)
             except TimeoutError:
                 line, answers = "", None
-            except OSError:
+            except (OSError, ValueError):  # refused (a socket left by a killed run), or garbled
                 line, answers = "", False
         self._line, self.answers = line, answers
 
