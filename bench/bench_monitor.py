@@ -1,4 +1,4 @@
-"""Benchmark: what the live monitor costs (docs/monitor.md section 5).
+"""Benchmark: what the live monitor costs (docs/monitor.md section 4).
 
 1. The step time of a lockstep run (the default structure and record, 1,000 steps) without the
    monitor, with ``--monitor`` serving nobody, and with a headless chromium following the page

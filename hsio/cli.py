@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import json
 import sys
@@ -99,24 +100,19 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         structure = runner.load_run_structure(cfg)
         ground = runner.build_record(cfg, structure)
         steps = len(excitation(structure, ground)[0]) - 1
-        progress = _Progress(steps, f"HS {structure.name}")
-        page = None
-        if with_monitor:  # the page reads the record of the run's folder from its own process
-            from hsio.monitor.server import MonitorProcess
+        with contextlib.ExitStack() as cleanup:  # closed in reverse: the bar, the keys, then the page
+            if with_monitor:  # the page reads the record of the run's folder from its own process
+                from hsio.monitor.server import MonitorProcess
 
-            out_dir = runner.run_folder(cfg, structure, out_dir)
-            page = MonitorProcess(out_dir, monitor_host, monitor_port)
-            click.echo(f"hsio run: monitor at {page.url}", err=True)
-        keys = KeyReader(control, notify) if cfg["safety"]["keys"] else None
-        try:
+                out_dir = runner.run_folder(cfg, structure, out_dir)
+                page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
+                click.echo(f"hsio run: monitor at {page.url}", err=True)
+            if cfg["safety"]["keys"]:
+                cleanup.callback(KeyReader(control, notify).close)
+            progress = _Progress(steps, f"HS {structure.name}")
+            cleanup.callback(progress.close)
             summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
                                  notify=notify if not as_json else (lambda line: None))
-        finally:
-            progress.close()
-            if keys is not None:
-                keys.close()
-            if page is not None:
-                page.close()
     except DryRunRefused as exc:
         click.echo(f"hsio run: {exc}", err=True)
         _where(exc)

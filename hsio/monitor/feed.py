@@ -24,6 +24,7 @@ from hsio.recording import RUN_FILE, column
 
 SAMPLES_WINDOW = 4096  # controller samples read for the spectrum (4 s at 1024 Hz)
 META_EVERY_S = 2.0
+RESUMED = "resumed after step"  # the event `hsio resume` writes as it reopens a record (not a pause's resume)
 
 
 class _Columns:
@@ -85,8 +86,16 @@ class RecordFeed:
 
     @property
     def finished(self) -> bool:
-        """The run wrote its summary: the record is closed."""
-        return bool(self.summary)
+        """The run wrote its summary and no `hsio resume` has reopened the record since.
+
+        A resume leaves the summary of the run it continues in place until it writes its own (with
+        ``resumed_from``, the step it continued after): the record is open again while the last
+        resume event names a step that summary does not. (The page also treats a record whose
+        control socket answers as a run in progress.)"""
+        if not self.summary:
+            return False
+        resumed = [e for e in self.events if e["kind"] == "resume" and str(e["message"]).startswith(RESUMED)]
+        return not resumed or self.summary.get("resumed_from") == resumed[-1]["step"]
 
     @property
     def total_steps(self) -> int | None:

@@ -14,6 +14,10 @@
   the test (negative damping), so a falling, negative TI warns of a drift toward instability; a
   lead (overshoot) makes it grow.
 * margins: how far each channel stands from its limits, as a fraction of the limit.
+
+At the end of each step the monitor takes as d_c the target, the integrator's command to the
+actuator before any compensation adjusts it (``target_`` in the record); over controller samples,
+the command the controller was given (``cmd_``).
 """
 
 from __future__ import annotations
@@ -44,7 +48,8 @@ def tracking_indicator(command: np.ndarray, measured: np.ndarray, start: float =
 def error_spectrum(error: np.ndarray, rate_hz: float, f_max_hz: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
     """One-sided amplitude spectrum of ``error`` sampled at ``rate_hz``: (frequency in Hz,
     amplitude in the error's unit), with a Hann window (amplitude corrected by its mean, so a sine
-    of amplitude A reads A at its frequency), the mean removed, up to ``f_max_hz``."""
+    of amplitude A reads A when its frequency falls on a bin, a multiple of rate_hz / len(error);
+    half-way between two bins its peak reads 0.85 A), the mean removed, up to ``f_max_hz``."""
     e = np.asarray(error, dtype=float)
     e = e[np.isfinite(e)]
     if e.size < 8 or rate_hz <= 0:

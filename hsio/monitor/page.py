@@ -3,7 +3,12 @@
 Every ``UPDATE_MS`` the page's periodic callback polls the record feed (shared by all tabs) and
 sends the tab what changed: the new points of the decimated histories
 (:class:`hsio.monitor.decimate.Decimation`, streamed), the newest step at full resolution (one
-row), the spectrum, the margins and the status text. Nothing heavy runs on the run's side.
+row), the spectrum, the margins and the status text. Nothing heavy runs on the run's side, and
+nothing here waits for the run: the control socket is spoken to from worker threads
+(:class:`hsio.monitor.operator.Operator`).
+
+"Target" is the integrator's command to an actuator (the ``target_`` column of the record),
+before any compensation adjusts it; the tracking error is target minus measured.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ PHASES = {v: k for k, v in PHASE_CODES.items()}
 COLORS = Category10[10]
 CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
            "resume": "Resume the test from where it holds?",
-           "stop": "STOP the test? The actuators hold and the record is closed; the run cannot continue."}
+           "stop": "STOP the test? The actuators hold and the record is closed (hsio resume can continue it later)."}
 # Fixed borders: when the tick labels change width the page is not laid out again (a relayout
 # redraws every plot, the costliest thing a browser does here).
 PLOT = dict(height=260, sizing_mode="stretch_width", tools="pan,box_zoom,wheel_zoom,reset,save",
@@ -114,7 +119,7 @@ class MonitorPage:
             p.scatter(col("disp", c), col("force", c), source=self.last, color="red", size=7)
         _legend(p, items)
         figs.append(p)
-        p = _fig("Tracking error (command - measured)", "time (s)", "mm (kN in force control)")
+        p = _fig("Tracking error (target - measured)", "time (s)", "mm (kN in force control)")
         _legend(p, [(c, [p.line("t", col("error", c), source=self.steps, color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
@@ -122,7 +127,7 @@ class MonitorPage:
         _legend(p, [(c, [p.line("f", col("a", c), source=self.spectrum, color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
-        p = _fig("Measured vs commanded displacement", "commanded (mm)", "measured (mm)")
+        p = _fig("Measured vs target displacement", "target: the integrator's command (mm)", "measured (mm)")
         p.add_layout(Slope(gradient=1, y_intercept=0, line_color="gray", line_dash="dotted"))
         _legend(p, [(c, [p.line(col("target", c), col("disp", c), source=self.steps, color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
@@ -247,19 +252,27 @@ class MonitorPage:
         total = f.total_steps
         meta = f.meta
         line = self.operator.status()
-        if f.finished:
+        answers = self.operator.answers  # True, False, or None: not known yet / no answer in time
+        running = answers is True and line.startswith("ok ")
+        over = f.finished and answers is not True  # a run answering on its socket is never over
+        if running:
+            words = line.split()
+            state = f"{words[1]} (phase {words[3]})" if len(words) >= 4 else line[3:]
+        elif answers is True:
+            state = f"the run answers: {line}"
+        elif over:
             state = f"run over ({f.summary.get('outcome', 'ended')}); the record is closed"
             if f.summary.get("stopped"):
                 state += f" ({f.summary['stopped']})"
-        elif line.startswith("ok "):
-            words = line.split()
-            state = f"{words[1]} (phase {words[3]})" if len(words) >= 4 else line[3:]
+        elif answers is None:
+            state = "waiting for the run's control socket to answer (the run busy, or hung)"
         else:
             state = "no answer from the run's control socket (a run killed, or started without one)"
-        disabled = f.finished or not line.startswith("ok ")
-        for b in self.buttons:
-            if b.disabled != disabled:
-                b.disabled = disabled
+        # Stop stays available unless no run can hear it: a run that answers, or may be there.
+        disabled = {"pause": not running, "resume": not running, "stop": over or answers is False}
+        for action, b in zip(ACTIONS, self.buttons):
+            if b.disabled != disabled[action]:
+                b.disabled = disabled[action]
         last_step = int(f["step"][n - 1]) if n else 0
         t_now = float(f["time_s"][n - 1]) if n else 0.0
         dt, tr = float(meta.get("dt", 0.0)), float(meta.get("test_rate", 0.0))
@@ -269,7 +282,7 @@ class MonitorPage:
                  ("state", f"<span id='hsio-state'>{html.escape(state)}</span>"),
                  ("step", f"<span id='hsio-step'>{last_step}</span>" + (f" of {total} ({100.0 * last_step / total:.1f} %)"
                                                                        if total else "") + f", t = {t_now:.3f} s")]
-        if rate and not f.finished and dt > 0:
+        if rate and not over and dt > 0:
             items.append(("test rate", f"TR {tr:g} configured, {1.0 / (rate * dt):.2f} measured ({rate:.1f} steps/s)"))
             if total:
                 items.append(("time to finish", f"{max(total - last_step, 0) / rate:.1f} s"))
@@ -320,5 +333,12 @@ class MonitorPage:
         request = self.doc.session_context.request if self.doc.session_context else None
         who = f"the monitor page ({request.remote_ip})" if request is not None and getattr(request, "remote_ip", None) \
             else "the monitor page"
-        self.operator.request(action, who)
-        self._status()
+        doc = self.doc
+
+        def answered(_future) -> None:  # in the worker thread: the page is changed on its own loop
+            try:
+                doc.add_next_tick_callback(self._status)
+            except Exception:  # the tab closed meanwhile
+                pass
+
+        self.operator.submit(action, who).add_done_callback(answered)

@@ -6,17 +6,23 @@ binds 127.0.0.1 unless told otherwise; bound to any other address it requires a 
 start-up, in the page's URL (``?token=...``; a cookie keeps it for the page's connection).
 
 `hsio run --monitor` starts it as a child process (:class:`MonitorProcess`) beside the run: the
-run's loop never waits for the page, which reads the record from its own process.
+run's loop never waits for the page, which reads the record from its own process. The child ends
+with its parent, however the parent ends (even killed): it watches its stdin, a pipe from the
+parent, and stops when the pipe reaches its end (and on Linux asks the kernel for SIGTERM when
+the parent dies).
 """
 
 from __future__ import annotations
 
 import hmac
 import os
+import queue
 import secrets
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -24,7 +30,7 @@ from hsio.errors import ConfigError
 
 DEFAULT_PORT = 8765
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
-COOKIE = "hsio_monitor_token"
+COOKIE = "hsio_monitor_token_{port}"  # one per port: cookies are shared by all ports of a host
 READY = "hsio monitor: serving"
 LOG_FILE = "monitor.log"
 
@@ -40,20 +46,38 @@ def needs_token(host: str) -> bool:
     return host not in LOOPBACK
 
 
-def _token_auth(token: str):
+def same_token(given: str | None, token: str) -> bool:
+    """``given`` is ``token`` (compared in constant time, as bytes: any text compares)."""
+    if given is None:
+        return False
+    return hmac.compare_digest(given.encode("utf-8", "surrogateescape"), token.encode("utf-8"))
+
+
+def allowed_origins(host: str, port: int) -> list[str]:
+    """The origins (``host:port`` as a browser sends it) whose pages may open the page's
+    websocket: the monitor's own address and port only. Bound to every address (0.0.0.0), or to
+    an IPv6 one (which Bokeh's patterns cannot spell), any name of this machine but this port only."""
+    if not needs_token(host):
+        return [f"{h}:{port}" for h in ("127.0.0.1", "localhost")]
+    if host in ("0.0.0.0", "") or ":" in host:
+        return [f"*:{port}"]
+    return [f"{host}:{port}"]
+
+
+def _token_auth(token: str, port: int):
     """A Bokeh auth provider that admits a request carrying ``token`` (query or cookie)."""
     from bokeh.server.auth_provider import AuthProvider
     from tornado.web import RequestHandler
     from tornado.websocket import WebSocketHandler
 
+    cookie = COOKIE.format(port=port)
+
     def get_user(handler):
-        given = handler.get_argument("token", None)
-        if given is not None and hmac.compare_digest(given, token):
+        if same_token(handler.get_argument("token", None), token):
             if not isinstance(handler, WebSocketHandler):
-                handler.set_cookie(COOKIE, token, httponly=True, samesite="Strict")
+                handler.set_cookie(cookie, token, httponly=True, samesite="Strict")
             return "operator"
-        cookie = handler.get_cookie(COOKIE)
-        return "operator" if cookie is not None and hmac.compare_digest(cookie, token) else None
+        return "operator" if same_token(handler.get_cookie(cookie), token) else None
 
     class Denied(RequestHandler):
         def get(self):
@@ -77,11 +101,10 @@ def _token_auth(token: str):
 
 
 def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str | None = None,
-          announce=print, cap: int | None = None, wait_s: float = 60.0) -> None:
+          announce=print, cap: int | None = None) -> None:
     """Serve the monitor of the run in ``run_dir`` until interrupted (SIGINT, SIGTERM).
 
-    The record may not exist yet (a run starting): the page waits for it, up to ``wait_s`` before
-    the server gives up announcing."""
+    The record may not exist yet (a run starting): the page says so and waits for it."""
     os.environ["BOKEH_RESOURCES"] = "server"  # BokehJS from the installed package, never a CDN
     from bokeh.application import Application
     from bokeh.application.handlers.function import FunctionHandler
@@ -103,8 +126,8 @@ def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT
 
     try:
         port = port or free_port(host)
-        origins = [f"{h}:{port}" for h in ("127.0.0.1", "localhost")] if not needs_token(host) else ["*"]
-        kwargs = {"auth_provider": _token_auth(token)} if needs_token(host) else {}
+        origins = allowed_origins(host, port)
+        kwargs = {"auth_provider": _token_auth(token, port)} if needs_token(host) else {}
         server = Server({"/": Application(FunctionHandler(make_page))}, address=host, port=port,
                         allow_websocket_origin=origins, num_procs=1, check_unused_sessions_milliseconds=2000,
                         unused_session_lifetime_milliseconds=5000, **kwargs)
@@ -117,7 +140,33 @@ def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT
     try:
         IOLoop.current().start()
     finally:
+        operator.close()
         feed.close()
+
+
+def end_with_parent() -> None:
+    """In the page server started by :class:`MonitorProcess`: end (SIGTERM to itself) when the
+    parent goes, however it goes. Its stdin is a pipe whose only writer is the parent, so it
+    reaches its end when the parent exits or is killed; on Linux the kernel also sends SIGTERM
+    when the parent dies (PR_SET_PDEATHSIG)."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            PR_SET_PDEATHSIG = 1
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+
+    def watch() -> None:
+        try:
+            while os.read(0, 4096):  # the raw descriptor: no buffer lock held at the interpreter's exit
+                pass
+        except OSError:
+            pass
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 class MonitorProcess:
@@ -129,32 +178,68 @@ class MonitorProcess:
     def __init__(self, run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT):
         self.run_dir = Path(run_dir)
         self.url = ""
-        cmd = [sys.executable, "-m", "hsio.monitor", str(self.run_dir), "--host", host, "--port", str(port)]
         env = {**os.environ, "BOKEH_RESOURCES": "server", "PYTHONUNBUFFERED": "1"}
         self.log_path = self.run_dir / LOG_FILE  # the server's own messages
         with open(self.log_path, "a", encoding="utf-8") as log:
-            # The run's own session (so its lower priority counts against the run's processes).
-            self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log,
-                                         text=True, env=env)
-        line = self.proc.stdout.readline()  # the child prints READY once it listens, or exits
-        if not line.startswith(READY):
-            self.proc.wait(timeout=self.START_TIMEOUT_S)
-            self.proc.stdout.close()
+            # stdin: a pipe the child watches; its end tells the child that the run is gone.
+            self.proc = subprocess.Popen(self.command(host, port), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=log, text=True, env=env)
+        try:
+            line = self._first_line()
+        except BaseException:
+            self._end(kill=True)
+            raise
+        if line is None or not line.startswith(READY):
+            self._end(kill=line is None)
+            if line is None:
+                raise ConfigError(f"the monitor did not start: no answer from its server within {self.START_TIMEOUT_S:g} s "
+                                  f"(its messages: {self.log_path})")
             lines = [x for x in (line + self.log_path.read_text(encoding="utf-8")).splitlines() if x.strip()]
             reason = lines[-1].removeprefix("hsio monitor: error: ") if lines else f"exit {self.proc.returncode}"
             raise ConfigError(f"the monitor did not start: {reason}")
         self.url = line.rpartition(" at ")[2].strip()
 
+    def command(self, host: str, port: int) -> list[str]:
+        return [sys.executable, "-m", "hsio.monitor", str(self.run_dir), "--host", host, "--port", str(port)]
+
+    def _first_line(self) -> str | None:
+        """The child's first line (READY once it listens, else why it failed: it exits); None if
+        it says nothing for START_TIMEOUT_S."""
+        lines: queue.Queue = queue.Queue()
+        threading.Thread(target=lambda: lines.put(self.proc.stdout.readline()), daemon=True).start()
+        try:
+            return lines.get(timeout=self.START_TIMEOUT_S)
+        except queue.Empty:
+            return None
+
+    def _end(self, kill: bool = False) -> None:
+        """End the child (SIGTERM, then SIGKILL if it lingers) and close its pipes."""
+        try:
+            if self.proc.poll() is None:
+                if kill:
+                    self.proc.kill()
+                else:
+                    self.proc.terminate()
+                try:
+                    self.proc.wait(timeout=5.0)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait(timeout=5.0)
+        finally:
+            for pipe in (self.proc.stdin, self.proc.stdout):
+                try:
+                    pipe.close()
+                except OSError:
+                    pass
+
     def close(self, grace_s: float | None = None) -> None:
-        if self.proc.poll() is None:
-            time.sleep(self.GRACE_S if grace_s is None else grace_s)
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=5.0)
-        self.proc.stdout.close()
+        """After the grace time (the page shows the closed record), end the server; ended even if
+        the wait is interrupted (Ctrl-C)."""
+        try:
+            if self.proc.poll() is None:
+                time.sleep(self.GRACE_S if grace_s is None else grace_s)
+        finally:
+            self._end()
 
     def __enter__(self):
         return self
