@@ -5,6 +5,7 @@ back into motion after the hold is reported as not holding."""
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import time
 
@@ -35,7 +36,10 @@ def command_a_while(actuators, clock, value=0.5, periods=40):
         actuators[0].feedback()
 
 
-def test_modbus_hold_is_read_back_from_the_status_word(tmp_path):
+@contextlib.contextmanager
+def held_over_modbus(tmp_path):
+    """A real-time Modbus emulator and its two actuators, commanded a while (following, checked)
+    and then held: yields (emulator, actuators)."""
     cfg = write_config(tmp_path, clock="realtime")
     emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0), modbus_map.load()).start()
     try:
@@ -45,6 +49,15 @@ def test_modbus_hold_is_read_back_from_the_status_word(tmp_path):
         assert [a.holding() for a in actuators] == [False, False]  # enabled, following
         for a in actuators:
             a.hold()
+        yield emu, actuators
+        for a in actuators:
+            a.close()
+    finally:
+        emu.stop()
+
+
+def test_modbus_hold_is_read_back_from_the_status_word(tmp_path):
+    with held_over_modbus(tmp_path) as (emu, actuators):
         report = read_back(actuators)
         assert report.confirmed and report.message == "the actuators hold (confirmed by read-back)"
         # Another client enables axis 0 again (enable register of axis 0: 18 + 6): the read-back
@@ -57,10 +70,6 @@ def test_modbus_hold_is_read_back_from_the_status_word(tmp_path):
         report = read_back(actuators)
         assert report.states == {"C1": False, "C2": True} and not report.confirmed
         assert "WARNING: C1 did not confirm the hold" in report.message
-        for a in actuators:
-            a.close()
-    finally:
-        emu.stop()
 
 
 @pytest.mark.parametrize("word, mode, holds", [
@@ -108,14 +117,7 @@ def test_canopen_holding_reads_the_mode_while_operation_is_enabled(objects, hold
 def test_modbus_hold_read_back_leaves_the_cyclic_status_alone(tmp_path):
     """The read-back is a read of its own: the next feedback() reads the controller again (it
     does not return the read-back's status, older by then)."""
-    cfg = write_config(tmp_path, clock="realtime")
-    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0), modbus_map.load()).start()
-    try:
-        clock = RealTimeClock()
-        actuators = open_modbus(emu.url, ["C1", "C2"], clock)
-        command_a_while(actuators, clock)
-        for a in actuators:
-            a.hold()
+    with held_over_modbus(tmp_path) as (emu, actuators):
         a = actuators[0]
         a.feedback()
         assert a.holding() is True
@@ -123,10 +125,6 @@ def test_modbus_hold_read_back_leaves_the_cyclic_status_alone(tmp_path):
         with emu.bank.lock:
             ticks = emu.bank.ticks
         assert a.feedback().time_s * a.link.rate_hz >= ticks  # read after `ticks`, not at the read-back
-        for a in actuators:
-            a.close()
-    finally:
-        emu.stop()
 
 
 def test_modbus_hold_read_back_after_lockstep_was_lost(tmp_path):
