@@ -29,6 +29,8 @@ from hsio.ledger import Ledger
 from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
 from hsio.safety.dry_run import check, dry_run, enforce, from_present
+from hsio.safety.dry_run import predict as predict_peaks
+from hsio.sites.numerical import StandingSite
 from hsio.sites.setup_map import SetupMap
 from hsio.safety.settings import SafetySettings
 from hsio.safety.socket import ControlServer
@@ -155,16 +157,37 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     return ns, report
 
 
-def _dry_run_from_present(report, start_state: dict | None, safety: SafetySettings, recorder, notify) -> None:
-    """Check the prediction again from where the specimen stands, read when the hardware opened
-    and before anything moves (docs/safety.md section 2); refuse as the dry run does."""
+def _dry_run_from_present(config: RunConfig, structure: Structure, ground: GroundMotion, report,
+                          start_state: dict | None, safety: SafetySettings, recorder, notify, ledger, run_id) -> None:
+    """Check the test again from where the specimen stands, read when the hardware opened and
+    before the first command (docs/safety.md section 2); refuse as the dry run does.
+
+    Elements loaded by one actuator each: NS from the present state (each specimen model about
+    the measured displacement and force, the numerical DOFs in static equilibrium, v = 0: the
+    free vibration the offset starts is in the prediction). Through setups: the prediction from
+    rest shifted by each actuator's present stroke and force."""
     if not start_state or "error" in start_state:
         raise DryRunRefused("dry run from the present state: the actuators' present state could not be read "
-                            f"({(start_state or {}).get('error', 'no feedback')}); nothing moved")
-    present = check(from_present(report.prediction, start_state), report.limits, report.source, safety)
-    text = "from the present state (NS from rest plus where each actuator stands):\n" + present.text()
+                            f"({(start_state or {}).get('error', 'no feedback')}); no command was sent")
+    if structure.has_setups or any(getattr(e, "is_multi_dof", False) for e in structure.experimental):
+        prediction = from_present(report.prediction, start_state)
+        how = "NS from rest plus where each actuator stands"
+    else:
+        n = len(structure.experimental)
+        standing = list(start_state.values())[:n]  # the element actuators, in order (static preloads after)
+        u0 = [v["displacement_mm"] for v in standing]
+        R0 = [v["force_kN"] for v in standing]
+        site = StandingSite([e.model() for e in structure.experimental], u0, R0)
+        ns = api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present")
+        test = config["test"]
+        prediction = predict_peaks(ns, test["rate"] * structure.dt, test["hold_fraction"])
+        how = "NS from where the specimen stands"
+    present = check(prediction, report.limits, report.source, safety)
+    text = f"from the present state ({how}):\n" + present.text()
     recorder.write_event(None, 0, "dry_run", "", text)
     recorder.write_meta({"dry_run_present": present.as_dict()})
+    if ledger:
+        ledger.update(run_id, override=int(bool((report.exceeded or present.exceeded) and present.override)))
     notify(text)
     if present.refused:
         raise DryRunRefused(text)
@@ -260,7 +283,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                 ledger.update(run_id, start_state=start_state)
             notify(format_state("the actuators stand at", start_state))
             if test["start"] == "present" and report is not None:
-                _dry_run_from_present(report, start_state, safety, recorder, notify)
+                _dry_run_from_present(config, structure, ground, report, start_state, safety, recorder, notify,
+                                      ledger, run_id)
             compensation.sink = recorder.write_compensation
             control.check_stop()
             control.enter("HS")

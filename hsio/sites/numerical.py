@@ -132,3 +132,33 @@ class NumericalSite:
 
     def close(self) -> None:
         pass
+
+
+class StandingSite(NumericalSite):
+    """The specimen models standing where a measured specimen stands: element j answers
+    R0_j + model_j(u - u0_j), its virgin model about the measured displacement u0_j and force
+    R0_j (the prediction of a run that starts from the present state, docs/safety.md section 2:
+    a damaged specimen taken as its initial model about where it stands). Displacement control
+    only, as the present start is (alpha-OS)."""
+
+    def __init__(self, models: list[Specimen], u0, R0):
+        super().__init__(models)
+        self.u0, self.R0 = (np.asarray(x, dtype=float).copy() for x in (u0, R0))
+        if self.u0.shape != (self.n_elements,) or self.R0.shape != (self.n_elements,):
+            raise HsioError(f"standing site: {self.n_elements} elements, got {self.u0.size} displacements and "
+                            f"{self.R0.size} forces")
+        self._committed = (self.u0.copy(), self.R0.copy())
+
+    def set_trial(self, commands, modes) -> None:
+        if any(m is ControlMode.FORCE for m in modes):
+            raise HsioError("standing site: displacement control only")
+        self.set_modes(modes)
+        u = np.asarray(commands, dtype=float).copy()
+        R = np.empty(self.n_elements)
+        for model, block in zip(self.models, self._slices):
+            if isinstance(model, Specimen):
+                R[block.start] = self.R0[block.start] + model.trial(float(u[block.start] - self.u0[block.start]))
+            else:
+                R[block] = self.R0[block] + np.asarray(model.trial(u[block] - self.u0[block]), dtype=float)
+        u_b, R_b = self._committed
+        self._daq = Daq(u=u, R=R, k=secant_stiffness(u, R, u_b, R_b), targets=u.copy(), commands=u.copy())
