@@ -220,7 +220,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     test = config["test"]
     hardware = config["hardware"]
     safety = SafetySettings.from_table(config["safety"])
-    compensation = CompensationStage(channel_names(structure), test["rate"] * structure.dt,
+    # one stage channel per actuator (through setups, the setups' actuators, not the basic DOFs)
+    actuator_names = SetupMap.of(structure).actuator_names if structure.has_setups else channel_names(structure)
+    compensation = CompensationStage(list(actuator_names), test["rate"] * structure.dt,
                                      CompensationSettings.from_table(config["compensation"]))
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])

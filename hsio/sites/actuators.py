@@ -58,6 +58,9 @@ class ActuatorSite:
             raise ConfigError("the secant stiffness is estimated from the controller-rate samples: "
                               "set [output] samples = true")
         self.compensation = compensation  # hsio.compensation.stage.CompensationStage or None
+        if compensation is not None and len(compensation.names) != self.n_dynamic:
+            raise ConfigError(f"the compensation stage names {len(compensation.names)} actuators "
+                              f"({', '.join(compensation.names)}); the loop drives {self.n_dynamic}")
         self.readback = self.read_back()  # every channel, before the first command
         feedback = loop.feedback()[: self.n_dynamic]
         # relative trials: the actuators' positions now (at enabling) are the zero of every command
