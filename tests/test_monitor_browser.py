@@ -239,15 +239,18 @@ def test_live_run_paused_resumed_and_stopped_from_the_page_then_replayed(tmp_pat
         assert "control socket" in events[-1]["message"]
         # No motion while paused. With no noise and no quantisation in the emulator: from the last
         # sample before the pause to the first after the resume (lab time, over a second apart) a
-        # rod moves no further than in the one controller period that follows (it starts again in
-        # that period); a rod that crept during the pause would be far out.
+        # rod moves no further than the rest of its approach to its last command plus the one
+        # controller period that follows (it starts again in that period); a rod that crept
+        # during the pause would be far out.
         samples, resume = run.samples(), events[kinds.index("resume")]
         lab = samples["lab_time_s"]
         held, again = lab <= pause["time_s"], lab >= resume["time_s"]
         assert held.any() and again.sum() >= 2 and lab[again][0] - lab[held][-1] > 0.5
         for c in ("C1", "C2"):
             before, (after, next_) = samples[f"disp_{c}"][held][-1], samples[f"disp_{c}"][again][:2]
-            assert abs(after - before) <= 2.0 * abs(next_ - after) + 1e-6, (c, before, after, next_)
+            command = samples[f"cmd_{c}"][held][-1]
+            assert abs(after - before) <= abs(command - before) + 2.0 * abs(next_ - after) + 1e-6, \
+                (c, before, after, next_, command)
         log = (out / "operator.log").read_text().splitlines()
         assert [line.split()[1] for line in log] == ["pause", "resume", "stop"]
         assert all(line[:4].isdigit() and line[19] == "Z" for line in log)  # each with its UTC time
