@@ -216,7 +216,8 @@ PLAUSIBILITY_RULES = {
 class Plausibility:
     """Checks every measured sample of one axis before the experiment sees it (docs/faults.md).
 
-    Refused, as :class:`~hsio.errors.ImplausibleMeasurementError` (an interlock: the run holds):
+    Refused, as :class:`~hsio.errors.ImplausibleMeasurementError` (an interlock: the run stops, holds
+    the actuators and reads the hold back):
 
     * a value that is not finite (NaN, infinity);
     * a displacement beyond twice the half stroke, a force beyond twice the capacity;
@@ -247,7 +248,8 @@ class Plausibility:
         from hsio.errors import ImplausibleMeasurementError
 
         self.rejected += 1
-        raise ImplausibleMeasurementError(f"{self.where}: implausible measurement: {what}; not passed on, the run holds")
+        raise ImplausibleMeasurementError(f"{self.where}: implausible measurement: {what}; not passed on, the run "
+                                          "stops (its stop line says whether the hold was confirmed)")
 
     def check(self, displacement: float, force: float, t: float, command: float | None = None) -> None:
         if not math.isfinite(displacement):

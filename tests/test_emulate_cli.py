@@ -149,3 +149,18 @@ def test_a_silent_emulator_fails_the_start_up_deadline():
     with pytest.raises(RuntimeError, match="did not start in time"):
         Emulator(argv=[sys.executable, "-c", "import time; time.sleep(30)"], startup_s=1.0)
     assert time.monotonic() - started < 10
+
+
+def test_emulate_watch_holding_is_announced_and_reaches_the_controller(tmp_path):
+    """--watch-holding: the watchdog also watches holding axes (the strict mode the pause test uses);
+    the banner says so, and the flag reaches the controller bank."""
+    from hsio.commands.emulate import _bank
+
+    cfg = write_config(tmp_path)
+    emu = Emulator("modbus", "--port", 0, "--watchdog-s", 0.5, "--watch-holding", cfg)
+    try:
+        assert emu.lines["watchdog"] == "0.5 s, holding axes watched too"
+    finally:
+        emu.stop()
+    assert _bank(str(cfg), "lockstep", 0.5, (), "", True).watch_holding
+    assert not _bank(str(cfg), "lockstep", 0.5, ()).watch_holding

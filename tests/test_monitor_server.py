@@ -112,7 +112,9 @@ def test_the_page_server_ends_when_its_parent_closes_the_pipe(tmp_path):
         page.close(grace_s=0)
 
 
-def test_close_ends_the_server_even_when_interrupted_in_its_grace_time(tmp_path, monkeypatch):
+def test_a_ctrl_c_in_the_grace_time_ends_the_server_and_is_not_an_interruption(tmp_path, monkeypatch):
+    """The run has ended when the grace time starts: a Ctrl-C there ends the page server at once
+    and does not reach the caller (a finished run keeps its exit status 0)."""
     write_record(tmp_path, 10).close()
     page = MonitorProcess(tmp_path, port=0)
 
@@ -125,8 +127,7 @@ def test_close_ends_the_server_even_when_interrupted_in_its_grace_time(tmp_path,
         real_sleep(s)
 
     monkeypatch.setattr(time, "sleep", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        page.close()
+    page.close()  # no KeyboardInterrupt escapes
     monkeypatch.undo()
     assert calls[0] == MonitorProcess.GRACE_S and page.proc.returncode is not None
 

@@ -25,6 +25,9 @@ def _common(func):
                         help="Override an [emulator] setting (repeatable), e.g. --set lag_s=0.03.")(func)
     func = click.option("--watchdog-s", default=1.0, show_default=True, type=float,
                         help="Hold an axis when the host stays silent longer than this (0: off).")(func)
+    func = click.option("--watch-holding", is_flag=True,
+                        help="The watchdog also watches holding axes (strict: a host that stops feeding it "
+                             "during a pause trips it; docs/safety.md).")(func)
     func = click.option("--clock", type=click.Choice(["config", "lockstep", "realtime"]), default="config",
                         show_default=True, help="Lockstep (advanced by the host) or real time (own 1024 Hz loop).")(func)
     func = click.argument("config_file", required=False, type=click.Path(dir_okay=False))(func)
@@ -52,7 +55,7 @@ def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float 
     return ControllerBank(controllers, [s.name for s in specs], lockstep, watchdog_s)
 
 
-def _bank(config_file, clock, watchdog_s, settings, faults_spec=""):
+def _bank(config_file, clock, watchdog_s, settings, faults_spec="", watch_holding=False):
     from hsio.emulators.bank import parse_settings
     from hsio.emulators.faults import parse
     from hsio import config as config_mod
@@ -66,6 +69,7 @@ def _bank(config_file, clock, watchdog_s, settings, faults_spec=""):
     bank = bank_from_config(config_file, lockstep=(clock == "lockstep"), watchdog_s=watchdog_s,
                             overrides=parse_settings(settings))
     bank.faults = schedule
+    bank.watch_holding = bool(watch_holding)
     return bank
 
 
@@ -82,7 +86,8 @@ def _serve(emulator, bank, lines: list[str]) -> None:
         click.echo(line)
     click.echo(f"axes      {', '.join(bank.names)}")
     click.echo(f"clock     {'lockstep (advanced by the host)' if bank.lockstep else 'real time, %g Hz' % bank.rate_hz}")
-    click.echo(f"watchdog  {bank.watchdog_s:g} s" if bank.watchdog_s else "watchdog  off")
+    strict = ", holding axes watched too" if bank.watch_holding else ""
+    click.echo(f"watchdog  {bank.watchdog_s:g} s{strict}" if bank.watchdog_s else "watchdog  off")
     click.echo("Ctrl-C stops the emulator.")
     sys.stdout.flush()
     try:
@@ -105,7 +110,7 @@ def emulate() -> None:
 @click.option("--port", default=5020, show_default=True, type=int, help="TCP port (0: any free port; the banner shows the one bound).")
 @click.option("--map", "map_file", default=None, type=click.Path(dir_okay=False), help="Register map TOML (default: hsio's).")
 @_common
-def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, settings, faults_spec) -> None:
+def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, watch_holding, settings, faults_spec) -> None:
     """Modbus TCP server (pymodbus) on HOST:PORT."""
     from hsio.drivers import modbus_map
     from hsio.emulators.modbus import ModbusEmulator
@@ -113,7 +118,7 @@ def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, settings, f
     try:
         if not 0 <= port <= 65535:
             raise click.BadParameter(f"{port} is not in 0..65535", param_hint="--port")
-        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec)
+        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec, watch_holding)
         emulator = ModbusEmulator(bank, modbus_map.load(map_file), "tcp", host=host, port=port).start()
     except (HsioError, RuntimeError, ValueError, OSError) as exc:
         click.echo(f"hsio emulate modbus: error: {exc}", err=True)
@@ -126,13 +131,13 @@ def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, settings, f
 @click.option("--baudrate", default=115200, show_default=True, type=int)
 @click.option("--map", "map_file", default=None, type=click.Path(dir_okay=False), help="Register map TOML (default: hsio's).")
 @_common
-def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, settings, faults_spec) -> None:
+def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, watch_holding, settings, faults_spec) -> None:
     """Modbus RTU server on a pseudo-terminal; prints the pty path for the client."""
     from hsio.drivers import modbus_map
     from hsio.emulators.modbus import ModbusEmulator
 
     try:
-        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec)
+        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec, watch_holding)
         emulator = ModbusEmulator(bank, modbus_map.load(map_file), "rtu", baudrate=baudrate).start()
     except (HsioError, RuntimeError, ValueError, OSError) as exc:
         click.echo(f"hsio emulate modbus-rtu: error: {exc}", err=True)
@@ -151,13 +156,14 @@ def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, settings, fau
 @click.option("--node-id", default=1, show_default=True, type=click.IntRange(1, 127), help="Node id of axis 0 (axis k: +k).")
 @click.option("--heartbeat-ms", default=100, show_default=True, type=click.IntRange(0, 65535))
 @_common
-def canopen_cmd(channel, interface, slcan, port, node_id, heartbeat_ms, config_file, clock, watchdog_s, settings,
+def canopen_cmd(channel, interface, slcan, port, node_id, heartbeat_ms, config_file, clock, watchdog_s, watch_holding,
+                settings,
                 faults_spec) -> None:
     """CiA 402 drives (canopen LocalNode) on a python-can bus, or on an SLCAN port for another process."""
     from hsio.emulators.canopen import CanopenEmulator, slcan_emulator
 
     try:
-        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec)
+        bank = _bank(config_file, clock, watchdog_s, settings, faults_spec, watch_holding)
         if slcan:
             emulator = slcan_emulator(bank, slcan, node_id, port=port, heartbeat_ms=heartbeat_ms)
         else:

@@ -233,11 +233,14 @@ class MonitorProcess:
                     pass
 
     def close(self, grace_s: float | None = None) -> None:
-        """After the grace time (the page shows the closed record), end the server; ended even if
-        the wait is interrupted (Ctrl-C)."""
+        """After the grace time (the page shows the closed record), end the server. A Ctrl-C in the
+        grace time only cuts it short: the run has ended by then, and its exit status is the run's
+        (a finished run stays 0, not "interrupted")."""
         try:
             if self.proc.poll() is None:
                 time.sleep(self.GRACE_S if grace_s is None else grace_s)
+        except KeyboardInterrupt:
+            pass
         finally:
             self._end()
 
