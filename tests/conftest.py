@@ -1,5 +1,7 @@
-"""Shared fixtures: paths to the data beside the repository (skipped where absent)."""
+"""Shared fixtures: paths to the data beside the repository (skipped where absent), the bench
+scripts as modules."""
 
+import importlib.util
 import os
 import shutil
 from pathlib import Path
@@ -14,6 +16,17 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared data folder {SHARED_DATA} is absent (CI and developer machines have it)")
     return SHARED_DATA
+
+
+@pytest.fixture
+def load_bench():
+    """``load_bench("bench_soak")``: bench/bench_soak.py as a module (the bench folder is not a package)."""
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "bench" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    return load
 
 
 # Long tests (the 100,000-step soak) are marked slow and run only with HSIO_SLOW=1, so that a

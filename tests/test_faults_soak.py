@@ -4,19 +4,7 @@ HSIO_SLOW=1 (marked slow)."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "bench_soak.py"
-
-
-def load_bench():
-    spec = importlib.util.spec_from_file_location("bench_soak", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def check(r: dict, steps: int) -> None:
@@ -26,14 +14,14 @@ def check(r: dict, steps: int) -> None:
     assert r["faults_total"] >= 1 and r["retries"] >= 1
 
 
-def test_soak_bounded(tmp_path):
-    r = load_bench().soak(2000, every=400, seed=11, workdir=tmp_path)
+def test_soak_bounded(tmp_path, load_bench):
+    r = load_bench("bench_soak").soak(2000, every=400, seed=11, workdir=tmp_path)
     check(r, 2000)
     assert {"drop", "corrupt"} <= set(r["faults"])
 
 
 @pytest.mark.slow
-def test_soak_100000_steps(tmp_path):
-    r = load_bench().soak(100_000, every=2000, seed=7, workdir=tmp_path)
+def test_soak_100000_steps(tmp_path, load_bench):
+    r = load_bench("bench_soak").soak(100_000, every=2000, seed=7, workdir=tmp_path)
     check(r, 100_000)
     assert r["faults_total"] >= 100

@@ -4,23 +4,11 @@ transducer; the bench's exact-sensor switch makes exactly that part exact and is
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import hsio.emulators.servo as servo
 
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "bench_mixed_cracking.py"
 
-
-def load_bench():
-    spec = importlib.util.spec_from_file_location("bench_mixed_cracking", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_exact_sensors_are_exact_and_restored():
-    bench = load_bench()
+def test_exact_sensors_are_exact_and_restored(load_bench):
+    bench = load_bench("bench_mixed_cracking")
     original = servo.ServoController._measure
     from hsio.specimens import make_specimen
 
@@ -37,8 +25,8 @@ def test_exact_sensors_are_exact_and_restored():
     assert c.measured_displacement != c.d_spec
 
 
-def test_before_cracking_dc_error_is_the_hosts_reading():
-    bench = load_bench()
+def test_before_cracking_dc_error_is_the_hosts_reading(load_bench):
+    bench = load_bench("bench_mixed_cracking")
     before, after = bench.run(0.2, 1994, "implicit_dc", 10)
     exact_before, _ = bench.run(0.2, 1994, "implicit_dc", 10, "reading")
     assert after is not None  # this record cracks the infill
