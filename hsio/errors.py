@@ -53,4 +53,5 @@ class ControllerRestartedError(CommunicationError):
 
 class ImplausibleMeasurementError(InterlockError):
     """A measured value is not plausible (not finite, beyond a physical bound, an impossible
-    jump); it never reaches the integrator and the run holds as for an interlock."""
+    jump); it never reaches the integrator and the run stops as for an interlock (the hold is read
+    back)."""

@@ -239,6 +239,7 @@ def test_found_url_with_broken_ipv6_host():
     (["probe", "modbus+tcp://127.0.0.1:5", "--option", "timeout_s"], ["KEY=VALUE"]),
     (["emulate", "modbus", "--faults", "bogus@1"], ["unknown fault 'bogus'"]),
     (["emulate", "modbus", "--port", "99999"], ["99999"]),
+    (["emulate", "modbus", "--watchdog-s", "0", "--watch-holding"], ["--watch-holding needs a watchdog"]),
     (["emulate", "canopen", "--slcan", "tcp", "--faults", "drop@x"], ["'x' is not a whole number"]),
 ])
 def test_other_commands_refuse_bad_input_without_traceback(args, words):

@@ -63,6 +63,8 @@ def _bank(config_file, clock, watchdog_s, settings, faults_spec="", watch_holdin
 
     if not (watchdog_s >= 0 and watchdog_s <= 3600):
         raise ConfigError(f"--watchdog-s {watchdog_s!r}: must be within 0..3600 s")
+    if watch_holding and watchdog_s == 0:
+        raise ConfigError("--watch-holding needs a watchdog: give --watchdog-s above 0")
     schedule = parse(faults_spec) if faults_spec else None
     if clock == "config":
         clock = config_mod.load(config_file)["hardware"]["clock"]
