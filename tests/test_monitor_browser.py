@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import sqlite3
 import subprocess
 import sys
@@ -20,6 +19,7 @@ import pytest
 
 from hsio.monitor import browser
 from hsio.recording import Run
+from wire import terminate
 
 ABSENT = [p for p in (browser.CHROMIUM, browser.CHROMEDRIVER) if not Path(p).exists()]
 pytestmark = pytest.mark.skipif(bool(ABSENT), reason=f"{', '.join(ABSENT)} not installed "
@@ -154,15 +154,8 @@ def wait_page(b, predicate, timeout_s: float, what: str):
 
 
 def ended(proc: subprocess.Popen) -> None:
-    """SIGTERM (the run holds and closes its record), then SIGKILL if it lingers (its pipes are
-    closed by their readers)."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
+    """The run ended (its pipes are closed by their readers)."""
+    terminate(proc, 20.0)
 
 
 def test_live_run_paused_resumed_and_stopped_from_the_page_then_replayed(tmp_path):

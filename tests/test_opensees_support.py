@@ -7,7 +7,6 @@ import contextlib
 import functools
 import os
 import re
-import signal
 import socket
 import struct
 import subprocess
@@ -24,6 +23,7 @@ from hsio.opensees.lab import Lab
 from hsio.opensees.server import OpenSeesServer
 from hsio.opensees.settings import parse, split_config
 from hsio.runner import load_run_structure
+from wire import terminate
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "opensees_structure.py"
@@ -94,13 +94,7 @@ def cli_server(config: Path, out: Path, timeout_s: float = 60.0):
         assert ports, f"the server printed no port: {proc.stderr.read() if proc.poll() is not None else ''}"
         yield proc, ports
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=10)
+        terminate(proc, 30.0)
         proc.stdout.close()
         proc.stderr.close()
 

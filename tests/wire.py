@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import signal
 import socket
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -180,3 +182,14 @@ class AtStep:
         if not self.done and self.ticks >= self.tick:
             self.done = True
             self.action()
+
+
+def terminate(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
+    """SIGTERM (a run or server holds and closes its record), then SIGKILL if it lingers."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
