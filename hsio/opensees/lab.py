@@ -7,6 +7,11 @@ loop, feed-forward compensation, limits), and records each committed step with
 :class:`hsio.recording.Recorder`. At its end the actuators hold and are released, and the record
 is closed; a trial that was never committed is not written (docs/opensees.md).
 
+The structure's static preloads (``[[static]]``, docs/setups.md) are ramped in when a session
+opens, before any trial moves, and held through it; they ramp off when every element ended with
+DIE, and stay held when the session ended any other way (as when `hsio run` stops early). The
+record has their ``static`` table and the summary their ``static_hold_error``.
+
 A served element has as many basic DOFs as in its structure: one, on one actuator, or several,
 on the actuators of its setup (docs/setups.md). Its basic displacements go through the setup's
 exact geometry to strokes, and the measured strokes and forces come back as basic displacements
@@ -62,7 +67,8 @@ def served_structure(structure: Structure, names) -> Structure:
         dof_names += [structure.dof_names[d] for d in e.basic_dofs]
         elements.append(replace(e, dof=first, dofs=index if e.dofs else ()))
     return Structure(name=structure.name, dof_names=tuple(dof_names), masses=(1.0,) * len(dof_names),
-                     experimental=tuple(elements), dt=structure.dt, description=f"served elements of {structure.name}")
+                     experimental=tuple(elements), dt=structure.dt, description=f"served elements of {structure.name}",
+                     static=structure.static)
 
 
 def length_units(element: ExperimentalElement, length_factor: float) -> np.ndarray:
@@ -121,6 +127,8 @@ class Lab:
         self.steps = 0
         self.trials = 0  # motions of the actuators, committed or not
         self.failed = ""
+        self.clean_end = True  # every element that left said DIE (the preloads may ramp off)
+        self._preloads_done = False
         self.site_s = 0.0
         self.record_s = 0.0
         self.started = time.perf_counter()
@@ -134,6 +142,8 @@ class Lab:
     def _detach(self, j: int, reason: str) -> None:
         """Element ``j`` leaves; the last one ends the session: actuators hold, record closed."""
         self.active.discard(j)
+        if not reason.startswith("DIE received"):
+            self.clean_end = False
         self.committed_flags[j] = False  # its snapshot, if it committed this step, stays in the step's row
         self.log(f"element {self.names[j]}: {reason}")
         if not self.active:
@@ -169,8 +179,46 @@ class Lab:
             self.site = None
             raise
         self.log(f"session {self.sessions}: actuators of {', '.join(self.names)} open; record {path}")
+        if self.structure.static:
+            loads = ", ".join(f"{s.name} {s.force_kN:g} kN" for s in self.structure.static)
+            try:
+                self.site.preload()
+            except BaseException as exc:
+                self.failed = f"the static preloads could not be ramped in: {exc}"
+                self._close(self.failed)
+                raise
+            self.log(f"session {self.sessions}: static preloads ramped in and held ({loads})")
+
+    def _release_preloads(self, reason: str) -> None:
+        """At the end of a session: the static preloads ramp off when every element ended with
+        DIE and nothing failed; otherwise they stay held with the actuators, as when `hsio run`
+        stops early (docs/opensees.md)."""
+        site = self.site
+        if site is None or not site.static or self._preloads_done:
+            return
+        self._preloads_done = True
+        if not site.static_log:  # never ramped in
+            return
+        if self.failed or not self.clean_end:
+            self.log(f"session {self.sessions}: static preloads held, not ramped off ({self.failed or reason})")
+            return
+        try:
+            site.release()
+            self.log(f"session {self.sessions}: static preloads ramped off")
+        except Exception as exc:
+            self.failed = f"ramping the static preloads off: {exc}"
+            self.log(f"session {self.sessions}: {self.failed}; they stay held")
 
     def _close(self, reason: str) -> None:
+        self._release_preloads(reason)
+        if self.site is not None and self.recorder is not None and self.site.static:
+            for table, rows in self.site.record_tables().items():
+                for k, row in rows:
+                    self.recorder.write_row(table, k, row)
+        static_error = None
+        if self.site is not None and self.site.static and self.site.static_log:
+            static_error = {s.name: float(e) for s, e in zip(self.site.static, self.site.static_hold_error())
+                            if np.isfinite(e)}
         if self.site is not None:
             try:
                 report = self.site.hold()  # every actuator holds; the hold is read back
@@ -188,7 +236,8 @@ class Lab:
             self.recorder.write_summary({"steps": self.steps, "elements": self.names, "end": reason,
                                          "stopped": self.failed, "wall_time_s": round(wall, 3),
                                          "site_time_s": round(self.site_s, 3),
-                                         "record_time_s": round(self.record_s, 3)})
+                                         "record_time_s": round(self.record_s, 3),
+                                         **({"static_hold_error": static_error} if static_error is not None else {})})
             self.recorder.close()
             self.log(f"session {self.sessions} ended ({reason}): {self.steps} committed steps recorded")
             self.recorder = None
@@ -336,6 +385,8 @@ class Lab:
         self.record_s += time.perf_counter() - t0
 
     def _stop(self) -> None:
+        if self.active:
+            self.clean_end = False  # the server stops under a running session
         self.active.clear()
         self._close("server stopped")
 

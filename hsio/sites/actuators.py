@@ -149,7 +149,8 @@ class ActuatorSite:
 
     def preload(self) -> None:
         """Switch the static actuators to force control and ramp their preloads in, the others
-        holding where they stand (docs/setups.md)."""
+        holding where they stand (docs/setups.md). Each ramp starts from the force its actuator
+        measures now, so a preload left on by an earlier session is not dropped and reapplied."""
         if not self.static:
             return
         for j, load in enumerate(self.static):  # refused before anything moves
@@ -157,7 +158,9 @@ class ActuatorSite:
             actuator.limits.check(ControlMode.FORCE, load.force_kN, f"static preload {load.name!r} on actuator {actuator.name!r}")
         for j in range(len(self.static)):
             self.loop.set_mode(self.n_dynamic + j, ControlMode.FORCE)
-        self._ramp(np.zeros(len(self.static)), np.array([s.force_kN for s in self.static]), "ramp_in")
+        present = np.array([f.force_kN for f in self.loop.feedback()[self.n_dynamic:]])
+        self.static_targets = present
+        self._ramp(present, np.array([s.force_kN for s in self.static]), "ramp_in")
 
     def release(self) -> None:
         """Ramp the static preloads off, the others holding where they stand."""

@@ -1,0 +1,123 @@
+"""Static preloads under `hsio serve opensees` (docs/opensees.md, "Static preloads"): ramped in
+before the model's first trial, held through the session, ramped off only after DIE, refused
+beyond the actuator's capacity; and a preload already on is ramped from where it stands."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+
+import numpy as np
+import pytest
+
+from hsio.opensees import protocol as p
+from test_opensees_support import RawClient, serving, session_over, wait_for, write_config
+
+PRELOAD_KN = 125.0  # preloaded_column's axial load
+K_LATERAL = 0.75  # kN/mm, its lateral element
+
+
+def static_table(path):
+    db = sqlite3.connect(path)
+    try:
+        rows = np.array(db.execute("SELECT phase, target_axial, force_axial FROM static ORDER BY step").fetchall())
+        summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
+    finally:
+        db.close()
+    return rows, summary
+
+
+def serve_column(tmp_path, extra: str = ""):
+    return serving(write_config(tmp_path, "preloaded_column", ["lateral"], extra=extra), log=None)
+
+
+def test_preload_is_held_through_the_session_and_ramped_off_after_die(tmp_path):
+    """Default (noisy) emulator: the lateral force is the lateral spring's alone, the axial load
+    is on before the first trial and stays within the load cell's noise, and goes off after DIE."""
+    with serve_column(tmp_path) as server:
+        client = RawClient(server.ports[0], timeout_s=30.0)
+        try:
+            client.setup()
+            d = np.array([0.5, 1.0, 1.5, 1.0, 0.0, -1.0])
+            forces = np.array([client.step(x, 0.01 * (k + 1)) for k, x in enumerate(d)])
+            client.send(p.DIE)
+        finally:
+            client.close()
+        assert wait_for(lambda: session_over(server), 30.0)
+        lines = list(server.lines)
+    # closed form: F = k d, untouched by the 125 kN axial load (noise 0.002 kN, 0.025 mm transducer)
+    assert np.max(np.abs(forces - K_LATERAL * d)) < 0.05
+    rows, summary = static_table(tmp_path / "records" / "run.sqlite")
+    phase, target, force = rows.T
+    assert list(np.unique(phase)) == [0.0, 1.0, 2.0]
+    assert np.all(np.diff(phase) >= 0)  # ramp in, then the session, then ramp off
+    ramp_in = phase == 0
+    assert target[ramp_in][-1] == PRELOAD_KN and np.all(np.diff(target[ramp_in]) > 0)
+    held = phase == 1
+    assert held.sum() == len(d)  # one row per trial
+    assert np.max(np.abs(force[held] - PRELOAD_KN)) < 0.05
+    assert target[phase == 2][-1] == 0.0 and abs(force[-1]) < 0.05
+    assert 0 < summary["static_hold_error"]["axial"] < 0.05 / PRELOAD_KN
+    assert any("static preloads ramped in and held (axial 125 kN)" in line for line in lines)
+    assert any("static preloads ramped off" in line for line in lines)
+
+
+def test_a_session_that_ends_without_die_leaves_the_preload_held(tmp_path):
+    with serve_column(tmp_path) as server:
+        client = RawClient(server.ports[0], timeout_s=30.0)
+        try:
+            client.setup()
+            client.step(1.0, 0.01)
+        finally:
+            client.close()  # no DIE: the model crashed, say
+        assert wait_for(lambda: session_over(server), 30.0)
+        lines = list(server.lines)
+    rows, summary = static_table(tmp_path / "records" / "run.sqlite")
+    assert 2.0 not in rows[:, 0]  # never ramped off
+    assert abs(rows[-1, 2] - PRELOAD_KN) < 0.05
+    assert "axial" in summary["static_hold_error"]
+    assert any("static preloads held, not ramped off (the element closed the connection" in line for line in lines)
+    assert not any("ramped off" in line and "not ramped off" not in line for line in lines)
+
+
+def test_a_preload_beyond_the_capacity_is_refused_before_anything_moves(tmp_path):
+    with serve_column(tmp_path, extra="[emulator]\nforce_limit_kN = 100.0\n") as server:
+        client = RawClient(server.ports[0], timeout_s=30.0)
+        try:
+            client.setup()
+            assert client.closed_by_server(10.0)
+        finally:
+            client.close()
+        assert wait_for(lambda: session_over(server), 30.0)
+        lines = list(server.lines)
+    refusal = [line for line in lines if "cannot open the actuators" in line]
+    assert refusal and "static preload 'axial'" in refusal[0] and "125" in refusal[0], lines
+    db = sqlite3.connect(tmp_path / "records" / "run.sqlite")
+    try:
+        assert db.execute("SELECT count(*) FROM steps").fetchone()[0] == 0
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    finally:
+        db.close()
+    assert "static" not in tables  # nothing was ramped
+
+
+def test_a_preload_already_on_is_ramped_from_where_it_stands():
+    """A second preload() on a loaded static actuator (a session after one that left it held)
+    does not drop the load to zero and ramp it back: every target of its ramp is the preload."""
+    from hsio import api
+    from hsio.structures import get_structure
+
+    structure = get_structure("preloaded_column")
+    quiet = {"noise_mm": 0.0, "resolution_mm": 0.0, "force_noise_kN": 0.0, "force_resolution_kN": 0.0}
+    with api.open_site(structure, "emulator://", options=quiet) as site:
+        site.preload()
+        first = len(site.static_log)
+        site.preload()
+        again = [t[0] for phase, _, t, f, _ in site.static_log[first:]]
+        forces = [f[0] for phase, _, t, f, _ in site.static_log[first:]]
+    assert again and min(again) > PRELOAD_KN - 0.5  # from zero, the first target would be 12.5 kN
+    assert min(forces) > PRELOAD_KN - 0.5
+
+
+if __name__ == "__main__":  # pragma: no cover
+    pytest.main([__file__, "-q"])
