@@ -98,3 +98,50 @@ def test_probe_move_trips_on_an_actuator_that_does_not_follow(tmp_path):
     assert result.exit_code == 2
     assert "interlock (following)" in report["error"] and "does not follow its command" in report["error"]
     assert all(holding) and report["hold"] == CONFIRMED
+
+
+def probe_config(tmp_path, text: str):
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    return str(path)
+
+
+def test_probe_move_uses_the_interlocks_and_driver_options_of_a_run_configuration(tmp_path):
+    """The default following-error threshold (10 mm) lets a 1 mm step through; the lab's own
+    (0.05 mm, no grace time) trips on the same step's lag, and its [driver] velocity limit sets the
+    ramp. Without --config the same probe passes."""
+    strict = probe_config(tmp_path, "[safety]\nfollowing_error_mm = 0.05\nfollowing_time_s = 0.0\n")
+    result, report, holding, _ = probe_move(tmp_path, "--sine-hz", "2.0", "--config", strict)
+    assert result.exit_code == 2, report
+    assert "interlock (following)" in report["error"] and report["interlocks"] == "on"
+    assert all(holding) and report["hold"] == CONFIRMED
+
+    slow = probe_config(tmp_path, "[driver]\nvelocity_mm_s = 20.0\n")
+    result, report, holding, rod = probe_move(tmp_path, "--step-mm", "6", "--sine-mm", "0.5", "--sine-hz", "2",
+                                              "--config", slow, emulator="velocity_limit_mm_s = 20.0\n")
+    assert result.exit_code == 0, report.get("error")
+    assert report["move"]["step_ramp_s"] == pytest.approx(6 / 18, abs=2 / 1024)
+    # --option overrides the configuration's [driver]: 30 mm/s ramps the step at 27 mm/s
+    result, report, _, _ = probe_move(tmp_path, "--step-mm", "6", "--sine-mm", "0.5", "--sine-hz", "2",
+                                      "--config", slow, "--option", "velocity_mm_s=30",
+                                      emulator="velocity_limit_mm_s = 30.0\n")
+    assert result.exit_code == 0, report.get("error")
+    assert report["move"]["step_ramp_s"] == pytest.approx(6 / 27, abs=2 / 1024)
+
+
+def test_probe_with_interlocks_off_in_its_configuration_says_so(tmp_path):
+    off = probe_config(tmp_path, "[safety]\ninterlocks = false\nfollowing_error_mm = 0.05\nfollowing_time_s = 0.0\n")
+    result, holding, _ = invoke_probe(tmp_path, "--sine-hz", "2.0", "--config", off)
+    assert result.exit_code == 0, result.output
+    assert "interlocks off ([safety] interlocks = false)" in result.stdout
+    assert all(holding)
+
+
+@pytest.mark.parametrize("text, fragment", [("[safety]\nfollowing_error_mm = -1.0\n", "following_error_mm"),
+                                            ("[safety\n", "malformed TOML"), (None, "cannot read")])
+def test_probe_with_a_bad_configuration_is_refused_before_connecting(tmp_path, text, fragment):
+    path = probe_config(tmp_path, text) if text is not None else str(tmp_path / "missing.toml")
+    result, holding, rod = invoke_probe(tmp_path, "--config", path)
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
+    assert "Invalid value for --config" in result.stderr and fragment in result.stderr, result.stderr
+    assert rod < 1e-9 and all(holding)

@@ -9,6 +9,10 @@ limit is refused before anything moves. Every command goes through the limit che
 interlocks of a run, and a refusal or a trip ends the probe with exit status 2. At the end every
 axis is told to hold and the hold is read back from the controller (docs/safety.md section 3):
 the report says the axes hold only when the controller confirms it.
+
+With --config the probe uses a run configuration's [safety] interlock settings and its [driver]
+options (each --option overrides one), so that it moves the rig under the same checks as the run;
+without it, the defaults of docs/config.md.
 """
 
 from __future__ import annotations
@@ -102,13 +106,14 @@ class _Guard:
     limit against the previous command, and the interlocks of the control loop (following error,
     implausible measurement) on every sample. A refusal or a trip raises; the caller holds."""
 
-    def __init__(self, actuator, clock):
+    def __init__(self, actuator, clock, safety=None):
         from hsio.safety.interlocks import InterlockMonitor
         from hsio.safety.settings import SafetySettings
 
         self.actuator = actuator
         self.clock = clock
-        self.monitor = InterlockMonitor([actuator], SafetySettings.from_table({}))
+        safety = safety or SafetySettings.from_table({})
+        self.monitor = InterlockMonitor([actuator], safety) if safety.interlocks else None
         self.previous = actuator.feedback().displacement_mm
 
     def send(self, command: float) -> float:
@@ -119,7 +124,8 @@ class _Guard:
         self.previous = command
         self.clock.tick()
         fb = a.feedback()
-        self.monitor.check(self.clock.now_s, [command], [fb], [a.mode])
+        if self.monitor is not None:
+            self.monitor.check(self.clock.now_s, [command], [fb], [a.mode])
         return fb.displacement_mm
 
 
@@ -152,12 +158,13 @@ def check_move(limits, step_mm: float, sine_mm: float, sine_hz: float) -> None:
                          f"is beyond the velocity limit ({limits.velocity_mm_s:.1f} mm/s); refused, nothing moved")
 
 
-def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float) -> dict:
+def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float, safety=None) -> dict:
     """A step and back (each ramped at 90 % of the velocity limit), a slow sine, back: every
-    command checked as in a run (:class:`_Guard`). The caller holds the axis afterwards."""
+    command checked as in a run (:class:`_Guard`, with the interlock settings ``safety``). The
+    caller holds the axis afterwards."""
     rate = clock.rate_hz
     speed = 0.9 * actuator.limits.velocity_mm_s
-    guard = _Guard(actuator, clock)
+    guard = _Guard(actuator, clock, safety)
     x0 = guard.previous
     _drive(guard, np.full(int(0.05 * rate), x0))
     rise_cmd = _ramp(x0, x0 + step_mm, speed, rate)
@@ -219,15 +226,32 @@ def _hold(actuators):
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE", help="A [driver] setting (repeatable).")
 @click.option("--reset-interlock", is_flag=True,
               help="Modbus: hold every axis and clear the latched interlocks (docs/modbus.md, Interlock reset).")
-def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options, reset_interlock=False) -> None:
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="A run configuration: its [safety] interlocks and its [driver] options (--option overrides).")
+def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options, reset_interlock=False,
+          config_path=None) -> None:
     """Diagnose the controller at URL: identity, state, latency; with --move, step and sine."""
     from hsio.clock import LockstepClock, RealTimeClock
+    from hsio.safety.settings import SafetySettings
 
     bad = [o for o in options if "=" not in o]
     if bad:
         raise click.BadParameter(f"{bad[0]!r}: expected KEY=VALUE", param_hint="--option")
     table = dict(o.partition("=")[::2] for o in options)
+    safety = SafetySettings.from_table({})
     report: dict = {"url": url}
+    if config_path is not None:
+        from hsio import config as config_mod
+        from hsio.errors import ConfigError
+
+        try:
+            cfg = config_mod.load(config_path)
+        except ConfigError as exc:
+            raise click.BadParameter(str(exc), param_hint="--config") from None
+        safety = SafetySettings.from_table(cfg["safety"])
+        table = {**cfg["driver"], **table}
+        report["config"] = str(config_path)
+        report["interlocks"] = "on" if safety.interlocks else "off ([safety] interlocks = false)"
     actuators = []
     try:
         started = time.perf_counter()
@@ -247,7 +271,7 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
             clock = LockstepClock() if link.lockstep else RealTimeClock()
             clock.attach(link)
             check_move(actuators[0].limits, step_mm, sine_mm, sine_hz)
-            report["move"] = _move(actuators[0], clock, step_mm, sine_mm, sine_hz)
+            report["move"] = _move(actuators[0], clock, step_mm, sine_mm, sine_hz, safety)
     except HsioError as exc:
         report["error"] = str(exc)
     finally:
@@ -270,6 +294,8 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
 
 def _print(r: dict) -> None:
     click.echo(f"url        {r['url']}")
+    if "config" in r:
+        click.echo(f"config     {r['config']} ([safety] and [driver]; interlocks {r['interlocks']})")
     if "clock" in r:
         click.echo(f"connected  in {r['connect_s'] * 1e3:.1f} ms; clock {r['clock']}")
         click.echo(f"identity   {json.dumps(r['identity'], default=str)}")
