@@ -164,6 +164,34 @@ def test_the_feed_reads_a_growing_record_step_for_step(tmp_path):
     assert feed.channel_dof == {"C1": "C1", "C2": "C2"}
 
 
+def test_force_control_steps_have_their_own_tracking_indicator(tmp_path):
+    """C1 runs one cycle in DC and then one in FC, its loop lagging by phi in each: the DC
+    indicator falls by pi A^2 sin phi (mm^2) over the DC cycle and stays put over the FC one; the
+    FC indicator does the opposite in kN^2 (before: the FC steps were invisible)."""
+    meta = {"structure": "validation", "record": "sine", "dt": 0.01, "test_rate": 2.0,
+            "config": {"structure": {"name": "validation", "file": ""}}}
+    rec = Recorder(tmp_path / "run.sqlite", ["C1"], ["C1"], meta)
+    n, phi, A_mm, A_kN = 400, 0.2, 5.0, 3.0
+    theta = 2 * np.pi * np.arange(1, 2 * n + 1) / n
+    for k in range(1, 2 * n + 1):
+        th = theta[k - 1]
+        if k <= n:  # DC: target and measured displacement; the force follows the specimen
+            mode, target, disp, force = "displacement", A_mm * np.sin(th), A_mm * np.sin(th - phi), 0.6 * A_mm * np.sin(th - phi)
+        else:  # FC: target and measured force
+            mode, target, force, disp = "force", A_kN * np.sin(th), A_kN * np.sin(th - phi), A_kN * np.sin(th - phi) / 0.6
+        rec.write_step(k, 0.01 * k, [disp], [0], [0], [disp], [force], [mode], [target], [target], [disp], [force])
+    rec.close()
+    feed = RecordFeed(tmp_path)
+    feed.poll(force=True)
+    ti, tif = feed["ti_C1"], feed["tif_C1"]
+    assert feed.n == 2 * n
+    # the first point opens the curve; a whole cycle of the lagging loop sweeps -pi A^2 sin(phi)
+    assert ti[n - 1] == pytest.approx(-np.pi * A_mm ** 2 * np.sin(phi), rel=0.02)
+    assert abs(ti[-1] - ti[n]) < 0.02 * abs(ti[n - 1])  # nothing over the FC cycle
+    assert tif[-1] - tif[n] == pytest.approx(-np.pi * A_kN ** 2 * np.sin(phi), rel=0.02)
+    assert abs(tif[n - 1]) < 0.02 * np.pi * A_kN ** 2 * np.sin(phi)  # nothing over the DC cycle
+
+
 def patch_bytes(events) -> int:
     """The bytes of the PATCH-DOC message that carries ``events`` to a browser."""
     from bokeh.protocol import Protocol

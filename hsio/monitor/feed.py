@@ -135,10 +135,12 @@ class RecordFeed:
         self.channel_dof = channel_dofs(meta, self.channels)
         names = ["step", "time_s", "late_steps"]
         names += [column(p, d) for d in self.dofs for p in ("u", "v", "a", "u_pred", "r")]
-        names += [column(p, c) for c in self.channels for p in ("target", "command", "disp", "force", "error", "ti")]
+        names += [column(p, c) for c in self.channels
+                  for p in ("target", "command", "disp", "force", "error", "ti", "tif")]
         names += [column("fc", d) for d in self.dofs]
         self.columns = _Columns(names)
         self._ti_state = {c: (0.0, None) for c in self.channels}
+        self._tif_state = {c: (0.0, None) for c in self.channels}
         return True
 
     def _read(self) -> int:
@@ -183,12 +185,19 @@ class RecordFeed:
             in_fc = fc[dof] > 0 if dof in fc and len(fc[dof]) else np.zeros(len(rows), bool)
             error = target - np.where(in_fc, force, disp)
             block[self.columns.names.index(column("error", c))] = error
-            # The tracking indicator of displacement control: in force control the command is a force.
+            # Two tracking indicators, one per loop: of displacement control (mm^2) over the DC
+            # steps and of force control (kN^2) over the FC steps; in the other mode's steps the
+            # command is taken as the measurement, so they add nothing there.
             dc = np.where(in_fc, disp, target)
             start, previous = self._ti_state[c]
             ti = tracking_indicator(dc, disp, start, previous)
             block[self.columns.names.index(column("ti", c))] = ti
             self._ti_state[c] = (float(ti[-1]), (float(dc[-1]), float(disp[-1])))
+            fc_command = np.where(in_fc, target, force)
+            start, previous = self._tif_state[c]
+            tif = tracking_indicator(fc_command, force, start, previous)
+            block[self.columns.names.index(column("tif", c))] = tif
+            self._tif_state[c] = (float(tif[-1]), (float(fc_command[-1]), float(force[-1])))
         self.columns.append(block)
         self._last_step = int(rows[-1][0])
         return len(rows)

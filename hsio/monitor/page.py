@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 from bokeh.layouts import column, gridplot, row
-from bokeh.models import Button, ColumnDataSource, CustomJS, Div, Legend, Slope, TextInput
+from bokeh.models import Button, ColumnDataSource, CustomJS, DataRange1d, Div, Legend, LinearAxis, Slope, TextInput
 from bokeh.palettes import Category10
 from bokeh.plotting import figure
 
@@ -94,7 +94,7 @@ class MonitorPage:
     def _build(self) -> None:
         f = self.feed
         names = ["step", "t", "late"] + [col(p, d) for d in f.dofs for p in ("u", "fc")] + \
-                [col(p, c) for c in f.channels for p in ("target", "disp", "force", "error", "ti")]
+                [col(p, c) for c in f.channels for p in ("target", "disp", "force", "error", "ti", "tif")]
         empty = {k: np.zeros(0) for k in names}
         self.steps = ColumnDataSource(dict(empty), name="steps")
         self.last = ColumnDataSource(dict(empty), name="head")
@@ -132,9 +132,15 @@ class MonitorPage:
         _legend(p, [(c, [p.line(col("target", c), col("disp", c), source=self.steps, color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
-        p = _fig("Tracking indicator (falling: toward instability)", "time (s)", "TI (mm^2)")
-        _legend(p, [(c, [p.line("t", col("ti", c), source=self.steps, color=COLORS[k % 10])])
-                    for k, c in enumerate(f.channels)])
+        p = _fig("Tracking indicator (falling: toward instability)", "time (s)", "TI, displacement control (mm^2)")
+        items = [(c, [p.line("t", col("ti", c), source=self.steps, color=COLORS[k % 10])])
+                 for k, c in enumerate(f.channels)]
+        # force control's own TI (kN^2) on the right axis, dashed: it moves only over FC steps
+        force_lines = [p.line("t", col("tif", c), source=self.steps, color=COLORS[k % 10], line_dash="dashed",
+                              y_range_name="force") for k, c in enumerate(f.channels)]
+        p.extra_y_ranges = {"force": DataRange1d(renderers=force_lines)}
+        p.add_layout(LinearAxis(y_range_name="force", axis_label="TI, force control (kN^2), dashed"), "right")
+        _legend(p, items + [(f"{c} (force control)", [line]) for c, line in zip(f.channels, force_lines)])
         figs.append(p)
         p = _fig("Control mode (1 force, 0 displacement)", "time (s)", "mode", y_range=(-0.1, 1.1))
         _legend(p, [(d, [p.step("t", col("fc", d), source=self.steps, color=COLORS[k % 10], mode="after")])
@@ -188,7 +194,7 @@ class MonitorPage:
             out[col("u", d)] = f[col("u", d)][idx]
             out[col("fc", d)] = f[col("fc", d)][idx]
         for c in f.channels:
-            for p in ("target", "disp", "force", "error", "ti"):
+            for p in ("target", "disp", "force", "error", "ti", "tif"):
                 out[col(p, c)] = f[col(p, c)][idx]
         if len(idx) < 64:  # a few rows travel lighter as JSON numbers than as binary buffers
             out = {k: [None if not math.isfinite(x) else x for x in v.tolist()] for k, v in out.items()}
