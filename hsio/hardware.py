@@ -58,8 +58,18 @@ def check_options(url: str, options: dict | None = None) -> None:
         check(url, options or {})
 
 
+# [driver] keys that name the external instruments' DAQ module (docs/setups.md), not the
+# controller: the actuator drivers never see them.
+DAQ_OPTIONS = ("instruments", "instrument_map")
+
+
+def controller_options(options: dict | None) -> dict:
+    """The [driver] table without the DAQ module's keys."""
+    return {k: v for k, v in (options or {}).items() if k not in DAQ_OPTIONS}
+
+
 def open_hardware(url: str, actuators, clock, options: dict | None = None):
     """One Actuator per :class:`hsio.interfaces.ActuatorSpec` (name, specimen model), from the
-    backend that ``url``'s scheme names."""
+    backend that ``url``'s scheme names (``options`` without the DAQ module's keys)."""
     module, func = _backend(url)
-    return getattr(module, func)(url, actuators, clock, options or {})
+    return getattr(module, func)(url, actuators, clock, controller_options(options))

@@ -80,6 +80,21 @@ def test_a_session_that_ends_without_die_leaves_the_preload_held(tmp_path):
     assert not any("ramped off" in line and "not ramped off" not in line for line in lines)
 
 
+def test_a_server_stopped_under_a_session_leaves_the_preload_held(tmp_path):
+    with serve_column(tmp_path) as server:
+        client = RawClient(server.ports[0], timeout_s=30.0)
+        try:
+            client.setup()
+            client.step(1.0, 0.01)
+        finally:
+            server.close()  # Ctrl-C on the server while the model is connected
+            client.close()
+        lines = list(server.lines)
+    rows, summary = static_table(tmp_path / "records" / "run.sqlite")
+    assert 2.0 not in rows[:, 0] and abs(rows[-1, 2] - PRELOAD_KN) < 0.05
+    assert any("static preloads held, not ramped off" in line for line in lines), lines
+
+
 def test_a_preload_beyond_the_capacity_is_refused_before_anything_moves(tmp_path):
     with serve_column(tmp_path, extra="[emulator]\nforce_limit_kN = 100.0\n") as server:
         client = RawClient(server.ports[0], timeout_s=30.0)

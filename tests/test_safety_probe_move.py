@@ -109,14 +109,16 @@ def probe_config(tmp_path, text: str):
 def test_probe_move_uses_the_interlocks_and_driver_options_of_a_run_configuration(tmp_path):
     """The default following-error threshold (10 mm) lets a 1 mm step through; the lab's own
     (0.05 mm, no grace time) trips on the same step's lag, and its [driver] velocity limit sets the
-    ramp. Without --config the same probe passes."""
+    ramp. The DAQ module's keys of [driver] are not the controller's and are left out."""
+    result, report, _, _ = probe_move(tmp_path, "--sine-hz", "2.0")
+    assert result.exit_code == 0, report.get("error")
     strict = probe_config(tmp_path, "[safety]\nfollowing_error_mm = 0.05\nfollowing_time_s = 0.0\n")
     result, report, holding, _ = probe_move(tmp_path, "--sine-hz", "2.0", "--config", strict)
     assert result.exit_code == 2, report
     assert "interlock (following)" in report["error"] and report["interlocks"] == "on"
     assert all(holding) and report["hold"] == CONFIRMED
 
-    slow = probe_config(tmp_path, "[driver]\nvelocity_mm_s = 20.0\n")
+    slow = probe_config(tmp_path, '[driver]\nvelocity_mm_s = 20.0\ninstruments = "modbus+tcp://127.0.0.1:1"\n')
     result, report, holding, rod = probe_move(tmp_path, "--step-mm", "6", "--sine-mm", "0.5", "--sine-hz", "2",
                                               "--config", slow, emulator="velocity_limit_mm_s = 20.0\n")
     assert result.exit_code == 0, report.get("error")
@@ -138,10 +140,27 @@ def test_probe_with_interlocks_off_in_its_configuration_says_so(tmp_path):
 
 
 @pytest.mark.parametrize("text, fragment", [("[safety]\nfollowing_error_mm = -1.0\n", "following_error_mm"),
-                                            ("[safety\n", "malformed TOML"), (None, "cannot read")])
+                                            ("[safety\n", "malformed TOML"), (None, "cannot read"),
+                                            ('[hardware]\nurl = "canopen+virtual://bus?node=1"\n', "is not a modbus")])
 def test_probe_with_a_bad_configuration_is_refused_before_connecting(tmp_path, text, fragment):
     path = probe_config(tmp_path, text) if text is not None else str(tmp_path / "missing.toml")
     result, holding, rod = invoke_probe(tmp_path, "--config", path)
     assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
     assert "Invalid value for --config" in result.stderr and fragment in result.stderr, result.stderr
     assert rod < 1e-9 and all(holding)
+
+
+def test_a_driver_table_with_the_daq_modules_keys_opens_the_controller(tmp_path):
+    """`instruments` and `instrument_map` of [driver] name the external instruments' DAQ module
+    (docs/setups.md): the actuator driver, which refuses keys it does not know, never sees them."""
+    from hsio import api
+    from hsio.structures import get_structure
+
+    cfg = write_config(tmp_path, extra=QUIET_SENSORS)
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load()).start()
+    try:
+        options = {"instruments": "modbus+tcp://127.0.0.1:1", "instrument_map": "daq.toml"}
+        with api.open_site(get_structure("validation"), emu.url, options=options) as site:
+            assert [a.name for a in site.loop.actuators] == ["C1", "C2"]
+    finally:
+        emu.stop()

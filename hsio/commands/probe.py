@@ -27,6 +27,7 @@ import click
 import numpy as np
 
 from hsio.errors import HsioError, LimitError
+from hsio.hardware import controller_options
 
 
 def latency_stats(samples_s: list[float]) -> dict:
@@ -249,7 +250,12 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
         except ConfigError as exc:
             raise click.BadParameter(str(exc), param_hint="--config") from None
         safety = SafetySettings.from_table(cfg["safety"])
-        table = {**cfg["driver"], **table}
+        hardware_url = cfg["hardware"]["url"]
+        family = urlsplit(url).scheme.partition("+")[0]
+        if hardware_url.partition("+")[0] in ("modbus", "canopen") and hardware_url.partition("+")[0] != family:
+            raise click.BadParameter(f"{config_path}: its [hardware] url {hardware_url!r} is not a {family} "
+                                     f"controller; its [driver] options are not for {url!r}", param_hint="--config")
+        table = {**controller_options(cfg["driver"]), **table}
         report["config"] = str(config_path)
         report["interlocks"] = "on" if safety.interlocks else "off ([safety] interlocks = false)"
     actuators = []

@@ -31,6 +31,7 @@ class ElementHandler:
         self.framer = framer
         self.n = lab.n_basic[j]
         self.messages = 0
+        self.died = False  # the element ended with DIE
 
     def serve(self) -> str:
         """Messages until DIE (returns why it ended); raises ProtocolError, PeerClosed, OSError,
@@ -41,6 +42,7 @@ class ElementHandler:
             where = f"element {self.name}, message {self.messages}"
             action = p.action_of(frame, where)
             if action == p.DIE:
+                self.died = True
                 return "DIE received"
             reply = self.answer(action, frame, where)
             if reply is not None:

@@ -43,6 +43,7 @@ from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder
+from hsio.safety.settings import SafetySettings
 from hsio.structures import ExperimentalElement, Structure, channel_names
 
 
@@ -139,10 +140,11 @@ class Lab:
             self._open()
         self.active.add(j)
 
-    def _detach(self, j: int, reason: str) -> None:
-        """Element ``j`` leaves; the last one ends the session: actuators hold, record closed."""
+    def _detach(self, j: int, reason: str, clean: bool = False) -> None:
+        """Element ``j`` leaves (``clean``: with DIE); the last one ends the session: actuators
+        hold, record closed."""
         self.active.discard(j)
-        if not reason.startswith("DIE received"):
+        if not clean:
             self.clean_end = False
         self.committed_flags[j] = False  # its snapshot, if it committed this step, stays in the step's row
         self.log(f"element {self.names[j]}: {reason}")
@@ -164,7 +166,7 @@ class Lab:
                                   hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
                                   keep_samples=cfg["output"]["samples"],
                                   options=emulator if hardware["url"].startswith("emulator") else cfg["driver"],
-                                  compensation=compensation)
+                                  compensation=compensation, safety=SafetySettings.from_table(cfg["safety"]))
         out = Path(self.settings.out)
         path = out / ("run.sqlite" if self.sessions == 1 else f"run-{self.sessions}.sqlite")
         meta = {"config": cfg.tables, "config_source": cfg.source, "structure": self.structure.name,
@@ -202,6 +204,9 @@ class Lab:
         if self.failed or not self.clean_end:
             self.log(f"session {self.sessions}: static preloads held, not ramped off ({self.failed or reason})")
             return
+        ramp_s = max(s.ramp_s for s in site.static)
+        self.log(f"session {self.sessions}: ramping the static preloads off ({ramp_s:g} s of lab time; the element "
+                 f"is taken until then)")
         try:
             site.release()
             self.log(f"session {self.sessions}: static preloads ramped off")
@@ -402,9 +407,10 @@ class Lab:
         """Element ``j`` joins the session (the first one opens the actuators)."""
         self._call(self._attach, j)
 
-    def detach(self, j: int, reason: str) -> None:
-        """Element ``j`` leaves; the last one ends the session: actuators hold, record closed."""
-        self._call(self._detach, j, reason)
+    def detach(self, j: int, reason: str, clean: bool = False) -> None:
+        """Element ``j`` leaves (``clean``: it ended with DIE); the last one ends the session:
+        actuators hold, record closed."""
+        self._call(self._detach, j, reason, clean)
 
     def hold(self, reason: str) -> None:
         """Every actuator holds; later force requests of this session fail."""

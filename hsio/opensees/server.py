@@ -151,7 +151,7 @@ class OpenSeesServer:
                 reason = f"unexpected error: {exc!r}"
                 self.lab.hold(reason)
             try:
-                self.lab.detach(j, f"{reason}; {handler.messages} messages")
+                self.lab.detach(j, f"{reason}; {handler.messages} messages", clean=handler.died)
             except Exception as exc:  # the server is closing: the lab closes the session itself
                 self.log(f"{who}: {reason}; {exc}")
         finally:

@@ -67,7 +67,6 @@ class ActuatorSite:
         self.zero = (np.array([f.displacement_mm for f in feedback]) if relative else np.zeros(self.n_dynamic))
         self._committed = self._to_channels(np.array([f.displacement_mm for f in feedback]) - self.zero,
                                             np.array([f.force_kN for f in feedback]))
-        self.actuator_samples: list[np.ndarray] = []
         self._last = self._committed
         if estimator is not None:
             estimator.begin_step(*self._committed)
@@ -198,8 +197,6 @@ class ActuatorSite:
         fb, readings, iterations = self._outer_loop(targets, actuator_targets, fb)
         samples = fb.samples[:, :n] if fb.samples is not None else None
         if samples is not None:
-            if self.setups is not None or self.static:
-                self.actuator_samples.append(fb.samples)
             self._samples.append(self.setups.linearised_samples(samples) if self.setups is not None else samples)
             # phases per recorded channel: the first n actuators' (with setups, the channels' own)
             phases = None if fb.phases is None else [list(ph[:n]) for ph in fb.phases]
