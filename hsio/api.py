@@ -241,9 +241,7 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         site.release()
     finally:
         if recorder is not None:
-            for table, rows in site.record_tables().items():
-                for k, row in rows:
-                    recorder.write_row(table, k, row)
+            recorder.write_tables(site.record_tables())
     if static:
         result.static_log = site.static_log
         result.static_hold_error = site.static_hold_error()

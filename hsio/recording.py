@@ -180,6 +180,12 @@ class Recorder:
         self.db.commit()
         self.steps_written += 1
 
+    def write_tables(self, tables: dict[str, list[tuple[int, dict]]]) -> None:
+        """Whole extra tables at once, ``{table: [(step, row), ...]}`` (a site's ``record_tables``)."""
+        for table, rows in tables.items():
+            for step, row in rows:
+                self.write_row(table, step, row)
+
     def write_row(self, table: str, step: int, row: dict) -> None:
         """One step of an extra table (``compensation``, ``implicit``), created on first use with
         the row's keys as REAL columns; committed with the step's row by :meth:`write_step`."""

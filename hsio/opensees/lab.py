@@ -129,7 +129,6 @@ class Lab:
         self.trials = 0  # motions of the actuators, committed or not
         self.failed = ""
         self.clean_end = True  # every element that left said DIE (the preloads may ramp off)
-        self._preloads_done = False
         self.site_s = 0.0
         self.record_s = 0.0
         self.started = time.perf_counter()
@@ -195,10 +194,9 @@ class Lab:
         """At the end of a session: the static preloads ramp off when every element ended with
         DIE and nothing failed; otherwise they stay held with the actuators, as when `hsio run`
         stops early (docs/opensees.md)."""
-        site = self.site
-        if site is None or not site.static or self._preloads_done:
+        site = self.site  # None once the session closed: this runs once per session
+        if site is None or not site.static:
             return
-        self._preloads_done = True
         if not site.static_log:  # never ramped in
             return
         if self.failed or not self.clean_end:
@@ -216,10 +214,8 @@ class Lab:
 
     def _close(self, reason: str) -> None:
         self._release_preloads(reason)
-        if self.site is not None and self.recorder is not None and self.site.static:
-            for table, rows in self.site.record_tables().items():
-                for k, row in rows:
-                    self.recorder.write_row(table, k, row)
+        if self.site is not None and self.recorder is not None:
+            self.recorder.write_tables(self.site.record_tables())
         static_error = None
         if self.site is not None and self.site.static and self.site.static_log:
             static_error = {s.name: float(e) for s, e in zip(self.site.static, self.site.static_hold_error())
