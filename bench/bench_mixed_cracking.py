@@ -36,7 +36,7 @@ from hsio.api import open_site, run_numerical, simulate
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.experiment import ExperimentStopped
 from hsio.ground_motion import synthetic_record
-from hsio.runner import channel_names
+from hsio.structures import channel_names
 from hsio.secant import SecantEstimator
 from hsio.structures import get_structure
 

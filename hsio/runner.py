@@ -169,7 +169,7 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ground: Groun
     if not start_state or "error" in start_state:
         raise DryRunRefused("dry run from the present state: the actuators' present state could not be read "
                             f"({(start_state or {}).get('error', 'no feedback')}); no command was sent")
-    if structure.has_setups or any(getattr(e, "is_multi_dof", False) for e in structure.experimental):
+    if structure.has_setups:  # setups and multi-DOF elements alike
         prediction = from_present(report.prediction, start_state)
         how = "NS from rest plus where each actuator stands"
     else:

@@ -109,7 +109,7 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
     from hsio.compensation.stage import CompensationSettings, CompensationStage
     from hsio.experiment import ExperimentStopped
     from hsio.result import max_error_pct
-    from hsio.runner import channel_names
+    from hsio.structures import channel_names
     from hsio.secant import SecantEstimator
 
     if ns is None:
