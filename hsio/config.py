@@ -285,18 +285,18 @@ def load(path: str | Path | None) -> RunConfig:
     path = Path(path)
     data = read_toml(path, "configuration")
     config = from_dict(data, str(path))
-    record_file = config["record"]["file"]
-    if record_file and not Path(record_file).is_absolute():
-        config["record"]["file"] = str((path.parent / record_file).resolve())
-    structure_file = config["structure"]["file"]
-    if structure_file and not Path(structure_file).is_absolute():
-        config["structure"]["file"] = str((path.parent / structure_file).resolve())
-    model_file = config["hardware"]["actuator_model"]
-    if model_file and not Path(model_file).is_absolute():
-        config["hardware"]["actuator_model"] = str((path.parent / model_file).resolve())
-    _resolve_beside(config, path)
-    folder = config["specimen"]["folder"]
-    if folder and not Path(folder).is_absolute():
-        config["specimen"]["folder"] = str((path.parent / folder).resolve())
+    resolve_paths(config, path)
     return config
+
+
+def resolve_paths(config: "RunConfig", path: Path) -> None:
+    """Every file or folder named in the configuration ([record] file, [structure] file,
+    [hardware] actuator_model, [driver] map and eds, [specimen] folder) that is relative is taken
+    relative to the configuration file ``path``."""
+    for table, key in (("record", "file"), ("structure", "file"), ("hardware", "actuator_model"),
+                       ("specimen", "folder")):
+        value = config[table][key]
+        if value and not Path(value).is_absolute():
+            config[table][key] = str((path.parent / value).resolve())
+    _resolve_beside(config, path)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import sqlite3
+import time
 
 import numpy as np
 import pytest
@@ -84,6 +85,97 @@ def test_a_session_that_ends_without_die_leaves_the_preload_held(tmp_path, endin
     assert "axial" in summary["static_hold_error"]
     assert any("static preloads held, not ramped off" in line for line in lines), lines
     assert not any("ramped off" in line and "not ramped off" not in line for line in lines)
+
+
+SLOW_RAMP = """[structure]
+name = "slow_ramp_column"
+dt = 0.01
+[[dof]]
+name = "top"
+mass = 0.01
+[[experimental]]
+name = "lateral"
+dof = "top"
+model = { kind = "linear", k = 0.75 }
+[[static]]
+name = "axial"
+force_kN = 125.0
+ramp_s = RAMP
+model = { kind = "linear", k = 50.0 }
+"""
+
+
+def serve_slow_ramp(tmp_path, ramp_s: float):
+    """preloaded_column's rig with ``ramp_s`` of ramp, on the real-time clock: a ramp takes that
+    long on the wall too, so a test can act in the middle of it."""
+    (tmp_path / "column.toml").write_text(SLOW_RAMP.replace("RAMP", repr(ramp_s)))
+    config = tmp_path / "serve.toml"
+    config.write_text(f'[structure]\nfile = "column.toml"\n[hardware]\nclock = "realtime"\n[output]\nplots = false\n'
+                      f'[opensees]\nelements = ["lateral"]\nout = "{tmp_path / "records"}"\n')
+    return serving(config, log=None)
+
+
+def test_a_client_that_reconnects_while_the_preload_ramps_off_opens_the_next_session(tmp_path):
+    """The model ends with DIE and is started again at once: the new client waits for the ramp
+    off (it is not refused), and its session ramps the preload in again from where it stands."""
+    ramp_s = 1.0
+    with serve_slow_ramp(tmp_path, ramp_s) as server:
+        first = RawClient(server.ports[0], timeout_s=30.0)
+        try:
+            first.setup()
+            first.step(0.5, 0.01)
+            first.send(p.DIE)
+        finally:
+            first.close()
+        again = RawClient(server.ports[0], timeout_s=30.0)
+        try:
+            again.setup()
+            force = again.step(1.0, 0.01)
+            again.send(p.DIE)
+        finally:
+            again.close()
+        assert wait_for(lambda: session_over(server), 30.0)
+        lines = list(server.lines)
+    assert not any("already has a client" in line for line in lines), lines
+    assert abs(force - K_LATERAL * 1.0) < 0.05
+    rows, _ = static_table(tmp_path / "records" / "run.sqlite")
+    assert rows[-1, 0] == 2.0 and abs(rows[-1, 1]) == 0.0 and abs(rows[-1, 2]) < 0.05  # ramped off to the end
+    rows2, _ = static_table(tmp_path / "records" / "run-2.sqlite")
+    ramp_in = rows2[rows2[:, 0] == 0]
+    assert ramp_in[0, 1] < 0.25 * PRELOAD_KN  # from the ~0 kN the first session left, not from 125 kN
+    assert ramp_in[-1, 1] == PRELOAD_KN
+
+
+@pytest.mark.parametrize("ramp", ["ramp in", "ramp off"])
+def test_stopping_the_server_stops_a_ramp_and_the_preload_holds_where_it_stands(tmp_path, ramp):
+    """Ctrl-C (the server closing) in the middle of a ramp does not wait for its end: the ramp
+    stops, the axial actuator holds the force it had reached, and the log and the record say so."""
+    ramp_s = 2.0
+    with serve_slow_ramp(tmp_path, ramp_s) as server:
+        client = RawClient(server.ports[0], timeout_s=30.0)
+        try:
+            client.setup()  # the ramp in runs before the first answer
+            if ramp == "ramp off":
+                client.step(0.5, 0.01)
+                client.send(p.DIE)
+            sign = "ramping the static preloads off" if ramp == "ramp off" else "actuators of lateral open"
+            assert wait_for(lambda: any(sign in line for line in server.lines), 10.0)
+            time.sleep(0.3 * ramp_s)
+            t0 = time.monotonic()
+            server.close()
+            closing = time.monotonic() - t0
+        finally:
+            client.close()
+        lines = list(server.lines)
+    assert closing < 0.5 * ramp_s, closing
+    stopped = [line for line in lines if f"the {ramp} of the static preloads was stopped" in line]
+    assert stopped and "held at axial" in stopped[0], lines
+    rows, summary = static_table(tmp_path / "records" / "run.sqlite")
+    phase = 0.0 if ramp == "ramp in" else 2.0
+    assert rows[-1, 0] == phase and 0.1 * PRELOAD_KN < rows[-1, 1] < 0.9 * PRELOAD_KN  # stopped mid-ramp
+    assert abs(rows[-1, 2] - rows[-1, 1]) < 0.5  # the measured force is at the last target
+    assert f"{ramp} of the static preloads was stopped" in summary["stopped"]
+    assert not any("static preloads ramped off" in line for line in lines)
 
 
 def test_a_preload_beyond_the_capacity_is_refused_before_anything_moves(tmp_path):

@@ -29,7 +29,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import replace
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +44,7 @@ from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder
 from hsio.safety.settings import SafetySettings
+from hsio.sites.actuators import RampStopped
 from hsio.structures import ExperimentalElement, Structure, channel_names
 
 
@@ -135,6 +136,8 @@ class Lab:
 
     def _attach(self, j: int) -> None:
         """Element ``j`` joins the session (the first one opens the actuators)."""
+        if self.stopping:
+            raise HsioError("the server is stopping")
         if not self.active:
             self._open()
         self.active.add(j)
@@ -183,7 +186,7 @@ class Lab:
         if self.structure.static:
             loads = ", ".join(f"{s.name} {s.force_kN:g} kN" for s in self.structure.static)
             try:
-                self.site.preload()
+                self.site.preload(stop=lambda: self.stopping)
             except BaseException as exc:
                 self.failed = f"the static preloads could not be ramped in: {exc}"
                 self._close(self.failed)
@@ -203,11 +206,14 @@ class Lab:
             self.log(f"session {self.sessions}: static preloads held, not ramped off ({self.failed or reason})")
             return
         ramp_s = max(s.ramp_s for s in site.static)
-        self.log(f"session {self.sessions}: ramping the static preloads off ({ramp_s:g} s of lab time; the element "
-                 f"is taken until then)")
+        self.log(f"session {self.sessions}: ramping the static preloads off ({ramp_s:g} s of lab time; a client "
+                 f"that connects meanwhile starts the next session after it)")
         try:
-            site.release()
+            site.release(stop=lambda: self.stopping)
             self.log(f"session {self.sessions}: static preloads ramped off")
+        except RampStopped as exc:
+            self.failed = f"the server stopped: {exc}"
+            self.log(f"session {self.sessions}: {exc} (the server is stopping)")
         except Exception as exc:
             self.failed = f"ramping the static preloads off: {exc}"
             self.log(f"session {self.sessions}: {self.failed}; they stay held")
@@ -406,7 +412,16 @@ class Lab:
     def detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: it ended with DIE); the last one ends the session:
         actuators hold, record closed."""
-        self._call(self._detach, j, reason, clean)
+        self.begin_detach(j, reason, clean).result()
+
+    def begin_detach(self, j: int, reason: str, clean: bool = False) -> Future:
+        """:meth:`detach`, queued on the worker without waiting for it. The worker runs in
+        order, so an element that attaches after this call joins after the detach: a client that
+        reconnects while the session closes (its preloads ramping off) opens the next session."""
+        try:
+            return self._worker.submit(self._detach, j, reason, clean)
+        except RuntimeError:  # the worker has stopped: the server is closing
+            raise HsioError("the server is stopping") from None
 
     def hold(self, reason: str) -> None:
         """Every actuator holds; later force requests of this session fail."""

@@ -151,9 +151,21 @@ class OpenSeesServer:
                 reason = f"unexpected error: {exc!r}"
                 self.lab.hold(reason)
             try:
-                self.lab.detach(j, f"{reason}; {handler.messages} messages", clean=handler.died)
+                leaving = self.lab.begin_detach(j, f"{reason}; {handler.messages} messages", clean=handler.died)
             except Exception as exc:  # the server is closing: the lab closes the session itself
                 self.log(f"{who}: {reason}; {exc}")
+                leaving = None
+            # The element is free once its detach is queued: a client that reconnects now attaches
+            # after it, in the next session (after the preloads ramped off, if they do).
+            with self._freed:
+                self._busy.pop(j, None)
+                claimed = False
+                self._freed.notify_all()
+            if leaving is not None:
+                try:
+                    leaving.result()
+                except Exception as exc:
+                    self.log(f"{who}: {reason}; closing the session: {_describe(exc)}")
         finally:
             with self._freed:
                 self._open.discard(conn)

@@ -106,8 +106,5 @@ def split_config(path: str | Path):
                           f"e.g. [opensees] elements = [\"C1\"]")
     settings = parse(data.pop("opensees"), str(path))
     run = config_mod.from_dict(data, str(path))
-    for table, key in (("record", "file"), ("hardware", "actuator_model")):
-        value = run[table][key]
-        if value and not Path(value).is_absolute():
-            run[table][key] = str((path.parent / value).resolve())
+    config_mod.resolve_paths(run, path)
     return settings, run

@@ -20,10 +20,14 @@ from __future__ import annotations
 import numpy as np
 
 from hsio.control_loop import ControlLoop
-from hsio.errors import ConfigError
+from hsio.errors import ConfigError, HsioError
 from hsio.interfaces import ControlMode
 from hsio.secant import SecantEstimator, secant_stiffness
 from hsio.sites.base import Daq
+
+
+class RampStopped(HsioError):
+    """A ramp of the static preloads was stopped on request; the actuators hold where it stood."""
 
 
 class ActuatorSite:
@@ -136,20 +140,31 @@ class ActuatorSite:
         return fb
 
     # -- static preloads ------------------------------------------------------------------------
-    def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str) -> None:
+    def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str, stop=None) -> None:
+        """Ramp the static actuators' targets from ``start`` to ``end`` over the longest ``ramp_s``,
+        the dynamic ones holding. ``stop`` (a callable) is asked before every step; when it
+        answers true the ramp ends where it stands, the static actuators holding their present
+        targets in force control, and :class:`RampStopped` says where."""
         self._phase = phase
         ramp_s = max(s.ramp_s for s in self.static)
         steps = max(int(np.ceil(ramp_s / self.loop.t_d)), 1)
         hold = np.array([g.command for g in self.loop.generators[: self.n_dynamic]]) - self.zero
-        for k in range(1, steps + 1):
-            self.static_targets = start + (end - start) * k / steps
-            self._execute(hold)
-        self._phase = "test"
+        try:
+            for k in range(1, steps + 1):
+                if stop is not None and stop():
+                    held = ", ".join(f"{s.name} {t:.4g} kN" for s, t in zip(self.static, self.static_targets))
+                    raise RampStopped(f"the {phase.replace('_', ' ')} of the static preloads was stopped after "
+                                      f"{k - 1} of {steps} steps; held at {held}")
+                self.static_targets = start + (end - start) * k / steps
+                self._execute(hold)
+        finally:
+            self._phase = "test"
 
-    def preload(self) -> None:
+    def preload(self, stop=None) -> None:
         """Switch the static actuators to force control and ramp their preloads in, the others
         holding where they stand (docs/setups.md). Each ramp starts from the force its actuator
-        measures now, so a preload left on by an earlier session is not dropped and reapplied."""
+        measures now, so a preload left on by an earlier session is not dropped and reapplied.
+        ``stop``: see :meth:`_ramp`."""
         if not self.static:
             return
         for j, load in enumerate(self.static):  # refused before anything moves
@@ -159,13 +174,14 @@ class ActuatorSite:
             self.loop.set_mode(self.n_dynamic + j, ControlMode.FORCE)
         present = np.array([f.force_kN for f in self.loop.feedback()[self.n_dynamic:]])
         self.static_targets = present
-        self._ramp(present, np.array([s.force_kN for s in self.static]), "ramp_in")
+        self._ramp(present, np.array([s.force_kN for s in self.static]), "ramp_in", stop)
 
-    def release(self) -> None:
-        """Ramp the static preloads off, the others holding where they stand."""
+    def release(self, stop=None) -> None:
+        """Ramp the static preloads off, the others holding where they stand. ``stop``: see
+        :meth:`_ramp`."""
         if not self.static:
             return
-        self._ramp(self.static_targets.copy(), np.zeros(len(self.static)), "ramp_off")
+        self._ramp(self.static_targets.copy(), np.zeros(len(self.static)), "ramp_off", stop)
 
     def static_hold_error(self) -> np.ndarray:
         """Per static actuator: the largest |measured - preload| / |preload| while the test ran."""
