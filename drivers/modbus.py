@@ -316,29 +316,34 @@ class ModbusLink(common.AxisLink):
         if self.map.readwrite:
             rr = self.request("readwrite_registers", read_address=rs, read_count=rc, write_address=span[0],
                               values=words, what="cyclic write+read")
-            self._take_status(rr.registers)
+            self._take_status(self._unpack_status(rr.registers))
         else:
             self.request("write_registers", span[0], words, what="write of the commands")
             self.read_status()
 
     def read_status(self) -> None:
-        rs, rc = self._status_span
-        rr = self.request("read_holding_registers", rs, count=rc, what="read of the status")
-        self._take_status(rr.registers)
+        """Read every axis' status into :attr:`status` (fresh for each axis' next feedback),
+        checking the lockstep sequence."""
+        self._take_status(self._fetch_status())
 
     def peek_status(self) -> list[dict]:
         """The status block read and unpacked, for a look only: :attr:`status`, :attr:`fresh` and
         the lockstep sequence check are untouched."""
+        return self._fetch_status()
+
+    def _fetch_status(self) -> list[dict]:
+        """One read of the status block of every axis, unpacked."""
         rs, rc = self._status_span
         rr = self.request("read_holding_registers", rs, count=rc, what="read of the status")
-        if len(rr.registers) < rc:
-            raise CommunicationError(f"{self.url}: status reply too short ({len(rr.registers)} registers)")
-        return self.map.unpack_status(rr.registers, self.n)
+        return self._unpack_status(rr.registers)
 
-    def _take_status(self, registers) -> None:
+    def _unpack_status(self, registers) -> list[dict]:
         if len(registers) < self._status_span[1]:
             raise CommunicationError(f"{self.url}: status reply too short ({len(registers)} registers)")
-        self.status = self.map.unpack_status(registers, self.n)
+        return self.map.unpack_status(registers, self.n)
+
+    def _take_status(self, status: list[dict]) -> None:
+        self.status = status
         seq = self.status[0]["sequence"]
         if self.lockstep and seq != self.ticks % SEQ_MOD:
             raise CommunicationError(

@@ -181,6 +181,13 @@ def _check_ranges(t: dict, source: str) -> None:
                           f"calibrated on continuous ramps): set [test] hold_fraction = 0, or use mode = 'online'")
 
 
+# Options of the implicit methods (hsio.integrators.ImplicitMethod) and the guards of mixed control
+# (docs/force_control.md, "Running it"): a method that does not read one accepts it only at its
+# default in DEFAULTS["integrator"], which leaves it off; a switched-on option is refused, never dropped.
+IMPLICIT_OPTIONS = ("fc_blend", "anchor_dc", "blend_dc")
+MIXED_GUARDS = ("fc_fallback_after", "refractory_steps", "no_fc_at_reversal", "explored_fraction", "fc_force_limit_kN")
+
+
 def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
     """[integrator] keys of the implicit FC / mixed methods (docs/force_control.md)."""
     methods = ("alpha_os", "implicit_dc", "force_control", "mixed")
@@ -211,13 +218,12 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
         raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' on real hardware needs "
                           f"switch_resolution_mm and switch_force_resolution_kN (the transducer's and the load "
                           f"cell's resolution)")
-    guards = {"fc_fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False, "explored_fraction": 0.0,
-              "fc_force_limit_kN": 0.0}
-    for key, off in guards.items():
-        if i["method"] != "mixed" and i[key] != off:
+    off = DEFAULTS["integrator"]  # each option's default is its "off" value
+    for key in MIXED_GUARDS:
+        if i["method"] != "mixed" and i[key] != off[key]:
             raise ConfigError(f"{source}: [integrator] {key} applies to method = 'mixed', not to {i['method']!r}")
-    for key, off in (("fc_blend", 1.0), ("anchor_dc", False), ("blend_dc", False)):
-        if i["method"] == "alpha_os" and i[key] != off:
+    for key in IMPLICIT_OPTIONS:
+        if i["method"] == "alpha_os" and i[key] != off[key]:
             raise ConfigError(f"{source}: [integrator] {key} applies to the implicit methods, not to 'alpha_os'")
     if i["blend_dc"] and not i["fc_blend"] < 1:
         raise ConfigError(f"{source}: [integrator] blend_dc needs fc_blend below 1 (the estimate it uses)")

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 
 from hsio.api import make_integrator
 from hsio.cli import main
-from hsio.config import from_dict
+from hsio.config import DEFAULTS, IMPLICIT_OPTIONS, MIXED_GUARDS, from_dict, load
 from hsio.errors import ConfigError
 from hsio.structures import get_structure
 
@@ -114,6 +114,76 @@ def test_guards_of_mixed_are_refused_with_other_methods():
     with pytest.raises(ConfigError, match=r"on real hardware needs switch_resolution_mm"):
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments"},
                    "hardware": {"url": "modbus-tcp://127.0.0.1:1502"}})
+
+
+# The keys that only mixed control reads (its guards and switching rule); each left at its default is off.
+MIXED_ONLY = MIXED_GUARDS + ("switch_on", "switch_rule", "switch_margin", "switch_hysteresis", "switch_resolution_mm",
+                             "switch_force_resolution_kN", "K_f", "K_d", "R_f", "R_d")
+
+
+@pytest.mark.parametrize("method", ["alpha_os", "implicit_dc", "force_control"])
+def test_every_mixed_key_written_at_its_default_loads_with_another_method(tmp_path, method):
+    """A configuration that spells out every key of mixed control and of the implicit methods at
+    its default (as TOML types it) loads with any method."""
+    path = tmp_path / "c.toml"
+    path.write_text(_toml({"integrator": {"method": method,
+                                          **{k: DEFAULTS["integrator"][k] for k in MIXED_ONLY + IMPLICIT_OPTIONS}}}))
+    cfg = load(path)
+    assert cfg["integrator"] == {**DEFAULTS["integrator"], "method": method}
+
+
+ON = {"fc_fallback_after": 1, "refractory_steps": 1, "no_fc_at_reversal": True, "explored_fraction": 0.5,
+      "fc_force_limit_kN": 1e-3, "fc_blend": 0.5, "anchor_dc": True, "blend_dc": True}
+
+
+@pytest.mark.parametrize("key", MIXED_GUARDS)
+def test_each_guard_switched_on_with_implicit_dc_exits_2_naming_it(tmp_path, key):
+    says = f"[integrator] {key} applies to method = 'mixed', not to 'implicit_dc'"
+    with pytest.raises(ConfigError, match=re.escape(says)):
+        from_dict({"integrator": {"method": "implicit_dc", key: ON[key]}})
+    out = _run(tmp_path, {"method": "implicit_dc", key: ON[key]})
+    assert out.exit_code == 2 and says in out.output and "Traceback" not in out.output, out.output
+    from_dict({"integrator": {"method": "mixed", key: ON[key]}})  # where it is read, it is taken
+
+
+@pytest.mark.parametrize("key", IMPLICIT_OPTIONS)
+def test_each_implicit_option_switched_on_with_alpha_os_exits_2_naming_it(tmp_path, key):
+    says = f"[integrator] {key} applies to the implicit methods, not to 'alpha_os'"
+    out = _run(tmp_path, {"method": "alpha_os", key: ON[key]})
+    assert out.exit_code == 2 and says in out.output, out.output
+
+
+def test_a_guard_is_off_at_its_default_in_DEFAULTS(monkeypatch):
+    """The off value of a guard is its entry in DEFAULTS, the one source of the defaults: moved
+    there, the check follows it."""
+    monkeypatch.setitem(DEFAULTS["integrator"], "refractory_steps", 5)
+    monkeypatch.setitem(DEFAULTS["integrator"], "fc_blend", 0.5)
+    assert from_dict({"integrator": {"method": "implicit_dc"}})["integrator"]["refractory_steps"] == 5
+    from_dict({"integrator": {"method": "implicit_dc", "refractory_steps": 5}})
+    with pytest.raises(ConfigError, match=r"refractory_steps applies to method = 'mixed'"):
+        from_dict({"integrator": {"method": "implicit_dc", "refractory_steps": 0}})
+    from_dict({"integrator": {"method": "alpha_os", "fc_blend": 0.5}})
+    with pytest.raises(ConfigError, match=r"fc_blend applies to the implicit methods"):
+        from_dict({"integrator": {"method": "alpha_os", "fc_blend": 1.0}})
+
+
+def test_an_off_value_of_another_type_is_typed_by_the_default(tmp_path):
+    """A whole number where the default is a real number is that number (0 for 0.0: off); a real
+    number for a count, or a number for a switch, is refused by its type, not compared as equal
+    (0.0 == 0 == False in Python)."""
+    cfg = from_dict({"integrator": {"method": "implicit_dc", "explored_fraction": 0, "fc_force_limit_kN": 0}})
+    assert type(cfg["integrator"]["explored_fraction"]) is float and type(cfg["integrator"]["fc_force_limit_kN"]) is float
+    assert type(from_dict({"integrator": {"fc_blend": 1}})["integrator"]["fc_blend"]) is float
+    for key, value, says in [("refractory_steps", 0.0, "refractory_steps must be a whole number"),
+                             ("fc_fallback_after", 0.0, "fc_fallback_after must be a whole number"),
+                             ("refractory_steps", False, "refractory_steps must be a number"),
+                             ("no_fc_at_reversal", 0, "no_fc_at_reversal must be true or false"),
+                             ("anchor_dc", 0, "anchor_dc must be true or false")]:
+        with pytest.raises(ConfigError, match=re.escape(f"[integrator]: {key}")) as info:
+            from_dict({"integrator": {"method": "implicit_dc", key: value}})
+        assert says in str(info.value)
+        out = _run(tmp_path, {"method": "implicit_dc", key: value}, name=f"{key}-{value}.toml")
+        assert out.exit_code == 2 and says in out.output, out.output
 
 
 @pytest.mark.parametrize("integrator, says", [

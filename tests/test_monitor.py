@@ -164,6 +164,54 @@ def test_the_feed_reads_a_growing_record_step_for_step(tmp_path):
     assert feed.channel_dof == {"C1": "C1", "C2": "C2"}
 
 
+class CountingConnection:
+    """The feed's SQLite connection, counting the reads of the summary table."""
+
+    def __init__(self, db):
+        self.db, self.summary_reads = db, 0
+
+    def execute(self, sql, *args):
+        self.summary_reads += "FROM summary" in sql
+        return self.db.execute(sql, *args)
+
+    def close(self):
+        self.db.close()
+
+
+def test_the_summary_is_read_again_only_after_a_commit(tmp_path):
+    """Polls of an unchanged record read the summary once; a commit of the run (a step, the
+    summary, a resume's new summary) makes the next poll read it again. The summary's commit
+    leaves run.sqlite's size and mtime as they were (WAL), yet the feed sees it."""
+    rec = write_record(tmp_path, 20)
+    feed = RecordFeed(tmp_path)
+    assert feed.poll(force=True) == 20 and feed.summary == {}
+    feed.db = counting = CountingConnection(feed.db)
+    for _ in range(5):
+        assert feed.poll(force=True) == 0
+    assert counting.summary_reads == 0  # read at the first poll; nothing committed since
+    stat = (tmp_path / "run.sqlite").stat()
+    rec.write_summary({"steps": 20, "outcome": "finished"})
+    after = (tmp_path / "run.sqlite").stat()
+    assert (after.st_size, after.st_mtime_ns) == (stat.st_size, stat.st_mtime_ns)  # in the WAL, not the file
+    assert feed.poll(force=True) == 0 and counting.summary_reads == 1
+    assert feed.summary == {"steps": 20, "outcome": "finished"} and feed.finished
+    for _ in range(5):
+        feed.poll(force=True)
+    assert counting.summary_reads == 1
+    rec.write_event(None, 20, "resume", "", "resumed after step 20")
+    rec.write_step(21, 0.21, [0, 0], [0, 0], [0, 0], [0, 0], [0, 0], ["displacement"] * 2,
+                   [0, 0], [0, 0], [0, 0], [0, 0])
+    assert feed.poll(force=True) == 1 and counting.summary_reads == 2 and not feed.finished  # open again
+    rec.write_summary({"steps": 21, "outcome": "finished", "resumed_from": 20})
+    feed.poll(force=True)
+    assert counting.summary_reads == 3 and feed.summary["steps"] == 21 and feed.finished
+    rec.close()
+    assert feed.poll(force=True) == 0 and feed.summary["steps"] == 21
+    reads = counting.summary_reads
+    feed.poll(force=True)
+    assert counting.summary_reads == reads
+
+
 def test_force_control_steps_have_their_own_tracking_indicator(tmp_path):
     """C1 runs one cycle in DC and then one in FC, its loop lagging by phi in each: the DC
     indicator falls by pi A^2 sin phi (mm^2) over the DC cycle and stays put over the FC one; the

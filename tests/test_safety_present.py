@@ -7,12 +7,16 @@ import numpy as np
 import pytest
 
 from hsio import api
-from hsio.errors import ConfigError
+from hsio.errors import ConfigError, HsioError
 from hsio.experiment import start_present
+from hsio.interfaces import ControlMode
 from hsio.ground_motion import read_at2
 from hsio.recording import Recorder, Run
 from hsio.result import max_error_pct
 from hsio.sites import NumericalSite
+from hsio.sites.numerical import StandingSite
+from hsio.specimens import BilinearGap, Linear
+from hsio.specimens.matrix import LinearMatrix
 from hsio.structures import get_structure
 
 # A near-ideal, noise-free actuator: what is compared is the hand-over between the records.
@@ -74,3 +78,35 @@ def test_present_start_needs_alpha_os():
     integrator = api.make_integrator(s, "implicit_dc")
     with pytest.raises(ConfigError, match="start = 'present' is available for the alpha_os method"):
         start_present(integrator, s, np.zeros(s.n_dof), _Standing([1.0], [2.0]), s.numerical_assembly())
+
+
+def test_the_standing_site_is_each_virgin_model_about_where_its_element_stands():
+    """R_j = R0_j + model_j(u_j - u0_j) (docs/safety.md section 2), the secant from the committed
+    state: a linear spring, and column C2's bilinear gap (k1 until |u - u0| = gap, then k2)."""
+    k, k1, k2, gap = 0.613, 0.536, 2.011, 1.0
+    u0, R0 = np.array([3.0, -2.0]), np.array([1.5, -4.0])
+    site = StandingSite([Linear(k), BilinearGap(k1, k2, gap)], u0, R0)
+    dc = [ControlMode.DISPLACEMENT] * 2
+    np.testing.assert_array_equal(site.committed()[0], u0)
+    np.testing.assert_array_equal(site.committed()[1], R0)
+    site.set_trial(u0 + [2.5, -0.5], dc)  # the gap still open
+    daq = site.get_daq()
+    assert daq.R == pytest.approx([1.5 + k * 2.5, -4.0 - k1 * 0.5], abs=1e-12)
+    assert daq.k == pytest.approx([k, k1], abs=1e-12)
+    np.testing.assert_array_equal(daq.commands, u0 + [2.5, -0.5])
+    site.commit()
+    site.set_trial(u0 + [2.5, -3.0], dc)  # closed: 2 mm beyond the gap
+    daq = site.get_daq()
+    R_closed = -4.0 - k1 * 3.0 - (k2 - k1) * 2.0
+    assert daq.R[1] == pytest.approx(R_closed, abs=1e-12)
+    assert daq.k[1] == pytest.approx((R_closed - (-4.0 - k1 * 0.5)) / -2.5, abs=1e-12)
+    assert np.isnan(daq.k[0])  # no increment: no secant
+
+
+def test_the_standing_site_refuses_force_control_and_multi_dof_elements():
+    with pytest.raises(HsioError, match="displacement control only"):
+        StandingSite([Linear(1.0)], [0.0], [0.0]).set_trial([1.0], [ControlMode.FORCE])
+    with pytest.raises(HsioError, match="one-DOF specimen models only"):
+        StandingSite([LinearMatrix(np.eye(2))], [0.0, 0.0], [0.0, 0.0])
+    with pytest.raises(HsioError, match="2 elements, got 1 displacements"):
+        StandingSite([Linear(1.0), Linear(2.0)], [0.0], [0.0, 0.0])

@@ -5,6 +5,9 @@ feed opens it read-only and, at each :meth:`RecordFeed.poll`, reads only what wa
 the last poll (steps, events) and, when asked, the last controller samples. It never writes and
 never holds a transaction open between polls; the run never waits for it: SQLite's WAL journal
 lets a reader work beside the writer. The same code replays a finished record and follows a run in progress.
+The run's summary is read again only when the record can have changed since the last read: when
+SQLite's ``data_version`` of the feed's connection moved (another connection committed). The file's
+own size and mtime cannot tell: in WAL mode a commit goes to ``run.sqlite-wal``.
 
 Derived per channel as the steps arrive: the tracking error and the tracking indicator
 (:mod:`hsio.monitor.indicators`).
@@ -73,6 +76,7 @@ class RecordFeed:
         self._last_sample = 0
         self._last_poll = 0.0
         self._meta_at = 0.0
+        self._summary_version: int | None = None  # data_version at the last read of the summary
         self._ti_state: dict[str, tuple[float, tuple[float, float] | None]] = {}
 
     # -- state -------------------------------------------------------------------------------
@@ -156,11 +160,20 @@ class RecordFeed:
         for r in rows:
             self.events.append(dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:])))
             self._last_event = r[0]
-        self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
+        self._read_summary(db)
         if steps:
             self.seen_at.append((time.monotonic(), self.n))
             del self.seen_at[:-64]
         return steps
+
+    def _read_summary(self, db) -> None:
+        """The summary, read again only if another connection (the run, a resume) committed since
+        the last read: ``PRAGMA data_version`` moves at each such commit, and only then."""
+        version = db.execute("PRAGMA data_version").fetchone()[0]
+        if version == self._summary_version:
+            return
+        self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
+        self._summary_version = version  # taken before the read: a commit in between is read next time
 
     def _read_steps(self, db) -> int:
         cur = db.execute("SELECT * FROM steps WHERE step > ? ORDER BY step", (self._last_step,))

@@ -139,9 +139,12 @@ class StandingSite(NumericalSite):
     R0_j + model_j(u - u0_j), its virgin model about the measured displacement u0_j and force
     R0_j (the prediction of a run that starts from the present state, docs/safety.md section 2:
     a damaged specimen taken as its initial model about where it stands). Displacement control
-    only, as the present start is (alpha-OS)."""
+    only, as the present start is (alpha-OS), and one-DOF elements only: a structure with setups
+    or multi-DOF elements is predicted from rest plus where each actuator stands instead."""
 
     def __init__(self, models: list[Specimen], u0, R0):
+        if not all(isinstance(m, Specimen) for m in models):
+            raise HsioError("standing site: one-DOF specimen models only (not a multi-DOF element)")
         super().__init__(models)
         self.u0, self.R0 = (np.asarray(x, dtype=float).copy() for x in (u0, R0))
         if self.u0.shape != (self.n_elements,) or self.R0.shape != (self.n_elements,):
@@ -154,11 +157,6 @@ class StandingSite(NumericalSite):
             raise HsioError("standing site: displacement control only")
         self.set_modes(modes)
         u = np.asarray(commands, dtype=float).copy()
-        R = np.empty(self.n_elements)
-        for model, block in zip(self.models, self._slices):
-            if isinstance(model, Specimen):
-                R[block.start] = self.R0[block.start] + model.trial(float(u[block.start] - self.u0[block.start]))
-            else:
-                R[block] = self.R0[block] + np.asarray(model.trial(u[block] - self.u0[block]), dtype=float)
+        R = self.R0 + np.array([model.trial(float(d)) for model, d in zip(self.models, u - self.u0)], dtype=float)
         u_b, R_b = self._committed
         self._daq = Daq(u=u, R=R, k=secant_stiffness(u, R, u_b, R_b), targets=u.copy(), commands=u.copy())
