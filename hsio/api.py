@@ -27,6 +27,7 @@ import numbers
 import numpy as np
 
 from hsio.clock import LockstepClock, RealTimeClock
+from hsio.config import DEFAULTS as config_defaults
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
 from hsio.experiment import run_steps
@@ -49,9 +50,13 @@ __all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_
 # The options of ImplicitMethod and the value that leaves each off. A method that does not take an
 # option accepts it only at that value (None: not given): a switched-on option is refused, never
 # dropped. The comparison minds the type, as True == 1 == 1.0 in Python.
-IMPLICIT_OPTIONS = {"fc_blend": 1.0, "anchor_dc": False, "blend_dc": False}
-GUARDS = {"fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False, "explored_fraction": 0.0,
-          "fc_force_limit": 0.0}
+# The off values are the [integrator] defaults of a run configuration (hsio.config.DEFAULTS), under
+# the configuration's key names where they differ.
+_CONFIG_KEY = {"fallback_after": "fc_fallback_after", "fc_force_limit": "fc_force_limit_kN"}
+_OFF = config_defaults["integrator"]
+IMPLICIT_OPTIONS = {k: _OFF[_CONFIG_KEY.get(k, k)] for k in ("fc_blend", "anchor_dc", "blend_dc")}
+GUARDS = {k: _OFF[_CONFIG_KEY.get(k, k)] for k in ("fallback_after", "refractory_steps", "no_fc_at_reversal",
+                                                    "explored_fraction", "fc_force_limit")}
 OPTIONS_OFF = {**IMPLICIT_OPTIONS, **GUARDS}
 
 
