@@ -50,8 +50,10 @@ from hsio.structures import ExperimentalElement, Structure, channel_names
 
 def served_structure(structure: Structure, names) -> Structure:
     """The experimental elements ``names`` of ``structure`` as a structure of their own: each
-    keeps its basic DOFs (renumbered in the order served), actuators, setup and K^EI; what
-    :func:`hsio.api.open_site` needs to open their actuators (docs/setups.md)."""
+    keeps its basic DOFs (renumbered in the order served), actuators, setup, K^EI and external
+    displacement instrument (``displacement_from``, with its outer loop); the static preloads and
+    the instruments they need come along: what :func:`hsio.api.open_site` needs to open their
+    actuators (docs/setups.md)."""
     by_name = {e.name: e for e in structure.experimental}
     unknown = [n for n in names if n not in by_name]
     if unknown:
@@ -60,17 +62,16 @@ def served_structure(structure: Structure, names) -> Structure:
     elements, dof_names = [], []
     for name in names:
         e = by_name[name]
-        if e.displacement_from:
-            raise ConfigError(f"[opensees] elements: {name!r} takes its displacement from the external instrument "
-                              f"{e.displacement_from!r}; hsio serve opensees reads the actuators' own transducers "
-                              f"only: serve it without displacement_from")
         first = len(dof_names)
         index = tuple(range(first, first + len(e.basic_dofs)))
         dof_names += [structure.dof_names[d] for d in e.basic_dofs]
         elements.append(replace(e, dof=first, dofs=index if e.dofs else ()))
+    # the external instruments that a served element reads its displacement from, or that sit on one
+    used = {e.displacement_from for e in elements if e.displacement_from}
+    instruments = tuple(i for i in structure.instruments if i.name in used or i.element in names)
     return Structure(name=structure.name, dof_names=tuple(dof_names), masses=(1.0,) * len(dof_names),
                      experimental=tuple(elements), dt=structure.dt, description=f"served elements of {structure.name}",
-                     static=structure.static)
+                     static=structure.static, instruments=instruments)
 
 
 def length_units(element: ExperimentalElement, length_factor: float) -> np.ndarray:
