@@ -283,6 +283,42 @@ element = "spring"
 """
 
 
+def test_a_mass_matrix_over_a_joints_basic_dofs_is_answered_in_model_units(tmp_path):
+    """[opensees] mass as a matrix over the joint's x, y, rotation (kN s^2/mm, kN s^2, kN mm s^2):
+    answered to getMass as M_ij u_i u_j / (force_factor length_factor), u = length_factor for x, y
+    and 1 for the rotation; damping given as a number is that number times the identity."""
+    M = [[0.01, 0.0, 0.5], [0.0, 0.01, 0.0], [0.5, 0.0, 400.0]]
+    lf, ff = 1000.0, 0.001  # the model in m and N
+    extra = f"length_factor = {lf}\nforce_factor = {ff}\nmass = {{ joint = {M} }}\ndamping = {{ joint = 0.02 }}\n"
+    config = write_config(tmp_path, "joint_three_actuators", ["joint"], extra=extra + QUIET)
+    with serving(config) as server:
+        c = RawClient(server.ports[0])
+        try:
+            c.setup(n=3)
+            mass = c.ask(p.GET_MASS)[:9].reshape(3, 3, order="F")
+            damp = c.ask(p.GET_DAMP)[:9].reshape(3, 3, order="F")
+            c.send(p.DIE)
+        finally:
+            c.close()
+        assert wait_for(lambda: session_over(server))
+    u = np.array([lf, lf, 1.0])
+    np.testing.assert_allclose(mass, np.array(M) * np.outer(u, u) / (ff * lf), rtol=1e-12)
+    assert mass[0, 0] == pytest.approx(10_000.0)  # 0.01 kN s^2/mm = 10 t = 10,000 kg (N s^2/m)
+    np.testing.assert_allclose(damp, 0.02 * np.eye(3) * np.outer(u, u) / (ff * lf), rtol=1e-12)
+
+
+def test_a_mass_matrix_of_the_wrong_size_is_refused_naming_the_element(tmp_path):
+    from hsio.errors import ConfigError
+    from hsio.opensees.lab import Lab
+    from hsio.opensees.settings import split_config
+    from hsio.runner import load_run_structure
+
+    config = write_config(tmp_path, "joint_three_actuators", ["joint"], extra="mass = { joint = [[1.0, 0.0], [0.0, 1.0]] }\n")
+    settings, run = split_config(config)
+    with pytest.raises(ConfigError, match=r"\[opensees\] mass.joint: a 2 x 2 matrix; element 'joint' has 3 basic DOFs"):
+        Lab(settings, run, load_run_structure(run), log=lambda _: None)
+
+
 def test_an_element_read_by_an_external_lvdt_is_served_through_its_outer_loop(tmp_path):
     """A 2 kN/mm spring behind a load train of 0.05 mm/kN, its displacement read by an LVDT on the
     specimen (docs/setups.md). Closed form: the rod's transducer alone would leave the spring at

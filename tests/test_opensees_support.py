@@ -181,7 +181,11 @@ def test_opensees_table_is_checked_key_by_key():
                        ({"elements": ["C1"], "length_factor": 0}, "length_factor must be positive"),
                        ({"elements": ["C1"], "stiffness": "tangent"}, "stiffness"),
                        ({"elements": ["C1"], "mass": {"C9": 1.0}}, "C9"),
-                       ({"elements": ["C1"], "timeout_s": float("nan")}, "timeout_s")]:
+                       ({"elements": ["C1"], "timeout_s": float("nan")}, "timeout_s"),
+                       ({"elements": ["C1"], "mass": {"C1": [[1.0, 0.0], [0.0]]}}, "square matrix"),
+                       ({"elements": ["C1"], "mass": {"C1": [[1.0, 0.2], [0.3, 1.0]]}}, r"symmetric: \[1\]\[0\]"),
+                       ({"elements": ["C1"], "damping": {"C1": [[-1.0]]}}, r"damping.C1\[0\]\[0\] must not be negative"),
+                       ({"elements": ["C1"], "mass": {"C1": [["a"]]}}, "finite number")]:
         with pytest.raises(ConfigError, match=words):
             parse(bad, "f.toml")
 

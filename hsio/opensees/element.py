@@ -68,10 +68,8 @@ class ElementHandler:
         if action in (p.GET_INITIAL_STIFF, p.GET_TANGENT_STIFF):
             K = lab.K_EI[j] if action == p.GET_INITIAL_STIFF else lab.tangent(j)
             return p.matrix_payload(lab.stiffness_to_model(j, K))
-        if action == p.GET_DAMP:
-            c = lab.settings.damping.get(self.name, 0.0)
-            return p.matrix_payload(lab.stiffness_to_model(j, np.eye(n) * c))  # kN s/mm -> model (time in s)
-        if action == p.GET_MASS:
-            m = lab.settings.mass.get(self.name, 0.0)
-            return p.matrix_payload(lab.stiffness_to_model(j, np.eye(n) * m))  # kN s^2/mm -> model
+        if action == p.GET_DAMP:  # kN s/mm -> model (time in s)
+            return p.matrix_payload(lab.stiffness_to_model(j, lab.matrix(j, "damping")))
+        if action == p.GET_MASS:  # kN s^2/mm -> model
+            return p.matrix_payload(lab.stiffness_to_model(j, lab.matrix(j, "mass")))
         raise p.ProtocolError(f"{where}: action {action} is not served")

@@ -104,6 +104,12 @@ class Lab:
         self.n_channels = len(self.channels)
         self.K_EI = [e.K_EI_matrix for e in elements]  # per element, over its basic DOFs (hsio units)
         self.units = [length_units(e, settings.length_factor) for e in elements]
+        for key in ("mass", "damping"):
+            for name, value in getattr(settings, key).items():
+                n = self.n_basic[self.names.index(name)]
+                if not isinstance(value, float) and len(value) != n:
+                    raise ConfigError(f"[opensees] {key}.{name}: a {len(value)} x {len(value)} matrix; element {name!r} "
+                                      f"has {n} basic DOF{'s' if n > 1 else ''} ({', '.join(self.channels[self.blocks[self.names.index(name)]])})")
         self.correct = (config["test"]["measured_displacement_correction"] if settings.force_correction is None
                         else settings.force_correction)
         self.log = log
@@ -279,6 +285,13 @@ class Lab:
         """Element ``j``'s basic forces from kN (kN mm for a moment) to model units."""
         s = self.settings
         return np.asarray(q, dtype=float) * self.units[j] / (s.force_factor * s.length_factor)
+
+    def matrix(self, j: int, key: str) -> np.ndarray:
+        """Element ``j``'s configured ``mass`` or ``damping`` over its basic DOFs, in hsio units: the
+        number times the identity, or the matrix given (0 when not configured)."""
+        value = getattr(self.settings, key).get(self.names[j], 0.0)
+        n = self.n_basic[j]
+        return np.eye(n) * value if isinstance(value, float) else np.array(value, dtype=float)
 
     def stiffness_to_model(self, j: int, K) -> np.ndarray:
         """An n x n matrix over element ``j``'s basic DOFs (stiffness, damping or mass) to model units."""

@@ -7,8 +7,9 @@
     stiffness = "initial"      # getTangentStiff: "initial" (K^EI) or "secant" (estimated per step)
     force_correction = true    # getForce: measured force + K^EI (target - measured displacement)
     timeout_s = 60.0           # a silent element is disconnected after this long
-    mass = {}                  # per element, kN s^2/mm, answered to getMass (default 0)
-    damping = {}               # per element, kN s/mm, answered to getDamp (default 0)
+    mass = {}                  # per element, kN s^2/mm, answered to getMass (default 0): a number
+                               # (times the identity) or a matrix over its basic DOFs
+    damping = {}               # per element, kN s/mm, answered to getDamp (default 0): idem
     out = "runs/opensees"      # folder of the session records (run.sqlite, run-2.sqlite, ...),
                                # relative to the working directory as `hsio run --out`
 
@@ -52,14 +53,41 @@ def _number(where: str, key: str, value, positive: bool = True) -> float:
     return float(value)
 
 
+def _matrix(where: str, key: str, value) -> tuple[tuple[float, ...], ...]:
+    """A square, symmetric matrix of finite numbers given as a list of rows."""
+    n = len(value)
+    if not n or not all(isinstance(row, list) and len(row) == n for row in value):
+        raise ConfigError(f"{where}: {key} must be a number or a square matrix (a list of {n or 'n'} rows of "
+                          f"{n or 'n'} numbers), got {value!r}")
+    rows = tuple(tuple(_number(where, f"{key}[{i}][{k}]", x, positive=False) if i == k else
+                       _finite(where, f"{key}[{i}][{k}]", x) for k, x in enumerate(row)) for i, row in enumerate(value))
+    for i in range(n):
+        for k in range(i):
+            if rows[i][k] != rows[k][i]:
+                raise ConfigError(f"{where}: {key} must be symmetric: [{i}][{k}] = {rows[i][k]:g} but "
+                                  f"[{k}][{i}] = {rows[k][i]:g}")
+    return rows
+
+
+def _finite(where: str, key: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{where}: {key} must be a finite number, got {value!r}")
+    return float(value)
+
+
 def _per_element(where: str, key: str, value, elements) -> dict:
+    """Per served element: a number (times the identity over its basic DOFs) or a matrix over them."""
     if not isinstance(value, dict):
         raise ConfigError(f"{where}: {key} must be a table of element = value, got {value!r}")
+    out = {}
     for name, x in value.items():
         if name not in elements:
             raise ConfigError(f"{where}: {key} names {name!r}, not one of the served elements {list(elements)}")
-        _number(where, f"{key}.{name}", x, positive=False)
-    return {name: float(x) for name, x in value.items()}
+        if isinstance(x, list):
+            out[name] = _matrix(where, f"{key}.{name}", x)
+        else:
+            out[name] = _number(where, f"{key}.{name}", x, positive=False)
+    return out
 
 
 def parse(table, source: str) -> OpenSeesSettings:
