@@ -18,7 +18,7 @@ import numpy as np
 import hsio
 from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
-from hsio.config import RunConfig
+from hsio.config import BOUNDS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.emulators.servo import ServoConfig
 from hsio.errors import ConfigError, HsioError, RecordError
@@ -62,6 +62,10 @@ def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
             ground = ground.truncated(rec["duration_s"])
         except RecordError as exc:
             raise ConfigError(f"{config.source}: [record] duration_s = {rec['duration_s']!r}: {exc}") from None
+    longest = BOUNDS[("record", "duration_s")][1]
+    if ground.duration_s > longest + 0.5 * ground.dt:  # the bound of duration_s holds for a record file too
+        raise ConfigError(f"{rec['file'] or config.source}: the record lasts {ground.duration_s:g} s, beyond the "
+                          f"bound of {longest:g} s for one run; cut it with [record] duration_s")
     return ground
 
 

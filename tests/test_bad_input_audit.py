@@ -69,6 +69,17 @@ def test_a_cut_shorter_than_a_step_or_longer_than_the_record_is_refused():
     assert runner.build_record(cfg(record={"duration_s": 20.0}), structure).duration_s == pytest.approx(20.0)
 
 
+def test_a_record_file_longer_than_the_duration_bound_is_refused(tmp_path):
+    """A 2,000,000-sample file at 0.005 s (10,000 s, 1,000,000 steps) once ran for hours: the
+    3600 s bound of [record] duration_s holds for a file too, unless duration_s cuts it."""
+    path = write_at2(tmp_path / "long.AT2", "ACCELERATION TIME SERIES IN UNITS OF G", ["0.01"] * 4000)
+    path.write_text(path.read_text().replace("DT= 0.0100", "DT= 1.0000"))
+    with pytest.raises(ConfigError, match=r"long.AT2: the record lasts 3999 s, beyond the bound of 3600 s"):
+        runner.build_record(cfg(record={"file": str(path), "duration_s": 0.0}), get_structure("validation"))
+    cut = runner.build_record(cfg(record={"file": str(path), "duration_s": 60.0}), get_structure("validation"))
+    assert cut.duration_s == pytest.approx(60.0)
+
+
 def write_at2(path, line3, values=("0.01", "0.02", "-0.01", "0.0", "0.01")):
     path.write_text("PEER NGA STRONG MOTION DATABASE RECORD\nrecord\n" + line3 + "\n"
                     f"NPTS= {len(values)}, DT= 0.0100 SEC\n" + "  ".join(values) + "\n")
