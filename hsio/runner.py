@@ -85,6 +85,9 @@ def check_hardware(config: RunConfig) -> None:
     created or opened: a typing error there leaves no record behind."""
     url = config["hardware"]["url"]
     emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
+    if url.startswith("emulator") and config["driver"]:  # a [driver] limit the run would ignore
+        raise ConfigError(f"{config.source}: [driver] {', '.join(config['driver'])} is not read with {url!r}: the "
+                          f"emulated controller takes [emulator] (stroke_mm, force_limit_kN, ...)")
     check_options(url, emulator if url.startswith("emulator") else config["driver"])
 
 

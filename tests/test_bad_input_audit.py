@@ -256,6 +256,15 @@ def test_a_bad_url_or_driver_table_leaves_no_record(tmp_path, url, driver, match
         runner.predict(c, get_structure("validation"), runner.build_record(c, get_structure("validation")))
 
 
+def test_a_driver_table_with_the_emulator_is_refused(tmp_path):
+    """[driver] stroke_mm = 1 with emulator:// was once ignored: the run went on with the
+    emulator's 254 mm stroke, the operator believing it limited to 1 mm."""
+    c = cfg(driver={"stroke_mm": 1.0})
+    with pytest.raises(ConfigError, match=r"\[driver\] stroke_mm is not read with 'emulator://'"):
+        runner.run(c, tmp_path / "o")
+    assert not (tmp_path / "o").exists()
+
+
 def test_canopen_url_check_is_the_drivers():
     with pytest.raises(ConfigError, match="node id 0 is not in 1..127"):
         canopen_driver.check_options("canopen+virtual://x/0", {})
