@@ -113,6 +113,12 @@ def test_devices_are_refused_not_read_for_ever(tmp_path):
     with pytest.raises(ConfigError, match="/dev/zero: not a regular file"):
         load_structure(Path("/dev/zero"))
     assert_exit_2(hsio("check", "/dev/zero", timeout=30), "not a regular file")
+    with pytest.raises(ConfigError, match="/dev/zero: cannot read actuator model: not a regular file"):
+        runner.check_hardware(cfg(hardware={"actuator_model": "/dev/zero"}))
+    from hsio.drivers import modbus_map
+
+    with pytest.raises(ConfigError, match="/dev/zero: cannot read register map: not a regular file"):
+        modbus_map.load("/dev/zero")
 
 
 # -- structure files --------------------------------------------------------------------------------
@@ -202,6 +208,17 @@ def test_the_emulator_refuses_a_rate_other_than_the_lockstep_clock():
 def test_an_emulator_url_with_a_host_is_refused():
     with pytest.raises(ConfigError, match="emulator://somehost/.*takes no host or path"):
         cfg(hardware={"url": "emulator://somehost/"})
+
+
+@pytest.mark.parametrize("table, match", [
+    ({"mode": "online", "window": 10**12}, r"window = 1000000000000 is out of bounds: at most 1e\+06"),
+    ({"mode": "offline", "a_mm_s": 1.0, "b_s_mm": 1e9}, r"b_s_mm x d_max_mm \(the lag\) = .* at most 10 s"),
+    ({"mode": "online", "d_max_mm": 1e9}, r"d_max_mm = 1000000000.0 is out of bounds"),
+])
+def test_compensation_settings_beyond_sanity_bounds_are_named(table, match):
+    """Once accepted: a 2.5e11 s lag compensated, a window of 10^12 steps."""
+    with pytest.raises(ConfigError, match=r"\[compensation\]: " + match):
+        cfg(compensation=table, test={"hold_fraction": 0.0})
 
 
 # -- the run folder and the ledger ------------------------------------------------------------------
