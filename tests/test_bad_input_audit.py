@@ -310,6 +310,8 @@ COMMAND_LINE = [
     (["run", "{c}", "--out", "{d}/f/sub"], "cannot create the run folder"),
     (["calibrate", "{d}/cal.csv", "--plot", "{d}/f/fig.png"], "cannot write the plot"),
     (["bench", "vrths", "--case", "1", "--data", "{d}/vrths"], "cannot be read"),
+    (["emulate", "modbus-rtu", "--baudrate", "0"], "0 is not in the range"),
+    (["serve", "opensees", "{d}/serve.toml", "--port", "0"], "unknown scheme 'http'"),
 ]
 
 
@@ -324,8 +326,18 @@ def test_command_line_refusals(tmp_path, args, words):
     (tmp_path / "vrths" / "benchmark.json").write_text("{")
     (tmp_path / "vrths" / "elcentro_vrths.csv").write_text("x")
     write_calibration_csv(tmp_path / "cal.csv")
+    (tmp_path / "serve.toml").write_text('[opensees]\nelements = ["C1"]\n[hardware]\nurl = "http://x"\n')
     assert_exit_2(hsio(*[a.format(c=c, d=tmp_path) for a in args]), words)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_serve_refuses_a_records_folder_it_cannot_create(tmp_path):
+    """Once found only when the first OpenSees client connected: the server waited with a bad URL
+    or records folder; the emulated Modbus RTU server likewise with --baudrate 0."""
+    (tmp_path / "f").write_text("x")
+    (tmp_path / "serve.toml").write_text('[opensees]\nelements = ["C1"]\n')
+    assert_exit_2(hsio("serve", "opensees", tmp_path / "serve.toml", "--port", "0", "--out", tmp_path / "f" / "x",
+                       timeout=30), "cannot create the records folder")
 
 
 def test_a_second_ctrl_c_ends_with_a_message_not_a_blank_line(tmp_path):

@@ -130,7 +130,7 @@ def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, watch_holdi
 
 
 @emulate.command("modbus-rtu")
-@click.option("--baudrate", default=115200, show_default=True, type=int)
+@click.option("--baudrate", default=115200, show_default=True, type=click.IntRange(1, 10_000_000))
 @click.option("--map", "map_file", default=None, type=click.Path(dir_okay=False), help="Register map TOML (default: hsio's).")
 @_common
 def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, watch_holding, settings, faults_spec) -> None:
