@@ -340,6 +340,12 @@ def test_serve_refuses_a_records_folder_it_cannot_create(tmp_path):
                        timeout=30), "cannot create the records folder")
 
 
+def test_monitor_refuses_a_file_that_is_not_a_record(tmp_path):
+    """Once served a page for it, saying nothing, until Ctrl-C."""
+    (tmp_path / "run.sqlite").write_text("garbage" * 100)
+    assert_exit_2(hsio("monitor", tmp_path, "--port", "0", timeout=30), "run.sqlite: not an hsio recording")
+
+
 def test_a_second_ctrl_c_ends_with_a_message_not_a_blank_line(tmp_path):
     """A second SIGINT interrupts at once by design; it once ended with the line 'hsio run: '."""
     c = tmp_path / "run.toml"
