@@ -32,6 +32,7 @@ import logging
 import math
 import threading
 import time
+from pathlib import Path
 from urllib.parse import urlsplit
 
 import canopen
@@ -69,7 +70,8 @@ def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
         raise ConfigError(f"{url!r} is not a canopen+INTERFACE://CHANNEL/NODE URL")
     if interface == "slcan":  # a Lawicel adapter: a serial device path, or a TCP serial port (docs/canopen.md)
         if parts.netloc:
-            common.url_port(url, 0)
+            if common.url_port(url, 0) == 0:
+                raise ConfigError(f"{url!r}: an SLCAN adapter on TCP needs a port: canopen+slcan://HOST:PORT/NODE")
             channel, node_text = f"socket://{parts.netloc}", parts.path.strip("/") or "1"
         else:
             device, _, node_text = parts.path.rstrip("/").rpartition("/")
@@ -87,7 +89,15 @@ def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
         raise ConfigError(f"{url!r}: node id {node_text!r} is not a number") from None
     if not 1 <= node_id <= 127:
         raise ConfigError(f"{url!r}: node id {node_id} is not in 1..127")
-    return interface, channel, node_id, common.parse_options(url, options, DEFAULT_OPTIONS, RULES)
+    table = common.parse_options(url, options, DEFAULT_OPTIONS, RULES)
+    if table["eds"] and not Path(table["eds"]).is_file():
+        raise ConfigError(f"[driver] for {url!r}: eds = {table['eds']!r} is not a readable file (the drive's EDS)")
+    return interface, channel, node_id, table
+
+
+def check_options(url: str, options: dict | None = None) -> None:
+    """The URL and the [driver] table checked before anything opens (hsio.hardware.check_options)."""
+    parse_url(url, options)
 
 
 def sdo_error(node_id: int, what: str, exc: Exception) -> CommunicationError:
@@ -297,7 +307,10 @@ class CanopenLink(common.AxisLink):
         for k in range(self.n):
             node_id = self.node_id + k
             od = eds or cod.object_dictionary(node_id)
-            drive = DriveNode(self, node_id, od)
+            try:
+                drive = DriveNode(self, node_id, od)
+            except (OSError, ValueError, KeyError) as exc:  # an EDS that cannot be read or parsed
+                raise ConfigError(f"[driver] eds = {eds!r}: cannot load the object dictionary: {exc}") from None
             self.drives.append(drive)
             self.network.subscribe(0x700 + node_id, drive.on_bootup)
             drive.node.emcy.add_callback(drive.on_emcy)

@@ -54,6 +54,10 @@ class EmulatedActuator(Actuator, ActuatorChannels):
         self._lock = threading.Lock()
         self._loop: RealTimeLoop | None = None
         if clock is not None and getattr(clock, "lockstep", False):
+            if abs(clock.rate_hz - cfg.rate_hz) > 1e-9 * clock.rate_hz:
+                raise ConfigError(f"emulator: rate_hz = {cfg.rate_hz:g} differs from the experiment's controller rate "
+                                  f"({clock.rate_hz:g} Hz): in lockstep each tick is one period of both; leave rate_hz "
+                                  f"out")
             clock.attach(controller)
         else:
             self._loop = RealTimeLoop(controller, self._lock)
@@ -104,6 +108,9 @@ def _settings(url: str, options: dict | None) -> dict:
     parts = urlsplit(url)
     if parts.scheme != "emulator":
         raise ConfigError(f"{url!r} is not an emulator:// URL")
+    if parts.netloc or parts.path.strip("/"):
+        raise ConfigError(f"hardware URL {url!r}: the in-process emulator takes no host or path "
+                          f"(emulator:// or emulator://?KEY=VALUE&...)")
     table = dict(options or {})
     for key, value in parse_qsl(parts.query):
         table[key] = parse_value(value)

@@ -122,6 +122,22 @@ class ServoConfig:
                                   f"within 0..{high:g} {unit}")
         if self.lag_retract_s is not None and not self.lag_retract_s > 0:
             raise ConfigError(f"emulator: lag_retract_s must be positive, got {self.lag_retract_s!r}")
+        # Sanity bounds (docs/faults.md): beyond them the emulator would overflow its buffers, step
+        # a different clock from the host's or stand for no actuator; the limits match [driver]'s.
+        sanity = {"seed": (0, 2**32 - 1, ""), "rate_hz": (10.0, 100000.0, "Hz"), "lag_s": (0.0, 3600.0, "s"),
+                  "lag_retract_s": (0.0, 3600.0, "s"), "force_lag_s": (0.0, 3600.0, "s"),
+                  "transport_delay_s": (0.0, 3600.0, "s"), "channel_skew_s": (0.0, 3600.0, "s"),
+                  "stroke_mm": (0.0, 10000.0, "mm"), "force_limit_kN": (0.0, 100000.0, "kN"),
+                  "velocity_limit_mm_s": (0.0, 10000.0, "mm/s"), "backlash_mm": (0.0, self.stroke_mm, "mm"),
+                  "dead_band_mm": (0.0, self.stroke_mm, "mm"), "servo_frequency_hz": (0.0, self.rate_hz / 2, "Hz"),
+                  "displacement_gain": (-10.0, 10.0, "")}
+        for name, (low, high, unit) in sanity.items():
+            value = getattr(self, name)
+            if value is not None and not low <= value <= high:
+                raise ConfigError(f"emulator: {name} = {value!r} is out of bounds: it must be within "
+                                  f"{low:g}..{high:g}{' ' + unit if unit else ''}")
+        if self.displacement_gain == 0:
+            raise ConfigError("emulator: displacement_gain must not be 0 (the transducer would read nothing)")
 
     @classmethod
     def from_dict(cls, table: dict) -> "ServoConfig":

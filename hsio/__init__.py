@@ -14,13 +14,32 @@ What a notebook needs is here (docs/api.md):
     hs.to_dataframe(); hs.plot("hs.png", reference=ns)
 """
 
-from hsio.api import make_integrator, open_site, run_numerical, simulate
-from hsio.errors import ConfigError, HsioError, InterlockError, LimitError
-from hsio.experiment import ExperimentStopped
-from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
-from hsio.result import Result, max_error_pct
-from hsio.sites import ActuatorSite, NumericalSite
-from hsio.structures import Structure, load_structure
+import importlib
+
+# The names a notebook uses, imported when first used: `import hsio` (and so the `hsio` command,
+# which answers Ctrl-C, --help and bad arguments at once) does not wait for numpy and scipy.
+_EXPORTS = {
+    "make_integrator": "hsio.api", "open_site": "hsio.api", "run_numerical": "hsio.api", "simulate": "hsio.api",
+    "ConfigError": "hsio.errors", "HsioError": "hsio.errors", "InterlockError": "hsio.errors",
+    "LimitError": "hsio.errors", "ExperimentStopped": "hsio.experiment", "GroundMotion": "hsio.ground_motion",
+    "read_at2": "hsio.ground_motion", "synthetic_record": "hsio.ground_motion", "Result": "hsio.result",
+    "max_error_pct": "hsio.result", "ActuatorSite": "hsio.sites", "NumericalSite": "hsio.sites",
+    "Structure": "hsio.structures", "load_structure": "hsio.structures",
+}
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'hsio' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted([*globals(), *_EXPORTS])
+
 
 try:
     from importlib.metadata import PackageNotFoundError, version

@@ -5,10 +5,12 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
+import signal
 import sys
 
 import click
 
+from hsio.commands import RegularFile, refuse_repeated_options
 from hsio.errors import HsioError
 
 
@@ -49,8 +51,10 @@ class LazyGroup(click.Group):
     def get_command(self, ctx, name):
         if name in LAZY_COMMANDS:
             module_name, _, attr = LAZY_COMMANDS[name].partition(":")
-            return getattr(importlib.import_module(module_name), attr)
-        return super().get_command(ctx, name)
+            command = getattr(importlib.import_module(module_name), attr)
+        else:
+            command = super().get_command(ctx, name)
+        return refuse_repeated_options(command) if command is not None else None
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -60,7 +64,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("config_file", required=False, type=click.Path(dir_okay=False))
+@click.argument("config_file", required=False, type=RegularFile())
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
               help="Folder for run.sqlite, summary.json and the plots; refused if it holds a record. "
                    "Default: a new numbered folder runs/<structure>/run-NNNN.")
@@ -118,9 +122,11 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         _where(exc)
         sys.exit(2)
     except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run has held and closed: report it whole
         status = exit_status(exc)
         if isinstance(exc, ExperimentStopped) or status != 2:
-            click.echo(f"hsio run: {exc or 'interrupted'}", err=True)
+            click.echo(f"hsio run: {str(exc) or 'interrupted (Ctrl-C)'}",
+                       err=True)
         else:
             click.echo(f"hsio run: error: {exc}", err=True)
         _where(exc)
@@ -147,8 +153,9 @@ def resume(run_dir: str) -> None:
     try:
         summary = resume_run(run_dir, control=control, notify=notify)
     except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         status = exit_status(exc)
-        click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{exc or 'interrupted'}", err=True)
+        click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{str(exc) or 'interrupted'}", err=True)
         sys.exit(status)
     click.echo(f"resumed from step {summary['resumed_from']}: {summary['steps']} steps in {run_dir}/run.sqlite")
 
@@ -160,7 +167,7 @@ def _where(exc: BaseException) -> None:
 
 
 @main.command()
-@click.argument("config_file", required=False, type=click.Path(dir_okay=False))
+@click.argument("config_file", required=False, type=RegularFile())
 @click.option("--json", "as_json", is_flag=True, help="Print the dry run's report as JSON on stdout.")
 def check(config_file: str | None, as_json: bool) -> None:
     """Dry run: predict the test with NS and the command generator, compare with the limits.

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import re
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +23,7 @@ DT_MIN_S, DT_MAX_S = 1e-5, 1.0
 MAX_SAMPLES = 2_000_000
 MAX_STEPS = 1_000_000
 MAX_FILE_BYTES = 200_000_000
+SYNTHETIC_MIN_SAMPLES = 10
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,10 @@ class GroundMotion:
         return GroundMotion(f"{self.name} x {factor:g}", self.dt, self.accel_g * factor)
 
     def truncated(self, duration_s: float) -> "GroundMotion":
+        """The first ``duration_s`` of the record; shorter than one of its time steps is refused."""
+        if not duration_s >= self.dt * (1 - 1e-9):
+            raise RecordError(f"{self.name}: a cut to {duration_s:g} s is shorter than one time step of the record "
+                              f"({self.dt:g} s)")
         n = int(min(round(duration_s / self.dt), MAX_SAMPLES)) + 1
         return GroundMotion(self.name, self.dt, self.accel_g[: max(n, 2)])
 
@@ -81,6 +87,9 @@ class GroundMotion:
         return self.accel_g * G_MM_S2
 
 
+# Line 3 of an AT2 file says what the values are, e.g. "ACCELERATION TIME SERIES IN UNITS OF G".
+_UNITS = re.compile(r"UNITS\s+OF\s+(\S+)", re.IGNORECASE)
+_NOT_ACCELERATION = re.compile(r"\b(VELOCITY|DISPLACEMENT)\b", re.IGNORECASE)
 _NPTS_DT_NAMED = re.compile(r"NPTS\s*=\s*(\d+)\s*,\s*DT\s*=\s*([0-9.Ee+-]+)", re.IGNORECASE)
 _NPTS_DT_PLAIN = re.compile(r"^\s*(\d+)\s+([0-9.Ee+-]+)\s+NPTS\s*,\s*DT", re.IGNORECASE)
 
@@ -95,7 +104,10 @@ def read_at2(path: str | Path) -> GroundMotion:
     """
     path = Path(path)
     try:
-        size = path.stat().st_size
+        info = path.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise RecordError(f"{path}: not a regular file (a ground-motion file is a PEER .AT2 text file)")
+        size = info.st_size
         if size > MAX_FILE_BYTES:
             raise RecordError(f"{path}: {size} bytes is too large for a ground-motion file (at most {MAX_FILE_BYTES})")
         lines = path.read_text(encoding="latin-1").splitlines()
@@ -103,6 +115,7 @@ def read_at2(path: str | Path) -> GroundMotion:
         raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
     if len(lines) < 5:
         raise RecordError(f"{path}: too short for an AT2 file ({len(lines)} lines; the header alone has 4)")
+    _check_units(path, lines[2])
     match = _NPTS_DT_NAMED.search(lines[3]) or _NPTS_DT_PLAIN.search(lines[3])
     if match is None:
         raise RecordError(
@@ -136,6 +149,19 @@ def read_at2(path: str | Path) -> GroundMotion:
     return GroundMotion(name=path.name, dt=dt, accel_g=np.array(values))
 
 
+def _check_units(path: Path, line: str) -> None:
+    """Line 3 names the quantity and its units; hsio reads accelerations in g and refuses anything
+    else rather than reading, say, cm/s^2 as g."""
+    other = _NOT_ACCELERATION.search(line)
+    if other:
+        raise RecordError(f"{path}:3: the record holds {other.group(1).lower()}, not acceleration "
+                          f"({line.strip()!r}); hsio reads ground accelerations in g")
+    units = _UNITS.search(line)
+    if units and units.group(1).strip(".,;").upper() != "G":
+        raise RecordError(f"{path}:3: the accelerations are in units of {units.group(1)!r}; hsio reads them in g "
+                          f"(convert the file, e.g. divide cm/s^2 by 980.665)")
+
+
 def synthetic_record(
     duration_s: float = 20.0,
     dt: float = 0.01,
@@ -155,7 +181,12 @@ def synthetic_record(
 
     if not (duration_s > 0 and dt > 0 and duration_s / dt <= MAX_STEPS):
         raise RecordError(f"synthetic record: {duration_s!r} s at {dt!r} s is beyond the bound of {MAX_STEPS} steps")
+    if not DT_MIN_S <= dt <= DT_MAX_S:
+        raise RecordError(f"synthetic record: time step {dt:g} s is out of bounds: within {DT_MIN_S:g}..{DT_MAX_S:g} s")
     n = int(round(duration_s / dt)) + 1
+    if n < SYNTHETIC_MIN_SAMPLES:  # the drift filter runs forwards and backwards over 9 samples
+        raise RecordError(f"synthetic record: {duration_s:g} s at {dt:g} s is {n} samples; it needs at least "
+                          f"{SYNTHETIC_MIN_SAMPLES} ({(SYNTHETIC_MIN_SAMPLES - 1) * dt:g} s)")
     rng = np.random.default_rng(seed)
     noise = rng.standard_normal(n)
     w_g = 2 * math.pi * f_g_hz

@@ -47,18 +47,28 @@ class RecordExistsError(HsioError):
     """A run would overwrite an earlier record; nothing was written."""
 
 
+# What a run leaves in its folder beside run.sqlite: SQLite's journals (a journal left without its
+# database would be replayed into a new one) and the summary. Any of them marks a used folder.
+RECORD_TRACES = (RUN_FILE, RUN_FILE + "-wal", RUN_FILE + "-journal", "summary.json")
+
+
 def holds_record(folder: str | Path) -> bool:
     """True if ``folder`` holds a run record."""
     return (Path(folder) / RUN_FILE).exists()
 
 
 def refuse_recorded_folder(folder: str | Path) -> Path:
-    """``folder`` for a new run, or :class:`RecordExistsError` if it already holds a record."""
+    """``folder`` for a new run, or :class:`RecordExistsError` if it already holds a record (or
+    what is left of one: its journal or its summary)."""
     folder = Path(folder)
     if holds_record(folder):
         raise RecordExistsError(f"{folder / RUN_FILE} already holds the record of an earlier run; records are "
                                 f"never overwritten: choose another --out folder (or omit --out for a "
                                 f"new numbered folder)")
+    left = [name for name in RECORD_TRACES if os.path.lexists(folder / name)]
+    if left:
+        raise RecordExistsError(f"{folder} holds {', '.join(left)} of an earlier run; records are never "
+                                f"overwritten: choose another --out folder (or omit --out for a new numbered folder)")
     return folder
 
 

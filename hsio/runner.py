@@ -18,11 +18,12 @@ import numpy as np
 import hsio
 from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
-from hsio.config import RunConfig
+from hsio.config import BOUNDS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.emulators.servo import ServoConfig
-from hsio.errors import ConfigError, HsioError
+from hsio.errors import ConfigError, HsioError, RecordError
 from hsio.experiment import ExperimentStopped
+from hsio.hardware import check_options
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
 from hsio.ledger import Ledger
@@ -45,11 +46,26 @@ def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
     if rec["file"]:
         ground = read_at2(rec["file"])
     else:
-        ground = synthetic_record(duration_s=rec["synthetic_duration_s"], dt=structure.dt, pga_g=rec["pga_g"], seed=rec["seed"])
+        try:
+            ground = synthetic_record(duration_s=rec["synthetic_duration_s"], dt=structure.dt, pga_g=rec["pga_g"],
+                                      seed=rec["seed"])
+        except RecordError as exc:
+            raise ConfigError(f"{config.source}: [record] synthetic_duration_s = {rec['synthetic_duration_s']!r}: "
+                              f"{exc}") from None
     if rec["scale"] != 1.0:
         ground = ground.scaled(rec["scale"])
     if rec["duration_s"] > 0:
-        ground = ground.truncated(rec["duration_s"])
+        if rec["duration_s"] > ground.duration_s + 0.5 * ground.dt:  # a cut, never a silent clamp
+            raise ConfigError(f"{config.source}: [record] duration_s = {rec['duration_s']!r} s is longer than the "
+                              f"record {ground.name!r} ({ground.duration_s:g} s); 0 runs the whole record")
+        try:
+            ground = ground.truncated(rec["duration_s"])
+        except RecordError as exc:
+            raise ConfigError(f"{config.source}: [record] duration_s = {rec['duration_s']!r}: {exc}") from None
+    longest = BOUNDS[("record", "duration_s")][1]
+    if ground.duration_s > longest + 0.5 * ground.dt:  # the bound of duration_s holds for a record file too
+        raise ConfigError(f"{rec['file'] or config.source}: the record lasts {ground.duration_s:g} s, beyond the "
+                          f"bound of {longest:g} s for one run; cut it with [record] duration_s")
     return ground
 
 
@@ -57,7 +73,22 @@ def load_run_structure(config: RunConfig) -> Structure:
     """The structure a run configuration names: ``[structure] file`` (a structure file,
     docs/structures.md) or else ``name`` (a shipped structure)."""
     table = config["structure"]
-    return load_structure(table["file"]) if table["file"] else get_structure(table["name"])
+    structure = load_structure(table["file"]) if table["file"] else get_structure(table["name"])
+    if not structure.experimental:
+        raise ConfigError(f"{table['file'] or structure.name}: the structure has no [[experimental]] element: a "
+                          f"hybrid run needs at least one (a purely numerical model runs with hsio.run_numerical)")
+    return structure
+
+
+def check_hardware(config: RunConfig) -> None:
+    """The hardware URL and its options table ([emulator] or [driver]) checked before anything is
+    created or opened: a typing error there leaves no record behind."""
+    url = config["hardware"]["url"]
+    emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
+    if url.startswith("emulator") and config["driver"]:  # a [driver] limit the run would ignore
+        raise ConfigError(f"{config.source}: [driver] {', '.join(config['driver'])} is not read with {url!r}: the "
+                          f"emulated controller takes [emulator] (stroke_mm, force_limit_kN, ...)")
+    check_options(url, emulator if url.startswith("emulator") else config["driver"])
 
 
 def switch_resolutions(integrator: dict, emulator: dict) -> tuple[float, float]:
@@ -131,17 +162,28 @@ def format_state(head: str, state: dict | None) -> str:
 
 def run_folder(config: RunConfig, structure: Structure, out_dir: str | Path | None) -> Path:
     """The folder of a new run: ``out_dir`` if it holds no record (else RecordExistsError), or a
-    new numbered folder runs/<structure>/run-NNNN (docs/safety.md section 1)."""
-    if out_dir is None:
-        return new_run_folder(Path("runs") / structure.name)
-    out = refuse_recorded_folder(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    new numbered folder runs/<structure>/run-NNNN (docs/safety.md section 1). A folder that cannot
+    be created is a ConfigError naming it and why."""
+    if out_dir is not None and not str(out_dir).strip():
+        raise ConfigError("--out: the run folder is an empty path; name a folder (or omit --out for a new "
+                          "numbered folder)")
+    target = Path("runs") / structure.name if out_dir is None else Path(out_dir)
+    try:
+        if out_dir is None:
+            return new_run_folder(target)
+        out = refuse_recorded_folder(target)
+        out.mkdir(parents=True, exist_ok=True)
+        return out
+    except OSError as exc:
+        raise ConfigError(f"{target}: cannot create the run folder: {exc.strerror or exc}") from None
 
 
 def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Ledger | None:
     """The specimen ledger of ``--specimen DIR`` or [specimen] folder / id (None: no ledger)."""
     spec = config["specimen"]
+    if spec["id"] and (spec["id"] in (".", "..") or any(c in spec["id"] for c in "/\\\0")):
+        raise ConfigError(f"{config.source}: [specimen] id = {spec['id']!r}: a specimen id is a plain name (it names "
+                          f"the folder specimens/<id>), without '/', '\\' or '..'")
     folder = specimen_dir or spec["folder"] or (str(Path("specimens") / spec["id"]) if spec["id"] else "")
     return Ledger(folder, spec["id"]) if folder else None
 
@@ -149,6 +191,7 @@ def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Le
 def predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):
     """NS and the dry run of the configured test (docs/safety.md section 2): (NS result, report)."""
     integ, test, hardware = config["integrator"], config["test"], config["hardware"]
+    check_hardware(config)
     ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     setups = SetupMap.of(structure) if structure.has_setups else None
@@ -226,6 +269,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                                      CompensationSettings.from_table(config["compensation"]))
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
+    check_hardware(config)
     out = run_folder(config, structure, out_dir)
     ledger = open_ledger(config, specimen_dir)
     meta = {

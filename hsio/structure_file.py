@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import stat
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -21,6 +22,7 @@ import numpy as np
 import scipy.linalg
 
 from hsio.errors import ConfigError
+from hsio.ground_motion import DT_MAX_S, DT_MIN_S
 from hsio.specimens import SPECIMEN_KINDS, make_specimen
 from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, ExperimentalElement, Instrument, NumericalElement,
                              OuterLoop, Spring, StaticLoad, Structure)
@@ -28,6 +30,7 @@ from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, Experimen
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
 MAX_FILE_BYTES = 4_000_000
+FREQUENCY_BOUNDS_HZ = (1e-3, 1e5)
 GROUND = "ground"
 PAPER = ("validation", "structure_I", "structure_II")  # E&M 2007, Tables I-III
 
@@ -76,10 +79,13 @@ def load_structure(path_or_name: str | Path, relative_to: str | Path | None = No
     if relative_to is not None and not path.is_absolute():
         path = Path(relative_to) / path
     try:
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise ConfigError(f"{path}: {size} bytes; a structure file is at most {MAX_FILE_BYTES} bytes")
-        data = path.read_bytes()
+        if not stat.S_ISREG(path.stat().st_mode):  # a device such as /dev/zero would be read for ever
+            raise ConfigError(f"{path}: not a regular file (a structure file is TOML text)")
+        with path.open("rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+        if len(data) > MAX_FILE_BYTES:
+            raise ConfigError(f"{path}: more than {MAX_FILE_BYTES} bytes; a structure file is at most "
+                              f"{MAX_FILE_BYTES} bytes")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the structure file ({exc.strerror or exc})") from None
     return parse_structure(data, str(path), default_name=path.stem)
@@ -163,6 +169,9 @@ class _Reader:
         if not isinstance(description, str):
             raise self.error("structure.description", f"must be a string, got {description!r}")
         dt = self.number("structure.dt", self.required("structure", head, "dt"), positive=True)
+        if not DT_MIN_S <= dt <= DT_MAX_S:
+            raise self.error("structure.dt", f"{dt:g} s is out of bounds: the integration time step must be within "
+                             f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
 
         dofs = doc.get("dof", [])
         if not dofs:
@@ -242,6 +251,8 @@ class _Reader:
                 raise self.error(f"static[{k}].actuator", f"actuator {e.actuator!r} already used by {used[e.actuator]}")
             used[e.actuator] = f"static[{k}]"
 
+        if not any(iota):
+            raise self.error("dof", "every DOF has iota = 0: the ground motion would load none of them")
         structure = Structure(name=name, dof_names=tuple(dof_names), masses=tuple(masses), experimental=experimental,
                               springs=springs, numerical=numerical, damping=damping, dt=dt, description=description,
                               mass_matrix=matrix, influence=None if all(v == 1.0 for v in iota) else tuple(iota),
@@ -488,9 +499,34 @@ class _Reader:
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
         return StaticLoad(name, force, spec, ramp, actuator)
 
+    def check_frequencies(self, structure: Structure) -> None:
+        """Sanity bounds of the natural frequencies (docs/faults.md): beyond them a mass or a
+        stiffness is off by many orders of magnitude, almost always a typing error or a unit."""
+        try:
+            w2 = scipy.linalg.eigh(structure.K_init, structure.M, eigvals_only=True)
+        except (np.linalg.LinAlgError, ValueError):
+            w2 = np.array([np.nan])
+        f = np.sqrt(np.clip(w2, 0.0, None)) / (2 * math.pi)
+        low, high = FREQUENCY_BOUNDS_HZ
+        bad = np.flatnonzero(~((f >= low) & (f <= high)))
+        if bad.size:
+            raise self.error("dof", f"mode {bad[0] + 1} at {f[bad[0]]:.3g} Hz is out of bounds: natural frequencies "
+                             f"must be within {low:g}..{high:g} Hz (check the masses and stiffnesses and their units)")
+
     def check_stable(self, structure: Structure) -> None:
-        w2, phi = scipy.linalg.eigh(structure.K_init, structure.M)
-        if w2[0] <= 1e-12 * np.max(np.abs(w2)):
+        """K_I is not singular. Checked on K_I scaled by its diagonal, so that neither the masses
+        nor the units of a DOF (mm or rad) make a stiff structure look singular or hide a free DOF."""
+        K = np.asarray(structure.K_init, dtype=float)
+        diagonal = np.diag(K)
+        free = np.flatnonzero(~(diagonal > 0))
+        if free.size:
+            k = int(free[0])
+        else:
+            scale = 1.0 / np.sqrt(diagonal)
+            w, phi = scipy.linalg.eigh(K * scale[:, None] * scale[None, :])
+            if w[0] > 1e-12 * w[-1]:
+                self.check_frequencies(structure)
+                return
             k = int(np.argmax(np.abs(phi[:, 0])))
-            raise self.error(f"dof[{k}]", f"DOF {structure.dof_names[k]!r} has no stiffness path to the ground "
-                             "(the initial stiffness K_I is singular): add a spring or element")
+        raise self.error(f"dof[{k}]", f"DOF {structure.dof_names[k]!r} has no stiffness path to the ground "
+                         "(the initial stiffness K_I is singular): add a spring or element")

@@ -27,7 +27,7 @@ from hsio.safety.socket import ControlServer
 from test_monitor import ENV, get, start_monitor, write_record
 
 RUN = """[record]
-duration_s = 60.0
+synthetic_duration_s = 60.0
 [hardware]
 clock = "realtime"
 [output]

@@ -2,8 +2,80 @@
 
 from __future__ import annotations
 
+import math
+import os
 import signal
 import threading
+
+import click
+
+
+class RegularFile(click.Path):
+    """A path to a regular file: a directory, a device (/dev/zero) or a FIFO, which would be read
+    for ever, is refused naming it."""
+
+    def __init__(self, **kwargs):
+        super().__init__(dir_okay=False, **kwargs)
+
+    def convert(self, value, param, ctx):
+        path = super().convert(value, param, ctx)
+        if os.path.exists(path) and not os.path.isfile(path):
+            self.fail(f"{os.fsdecode(path)!r} is not a regular file", param, ctx)
+        return path
+
+
+def refuse_repeated_options(command: click.Command) -> click.Command:
+    """An option that takes one value and is given twice is refused naming it (click would keep the
+    last one silently: ``--out a --out b`` writes to b); flags and repeatable options are not
+    concerned. So is a number option given as nan or inf (click's float types take them). A group
+    passes the guard on to its subcommands."""
+    if getattr(command, "_refuses_repeats", False):
+        return command
+    command._refuses_repeats = True
+    if isinstance(command, click.Group):
+        get_command = command.get_command
+
+        def guarded_get_command(ctx, name):
+            sub = get_command(ctx, name)
+            return refuse_repeated_options(sub) if sub is not None else None
+
+        command.get_command = guarded_get_command
+        return command
+    single = {name: p for p in command.params if isinstance(p, click.Option)
+              and not (p.multiple or p.is_flag or p.count) for name in p.opts}
+    parse_args = command.parse_args
+
+    def guarded_parse_args(ctx, args):
+        seen: dict[str, str] = {}
+        for arg in args:
+            if arg == "--":
+                break
+            name = arg.partition("=")[0]
+            option = single.get(name)
+            if option is None:
+                continue
+            if option.name in seen:
+                raise click.UsageError(f"option {name} is given twice; give it once", ctx)
+            seen[option.name] = name
+        rest = parse_args(ctx, args)
+        for param in command.params:
+            if not isinstance(param.type, click.types.FloatParamType):
+                continue
+            given = ctx.params.get(param.name)
+            values = given if isinstance(given, (tuple, list)) else (given,)
+            for value in values:
+                if isinstance(value, float) and not math.isfinite(value):
+                    raise click.BadParameter(f"{value} is not a finite number", ctx=ctx, param=param)
+        return rest
+
+    command.parse_args = guarded_parse_args
+    return command
+
+
+def output_error(exc: OSError, what: str = "") -> str:
+    """An output file or folder that cannot be written, as a line naming it and why."""
+    where = exc.filename if exc.filename is not None else what
+    return f"{os.fsdecode(where) if where is not None else ''}: cannot write {what or 'it'}: {exc.strerror or exc}"
 
 
 def stop_requested() -> threading.Event:

@@ -52,7 +52,11 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
     folder = Path(data) if data else default_data_folder()
     if not (folder / "benchmark.json").is_file() or not (folder / "elcentro_vrths.csv").is_file():
         raise click.BadParameter(f"{folder}: benchmark.json and elcentro_vrths.csv not found there", param_hint="--data")
-    bm = benchmark.load(str(folder))
+    try:
+        bm = benchmark.load(str(folder))
+    except (ValueError, KeyError, TypeError, IndexError, OSError) as exc:  # JSONDecodeError is a ValueError
+        raise click.BadParameter(f"{folder}: benchmark.json or elcentro_vrths.csv cannot be read: {exc}",
+                                 param_hint="--data") from None
     cases = [case] if case else bm.cases
     names = list(controllers.NAMES) if controller == "all" else [controller]
     use_numba = False if no_numba else None

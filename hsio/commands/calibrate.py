@@ -7,6 +7,7 @@ import sys
 
 import click
 
+from hsio.commands import output_error
 from hsio.errors import HsioError
 
 
@@ -35,7 +36,10 @@ def calibrate(source: str, as_json: bool, plot_path: str | None, actuators: tupl
             raise HsioError(f"--test-rate must be positive, got {test_rate}")
         cals = calibration.calibrate(source, list(actuators) or None, t_d, test_rate, d_max, 1 if velocity == "step" else 2)
         if plot_path:
-            calibration.plot(plot_path, cals)
+            try:
+                calibration.plot(plot_path, cals)
+            except OSError as exc:
+                raise HsioError(output_error(exc, "the plot")) from None
     except HsioError as exc:
         click.echo(f"hsio calibrate: error: {exc}", err=True)
         sys.exit(2)

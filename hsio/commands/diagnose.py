@@ -8,12 +8,13 @@ import sys
 
 import click
 
+from hsio.commands import RegularFile, output_error
 from hsio.errors import HsioError
 
 
 @click.command()
-@click.argument("file", required=False, type=click.Path(exists=True, dir_okay=False))
-@click.option("--specimen", "specimen_file", default=None, type=click.Path(exists=True, dir_okay=False),
+@click.argument("file", required=False, type=RegularFile(exists=True))
+@click.option("--specimen", "specimen_file", default=None, type=RegularFile(exists=True),
               help="Diagnose a specimen from its measured displacement and force (CSV time_s,displacement_mm,force_kN, DAQ export or run.sqlite).")
 @click.option("--run", "run_dir", default=None, type=click.Path(exists=True, file_okay=False),
               help="Error budget of a hybrid run: what makes it differ from the numerical simulation.")
@@ -69,6 +70,9 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
         files = report_mod.write_report(d, report_dir) if report_dir else {}
         if model_path:
             files["model"] = str(write_model(model_path, report_mod.model_params(d), report_mod.provenance(d)))
+    except OSError as exc:  # a report folder or model file that cannot be written
+        click.echo(f"hsio diagnose: error: {output_error(exc, 'the report')}", err=True)
+        sys.exit(2)
     except HsioError as exc:
         click.echo(f"hsio diagnose: error: {exc}", err=True)
         sys.exit(2)
@@ -109,6 +113,9 @@ def _specimen(path, fmt, displacement_channel, force_channel, displacement_scale
         files = write_specimen_report(diagnoses, report_dir) if report_dir else {}
         if model_path:
             files["model"] = str(write_specimen_model(model_path, diagnoses[-1]))
+    except OSError as exc:  # a report folder or model file that cannot be written
+        click.echo(f"hsio diagnose: error: {output_error(exc, 'the report')}", err=True)
+        sys.exit(2)
     except HsioError as exc:
         click.echo(f"hsio diagnose: error: {exc}", err=True)
         sys.exit(2)
@@ -138,6 +145,9 @@ def _budget(run_dir, as_json, report_dir) -> None:
     try:
         b = error_budget(run_dir)
         files = write_budget(b, report_dir) if report_dir else {}
+    except OSError as exc:  # a report folder or model file that cannot be written
+        click.echo(f"hsio diagnose: error: {output_error(exc, 'the report')}", err=True)
+        sys.exit(2)
     except HsioError as exc:
         click.echo(f"hsio diagnose: error: {exc}", err=True)
         sys.exit(2)

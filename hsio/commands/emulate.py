@@ -13,7 +13,7 @@ import sys
 
 import click
 
-from hsio.commands import stop_requested, wait_for_stop
+from hsio.commands import RegularFile, stop_requested, wait_for_stop
 from hsio.errors import HsioError
 
 
@@ -30,7 +30,7 @@ def _common(func):
                              "during a pause trips it; docs/safety.md).")(func)
     func = click.option("--clock", type=click.Choice(["config", "lockstep", "realtime"]), default="config",
                         show_default=True, help="Lockstep (advanced by the host) or real time (own 1024 Hz loop).")(func)
-    func = click.argument("config_file", required=False, type=click.Path(dir_okay=False))(func)
+    func = click.argument("config_file", required=False, type=RegularFile())(func)
     return func
 
 
@@ -130,7 +130,7 @@ def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, watch_holdi
 
 
 @emulate.command("modbus-rtu")
-@click.option("--baudrate", default=115200, show_default=True, type=int)
+@click.option("--baudrate", default=115200, show_default=True, type=click.IntRange(1, 10_000_000))
 @click.option("--map", "map_file", default=None, type=click.Path(dir_okay=False), help="Register map TOML (default: hsio's).")
 @_common
 def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, watch_holding, settings, faults_spec) -> None:

@@ -2,11 +2,27 @@
 
 from __future__ import annotations
 
+import contextlib
+import sqlite3
 import sys
+from pathlib import Path
 
 import click
 
 from hsio.errors import HsioError
+from hsio.recording import RUN_FILE
+
+
+def _refuse_foreign_record(path: Path) -> None:
+    """A run.sqlite that SQLite cannot read is refused before the page is served (an empty one is
+    a run being created, and is followed)."""
+    if not path.is_file() or path.stat().st_size == 0:
+        return
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
+            db.execute("SELECT name FROM sqlite_master").fetchall()
+    except sqlite3.DatabaseError as exc:
+        raise HsioError(f"{path}: not an hsio recording ({exc})") from None
 
 
 @click.command()
@@ -30,6 +46,7 @@ def monitor(run_dir: str, host: str, port: int, token: str | None) -> None:
         sys.stdout.flush()
 
     try:
+        _refuse_foreign_record(Path(run_dir) / RUN_FILE)
         serve(run_dir, host=host, port=port, token=token, announce=announce)
     except HsioError as exc:
         click.echo(f"hsio monitor: error: {exc}", err=True)

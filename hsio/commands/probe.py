@@ -26,6 +26,7 @@ from urllib.parse import urlsplit
 import click
 import numpy as np
 
+from hsio.commands import RegularFile
 from hsio.errors import HsioError, LimitError
 from hsio.hardware import controller_options
 
@@ -227,7 +228,7 @@ def _hold(actuators):
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE", help="A [driver] setting (repeatable).")
 @click.option("--reset-interlock", is_flag=True,
               help="Modbus: hold every axis and clear the latched interlocks (docs/modbus.md, Interlock reset).")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--config", "config_path", type=RegularFile(), default=None,
               help="A run configuration: its [safety] interlocks and its [driver] options (--option overrides).")
 def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options, reset_interlock=False,
           config_path=None) -> None:

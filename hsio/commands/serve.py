@@ -8,10 +8,11 @@ port, printed at start-up; the server runs until interrupted.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 
-from hsio.commands import stop_requested, wait_for_stop
+from hsio.commands import RegularFile, stop_requested, wait_for_stop
 from hsio.errors import HsioError
 
 
@@ -21,7 +22,7 @@ def serve() -> None:
 
 
 @serve.command("opensees")
-@click.argument("config_file", type=click.Path(dir_okay=False))
+@click.argument("config_file", type=RegularFile())
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind (127.0.0.1: this machine only).")
 @click.option("--port", default=8090, show_default=True, type=click.IntRange(0, 65535),
               help="Port of the first element; the next elements take the next ports (0: any free ports).")
@@ -32,7 +33,7 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
     from hsio.opensees.lab import Lab
     from hsio.opensees.server import OpenSeesServer
     from hsio.opensees.settings import split_config
-    from hsio.runner import load_run_structure
+    from hsio.runner import check_hardware, load_run_structure
 
     def log(line: str) -> None:
         click.echo(f"hsio serve opensees: {line}", err=True)
@@ -41,7 +42,13 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
         settings, config = split_config(config_file)
         if out_dir is not None:
             settings = type(settings)(**{**settings.__dict__, "out": out_dir})
-        lab = Lab(settings, config, load_run_structure(config), log=log)
+        structure = load_run_structure(config)
+        check_hardware(config)  # before serving: a bad URL would otherwise wait for the first client
+        try:  # likewise a records folder that cannot be created
+            Path(settings.out).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise HsioError(f"{settings.out}: cannot create the records folder: {exc.strerror or exc}") from None
+        lab = Lab(settings, config, structure, log=log)
         ports = [0] * lab.n if port == 0 else [port + j for j in range(lab.n)]
         if port and ports[-1] > 65535:
             raise HsioError(f"--port {port}: {lab.n} elements need ports up to {ports[-1]}, beyond 65535")

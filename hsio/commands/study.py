@@ -7,7 +7,17 @@ import sys
 
 import click
 
+from hsio.commands import output_error
 from hsio.errors import HsioError
+
+
+def _plot(plot, rows, path: str, command: str) -> None:
+    """Draw ``rows`` to ``path``; a path that cannot be written ends the command with status 2."""
+    try:
+        plot(rows, path)
+    except OSError as exc:
+        click.echo(f"{command}: error: {output_error(exc, 'the plot')}", err=True)
+        sys.exit(2)
 
 
 @click.group()
@@ -30,7 +40,7 @@ def fc_vs_dc(as_json: bool, plot_path: str | None, n_theta: int) -> None:
         click.echo(f"hsio study fc-vs-dc: error: {exc}", err=True)
         sys.exit(2)
     if plot_path:
-        study_mod.plot(rows, plot_path)
+        _plot(study_mod.plot, rows, plot_path, "hsio study fc-vs-dc")
     if as_json:
         click.echo(json.dumps(study_mod.rows_as_dicts(rows), indent=1))
         return
@@ -68,7 +78,7 @@ def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, durat
         click.echo(f"hsio study mixed: error: {exc}", err=True)
         sys.exit(2)
     if plot_path:
-        sm.plot(rows, plot_path)
+        _plot(sm.plot, rows, plot_path, "hsio study mixed")
     if as_json:
         click.echo(json.dumps({"rows": sm.rows_as_dicts(rows),
                                "winners": [{"case": k[0], "k0_kN_mm": k[1], "resolution_mm": k[2],

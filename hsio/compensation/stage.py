@@ -32,6 +32,7 @@ from hsio.compensation.feedforward import FORMS, FeedForward
 from hsio.compensation.hockey_stick import D_MAX_MM, last_velocity
 from hsio.compensation.online import EstimatorSettings, OnlineEstimator
 from hsio.errors import ConfigError
+from hsio.ground_motion import MAX_STEPS
 
 MODES = ("off", "offline", "online")
 
@@ -88,6 +89,16 @@ class CompensationSettings:
             value = getattr(e, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"{where}: {name} must be a positive number, got {value!r}")
+        # Sanity bounds (docs/faults.md): the same as a run's steps, an actuator's stroke and
+        # velocity ([driver] stroke_mm, velocity_mm_s) and a lag of seconds, not of hours.
+        bounds = {"window": (MAX_STEPS, ""), "update_every": (MAX_STEPS, ""), "min_samples": (MAX_STEPS, ""),
+                  "min_beyond": (MAX_STEPS, ""), "d_max_mm": (10000.0, " mm"), "a_mm_s": (10000.0, " mm/s"),
+                  "a_max_mm_s": (10000.0, " mm/s"), "lag_s": (10.0, " s"), "lag_max_s": (10.0, " s")}
+        for name, (high, unit) in bounds.items():
+            value = getattr(e, name, None) if hasattr(e, name) else getattr(self, name)
+            if value > high:
+                what = "b_s_mm x d_max_mm (the lag)" if name == "lag_s" else name
+                raise ConfigError(f"{where}: {what} = {value!r} is out of bounds: at most {high:g}{unit}")
 
     @property
     def lag_s(self) -> float:

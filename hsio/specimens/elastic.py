@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hsio.errors import ConfigError
 from hsio.specimens.base import Specimen
 
 
@@ -39,6 +40,10 @@ class BilinearGap(Specimen):
     gap: float
     kind = "bilinear_gap"
 
+    def __post_init__(self):
+        if not self.gap >= 0:
+            raise ConfigError(f"bilinear_gap: gap must be zero or positive (mm), got {self.gap!r}")
+
     @property
     def initial_stiffness(self) -> float:
         return self.k1
@@ -61,6 +66,11 @@ class MenegottoPinto(Specimen):
     theta: float
     n: float = 1.0
     kind = "menegotto_pinto"
+
+    def __post_init__(self):
+        for name in ("u_y", "n"):  # x = u / u_y and the exponent 1 / n
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"menegotto_pinto: {name} must be positive, got {getattr(self, name)!r}")
 
     @property
     def initial_stiffness(self) -> float:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from hsio.errors import ConfigError
 from hsio.specimens.base import Specimen
 
 
@@ -36,6 +37,9 @@ class PinchedWood(Specimen):
     _trial_state: tuple | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
+        for name in ("k0", "F0"):  # the backbone divides by both
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"pinched_wood: {name} must be positive, got {getattr(self, name)!r}")
         self.revert_to_start()
 
     def revert_to_start(self) -> None:
