@@ -30,8 +30,13 @@ _EXPORTS = {
 
 def __getattr__(name: str):
     module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'hsio' has no attribute {name!r}")
+    if module is None:  # a subpackage or module (hsio.api, hsio.secant, ...), as after an import of it
+        try:
+            return importlib.import_module(f"hsio.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"hsio.{name}":
+                raise
+            raise AttributeError(f"module 'hsio' has no attribute {name!r}") from None
     value = getattr(importlib.import_module(module), name)
     globals()[name] = value
     return value
