@@ -271,11 +271,22 @@ def _check_switching(i: dict, source: str) -> None:
                               f"{i['switch_on']!r}")
 
 
+MAX_TOML_BYTES = 4_000_000
+
+
 def read_toml(path: str | Path, what: str) -> dict:
-    """A TOML file as a dict; an unreadable or malformed file is a ConfigError naming it."""
+    """A TOML file as a dict; an unreadable or malformed file, one that is not a regular file (a
+    device such as /dev/zero would be read for ever) or one beyond ``MAX_TOML_BYTES`` is a
+    ConfigError naming it."""
     path = Path(path)
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        if path.exists() and not path.is_file():
+            raise ConfigError(f"{path}: cannot read {what}: not a regular file")
+        with path.open("rb") as f:
+            data = f.read(MAX_TOML_BYTES + 1)
+        if len(data) > MAX_TOML_BYTES:
+            raise ConfigError(f"{path}: cannot read {what}: more than {MAX_TOML_BYTES} bytes")
+        return tomllib.loads(data.decode("utf-8"))
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read {what}: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:

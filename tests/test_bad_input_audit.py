@@ -375,3 +375,38 @@ def test_a_second_ctrl_c_ends_with_a_message_not_a_blank_line(tmp_path):
     last = err.strip().splitlines()[-1]
     assert last.startswith("hsio run: ") and last.strip() != "hsio run:", err
     assert (tmp_path / "o" / "run.sqlite").exists()
+
+
+# --- TOML files, driver limits and interlock thresholds -------------------------------------
+
+def test_a_toml_file_that_is_a_device_or_too_large_is_refused_naming_it(tmp_path):
+    from hsio.errors import ConfigError
+    from hsio.opensees.settings import split_config
+
+    with pytest.raises(ConfigError, match="/dev/zero: cannot read server configuration: not a regular file"):
+        split_config("/dev/zero")
+    big = tmp_path / "big.toml"
+    big.write_text("# padding\n" * 500_000)
+    with pytest.raises(ConfigError, match="big.toml: cannot read configuration: more than 4000000 bytes"):
+        config.load(big)
+
+
+def test_the_dry_run_checks_a_driver_limit_it_reads():
+    from hsio.errors import ConfigError
+    from hsio.safety.dry_run import known_limits
+
+    with pytest.raises(ConfigError, match=r"\[driver\] .*stroke_mm must be a number, got 'x'"):
+        known_limits("modbus+tcp://127.0.0.1:5020", {}, {"stroke_mm": "x"})
+    with pytest.raises(ConfigError, match="velocity_mm_s must be positive"):
+        known_limits("modbus+tcp://127.0.0.1:5020", {}, {"velocity_mm_s": -5.0})
+    limits, source = known_limits("modbus+tcp://127.0.0.1:5020", {}, {"stroke_mm": 200})
+    assert limits == {"stroke_mm": 200.0, "force_kN": None, "velocity_mm_s": None} and source == "[driver]"
+
+
+@pytest.mark.parametrize("key, value", [("following_time_s", 1e12), ("following_error_mm", 1e9), ("jump_kN", 1e9),
+                                        ("force_drop_window_s", 1e7)])
+def test_an_interlock_threshold_that_could_never_trip_is_refused(key, value):
+    from hsio.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"\[safety\]: {key} must be (positive and at most|within)"):
+        config.from_dict({"safety": {key: value}}, "run.toml")

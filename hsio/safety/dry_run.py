@@ -158,7 +158,9 @@ def known_limits(url: str, emulator: dict, driver: dict) -> tuple[dict, str]:
         cfg = ServoConfig.from_dict(_settings(url, emulator))
         return ({"stroke_mm": cfg.stroke_mm, "force_kN": cfg.force_limit_kN, "velocity_mm_s": cfg.velocity_limit_mm_s},
                 "[emulator]")
-    return {k: (float(driver[k]) if driver.get(k) is not None else None)
+    from hsio.drivers.common import COMMON_RULES
+
+    return {k: (float(COMMON_RULES[k].check(url, k, driver[k])) if driver.get(k) is not None else None)
             for k in ("stroke_mm", "force_kN", "velocity_mm_s")}, "[driver]"
 
 

@@ -56,6 +56,11 @@ class SafetySettings:
         return cls(**{k: v for k, v in (table or {}).items() if k in known})
 
 
+# The interlocks' thresholds, each bounded: beyond these a threshold never trips on any rig.
+UPPER_BOUNDS = (("following_error_mm", 10000.0, "mm"), ("following_error_kN", 100000.0, "kN"),
+                ("jump_mm", 10000.0, "mm"), ("jump_kN", 100000.0, "kN"), ("force_drop_window_s", 3600.0, "s"))
+
+
 def check_table(table: dict, where: str) -> None:
     """Ranges of the [safety] keys; raises ConfigError naming the key."""
     from hsio.errors import ConfigError
@@ -63,11 +68,13 @@ def check_table(table: dict, where: str) -> None:
     for key in ("stroke_margin", "force_margin", "velocity_margin"):
         if not 0.0 <= table[key] < 1.0:
             raise ConfigError(f"{where}: {key} must be in [0, 1) (a fraction of the limit), got {table[key]}")
-    for key in ("following_error_mm", "following_error_kN", "jump_mm", "jump_kN", "force_drop_window_s"):
-        if not table[key] > 0:
-            raise ConfigError(f"{where}: {key} must be positive, got {table[key]}")
-    if not table["following_time_s"] >= 0:
-        raise ConfigError(f"{where}: following_time_s must not be negative, got {table['following_time_s']}")
+    for key, high, unit in UPPER_BOUNDS:
+        if not 0 < table[key] <= high:
+            raise ConfigError(f"{where}: {key} must be positive and at most {high:g} {unit} (a larger value "
+                              f"turns the interlock off in effect: use interlocks = false to say so), got {table[key]}")
+    if not 0 <= table["following_time_s"] <= 60.0:
+        raise ConfigError(f"{where}: following_time_s must be within 0..60 s (a larger value turns the following-error "
+                          f"interlock off in effect), got {table['following_time_s']}")
     if not 0.0 < table["warning_fraction"] <= 1.0:
         raise ConfigError(f"{where}: warning_fraction must be in (0, 1], got {table['warning_fraction']}")
     if not 0.0 <= table["force_drop_fraction"] < 1.0:
