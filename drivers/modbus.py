@@ -215,7 +215,12 @@ class ModbusLink(common.AxisLink):
         else:
             why = "connection refused or port unavailable"
         if not ok:
-            raise CommunicationError(f"{self.url}: cannot connect ({why})")
+            where = default = ""
+            parts = common.split_url(self.url)
+            if parts.scheme.endswith("tcp"):  # name the port tried, the default one when the URL gives none
+                where = f" to {parts.hostname}:{parts.port or 502}"
+                default = "" if parts.port else " (the Modbus TCP default port; the URL gives none)"
+            raise CommunicationError(f"{self.url}: cannot connect{where}{default} ({why})")
 
     def _read_info(self) -> None:
         for name, reg in self.map.info.items():

@@ -410,3 +410,17 @@ def test_an_interlock_threshold_that_could_never_trip_is_refused(key, value):
 
     with pytest.raises(ConfigError, match=rf"\[safety\]: {key} must be (positive and at most|within)"):
         config.from_dict({"safety": {key: value}}, "run.toml")
+
+
+def test_a_modbus_url_without_a_port_names_the_default_port_it_tried():
+    from hsio.clock import LockstepClock
+    from hsio.errors import CommunicationError
+    from hsio.hardware import open_hardware
+    from hsio.structures import get_structure
+    from wire import refused_port
+
+    elements = list(get_structure("validation").experimental)
+    with pytest.raises(CommunicationError, match=r"cannot connect to 127\.0\.0\.1:502 \(the Modbus TCP default port"):
+        open_hardware("modbus+tcp://127.0.0.1", elements, LockstepClock(), {"timeout_s": 1.0})
+    with refused_port() as port, pytest.raises(CommunicationError, match=rf"cannot connect to 127\.0\.0\.1:{port} \("):
+        open_hardware(f"modbus+tcp://127.0.0.1:{port}", elements, LockstepClock(), {"timeout_s": 1.0})
