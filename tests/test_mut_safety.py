@@ -78,6 +78,13 @@ def test_following_timer_restarts_when_the_error_comes_back():
     assert trip is not None and i == 5
 
 
+def test_following_message_gives_the_time_beyond_since_the_error_began():
+    """Within until t = 1 s, beyond from then on: the trip at t = 1.625 s says 0.625 s."""
+    mon = _monitor(following_error_mm=2.0, following_time_s=0.5)
+    i, trip = _run(mon, [(0.0, 0.0, 0.0)] * 8 + [(0.0, 2.5, 0.0)] * 10)
+    assert i * DT == 1.625 and "beyond 2 mm for 0.625 s (limit 0.5 s)" in str(trip)
+
+
 def test_following_error_zero_time_trips_at_the_second_period_beyond():
     mon = _monitor(following_error_mm=2.0, following_time_s=0.0)
     i, trip = _run(mon, [(0.0, 0.0, 0.0), (3.0, 0.0, 0.0), (3.0, 0.0, 0.0)])
@@ -131,6 +138,14 @@ def test_jumps_trip_beyond_the_limit_only():
     assert "measured force jumped by 12.500 kN in one controller period (limit 10 kN)" in str(trip)
 
 
+def test_force_jump_is_the_change_from_the_previous_force():
+    """50 kN then 55 kN is a change of 5 kN (jump_kN 10), whatever the level; -50 then -45 too."""
+    mon = _monitor(jump_kN=10.0, following_error_mm=1e9)
+    assert _run(mon, [(0.0, 0.0, 50.0), (0.0, 0.0, 55.0), (0.0, 0.0, 60.0)]) == (None, None)
+    assert _run(_monitor(jump_kN=10.0, following_error_mm=1e9),
+                [(0.0, 0.0, -50.0), (0.0, 0.0, -45.0)]) == (None, None)
+
+
 def test_jump_is_measured_from_the_previous_period_not_the_first():
     """A slow drift of 0.9 mm per period (jump_mm 1) goes far without a trip."""
     mon = _monitor(jump_mm=1.0, following_error_mm=1e9)
@@ -154,6 +169,31 @@ def test_warning_once_per_entry_into_the_band():
     assert [e["time_s"] for e in events] == [1 * DT, 5 * DT, 6 * DT, 9 * DT]
     assert events[0]["message"] == "displacement 91.000 mm beyond 90% of the limit (+/-100 mm)"
     assert events[2]["message"] == "force -90.500 kN beyond 90% of the limit (+/-100 kN)"
+
+
+def test_a_run_that_starts_inside_the_band_is_warned_at_once():
+    """A preloaded specimen: the first period is already beyond the band (displacement and force):
+    one warning each, at t = 0."""
+    mon = _monitor(warning_fraction=0.9)
+    mon.check(0.0, [95.0], [_fb(95.0, -96.0)], [DC])
+    mon.check(DT, [95.0], [_fb(95.0, -96.0)], [DC])
+    events = mon.take_events()
+    assert [(e["time_s"], e["message"].split()[0]) for e in events] == [(0.0, "displacement"), (0.0, "force")]
+    assert mon.warnings == 2
+
+
+def test_events_kept_are_bounded_and_the_oldest_dropped():
+    """A run that enters and leaves the band for ever keeps going, its memory bounded: the last
+    MAX_EVENTS warnings are kept, every warning is counted."""
+    mon = _monitor(warning_fraction=0.5, following_error_mm=1e9, jump_mm=1e9)
+    n = InterlockMonitor.MAX_EVENTS + 5
+    for i in range(2 * n):
+        d = 60.0 if i % 2 == 0 else 0.0
+        mon.check(float(i), [d], [_fb(d)], [DC])
+    assert mon.warnings == n
+    events = mon.take_events()
+    assert len(events) == InterlockMonitor.MAX_EVENTS
+    assert events[0]["time_s"] == 10.0 and events[-1]["time_s"] == 2.0 * (n - 1)
 
 
 # -- specimen failure (force drop) ----------------------------------------------------------------------
@@ -201,6 +241,13 @@ def test_force_drop_needs_the_peak_above_the_minimum():
     assert _run(_drop_monitor(), [(0.0, 0.0, 9.9)] + [(0.0, 0.0, 0.0)] * 30) == (None, None)
     i, trip = _run(_drop_monitor(), [(0.0, 0.0, 10.0)] + [(0.0, 0.0, 0.0)] * 30)
     assert trip is not None and trip.kind == "force_drop"
+
+
+def test_force_drop_with_no_minimum_arms_on_any_peak():
+    """force_drop_min_kN = 0: a small specimen's peak of 0.8 kN, then nothing: a trip."""
+    i, trip = _run(_drop_monitor(force_drop_min_kN=0.0),
+                   [(0.0, 0.0, 0.0), (0.0, 0.0, 0.8)] + [(0.0, 0.0, 0.0)] * 30)
+    assert trip is not None and trip.kind == "force_drop" and "peak 0.800 kN" in str(trip)
 
 
 def test_force_drop_is_off_by_default():
