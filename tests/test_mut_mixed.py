@@ -64,7 +64,7 @@ def test_instrument_rule_refuses_bad_instruments_with_a_config_error(kwargs):
 
 
 def test_instrument_rule_error_names_what_is_wrong():
-    with pytest.raises(ConfigError, match="resolutions and margin must be positive, hysteresis above 1"):
+    with pytest.raises(ConfigError, match="^switching rule: resolutions and margin must be positive, hysteresis above 1$"):
         SwitchingRule.from_instruments([7.2], 0.0, 0.01)
 
 
@@ -184,8 +184,61 @@ def test_linear_step_outcome_is_the_alpha_method(method):
         assert out.a[0] == pytest.approx(a, rel=1e-7, abs=1e-9 * scale / dt**2)
         assert out.u_pred[0] == pytest.approx(u_t, abs=1e-9 * scale)
         assert out.R[0] == pytest.approx((k_e + k_n) * u, abs=1e-7 * scale * k_e)
+        assert out.commands.tolist() == out.targets.tolist() == site.sent[-1][0].tolist()  # what was sent last
     if method == "mixed":
         assert m.modes == [FC]
+
+
+# -- the options and their defaults -------------------------------------------------------------------
+def test_options_reach_the_solver():
+    m = _method(1, method="mixed", j_max=7, tol_displacement=0.3, tol_force=0.4, fc_blend=0.5, blend_dc=True,
+                anchor_dc=True, reset_at_reversal=True)
+    c = m.core
+    assert (c.j_max, c.tol_displacement, c.tol_force, c.fc_blend) == (7, 0.3, 0.4, 0.5)
+    assert c.blend_dc is True and c.anchor_dc is True and c.reset_at_reversal is True
+
+
+def test_defaults_are_those_of_the_integrator_table():
+    """Left out, every option is the [integrator] default of docs/config.md: alpha -0.05, j_max 3,
+    tolerances 0.02 mm and 0.05 kN, and every guard off ("the defaults are the behaviour without
+    these guards")."""
+    from hsio.config import DEFAULTS
+
+    d = DEFAULTS["integrator"]
+    m = ImplicitMethod(np.eye(1) * 0.01, np.zeros((1, 1)), None, [0], [100.0], 0.01)
+    c = m.core
+    assert (c.alpha, c.j_max, c.tol_displacement, c.tol_force, c.fc_blend) == \
+        (d["alpha"], d["j_max"], d["tol_displacement_mm"], d["tol_force_kN"], d["fc_blend"])
+    assert (c.blend_dc, c.anchor_dc, c.reset_at_reversal) == (d["blend_dc"], d["anchor_dc"], False)
+    assert m.fallback_after is None and d["fc_fallback_after"] == 0
+    assert m.refractory_steps == d["refractory_steps"] == 0
+    assert m.explored_fraction is None and m.fc_force_limit is None
+    assert m.no_fc_at_reversal is d["no_fc_at_reversal"] is False
+
+
+@pytest.mark.parametrize("method", ["implicit_dc", "force_control"])
+def test_a_rule_given_to_another_method_is_not_used(method):
+    """Only ``mixed`` switches: a rule passed to implicit_dc or force_control changes no mode."""
+    site = _Site([100.0])
+    site.k_seen = [200.0]
+    m = _method(1, method=method, rule=SwitchingRule(np.array([150.0]), np.array([50.0])))
+    assert m.rule is None and m.thresholds is None
+    m.start(np.zeros(1), site, None)
+    start = list(m.modes)
+    for n in range(1, 4):
+        site.k_seen = [200.0 if n % 2 else 20.0]
+        out = m.step(np.array([5.0 * n]), site, None, step=n)
+        assert out.switches == [] and m.modes == start
+
+
+def test_switches_name_the_dof_by_number_without_names():
+    site = _Site([100.0, 100.0])
+    site.k_seen = [None, 200.0]
+    m = ImplicitMethod(np.eye(3) * 0.01, np.zeros((3, 3)), None, [0, 2], [100.0, 100.0], 0.01, method="mixed",
+                       rule=SwitchingRule(np.array([150.0]), np.array([50.0])))
+    m.start(np.zeros(3), site, None)
+    out = m.step(np.array([1.0, 0.0, 1.0]), site, None, step=1)
+    assert [(s.dof, s.to) for s in out.switches] == [("2", "force")]
 
 
 # -- switches as recorded --------------------------------------------------------------------------
@@ -374,3 +427,8 @@ def test_first_motion_is_not_a_reversal(sign):
     out = m.step(np.array([sign * 5.0]), site, None, step=3)
     assert m.modes == [FC] and m.deferred_at_reversal == 0
     assert [(s.step, s.to) for s in out.switches] == [(3, "force")]
+
+
+def test_unknown_method_is_refused_naming_the_methods():
+    with pytest.raises(ConfigError, match="must be one of implicit_dc, force_control, mixed, got 'newmark'"):
+        _method(1, method="newmark")
