@@ -166,6 +166,8 @@ def test_a_force_range_guards_only_the_element_outside_it():
     assert rep.guarded.tolist() == [True, False, False] and rep.fell_back.tolist() == [True, False, False]
     assert rep.modes == [DC, FC, DC]
     assert all(m == [DC, FC, DC] for _, m in site.sent)
+    last = site.sent[-1][0]  # displacements for the DC elements, a force for the FC one
+    assert last.tolist() == pytest.approx([rep.u_solution[0], rep.R_solution[1], rep.u_solution[2]], rel=1e-12)
 
 
 def test_force_range_is_closed():
@@ -244,3 +246,17 @@ def test_reset_at_reversal_only_at_a_reversal():
         for P in (0.5,):  # the force goes back
             alg.step(np.array([sign * P]), site, [FC])
         assert alg.reversal_resets == 1 and alg.k[0] == 100.0
+
+
+@pytest.mark.parametrize("tol_force, commands", [(1.0, 1), (1e-9, 2)])
+def test_fc_converges_on_the_force_tolerance(tol_force, commands):
+    """An FC element whose secant starts 5 % above its stiffness: the solution on the exact secant
+    of eq. (11), measured after the first command, differs from that command by 0.8 kN. Within
+    tol_force of it the step has converged after one command, whatever the (tiny) displacement
+    tolerance; with a tiny force tolerance the new force is sent and repeats."""
+    site = _Site([100.0], [np.inf], [100.0])
+    alg = _alpha(1, K_EI=[105.0], j_max=5, tol_displacement=1e-12, tol_force=tol_force)
+    alg.start(np.zeros(1), site)
+    _, rep = alg.step(np.array([100.0]), site, [FC])
+    assert 1e-3 < abs(rep.R_solution[0] - site.sent[0][0][0]) < 1.0
+    assert rep.converged and rep.iterations.tolist() == [commands] and len(site.sent) == commands
