@@ -260,3 +260,11 @@ def test_fc_converges_on_the_force_tolerance(tol_force, commands):
     _, rep = alg.step(np.array([100.0]), site, [FC])
     assert 1e-3 < abs(rep.R_solution[0] - site.sent[0][0][0]) < 1.0
     assert rep.converged and rep.iterations.tolist() == [commands] and len(site.sent) == commands
+
+
+def test_a_mass_matrix_that_is_not_square_is_refused():
+    from hsio.errors import ConfigError
+    from hsio.integrators.implicit import ImplicitAlpha
+
+    with pytest.raises(ConfigError, match=r"M must be a square matrix, got shape \(1, 2\)"):
+        ImplicitAlpha([[1.0, 0.0]], np.zeros((1, 1)), None, [0], [1.0], 0.01)

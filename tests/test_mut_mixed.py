@@ -432,3 +432,24 @@ def test_first_motion_is_not_a_reversal(sign):
 def test_unknown_method_is_refused_naming_the_methods():
     with pytest.raises(ConfigError, match="must be one of implicit_dc, force_control, mixed, got 'newmark'"):
         _method(1, method="newmark")
+
+
+@pytest.mark.parametrize("guard", [{"fallback_after": 2}, {"refractory_steps": 5}, {"explored_fraction": 0.5},
+                                   {"fc_force_limit": 10.0}, {"no_fc_at_reversal": True}])
+@pytest.mark.parametrize("method", ["implicit_dc", "force_control"])
+def test_a_guard_of_mixed_is_refused_with_another_method(method, guard):
+    """From Python as from a configuration: force control with fallback_after would fall back to DC
+    for good after one step that did not converge, silently changing the method."""
+    from hsio.errors import ConfigError
+    from hsio.integrators import ImplicitMethod
+
+    with pytest.raises(ConfigError, match=f"{next(iter(guard))}: a guard of method 'mixed', not of '{method}'"):
+        ImplicitMethod(np.eye(1), np.zeros((1, 1)), None, [0], [1.0], 0.01, -0.05, method, **guard)
+    ImplicitMethod(np.eye(1), np.zeros((1, 1)), None, [0], [1.0], 0.01, -0.05, "mixed", **guard)  # accepted
+
+
+def test_the_instrument_rule_default_margin_is_the_documented_three():
+    from hsio.integrators import SwitchingRule
+
+    rule = SwitchingRule.from_instruments([100.0], 0.025, 0.01)
+    assert rule.upper[0] == pytest.approx(3.0 * 0.01 / 0.025) and rule.lower[0] == pytest.approx(rule.upper[0] / 2)

@@ -142,6 +142,8 @@ class ImplicitAlpha:
             raise ConfigError("force control: tolerances must be zero or positive")
         self.M = np.atleast_2d(np.asarray(M, dtype=float))
         n = self.M.shape[0]
+        if self.M.ndim != 2 or self.M.shape != (n, n):
+            raise ConfigError(f"force control: M must be a square matrix, got shape {self.M.shape}")
         self.C = np.atleast_2d(np.asarray(C, dtype=float))
         self.K_N = np.zeros((n, n)) if K_N is None else np.atleast_2d(np.asarray(K_N, dtype=float))
         for name, mat in (("C", self.C), ("K_N", self.K_N)):

@@ -69,7 +69,7 @@ class SwitchingRule:
         return cls(upper, lower, "stiffness")
 
     @classmethod
-    def from_instruments(cls, K_EI, resolution_mm: float, force_resolution_kN: float, margin: float = 20.0,
+    def from_instruments(cls, K_EI, resolution_mm: float, force_resolution_kN: float, margin: float = 3.0,
                          hysteresis: float = 2.0, tol_force: float = 0.0) -> "SwitchingRule":
         """Thresholds from the instruments (docs/force_control.md, "choosing K_f and K_d").
 
@@ -137,6 +137,13 @@ faster than FC can follow. ``fc_blend``: the
                  no_fc_at_reversal: bool = False, anchor_dc: bool = False, reset_at_reversal: bool = False):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
+        guards = {"fallback_after": fallback_after not in (None, 0), "refractory_steps": refractory_steps != 0,
+                  "explored_fraction": explored_fraction is not None, "fc_force_limit": fc_force_limit is not None,
+                  "no_fc_at_reversal": bool(no_fc_at_reversal)}
+        given = [k for k, on in guards.items() if on]
+        if method != "mixed" and given:
+            raise ConfigError(f"{given[0]}: a guard of method 'mixed', not of {method!r} (it would change the "
+                              f"method: e.g. force control falling back to DC for good)")
         self.method = method
         self.core = ImplicitAlpha(M, C, K_N, element_dofs, K_EI, dt, alpha, j_max=j_max,
                                   tol_displacement=tol_displacement, tol_force=tol_force, fc_blend=fc_blend,
