@@ -73,6 +73,19 @@ def parse_options(url: str, options: dict | None) -> dict:
     return table
 
 
+def check_options(url: str, options: dict | None = None) -> None:
+    """Before anything opens or is created: the [driver] table, the URL's host (TCP), and the
+    register map named by ``map`` (it must load)."""
+    table = parse_options(url, options)
+    parts = common.split_url(url)
+    if parts.scheme == "modbus+tcp" and not parts.hostname:
+        raise ConfigError(f"{url!r}: expected modbus+tcp://HOST:PORT")
+    if parts.scheme == "modbus+rtu" and not (parts.netloc + parts.path):
+        raise ConfigError(f"{url!r}: expected modbus+rtu:///dev/ttyXXX")
+    if table["map"]:
+        modbus_map.load(table["map"])
+
+
 class ModbusLink(common.AxisLink):
     """One controller over Modbus: connection, retries, and the cyclic exchange of all axes."""
 

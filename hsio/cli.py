@@ -102,6 +102,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         if override_dry_run:
             cfg["safety"]["override"] = True
         structure = runner.load_run_structure(cfg)
+        runner.check_hardware(cfg)  # before the monitor's folder: a typing error leaves no folder behind
         ground = runner.build_record(cfg, structure)
         steps = len(excitation(structure, ground)[0]) - 1
         with contextlib.ExitStack() as cleanup:  # closed in reverse: the bar, the keys, then the page

@@ -59,10 +59,14 @@ class GroundMotion:
         return GroundMotion(f"{self.name} x {factor:g}", self.dt, self.accel_g * factor)
 
     def truncated(self, duration_s: float) -> "GroundMotion":
-        """The first ``duration_s`` of the record; shorter than one of its time steps is refused."""
+        """The first ``duration_s`` of the record; shorter than one of its time steps, or longer than
+        the record, is refused (a cut, never a silent clamp)."""
         if not duration_s >= self.dt * (1 - 1e-9):
             raise RecordError(f"{self.name}: a cut to {duration_s:g} s is shorter than one time step of the record "
                               f"({self.dt:g} s)")
+        if duration_s > self.duration_s + 0.5 * self.dt:
+            raise RecordError(f"{self.name}: a cut to {duration_s:g} s is longer than the record "
+                              f"({self.duration_s:g} s)")
         n = int(min(round(duration_s / self.dt), MAX_SAMPLES)) + 1
         return GroundMotion(self.name, self.dt, self.accel_g[: max(n, 2)])
 
@@ -157,7 +161,7 @@ def _check_units(path: Path, line: str) -> None:
         raise RecordError(f"{path}:3: the record holds {other.group(1).lower()}, not acceleration "
                           f"({line.strip()!r}); hsio reads ground accelerations in g")
     units = _UNITS.search(line)
-    if units and units.group(1).strip(".,;").upper() != "G":
+    if units and units.group(1).strip(".,;()[]").upper() != "G":
         raise RecordError(f"{path}:3: the accelerations are in units of {units.group(1)!r}; hsio reads them in g "
                           f"(convert the file, e.g. divide cm/s^2 by 980.665)")
 

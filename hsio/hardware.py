@@ -50,13 +50,13 @@ def _backend(url: str):
 
 
 def check_options(url: str, options: dict | None = None) -> None:
-    """Let the backend of ``url`` check its own options table ([emulator] or [driver]) before
-    anything opens: a backend module may define ``check_options(url, options)``; one that does
-    not but parses its options with ``parse_options(url, options)`` has those parsed."""
+    """Let the backend of ``url`` check its own options table ([emulator] or [driver], without
+    the external instruments' DAQ keys) before anything opens, if the backend module defines
+    ``check_options(url, options)``."""
     module, _ = _backend(url)
-    check = getattr(module, "check_options", None) or getattr(module, "parse_options", None)
+    check = getattr(module, "check_options", None)
     if check is not None:
-        check(url, options or {})
+        check(url, controller_options(options))
 
 
 # [driver] keys that name the external instruments' DAQ module (docs/setups.md), not the

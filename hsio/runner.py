@@ -41,7 +41,10 @@ from hsio.secant import SecantEstimator
 from hsio.structures import Structure, channel_names, get_structure, load_structure  # channel_names: re-exported
 
 
-def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
+def build_record(config: RunConfig, structure: Structure, replay: bool = False) -> GroundMotion:
+    """The ground motion a configuration names, scaled and cut. ``replay``: the configuration of
+    a record read back (resume, budget): a ``duration_s`` longer than the record, refused for a
+    new run, runs the whole record, as runs recorded before that refusal did."""
     rec = config["record"]
     if rec["file"]:
         ground = read_at2(rec["file"])
@@ -55,11 +58,13 @@ def build_record(config: RunConfig, structure: Structure) -> GroundMotion:
     if rec["scale"] != 1.0:
         ground = ground.scaled(rec["scale"])
     if rec["duration_s"] > 0:
-        if rec["duration_s"] > ground.duration_s + 0.5 * ground.dt:  # a cut, never a silent clamp
+        longer = rec["duration_s"] > ground.duration_s + 0.5 * ground.dt
+        if longer and not replay:  # a cut, never a silent clamp
+            more = "" if rec["file"] else "; or lengthen the synthetic record ([record] synthetic_duration_s)"
             raise ConfigError(f"{config.source}: [record] duration_s = {rec['duration_s']!r} s is longer than the "
-                              f"record {ground.name!r} ({ground.duration_s:g} s); 0 runs the whole record")
+                              f"record {ground.name!r} ({ground.duration_s:g} s); 0 runs the whole record{more}")
         try:
-            ground = ground.truncated(rec["duration_s"])
+            ground = ground if longer else ground.truncated(rec["duration_s"])
         except RecordError as exc:
             raise ConfigError(f"{config.source}: [record] duration_s = {rec['duration_s']!r}: {exc}") from None
     longest = BOUNDS[("record", "duration_s")][1]
@@ -87,7 +92,8 @@ def check_hardware(config: RunConfig) -> None:
     emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
     if url.startswith("emulator") and config["driver"]:  # a [driver] limit the run would ignore
         raise ConfigError(f"{config.source}: [driver] {', '.join(config['driver'])} is not read with {url!r}: the "
-                          f"emulated controller takes [emulator] (stroke_mm, force_limit_kN, ...)")
+                          f"emulated controller takes [emulator] (stroke_mm, force_limit_kN, ...); to rehearse a "
+                          f"rig's configuration on the emulator, comment its [driver] table out")
     check_options(url, emulator if url.startswith("emulator") else config["driver"])
 
 

@@ -30,7 +30,7 @@ from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, Experimen
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
 MAX_FILE_BYTES = 4_000_000
-FREQUENCY_BOUNDS_HZ = (1e-3, 1e5)
+FREQUENCY_BOUNDS_HZ = (1e-3, 1e7)
 GROUND = "ground"
 PAPER = ("validation", "structure_I", "structure_II")  # E&M 2007, Tables I-III
 

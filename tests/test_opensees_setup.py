@@ -307,6 +307,24 @@ def test_a_mass_matrix_over_a_joints_basic_dofs_is_answered_in_model_units(tmp_p
     np.testing.assert_allclose(damp, 0.02 * np.eye(3) * np.outer(u, u) / (ff * lf), rtol=1e-12)
 
 
+def test_an_emulated_instrument_on_an_element_not_served_is_refused_at_start(tmp_path):
+    from hsio.errors import ConfigError
+    from hsio.opensees.lab import Lab
+    from hsio.opensees.settings import split_config
+    from hsio.runner import load_run_structure
+
+    two = LVDT_SPRING.replace('element = "spring"', 'element = "other"') + (
+        '[[dof]]\nname = "side"\nmass = 0.01\n[[experimental]]\nname = "other"\ndof = "side"\n'
+        'model = { kind = "linear", k = 1.0 }\n')
+    (tmp_path / "two.toml").write_text(two)
+    config = tmp_path / "serve.toml"
+    config.write_text(f'[structure]\nfile = "two.toml"\n[opensees]\nelements = ["spring"]\nout = "{tmp_path / "r"}"\n')
+    settings, run = split_config(config)
+    with pytest.raises(ConfigError, match="instrument 'spring_lvdt' .* sits on element 'other', which this server "
+                                          "does not serve"):
+        Lab(settings, run, load_run_structure(run), log=lambda _: None)
+
+
 def test_a_mass_matrix_of_the_wrong_size_is_refused_naming_the_element(tmp_path):
     from hsio.errors import ConfigError
     from hsio.opensees.lab import Lab

@@ -185,7 +185,8 @@ def test_opensees_table_is_checked_key_by_key():
                        ({"elements": ["C1"], "mass": {"C1": [[1.0, 0.0], [0.0]]}}, "square matrix"),
                        ({"elements": ["C1"], "mass": {"C1": [[1.0, 0.2], [0.3, 1.0]]}}, r"symmetric: \[1\]\[0\]"),
                        ({"elements": ["C1"], "damping": {"C1": [[-1.0]]}}, r"damping.C1\[0\]\[0\] must not be negative"),
-                       ({"elements": ["C1"], "mass": {"C1": [["a"]]}}, "finite number")]:
+                       ({"elements": ["C1"], "mass": {"C1": [["a"]]}}, "finite number"),
+                       ({"elements": ["C1"], "mass": {"C1": [[1.0, 5.0], [5.0, 1.0]]}}, "positive semidefinite.*-4")]:
         with pytest.raises(ConfigError, match=words):
             parse(bad, "f.toml")
 

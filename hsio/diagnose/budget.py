@@ -82,7 +82,7 @@ def load_run(run_dir: str | Path) -> RunData:
     else:
         u_ns = None
     t = np.r_[0.0, steps["time_s"]]
-    data = RunData(str(path), structure, build_record(config, structure), config["integrator"]["alpha"],
+    data = RunData(str(path), structure, build_record(config, structure, replay=True), config["integrator"]["alpha"],
                    bool(config["test"]["measured_displacement_correction"]), t, u_hs, u_ns, rows("target", acts),
                    rows("disp", acts), rows("force", acts))
     if data.u_ns is None or data.u_ns.shape != u_hs.shape:

@@ -104,6 +104,12 @@ class Lab:
         self.n_channels = len(self.channels)
         self.K_EI = [e.K_EI_matrix for e in elements]  # per element, over its basic DOFs (hsio units)
         self.units = [length_units(e, settings.length_factor) for e in elements]
+        if config["hardware"]["url"].startswith("emulator"):  # the emulated DAQ reads served elements only
+            for inst in self.structure.instruments:
+                if inst.element not in self.names:
+                    raise ConfigError(f"instrument {inst.name!r} (read by a served element) sits on element "
+                                      f"{inst.element!r}, which this server does not serve; the emulated instruments "
+                                      f"read served elements only: serve {inst.element!r} too")
         for key in ("mass", "damping"):
             for name, value in getattr(settings, key).items():
                 n = self.n_basic[self.names.index(name)]

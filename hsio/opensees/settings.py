@@ -22,6 +22,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from hsio.errors import ConfigError
 
 KEYS = ("elements", "length_factor", "force_factor", "stiffness", "force_correction", "timeout_s", "mass",
@@ -66,6 +68,10 @@ def _matrix(where: str, key: str, value) -> tuple[tuple[float, ...], ...]:
             if rows[i][k] != rows[k][i]:
                 raise ConfigError(f"{where}: {key} must be symmetric: [{i}][{k}] = {rows[i][k]:g} but "
                                   f"[{k}][{i}] = {rows[k][i]:g}")
+    eigenvalues = np.linalg.eigvalsh(np.array(rows))
+    if eigenvalues.min() < -1e-12 * max(abs(eigenvalues).max(), 1e-300):
+        raise ConfigError(f"{where}: {key} must be positive semidefinite (a mass or damping matrix); its smallest "
+                          f"eigenvalue is {eigenvalues.min():.4g}")
     return rows
 
 

@@ -59,7 +59,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
     structure = load_run_structure(cfg)
     if not structure.numerical_assembly().is_linear:
         raise ConfigError(f"{path}: resume needs a linear numerical part (its state is not in the record)")
-    ground = build_record(cfg, structure)
+    ground = build_record(cfg, structure, replay=True)
     _, P = excitation(structure, ground)
     integrator = api.make_integrator(structure, "alpha_os", cfg["integrator"]["alpha"], **integrator_options(cfg, structure))
     state = last_state(run, structure, P, integrator)

@@ -143,8 +143,8 @@ class ActuatorSite:
     def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str, stop=None) -> None:
         """Ramp the static actuators' targets from ``start`` to ``end`` over the longest ``ramp_s``,
         the dynamic ones holding. ``stop`` (a callable) is asked before every step; when it
-        answers true the ramp ends where it stands, the static actuators holding their present
-        targets in force control, and :class:`RampStopped` says where."""
+        answers true the ramp ends where it stands, the static actuators left in force control at
+        their present targets, and :class:`RampStopped` says where (target and measured force)."""
         self._phase = phase
         ramp_s = max(s.ramp_s for s in self.static)
         steps = max(int(np.ceil(ramp_s / self.loop.t_d)), 1)
@@ -152,10 +152,12 @@ class ActuatorSite:
         try:
             for k in range(1, steps + 1):
                 if stop is not None and stop():
-                    held = ", ".join(f"{s.name} {t:.4g} kN" for s, t in zip(self.static, self.static_targets))
+                    measured = [f.force_kN for f in self.loop.feedback()[self.n_dynamic:]]
+                    left = ", ".join(f"{s.name} {t:.4g} kN (measured {f:.4g} kN)"
+                                     for s, t, f in zip(self.static, self.static_targets, measured))
                     raise RampStopped(f"the {phase.replace('_', ' ')} of the static preloads was stopped after "
-                                      f"{k - 1} of {steps} steps; held at {held}")
-                self.static_targets = start + (end - start) * k / steps
+                                      f"{k - 1} of {steps} steps; force control left at {left}")
+                self.static_targets = end.copy() if k == steps else start + (end - start) * (k / steps)
                 self._execute(hold)
         finally:
             self._phase = "test"

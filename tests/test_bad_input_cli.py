@@ -1,6 +1,7 @@
-"""Bad input found by an acceptance audit of the `hsio` command line: each case once ended in a
-traceback, a hang, a silent clamp or a record in the wrong place, and now gets a clear error
-that names the file, table, key or option and the bound (exit 2 from the command line)."""
+"""Bad input to the `hsio` command line: records, structure files, emulator and driver settings,
+run folders, options and signals. Each case gets a clear error naming the file, table, key or
+option and the bound (exit 2 from the command line): no traceback, no hang, no silent clamp, no
+record in the wrong place."""
 
 from __future__ import annotations
 
@@ -54,13 +55,13 @@ def cfg(**tables):
 
 @pytest.mark.parametrize("duration", [1e-9, 0.01, 0.05])
 def test_a_synthetic_record_too_short_to_filter_is_named(duration):
-    """Once a scipy ValueError (padlen) from the drift filter."""
+    """Too few samples for the drift filter: named, not a scipy error."""
     with pytest.raises(ConfigError, match=r"\[record\] synthetic_duration_s = .*needs at least 10"):
         runner.build_record(cfg(record={"synthetic_duration_s": duration}), get_structure("validation"))
 
 
 def test_a_cut_shorter_than_a_step_or_longer_than_the_record_is_refused():
-    """duration_s = 1e-9 once ran one step; 100 s of a 20 s record once ran 20 s: a cut, never a clamp."""
+    """duration_s = 1e-9 does not run one step, nor 100 s of a 20 s record 20 s: a cut, never a clamp."""
     structure = get_structure("validation")
     with pytest.raises(ConfigError, match=r"\[record\] duration_s = 1e-09.*shorter than one time step"):
         runner.build_record(cfg(record={"duration_s": 1e-9}), structure)
@@ -70,7 +71,7 @@ def test_a_cut_shorter_than_a_step_or_longer_than_the_record_is_refused():
 
 
 def test_a_record_file_longer_than_the_duration_bound_is_refused(tmp_path):
-    """A 2,000,000-sample file at 0.005 s (10,000 s, 1,000,000 steps) once ran for hours: the
+    """A 2,000,000-sample file at 0.005 s (10,000 s, 1,000,000 steps) would run for hours: the
     3600 s bound of [record] duration_s holds for a file too, unless duration_s cuts it."""
     path = write_at2(tmp_path / "long.AT2", "ACCELERATION TIME SERIES IN UNITS OF G", ["0.01"] * 4000)
     path.write_text(path.read_text().replace("DT= 0.0100", "DT= 1.0000"))
@@ -93,7 +94,7 @@ def write_at2(path, line3, values=("0.01", "0.02", "-0.01", "0.0", "0.01")):
     ("DISPLACEMENT TIME SERIES IN UNITS OF CM", "holds displacement"),
 ])
 def test_an_at2_record_not_in_g_is_refused_naming_line_3(tmp_path, line3, words):
-    """Once read as g: a record in cm/s^2 ran 980 times too strong."""
+    """A record in cm/s^2 read as g would run 980 times too strong."""
     path = write_at2(tmp_path / "r.AT2", line3)
     with pytest.raises(RecordError, match=r"r.AT2:3: ") as info:
         read_at2(path)
@@ -107,7 +108,7 @@ def test_at2_headers_in_g_are_read(tmp_path):
 
 @pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="needs /dev/zero")
 def test_devices_are_refused_not_read_for_ever(tmp_path):
-    """/dev/zero as a record, a structure file or a configuration once hung (and grew the memory)."""
+    """/dev/zero as a record, a structure file or a configuration would be read for ever."""
     with pytest.raises(RecordError, match="/dev/zero: not a regular file"):
         read_at2("/dev/zero")
     with pytest.raises(ConfigError, match="/dev/zero: not a regular file"):
@@ -130,7 +131,7 @@ def structure_text(dt="0.01", m1="0.0017", extra="", iota=None):
 
 
 def test_structure_dt_beyond_its_bounds_is_named():
-    """dt = 100 once reached scipy's filter design (ValueError: critical frequencies)."""
+    """dt beyond 1e-5..1 s is named before any filter is designed."""
     with pytest.raises(ConfigError, match=r"s.toml: structure.dt: 100 s is out of bounds.*1e-05..1 s"):
         parse_structure(structure_text(dt="100"), "s.toml")
     with pytest.raises(ConfigError, match=r"structure.dt: 1e-07 s is out of bounds"):
@@ -139,7 +140,7 @@ def test_structure_dt_beyond_its_bounds_is_named():
 
 @pytest.mark.parametrize("mass, words", [("1e-300", "Hz is out of bounds"), ("1e300", "Hz is out of bounds")])
 def test_absurd_masses_are_named_not_taken_for_a_free_dof(mass, words):
-    """Once 'DOF has no stiffness path to the ground' for a DOF with a spring to the ground."""
+    """A mass off by orders of magnitude is named as such, not as a DOF without a stiffness path."""
     with pytest.raises(ConfigError, match=words) as info:
         parse_structure(structure_text(m1=mass), "s.toml")
     assert "no stiffness path" not in str(info.value)
@@ -157,7 +158,7 @@ def test_every_iota_zero_is_refused():
 
 
 def test_a_structure_without_experimental_elements_is_refused_before_the_run(tmp_path):
-    """Once a ValueError (max() of an empty sequence) from the control loop."""
+    """Refused when the structure loads, before the control loop."""
     (tmp_path / "s.toml").write_text('[structure]\nname = "s"\ndt = 0.01\n[[dof]]\nname = "A"\nmass = 0.001\n'
                                      '[[spring]]\ndof = "A"\nk = 1.0\n')
     c = write_config(tmp_path, duration=0.3, extra='[structure]\nfile = "s.toml"\n')
@@ -172,7 +173,7 @@ def test_a_structure_without_experimental_elements_is_refused_before_the_run(tmp
     ({"kind": "bilinear_gap", "k1": 0.5, "k2": 2.0, "gap": -1.0}, "bilinear_gap: gap must be zero or positive"),
 ])
 def test_specimen_parameters_that_divide_by_zero_are_refused_at_load(model, match):
-    """Once a ZeroDivisionError at the first step (exit 3, 'unexpected ZeroDivisionError')."""
+    """Refused when the file loads, not at the first step."""
     with pytest.raises(ConfigError, match=match):
         make_specimen(model)
     inline = "model = { " + ", ".join(f"{k} = {v!r}".replace("'", '"') for k, v in model.items()) + " }\n"
@@ -192,14 +193,13 @@ def test_specimen_parameters_that_divide_by_zero_are_refused_at_load(model, matc
     ("displacement_gain", 0.0, r"displacement_gain must not be 0"),
 ])
 def test_emulator_settings_beyond_sanity_bounds_are_named(key, value, match):
-    """Once accepted (a run with a 1e9 s lag, a 1e300 mm stroke), or a traceback (seed -1:
-    numpy's ValueError; transport_delay_s 1e300: an OverflowError sizing the delay line)."""
+    """A 1e9 s lag, a 1e300 mm stroke, seed -1, a 1e300 s transport delay: each named with its bound."""
     with pytest.raises(ConfigError, match=r"run.toml: \[emulator\] " + match):
         cfg(emulator={key: value})
 
 
 def test_the_emulator_refuses_a_rate_other_than_the_lockstep_clock():
-    """[emulator] rate_hz = 1 once ran each 1/1024 s host tick as 1 s of emulated physics."""
+    """[emulator] rate_hz = 1 in lockstep would run each 1/1024 s host tick as 1 s of emulated physics."""
     with pytest.raises(ConfigError, match=r"rate_hz = 500 differs from the experiment's controller rate \(1024 Hz\)"):
         EmulatedActuator("a", ServoController(make_specimen({"kind": "linear", "k": 1.0}), ServoConfig(rate_hz=500.0)),
                          LockstepClock())
@@ -216,7 +216,7 @@ def test_an_emulator_url_with_a_host_is_refused():
     ({"mode": "online", "d_max_mm": 1e9}, r"d_max_mm = 1000000000.0 is out of bounds"),
 ])
 def test_compensation_settings_beyond_sanity_bounds_are_named(table, match):
-    """Once accepted: a 2.5e11 s lag compensated, a window of 10^12 steps."""
+    """A 2.5e11 s lag to compensate, a window of 10^12 steps: each named with its bound."""
     with pytest.raises(ConfigError, match=r"\[compensation\]: " + match):
         cfg(compensation=table, test={"hold_fraction": 0.0})
 
@@ -225,8 +225,7 @@ def test_compensation_settings_beyond_sanity_bounds_are_named(table, match):
 
 @pytest.mark.parametrize("make", ["under_a_file", "dangling_symlink", "empty"])
 def test_a_run_folder_that_cannot_be_created_is_named(tmp_path, make):
-    """Once a NotADirectoryError / FileExistsError traceback (or, for --out "", a run written into
-    the working directory)."""
+    """Named with the reason, no traceback; --out "" is not the working directory."""
     (tmp_path / "f").write_text("x")
     os.symlink(tmp_path / "nowhere" / "x", tmp_path / "link")
     out = {"under_a_file": tmp_path / "f" / "sub", "dangling_symlink": tmp_path / "link", "empty": ""}[make]
@@ -236,8 +235,8 @@ def test_a_run_folder_that_cannot_be_created_is_named(tmp_path, make):
 
 @pytest.mark.parametrize("left", ["summary.json", "run.sqlite-wal", "run.sqlite-journal"])
 def test_a_folder_with_what_is_left_of_a_record_is_refused(tmp_path, left):
-    """A summary whose run.sqlite was moved away was once overwritten; a journal left without its
-    database would be replayed into the new one."""
+    """A summary whose run.sqlite was moved away is not overwritten; a journal left without its
+    database is not replayed into a new one."""
     (tmp_path / left).write_text("{}")
     with pytest.raises(RecordExistsError, match=f"holds {left} of an earlier run"):
         runner.run_folder(cfg(), get_structure("validation"), tmp_path)
@@ -245,7 +244,7 @@ def test_a_folder_with_what_is_left_of_a_record_is_refused(tmp_path, left):
 
 @pytest.mark.parametrize("specimen_id", ["../../etc", "a/b", "..", "x\\y"])
 def test_a_specimen_id_is_a_plain_name(tmp_path, specimen_id, monkeypatch):
-    """[specimen] id = "../../etc" once put the ledger two folders above specimens/."""
+    """[specimen] id = "../../etc" does not put the ledger two folders above specimens/."""
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ConfigError, match=r"\[specimen\] id = .* is a plain name"):
         runner.open_ledger(cfg(specimen={"id": specimen_id}))
@@ -262,9 +261,9 @@ def test_a_specimen_id_is_a_plain_name(tmp_path, specimen_id, monkeypatch):
     ("canopen+slcan://127.0.0.1/1", {}, "an SLCAN adapter on TCP needs a port"),
 ])
 def test_a_bad_url_or_driver_table_leaves_no_record(tmp_path, url, driver, match):
-    """Once checked only when the hardware opened: a typing error left a run.sqlite (and so a used
-    --out folder) behind; a [driver] stroke_mm that is not a number was a ValueError traceback in
-    the dry run, a missing EDS a FileNotFoundError, an SLCAN URL without a port a TypeError."""
+    """Checked before the run folder is created, so a typing error leaves no run.sqlite (and no used
+    --out folder) behind: a [driver] stroke_mm that is not a number, a missing EDS, an SLCAN URL
+    without a port."""
     c = cfg(hardware={"url": url}, driver=driver)
     with pytest.raises(ConfigError, match=match):
         runner.run(c, tmp_path / "o")
@@ -274,7 +273,7 @@ def test_a_bad_url_or_driver_table_leaves_no_record(tmp_path, url, driver, match
 
 
 def test_a_driver_table_with_the_emulator_is_refused(tmp_path):
-    """[driver] stroke_mm = 1 with emulator:// was once ignored: the run went on with the
+    """[driver] stroke_mm = 1 with emulator:// is not ignored: the run would go on with the
     emulator's 254 mm stroke, the operator believing it limited to 1 mm."""
     c = cfg(driver={"stroke_mm": 1.0})
     with pytest.raises(ConfigError, match=r"\[driver\] stroke_mm is not read with 'emulator://'"):
@@ -317,9 +316,8 @@ COMMAND_LINE = [
 
 @pytest.mark.parametrize("args, words", COMMAND_LINE, ids=[w for _, w in COMMAND_LINE])
 def test_command_line_refusals(tmp_path, args, words):
-    """Options given twice (click kept the last silently), nan and inf numbers (click's float types
-    take them), output paths that cannot be written (tracebacks), a benchmark folder that is not
-    one (a JSONDecodeError)."""
+    """Options given twice (not the last one kept silently), nan and inf numbers, output paths that
+    cannot be written, a benchmark folder that is not one: each named."""
     c = write_config(tmp_path, duration=0.3)
     (tmp_path / "f").write_text("x")
     (tmp_path / "vrths").mkdir()
@@ -332,8 +330,8 @@ def test_command_line_refusals(tmp_path, args, words):
 
 
 def test_serve_refuses_a_records_folder_it_cannot_create(tmp_path):
-    """Once found only when the first OpenSees client connected: the server waited with a bad URL
-    or records folder; the emulated Modbus RTU server likewise with --baudrate 0."""
+    """Refused at start, not when the first OpenSees client connects; the emulated Modbus RTU server
+    likewise with --baudrate 0."""
     (tmp_path / "f").write_text("x")
     (tmp_path / "serve.toml").write_text('[opensees]\nelements = ["C1"]\n')
     assert_exit_2(hsio("serve", "opensees", tmp_path / "serve.toml", "--port", "0", "--out", tmp_path / "f" / "x",
@@ -341,13 +339,13 @@ def test_serve_refuses_a_records_folder_it_cannot_create(tmp_path):
 
 
 def test_monitor_refuses_a_file_that_is_not_a_record(tmp_path):
-    """Once served a page for it, saying nothing, until Ctrl-C."""
+    """A file that is not a record is named; the monitor does not serve a page for it."""
     (tmp_path / "run.sqlite").write_text("garbage" * 100)
     assert_exit_2(hsio("monitor", tmp_path, "--port", "0", timeout=30), "run.sqlite: not an hsio recording")
 
 
 def test_a_second_ctrl_c_ends_with_a_message_not_a_blank_line(tmp_path):
-    """A second SIGINT interrupts at once by design; it once ended with the line 'hsio run: '."""
+    """A second SIGINT interrupts at once and ends with a message (not an empty 'hsio run: ' line)."""
     c = tmp_path / "run.toml"
     c.write_text("[record]\nsynthetic_duration_s = 60.0\n[output]\nplots = false\nsamples = false\n"
                  "[safety]\nkeys = false\n")
@@ -424,3 +422,53 @@ def test_a_modbus_url_without_a_port_names_the_default_port_it_tried():
         open_hardware("modbus+tcp://127.0.0.1", elements, LockstepClock(), {"timeout_s": 1.0})
     with refused_port() as port, pytest.raises(CommunicationError, match=rf"cannot connect to 127\.0\.0\.1:{port} \("):
         open_hardware(f"modbus+tcp://127.0.0.1:{port}", elements, LockstepClock(), {"timeout_s": 1.0})
+
+
+def test_the_early_hardware_check_leaves_the_daq_keys_to_the_instruments():
+    """[driver] instruments / instrument_map name the external instruments' DAQ module, not an
+    option of the actuator driver: the check before the run folder passes them by, and still
+    refuses an unknown key, a TCP URL without a host and a register map that does not load."""
+    from hsio.errors import ConfigError
+    from hsio.hardware import check_options
+
+    url = "modbus+tcp://127.0.0.1:5020"
+    check_options(url, {"instruments": "modbus+tcp://127.0.0.1:5021", "instrument_map": "daq.toml"})
+    with pytest.raises(ConfigError, match="unknown key 'speed'"):
+        check_options(url, {"speed": 1})
+    with pytest.raises(ConfigError, match="expected modbus\\+tcp://HOST:PORT"):
+        check_options("modbus+tcp://:5020", {})
+    with pytest.raises(ConfigError, match="no-such-map.toml: cannot read register map"):
+        check_options(url, {"map": "/nonexistent/no-such-map.toml"})
+
+
+def test_a_saved_configuration_read_back_runs_the_record_it_ran():
+    """A recorded run whose duration_s was longer than its record ran the whole record; read back
+    (resume, error budget) it still does, while a new run with it is refused."""
+    from hsio.errors import ConfigError
+    from hsio.structures import get_structure
+
+    cfg = config.from_dict({"record": {"synthetic_duration_s": 2.0, "duration_s": 5.0}}, "run.toml")
+    structure = get_structure("validation")
+    with pytest.raises(ConfigError, match="duration_s = 5.0 s is longer than the record.*synthetic_duration_s"):
+        runner.build_record(cfg, structure)
+    ground = runner.build_record(cfg, structure, replay=True)
+    assert ground.duration_s == pytest.approx(2.0, abs=structure.dt)
+
+
+def test_a_cut_longer_than_the_record_is_refused_from_python_too():
+    from hsio.errors import RecordError
+    from hsio.ground_motion import synthetic_record
+
+    g = synthetic_record(duration_s=2.0, dt=0.01, pga_g=0.1, seed=1)
+    with pytest.raises(RecordError, match="a cut to 5 s is longer than the record"):
+        g.truncated(5.0)
+    assert g.truncated(2.0).duration_s == pytest.approx(2.0)
+
+
+def test_units_of_g_in_parentheses_are_read_as_g(tmp_path):
+    from hsio.ground_motion import read_at2
+
+    path = tmp_path / "g.AT2"
+    path.write_text("PEER\nEVENT\nACCELERATION TIME SERIES IN UNITS OF (G)\nNPTS=  4, DT= .0100 SEC\n"
+                    "0.0 0.1 -0.1 0.0\n")
+    assert read_at2(path).accel_g.tolist() == [0.0, 0.1, -0.1, 0.0]
