@@ -91,41 +91,7 @@ def test_defaults():
 
 
 # -- per-element guards within a step -------------------------------------------------------------------
-class _Site:
-    """Independent elements, exact: element e linear at k1[e] up to u_c[e], then k2[e]."""
-
-    def __init__(self, k1, u_c, k2):
-        self.k1, self.u_c, self.k2 = (np.asarray(x, dtype=float) for x in (k1, u_c, k2))
-        self.base = self.last = (np.zeros(self.k1.size), np.zeros(self.k1.size))
-        self.sent = []
-
-    def R(self, u):
-        return self.k1 * np.minimum(u, self.u_c) + self.k2 * np.maximum(u - self.u_c, 0.0)
-
-    def u_of(self, F):
-        F_c = self.k1 * self.u_c
-        return np.minimum(F, F_c) / self.k1 + np.maximum(F - F_c, 0.0) / self.k2
-
-    def committed(self):
-        return self.base
-
-    def set_trial(self, commands, modes):
-        commands = np.asarray(commands, dtype=float)
-        self.sent.append((commands.copy(), list(modes)))
-        fc = np.array([m is FC for m in modes])
-        u = np.where(fc, self.u_of(commands), commands)
-        R = self.R(u)
-        du = u - self.base[0]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            k = np.where(du != 0, (R - self.base[1]) / np.where(du != 0, du, 1.0), np.nan)
-        self.last = (u, R)
-        self._daq = Daq(u=u, R=R, k=k, targets=commands, commands=commands, samples=None)
-
-    def get_daq(self):
-        return self._daq
-
-    def commit(self):
-        self.base = self.last
+from exact_site import ExactSite as _Site  # noqa: E402
 
 
 def _two(**kw):
