@@ -160,12 +160,14 @@ class OpenSeesServer:
             with self._freed:
                 self._busy.pop(j, None)
                 claimed = False
-                self._open.discard(conn)
+                if handler.died:
+                    self._open.discard(conn)
                 self._freed.notify_all()
-            try:  # the client is done with it; the session's end (a ramp off) may take a while
-                conn.close()
-            except OSError:
-                pass
+            if handler.died:  # the client is done with it; the session's end (a ramp off) may take a while
+                try:
+                    conn.close()
+                except OSError:
+                    pass
             if leaving is not None:
                 try:
                     leaving.result()
