@@ -102,13 +102,13 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         if override_dry_run:
             cfg["safety"]["override"] = True
         structure = runner.load_run_structure(cfg)
-        runner.check_hardware(cfg)  # before the monitor's folder: a typing error leaves no folder behind
         ground = runner.build_record(cfg, structure)
         steps = len(excitation(structure, ground)[0]) - 1
         with contextlib.ExitStack() as cleanup:  # closed in reverse: the bar, the keys, then the page
             if with_monitor:  # the page reads the record of the run's folder from its own process
                 from hsio.monitor.server import MonitorProcess
 
+                runner.check_hardware(cfg)  # before the page's folder: a typing error leaves no folder
                 out_dir = runner.run_folder(cfg, structure, out_dir)
                 page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
                 click.echo(f"hsio run: monitor at {page.url}", err=True)

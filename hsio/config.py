@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hsio.errors import ConfigError
+from hsio.files import read_bounded
 from hsio.safety.settings import DEFAULTS as SAFETY_DEFAULTS
 from hsio.safety.settings import check_table as check_safety_table
 
@@ -280,12 +281,7 @@ def read_toml(path: str | Path, what: str) -> dict:
     ConfigError naming it."""
     path = Path(path)
     try:
-        if path.exists() and not path.is_file():
-            raise ConfigError(f"{path}: cannot read {what}: not a regular file")
-        with path.open("rb") as f:
-            data = f.read(MAX_TOML_BYTES + 1)
-        if len(data) > MAX_TOML_BYTES:
-            raise ConfigError(f"{path}: cannot read {what}: more than {MAX_TOML_BYTES} bytes")
+        data = read_bounded(path, MAX_TOML_BYTES, lambda reason: ConfigError(f"{path}: cannot read {what}: {reason}"))
         return tomllib.loads(data.decode("utf-8"))
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read {what}: {exc.strerror}") from None

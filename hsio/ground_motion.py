@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import math
 import re
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from hsio.errors import RecordError
+from hsio.files import read_bounded
 
 G_MM_S2 = 9806.65  # standard gravity in mm/s^2
 # Sanity bounds (docs/faults.md): a record's time step, its length, and the steps of a run.
@@ -108,13 +108,9 @@ def read_at2(path: str | Path) -> GroundMotion:
     """
     path = Path(path)
     try:
-        info = path.stat()
-        if not stat.S_ISREG(info.st_mode):
-            raise RecordError(f"{path}: not a regular file (a ground-motion file is a PEER .AT2 text file)")
-        size = info.st_size
-        if size > MAX_FILE_BYTES:
-            raise RecordError(f"{path}: {size} bytes is too large for a ground-motion file (at most {MAX_FILE_BYTES})")
-        lines = path.read_text(encoding="latin-1").splitlines()
+        data = read_bounded(path, MAX_FILE_BYTES, lambda reason: RecordError(
+            f"{path}: {reason} (a ground-motion file is a PEER .AT2 text file of at most {MAX_FILE_BYTES} bytes)"))
+        lines = data.decode("latin-1").splitlines()
     except OSError as exc:
         raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
     if len(lines) < 5:

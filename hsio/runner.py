@@ -197,7 +197,7 @@ def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Le
 def predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):
     """NS and the dry run of the configured test (docs/safety.md section 2): (NS result, report)."""
     integ, test, hardware = config["integrator"], config["test"], config["hardware"]
-    check_hardware(config)
+    check_hardware(config)  # `hsio check` and library callers: the URL and its options, as a run checks them
     ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     setups = SetupMap.of(structure) if structure.has_setups else None

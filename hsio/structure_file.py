@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import inspect
 import math
-import stat
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -22,6 +21,7 @@ import numpy as np
 import scipy.linalg
 
 from hsio.errors import ConfigError
+from hsio.files import read_bounded
 from hsio.ground_motion import DT_MAX_S, DT_MIN_S
 from hsio.specimens import SPECIMEN_KINDS, make_specimen
 from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, ExperimentalElement, Instrument, NumericalElement,
@@ -79,13 +79,8 @@ def load_structure(path_or_name: str | Path, relative_to: str | Path | None = No
     if relative_to is not None and not path.is_absolute():
         path = Path(relative_to) / path
     try:
-        if not stat.S_ISREG(path.stat().st_mode):  # a device such as /dev/zero would be read for ever
-            raise ConfigError(f"{path}: not a regular file (a structure file is TOML text)")
-        with path.open("rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
-        if len(data) > MAX_FILE_BYTES:
-            raise ConfigError(f"{path}: more than {MAX_FILE_BYTES} bytes; a structure file is at most "
-                              f"{MAX_FILE_BYTES} bytes")
+        data = read_bounded(path, MAX_FILE_BYTES, lambda reason: ConfigError(
+            f"{path}: {reason} (a structure file is TOML text of at most {MAX_FILE_BYTES} bytes)"))
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the structure file ({exc.strerror or exc})") from None
     return parse_structure(data, str(path), default_name=path.stem)

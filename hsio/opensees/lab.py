@@ -112,10 +112,12 @@ class Lab:
                                       f"read served elements only: serve {inst.element!r} too")
         for key in ("mass", "damping"):
             for name, value in getattr(settings, key).items():
-                n = self.n_basic[self.names.index(name)]
+                j = self.names.index(name)
+                n = self.n_basic[j]
                 if not isinstance(value, float) and len(value) != n:
+                    dofs = ", ".join(self.channels[self.blocks[j]])
                     raise ConfigError(f"[opensees] {key}.{name}: a {len(value)} x {len(value)} matrix; element {name!r} "
-                                      f"has {n} basic DOF{'s' if n > 1 else ''} ({', '.join(self.channels[self.blocks[self.names.index(name)]])})")
+                                      f"has {n} basic DOF{'s' if n > 1 else ''} ({dofs})")
         self.correct = (config["test"]["measured_displacement_correction"] if settings.force_correction is None
                         else settings.force_correction)
         self.log = log
@@ -211,9 +213,7 @@ class Lab:
         DIE and nothing failed; otherwise they stay held with the actuators, as when `hsio run`
         stops early (docs/opensees.md)."""
         site = self.site  # None once the session closed: this runs once per session
-        if site is None or not site.static:
-            return
-        if not site.static_log:  # never ramped in
+        if site is None or not site.static_log:  # no session, or no preload ramped in
             return
         if self.failed or not self.clean_end:
             self.log(f"session {self.sessions}: static preloads held, not ramped off ({self.failed or reason})")

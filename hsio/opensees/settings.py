@@ -46,8 +46,7 @@ class OpenSeesSettings:
 
 
 def _number(where: str, key: str, value, positive: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(f"{where}: {key} must be a finite number, got {value!r}")
+    value = _finite(where, key, value)
     if positive and not value > 0:
         raise ConfigError(f"{where}: {key} must be positive, got {value!r}")
     if not positive and value < 0:

@@ -27,7 +27,8 @@ from hsio.sites.base import Daq
 
 
 class RampStopped(HsioError):
-    """A ramp of the static preloads was stopped on request; the actuators hold where it stood."""
+    """A ramp of the static preloads was stopped on request; the static actuators are left in
+    force control at the targets it had reached (the message gives them and the measured forces)."""
 
 
 class ActuatorSite:
