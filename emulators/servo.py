@@ -130,7 +130,9 @@ class ServoConfig:
                   "stroke_mm": (0.0, 10000.0, "mm"), "force_limit_kN": (0.0, 100000.0, "kN"),
                   "velocity_limit_mm_s": (0.0, 10000.0, "mm/s"), "backlash_mm": (0.0, self.stroke_mm, "mm"),
                   "dead_band_mm": (0.0, self.stroke_mm, "mm"), "servo_frequency_hz": (0.0, self.rate_hz / 2, "Hz"),
-                  "displacement_gain": (-10.0, 10.0, "")}
+                  "displacement_gain": (-10.0, 10.0, ""),
+                  "ki_per_s2": (0.0, self.rate_hz ** 2, "1/s^2"),  # ki dt^2 <= 1: the discrete PI loop stays stable
+                  "compliance_mm_per_kN": (0.0, 1000.0, "mm/kN")}
         for name, (low, high, unit) in sanity.items():
             value = getattr(self, name)
             if value is not None and not low <= value <= high:

@@ -191,6 +191,8 @@ def test_specimen_parameters_that_divide_by_zero_are_refused_at_load(model, matc
     ("rate_hz", 1e9, r"rate_hz = 1000000000.0 is out of bounds"),
     ("backlash_mm", 1e9, r"backlash_mm = 1000000000.0 is out of bounds: it must be within 0..254 mm"),
     ("displacement_gain", 0.0, r"displacement_gain must not be 0"),
+    ("ki_per_s2", 1e12, r"ki_per_s2 = 1000000000000.0 is out of bounds: it must be within 0..1\.04858e\+06 1/s\^2"),
+    ("compliance_mm_per_kN", 1e9, r"compliance_mm_per_kN = 1000000000.0 is out of bounds: it must be within 0..1000 mm/kN"),
 ])
 def test_emulator_settings_beyond_sanity_bounds_are_named(key, value, match):
     """A 1e9 s lag, a 1e300 mm stroke, seed -1, a 1e300 s transport delay: each named with its bound."""

@@ -50,3 +50,28 @@ def test_budget_names_the_specimen_mismatch(run_dir, tmp_path):
 def test_budget_refuses_a_folder_without_a_run(tmp_path):
     result = CliRunner().invoke(diagnose, ["--run", str(tmp_path)])
     assert result.exit_code == 2 and "no run.sqlite" in result.stderr
+
+
+def test_a_run_that_cannot_be_read_is_not_reported_as_an_unwritable_report(tmp_path, monkeypatch):
+    """An OSError while reading (here: the recording, by a stand-in for a failing disk) names the
+    input and says it cannot be read; one while writing says the report cannot be written."""
+    import errno
+
+    import hsio.diagnose.budget as budget
+
+    def unreadable(run_dir):
+        raise OSError(errno.EIO, "Input/output error", str(tmp_path / "run.sqlite"))
+
+    monkeypatch.setattr(budget, "error_budget", unreadable)
+    result = CliRunner().invoke(diagnose, ["--run", str(tmp_path), "--report", str(tmp_path / "b")])
+    assert result.exit_code == 2
+    assert f"{tmp_path / 'run.sqlite'}: cannot read: Input/output error" in result.stderr
+    assert "cannot write" not in result.stderr
+
+
+def test_a_report_folder_that_cannot_be_written_is_named(run_dir, tmp_path):
+    blocker = tmp_path / "taken"
+    blocker.write_text("a file where the report folder should go")
+    result = CliRunner().invoke(diagnose, ["--run", str(run_dir), "--report", str(blocker / "b")])
+    assert result.exit_code == 2
+    assert "cannot write the report" in result.stderr and "taken" in result.stderr

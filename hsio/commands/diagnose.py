@@ -4,12 +4,16 @@ extend it and measure the gain on held-out data (docs/diagnose.md)."""
 from __future__ import annotations
 
 import json
+import os
 import sys
+from typing import Callable, NoReturn, TypeVar
 
 import click
 
 from hsio.commands import RegularFile, output_error
 from hsio.errors import HsioError
+
+T = TypeVar("T")
 
 
 @click.command()
@@ -63,19 +67,17 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
 
     force = "" if force_channel.lower() in ("", "none") else force_channel
     channels = DaqChannels(command_channel, measured_channel, force, command_scale, measured_scale, force_scale)
-    try:
-        record = read_record(file, fmt, channels, actuator)
-        d = run_diagnosis(record, train_fraction=train_fraction, margin=MARGIN if margin is None else margin,
-                          choose_fraction=choose_fraction)
-        files = report_mod.write_report(d, report_dir) if report_dir else {}
+    record = _reading(lambda: read_record(file, fmt, channels, actuator), file)
+    d = _reading(lambda: run_diagnosis(record, train_fraction=train_fraction, choose_fraction=choose_fraction,
+                                       margin=MARGIN if margin is None else margin), file)
+
+    def write() -> dict:
+        out = report_mod.write_report(d, report_dir) if report_dir else {}
         if model_path:
-            files["model"] = str(write_model(model_path, report_mod.model_params(d), report_mod.provenance(d)))
-    except OSError as exc:  # a report folder or model file that cannot be written
-        click.echo(f"hsio diagnose: error: {output_error(exc, 'the report')}", err=True)
-        sys.exit(2)
-    except HsioError as exc:
-        click.echo(f"hsio diagnose: error: {exc}", err=True)
-        sys.exit(2)
+            out["model"] = str(write_model(model_path, report_mod.model_params(d), report_mod.provenance(d)))
+        return out
+
+    files = _writing(write)
     result = d.to_json()
     if files:
         result["files"] = files
@@ -99,26 +101,52 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
         click.echo(f"{name:<11} {path}")
 
 
+def _fail(message: str) -> NoReturn:
+    click.echo(f"hsio diagnose: error: {message}", err=True)
+    sys.exit(2)
+
+
+def _reading(action: Callable[[], T], source) -> T:
+    """Read and analyse the input: a file that cannot be read is named as such (exit 2)."""
+    try:
+        return action()
+    except OSError as exc:
+        where = exc.filename if exc.filename is not None else source
+        _fail(f"{os.fsdecode(where)}: cannot read: {exc.strerror or exc}")
+    except HsioError as exc:
+        _fail(str(exc))
+
+
+def _writing(action: Callable[[], T]) -> T:
+    """Write the report and the model: a folder or file that cannot be written is named (exit 2)."""
+    try:
+        return action()
+    except OSError as exc:
+        _fail(output_error(exc, "the report"))
+    except HsioError as exc:
+        _fail(str(exc))
+
+
 def _specimen(path, fmt, displacement_channel, force_channel, displacement_scale, force_scale, actuator, train_fraction,
               choose_fraction, margin, as_json, report_dir, model_path) -> None:
     from hsio.diagnose.specimen_fit import MARGIN, diagnose_specimen
     from hsio.diagnose.specimen_record import read_specimen
     from hsio.diagnose.specimen_report import specimen_json, write_specimen_model, write_specimen_report
 
-    try:
-        if not 0.1 <= train_fraction <= 0.8 or not 0.05 <= choose_fraction <= 0.95 - train_fraction:
-            raise HsioError(f"fractions: train in [0.1, 0.8] and choose in [0.05, 0.95 - train], got {train_fraction}, {choose_fraction}")
-        records = read_specimen(path, fmt, displacement_channel, force_channel, displacement_scale, force_scale, actuator)
-        diagnoses = [diagnose_specimen(r, train_fraction, choose_fraction, MARGIN if margin is None else margin) for r in records]
-        files = write_specimen_report(diagnoses, report_dir) if report_dir else {}
+    if not 0.1 <= train_fraction <= 0.8 or not 0.05 <= choose_fraction <= 0.95 - train_fraction:
+        _fail(f"fractions: train in [0.1, 0.8] and choose in [0.05, 0.95 - train], got {train_fraction}, {choose_fraction}")
+    records = _reading(lambda: read_specimen(path, fmt, displacement_channel, force_channel, displacement_scale,
+                                             force_scale, actuator), path)
+    diagnoses = _reading(lambda: [diagnose_specimen(r, train_fraction, choose_fraction,
+                                                    MARGIN if margin is None else margin) for r in records], path)
+
+    def write() -> dict:
+        out = write_specimen_report(diagnoses, report_dir) if report_dir else {}
         if model_path:
-            files["model"] = str(write_specimen_model(model_path, diagnoses[-1]))
-    except OSError as exc:  # a report folder or model file that cannot be written
-        click.echo(f"hsio diagnose: error: {output_error(exc, 'the report')}", err=True)
-        sys.exit(2)
-    except HsioError as exc:
-        click.echo(f"hsio diagnose: error: {exc}", err=True)
-        sys.exit(2)
+            out["model"] = str(write_specimen_model(model_path, diagnoses[-1]))
+        return out
+
+    files = _writing(write)
     result = specimen_json(diagnoses)
     if files:
         result["files"] = files
@@ -142,15 +170,8 @@ def _specimen(path, fmt, displacement_channel, force_channel, displacement_scale
 def _budget(run_dir, as_json, report_dir) -> None:
     from hsio.diagnose.budget import error_budget, write_budget
 
-    try:
-        b = error_budget(run_dir)
-        files = write_budget(b, report_dir) if report_dir else {}
-    except OSError as exc:  # a report folder or model file that cannot be written
-        click.echo(f"hsio diagnose: error: {output_error(exc, 'the report')}", err=True)
-        sys.exit(2)
-    except HsioError as exc:
-        click.echo(f"hsio diagnose: error: {exc}", err=True)
-        sys.exit(2)
+    b = _reading(lambda: error_budget(run_dir), run_dir)
+    files = _writing(lambda: write_budget(b, report_dir) if report_dir else {})
     result = {**b.to_json(), **({"files": files} if files else {})}
     if as_json:
         click.echo(json.dumps(result, indent=2))
