@@ -28,7 +28,19 @@ _EXPORTS = {
 }
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("hsio")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree that is not installed
+        return "unknown"
+
+
 def __getattr__(name: str):
+    if name == "__version__":  # looked up when first used: `hsio` starts without importlib.metadata
+        globals()[name] = value = _version()
+        return value
     module = _EXPORTS.get(name)
     if module is None:  # a subpackage or module (hsio.api, hsio.secant, ...), as after an import of it
         try:
@@ -44,14 +56,6 @@ def __getattr__(name: str):
 
 def __dir__():
     return sorted([*globals(), *_EXPORTS])
-
-
-try:
-    from importlib.metadata import PackageNotFoundError, version
-
-    __version__ = version("hsio")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree that is not installed
-    __version__ = "unknown"
 
 
 __all__ = ["load_structure", "Structure", "GroundMotion", "read_at2", "synthetic_record", "run_numerical",

@@ -42,6 +42,10 @@ LAZY_COMMANDS: dict[str, str] = {
 }
 
 
+# Commands that answer a SIGINT noted while the program started (hsio.entry) as their own stop.
+ANSWER_SIGINT_THEMSELVES = ("run", "resume", "serve", "emulate")
+
+
 class LazyGroup(click.Group):
     """A click group that imports a subcommand's module only when that subcommand runs."""
 
@@ -59,8 +63,13 @@ class LazyGroup(click.Group):
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="hsio")
-def main() -> None:
+@click.pass_context
+def main(ctx: click.Context) -> None:
     """hsio: hybrid simulation of structures on real or emulated servo-hydraulic actuators."""
+    if ctx.invoked_subcommand not in ANSWER_SIGINT_THEMSELVES:
+        from hsio.entry import release
+
+        release()
 
 
 @main.command()

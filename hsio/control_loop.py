@@ -170,9 +170,10 @@ class ControlLoop:
         return True
 
     def _fail(self, exc: BaseException):
-        """Hold everything and raise ``exc`` as an HsioError (anything unexpected is wrapped)."""
+        """Hold everything and raise ``exc`` as an HsioError (anything unexpected is wrapped); a
+        Ctrl-C stays a KeyboardInterrupt, so that it stops whatever runs the loop (a study too)."""
         self.hold_all()
-        if isinstance(exc, HsioError):
+        if isinstance(exc, (HsioError, KeyboardInterrupt)):
             raise exc
         raise HsioError(f"control loop stopped: {exc!r}") from exc
 

@@ -257,6 +257,7 @@ def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, gro
     """
     control = control or RunControl()
     with stop_on_signals(control):
+        control.check_stop()  # a stop asked before the run began (a Ctrl-C while hsio started): no folder
         return _run(config, out_dir, progress, ground, control, specimen_dir, notify or (lambda line: None))
 
 

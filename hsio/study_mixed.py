@@ -131,7 +131,9 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
                        estimator=SecantEstimator("average", 16, 0.1), compensation=stage) as site:
             try:
                 hs = simulate(structure, ground, site, integrator=integrator)
-            except ExperimentStopped:
+            except ExperimentStopped as exc:
+                if isinstance(exc.cause, KeyboardInterrupt):  # Ctrl-C stops the study, not this run
+                    raise exc.cause from None
                 rows.append(Row(case, k0, resolution_mm, force_resolution_kN, method, math.inf, 0, 0, 1.0, peak))
                 continue
         error, _ = max_error_pct(hs.u, ns.u)

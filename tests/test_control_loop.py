@@ -62,6 +62,21 @@ def test_unexpected_fault_in_lockstep_is_an_hsio_error_and_holds():
     assert all(a.controller.holding for a in actuators)
 
 
+def test_ctrl_c_inside_the_loop_stays_a_keyboard_interrupt_and_holds():
+    """A Ctrl-C that lands while the loop reads the controllers is not turned into a fault (a
+    study would take it for one failed run and go on; a run would report exit 3, not 5)."""
+    clock = LockstepClock()
+    loop, actuators = loop_on_emulators(clock)
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    actuators[0].feedback = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        loop.execute(np.array([0.5, 0.5]))
+    assert all(a.controller.holding for a in actuators)
+
+
 def test_real_time_clock_does_not_burst_after_a_stall():
     clock = RealTimeClock()
     clock.tick()

@@ -146,6 +146,10 @@ def stop_on_signals(control: RunControl):
         control.request_stop(f"stopped by {name} during {control.phase}")
 
     previous = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
+    from hsio.entry import noted_interrupt
+
+    if noted_interrupt():  # Ctrl-C while the program started (hsio.entry)
+        control.request_stop("stopped by SIGINT during start-up")
     try:
         yield control
     finally:

@@ -69,6 +69,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
     safety = SafetySettings.from_table(cfg["safety"])
     error = None
     with stop_on_signals(control), contextlib.ExitStack() as cleanup:
+        control.check_stop()  # a Ctrl-C while the program started: nothing opened, the record untouched
         recorder = Recorder.append(path)
         cleanup.callback(recorder.close)
         if safety.control_socket:

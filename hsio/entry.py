@@ -1,0 +1,51 @@
+"""The `hsio` console command (``[project.scripts]``): Ctrl-C while the program starts.
+
+Python raises KeyboardInterrupt wherever a SIGINT finds it; while the program imports numpy,
+click or a driver that tears the import apart and ends in a traceback from deep inside a
+library. So from its first line until a command is ready to answer it, `hsio` notes a SIGINT
+instead of raising it:
+
+* `hsio run` and `hsio resume` take it as a stop asked before the first step (exit 5, nothing
+  moved; :func:`hsio.safety.control.stop_on_signals`);
+* the serving commands (`hsio serve opensees`, `hsio emulate`) as a stop asked as soon as they
+  are ready (:func:`hsio.commands.stop_requested`): what they opened closes as on any stop;
+* every other command gets Python's own handling back before it starts (:func:`release`), and a
+  SIGINT noted meanwhile is raised there (click reports "Aborted!").
+
+A process started with SIGINT ignored (``nohup``, a background job) keeps it ignored outside a run.
+"""
+
+from __future__ import annotations
+
+import signal
+
+_noted: list[int] = []
+_previous = None
+
+
+def _note(signum, frame) -> None:
+    _noted.append(signum)
+
+
+def main():
+    global _previous
+    _previous = signal.signal(signal.SIGINT, _note)
+    from hsio.cli import main as cli
+
+    return cli()
+
+
+def noted_interrupt() -> bool:
+    """Whether a SIGINT came while the program started (each one is reported once)."""
+    hit = bool(_noted)
+    _noted.clear()
+    return hit
+
+
+def release() -> None:
+    """Give SIGINT back to Python; one noted during start-up is raised now, as KeyboardInterrupt."""
+    if signal.getsignal(signal.SIGINT) is _note:
+        keep_ignored = _previous is signal.SIG_IGN
+        signal.signal(signal.SIGINT, signal.SIG_IGN if keep_ignored else signal.default_int_handler)
+    if noted_interrupt():
+        raise KeyboardInterrupt
