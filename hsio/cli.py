@@ -99,7 +99,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
     from hsio import config as config_mod
     from hsio import runner
     from hsio.experiment import ExperimentStopped, excitation
-    from hsio.safety.control import RunControl
+    from hsio.safety.control import RunControl, stop_on_signals
     from hsio.safety.status import DryRunRefused, exit_status
     from hsio.safety.terminal import KeyReader
 
@@ -107,26 +107,28 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
     notify = lambda line: click.echo(f"hsio run: {line}", err=True)  # noqa: E731
     control.listeners.append(notify)
     try:
-        cfg = config_mod.load(config_file)
-        if override_dry_run:
-            cfg["safety"]["override"] = True
-        structure = runner.load_run_structure(cfg)
-        ground = runner.build_record(cfg, structure)
-        steps = len(excitation(structure, ground)[0]) - 1
-        with contextlib.ExitStack() as cleanup:  # closed in reverse: the bar, the keys, then the page
-            if with_monitor:  # the page reads the record of the run's folder from its own process
-                from hsio.monitor.server import MonitorProcess
+        with stop_on_signals(control):  # from here a Ctrl-C asks the run to stop, before and during it
+            cfg = config_mod.load(config_file)
+            if override_dry_run:
+                cfg["safety"]["override"] = True
+            structure = runner.load_run_structure(cfg)
+            ground = runner.build_record(cfg, structure)
+            steps = len(excitation(structure, ground)[0]) - 1
+            with contextlib.ExitStack() as cleanup:  # closed in reverse: the bar, the keys, then the page
+                control.check_stop()  # a Ctrl-C while hsio started: no folder, no page
+                if with_monitor:  # the page reads the record of the run's folder from its own process
+                    from hsio.monitor.server import MonitorProcess
 
-                runner.check_hardware(cfg)  # before the page's folder: a typing error leaves no folder
-                out_dir = runner.run_folder(cfg, structure, out_dir)
-                page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
-                click.echo(f"hsio run: monitor at {page.url}", err=True)
-            if cfg["safety"]["keys"]:
-                cleanup.callback(KeyReader(control, notify).close)
-            progress = _Progress(steps, f"HS {structure.name}")
-            cleanup.callback(progress.close)
-            summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
-                                 notify=notify if not as_json else (lambda line: None))
+                    runner.check_hardware(cfg)  # before the page's folder: a typing error leaves no folder
+                    out_dir = runner.run_folder(cfg, structure, out_dir)
+                    page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
+                    click.echo(f"hsio run: monitor at {page.url}", err=True)
+                if cfg["safety"]["keys"]:
+                    cleanup.callback(KeyReader(control, notify).close)
+                progress = _Progress(steps, f"HS {structure.name}")
+                cleanup.callback(progress.close)
+                summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
+                                     notify=notify if not as_json else (lambda line: None))
     except DryRunRefused as exc:
         click.echo(f"hsio run: {exc}", err=True)
         _where(exc)

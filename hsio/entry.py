@@ -12,7 +12,9 @@ instead of raising it:
 * every other command gets Python's own handling back before it starts (:func:`release`), and a
   SIGINT noted meanwhile is raised there (click reports "Aborted!").
 
-A process started with SIGINT ignored (``nohup``, a background job) keeps it ignored outside a run.
+A second SIGINT during start-up is raised at once, wherever it lands: the way out of a start-up
+that hangs. A process started with SIGINT ignored (a background job of a script, a service) is
+left alone: nothing is noted and SIGINT stays ignored outside a run.
 """
 
 from __future__ import annotations
@@ -24,12 +26,16 @@ _previous = None
 
 
 def _note(signum, frame) -> None:
+    if _noted:
+        raise KeyboardInterrupt
     _noted.append(signum)
 
 
 def main():
     global _previous
-    _previous = signal.signal(signal.SIGINT, _note)
+    _previous = signal.getsignal(signal.SIGINT)
+    if _previous is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, _note)
     from hsio.cli import main as cli
 
     return cli()
@@ -42,10 +48,16 @@ def noted_interrupt() -> bool:
     return hit
 
 
+def after_start_up(handler):
+    """The SIGINT handler to put back where ``handler`` was: Python's own for the start-up's."""
+    if handler is not _note:
+        return handler
+    return _previous if _previous is not None else signal.default_int_handler
+
+
 def release() -> None:
     """Give SIGINT back to Python; one noted during start-up is raised now, as KeyboardInterrupt."""
     if signal.getsignal(signal.SIGINT) is _note:
-        keep_ignored = _previous is signal.SIG_IGN
-        signal.signal(signal.SIGINT, signal.SIG_IGN if keep_ignored else signal.default_int_handler)
+        signal.signal(signal.SIGINT, after_start_up(_note))
     if noted_interrupt():
         raise KeyboardInterrupt

@@ -358,7 +358,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
         except (Exception, KeyboardInterrupt) as exc:  # before or around the steps: hold, record, re-raise
             error = exc
             hold = site.hold() if site is not None else None
-            reason = str(exc) if isinstance(exc, HsioError) else f"unexpected {exc!r}"
+            reason = (str(exc) if isinstance(exc, HsioError) else "interrupted (Ctrl-C)"
+                      if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
             if hold is not None:
                 reason += f"; {hold.message}"
             recorder.write_event(None, 0, "stop", "", reason)

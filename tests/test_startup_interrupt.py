@@ -37,9 +37,37 @@ def test_another_command_gets_the_noted_ctrl_c_as_click_reports_it(noted):
     assert "Er DC" not in result.output  # the study did not run
 
 
-def test_without_a_noted_ctrl_c_a_command_runs(tmp_path):
-    result = CliRunner().invoke(main, ["study", "fc-vs-dc", "--thetas", "2"])
-    assert result.exit_code == 0 and "largest |Er FC - Er DC|" in result.output
+def test_without_a_noted_ctrl_c_a_command_runs():
+    result = CliRunner().invoke(main, ["check"])
+    assert result.exit_code == 0 and "Aborted!" not in result.output
+
+
+def test_resume_answers_a_noted_ctrl_c_before_it_opens_the_record(tmp_path):
+    from hsio import config as config_mod
+    from hsio import runner
+    from hsio.experiment import ExperimentStopped
+    from hsio.recording import Run
+    from hsio.safety.control import RunControl
+    from wire import write_config
+
+    control, steps = RunControl(), []
+
+    def stop_at_10(n):
+        steps.append(n)
+        if len(steps) == 10:
+            control.request_stop("stopped by the test")
+
+    out = tmp_path / "run"
+    with pytest.raises(ExperimentStopped):
+        runner.run(config_mod.load(write_config(tmp_path, duration=0.5, rate=5.0)), out, stop_at_10, control=control)
+    entry._noted.append(signal.SIGINT)
+    try:
+        result = CliRunner().invoke(main, ["resume", str(out)])
+    finally:
+        entry._noted.clear()
+    assert result.exit_code == 5, result.output
+    assert "stopped by SIGINT during start-up" in result.stderr
+    assert "resume" not in [e["kind"] for e in Run(out / "run.sqlite").events()]  # the record untouched
 
 
 def test_a_serving_command_stops_as_soon_as_it_is_ready(noted):
@@ -92,7 +120,52 @@ def test_ctrl_c_during_a_study_stops_it(monkeypatch):
     assert len(runs) == 1  # no second run began
 
 
-@pytest.mark.parametrize("delay_s", [0.4, 1.0])
+# The real command in a child process; its audit hook sends it SIGINT as the import of a module
+# begins (numpy: the moment a Ctrl-C used to end in a traceback from inside numpy).
+CHILD = """
+import os, signal, sys
+sent = []
+def send_sigint_at_import(event, args):
+    if event == "import" and args[0] == {module!r} and not sent:
+        sent.append(1)
+        os.kill(os.getpid(), signal.SIGINT)
+sys.addaudithook(send_sigint_at_import)
+from hsio.entry import main
+sys.argv[0] = "hsio"
+sys.exit(main())
+"""
+
+
+def child(argv, sigint, module="numpy"):
+    """`hsio argv` with SIGINT at ``sigint`` when it starts (SIG_DFL: as from an interactive shell,
+    SIG_IGN: as a background job of a script), sent as it imports ``module``; returns (exit status,
+    stderr)."""
+    p = subprocess.run([sys.executable, "-c", CHILD.format(module=module), *argv], capture_output=True, text=True, timeout=120,
+                       preexec_fn=lambda: signal.signal(signal.SIGINT, sigint))
+    return p.returncode, p.stderr
+
+
+def test_ctrl_c_as_hsio_run_imports_numpy_gives_exit_5_no_traceback_and_no_folder(tmp_path):
+    status, err = child(["run", "--out", str(tmp_path / "run")], signal.SIG_DFL)
+    assert "Traceback" not in err, err
+    assert status == 5, err
+    assert "stopped by SIGINT during start-up" in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_with_the_monitor_a_ctrl_c_at_start_up_opens_no_folder_and_no_page(tmp_path):
+    status, err = child(["run", "--monitor", "--monitor-port", "0", "--out", str(tmp_path / "run")], signal.SIG_DFL)
+    assert status == 5, err
+    assert "monitor at" not in err and not (tmp_path / "run").exists()
+
+
+def test_a_process_started_with_sigint_ignored_keeps_ignoring_it():
+    status, err = child(["check"], signal.SIG_IGN, module="click")  # before the command begins
+    assert status == 0, err
+    assert "Aborted!" not in err
+
+
+@pytest.mark.parametrize("delay_s", [1.0])
 def test_ctrl_c_soon_after_hsio_run_starts_gives_exit_5_and_no_traceback(tmp_path, delay_s):
     """The real command, SIGINT as a terminal sends it (the child's SIGINT at its default, as in an
     interactive shell), some time into the start-up: imports, the dry run, opening the emulator."""
@@ -106,3 +179,22 @@ def test_ctrl_c_soon_after_hsio_run_starts_gives_exit_5_and_no_traceback(tmp_pat
     assert "Traceback" not in err, err
     assert p.returncode == 5, err
     assert "stopped by SIGINT" in err
+
+
+def test_a_second_ctrl_c_during_start_up_is_raised_at_once(noted):
+    with pytest.raises(KeyboardInterrupt):
+        entry._note(signal.SIGINT, None)
+
+
+def test_after_a_run_sigint_is_pythons_own_not_the_start_ups():
+    """stop_on_signals puts Python's handler back where it found hsio.entry's: a Ctrl-C while the
+    run's page or terminal close is raised, not noted for nobody to read."""
+    from hsio.safety.control import RunControl, stop_on_signals
+
+    previous = signal.signal(signal.SIGINT, entry._note)
+    try:
+        with stop_on_signals(RunControl()):
+            pass
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)

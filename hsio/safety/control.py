@@ -145,13 +145,14 @@ def stop_on_signals(control: RunControl):
             raise KeyboardInterrupt
         control.request_stop(f"stopped by {name} during {control.phase}")
 
+    from hsio.entry import after_start_up, noted_interrupt
+
     previous = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
-    from hsio.entry import noted_interrupt
 
     if noted_interrupt():  # Ctrl-C while the program started (hsio.entry)
         control.request_stop("stopped by SIGINT during start-up")
     try:
         yield control
     finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
+        for s, h in previous.items():  # Python's own SIGINT handling after the start-up's (hsio.entry)
+            signal.signal(s, after_start_up(h))
