@@ -253,6 +253,7 @@ class _Reader:
                               mass_matrix=matrix, influence=None if all(v == 1.0 for v in iota) else tuple(iota),
                               source=self.file, static=static, instruments=instruments)
         self.check_stable(structure)
+        self.check_damping(structure)
         return structure
 
     def mass_matrix(self, table: dict, n: int) -> np.ndarray:
@@ -263,7 +264,8 @@ class _Reader:
         scale = np.max(np.abs(M))
         if not np.allclose(M, M.T, rtol=0.0, atol=1e-12 * scale):
             i, j = np.unravel_index(np.argmax(np.abs(M - M.T)), M.shape)
-            raise self.error("mass.matrix", f"not symmetric: [{i}][{j}] = {M[i, j]!r} but [{j}][{i}] = {M[j, i]!r}")
+            raise self.error("mass.matrix", f"not symmetric: [{i}][{j}] = {float(M[i, j])!r} but [{j}][{i}] = "
+                             f"{float(M[j, i])!r}")
         try:
             np.linalg.cholesky(M)
         except np.linalg.LinAlgError:
@@ -325,7 +327,9 @@ class _Reader:
         kind = value.get("kind")
         if not isinstance(kind, str) or kind not in SPECIMEN_KINDS:
             raise self.error(f"{where}.kind", f"unknown specimen model {kind!r}; known: {', '.join(sorted(SPECIMEN_KINDS))}")
-        params = inspect.signature(SPECIMEN_KINDS[kind]).parameters
+        # A model's parameters are its constructor's public arguments; a leading "_" marks the
+        # model's own state (e.g. the committed state of `diagnosed`), never a file's key.
+        params = {k: p for k, p in inspect.signature(SPECIMEN_KINDS[kind]).parameters.items() if not k.startswith("_")}
         spec = {"kind": kind}
         for key, v in value.items():
             if key == "kind":
@@ -333,9 +337,11 @@ class _Reader:
             if key not in params:
                 raise self.error(f"{where}.{key}", f"unknown parameter of {kind!r}; known: {', '.join(params)}")
             spec[key] = self.number(f"{where}.{key}", v)
-        for key, p in params.items():
-            if p.default is inspect.Parameter.empty and key not in spec:
-                raise self.error(f"{where}.{key}", f"missing: {kind!r} needs {', '.join(k for k in params)}")
+        required = [k for k, p in params.items() if p.default is inspect.Parameter.empty]
+        for key in required:
+            if key not in spec:
+                raise self.error(f"{where}.{key}", f"missing: {kind!r} needs {', '.join(required)} "
+                                 f"(optional: {', '.join(k for k in params if k not in required) or 'none'})")
         try:
             model = make_specimen(spec)
         except (ConfigError, ValueError) as exc:
@@ -507,6 +513,22 @@ class _Reader:
         if bad.size:
             raise self.error("dof", f"mode {bad[0] + 1} at {f[bad[0]]:.3g} Hz is out of bounds: natural frequencies "
                              f"must be within {low:g}..{high:g} Hz (check the masses and stiffnesses and their units)")
+
+    def check_damping(self, structure: Structure) -> None:
+        """No mode gets a negative damping ratio. Rayleigh damping anchored on two modes whose
+        ratios grow faster (or slower) than their frequencies has a0 < 0 (or a1 < 0): the modes
+        below the first anchor (or above the second) then get zeta_r = a0 / (2 w_r) + a1 w_r / 2
+        < 0, a C that feeds energy into them rather than dissipating it."""
+        zeta = structure.damping_ratios()
+        bad = np.flatnonzero(zeta < -1e-9)
+        if bad.size:
+            d = structure.damping
+            ratios = list(d.ratios(len(d.mode_numbers()))) if d.kind != "modal" else d.zeta
+            r = int(bad[0])
+            raise self.error("damping.zeta", f"{d.kind} damping with zeta = {ratios} on modes "
+                             f"{list(d.mode_numbers())} gives mode {r + 1} ({structure.natural_frequencies_hz()[r]:.3g} Hz) "
+                             f"a negative damping ratio ({100 * zeta[r]:.3g} %), which would feed energy into it: "
+                             "choose ratios or modes that damp every mode (Structure.damping_ratios() shows them)")
 
     def check_stable(self, structure: Structure) -> None:
         """K_I is not singular. Checked on K_I scaled by its diagonal, so that neither the masses
