@@ -82,6 +82,9 @@ class GroundMotion:
                               "([record] duration_s) or check the record's DT")
         if math.isclose(dt, self.dt, rel_tol=1e-12):
             return self
+        if self.duration_s < dt * (1 - 1e-9):
+            raise RecordError(f"{self.name}: the record lasts {self.duration_s:g} s ({self.accel_g.size} samples at "
+                              f"{self.dt:g} s), shorter than one time step {dt:g} s of the structure: nothing to run")
         n = int(math.floor(self.duration_s / dt + 1e-9)) + 1
         t_new = np.arange(n) * dt
         t_old = np.arange(self.accel_g.size) * self.dt
@@ -95,6 +98,8 @@ class GroundMotion:
 _UNITS = re.compile(r"UNITS\s+OF\s+(\S+)", re.IGNORECASE)
 _NOT_ACCELERATION = re.compile(r"\b(VELOCITY|DISPLACEMENT)\b", re.IGNORECASE)
 _NPTS_DT_NAMED = re.compile(r"NPTS\s*=\s*(\d+)\s*,\s*DT\s*=\s*([0-9.Ee+-]+)", re.IGNORECASE)
+_WORD = re.compile(rb"\S+")
+_LINE = re.compile(rb"([^\r\n]*)(?:\r\n|\r|\n|$)")  # one line, any line ending (LF, CRLF, CR)
 _NPTS_DT_PLAIN = re.compile(r"^\s*(\d+)\s+([0-9.Ee+-]+)\s+NPTS\s*,\s*DT", re.IGNORECASE)
 
 
@@ -110,10 +115,16 @@ def read_at2(path: str | Path) -> GroundMotion:
     try:
         data = read_bounded(path, MAX_FILE_BYTES, lambda reason: RecordError(
             f"{path}: {reason} (a ground-motion file is a PEER .AT2 text file of at most {MAX_FILE_BYTES} bytes)"))
-        lines = data.decode("latin-1").splitlines()
     except OSError as exc:
         raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
-    if len(lines) < 5:
+    # The header line by line; the values word by word over the rest of the bytes, so that neither a
+    # long line nor millions of blank lines are ever split into a list in memory.
+    lines, pos = [], 0
+    while len(lines) < 4 and pos < len(data):
+        line = _LINE.match(data, pos)
+        lines.append(line.group(1).decode("latin-1"))
+        pos = line.end()
+    if len(lines) < 4 or pos == len(data):
         raise RecordError(f"{path}: too short for an AT2 file ({len(lines)} lines; the header alone has 4)")
     _check_units(path, lines[2])
     match = _NPTS_DT_NAMED.search(lines[3]) or _NPTS_DT_PLAIN.search(lines[3])
@@ -135,18 +146,27 @@ def read_at2(path: str | Path) -> GroundMotion:
     if not 2 <= npts <= MAX_SAMPLES:
         raise RecordError(f"{path}:4: NPTS = {npts} is out of bounds: within 2..{MAX_SAMPLES}")
     values: list[float] = []
-    for lineno, line in enumerate(lines[4:], start=5):
-        for word in line.split():
-            try:
-                value = float(word)
-            except ValueError:
-                raise RecordError(f"{path}:{lineno}: {word!r} is not a number") from None
-            if not math.isfinite(value):
-                raise RecordError(f"{path}:{lineno}: value {word!r} is not finite")
-            values.append(value)
+    for found in _WORD.finditer(data, pos):
+        word = found.group().decode("latin-1")
+        try:
+            value = float(word)
+        except ValueError:
+            raise RecordError(f"{path}:{_line_number(data, found.start())}: {word!r} is not a number") from None
+        if not math.isfinite(value):
+            raise RecordError(f"{path}:{_line_number(data, found.start())}: value {word!r} is not finite")
+        if len(values) == npts:  # refused at once, before the rest of a long file is read
+            raise RecordError(f"{path}:{_line_number(data, found.start())}: header says NPTS = {npts}, file holds "
+                              "more values")
+        values.append(value)
     if len(values) != npts:
         raise RecordError(f"{path}: header says NPTS = {npts}, file holds {len(values)} values")
     return GroundMotion(name=path.name, dt=dt, accel_g=np.array(values))
+
+
+def _line_number(data: bytes, offset: int) -> int:
+    """The line (from 1) of the byte at ``offset``, as a text editor counts lines."""
+    head = data[:offset]
+    return head.count(b"\n") + head.count(b"\r") - head.count(b"\r\n") + 1
 
 
 def _check_units(path: Path, line: str) -> None:
