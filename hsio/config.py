@@ -157,6 +157,9 @@ def _check_ranges(t: dict, source: str) -> None:
     if t["hardware"]["clock"] not in ("lockstep", "realtime"):
         raise ConfigError(f"{source}: [hardware] clock must be 'lockstep' or 'realtime', got {t['hardware']['clock']!r}")
     record = t["record"]
+    if record["scale"] == 0:
+        raise ConfigError(f"{source}: [record] scale = 0 would run the record as zeros: nothing would load the "
+                          f"structure; give a factor (negative reverses the direction)")
     if record["duration_s"] < 0:
         raise ConfigError(f"{source}: [record] duration_s must not be negative")
     for key in ("synthetic_duration_s", "pga_g"):
