@@ -14,6 +14,7 @@ from hsio.commands import RegularFile, output_error
 from hsio.errors import HsioError
 
 T = TypeVar("T")
+MARGIN_BOUNDS = (1.0, 100.0)  # --margin: the factor by which a cause must divide the held-out error
 
 
 @click.command()
@@ -52,6 +53,15 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
     if len(given) != 1:
         click.echo("hsio diagnose: error: give one of FILE (an actuator record), --specimen FILE or --run RUN_DIR", err=True)
         sys.exit(2)
+    scales = {"--displacement-scale": displacement_scale, "--command-scale": command_scale,
+              "--measured-scale": measured_scale, "--force-scale": force_scale}
+    for option, value in scales.items():
+        if value == 0:  # negative: a transducer wired the other way round
+            _fail(f"{option} = 0 would read every sample of that channel as 0: give the transducer's mm (kN) per volt")
+    if margin is not None and not MARGIN_BOUNDS[0] <= margin <= MARGIN_BOUNDS[1]:
+        _fail(f"--margin = {margin:g} is out of bounds: a cause is named when it divides the held-out error by at "
+              f"least this factor, within {MARGIN_BOUNDS[0]:g}..{MARGIN_BOUNDS[1]:g} (below 1 a model that does worse "
+              f"would be named)")
     if specimen_file:
         _specimen(specimen_file, fmt, displacement_channel, force_channel, displacement_scale, force_scale, actuator,
                   train_fraction, choose_fraction, margin, as_json, report_dir, model_path)

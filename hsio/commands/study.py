@@ -54,6 +54,13 @@ def fc_vs_dc(as_json: bool, plot_path: str | None, n_theta: int) -> None:
         click.echo(f"plot: {plot_path}")
 
 
+# The grid's axes: a specimen's initial stiffness and the instruments' resolutions, each positive
+# (a zero resolution has no switching threshold, a stiffness sets the specimen's mass), with the
+# upper bounds of the run configuration's switching keys (docs/config.md).
+GRID_BOUNDS = {"stiffness": (0.0, 10000.0, "kN/mm"), "resolution": (0.0, 10.0, "mm"),
+               "force_resolution": (0.0, 100.0, "kN")}
+
+
 @study.command("mixed")
 @click.option("--json", "as_json", is_flag=True, help="Print the rows as JSON on stdout.")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Write the error maps to this PNG.")
@@ -69,6 +76,13 @@ def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, durat
     """HS-vs-NS error of DC, FC and mixed over stiffness x transducer x load-cell resolution."""
     from hsio import study_mixed as sm
 
+    for option, values, (low, high, unit) in (("--stiffness", stiffnesses, GRID_BOUNDS["stiffness"]),
+                                              ("--resolution", resolutions, GRID_BOUNDS["resolution"]),
+                                              ("--force-resolution", force_resolutions, GRID_BOUNDS["force_resolution"])):
+        for value in values:
+            if not low < value <= high:
+                raise click.BadParameter(f"{value:g} is out of bounds: it must be above {low:g} and at most "
+                                         f"{high:g} {unit}", param_hint=option)
     try:
         rows = sm.grid(stiffnesses or (7.2, 122.6), resolutions or (0.0025, 0.025),
                        force_resolutions or (0.002, 0.02), duration_s=duration)
