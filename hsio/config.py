@@ -167,9 +167,13 @@ def _check_ranges(t: dict, source: str) -> None:
             raise ConfigError(f"{source}: [record] {key} must be positive, got {record[key]}")
     if record["seed"] < 0:
         raise ConfigError(f"{source}: [record] seed must not be negative, got {record['seed']}")
-    if t["hardware"]["url"].startswith("emulator"):
-        from hsio.hardware import check_options  # each backend checks its own table
+    from hsio.hardware import check_options, check_url  # each backend checks its own table
 
+    try:
+        check_url(t["hardware"]["url"])
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: [hardware] url {str(exc).removeprefix('hardware URL ')}") from None
+    if t["hardware"]["url"].startswith("emulator"):
         try:
             check_options(t["hardware"]["url"], t["emulator"])
         except ConfigError as exc:

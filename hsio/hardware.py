@@ -32,15 +32,25 @@ def schemes() -> dict[str, str]:
     return found
 
 
-def _backend(url: str):
-    """The module and function that ``url``'s scheme names."""
+def check_url(url: str) -> str:
+    """The target (``module:function``) that ``url``'s scheme names; a malformed URL or an unknown
+    scheme raises ConfigError naming the URL and the known schemes. Nothing is imported."""
     try:
         scheme = urlsplit(url).scheme
     except ValueError as exc:
         raise ConfigError(f"hardware URL {url!r} is malformed ({exc})") from None
-    target = schemes().get(scheme)
+    known = schemes()
+    target = known.get(scheme)
     if target is None:
-        raise ConfigError(f"hardware URL {url!r}: unknown scheme {scheme!r}; known: {', '.join(sorted(schemes()))}")
+        hint = f" (did you mean {url.rstrip(':/') + '://'!r}?)" if url.rstrip(":/") in known else ""
+        raise ConfigError(f"hardware URL {url!r}: unknown scheme {scheme!r}{hint}; a URL is scheme://...; known "
+                          f"schemes: {', '.join(sorted(known))}")
+    return target
+
+
+def _backend(url: str):
+    """The module and function that ``url``'s scheme names."""
+    target = check_url(url)
     module_name, _, func = target.partition(":")
     try:
         module = importlib.import_module(module_name)

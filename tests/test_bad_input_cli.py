@@ -256,7 +256,6 @@ def test_a_specimen_id_is_a_plain_name(tmp_path, specimen_id, monkeypatch):
 # -- hardware URLs and [driver] ---------------------------------------------------------------------
 
 @pytest.mark.parametrize("url, driver, match", [
-    ("http://127.0.0.1:80", {}, "unknown scheme 'http'"),
     ("modbus+tcp://127.0.0.1:99999", {}, "Port out of range"),
     ("modbus+tcp://127.0.0.1:5020", {"stroke_mm": "x"}, "stroke_mm must be a number"),
     ("canopen+virtual://x/1", {"eds": "nope.eds"}, "eds = 'nope.eds' is not a readable file"),
@@ -281,6 +280,20 @@ def test_a_driver_table_with_the_emulator_is_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"\[driver\] stroke_mm is not read with 'emulator://'"):
         runner.run(c, tmp_path / "o")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("url, hint", [("emulator", "did you mean 'emulator://'"), ("ftp://x", "known schemes"),
+                                       ("http://127.0.0.1:80", "known schemes")])
+def test_a_url_without_a_known_scheme_is_named_as_the_files_hardware_url(tmp_path, url, hint):
+    """url = "emulator" (no ://) is named as [hardware] url of the file that gave it, not taken
+    for an error in the [emulator] table."""
+    path = tmp_path / "run.toml"
+    path.write_text(f'[hardware]\nurl = "{url}"\n')
+    with pytest.raises(ConfigError) as exc:
+        config.load(path)
+    message = str(exc.value)
+    assert message.startswith(f"{path}: [hardware] url '{url}': unknown scheme") and hint in message
+    assert "[emulator]" not in message
 
 
 def test_canopen_url_check_is_the_drivers():
