@@ -229,7 +229,9 @@ def peak_frequency(residual: np.ndarray, dt: float, lowest_hz: float = 0.5) -> f
 def context(record: ActuatorRecord, lag_s: float, residual_rms_mm: float, baseline_prediction: np.ndarray) -> Context:
     v_cmd = np.abs(record.command_velocity())
     force_peak = float(np.ptp(record.force_kN)) if record.force_kN is not None else 0.0
-    return Context(record, lag_s, residual_rms_mm, float(np.percentile(v_cmd, 99.9)),
+    # A command that moves in fewer than 0.1 % of its samples (steps) has a zero percentile: its largest speed then.
+    v_cmd_peak = float(np.percentile(v_cmd, 99.9)) or float(np.max(v_cmd))
+    return Context(record, lag_s, residual_rms_mm, v_cmd_peak,
                    float(np.percentile(_speed(record.measured_mm, record.dt), 99.9)),
                    float(np.percentile(_speed(baseline_prediction, record.dt), 99.9)), float(np.ptp(record.command_mm)), force_peak,
                    peak_frequency(record.measured_mm - baseline_prediction, record.dt))

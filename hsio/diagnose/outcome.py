@@ -4,6 +4,7 @@ choice among the candidates that clear the margin, and the verdict on the sensor
 
 from __future__ import annotations
 
+import math
 from typing import Callable, Sequence
 
 from hsio.diagnose import residual as residual_mod
@@ -21,6 +22,14 @@ def parsimonious(named: Sequence, error: Callable, size: Callable, order: Sequen
     return min(close, key=lambda c: (size(c), list(order).index(c.cause)))
 
 
+def ratio(before: float, after: float) -> float:
+    """The gain before / after of two RMS errors: infinite when a model predicts a block exactly
+    (noise-free data), 1 when neither leaves an error."""
+    if after > 0.0:
+        return before / after
+    return math.inf if before > 0.0 else 1.0
+
+
 def grow(current, names, may_join: Callable, fit_with: Callable, error: Callable, margin: float, most: int):
     """The best combination, grown greedily from the single cause ``current``: each round fits
     every effect of ``names`` that ``may_join`` on top (``fit_with(current, name)``) and adds the
@@ -31,7 +40,7 @@ def grow(current, names, may_join: Callable, fit_with: Callable, error: Callable
         if not trials:
             break
         trial = min(trials, key=error)
-        if error(current) / error(trial) < margin:
+        if ratio(error(current), error(trial)) < margin:
             break
         current = trial
     return current

@@ -23,11 +23,13 @@ import numpy as np
 
 from hsio.diagnose.record import ActuatorRecord
 from hsio.errors import RecordError
+from hsio.files import read_bounded
 
 CSV_REQUIRED = ("time_s", "command_mm", "measured_mm")
 CSV_OPTIONAL = ("force_kN",)
 FORMATS = ("csv", "daq", "run")
 STEP_TOLERANCE = 0.05  # a time step may differ from the median by this fraction (rounding)
+MAX_FILE_BYTES = 100_000_000  # about 1.5 to 3 million samples: an hour at 1 kHz, within a few GB of memory
 
 
 def _number(text: str, path, lineno: int, what: str) -> float:
@@ -57,14 +59,23 @@ def uniform_step(time_s: np.ndarray, lines: list[int], path) -> float:
     return (float(time_s[-1]) - float(time_s[0])) / (time_s.size - 1)
 
 
-def read_text(path: str | Path) -> tuple[Path, str]:
-    """The text of a record file (UTF-8, a byte-order mark allowed); a RecordError naming the
-    file when it cannot be read or is not UTF-8."""
+def read_bytes(path: str | Path) -> bytes:
+    """The bytes of a record file, at most MAX_FILE_BYTES of them; a RecordError naming the file
+    when it cannot be read, is not a regular file or is larger."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        return read_bounded(path, MAX_FILE_BYTES, lambda reason: RecordError(
+            f"{path}: {reason} (a record file holds at most {MAX_FILE_BYTES} bytes: cut a longer record "
+            "into parts)"))
     except OSError as exc:
         raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
+
+
+def read_text(path: str | Path) -> tuple[Path, str]:
+    """The text of a record file (UTF-8, a byte-order mark allowed); a RecordError naming the
+    file when it cannot be read, is larger than MAX_FILE_BYTES or is not UTF-8."""
+    path = Path(path)
+    raw = read_bytes(path)
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -148,10 +159,7 @@ def read_daq(path: str | Path, channels: DaqChannels | None = None) -> ActuatorR
     """A DAQ text export (SOURCES.md format): header, column names, sample rows with event text."""
     path = Path(path)
     ch = channels or DaqChannels()
-    try:
-        text = path.read_text(encoding="latin-1")
-    except OSError as exc:
-        raise RecordError(f"{path}: cannot read: {exc.strerror}") from None
+    text = read_bytes(path).decode("latin-1")
     all_lines = text.splitlines()
     if not all_lines or not all_lines[0].lower().startswith("header size"):
         raise RecordError(f"{path}:1: not a DAQ export (expected 'Header Size: n', got {all_lines[0][:40] if all_lines else ''!r})")

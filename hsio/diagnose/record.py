@@ -11,11 +11,13 @@ from hsio.errors import RecordError
 
 
 MIN_SAMPLES = 100
+MAX_MAGNITUDE = 1e6  # mm or kN: a kilometre, a giganewton; larger is no transducer's reading (wrong scale or column)
 
 
 def checked_channels(record, names: tuple[str, ...]) -> None:
     """Check a record's sampling interval and channels (``names``; None skipped): each one-dimensional,
-    finite and as long as the first, at least MIN_SAMPLES; store them as float arrays."""
+    finite, within MAX_MAGNITUDE and as long as the first, at least MIN_SAMPLES; store them as
+    float arrays."""
     if not (math.isfinite(record.dt) and record.dt > 0):
         raise RecordError(f"{record.source}: sampling interval must be positive, got {record.dt!r}")
     n = None
@@ -29,6 +31,10 @@ def checked_channels(record, names: tuple[str, ...]) -> None:
         bad = np.flatnonzero(~np.isfinite(a))
         if bad.size:
             raise RecordError(f"{record.source}: {name} sample {bad[0]} is {a[bad[0]]!r}")
+        huge = np.flatnonzero(np.abs(a) > MAX_MAGNITUDE)
+        if huge.size:
+            raise RecordError(f"{record.source}: {name} sample {huge[0]} is {a[huge[0]]:g}, beyond {MAX_MAGNITUDE:g} "
+                              "(mm or kN): no transducer reads that; check the column and its scale")
         if n is None:
             n = a.size
         elif a.size != n:

@@ -13,6 +13,7 @@ from scipy import signal
 from hsio.diagnose.effects import EFFECTS
 from hsio.diagnose.modelfile import write_model
 from hsio.diagnose.plotting import figure, label, mark_blocks, save
+from hsio.diagnose.outcome import ratio
 from hsio.diagnose.selection import NONE, UNEXPLAINED, Diagnosis
 from hsio.diagnose.timing import EXTRA_CHANNEL as TIMING_CHANNEL, OPEN
 
@@ -143,7 +144,7 @@ def text(d: Diagnosis, ev: dict) -> str:
             lines += [f"The lag alone reaches the sensor floor ({floor:.4f} mm: noise and quantisation, estimated from "
                       "the data); nothing is named.", ""]
         else:
-            lines += [f"Yet the baseline stays {d.structure.rms_test_mm / floor:.1f} times above the sensor floor "
+            lines += [f"Yet the baseline stays {ratio(d.structure.rms_test_mm, floor):.1f} times above the sensor floor "
                       f"({floor:.4f} mm): something the library does not hold is at work. "
                       f"{d.residual_json()['remains'].capitalize()}.", ""]
     else:

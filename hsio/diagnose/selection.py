@@ -26,13 +26,14 @@ from scipy import signal
 from hsio.diagnose.effects import EFFECTS, NAMES, Context, context
 from hsio.diagnose import residual as residual_mod
 from hsio.diagnose import timing as timing_mod
-from hsio.diagnose.outcome import NONE, PARSIMONY, UNEXPLAINED, Outcome, grow, parsimonious, scoring_text, unnamed  # noqa: F401
+from hsio.diagnose.outcome import NONE, PARSIMONY, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, Fit, blocks, fit
 from hsio.diagnose.record import ActuatorRecord
 from hsio.errors import RecordError
 from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10  # held-out RMS must fall by at least this factor for a cause to be named
+RATE_BOUNDS_HZ = (10.0, 1e6)  # an actuator record holds the controller-rate samples: at least 10 Hz
 HELPS = 1.01  # an effect whose single fit gains less than this on the choosing block joins no combination
 RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signature no delay mimics
 
@@ -82,7 +83,7 @@ class Diagnosis(Outcome):
 
     def residual_json(self) -> dict:
         s = self.structure
-        return {**self.floor.to_json(), "rms_test_mm": s.rms_test_mm, "floors": s.rms_test_mm / self.floor.sensor_floor_mm,
+        return {**self.floor.to_json(), "rms_test_mm": s.rms_test_mm, "floors": ratio(s.rms_test_mm, self.floor.sensor_floor_mm),
                 "explained": self.explained, "lines_hz": [line["hz"] for line in s.lines], "lines": s.lines,
                 "trend_mm_per_s": residual_mod.trend(self.record.measured_mm - self.baseline.prediction, self.record.dt),
                 "trend_after_mm_per_s": s.trend_mm_per_s, "trend_significant": s.trend_significant,
@@ -91,7 +92,7 @@ class Diagnosis(Outcome):
 
     @property
     def gain(self) -> float:
-        return self.baseline.rms_test_mm / self.extended.rms_test_mm
+        return ratio(self.baseline.rms_test_mm, self.extended.rms_test_mm)
 
     def to_json(self) -> dict:
         single = self.single
@@ -202,17 +203,25 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
         raise RecordError(f"train fraction must be in [0.1, 0.8], got {train_fraction}")
     if not 0.05 <= choose_fraction <= 0.95 - train_fraction:
         raise RecordError(f"choose fraction must be in [0.05, {0.95 - train_fraction:.2f}] (the rest scores), got {choose_fraction}")
+    if not RATE_BOUNDS_HZ[0] <= record.rate_hz <= RATE_BOUNDS_HZ[1]:
+        raise RecordError(f"{record.source}: sampled at {record.rate_hz:.6g} Hz; an actuator record holds the "
+                          f"controller-rate samples, within {RATE_BOUNDS_HZ[0]:g}..{RATE_BOUNDS_HZ[1]:g} Hz "
+                          "(is the time column in seconds?)")
     n_train, n_choose = blocks(record.n, train_fraction, choose_fraction)
     if np.ptp(record.command_mm[:n_train]) <= 0:
         raise RecordError(f"{record.source}: the command does not move in the training part")
+    if np.ptp(record.measured_mm[:n_train]) <= 0:
+        raise RecordError(f"{record.source}: the measured displacement does not move in the training part, while "
+                          "the command does: the actuator did not follow (hydraulics off, interlock) or the "
+                          "channel is not the displacement")
     baseline = fit_baseline(record, n_train)
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
     names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
     candidates = []
     for name in names:
         f = fit(record, (name,), ctx, n_train, EFFECTS[name].starts(ctx))
-        choose_gain = baseline.rms_choose_mm / f.rms_choose_mm
-        candidates.append(Candidate(name, f, baseline.rms_test_mm / f.rms_test_mm, choose_gain >= margin, choose_gain))
+        choose_gain = ratio(baseline.rms_choose_mm, f.rms_choose_mm)
+        candidates.append(Candidate(name, f, ratio(baseline.rms_test_mm, f.rms_test_mm), choose_gain >= margin, choose_gain))
     named = [c for c in candidates if c.named]
     floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
     if not named:

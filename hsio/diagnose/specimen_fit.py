@@ -24,7 +24,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from hsio.diagnose import residual as residual_mod
-from hsio.diagnose.outcome import NONE, UNEXPLAINED, Outcome, grow, parsimonious, scoring_text, unnamed  # noqa: F401 (re-exported)
+from hsio.diagnose.outcome import NONE, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401 (re-exported)
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, blocks, rms
 from hsio.diagnose.specimen_effects import EFFECTS, NAMES, Effect  # noqa: F401 (the library, re-exported)
 from hsio.diagnose.specimen_record import SpecimenRecord
@@ -34,6 +34,7 @@ from hsio.specimens.diagnosed import bouc_wen_step
 from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10
+RATE_BOUNDS_HZ = (1.0, 1e6)  # below 1 Hz no velocity or acceleration is seen; above 1 MHz no DAQ samples
 
 
 @dataclass(frozen=True)
@@ -58,7 +59,9 @@ def signals(record: SpecimenRecord) -> Signals:
     f995 = float(f[min(np.searchsorted(cum, 0.995), f.size - 1)])
     cutoff = min(max(4.0 * f995, 2.0), 0.3 * fs)
     b, a = signal.butter(4, cutoff, fs=fs)
-    us = signal.filtfilt(b, a, u)
+    # Padded (odd extension) over three periods of the cutoff: the filter's start-up transient,
+    # which lasts that long, then falls outside the record instead of on its first and last samples.
+    us = signal.filtfilt(b, a, u, padlen=min(u.size - 1, int(math.ceil(3.0 * fs / cutoff))))
     v = np.r_[0.0, np.diff(us)] / record.dt
     acc = np.r_[0.0, np.diff(v)] / record.dt
     v_ref = max(float(np.percentile(np.abs(v), 95)), 1e-9)
@@ -229,7 +232,7 @@ class SpecimenDiagnosis(Outcome):
 
     @property
     def gain(self) -> float:
-        return self.baseline.rms_test_kN / self.extended.rms_test_kN
+        return ratio(self.baseline.rms_test_kN, self.extended.rms_test_kN)
 
     def to_json(self) -> dict:
         s, fl = self.structure, self.floor
@@ -243,7 +246,7 @@ class SpecimenDiagnosis(Outcome):
             "combination": list(self.extended.effects), "extended": self.extended.summary(), "gain": self.gain,
             "candidates": [c.summary() for c in self.candidates],
             "residual": {"sensor_floor_kN": fl.sensor_floor_mm, "quantisation_kN": fl.quantisation_mm,
-                         "rms_test_kN": s.rms_test_mm, "floors": s.rms_test_mm / fl.sensor_floor_mm,
+                         "rms_test_kN": s.rms_test_mm, "floors": ratio(s.rms_test_mm, fl.sensor_floor_mm),
                          "explained": self.explained, "lines_hz": [x["hz"] for x in s.lines],
                          "lines": [{"hz": x["hz"], "amplitude_kN": x["amplitude_mm"]} for x in s.lines],
                          "trend_kN_per_s": s.trend_mm_per_s, "r2_motion": s.r2_motion, "correlations": s.correlations},
@@ -303,19 +306,25 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
                       choose_fraction: float = CHOOSE_FRACTION, margin: float = MARGIN,
                       effects: tuple[str, ...] | None = None, max_combination: int = 3) -> SpecimenDiagnosis:
     t0 = time.perf_counter()
+    if not RATE_BOUNDS_HZ[0] <= record.rate_hz <= RATE_BOUNDS_HZ[1]:
+        raise RecordError(f"{record.source}: sampled at {record.rate_hz:.6g} Hz; a specimen record's rate must be within "
+                          f"{RATE_BOUNDS_HZ[0]:g}..{RATE_BOUNDS_HZ[1]:g} Hz (is the time column in seconds?)")
     record = moving_part(record)
     sig, q = thinned(signals(record), record.force_kN)
     record = SpecimenRecord(record.source, sig.dt, record.displacement_mm[::q], record.force_kN[::q])
     n_train, n_choose = blocks(record.n, train_fraction, choose_fraction)
     if np.ptp(record.displacement_mm[:n_train]) <= 0:
         raise RecordError(f"{record.source}: the displacement does not move in the training part")
+    if np.ptp(record.force_kN[:n_train]) <= 0:
+        raise RecordError(f"{record.source}: the force does not change in the training part, while the displacement "
+                          "moves: the load cell reads nothing (its channel or scale?)")
     baseline = fit(sig, (), n_train, n_choose)
     names = list(effects or NAMES)
     candidates = []
     for name in names:
         f = fit(sig, (name,), n_train, n_choose, EFFECTS[name].starts(sig))
-        cg = baseline.rms_choose_kN / f.rms_choose_kN
-        candidates.append(SpecimenCandidate(name, f, baseline.rms_test_kN / f.rms_test_kN, cg, cg >= margin))
+        cg = ratio(baseline.rms_choose_kN, f.rms_choose_kN)
+        candidates.append(SpecimenCandidate(name, f, ratio(baseline.rms_test_kN, f.rms_test_kN), cg, cg >= margin))
     named = [c for c in candidates if c.named]
     floor = residual_mod.sensor_floor(record.displacement_mm, record.force_kN, record.force_kN - baseline.prediction, record.dt)
     # The displacement transducer's noise reaches the force prediction through the stiffness.

@@ -61,7 +61,9 @@ def write_csv(record: SpecimenRecord, path: str | Path) -> Path:
 
 def daq_segments(path: Path) -> list[int]:
     """Row indices (0-based, data rows) where the DAQ resumed after a pause."""
-    text = path.read_bytes().decode("latin-1")
+    from hsio.diagnose.readers import read_bytes
+
+    text = read_bytes(path).decode("latin-1")
     lines = text.splitlines()
     header_size = int(lines[0].split(":", 1)[1])
     starts, row = [], 0

@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+from hsio.diagnose.outcome import ratio
 from hsio.diagnose.specimen_fit import EFFECTS, NONE, UNEXPLAINED, SpecimenDiagnosis, specimen_table
 
 
@@ -82,7 +83,7 @@ def section(d: SpecimenDiagnosis) -> list[str]:
         lines += ["**Cause: none.** The spring and dashpot predict the force to within the sensor floor.", ""]
     elif d.cause == UNEXPLAINED:
         lines += [f"**Cause: unexplained.** No candidate improves the choosing block by {d.margin:g}x, yet the error "
-                  f"stays {d.structure.rms_test_mm / d.floor.sensor_floor_mm:.1f} times the sensor floor.", ""]
+                  f"stays {ratio(d.structure.rms_test_mm, d.floor.sensor_floor_mm):.1f} times the sensor floor.", ""]
     else:
         single = d.single
         e = EFFECTS[d.cause]
@@ -95,7 +96,7 @@ def section(d: SpecimenDiagnosis) -> list[str]:
                 lines.append(f"- {EFFECTS[name].title}: {EFFECTS[name].describe(d.extended.params)}. {EFFECTS[name].cause}.")
             lines.append("")
         if not d.explained:
-            lines += [f"What remains: RMS {d.structure.rms_test_mm:.4f} kN, {d.structure.rms_test_mm / d.floor.sensor_floor_mm:.1f} "
+            lines += [f"What remains: RMS {d.structure.rms_test_mm:.4f} kN, {ratio(d.structure.rms_test_mm, d.floor.sensor_floor_mm):.1f} "
                       f"times the sensor floor; the model does not explain everything.", ""]
     lines += ["| cause | choosing gain | scoring gain | parameters |", "| --- | --- | --- | --- |"]
     for c in d.candidates:
