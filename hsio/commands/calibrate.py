@@ -43,7 +43,7 @@ def calibrate(source: str, as_json: bool, plot_path: str | None, actuators: tupl
     except HsioError as exc:
         click.echo(f"hsio calibrate: error: {exc}", err=True)
         sys.exit(2)
-    for warning in cals[0].warnings:
+    for warning in dict.fromkeys(w for c in cals for w in c.warnings):  # a run's warnings once, then each actuator's
         click.echo(f"hsio calibrate: warning: {warning}", err=True)
     if as_json:
         if len(cals) == 1:

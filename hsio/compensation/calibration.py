@@ -25,6 +25,7 @@ from hsio.compensation.hockey_stick import D_MAX_MM, HockeyStick
 from hsio.errors import HsioError, RecordError
 
 CSV_COLUMNS = ("time_s", "command_mm", "measured_mm")
+T_D_BOUNDS_S = (1e-5, 1e4)  # the lab duration of one step: from a 100 kHz loop to a pseudo-dynamic test's hours
 
 
 @dataclass
@@ -52,20 +53,34 @@ class StepData:
 def read_csv(path: Path, t_d: float | None = None, test_rate: float | None = None) -> StepData:
     """One row per step, header ``time_s,command_mm,measured_mm``; uniform time steps (gaps,
     repeats and jitter are refused with the line, by the reader of hsio diagnose)."""
-    from hsio.diagnose.readers import read_csv as read_record
+    from hsio.diagnose.readers import read_csv_table
+    from hsio.diagnose.record import MAX_MAGNITUDE
 
-    record = read_record(path)
-    if record.command_mm.size < 5:
-        raise RecordError(f"{path}: {record.command_mm.size} data rows; a calibration needs at least 5 steps")
+    def header_error(fields):
+        return None if sorted(fields) == sorted(CSV_COLUMNS) else ",".join(CSV_COLUMNS)
+
+    path, col, dt = read_csv_table(path, header_error)
+    for name in ("command_mm", "measured_mm"):
+        huge = np.flatnonzero(np.abs(col[name]) > MAX_MAGNITUDE)
+        if huge.size:
+            raise RecordError(f"{path}: {name} of data row {huge[0] + 1} is {col[name][huge[0]]:g}, beyond "
+                              f"{MAX_MAGNITUDE:g} mm: no actuator moves that far; check the column")
+    if col["command_mm"].size < 5:
+        raise RecordError(f"{path}: {col['command_mm'].size} data rows; a calibration needs at least 5 steps")
     if t_d is None:
-        t_d = record.dt * (test_rate if test_rate else 1.0)
-    return StepData({"actuator": record.command_mm}, {"actuator": record.measured_mm}, float(t_d), [])
+        t_d = dt * (test_rate if test_rate else 1.0)
+    return StepData({"actuator": col["command_mm"]}, {"actuator": col["measured_mm"]}, float(t_d), [])
 
 
 def read_run(path: Path, t_d: float | None = None) -> StepData:
     from hsio.recording import Run
 
-    run = Run(path)
+    try:
+        run = Run(path)
+    except FileNotFoundError as exc:
+        raise RecordError(str(exc)) from None
+    except Exception as exc:  # sqlite3.DatabaseError and friends: an SQLite file that is no hsio run
+        raise RecordError(f"{path}: not an hsio recording: {exc}") from None
     warnings = []
     config = run.meta.get("config", {})
     test = config.get("test", {})
@@ -106,8 +121,9 @@ def calibrate(source: str | Path, actuators: list[str] | None = None, t_d: float
               test_rate: float | None = None, d_max_mm: float = D_MAX_MM, order: int = 1) -> list[Calibration]:
     """Fit eq. 1 to each actuator of a run (or the one of a CSV file)."""
     data = load(source, t_d, test_rate)
-    if not data.t_d > 0:
-        raise HsioError(f"{source}: step duration t_d must be positive, got {data.t_d!r}")
+    if not T_D_BOUNDS_S[0] <= data.t_d <= T_D_BOUNDS_S[1]:
+        raise HsioError(f"{source}: step duration t_d = {data.t_d!r} s is out of bounds: a step lasts "
+                        f"{T_D_BOUNDS_S[0]:g}..{T_D_BOUNDS_S[1]:g} s of lab time (is the time column in seconds?)")
     names = list(data.commands)
     if actuators:
         unknown = [a for a in actuators if a not in data.commands]
@@ -121,8 +137,26 @@ def calibrate(source: str | Path, actuators: list[str] | None = None, t_d: float
             fit = hockey_stick.fit(v, er, d_max_mm)
         except hockey_stick.FitError as exc:
             raise hockey_stick.FitError(f"{source}: actuator {name!r}: {exc}") from None
-        out.append(Calibration(name, fit, v, er, data.t_d, list(data.warnings)))
+        out.append(Calibration(name, fit, v, er, data.t_d, list(data.warnings) + undetermined(name, fit, v)))
     return out
+
+
+def undetermined(name: str, fit: HockeyStick, velocity: np.ndarray) -> list[str]:
+    """A warning when the data hardly determine the fit, by the acceptance test of the online
+    estimator (hsio/compensation/online.py): too few steps beyond the threshold, or b uncertain."""
+    from hsio.compensation.online import EstimatorSettings
+
+    s = EstimatorSettings()
+    beyond = int(np.count_nonzero(np.abs(velocity) > fit.a_mm_s))
+    rel = fit.b_std / fit.b_s_mm if fit.b_s_mm > 0 else float("inf")
+    if beyond >= s.min_beyond and rel <= s.max_rel_std:
+        return []
+    why = ("the run hardly moves faster than a: calibrate on a faster run (a lower test rate or a stronger record)"
+           if beyond < s.min_beyond else "the error does not follow the velocity as eq. 1 says: is the run "
+           "continuous, uncompensated and in displacement control?")
+    return [f"actuator {name!r}: the fit is poorly determined ({beyond} steps beyond the threshold a, b uncertain "
+            f"by {100 * rel:.0f} %; the online estimator accepts at least {s.min_beyond} and at most "
+            f"{100 * s.max_rel_std:.0f} %): {why}"]
 
 
 def plot(path: str | Path, calibrations: list[Calibration]) -> Path:
