@@ -24,6 +24,7 @@ from hsio.errors import ConfigError
 from hsio.setups.base import Factors, Setup
 
 POSE = ("ux", "uy", "theta")
+MIN_STROKE_RATIO = 0.01  # smallest singular value of the dimensionless J(0): a stroke error at most 100 times in d
 
 
 @dataclass(frozen=True)
@@ -60,10 +61,17 @@ class PlanarSetup(Setup):
             raise ConfigError("planar setup: an actuator has no length at rest (its two pins coincide)")
         # model -> lab: translations divide by the displacement factor, rotations do not
         self._scale = np.array([1.0 / self.factors.displacement if b != "theta" else 1.0 for b in self.basic])
-        J0 = self.jacobian(np.zeros(self.n_basic))
-        if np.linalg.matrix_rank(J0) < self.n_basic:
-            raise ConfigError("planar setup: the actuators cannot move every basic DOF (the Jacobian at rest is "
-                              "singular: parallel actuators through one point?)")
+        # Conditioning at rest in lab units, dimensionless: mm of stroke per mm of translation, and
+        # per mm of arc at the farthest pin for a rotation. Below MIN_STROKE_RATIO in some direction
+        # an actuator nearly square to its DOF would move it by a stroke's many times.
+        size = max(float(np.max(np.linalg.norm(self._r, axis=1))), 1.0)
+        J0 = self.jacobian(np.zeros(self.n_basic)) / self._scale / np.array([size if b == "theta" else 1.0 for b in self.basic])
+        weakest = float(np.linalg.svd(J0, compute_uv=False)[-1])
+        if not weakest >= MIN_STROKE_RATIO:
+            raise ConfigError(f"planar setup: the actuators cannot move every basic DOF (the Jacobian at rest is "
+                              f"singular or nearly: some motion of the element changes their strokes by only "
+                              f"{weakest:.3g} of its size, at least {MIN_STROKE_RATIO:g} is needed; an actuator square "
+                              "to its DOF, or parallel actuators through one point?)")
 
     def _pose(self, d) -> np.ndarray:
         d = np.asarray(d, dtype=float)
