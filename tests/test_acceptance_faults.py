@@ -64,3 +64,78 @@ def test_can_adapter_lost_mid_run_is_a_named_link_fault(monkeypatch, tmp_path, t
     assert 5 < steps < 300 // 20 + 2
     assert list(recorded.steps["step"]) == list(range(1, steps + 1))
 
+
+# --- hsio serve opensees: a client that trickles its bytes ------------------------------------
+
+def trickle(sock, data: bytes, gap_s: float, limit_s: float) -> float | None:
+    """Send ``data`` one byte every ``gap_s`` (each gap shorter than the server's timeout) until
+    the server closes the connection; the seconds it took, or None if it still listened after
+    ``limit_s``."""
+    import socket
+    import time
+
+    started = time.monotonic()
+    for byte in data:
+        try:
+            sock.sendall(bytes([byte]))
+        except OSError:
+            return time.monotonic() - started
+        sock.settimeout(gap_s)
+        try:
+            if sock.recv(1) == b"":
+                return time.monotonic() - started
+        except (TimeoutError, socket.timeout):
+            pass
+        except OSError:
+            return time.monotonic() - started
+        if time.monotonic() - started > limit_s:
+            return None
+    return None
+
+
+@pytest.fixture
+def opensees_server(tmp_path):
+    from test_opensees_support import QUIET, serving
+    from test_opensees_support import write_config as serve_config
+
+    with serving(serve_config(tmp_path, "validation", ["C1"], extra="timeout_s = 1.0\n" + QUIET)) as server:
+        yield server
+
+
+def test_a_setup_message_trickled_byte_by_byte_is_dropped_in_time(opensees_server):
+    """Each byte within the timeout, the whole setup message not: the connection is refused once
+    the timeout (here timeout_s = 1 s) is spent, so a few such clients cannot hold the setup
+    slots for minutes; a good client is served afterwards."""
+    from hsio.opensees import protocol as p
+    from test_opensees_support import RawClient, session_over, wait_for
+
+    c = RawClient(opensees_server.ports[0])
+    took = trickle(c.sock, p.element_setup(1).encode(), 0.2, limit_s=4.0)
+    c.close()
+    assert took is not None and took < 2.5, took
+    assert wait_for(lambda: any("no setup message in time" in line for line in opensees_server.lines))
+    good = RawClient(opensees_server.ports[0])
+    good.setup()
+    assert 0.3 < good.step(1.0, 0.01) < 0.9
+    good.send(p.DIE)
+    good.close()
+    assert wait_for(lambda: session_over(opensees_server))
+
+
+def test_a_message_trickled_byte_by_byte_ends_the_session_in_time(opensees_server):
+    """After a good step, a message whose bytes come one by one: the session ends after
+    timeout_s (the actuators hold, read back), its committed step kept."""
+    from hsio.opensees import protocol as p
+    from hsio.recording import Run
+    from test_opensees_support import RawClient, session_over, wait_for
+
+    c = RawClient(opensees_server.ports[0])
+    c.setup()
+    c.step(0.5, 0.01)
+    took = trickle(c.sock, b"\0" * 8 * c.data_size, 0.2, limit_s=4.0)
+    c.close()
+    assert took is not None and took < 2.5, took
+    assert wait_for(lambda: session_over(opensees_server))
+    assert opensees_server.lab.hold_message == "the actuators hold (confirmed by read-back)"
+    run = Run(Path(opensees_server.lab.settings.out) / "run.sqlite")
+    assert run.summary["steps"] == 1 and "silent for 1 s" in run.summary["end"]
