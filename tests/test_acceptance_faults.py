@@ -139,3 +139,45 @@ def test_a_message_trickled_byte_by_byte_ends_the_session_in_time(opensees_serve
     assert opensees_server.lab.hold_message == "the actuators hold (confirmed by read-back)"
     run = Run(Path(opensees_server.lab.settings.out) / "run.sqlite")
     assert run.summary["steps"] == 1 and "silent for 1 s" in run.summary["end"]
+
+
+# --- the emulated Modbus controller's late reply ----------------------------------------------
+
+def test_a_late_reply_does_not_apply_its_write_late(tmp_path):
+    """delay:S holds the reply, not the write (docs/faults.md): a host that gave up on a late
+    reply and then told the axis to hold finds it holding; the late write is not applied after
+    the hold (it would re-enable the axis towards a stale command)."""
+    import time
+
+    from pymodbus.client import ModbusTcpClient
+    from pymodbus.exceptions import ModbusException
+
+    from hsio.drivers import modbus_map
+    from hsio.emulators.faults import parse
+    from hsio.emulators.modbus import ModbusEmulator
+
+    bank = bank_from_config(write_config(tmp_path), lockstep=True, watchdog_s=0.0)
+    emu = ModbusEmulator(bank, modbus_map.load(), faults=parse("delay@0:0.8")).start()
+    regmap = emu.map
+    enable = regmap.command.registers["enable"]
+    address = regmap.command.address(0, "enable")
+    clients = [ModbusTcpClient("127.0.0.1", port=emu.port, timeout=0.2, retries=0) for _ in range(2)]
+    try:
+        late, host = clients
+        late.connect()
+        try:  # the first request: its reply comes 0.8 s late, after the client's 0.2 s
+            reply = late.write_registers(address, regmap.encode(enable, 1.0), device_id=regmap.device_id)
+            assert reply.isError()
+        except ModbusException:
+            pass
+        late.close()
+        host.connect()
+        assert not host.write_registers(address, regmap.encode(enable, 0.0), device_id=regmap.device_id).isError()
+        time.sleep(1.0)  # the late reply is long due
+        flags = bank.flags(0)
+        assert flags["holding"] and not flags["enabled"], flags
+    finally:
+        for c in clients:
+            c.close()
+        emu.stop()
+
