@@ -181,3 +181,17 @@ def test_a_late_reply_does_not_apply_its_write_late(tmp_path):
             c.close()
         emu.stop()
 
+
+def test_a_stuck_transducer_lasts_whole_ticks():
+    """stuck:N counts controller ticks: a fraction is refused by name (0.5 would have frozen the
+    reading for no tick at all, a fault counted as injected that did nothing)."""
+    from hsio.emulators.faults import parse
+    from hsio.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"'stuck@100:0\.5': '0\.5' is not a whole number"):
+        parse("stuck@100:0.5")
+    schedule = parse("stuck@100:3")
+    schedule.due(100)  # falls due: armed for the bank
+    readings = [schedule.measured(0, tick, float(tick)) for tick in range(100, 105)]
+    assert readings == [100.0, 100.0, 100.0, 103.0, 104.0]
+
