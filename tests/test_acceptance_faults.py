@@ -195,3 +195,30 @@ def test_a_stuck_transducer_lasts_whole_ticks():
     readings = [schedule.measured(0, tick, float(tick)) for tick in range(100, 105)]
     assert readings == [100.0, 100.0, 100.0, 103.0, 104.0]
 
+
+def test_a_server_started_again_on_its_records_folder_goes_on_numbering(tmp_path):
+    """The records of an earlier server (run.sqlite, run-2.sqlite) and a journal left beside a
+    missing run-3.sqlite: the first client of a new server is served, its session recorded in
+    run-4.sqlite, the earlier files untouched."""
+    from hsio.opensees import protocol as p
+    from hsio.recording import Run
+    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for
+    from test_opensees_support import write_config as serve_config
+
+    config = serve_config(tmp_path, "validation", ["C1"], extra="timeout_s = 2.0\n" + QUIET)
+    records = tmp_path / "records"
+    records.mkdir()
+    earlier = {name: f"earlier {name}".encode() for name in ("run.sqlite", "run-2.sqlite", "run-3.sqlite-wal")}
+    for name, content in earlier.items():
+        (records / name).write_bytes(content)
+    with serving(config) as server:
+        c = RawClient(server.ports[0])
+        c.setup()
+        assert 0.3 < c.step(1.0, 0.01) < 0.9
+        c.send(p.DIE)
+        c.close()
+        assert wait_for(lambda: session_over(server))
+        assert not any("cannot open" in line for line in server.lines), server.lines
+    assert Run(records / "run-4.sqlite").summary["steps"] == 1
+    assert not (records / "run-3.sqlite").exists()
+    assert {name: (records / name).read_bytes() for name in earlier} == earlier
