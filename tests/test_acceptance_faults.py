@@ -222,3 +222,38 @@ def test_a_server_started_again_on_its_records_folder_goes_on_numbering(tmp_path
     assert Run(records / "run-4.sqlite").summary["steps"] == 1
     assert not (records / "run-3.sqlite").exists()
     assert {name: (records / name).read_bytes() for name in earlier} == earlier
+
+
+def test_a_controller_gone_between_sessions_is_not_reported_holding(tmp_path):
+    """A session over Modbus ends with the hold read back; the controller then goes away and the
+    next client's session cannot open the actuators. The server goes on listening, and what it
+    says of the hold (its stop line) no longer claims the earlier read-back."""
+    from hsio.drivers import modbus_map
+    from hsio.emulators.modbus import ModbusEmulator
+    from hsio.opensees import protocol as p
+    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for
+    from test_opensees_support import write_config as serve_config
+
+    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True, watchdog_s=5.0),
+                         modbus_map.load()).start()
+    hardware = f'[hardware]\nclock = "lockstep"\nurl = "{emu.url}"\n[driver]\ntimeout_s = 0.2\nretries = 1\n'
+    config = serve_config(tmp_path, "validation", ["C1"], extra="timeout_s = 2.0\n" + QUIET + hardware)
+    try:
+        with serving(config) as server:
+            c = RawClient(server.ports[0])
+            c.setup()
+            assert 0.3 < c.step(1.0, 0.01) < 0.9
+            c.send(p.DIE)
+            c.close()
+            assert wait_for(lambda: session_over(server))
+            assert server.lab.hold_message == "the actuators hold (confirmed by read-back)"
+            emu.stop()
+            late = RawClient(server.ports[0])
+            late.setup()
+            assert late.closed_by_server()
+            late.close()
+            assert wait_for(lambda: any("cannot open the actuators" in line for line in server.lines))
+            assert "confirmed" not in server.lab.hold_message
+            assert server.lab.hold_message.startswith("the hold could not be read back: opening the actuators")
+    finally:
+        emu.stop()

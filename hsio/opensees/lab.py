@@ -182,11 +182,16 @@ class Lab:
         emulator = merged_emulator_table(hardware["actuator_model"], cfg["emulator"])
         compensation = CompensationStage(self.channels, test["rate"] * self.structure.dt,
                                          CompensationSettings.from_table(cfg["compensation"]))
-        self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
-                                  hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
-                                  keep_samples=cfg["output"]["samples"],
-                                  options=emulator if hardware["url"].startswith("emulator") else cfg["driver"],
-                                  compensation=compensation, safety=SafetySettings.from_table(cfg["safety"]))
+        try:
+            self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
+                                      hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
+                                      keep_samples=cfg["output"]["samples"],
+                                      options=emulator if hardware["url"].startswith("emulator") else cfg["driver"],
+                                      compensation=compensation, safety=SafetySettings.from_table(cfg["safety"]))
+        except BaseException as exc:  # an earlier session's read-back no longer tells how they stand
+            self.hold_message = (f"the hold could not be read back: opening the actuators for session {self.sessions} "
+                                 f"failed ({exc})")
+            raise
         meta = {"config": cfg.tables, "config_source": cfg.source, "structure": self.structure.name,
                 "source": "opensees genericClient", "elements": self.names, "channels": self.channels, "dt": self.structure.dt,
                 "test_rate": test["rate"], "length_factor": self.settings.length_factor,
