@@ -28,6 +28,7 @@ opening disables (halt, disable operation) every drive that may have been enable
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
@@ -35,6 +36,7 @@ import time
 from pathlib import Path
 from urllib.parse import urlsplit
 
+import can
 import canopen
 from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
@@ -47,6 +49,10 @@ from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedErr
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
 log = logging.getLogger(__name__)
+# canopen reports lost SDO responses, client aborts and a stopped receive thread on its own
+# logger; the driver retries and names each failure itself (the node, the object, the bus), so
+# those reports stay out of a terminal unless logging is configured.
+logging.getLogger("canopen").addHandler(logging.NullHandler())
 
 DEFAULT_OPTIONS = {"eds": "", "timeout_s": 0.5, "retries": 2, "heartbeat_ms": 100, "bitrate": 1000000,
                    "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "counts_per_mm": None,
@@ -103,7 +109,41 @@ def check_options(url: str, options: dict | None = None) -> None:
 def sdo_error(node_id: int, what: str, exc: Exception) -> CommunicationError:
     if isinstance(exc, SdoAbortedError):
         return SdoAbortError(f"CANopen node {node_id}: SDO {what} aborted with code 0x{exc.code:08X} ({exc})", exc.code)
+    if isinstance(exc, can.CanError):
+        return bus_error(f"CANopen node {node_id}", f"the SDO {what}", exc)
     return CommunicationError(f"CANopen node {node_id}: SDO {what} failed: {exc}")
+
+
+def bus_error(where: str, what: str, exc: BaseException) -> CommunicationError:
+    """The CAN bus itself failed (an adapter unplugged, the TCP link of an SLCAN adapter closed):
+    a link fault, named with python-can's reason and the one beneath it."""
+    cause = f": {exc.__cause__}" if exc.__cause__ is not None else ""
+    return CommunicationError(f"{where}: the CAN bus failed during {what} ({exc}{cause}); the adapter or its "
+                              "link is lost")
+
+
+class BusWatch(can.Listener):
+    """Notes the first error of the bus's receive thread (python-can's Notifier), which would
+    otherwise end that thread with a traceback on the terminal; the exchange raises it as a
+    :class:`~hsio.errors.CommunicationError`. The Notifier calls ``recv`` again after a handled
+    error, so each report waits a little: a dead adapter does not spin a core."""
+
+    RETRY_S = 0.05
+
+    def __init__(self):
+        self.error: BaseException | None = None
+
+    def on_message_received(self, msg) -> None:
+        pass
+
+    def on_error(self, exc: Exception) -> None:
+        if self.error is None:
+            self.error = exc
+            log.debug("CAN bus receive error: %r", exc)
+        time.sleep(self.RETRY_S)
+
+    def stop(self) -> None:
+        pass
 
 
 class DriveNode:
@@ -140,20 +180,22 @@ class DriveNode:
     def sdo_read(self, index: int, sub: int = 0, what: str = ""):
         """An SDO upload; an object missing from the local dictionary is read as an unsigned
         integer (so a drive that lacks it answers with its own abort)."""
+        self.link.check_bus(f"the SDO read of 0x{index:04X}:{sub} from node {self.id}")
         try:
             if index in self.node.object_dictionary:
                 obj = self.node.sdo[index]
                 return (obj[sub] if sub else obj).raw
             return int.from_bytes(self.node.sdo.upload(index, sub), "little")
-        except (SdoAbortedError, SdoCommunicationError) as exc:
+        except (SdoAbortedError, SdoCommunicationError, can.CanError) as exc:
             raise sdo_error(self.id, f"read of {what or hex(index)} (0x{index:04X}:{sub})", exc) from None
         except KeyError:
             raise CommunicationError(f"CANopen node {self.id}: object 0x{index:04X}:{sub} is not in its dictionary") from None
 
     def sdo_write(self, index: int, value, what: str = ""):
+        self.link.check_bus(f"the SDO write of 0x{index:04X} to node {self.id}")
         try:
             self.node.sdo[index].raw = value
-        except (SdoAbortedError, SdoCommunicationError) as exc:
+        except (SdoAbortedError, SdoCommunicationError, can.CanError) as exc:
             raise sdo_error(self.id, f"write of {what or hex(index)} (0x{index:04X}) = {value!r}", exc) from None
 
     def take_pdos(self) -> None:
@@ -264,7 +306,8 @@ class DriveNode:
         """RPDO2 through canopen's PDO map: target position 0x607A, target torque 0x6071."""
         self.rpdo2[0x607A].raw = self.target_counts
         self.rpdo2[0x6071].raw = self.target_torque
-        self.rpdo2.transmit()
+        with self.link.bus(f"the RPDO2 to node {self.id}"):
+            self.rpdo2.transmit()
 
     def send_control(self) -> bool:
         """RPDO1 (controlword with or without halt, mode); True when the drive confirmed it
@@ -272,7 +315,8 @@ class DriveNode:
         cw = 0x000F | (0x0100 if self.halt else 0)
         self.node.rpdo_pointers[0x6060].raw = MODE_CODES[self.mode]
         self.status_received.clear()
-        self.node.controlword = cw  # RPDO1 (event driven: transmitted at once)
+        with self.link.bus(f"the RPDO1 to node {self.id}"):
+            self.node.controlword = cw  # RPDO1 (event driven: transmitted at once)
         return self.status_received.wait(self.link.options["timeout_s"])
 
 
@@ -291,6 +335,22 @@ class CanopenLink(common.AxisLink):
         self.submitted: set[int] = set()
         self.requests = 0
         self.actuators: list = []
+        self.bus_watch = BusWatch()
+        self.network.listeners.append(self.bus_watch)
+
+    @contextlib.contextmanager
+    def bus(self, what: str):
+        """Around a transmission: a bus that failed (now, or in the receive thread before) is a
+        :class:`~hsio.errors.CommunicationError` naming it."""
+        self.check_bus(what)
+        try:
+            yield
+        except can.CanError as exc:
+            raise bus_error(self.url, what, exc) from None
+
+    def check_bus(self, what: str) -> None:
+        if self.bus_watch.error is not None:
+            raise bus_error(self.url, what, self.bus_watch.error)
 
     def open(self, enable: bool = True) -> None:
         """Connect and identify every drive (nothing enabled); then (``enable``) enable them."""
@@ -314,11 +374,12 @@ class CanopenLink(common.AxisLink):
             self.drives.append(drive)
             self.network.subscribe(0x700 + node_id, drive.on_bootup)
             drive.node.emcy.add_callback(drive.on_emcy)
-        for drive in self.drives:
-            self._identify(drive)
-            drive.booted = False  # a boot-up before this point is the drive's start, not a restart
-        if enable:
-            self.enable()
+        with self.bus("the start-up"):
+            for drive in self.drives:
+                self._identify(drive)
+                drive.booted = False  # a boot-up before this point is the drive's start, not a restart
+            if enable:
+                self.enable()
 
     def _read_optional(self, d: DriveNode, index: int, sub: int, what: str):
         """An object a drive may lack: None when it answers "does not exist" (an SDO abort)."""
@@ -379,8 +440,9 @@ class CanopenLink(common.AxisLink):
         return [d.limits(self.url, self.options) for d in self.drives]
 
     def enable(self) -> None:
-        for drive in self.drives:
-            self._enable_drive(drive)
+        with self.bus("the enabling of the drives"):
+            for drive in self.drives:
+                self._enable_drive(drive)
 
     def _enable_drive(self, d: DriveNode) -> None:
         """Heartbeat, PDOs, NMT operational, CiA 402 to OPERATION ENABLED in cyclic synchronous
@@ -458,11 +520,13 @@ class CanopenLink(common.AxisLink):
                 d.await_cycle(expected if self.lockstep else None)
                 d.check_events()
                 d.send_targets()
-            self.network.sync.transmit()
+            with self.bus("the SYNC"):
+                self.network.sync.transmit()
             self.requests += 1
             deadline = time.monotonic() + timeout
             if all(d.received.wait(max(deadline - time.monotonic(), 0.0)) for d in self.drives):
                 break
+            self.check_bus("the wait for the TPDOs")
         else:
             silent = [d.id for d in self.drives if not d.received.is_set()]
             beat = ", ".join(f"node {d.id}: last heartbeat {self._heartbeat_age(d)}" for d in self.drives if d.id in silent)
@@ -514,7 +578,8 @@ class CanopenActuator(Actuator, ActuatorChannels):
         d.target_torque = d.permille(fb.force_kN)
         d.send_targets()
         d.mode = mode
-        d.node.op_mode = MODE_NAMES[mode]  # logs rather than raises on failure: check 0x6061
+        with self.link.bus(f"the mode change of node {d.id}"):
+            d.node.op_mode = MODE_NAMES[mode]  # logs rather than raises on failure: check 0x6061
         shown = d.sdo_read(0x6061, what="modes of operation display")
         if shown != MODE_CODES[mode]:
             raise CommunicationError(f"CANopen node {d.id}: mode display {shown} after asking for {MODE_CODES[mode]}")

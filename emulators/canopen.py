@@ -430,6 +430,7 @@ class SlcanPort:
             except OSError:
                 continue
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._conn = conn
             while select.select([self._master], [], [], 0)[0]:  # frames sent before anyone listened are gone
                 os.read(self._master, 4096)
             with conn:
@@ -447,6 +448,19 @@ class SlcanPort:
                             conn.sendall(os.read(self._master, 4096))
                     except OSError:
                         break
+            self._conn = None
+
+    def drop(self) -> None:
+        """Close the present client's connection, as when an adapter is unplugged: the client
+        sees its link fail; the port goes on listening for the next one (TCP only)."""
+        import socket
+
+        conn = getattr(self, "_conn", None)
+        if conn is not None:
+            try:
+                conn.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
 
     def url(self, node_id: int) -> str:
         if self.kind == "tcp":

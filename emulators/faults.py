@@ -168,7 +168,8 @@ def parse(spec: str) -> FaultSchedule:
             raise ConfigError(f"--faults {item!r}: expected KIND@TICK or KIND@TICK:ARG")
         tick_text, _, arg_text = rest.partition(":")
         tick = _number(item, tick_text.strip(), int, 0, MAX_TICK)
-        arg = KINDS[kind] if not arg_text else _number(item, arg_text.strip(), float, 0.0, _arg_max(kind))
+        arg_kind = int if kind == "stuck" else float  # stuck:N counts ticks
+        arg = KINDS[kind] if not arg_text else float(_number(item, arg_text.strip(), arg_kind, 0, _arg_max(kind)))
         faults.append(Fault(kind, tick, arg))
         if len(faults) > MAX_FAULTS:
             raise ConfigError(f"--faults: more than {MAX_FAULTS} faults")

@@ -167,14 +167,19 @@ class RegisterContext(ModbusServerContext):
     async def async_setValues(self, device_id, func_code, address, values):
         self._accept(device_id)
         fault = self.bank.fault_due()
-        if fault is not None and fault.kind != "corrupt":
-            await self._fault(fault)
+        if fault is not None and fault.kind not in ("corrupt", "delay"):
+            await self._fault(fault)  # a lost request or a restart: nothing applied
         self._pending = fault if func_code == 23 else None
         result = self._set(func_code, address, values)
         if result is None and fault is not None and fault.kind == "duplicate":
             result = self._set(func_code, address, values)  # the same frame, applied again
         if result is None and fault is not None and fault.kind == "corrupt" and func_code != 23:
             await self._fault(fault, applied=True)  # the write's reply is lost
+        if fault is not None and fault.kind == "delay":
+            # The write is applied when it arrives; its reply (a write-then-read's too) is late.
+            # Held before applying, it would land after the host gave up on it, perhaps after
+            # the host told the axis to hold.
+            await self._fault(fault)
         return result
 
     def _set(self, func_code, address, values):

@@ -42,10 +42,13 @@ from hsio.errors import ConfigError, HsioError
 from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
-from hsio.recording import Recorder
+from hsio.recording import Recorder, RecordExistsError
 from hsio.safety.settings import SafetySettings
 from hsio.sites.actuators import RampStopped
 from hsio.structures import ExperimentalElement, Structure, channel_names
+
+
+MAX_SESSION_FILES = 100_000  # record names tried for one session
 
 
 def served_structure(structure: Structure, names) -> Structure:
@@ -179,25 +182,28 @@ class Lab:
         emulator = merged_emulator_table(hardware["actuator_model"], cfg["emulator"])
         compensation = CompensationStage(self.channels, test["rate"] * self.structure.dt,
                                          CompensationSettings.from_table(cfg["compensation"]))
-        self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
-                                  hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
-                                  keep_samples=cfg["output"]["samples"],
-                                  options=emulator if hardware["url"].startswith("emulator") else cfg["driver"],
-                                  compensation=compensation, safety=SafetySettings.from_table(cfg["safety"]))
-        out = Path(self.settings.out)
-        path = out / ("run.sqlite" if self.sessions == 1 else f"run-{self.sessions}.sqlite")
+        try:
+            self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
+                                      hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
+                                      keep_samples=cfg["output"]["samples"],
+                                      options=emulator if hardware["url"].startswith("emulator") else cfg["driver"],
+                                      compensation=compensation, safety=SafetySettings.from_table(cfg["safety"]))
+        except BaseException as exc:  # an earlier session's read-back no longer tells how they stand
+            self.hold_message = (f"the hold could not be read back: opening the actuators for session {self.sessions} "
+                                 f"failed ({exc})")
+            raise
         meta = {"config": cfg.tables, "config_source": cfg.source, "structure": self.structure.name,
                 "source": "opensees genericClient", "elements": self.names, "channels": self.channels, "dt": self.structure.dt,
                 "test_rate": test["rate"], "length_factor": self.settings.length_factor,
                 "force_factor": self.settings.force_factor, "force_correction": self.correct,
                 "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         try:
-            self.recorder = Recorder(path, self.channels, self.channels, meta)
+            self.recorder = self._new_record(Path(self.settings.out), meta)
         except BaseException:
             self.site.close()
             self.site = None
             raise
-        self.log(f"session {self.sessions}: actuators of {', '.join(self.names)} open; record {path}")
+        self.log(f"session {self.sessions}: actuators of {', '.join(self.names)} open; record {self.recorder.path}")
         if self.structure.static:
             loads = ", ".join(f"{s.name} {s.force_kN:g} kN" for s in self.structure.static)
             try:
@@ -207,6 +213,27 @@ class Lab:
                 self._close(self.failed)
                 raise
             self.log(f"session {self.sessions}: static preloads ramped in and held ({loads})")
+
+    def _new_record(self, out: Path, meta: dict) -> Recorder:
+        """The session's record: ``run.sqlite`` in ``out``, then ``run-2.sqlite``, ... the first
+        name that no record (nor a journal SQLite left beside one) takes, from this session's
+        number on; the session takes its number. A server started again on a folder with the
+        records of an earlier one goes on numbering after them: nothing is overwritten, and no
+        client is refused for it."""
+        k = self.sessions
+        for _ in range(MAX_SESSION_FILES):
+            path = out / ("run.sqlite" if k == 1 else f"run-{k}.sqlite")
+            if not any(Path(f"{path}{suffix}").exists() for suffix in ("", "-wal", "-journal")):
+                try:
+                    recorder = Recorder(path, self.channels, self.channels, meta)
+                except RecordExistsError:  # taken meanwhile by another process
+                    pass
+                else:
+                    self.sessions = k
+                    return recorder
+            k += 1
+        raise HsioError(f"{out}: no free record name among run-{self.sessions}.sqlite .. run-{k - 1}.sqlite; "
+                        "give the server another records folder (--out)")
 
     def _release_preloads(self, reason: str) -> None:
         """At the end of a session: the static preloads ramp off when every element ended with

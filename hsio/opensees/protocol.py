@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import socket
 import struct
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,16 +138,28 @@ def action_of(frame: np.ndarray, where: str) -> int:
 
 
 def recv_exact(sock: socket.socket, n_bytes: int, buffer: bytearray | None = None) -> bytes | bytearray:
-    """Exactly ``n_bytes`` from ``sock`` (its timeout applies to each read); :class:`PeerClosed` if
-    the peer closes first, at most ``n_bytes`` ever buffered."""
+    """Exactly ``n_bytes`` from ``sock``, all of them within the socket's timeout (a peer that
+    trickles a message byte by byte does not stretch it: :class:`TimeoutError` once it is spent);
+    :class:`PeerClosed` if the peer closes first, at most ``n_bytes`` ever buffered."""
     out = buffer if buffer is not None and len(buffer) == n_bytes else bytearray(n_bytes)
     view = memoryview(out)
+    timeout = sock.gettimeout()
+    deadline = None if timeout is None else time.monotonic() + timeout
     got = 0
-    while got < n_bytes:  # each pass reads at least one byte or ends
-        k = sock.recv_into(view[got:], n_bytes - got)
-        if k == 0:
-            raise PeerClosed("the element closed the connection" + (f" after {got} of {n_bytes} bytes" if got else ""))
-        got += k
+    try:
+        while got < n_bytes:  # each pass reads at least one byte or ends
+            if deadline is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"{got} of {n_bytes} bytes within {timeout:g} s")
+                sock.settimeout(left)
+            k = sock.recv_into(view[got:], n_bytes - got)
+            if k == 0:
+                raise PeerClosed("the element closed the connection" + (f" after {got} of {n_bytes} bytes" if got else ""))
+            got += k
+    finally:
+        if deadline is not None:
+            sock.settimeout(timeout)
     return out
 
 
