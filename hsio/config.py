@@ -25,8 +25,9 @@ DEFAULTS: dict[str, dict] = {
                    "switch_on": "stiffness", "K_f": 0.0, "K_d": 0.0, "R_f": 0.0, "R_d": 0.0,
                    # mixed control (docs/force_control.md, "Running it"): where K_f / K_d come from,
                    # and the guards of ImplicitMethod; the defaults are the behaviour without them
-                   "switch_rule": "initial_stiffness", "switch_margin": 3.0, "switch_hysteresis": 2.0,
-                   "switch_resolution_mm": 0.0, "switch_force_resolution_kN": 0.0,
+                   "switch_rule": "initial_stiffness", "switch_margin": 5.0, "switch_hysteresis": 2.0,
+                   "switch_resolution_mm": 0.0, "switch_force_resolution_kN": 0.0, "switch_noise_mm": 0.0,
+                   "switch_force_noise_kN": 0.0, "switch_max_hysteretic_ratio": 0.1,
                    "fc_blend": 1.0, "fc_fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False,
                    "explored_fraction": 0.0, "fc_force_limit_kN": 0.0, "anchor_dc": False, "blend_dc": False},
     "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
@@ -118,6 +119,9 @@ BOUNDS: dict[tuple[str, str], tuple[float, float, str]] = {
     ("integrator", "switch_hysteresis"): (1.0001, 100.0, ""),
     ("integrator", "switch_resolution_mm"): (0.0, 10.0, "mm"),
     ("integrator", "switch_force_resolution_kN"): (0.0, 100.0, "kN"),
+    ("integrator", "switch_noise_mm"): (0.0, 10.0, "mm"),
+    ("integrator", "switch_force_noise_kN"): (0.0, 100.0, "kN"),
+    ("integrator", "switch_max_hysteretic_ratio"): (0.0, 100.0, ""),
     ("integrator", "fc_blend"): (0.0001, 1.0, ""),
     ("integrator", "fc_fallback_after"): (0, 100, "commands"),
     ("integrator", "refractory_steps"): (0, 10**9, "steps"),
@@ -244,14 +248,16 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
 # rule that reads them; each is refused where no rule reads it rather than silently ignored.
 BY_STIFFNESS = ("K_f", "K_d")
 BY_FORCE = ("R_f", "R_d")
-BY_INSTRUMENTS = ("switch_margin", "switch_hysteresis", "switch_resolution_mm", "switch_force_resolution_kN")
+BY_INSTRUMENTS = ("switch_margin", "switch_hysteresis", "switch_resolution_mm", "switch_force_resolution_kN",
+                  "switch_noise_mm", "switch_force_noise_kN", "switch_max_hysteretic_ratio")
 
 
 def _check_switching(i: dict, source: str) -> None:
     """The switching keys apply to ``method = "mixed"`` only, and each to the rule that reads it:
     K_f / K_d to ``switch_on = "stiffness"``, R_f / R_d to ``switch_on = "force"`` (both with
-    ``switch_rule = "initial_stiffness"``), the margin, hysteresis and resolutions to
-    ``switch_rule = "instruments"``, which sets the thresholds on the stiffness itself."""
+    ``switch_rule = "initial_stiffness"``), the margin, hysteresis, resolutions, noises and the
+    hysteretic ratio to ``switch_rule = "instruments"``, which sets the thresholds on the stiffness
+    itself."""
     off = DEFAULTS["integrator"]
     given = [k for k in ("switch_on", "switch_rule") + BY_STIFFNESS + BY_FORCE + BY_INSTRUMENTS if i[k] != off[k]]
     if i["method"] != "mixed":

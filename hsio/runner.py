@@ -26,6 +26,7 @@ from hsio.experiment import ExperimentStopped
 from hsio.hardware import check_options
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
+from hsio.integrators.mixed import predicted_elastic
 from hsio.ledger import Ledger
 from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
@@ -97,42 +98,58 @@ def check_hardware(config: RunConfig) -> None:
     check_options(url, emulator if url.startswith("emulator") else config["driver"])
 
 
-def switch_resolutions(integrator: dict, emulator: dict) -> tuple[float, float]:
-    """delta_u (mm) and delta_F (kN) of ``switch_rule = "instruments"``: the [integrator] keys, or
-    (where 0) the emulated controller's transducer and load cell ([emulator] resolution_mm,
-    force_resolution_kN, or their defaults)."""
-    du, dF = integrator["switch_resolution_mm"], integrator["switch_force_resolution_kN"]
+def switch_instruments(integrator: dict, emulator: dict) -> tuple[float, float, float, float]:
+    """delta_u (mm), delta_F (kN), sigma_u (mm) and sigma_F (kN) of ``switch_rule = "instruments"``:
+    the [integrator] keys, or (where 0, with the emulated controller) its transducer's and load
+    cell's resolution and noise ([emulator] resolution_mm, force_resolution_kN, noise_mm,
+    force_noise_kN, or their defaults)."""
     servo = ServoConfig()
-    du = du if du > 0 else float(emulator.get("resolution_mm", servo.resolution_mm))
-    dF = dF if dF > 0 else float(emulator.get("force_resolution_kN", servo.force_resolution_kN))
-    if not (du > 0 and dF > 0):
-        raise ConfigError("[integrator] switch_rule = 'instruments' needs a transducer and a load-cell resolution "
-                          "above 0: set switch_resolution_mm and switch_force_resolution_kN")
-    return du, dF
+    keys = (("switch_resolution_mm", "resolution_mm"), ("switch_force_resolution_kN", "force_resolution_kN"),
+            ("switch_noise_mm", "noise_mm"), ("switch_force_noise_kN", "force_noise_kN"))
+    du, dF, su, sF = (integrator[key] if integrator[key] > 0 or emulator is None
+                      else float(emulator.get(own, getattr(servo, own))) for key, own in keys)
+    if not (du > 0 or su > 0) or not (dF > 0 or sF > 0):
+        raise ConfigError("[integrator] switch_rule = 'instruments' needs the transducer's and the load cell's "
+                          "resolution (or noise) above 0: set switch_resolution_mm and switch_force_resolution_kN")
+    return du, dF, su, sF
 
 
-def switching_rule(structure: Structure, integ: dict, emulator: dict | None = None) -> SwitchingRule:
+def switching_rule(structure: Structure, integ: dict, emulator: dict | None = None, ns=None) -> SwitchingRule:
     """K_f / K_d in kN/mm (0: 1.2 and 0.8 times each element's K^EI), or R_f / R_d in kN; with
-    ``switch_rule = "instruments"`` from the transducer's and the load cell's resolutions."""
+    ``switch_rule = "instruments"`` from the transducer's and the load cell's resolution and noise,
+    and FC only for the elements that the NS prediction ``ns`` finds elastic (its hysteretic ratio
+    below ``switch_max_hysteretic_ratio``; docs/force_control.md)."""
     n = len(structure.experimental)
     K_EI = [e.K_EI for e in structure.experimental]
     if integ["switch_rule"] == "instruments":
-        du, dF = switch_resolutions(integ, emulator or {})
-        return SwitchingRule.from_instruments(K_EI, du, dF, integ["switch_margin"], integ["switch_hysteresis"],
-                                              integ["tol_force_kN"])
+        du, dF, su, sF = switch_instruments(integ, emulator)
+        rule = SwitchingRule.from_instruments(K_EI, du, dF, integ["switch_margin"], integ["switch_hysteresis"], su, sF)
+        if needs_prediction(integ):
+            if ns is None:
+                raise ConfigError("[integrator] switch_max_hysteretic_ratio needs the NS prediction of the run")
+            rule = rule.never_fc(~predicted_elastic(ns, structure, integ["switch_max_hysteretic_ratio"]))
+        return rule
     if integ["switch_on"] == "force":
         lower = integ["R_d"] if integ["R_d"] > 0 else 0.5 * integ["R_f"]
         return SwitchingRule(np.full(n, integ["R_f"]), np.full(n, lower), "force")
     return SwitchingRule.from_initial_stiffness(K_EI, integ["K_f"], integ["K_d"])
 
 
-def integrator_options(config: RunConfig, structure: Structure) -> dict:
-    """The [integrator] and [test] keys as options of :func:`hsio.api.make_integrator`."""
+def needs_prediction(integ: dict) -> bool:
+    """Whether the switching rule reads the NS prediction (mixed, instruments rule, a hysteretic gate)."""
+    return (integ["method"] == "mixed" and integ["switch_rule"] == "instruments"
+            and integ["switch_max_hysteretic_ratio"] > 0)
+
+
+def integrator_options(config: RunConfig, structure: Structure, ns=None) -> dict:
+    """The [integrator] and [test] keys as options of :func:`hsio.api.make_integrator` (``ns``: the
+    NS prediction, read by the instruments rule of mixed control)."""
     integ = config["integrator"]
     if integ["method"] == "alpha_os":
         return {"correct_measured_displacement": config["test"]["measured_displacement_correction"]}
     emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
-    options = {"rule": switching_rule(structure, integ, emulator) if integ["method"] == "mixed" else None,
+    emulator = emulator if config["hardware"]["url"].startswith("emulator") else None
+    options = {"rule": switching_rule(structure, integ, emulator, ns) if integ["method"] == "mixed" else None,
                "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"],
                "tol_force": integ["tol_force_kN"], "fc_blend": integ["fc_blend"], "anchor_dc": integ["anchor_dc"],
                "blend_dc": integ["blend_dc"]}
@@ -302,10 +319,11 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             recorder.write_meta({"control_socket": str(server.path)})
         try:
             control.check_stop()
-            ns = report = None
-            if config["output"]["ns"] or safety.dry_run:
+            ns = report = predicted = None
+            if config["output"]["ns"] or safety.dry_run or needs_prediction(integ):
                 control.enter("NS")
                 ns, report = predict(config, structure, ground, control)
+                predicted = ns
                 if not safety.dry_run:
                     report = None
                 else:
@@ -343,7 +361,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             control.enter("HS")
             try:
                 hs = api.simulate(structure, ground, site, method, alpha, recorder, progress, control=control,
-                                  start=test["start"], **integrator_options(config, structure))
+                                  start=test["start"], **integrator_options(config, structure, predicted))
             except ExperimentStopped as exc:
                 hs, error = exc.result, exc
             control.enter("closing")

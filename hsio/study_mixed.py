@@ -18,8 +18,9 @@ The methods, as :func:`make_method` builds them from the instruments:
 * ``implicit_dc``: every element in DC;
 * ``force_control``: every element in FC, base displacement from the complementary estimate
   (``fc_blend``);
-* ``mixed``: thresholds from the instruments (:meth:`SwitchingRule.from_instruments`), the
-  complementary estimate in FC, non-converged FC steps finished in DC with a refractory period.
+* ``mixed``: thresholds from the instruments (:meth:`SwitchingRule.from_instruments`), FC only for
+  the elements NS predicts elastic, the complementary estimate in FC, non-converged FC steps
+  finished in DC with a refractory period.
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from hsio.errors import ConfigError
 from hsio.integrators import ImplicitMethod, SwitchingRule
+from hsio.integrators.mixed import predicted_elastic
 from hsio.structures import Structure, get_structure, sdof
 
 METHODS = ("implicit_dc", "force_control", "mixed")
@@ -40,8 +43,9 @@ STRUCTURES = ("structure_I", "structure_II", "structure_II_infill", "three_store
 class Recipe:
     """How the methods use the instruments (the defaults of ``hsio study mixed``)."""
 
-    margin: float = 3.0  # c in K_f = c max(delta_F, tol_F) / delta_u
+    margin: float = 5.0  # c in K_f = c s_F / s_u
     hysteresis: float = 2.0  # K_d = K_f / h
+    max_hysteretic_ratio: float = 0.1  # FC only for elements NS predicts elastic (0: no such gate)
     fc_blend: float = 0.01  # lambda of the complementary estimate
     fallback_after: int = 2  # FC commands before a non-converging FC element goes on in DC
     refractory_steps: int = 10**9  # an element that failed in FC stays in DC for the rest of the run
@@ -53,14 +57,23 @@ class Recipe:
 
 
 def make_method(structure: Structure, method: str, resolution_mm: float, force_resolution_kN: float,
-                recipe: Recipe = Recipe()) -> ImplicitMethod:
-    """The integrator of ``method`` for ``structure`` with the given instruments."""
+                recipe: Recipe = Recipe(), noise_mm: float = 0.0, force_noise_kN: float = 0.0,
+                ns=None) -> ImplicitMethod:
+    """The integrator of ``method`` for ``structure`` with the given instruments; in ``mixed``, the
+    elements that ``ns`` (NS of the same structure and record) predicts to dissipate energy never
+    go to FC (:func:`hsio.integrators.mixed.predicted_elastic`)."""
     K_EI = [e.K_EI for e in structure.experimental]
     r = recipe
     rule = None
     if method == "mixed":
         rule = SwitchingRule.from_instruments(K_EI, resolution_mm, force_resolution_kN, r.margin, r.hysteresis,
-                                              r.tol_force)
+                                              noise_mm, force_noise_kN)
+        if r.max_hysteretic_ratio > 0:
+            if ns is None:
+                raise ConfigError("mixed: give ns= (NS of the same structure and record) for the prediction of "
+                                  "which elements stay elastic, or Recipe(max_hysteretic_ratio=0) to let every "
+                                  "element go to FC")
+            rule = rule.never_fc(~predicted_elastic(ns, structure, r.max_hysteretic_ratio))
     blend = r.fc_blend if method != "implicit_dc" else 1.0
     extra = {}
     if method == "mixed":
@@ -107,6 +120,7 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
     feed-forward compensation of the actuators in displacement control, a new stage per run."""
     from hsio.api import open_site, run_numerical, simulate
     from hsio.compensation.stage import CompensationSettings, CompensationStage
+    from hsio.emulators.servo import ServoConfig
     from hsio.experiment import ExperimentStopped
     from hsio.result import max_error_pct
     from hsio.structures import channel_names
@@ -120,9 +134,11 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
     if noise_mm is not None:
         options["noise_mm"] = resolution_mm if noise_mm == "resolution" else float(noise_mm)
     k0 = float(max(e.K_EI for e in structure.experimental))
+    servo = ServoConfig()
+    noise = (float(options.get("noise_mm", servo.noise_mm)), float(options["force_noise_kN"]))
     rows = []
     for method in methods:
-        integrator = make_method(structure, method, resolution_mm, force_resolution_kN, recipe)
+        integrator = make_method(structure, method, resolution_mm, force_resolution_kN, recipe, *noise, ns=ns)
         stage = None
         if compensation is not None:
             stage = CompensationStage(channel_names(structure), test_rate * structure.dt,

@@ -45,27 +45,65 @@ def test_every_key_runs_and_reaches_the_integrator(tmp_path):
     out = _run(tmp_path, MIXED, INSTRUMENTS)
     assert out.exit_code == 0, out.output
     summary = json.loads((tmp_path / "c.toml.out" / "summary.json").read_text())
-    # K_f = c max(delta_F, tol_F) / delta_u = 3 x 0.05 / 0.025, K_d = K_f / 2, per element (BF, IF)
-    assert summary["thresholds"]["upper"] == pytest.approx([6.0, 6.0])
-    assert summary["thresholds"]["lower"] == pytest.approx([3.0, 3.0])
+    # K_f = c s_F / s_u, s = sqrt(noise^2 + resolution^2 / 12): 3 x 0.010408 / 0.012360, K_d = K_f / 2,
+    # per element (BF, IF); this 0.25 s record cracks the infill in NS (0.61 mm against 0.49 mm),
+    # so IF never goes to FC (its upper threshold None)
+    s_F, s_u = (0.01**2 + 0.01**2 / 12) ** 0.5, (0.01**2 + 0.025**2 / 12) ** 0.5
+    assert summary["thresholds"]["upper"] == [pytest.approx(3 * s_F / s_u), None]
+    assert summary["thresholds"]["lower"] == pytest.approx([1.5 * s_F / s_u] * 2)
     assert summary["method"] == "mixed"
 
 
+def test_a_wall_that_ns_finds_hysteretic_never_goes_to_fc(tmp_path):
+    """Structure I's pinched wood wall with a 0.001 kN load cell: the instruments alone would put
+    it in FC (K_f = 5 x 0.00104 / 0.0124 = 0.42 kN/mm, below its 2.6), but NS finds it dissipating
+    energy, so its K_f is infinite (null) and no step runs in FC, with [output] ns and the dry run
+    both off (the rule computes NS itself)."""
+    tables = {"structure": {"name": "structure_I"}, "record": {"synthetic_duration_s": 0.5},
+              "test": {"rate": 10.0}, "output": {"plots": False, "ns": False}, "safety": {"dry_run": False},
+              "integrator": {"method": "mixed", "switch_rule": "instruments"},
+              "emulator": {"force_resolution_kN": 0.001, "force_noise_kN": 0.001}}
+    cfg = tmp_path / "wall.toml"
+    cfg.write_text(_toml(tables))
+    out = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "wall")])
+    assert out.exit_code == 0, out.output
+    summary = json.loads((tmp_path / "wall" / "summary.json").read_text())
+    assert summary["thresholds"]["upper"] == [None]
+    assert summary["fc_step_fraction"] == [0.0] and summary["switches"] == 0
+    tables["integrator"]["switch_max_hysteretic_ratio"] = 0.0  # the gate off: the instruments put it in FC
+    cfg.write_text(_toml(tables))
+    out = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "ungated")])
+    summary = json.loads((tmp_path / "ungated" / "summary.json").read_text())
+    assert summary["thresholds"]["upper"][0] == pytest.approx(5 * (0.001**2 * 13 / 12) ** 0.5 / (0.01**2 + 0.025**2 / 12) ** 0.5)
+    assert summary["fc_step_fraction"][0] > 0
+
+
 def test_the_integrator_gets_the_guards():
+    from hsio.api import run_numerical
+    from hsio.ground_motion import synthetic_record
     from hsio.runner import integrator_options
     from hsio.structures import get_structure
 
+    structure = get_structure("structure_II_infill")
+    elastic = run_numerical(structure, synthetic_record(duration_s=2.0, dt=structure.dt, pga_g=0.05, seed=1994))
     cfg = from_dict({"structure": {"name": "structure_II_infill"}, "integrator": MIXED,
                      "emulator": {"resolution_mm": 0.0025, "force_resolution_kN": 0.02}})
-    options = integrator_options(cfg, get_structure("structure_II_infill"))
+    options = integrator_options(cfg, structure, elastic)
     assert options["fallback_after"] == 2 and options["refractory_steps"] == 1000 and options["no_fc_at_reversal"]
     assert options["fc_blend"] == 0.01 and options["explored_fraction"] == 0.9 and options["fc_force_limit"] == 30.0
     assert options["anchor_dc"] and options["blend_dc"]
-    assert options["rule"].upper.tolist() == pytest.approx([3 * 0.05 / 0.0025] * 2)  # from the [emulator] instruments
-    explicit = from_dict({"integrator": {**MIXED, "switch_resolution_mm": 0.01, "switch_force_resolution_kN": 0.1},
+    # from the [emulator] instruments: resolutions as given, the noises the emulator's defaults
+    # (0.01 mm, 0.002 kN); c = 3 from MIXED
+    s_u, s_F = (0.01**2 + 0.0025**2 / 12) ** 0.5, (0.002**2 + 0.02**2 / 12) ** 0.5
+    assert options["rule"].upper.tolist() == pytest.approx([3 * s_F / s_u] * 2)
+    explicit = from_dict({"integrator": {**MIXED, "switch_resolution_mm": 0.01, "switch_force_resolution_kN": 0.1,
+                                         "switch_noise_mm": 0.02, "switch_force_noise_kN": 0.05},
                           "structure": {"name": "structure_II_infill"}})
-    rule = integrator_options(explicit, get_structure("structure_II_infill"))["rule"]
-    assert rule.upper.tolist() == pytest.approx([30.0, 30.0]) and rule.lower.tolist() == pytest.approx([15.0, 15.0])
+    rule = integrator_options(explicit, structure, elastic)["rule"]
+    K_f = 3 * (0.05**2 + 0.1**2 / 12) ** 0.5 / (0.02**2 + 0.01**2 / 12) ** 0.5
+    assert rule.upper.tolist() == pytest.approx([K_f] * 2) and rule.lower.tolist() == pytest.approx([K_f / 2] * 2)
+    with pytest.raises(ConfigError, match="needs the NS prediction"):
+        integrator_options(cfg, structure)
 
 
 @pytest.mark.parametrize("key, value, says", [
@@ -84,6 +122,9 @@ def test_the_integrator_gets_the_guards():
     ("fc_force_limit_kN", -5.0, "fc_force_limit_kN = -5.0 is out of bounds"),
     ("anchor_dc", "yes", "anchor_dc must be true or false"),
     ("blend_dc", 0, "blend_dc must be true or false"),
+    ("switch_noise_mm", -0.01, "switch_noise_mm = -0.01 is out of bounds"),
+    ("switch_force_noise_kN", 1e3, "switch_force_noise_kN = 1000.0 is out of bounds"),
+    ("switch_max_hysteretic_ratio", -0.1, "switch_max_hysteretic_ratio = -0.1 is out of bounds"),
 ])
 def test_bad_integrator_values_exit_2_naming_the_key(tmp_path, key, value, says):
     out = _run(tmp_path, {**MIXED, "blend_dc": False, key: value})
@@ -118,7 +159,8 @@ def test_guards_of_mixed_are_refused_with_other_methods():
 
 # The keys that only mixed control reads (its guards and switching rule); each left at its default is off.
 MIXED_ONLY = MIXED_GUARDS + ("switch_on", "switch_rule", "switch_margin", "switch_hysteresis", "switch_resolution_mm",
-                             "switch_force_resolution_kN", "K_f", "K_d", "R_f", "R_d")
+                             "switch_force_resolution_kN", "switch_noise_mm", "switch_force_noise_kN",
+                             "switch_max_hysteretic_ratio", "K_f", "K_d", "R_f", "R_d")
 
 
 @pytest.mark.parametrize("method", ["alpha_os", "implicit_dc", "force_control"])

@@ -77,12 +77,12 @@ def test_structure_II_infill_ships():
 
 # -- thresholds --------------------------------------------------------------------------------
 def test_thresholds_from_instruments():
-    """K_f = c max(delta_F, tol_F) / delta_u, K_d = K_f / h."""
+    """K_f = c s_F / s_u, K_d = K_f / h (without noise s is resolution / sqrt(12): their ratio)."""
     rule = SwitchingRule.from_instruments([7.2, 122.6], 0.025, 0.01, margin=20.0, hysteresis=2.0)
     assert rule.upper.tolist() == pytest.approx([8.0, 8.0])
     assert rule.lower.tolist() == pytest.approx([4.0, 4.0])
-    rule = SwitchingRule.from_instruments([2.6], 0.025, 0.01, margin=20.0, tol_force=0.05)
-    assert rule.upper[0] == pytest.approx(40.0)
+    rule = SwitchingRule.from_instruments([2.6], 0.025, 0.01, margin=20.0, noise_mm=0.025 * 3 / 12**0.5)
+    assert rule.upper[0] == pytest.approx(8.0 / 10**0.5)  # s_u grows by sqrt(1 + 9)
     with pytest.raises(ConfigError):
         SwitchingRule.from_instruments([2.6], 0.025, 0.01, hysteresis=1.0)
 

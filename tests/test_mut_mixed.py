@@ -5,6 +5,8 @@ reads (switches, non-converged steps), each checked against the rule as document
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -17,11 +19,17 @@ DC, FC = ControlMode.DISPLACEMENT, ControlMode.FORCE
 
 
 # -- the rule's thresholds -----------------------------------------------------------------------
-@pytest.mark.parametrize("upper, lower", [([np.nan], [1.0]), ([2.0], [np.nan]), ([np.inf], [1.0]),
-                                          ([2.0], [-1.0])])
+@pytest.mark.parametrize("upper, lower", [([np.nan], [1.0]), ([2.0], [np.nan]), ([-np.inf], [1.0]),
+                                          ([2.0], [np.inf]), ([2.0], [-1.0])])
 def test_rule_refuses_thresholds_that_are_not_finite_or_negative(upper, lower):
-    with pytest.raises(ConfigError, match="finite and not negative"):
+    with pytest.raises(ConfigError, match="thresholds must be finite"):
         SwitchingRule(np.array(upper), np.array(lower))
+
+
+def test_an_infinite_upper_threshold_keeps_the_element_in_dc():
+    rule = SwitchingRule.from_initial_stiffness([2.0, 2.0], K_f=3.0, K_d=1.0).never_fc([True, False])
+    assert rule.upper.tolist() == [np.inf, 3.0] and rule.lower.tolist() == [1.0, 1.0]
+    assert rule.next_modes([DC, DC], np.array([1e12, 1e12]), np.zeros(2)) == [DC, FC]
 
 
 def test_rule_refuses_lower_not_below_upper():
@@ -40,23 +48,29 @@ def test_explicit_thresholds_below_one_kn_per_mm_are_kept():
 
 
 def test_thresholds_from_instruments_closed_form():
-    """K_f = c max(delta_F, tol_F) / delta_u and K_d = K_f / h (h = 2 unless given: the default of
-    docs/config.md's switch_hysteresis); a margin below 1 is allowed (positive)."""
-    rule = SwitchingRule.from_instruments([7.2], 0.025, 0.01, margin=3.0)
+    """K_f = c s_F / s_u with s = sqrt(sigma^2 + delta^2 / 12), K_d = K_f / h (h = 2 unless given:
+    the default of docs/config.md's switch_hysteresis); a margin below 1 is allowed (positive)."""
+    rule = SwitchingRule.from_instruments([7.2], 0.025, 0.01, margin=3.0)  # no noise: the resolutions' ratio
     assert rule.upper[0] == pytest.approx(3.0 * 0.01 / 0.025)
     assert rule.lower[0] == pytest.approx(rule.upper[0] / 2.0)
     rule = SwitchingRule.from_instruments([7.2, 1.0, 3.0], 0.05, 0.02, margin=0.5, hysteresis=4.0)
     assert rule.upper.tolist() == pytest.approx([0.2] * 3) and rule.lower.tolist() == pytest.approx([0.05] * 3)
     assert rule.on == "stiffness"
+    rule = SwitchingRule.from_instruments([7.2], 0.0025, 0.002, margin=5.0, noise_mm=0.01, force_noise_kN=0.002)
+    s_u, s_F = math.sqrt(0.01**2 + 0.0025**2 / 12), math.sqrt(0.002**2 + 0.002**2 / 12)
+    assert rule.upper[0] == pytest.approx(5.0 * s_F / s_u)  # 1.04 kN/mm
+    rule = SwitchingRule.from_instruments([7.2], 0.0, 0.0, noise_mm=0.01, force_noise_kN=0.003)  # noise alone
+    assert rule.upper[0] == pytest.approx(5.0 * 0.003 / 0.01)
 
 
 @pytest.mark.parametrize("kwargs", [dict(resolution_mm=0.0), dict(resolution_mm=-0.025),
-                                    dict(force_resolution_kN=0.0, tol_force=0.05),
-                                    dict(force_resolution_kN=-0.01, tol_force=0.05),
+                                    dict(force_resolution_kN=0.0), dict(force_resolution_kN=-0.01),
+                                    dict(noise_mm=-0.01), dict(force_noise_kN=np.nan),
                                     dict(margin=0.0), dict(hysteresis=1.0), dict(hysteresis=0.5)])
 def test_instrument_rule_refuses_bad_instruments_with_a_config_error(kwargs):
-    """A transducer or load cell of zero resolution, no margin, or no hysteresis: a ConfigError
-    naming the rule (never a ZeroDivisionError or thresholds that chatter)."""
+    """A transducer or load cell with neither resolution nor noise, a negative or undefined one,
+    no margin, or no hysteresis: a ConfigError naming the rule (never a ZeroDivisionError or
+    thresholds that chatter)."""
     args = dict(K_EI=[7.2], resolution_mm=0.025, force_resolution_kN=0.01, margin=3.0, hysteresis=2.0)
     args.update(kwargs)
     with pytest.raises(ConfigError, match="switching rule"):
@@ -64,8 +78,12 @@ def test_instrument_rule_refuses_bad_instruments_with_a_config_error(kwargs):
 
 
 def test_instrument_rule_error_names_what_is_wrong():
-    with pytest.raises(ConfigError, match="^switching rule: resolutions and margin must be positive, hysteresis above 1$"):
+    with pytest.raises(ConfigError, match="^switching rule: the transducer and the load cell each need a resolution "
+                                          "or a noise above 0$"):
         SwitchingRule.from_instruments([7.2], 0.0, 0.01)
+    with pytest.raises(ConfigError, match="^switching rule: resolutions and noises must be zero or positive, margin "
+                                          "positive, hysteresis above 1$"):
+        SwitchingRule.from_instruments([7.2], -1.0, 0.01)
 
 
 from exact_site import ExactSite as _Site  # noqa: E402
@@ -401,8 +419,8 @@ def test_a_guard_of_mixed_is_refused_with_another_method(method, guard):
     ImplicitMethod(np.eye(1), np.zeros((1, 1)), None, [0], [1.0], 0.01, -0.05, "mixed", **guard)  # accepted
 
 
-def test_the_instrument_rule_default_margin_is_the_documented_three():
+def test_the_instrument_rule_default_margin_is_the_documented_five():
     from hsio.integrators import SwitchingRule
 
     rule = SwitchingRule.from_instruments([100.0], 0.025, 0.01)
-    assert rule.upper[0] == pytest.approx(3.0 * 0.01 / 0.025) and rule.lower[0] == pytest.approx(rule.upper[0] / 2)
+    assert rule.upper[0] == pytest.approx(5.0 * 0.01 / 0.025) and rule.lower[0] == pytest.approx(rule.upper[0] / 2)

@@ -51,8 +51,10 @@ class SwitchingRule:
             raise ConfigError(f"switching rule: 'on' must be 'stiffness' or 'force', got {self.on!r}")
         upper = np.atleast_1d(np.asarray(self.upper, dtype=float))
         lower = np.atleast_1d(np.asarray(self.lower, dtype=float))
-        if np.any(~np.isfinite(upper)) or np.any(~np.isfinite(lower)) or np.any(lower < 0):
-            raise ConfigError(f"switching rule: thresholds must be finite and not negative, got {upper}, {lower}")
+        # upper = +inf: the element never goes to FC (e.g. a specimen predicted to dissipate energy)
+        if np.any(np.isnan(upper)) or np.any(upper == -np.inf) or np.any(~np.isfinite(lower)) or np.any(lower < 0):
+            raise ConfigError(f"switching rule: thresholds must be finite (the upper one may be infinite: never "
+                              f"FC) and not negative, got {upper}, {lower}")
         if np.any(lower >= upper):
             raise ConfigError(f"switching rule: the lower threshold (to DC, {lower.tolist()}) must be below "
                               f"the upper one (to FC, {upper.tolist()})")
@@ -69,22 +71,37 @@ class SwitchingRule:
         return cls(upper, lower, "stiffness")
 
     @classmethod
-    def from_instruments(cls, K_EI, resolution_mm: float, force_resolution_kN: float, margin: float = 3.0,
-                         hysteresis: float = 2.0, tol_force: float = 0.0) -> "SwitchingRule":
+    def from_instruments(cls, K_EI, resolution_mm: float, force_resolution_kN: float, margin: float = 5.0,
+                         hysteresis: float = 2.0, noise_mm: float = 0.0, force_noise_kN: float = 0.0) -> "SwitchingRule":
         """Thresholds from the instruments (docs/force_control.md, "choosing K_f and K_d").
 
-        In DC the transducer's resolution delta_u becomes a force error k delta_u on a branch of
-        stiffness k; in FC the force error is the load cell's delta_F (or the force tolerance of
-        the iteration, whichever is larger). FC pays off where k delta_u > c delta_F with a margin
-        c that covers what FC costs besides (a slower force loop, a secant iteration that
-        converges linearly, E&M 2007 section 3): K_f = c delta_F / delta_u, and K_d = K_f / h with
-        h > 1 the hysteresis. Both are per element (the same instruments on every actuator).
+        In DC the transducer's uncertainty s_u becomes a force error k s_u on a branch of stiffness
+        k (it enters the base of eq. 9 every step); in FC the force error is the load cell's s_F.
+        Each instrument's standard uncertainty combines its noise (standard deviation sigma) and
+        its resolution delta (a uniform quantisation error, delta / sqrt(12)):
+        s = sqrt(sigma^2 + delta^2 / 12). FC pays off where k s_u > c s_F, with a margin c that
+        covers what FC costs besides (a force loop tuned on K^EI, a secant iteration that
+        converges linearly, E&M 2007 section 3): K_f = c s_F / s_u, and K_d = K_f / h with h > 1
+        the hysteresis. Both are per element (the same instruments on every actuator).
         """
-        if not (resolution_mm > 0 and force_resolution_kN > 0 and margin > 0 and hysteresis > 1):
-            raise ConfigError("switching rule: resolutions and margin must be positive, hysteresis above 1")
+        values = (resolution_mm, force_resolution_kN, noise_mm, force_noise_kN, margin, hysteresis)
+        if not all(np.isfinite(values)) or not (margin > 0 and hysteresis > 1) or min(values[:4]) < 0:
+            raise ConfigError("switching rule: resolutions and noises must be zero or positive, margin positive, "
+                              "hysteresis above 1")
+        s_u, s_F = instrument_uncertainty(resolution_mm, noise_mm), instrument_uncertainty(force_resolution_kN,
+                                                                                           force_noise_kN)
+        if not (s_u > 0 and s_F > 0):
+            raise ConfigError("switching rule: the transducer and the load cell each need a resolution or a noise "
+                              "above 0")
         K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
-        K_f = margin * max(force_resolution_kN, tol_force) / resolution_mm
+        K_f = margin * s_F / s_u
         return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness")
+
+    def never_fc(self, elements) -> "SwitchingRule":
+        """This rule with the given elements (a boolean mask) kept in DC: their upper threshold is
+        infinite."""
+        keep = np.broadcast_to(np.asarray(elements, dtype=bool), self.upper.shape)
+        return SwitchingRule(np.where(keep, np.inf, self.upper), self.lower, self.on)
 
     def next_modes(self, modes: list[ControlMode], k: np.ndarray, R: np.ndarray) -> list[ControlMode]:
         q = np.asarray(k, dtype=float) if self.on == "stiffness" else np.abs(np.asarray(R, dtype=float))
@@ -99,6 +116,44 @@ class SwitchingRule:
             else:
                 out.append(m)
         return out
+
+
+def instrument_uncertainty(resolution: float, noise: float) -> float:
+    """Standard uncertainty of an instrument: its noise (standard deviation) and its resolution (a
+    uniform quantisation error, resolution / sqrt(12)) combined in quadrature."""
+    return float(np.hypot(noise, resolution / np.sqrt(12.0)))
+
+
+def hysteretic_ratio(u, R, K_EI: float) -> float:
+    """Energy an element dissipates over a history, against its elastic energy at the peak:
+    (W - R_end^2 / (2 K^EI)) / (K^EI u_max^2 / 2), W the work of R on u (trapezoidal rule), the
+    energy still stored at the end taken as that of unloading along K^EI. 0 for a linear elastic
+    element (and below 0 for one that stiffens elastically, a closing gap); for an
+    elastic-perfectly plastic one (yield at u_y) loaded to u_max, then cycled once between
+    -u_max and u_max: (2 + 8) u_y (u_max - u_y) / u_max^2 (the first loading, the loop)."""
+    u, R = np.asarray(u, dtype=float), np.asarray(R, dtype=float)
+    peak = float(np.max(np.abs(u))) if u.size else 0.0
+    if not peak > 0 or not K_EI > 0:
+        return 0.0
+    work = float(np.sum(0.5 * (R[1:] + R[:-1]) * np.diff(u)))
+    return (work - 0.5 * float(R[-1]) ** 2 / K_EI) / (0.5 * K_EI * peak**2)
+
+
+def predicted_elastic(ns, structure, max_ratio: float) -> np.ndarray:
+    """Per experimental element of ``structure``, whether the purely numerical simulation ``ns``
+    (a :class:`hsio.result.Result` of that structure) predicts it to stay elastic: the hysteretic
+    ratio of each of its basic DOFs below ``max_ratio``. Force control follows an elastic specimen
+    with the load cell's accuracy and runs away on one that dissipates energy (a pinched wall, a
+    cracking infill, a yielding storey), where a force error leaves a displacement offset that
+    nothing brings back."""
+    elastic, channel = [], 0
+    for element in structure.experimental:
+        K = np.diag(element.K_EI_matrix)
+        ratios = [hysteretic_ratio(ns.measured_displacement[:, channel + i], ns.measured_force[:, channel + i], K[i])
+                  for i in range(K.size)]
+        elastic.append(max(ratios) < max_ratio)
+        channel += K.size
+    return np.array(elastic)
 
 
 class ImplicitMethod:
@@ -169,8 +224,9 @@ faster than FC can follow. ``fc_blend``: the
         self.deferred_at_reversal = 0
         self.not_converged: list[dict] = []  # FC elements that did not converge and went on in DC
         self.fallback = self.rule.lower if self.rule is not None and self.rule.on == "stiffness" else None
-        self.thresholds = None if self.rule is None else {"on": self.rule.on, "upper": self.rule.upper.tolist(),
-                                                          "lower": self.rule.lower.tolist()}
+        self.thresholds = None if self.rule is None else {  # upper None: the element never goes to FC
+            "on": self.rule.on, "upper": [float(v) if np.isfinite(v) else None for v in self.rule.upper],
+            "lower": self.rule.lower.tolist()}
 
     def start(self, P0, site, numerical) -> StepOutcome:
         site.set_modes(self.modes)
