@@ -26,7 +26,6 @@ from hsio.experiment import ExperimentStopped
 from hsio.hardware import check_options
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
-from hsio.integrators.mixed import predicted_elastic
 from hsio.ledger import Ledger
 from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
@@ -117,8 +116,8 @@ def switch_instruments(integrator: dict, emulator: dict) -> tuple[float, float, 
 def switching_rule(structure: Structure, integ: dict, emulator: dict | None = None, ns=None) -> SwitchingRule:
     """K_f / K_d in kN/mm (0: 1.2 and 0.8 times each element's K^EI), or R_f / R_d in kN; with
     ``switch_rule = "instruments"`` from the transducer's and the load cell's resolution and noise,
-    and FC only for the elements that the NS prediction ``ns`` finds elastic (its hysteretic ratio
-    below ``switch_max_hysteretic_ratio``; docs/force_control.md)."""
+    and FC only while the NS prediction ``ns`` finds every element elastic (hysteretic ratios below
+    ``switch_max_hysteretic_ratio``; docs/force_control.md)."""
     n = len(structure.experimental)
     K_EI = [e.K_EI for e in structure.experimental]
     if integ["switch_rule"] == "instruments":
@@ -127,7 +126,7 @@ def switching_rule(structure: Structure, integ: dict, emulator: dict | None = No
         if needs_prediction(integ):
             if ns is None:
                 raise ConfigError("[integrator] switch_max_hysteretic_ratio needs the NS prediction of the run")
-            rule = rule.never_fc(~predicted_elastic(ns, structure, integ["switch_max_hysteretic_ratio"]))
+            rule = rule.elastic_only(ns, structure, integ["switch_max_hysteretic_ratio"])
         return rule
     if integ["switch_on"] == "force":
         lower = integ["R_d"] if integ["R_d"] > 0 else 0.5 * integ["R_f"]

@@ -18,9 +18,9 @@ The methods, as :func:`make_method` builds them from the instruments:
 * ``implicit_dc``: every element in DC;
 * ``force_control``: every element in FC, base displacement from the complementary estimate
   (``fc_blend``);
-* ``mixed``: thresholds from the instruments (:meth:`SwitchingRule.from_instruments`), FC only for
-  the elements NS predicts elastic, the complementary estimate in FC, non-converged FC steps
-  finished in DC with a refractory period.
+* ``mixed``: thresholds from the instruments (:meth:`SwitchingRule.from_instruments`), FC only
+  while NS predicts every element elastic, the complementary estimate in FC, non-converged FC
+  steps finished in DC with a refractory period.
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ import numpy as np
 
 from hsio.errors import ConfigError
 from hsio.integrators import ImplicitMethod, SwitchingRule
-from hsio.integrators.mixed import predicted_elastic
 from hsio.structures import Structure, get_structure, sdof
 
 METHODS = ("implicit_dc", "force_control", "mixed")
@@ -45,7 +44,7 @@ class Recipe:
 
     margin: float = 5.0  # c in K_f = c s_F / s_u
     hysteresis: float = 2.0  # K_d = K_f / h
-    max_hysteretic_ratio: float = 0.1  # FC only for elements NS predicts elastic (0: no such gate)
+    max_hysteretic_ratio: float = 0.1  # FC only while NS predicts every element elastic (0: no such gate)
     fc_blend: float = 0.01  # lambda of the complementary estimate
     fallback_after: int = 2  # FC commands before a non-converging FC element goes on in DC
     refractory_steps: int = 10**9  # an element that failed in FC stays in DC for the rest of the run
@@ -59,9 +58,9 @@ class Recipe:
 def make_method(structure: Structure, method: str, resolution_mm: float, force_resolution_kN: float,
                 recipe: Recipe = Recipe(), noise_mm: float = 0.0, force_noise_kN: float = 0.0,
                 ns=None) -> ImplicitMethod:
-    """The integrator of ``method`` for ``structure`` with the given instruments; in ``mixed``, the
-    elements that ``ns`` (NS of the same structure and record) predicts to dissipate energy never
-    go to FC (:func:`hsio.integrators.mixed.predicted_elastic`)."""
+    """The integrator of ``method`` for ``structure`` with the given instruments; in ``mixed``, no
+    element goes to FC where ``ns`` (NS of the same structure and record) predicts one to
+    dissipate energy (:meth:`SwitchingRule.elastic_only`)."""
     K_EI = [e.K_EI for e in structure.experimental]
     r = recipe
     rule = None
@@ -73,7 +72,7 @@ def make_method(structure: Structure, method: str, resolution_mm: float, force_r
                 raise ConfigError("mixed: give ns= (NS of the same structure and record) for the prediction of "
                                   "which elements stay elastic, or Recipe(max_hysteretic_ratio=0) to let every "
                                   "element go to FC")
-            rule = rule.never_fc(~predicted_elastic(ns, structure, r.max_hysteretic_ratio))
+            rule = rule.elastic_only(ns, structure, r.max_hysteretic_ratio)
     blend = r.fc_blend if method != "implicit_dc" else 1.0
     extra = {}
     if method == "mixed":

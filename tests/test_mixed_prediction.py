@@ -57,3 +57,15 @@ def test_the_studys_mixed_method_needs_the_prediction():
         sm.make_method(structure, "mixed", 0.025, 0.01)
     method = sm.make_method(structure, "mixed", 0.025, 0.01, sm.Recipe(max_hysteretic_ratio=0.0))
     assert np.all(np.isfinite(method.rule.upper))
+
+
+def test_once_ns_predicts_one_element_to_dissipate_no_element_goes_to_fc():
+    """structure_II_infill at 0.25 g: NS cracks the infill; the linear bare frame stays in DC too."""
+    from hsio.integrators import SwitchingRule
+
+    frame = get_structure("structure_II_infill")
+    rule = SwitchingRule.from_instruments([7.2, 122.6], 0.025, 0.01, noise_mm=0.01, force_noise_kN=0.01)
+    cracked = run_numerical(frame, synthetic_record(duration_s=4.0, dt=frame.dt, pga_g=0.25, seed=1994), "mixed")
+    assert rule.elastic_only(cracked, frame, 0.1).upper.tolist() == [np.inf, np.inf]
+    elastic = run_numerical(frame, synthetic_record(duration_s=4.0, dt=frame.dt, pga_g=0.05, seed=1994), "mixed")
+    assert rule.elastic_only(elastic, frame, 0.1).upper.tolist() == rule.upper.tolist()

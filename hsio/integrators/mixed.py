@@ -97,6 +97,15 @@ class SwitchingRule:
         K_f = margin * s_F / s_u
         return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness")
 
+    def elastic_only(self, ns, structure, max_ratio: float) -> "SwitchingRule":
+        """This rule while NS (``ns``, of ``structure`` and the run's record) predicts every
+        experimental element elastic (:func:`predicted_elastic`); otherwise every element stays
+        in DC. Once one element cracks or yields, the response that follows depends on the path
+        to it, and FC on any element changes that path more than its better force reading gains
+        (docs/force_control.md)."""
+        dissipates = not bool(np.all(predicted_elastic(ns, structure, max_ratio)))
+        return self.never_fc(np.full(self.upper.shape, dissipates))
+
     def never_fc(self, elements) -> "SwitchingRule":
         """This rule with the given elements (a boolean mask) kept in DC: their upper threshold is
         infinite."""
