@@ -158,3 +158,38 @@ def test_a_run_whose_final_hold_is_not_confirmed_still_completed(controller, tmp
     assert summary["exit_status"] == 0 and summary["steps"] == reference["steps"] == 30
     assert len(Run(tmp_path / "run" / "run.sqlite").steps["step"]) == 30
 
+
+# --- a refusal's numbers ----------------------------------------------------------------------
+
+def shown_numbers(message: str, unit: str) -> tuple[float, float]:
+    """The command and the limit a refusal shows (the first two numbers before ``unit``)."""
+    import re
+
+    value, limit = re.findall(rf"([-+]?\d+(?:\.\d+)?) {re.escape(unit)}", message)[:2]
+    return abs(float(value)), abs(float(limit))
+
+
+@pytest.mark.parametrize("check, value, unit", [
+    ("displacement", 127.0001, "mm"), ("displacement", -127.00004, "mm"), ("displacement", 127.0 + 1e-12, "mm"),
+    ("force", 250.0002, "kN"), ("velocity", 500.04, "mm/s"), ("velocity", -500.00001, "mm/s"),
+])
+def test_a_refused_command_is_shown_beyond_the_limit_shown(check, value, unit):
+    """A command just beyond a limit reads beyond it: 127.0001 mm is not shown as 127.000 mm
+    beyond +/-127.0 mm."""
+    from hsio.errors import LimitError
+    from hsio.interfaces import Limits
+
+    limits = Limits(stroke_mm=254.0, force_kN=250.0, velocity_mm_s=500.0)
+    with pytest.raises(LimitError) as info:
+        getattr(limits, f"check_{check}")(value, "here")
+    shown, limit = shown_numbers(str(info.value), unit)
+    assert shown > limit, str(info.value)
+    assert abs(shown - abs(value)) <= abs(value) * 1e-9 + 1e-3, str(info.value)
+
+
+def test_a_clear_refusal_keeps_its_short_numbers():
+    from hsio.errors import LimitError
+    from hsio.interfaces import Limits
+
+    with pytest.raises(LimitError, match=r"here: displacement command 130\.500 mm is beyond the stroke \(\+/-127\.0 mm\)"):
+        Limits(stroke_mm=254.0).check_displacement(130.5, "here")
