@@ -3,7 +3,8 @@ cyclic submit, closing the link with its last axis, and opening every axis safel
 
 Opening is in this order (:func:`open_axes`): connect and identify (nothing enabled), read the
 limits, check the controller's clock against the experiment's, and only then enable the axes.
-A failure at any point holds (disables) whatever was enabled and closes the link.
+A failure at any point holds (disables) whatever was enabled and closes the link; the error then
+says whether the axes were disabled.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import math
 from dataclasses import dataclass
 from urllib.parse import parse_qsl, urlsplit
 
-from hsio.errors import ConfigError
+from hsio.errors import ConfigError, HsioError
 from hsio.interfaces import Limits
 
 log = logging.getLogger(__name__)
@@ -139,14 +140,27 @@ class AxisLink:
         if all(getattr(a, "_closed", True) for a in self.actuators):
             self.close()
 
-    def abort(self) -> None:
-        """Opening failed: disable whatever was enabled (best effort), then close."""
+    def may_be_enabled(self) -> bool:
+        """Whether an axis on the link may have been enabled (opening got that far)."""
+        drives = getattr(self, "drives", None)
+        if drives is not None:
+            return any(getattr(d, "enabling", False) for d in drives)
+        return bool(getattr(self, "enabling", False))
+
+    def abort(self) -> str:
+        """Opening failed: disable whatever was enabled (best effort), then close. Returns what
+        became of the axes, for the error's message ("" when none had been enabled). The hold
+        is not read back here: the message says so, and says when the disable itself failed."""
+        enabled = self.may_be_enabled()
         try:
             self.disable()
-        except Exception as exc:  # the original error matters more; this one is logged
+            outcome = "the axes were disabled (the controller acknowledged; the hold not read back)"
+        except Exception as exc:
             log.warning("%s: could not disable the axes while giving up: %s", getattr(self, "url", "?"), exc)
+            outcome = f"WARNING: the axes could not be disabled ({exc}); the hold could not be confirmed"
         finally:
             self.close()
+        return outcome if enabled else ""
 
 
 def close_axis(actuator) -> None:
@@ -176,8 +190,10 @@ def open_axes(link: AxisLink, names: list[str], clock, make_actuator, enable: bo
         if clock is not None and link.lockstep:
             clock.attach(link)
         return actuators
-    except BaseException:
-        link.abort()
+    except BaseException as exc:
+        outcome = link.abort()
+        if outcome and isinstance(exc, HsioError) and exc.args:  # the message says how the axes were left
+            exc.args = (f"{exc.args[0]}; {outcome}",) + exc.args[1:]
         raise
 
 

@@ -13,8 +13,9 @@ Physics per period dt = 1/rate (explicit, one tick at a time):
   docs/method.md eq. 1 with b d_max = lag. The flow limit saturates |v|.
 * Force control: the loop is closed on the load cell, v = K_f (F_c - F_m), with K_f tuned on the
   specimen's initial stiffness so that the force follows with ``force_lag_s``.
-* Load train: the specimen sees the rod through a backlash gap and a compliance
-  (d_spec = backlash(d_rod) - compliance F); the displacement transducer on the specimen reads
+* Load train: the specimen sees the rod through a backlash gap and a compliance that shortens
+  under the force it carries in the same period (d_spec = backlash(d_rod) - compliance
+  F(d_spec), solved each period); the displacement transducer on the specimen reads
   gain * d_spec. Sensors add Gaussian noise and quantise to their resolution; the load cell and
   the transducer may have a finite bandwidth (first-order, ``force_bandwidth_hz``,
   ``displacement_bandwidth_hz``; 0, the default, is ideal). The force loop closes on the load
@@ -343,9 +344,39 @@ class ServoController:
                 self._d_engaged = d + half
             d = self._d_engaged
         if c.compliance_mm_per_kN > 0.0:
-            d -= c.compliance_mm_per_kN * self.force
-        self.d_spec = d
-        self.force = self.specimen.force(d)
+            self.d_spec, self.force = self._behind_compliance(d)
+        else:
+            self.d_spec = d
+            self.force = self.specimen.force(d)
+
+    COMPLIANCE_ITERATIONS = 20  # bounds the solve of d = x - c F(d) in a period
+    COMPLIANCE_TOLERANCE_MM = 1e-10
+
+    def _behind_compliance(self, x: float) -> tuple[float, float]:
+        """Where the specimen stands behind a compliant load train whose rod end is at ``x``, and
+        its force: the train shortens elastically under the force it carries now, d = x - c F(d).
+        Solved by Newton steps on d + c F(d) = x, the slope 1 + c k from the specimen's initial
+        stiffness, then from the secant of the last two trials: one step lands exactly on a linear
+        spring (d = x / (1 + c k)); a nonlinear one takes a few, at most COMPLIANCE_ITERATIONS.
+        Only the solution is committed to the specimen."""
+        cf = self.config.compliance_mm_per_kN
+        specimen = self.specimen
+        slope = 1.0 + cf * max(specimen.initial_stiffness, 0.0)
+        d = x - cf * self.force  # the start: the force of the period before
+        force = specimen.trial(d)
+        for _ in range(self.COMPLIANCE_ITERATIONS):
+            residual = d + cf * force - x
+            if abs(residual) <= self.COMPLIANCE_TOLERANCE_MM:
+                break
+            d_next = d - residual / slope
+            f_next = specimen.trial(d_next)
+            if d_next != d:
+                secant = 1.0 + cf * (f_next - force) / (d_next - d)
+                if secant > 0.0:
+                    slope = secant
+            d, force = d_next, f_next
+        specimen.commit()  # the last trial is the solution
+        return d, force
 
     def _next_noise(self) -> tuple[float, float]:
         if self._noise_i >= self._noise_d.size:

@@ -31,6 +31,24 @@ from hsio.interfaces import Actuator, ControlMode
 from hsio.safety.hold import HoldReport, read_back
 
 
+def held_on_failure(actuators, exc: HsioError) -> HsioError:
+    """A start-up that failed with the axes enabled: every actuator is told to hold (each is
+    tried), the hold is read back, and ``exc`` (returned, to be raised) says how it went."""
+    for actuator in actuators:
+        try:
+            actuator.hold()
+        except Exception:
+            pass
+    return with_hold_report(exc, read_back(actuators))
+
+
+def with_hold_report(exc: HsioError, report: HoldReport) -> HsioError:
+    """``exc`` with the read-back of the hold added to its message."""
+    if exc.args:
+        exc.args = (f"{exc.args[0]}; {report.message}",) + exc.args[1:]
+    return exc
+
+
 @dataclass
 class StepFeedback:
     """What one integration step measured, per actuator."""
@@ -59,7 +77,10 @@ class ControlLoop:
         self.n_avg = max(int(n_avg), 1)
         self.keep_samples = keep_samples
         self.hold_fraction = hold_fraction
-        initial = [a.feedback().displacement_mm for a in actuators]
+        try:
+            initial = [a.feedback().displacement_mm for a in actuators]
+        except HsioError as exc:  # the axes are enabled: hold them, and say whether they hold
+            raise held_on_failure(actuators, exc)
         self.generators = [PredictorCorrector(self.t_d, clock.period_s, x0, hold_fraction=hold_fraction) for x0 in initial]
         self.monitor = monitor  # hsio.safety.interlocks.InterlockMonitor or None
         self._samples: list[tuple] = []  # every period since the last step landed
@@ -73,6 +94,7 @@ class ControlLoop:
         self._stop = threading.Event()
         self._held = False
         self._closed = False
+        self._final_hold = HoldReport({})
         self._error: BaseException | None = None
         self._result: StepFeedback | None = None
         if not getattr(clock, "lockstep", False):
@@ -267,17 +289,21 @@ class ControlLoop:
                 except Exception:
                     pass
 
-    def close(self) -> None:
-        """Stop the loop, hold and release every actuator. Safe to call more than once."""
+    def close(self) -> HoldReport:
+        """Stop the loop, hold every actuator, read the hold back while the links are still open,
+        then release every actuator. Returns the read-back (the final hold: docs/safety.md
+        section 3); a later call returns the same report and does nothing else."""
         if self._closed:
-            return
+            return self._final_hold
         self._closed = True
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
         self.hold_all()
+        self._final_hold = self.confirm_hold()
         for actuator in self.actuators:
             try:
                 actuator.close()
             except Exception:
                 pass
+        return self._final_hold

@@ -27,6 +27,18 @@ class ControlMode(enum.Enum):
     FORCE = "force"
 
 
+def shown_beyond(value: float, limit: float, decimals: tuple[int, int] = (3, 1)) -> tuple[str, str]:
+    """``value`` and ``limit`` as text for a refusal, with ``decimals`` (value, limit) or as many
+    more as it takes for the value shown to lie beyond the limit shown (|value| > limit):
+    127.0001 against 127 reads "127.0001" and "127.00", never "127.000" beyond "127.0"."""
+    dv, dl = decimals
+    for extra in range(17):
+        v, lim = f"{value:.{dv + extra}f}", f"{limit:.{dl + extra}f}"
+        if abs(float(v)) > float(lim):
+            return v, lim
+    return repr(value), repr(limit)
+
+
 @dataclass(frozen=True)
 class Limits:
     """Actuator limits. The stroke is centred on zero: |displacement| <= stroke_mm / 2."""
@@ -44,28 +56,22 @@ class Limits:
         if not math.isfinite(value):
             raise LimitError(f"{where}: displacement command {value!r} is not a finite number")
         if abs(value) > self.half_stroke_mm:
-            raise LimitError(
-                f"{where}: displacement command {value:.3f} mm is beyond the stroke "
-                f"(+/-{self.half_stroke_mm:.1f} mm); not sent"
-            )
+            shown, limit = shown_beyond(value, self.half_stroke_mm)
+            raise LimitError(f"{where}: displacement command {shown} mm is beyond the stroke (+/-{limit} mm); not sent")
 
     def check_force(self, value: float, where: str) -> None:
         """Refuse a force command beyond the force capacity or not finite (no clamping)."""
         if not math.isfinite(value):
             raise LimitError(f"{where}: force command {value!r} is not a finite number")
         if abs(value) > self.force_kN:
-            raise LimitError(
-                f"{where}: force command {value:.3f} kN is beyond the capacity "
-                f"(+/-{self.force_kN:.1f} kN); not sent"
-            )
+            shown, limit = shown_beyond(value, self.force_kN)
+            raise LimitError(f"{where}: force command {shown} kN is beyond the capacity (+/-{limit} kN); not sent")
 
     def check_velocity(self, value: float, where: str) -> None:
         """Refuse a displacement command that would move faster than the actuator can."""
         if abs(value) > self.velocity_mm_s:
-            raise LimitError(
-                f"{where}: command velocity {value:.1f} mm/s is beyond the limit "
-                f"({self.velocity_mm_s:.1f} mm/s); not sent"
-            )
+            shown, limit = shown_beyond(value, self.velocity_mm_s, (1, 1))
+            raise LimitError(f"{where}: command velocity {shown} mm/s is beyond the limit ({limit} mm/s); not sent")
 
     def check(self, mode: ControlMode, value: float, where: str) -> None:
         if mode is ControlMode.DISPLACEMENT:

@@ -27,9 +27,7 @@ def test_model_replays_the_emulator(settings):
     command = seismic_command(6.0, RATE, peak_mm=15.0)
     record = emulate(command, ServoConfig(lag_s=0.02, **QUIET, **settings))
     predicted = simulate(record.command_mm, record.dt, {"lag_s": 0.02, **settings}, record.force_kN)
-    # The emulator's load train uses the force of the previous period: a few um with compliance.
-    tolerance = 0.01 if "compliance_mm_per_kN" in settings else 1e-5
-    assert np.max(np.abs(predicted - record.measured_mm)) < tolerance
+    assert np.max(np.abs(predicted - record.measured_mm)) < 1e-5
 
 
 def _drive(config, command, specimen=None):
@@ -97,6 +95,42 @@ def test_force_coupling_and_scale_error_act_on_the_measurement():
     assert measured == pytest.approx(10.0 / (1 + 0.05 * 2.0), rel=1e-4)  # the spring pushes the load train back
     out = _drive(ServoConfig(lag_s=0.02, displacement_gain=1.03, **QUIET), hold)
     assert out[-1, 0] == pytest.approx(1.03 * out[-1, 1], rel=1e-9)
+
+
+def test_a_linear_spring_behind_the_compliance_stands_at_x_over_1_plus_ck_every_period():
+    """The load train shortens under the force it carries in the same period: behind a rod at x,
+    a linear spring k stands at d = x / (1 + c k), while the rod moves as well as at rest (with
+    the force of the period before it would be off by c k (F_k - F_{k-1}) while moving)."""
+    c, k = 0.02, 2.5
+    command = seismic_command(3.0, RATE, peak_mm=15.0)
+    controller = ServoController(Linear(k), ServoConfig(lag_s=0.02, compliance_mm_per_kN=c, **QUIET))
+    spec, rod = [], []
+    for value in command:
+        controller.set_command(value)
+        controller.step()
+        spec.append(controller.d_spec)
+        rod.append(controller.d_rod)
+    spec, rod = np.array(spec), np.array(rod)
+    assert np.ptp(rod) > 10.0 and np.max(np.abs(np.diff(rod))) > 0.05  # it moved, and fast
+    assert np.max(np.abs(spec - rod / (1.0 + c * k))) < 1e-12
+
+
+def test_a_nonlinear_spring_behind_the_compliance_is_solved_every_period():
+    """A stiffening spring (a gap that closes): d + c F(d) = x holds in every period, and the
+    force read is the specimen's at d."""
+    from hsio.specimens import BilinearGap
+
+    c = 0.05
+    specimen = BilinearGap(k1=0.5, k2=4.0, gap=2.0)
+    controller = ServoController(specimen, ServoConfig(lag_s=0.02, compliance_mm_per_kN=c, **QUIET))
+    worst = 0.0
+    for value in seismic_command(3.0, RATE, peak_mm=15.0):
+        controller.set_command(value)
+        controller.step()
+        d, F = controller.d_spec, controller.force
+        worst = max(worst, abs(d + c * F - controller.d_rod))
+        assert F == pytest.approx(specimen.trial(d), abs=1e-12)
+    assert worst < 1e-9
 
 
 @pytest.mark.parametrize("frequency_hz, damping, rate_hz", [

@@ -79,7 +79,8 @@ class FaultProxy:
 
     ``drop()`` closes every open connection (the client sees a dropped link); ``delay_next(s)``
     holds the next reply for ``s`` seconds; ``corrupt_next()`` flips the bytes of the next reply;
-    ``blackhole = True`` swallows every reply (a controller that went silent).
+    ``blackhole = True`` swallows every reply (a controller that went silent); ``silent_after = N``
+    passes the first N replies and swallows every later one (silent from a known moment).
     """
 
     def __init__(self, target_port: int, host: str = "127.0.0.1"):
@@ -94,6 +95,7 @@ class FaultProxy:
         self.delay_s = 0.0
         self.corrupt = False
         self.blackhole = False
+        self.silent_after: int | None = None
         self.replies = 0
         self.connections = 0
         self._stop = threading.Event()
@@ -130,6 +132,8 @@ class FaultProxy:
                 break
             if reply:
                 self.replies += 1
+                if self.silent_after is not None and self.replies > self.silent_after:
+                    self.blackhole = True
                 if self.blackhole:
                     continue
                 if self.delay_s:

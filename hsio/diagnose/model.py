@@ -13,6 +13,9 @@ Per sample k (dt = 1 / rate), the same explicit step as emulators/servo.py:
     m[k]   = displacement_gain (y - compliance F)(t_k - skew) + drift t_k + offset_mm
                                                         (channel_skew_s, sensor_drift_mm_s)
 
+F[k] is the force of the same sample: the load train shortens under the force it carries now,
+as the emulator solves it in each period (d = y - compliance F(d)).
+
 With a = 0 this is the first-order lag of the command: since the loop sees the previous
 period's position, K_p = 1 / (lag + dt) makes a ramp at velocity v lag by lag (|v| - a) between
 a command and the measurement that follows it, the hockey stick of E&M 2007, eq. (1) with

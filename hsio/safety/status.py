@@ -2,14 +2,15 @@
 
     0  the run finished
     2  bad input (configuration, data file), or the dry run refused the test: nothing moved
-    3  stopped by a limit or a fault (a refused command, a controller trip, a lost link)
+    3  stopped by a limit or a fault (a refused command, a controller trip, a lost link), also
+       while the hardware opens (the axes may have been enabled by then)
     4  stopped by an interlock of hsio's own (following error, implausible measurement, force drop)
     5  stopped by the operator (stop key, control socket) or by a signal (SIGTERM, SIGINT)
 """
 
 from __future__ import annotations
 
-from hsio.errors import ConfigError, HsioError
+from hsio.errors import CommunicationError, ConfigError, HsioError, InterlockError
 
 OK, BAD_INPUT, LIMIT_OR_FAULT, INTERLOCK, OPERATOR = 0, 2, 3, 4, 5
 
@@ -41,6 +42,8 @@ def exit_status(exc: BaseException | None) -> int:
         return OPERATOR
     if isinstance(cause, InterlockTrip):
         return INTERLOCK
+    if isinstance(cause, (CommunicationError, InterlockError)):
+        return LIMIT_OR_FAULT  # a lost link, a restart, a trip: a fault even before the steps began
     if not stopped and isinstance(exc, HsioError):
         return BAD_INPUT
     return LIMIT_OR_FAULT

@@ -19,11 +19,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from hsio.control_loop import ControlLoop
+from hsio.control_loop import ControlLoop, with_hold_report
 from hsio.errors import ConfigError, HsioError
 from hsio.interfaces import ControlMode
+from hsio.safety.hold import HoldReport
 from hsio.secant import SecantEstimator, secant_stiffness
 from hsio.sites.base import Daq
+
+
+def final_hold_warning(report: HoldReport) -> str:
+    """The line that says a final hold was not confirmed by read-back, and why."""
+    return f"WARNING: the final hold could not be confirmed: {report.message}"
 
 
 class RampStopped(HsioError):
@@ -66,8 +72,11 @@ class ActuatorSite:
         if compensation is not None and len(compensation.names) != self.n_dynamic:
             raise ConfigError(f"the compensation stage names {len(compensation.names)} actuators "
                               f"({', '.join(compensation.names)}); the loop drives {self.n_dynamic}")
-        self.readback = self.read_back()  # every channel, before the first command
-        feedback = loop.feedback()[: self.n_dynamic]
+        try:
+            self.readback = self.read_back()  # every channel, before the first command
+            feedback = loop.feedback()[: self.n_dynamic]
+        except HsioError as exc:  # the axes are enabled: hold them, and say whether they hold
+            raise with_hold_report(exc, loop.close())  # held, read back, released
         # relative trials: the actuators' positions now (at enabling) are the zero of every command
         self.zero = (np.array([f.displacement_mm for f in feedback]) if relative else np.zeros(self.n_dynamic))
         self._committed = self._to_channels(np.array([f.displacement_mm for f in feedback]) - self.zero,
@@ -81,6 +90,7 @@ class ActuatorSite:
         self.static_targets = np.zeros(len(self.static))
         self.static_log: list[tuple] = []  # (phase, lab time s, targets, forces, displacements)
         self._phase = "test"
+        self.final_hold: HoldReport | None = None  # set by close()
 
     @property
     def modes(self) -> list[ControlMode]:
@@ -327,8 +337,27 @@ class ActuatorSite:
         self.loop.hold_all()
         return self.loop.confirm_hold()
 
-    def close(self) -> None:
-        self.loop.close()
+    def close(self) -> HoldReport:
+        """Every actuator holds, the hold is read back, every actuator is released; returns the
+        read-back (kept as :attr:`final_hold`; a later call returns it again)."""
+        self.final_hold = self.loop.close()
+        return self.final_hold
+
+    def report_final_hold(self, recorder=None, notify=None, step: int | None = None) -> dict:
+        """After :meth:`close`: the final hold for the summary (``final_hold``, its read-back).
+        A hold not confirmed by read-back is also written to the record's events (kind
+        ``hold``) and told to ``notify`` as a warning; the run's outcome is left as it is
+        (docs/safety.md section 5)."""
+        report = self.close()
+        items = {"final_hold": report.message}
+        if not report.confirmed:
+            note = final_hold_warning(report)
+            items["warning"] = note
+            if recorder is not None:
+                recorder.write_event(self.lab_time_s, step, "hold", "", note)
+            if notify is not None:
+                notify(note)
+        return items
 
     def __enter__(self) -> "ActuatorSite":
         return self
