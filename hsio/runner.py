@@ -370,6 +370,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             summary["clock_overruns"] = getattr(site.loop.clock, "overruns", 0)
             summary["compensation"] = compensation.summary()
             summary["start_state"], summary["end_state"] = start_state, end_state
+            final_hold = getattr(site, "report_final_hold", None)  # read back; a warning when not confirmed
+            if final_hold is not None:
+                summary.update(final_hold(recorder, notify, len(hs.t) - 1))
             if implicit:
                 summary.update(implicit_summary(hs))
         except (Exception, KeyboardInterrupt) as exc:  # before or around the steps: hold, record, re-raise

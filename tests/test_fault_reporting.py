@@ -154,9 +154,15 @@ def test_a_run_whose_final_hold_is_not_confirmed_still_completed(controller, tmp
     total = proxy.replies
     proxy.replies = 0
     proxy.silent_after = total - 5  # the holds and the read-back of the close get no answer
-    summary = runner.run(configured(cfg, proxy), tmp_path / "run")
+    told = []
+    summary = runner.run(configured(cfg, proxy), tmp_path / "run", notify=told.append)
     assert summary["exit_status"] == 0 and summary["steps"] == reference["steps"] == 30
-    assert len(Run(tmp_path / "run" / "run.sqlite").steps["step"]) == 30
+    record = Run(tmp_path / "run" / "run.sqlite")
+    assert len(record.steps["step"]) == 30
+    assert summary["warning"].startswith("WARNING: the final hold could not be confirmed")
+    assert summary["warning"] in told
+    assert [e for e in record.events() if e["kind"] == "hold"]
+    assert reference["final_hold"] == "the actuators hold (confirmed by read-back)" and "warning" not in reference
 
 
 # --- a refusal's numbers ----------------------------------------------------------------------
