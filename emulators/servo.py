@@ -357,8 +357,9 @@ class ServoController:
         its force: the train shortens elastically under the force it carries now, d = x - c F(d).
         Solved by Newton steps on d + c F(d) = x, the slope 1 + c k from the specimen's initial
         stiffness, then from the secant of the last two trials: one step lands exactly on a linear
-        spring (d = x / (1 + c k)); a nonlinear one takes a few, at most COMPLIANCE_ITERATIONS.
-        Only the solution is committed to the specimen."""
+        spring (d = x / (1 + c k)); a nonlinear one takes a few. The last trial is committed to the
+        specimen: the solution within COMPLIANCE_TOLERANCE_MM, or, on a branch where the steps do
+        not converge (a snap at a crack), where COMPLIANCE_ITERATIONS steps left it."""
         cf = self.config.compliance_mm_per_kN
         specimen = self.specimen
         slope = 1.0 + cf * max(specimen.initial_stiffness, 0.0)
@@ -375,7 +376,7 @@ class ServoController:
                 if secant > 0.0:
                     slope = secant
             d, force = d_next, f_next
-        specimen.commit()  # the last trial is the solution
+        specimen.commit()  # the last trial
         return d, force
 
     def _next_noise(self) -> tuple[float, float]:

@@ -225,11 +225,12 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
         raise ConfigError(f"{source}: [integrator] switch_rule must be 'initial_stiffness' or 'instruments', "
                           f"got {i['switch_rule']!r}")
     _check_switching(i, source)
-    if i["switch_rule"] == "instruments" and not (i["switch_resolution_mm"] > 0 and i["switch_force_resolution_kN"] > 0) \
-            and not url.startswith("emulator"):
+    known = (i["switch_resolution_mm"] > 0 or i["switch_noise_mm"] > 0,
+             i["switch_force_resolution_kN"] > 0 or i["switch_force_noise_kN"] > 0)
+    if i["switch_rule"] == "instruments" and not all(known) and not url.startswith("emulator"):
         raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' on real hardware needs "
                           f"switch_resolution_mm and switch_force_resolution_kN (the transducer's and the load "
-                          f"cell's resolution)")
+                          f"cell's resolution) and, where they have any, switch_noise_mm and switch_force_noise_kN")
     off = DEFAULTS["integrator"]  # each option's default is its "off" value
     for key in MIXED_GUARDS:
         if i["method"] != "mixed" and i[key] != off[key]:

@@ -14,7 +14,7 @@ instead of raising it:
 
 A second SIGINT during start-up is raised at once, wherever it lands: the way out of a start-up
 that hangs. A process started with SIGINT ignored (a background job of a script, a service) is
-left alone: nothing is noted and SIGINT stays ignored outside a run.
+left alone: nothing is noted and SIGINT stays ignored, during a run too (SIGTERM stops it).
 """
 
 from __future__ import annotations
@@ -46,6 +46,11 @@ def noted_interrupt() -> bool:
     hit = bool(_noted)
     _noted.clear()
     return hit
+
+
+def started_ignoring_sigint() -> bool:
+    """Whether the program was started with SIGINT ignored (then it keeps ignoring it)."""
+    return _previous is signal.SIG_IGN
 
 
 def after_start_up(handler):

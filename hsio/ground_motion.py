@@ -124,8 +124,10 @@ def read_at2(path: str | Path) -> GroundMotion:
         line = _LINE.match(data, pos)
         lines.append(line.group(1).decode("latin-1"))
         pos = line.end()
-    if len(lines) < 4 or pos == len(data):
+    if len(lines) < 4:
         raise RecordError(f"{path}: too short for an AT2 file ({len(lines)} lines; the header alone has 4)")
+    if not data[pos:].strip():
+        raise RecordError(f"{path}: no values after the 4-line header")
     _check_units(path, lines[2])
     match = _NPTS_DT_NAMED.search(lines[3]) or _NPTS_DT_PLAIN.search(lines[3])
     if match is None:

@@ -82,6 +82,11 @@ def load_run_structure(config: RunConfig) -> Structure:
     if not structure.experimental:
         raise ConfigError(f"{table['file'] or structure.name}: the structure has no [[experimental]] element: a "
                           f"hybrid run needs at least one (a purely numerical model runs with hsio.run_numerical)")
+    method = config["integrator"]["method"]
+    if method in IMPLICIT_METHODS and (structure.has_setups or structure.static):
+        raise ConfigError(f"{table['file'] or structure.name}: [integrator] method = {method!r} iterates on the "
+                          f"secant stiffness of elements driven by one actuator each; this structure has setups, "
+                          f"multi-DOF elements or static preloads: use method = 'alpha_os'")
     return structure
 
 
@@ -97,7 +102,7 @@ def check_hardware(config: RunConfig) -> None:
     check_options(url, emulator if url.startswith("emulator") else config["driver"])
 
 
-def switch_instruments(integrator: dict, emulator: dict) -> tuple[float, float, float, float]:
+def switch_instruments(integrator: dict, emulator: dict | None) -> tuple[float, float, float, float]:
     """delta_u (mm), delta_F (kN), sigma_u (mm) and sigma_F (kN) of ``switch_rule = "instruments"``:
     the [integrator] keys, or (where 0, with the emulated controller) its transducer's and load
     cell's resolution and noise ([emulator] resolution_mm, force_resolution_kN, noise_mm,
@@ -109,7 +114,8 @@ def switch_instruments(integrator: dict, emulator: dict) -> tuple[float, float, 
                       else float(emulator.get(own, getattr(servo, own))) for key, own in keys)
     if not (du > 0 or su > 0) or not (dF > 0 or sF > 0):
         raise ConfigError("[integrator] switch_rule = 'instruments' needs the transducer's and the load cell's "
-                          "resolution (or noise) above 0: set switch_resolution_mm and switch_force_resolution_kN")
+                          "resolution or noise above 0: set switch_resolution_mm, switch_force_resolution_kN "
+                          "(or switch_noise_mm, switch_force_noise_kN)")
     return du, dF, su, sF
 
 

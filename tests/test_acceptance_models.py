@@ -204,7 +204,8 @@ def test_two_actuators_of_another_geometry_match_the_hand_computation():
     e_l = (lower - [-L, 0.0]) / np.linalg.norm(lower - [-L, 0.0])
     e_u = (upper - [-L, h]) / np.linalg.norm(upper - [-L, h])
     fx = f[0] * e_l[0] + f[1] * e_u[0]
-    moment = f[1] * float(np.cross(upper - lower, e_u))  # about the control point
+    arm = upper - lower
+    moment = f[1] * float(arm[0] * e_u[1] - arm[1] * e_u[0])  # about the control point (2-D cross product)
     assert setup.basic_forces(f, d_model) == pytest.approx([-4.0 * fx, -4.0 * 2.0 * moment], rel=1e-9)
 
 

@@ -45,7 +45,7 @@ def test_every_key_runs_and_reaches_the_integrator(tmp_path):
     out = _run(tmp_path, MIXED, INSTRUMENTS)
     assert out.exit_code == 0, out.output
     summary = json.loads((tmp_path / "c.toml.out" / "summary.json").read_text())
-    # K_f = c s_F / s_u, s = sqrt(noise^2 + resolution^2 / 12): 3 x 0.010408 / 0.012360, K_d = K_f / 2,
+    # K_f = c s_F / s_u, s = sqrt(noise^2 + resolution^2 / 12): 3 x 0.010408 / 0.012333, K_d = K_f / 2,
     # per element (BF, IF); this 0.25 s record cracks the infill in NS (0.61 mm against 0.49 mm),
     # so no element goes to FC (upper thresholds None)
     s_F, s_u = (0.01**2 + 0.01**2 / 12) ** 0.5, (0.01**2 + 0.025**2 / 12) ** 0.5
@@ -56,11 +56,11 @@ def test_every_key_runs_and_reaches_the_integrator(tmp_path):
 
 def test_a_wall_that_ns_finds_hysteretic_never_goes_to_fc(tmp_path):
     """Structure I's pinched wood wall with a 0.001 kN load cell: the instruments alone would put
-    it in FC (K_f = 5 x 0.00104 / 0.0124 = 0.42 kN/mm, below its 2.6), but NS finds it dissipating
+    it in FC (K_f = 5 x 0.00104 / 0.0123 = 0.42 kN/mm, below its 2.6), but NS finds it dissipating
     energy, so its K_f is infinite (null) and no step runs in FC, with [output] ns and the dry run
     both off (the rule computes NS itself)."""
     tables = {"structure": {"name": "structure_I"}, "record": {"synthetic_duration_s": 0.5},
-              "test": {"rate": 10.0}, "output": {"plots": False, "ns": False}, "safety": {"dry_run": False},
+              "test": {"rate": 10.0}, "output": {"plots": True, "ns": False}, "safety": {"dry_run": False},
               "integrator": {"method": "mixed", "switch_rule": "instruments"},
               "emulator": {"force_resolution_kN": 0.001, "force_noise_kN": 0.001}}
     cfg = tmp_path / "wall.toml"
@@ -70,6 +70,7 @@ def test_a_wall_that_ns_finds_hysteretic_never_goes_to_fc(tmp_path):
     summary = json.loads((tmp_path / "wall" / "summary.json").read_text())
     assert summary["thresholds"]["upper"] == [None]
     assert summary["fc_step_fraction"] == [0.0] and summary["switches"] == 0
+    assert (tmp_path / "wall" / "modes.png").stat().st_size > 0  # drawn without a K_f line
     tables["integrator"]["switch_max_hysteretic_ratio"] = 0.0  # the gate off: the instruments put it in FC
     cfg.write_text(_toml(tables))
     out = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "ungated")])
@@ -154,7 +155,14 @@ def test_guards_of_mixed_are_refused_with_other_methods():
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "K_f": 5.0}})
     with pytest.raises(ConfigError, match=r"on real hardware needs switch_resolution_mm"):
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments"},
-                   "hardware": {"url": "modbus-tcp://127.0.0.1:1502"}})
+                   "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
+    with pytest.raises(ConfigError, match=r"on real hardware needs switch_resolution_mm"):  # no load cell
+        from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "switch_resolution_mm": 0.025},
+                   "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
+    noise_only = from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "switch_noise_mm": 0.01,
+                                           "switch_force_noise_kN": 0.01},
+                            "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})  # a noise alone prices it
+    assert noise_only["integrator"]["switch_noise_mm"] == 0.01
 
 
 # The keys that only mixed control reads (its guards and switching rule); each left at its default is off.
@@ -281,3 +289,16 @@ def test_make_integrator_accepts_an_option_left_off():
                     fallback_after=None, refractory_steps=0, explored_fraction=0.0, fc_force_limit=None)
     integrator = make_integrator(structure, "mixed", fallback_after=1, no_fc_at_reversal=True)
     assert integrator.fallback_after == 1 and integrator.no_fc_at_reversal is True
+
+
+@pytest.mark.parametrize("name", ["column_two_actuators", "preloaded_column"])
+def test_an_implicit_method_on_setups_or_preloads_is_refused_before_the_run_folder(tmp_path, name):
+    """The implicit methods iterate on one actuator's secant per element: a structure with setups
+    or a static preload is refused naming the method, before anything is created or opened."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(_toml({"structure": {"name": name}, "integrator": {"method": "mixed"},
+                          "output": {"plots": False}}))
+    out = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert out.exit_code == 2, out.output
+    assert "method = 'mixed'" in out.output and "alpha_os" in out.output
+    assert not (tmp_path / "o").exists()

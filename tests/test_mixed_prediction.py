@@ -41,6 +41,17 @@ def test_an_elastic_element_dissipates_nothing():
     assert hysteretic_ratio(np.zeros(10), np.zeros(10), 7.2) == 0.0  # at rest
 
 
+def test_a_coupled_linear_element_dissipates_nothing_and_a_diverged_ns_is_not_elastic():
+    """Two basic DOFs with a coupled K^EI (a column's shear and rotation): the element's total work
+    against its K^EI matrix, not each DOF's alone. NaN in NS: infinite, never taken for elastic."""
+    K = np.array([[10.0, -4.0], [-4.0, 3.0]])
+    rng = np.random.default_rng(8)
+    u = np.vstack([[0.0, 0.0], np.cumsum(rng.normal(0, 0.1, (2000, 2)), axis=0)])
+    assert hysteretic_ratio(u, u @ K, K) == pytest.approx(0.0, abs=1e-9)
+    assert hysteretic_ratio(np.array([0.0, np.nan, 1.0]), np.array([0.0, 1.0, 2.0]), 2.0) == np.inf
+    assert not hysteretic_ratio([0.0, 1.0], [0.0, np.inf], 2.0) < 0.1
+
+
 def test_the_wall_and_a_cracked_infill_stay_in_dc_the_linear_frame_does_not():
     wall = get_structure("structure_I")
     ns = run_numerical(wall, synthetic_record(duration_s=2.0, dt=wall.dt, pga_g=0.05, seed=3), "mixed")

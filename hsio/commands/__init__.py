@@ -81,11 +81,12 @@ def output_error(exc: OSError, what: str = "") -> str:
 def stop_requested() -> threading.Event:
     """An event set by SIGTERM or SIGINT (Ctrl-C). A serving command installs it before it says it
     is ready, so that a signal sent as soon as the banner appears stops it cleanly."""
-    from hsio.entry import noted_interrupt
+    from hsio.entry import noted_interrupt, started_ignoring_sigint
 
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    signal.signal(signal.SIGINT, lambda *_: done.set())
+    if not started_ignoring_sigint():  # started with SIGINT ignored (a background job): it stays so
+        signal.signal(signal.SIGINT, lambda *_: done.set())
     if noted_interrupt():  # Ctrl-C while the program started (hsio.entry): stop once ready
         done.set()
     return done

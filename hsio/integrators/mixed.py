@@ -133,35 +133,46 @@ def instrument_uncertainty(resolution: float, noise: float) -> float:
     return float(np.hypot(noise, resolution / np.sqrt(12.0)))
 
 
-def hysteretic_ratio(u, R, K_EI: float) -> float:
+def hysteretic_ratio(u, R, K_EI) -> float:
     """Energy an element dissipates over a history, against its elastic energy at the peak:
-    (W - R_end^2 / (2 K^EI)) / (K^EI u_max^2 / 2), W the work of R on u (trapezoidal rule), the
-    energy still stored at the end taken as that of unloading along K^EI. 0 for a linear elastic
-    element (and below 0 for one that stiffens elastically, a closing gap); for an
-    elastic-perfectly plastic one (yield at u_y) loaded to u_max, then cycled once between
-    -u_max and u_max: (2 + 8) u_y (u_max - u_y) / u_max^2 (the first loading, the loop)."""
+    (W - R_end K^-1 R_end / 2) / max(u K u / 2), W the work of R on u (trapezoidal rule), the energy
+    still stored at the end taken as that of unloading along K = K^EI. ``u``, ``R``: one value per
+    step, or one row per step and a column per basic DOF with ``K_EI`` the element's matrix. 0 for
+    a linear elastic element (and below 0 for one that stiffens elastically, a closing gap); for an
+    elastic-perfectly plastic one (yield at u_y) loaded to u_max, then cycled once between -u_max
+    and u_max: (2 + 8) u_y (u_max - u_y) / u_max^2 (the first loading, the loop). A history with
+    a value that is not finite (an NS that diverged) gives infinity: nothing is known to be
+    elastic."""
     u, R = np.asarray(u, dtype=float), np.asarray(R, dtype=float)
-    peak = float(np.max(np.abs(u))) if u.size else 0.0
-    if not peak > 0 or not K_EI > 0:
+    if u.ndim == 1:
+        u, R = u[:, None], R[:, None]
+    K = np.atleast_2d(np.asarray(K_EI, dtype=float))
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(R)) and np.all(np.isfinite(K))):
+        return float("inf")
+    if u.shape[0] == 0:
         return 0.0
-    work = float(np.sum(0.5 * (R[1:] + R[:-1]) * np.diff(u)))
-    return (work - 0.5 * float(R[-1]) ** 2 / K_EI) / (0.5 * K_EI * peak**2)
+    peak = 0.5 * float(np.max(np.einsum("ki,ij,kj->k", u, K, u)))
+    if not peak > 0:
+        return 0.0
+    work = float(np.sum(0.5 * (R[1:] + R[:-1]) * np.diff(u, axis=0)))
+    stored = 0.5 * float(R[-1] @ np.linalg.pinv(K) @ R[-1])
+    return (work - stored) / peak
 
 
 def predicted_elastic(ns, structure, max_ratio: float) -> np.ndarray:
     """Per experimental element of ``structure``, whether the purely numerical simulation ``ns``
-    (a :class:`hsio.result.Result` of that structure) predicts it to stay elastic: the hysteretic
-    ratio of each of its basic DOFs below ``max_ratio``. Force control follows an elastic specimen
-    with the load cell's accuracy and runs away on one that dissipates energy (a pinched wall, a
-    cracking infill, a yielding storey), where a force error leaves a displacement offset that
-    nothing brings back."""
+    (a :class:`hsio.result.Result` of that structure) predicts it to stay elastic: its hysteretic
+    ratio (over all its basic DOFs, with its K^EI matrix) below ``max_ratio``. Force control
+    follows an elastic specimen with the load cell's accuracy and runs away on one that
+    dissipates energy (a pinched wall, a cracking infill, a yielding storey), where a force error
+    leaves a displacement offset that nothing brings back."""
     elastic, channel = [], 0
     for element in structure.experimental:
-        K = np.diag(element.K_EI_matrix)
-        ratios = [hysteretic_ratio(ns.measured_displacement[:, channel + i], ns.measured_force[:, channel + i], K[i])
-                  for i in range(K.size)]
-        elastic.append(max(ratios) < max_ratio)
-        channel += K.size
+        K = element.K_EI_matrix
+        basic = slice(channel, channel + K.shape[0])
+        eta = hysteretic_ratio(ns.measured_displacement[:, basic], ns.measured_force[:, basic], K)
+        elastic.append(eta < max_ratio)
+        channel += K.shape[0]
     return np.array(elastic)
 
 

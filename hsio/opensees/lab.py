@@ -232,7 +232,8 @@ class Lab:
                     self.sessions = k
                     return recorder
             k += 1
-        raise HsioError(f"{out}: no free record name among run-{self.sessions}.sqlite .. run-{k - 1}.sqlite; "
+        first = "run.sqlite" if self.sessions == 1 else f"run-{self.sessions}.sqlite"
+        raise HsioError(f"{out}: no free record name among {first} .. run-{k - 1}.sqlite; "
                         "give the server another records folder (--out)")
 
     def _release_preloads(self, reason: str) -> None:

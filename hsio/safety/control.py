@@ -134,7 +134,8 @@ class RunControl:
 @contextlib.contextmanager
 def stop_on_signals(control: RunControl):
     """SIGTERM and SIGINT ask ``control`` to stop (the run holds and closes its record); a second
-    SIGINT interrupts at once. Installed only in the main thread; the old handlers come back."""
+    SIGINT interrupts at once. Installed only in the main thread; the old handlers come back. A
+    program started with SIGINT ignored keeps ignoring it (hsio.entry)."""
     if threading.current_thread() is not threading.main_thread():
         yield control
         return
@@ -145,9 +146,11 @@ def stop_on_signals(control: RunControl):
             raise KeyboardInterrupt
         control.request_stop(f"stopped by {name} during {control.phase}")
 
-    from hsio.entry import after_start_up, noted_interrupt
+    from hsio.entry import after_start_up, noted_interrupt, started_ignoring_sigint
 
-    previous = {s: signal.signal(s, handler) for s in (signal.SIGTERM, signal.SIGINT)}
+    # a program started with SIGINT ignored (a background job) keeps ignoring it: SIGTERM stops it
+    signals = (signal.SIGTERM,) if started_ignoring_sigint() else (signal.SIGTERM, signal.SIGINT)
+    previous = {s: signal.signal(s, handler) for s in signals}
 
     if noted_interrupt():  # Ctrl-C while the program started (hsio.entry)
         control.request_stop("stopped by SIGINT during start-up")
