@@ -12,25 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from hsio import api
-from hsio.clock import LockstepClock
 from hsio.commands.emulate import bank_from_config
 from hsio.emulators.canopen import slcan_emulator
 from hsio.experiment import ExperimentStopped
-from wire import QUIET_SENSORS, AtStep, run, write_config
-
-
-def fault_at(monkeypatch, tick: int, action) -> AtStep:
-    """``action`` once the experiment's lockstep clock reaches ``tick``."""
-    trigger = AtStep(tick, action)
-
-    def make_clock():
-        clock = LockstepClock()
-        clock.attach(trigger)
-        return clock
-
-    monkeypatch.setattr(api, "LockstepClock", make_clock)
-    return trigger
+from wire import QUIET_SENSORS, fault_at, run, write_config
 
 
 @pytest.fixture

@@ -13,10 +13,8 @@ import pytest
 from hsio.drivers import modbus_map
 from hsio.commands.emulate import bank_from_config
 from hsio.emulators.modbus import ModbusEmulator
-from hsio import api
-from hsio.clock import LockstepClock
 from hsio.experiment import ExperimentStopped
-from wire import AtStep, FaultProxy, max_abs_diff, run, write_config
+from wire import FaultProxy, fault_at, max_abs_diff, run, write_config
 
 FLOAT32_EPS = 2.0 ** -23
 FAULT_TICK = 3000  # about a third into the run
@@ -55,18 +53,6 @@ def proxy(emulator):
 @pytest.fixture(scope="module")
 def reference(cfg, tmp_path_factory):
     return run(cfg, tmp_path_factory.mktemp("local") / "run")
-
-
-def fault_at(monkeypatch, tick: int, action) -> AtStep:
-    trigger = AtStep(tick, action)
-
-    def make_clock():
-        clock = LockstepClock()
-        clock.attach(trigger)
-        return clock
-
-    monkeypatch.setattr(api, "LockstepClock", make_clock)
-    return trigger
 
 
 def same_run(reference, b) -> bool:

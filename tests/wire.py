@@ -188,6 +188,24 @@ class AtStep:
             self.action()
 
 
+
+
+def fault_at(monkeypatch, tick: int, action) -> AtStep:
+    """``action`` once the experiment's lockstep clock reaches ``tick`` (every clock the run
+    makes from now on carries the trigger)."""
+    from hsio import api
+    from hsio.clock import LockstepClock
+
+    trigger = AtStep(tick, action)
+
+    def make_clock():
+        clock = LockstepClock()
+        clock.attach(trigger)
+        return clock
+
+    monkeypatch.setattr(api, "LockstepClock", make_clock)
+    return trigger
+
 def terminate(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
     """SIGTERM (a run or server holds and closes its record), then SIGKILL if it lingers."""
     if proc.poll() is None:
