@@ -112,6 +112,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
             if override_dry_run:
                 cfg["safety"]["override"] = True
             structure = runner.load_run_structure(cfg)
+            runner.check_run_method(cfg, structure)
             ground = runner.build_record(cfg, structure)
             steps = len(excitation(structure, ground)[0]) - 1
             with contextlib.ExitStack() as cleanup:  # closed in reverse: the bar, the keys, then the page
@@ -193,6 +194,7 @@ def check(config_file: str | None, as_json: bool) -> None:
     try:
         cfg = config_mod.load(config_file)
         structure = runner.load_run_structure(cfg)
+        runner.check_run_method(cfg, structure)
         ground = runner.build_record(cfg, structure)
         _, report = runner.predict(cfg, structure, ground)
     except HsioError as exc:

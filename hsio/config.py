@@ -228,9 +228,11 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
     known = (i["switch_resolution_mm"] > 0 or i["switch_noise_mm"] > 0,
              i["switch_force_resolution_kN"] > 0 or i["switch_force_noise_kN"] > 0)
     if i["switch_rule"] == "instruments" and not all(known) and not url.startswith("emulator"):
+        missing = [what for what, ok in zip(("the transducer's switch_resolution_mm or switch_noise_mm",
+                                             "the load cell's switch_force_resolution_kN or switch_force_noise_kN"),
+                                            known) if not ok]
         raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' on real hardware needs "
-                          f"switch_resolution_mm and switch_force_resolution_kN (the transducer's and the load "
-                          f"cell's resolution) and, where they have any, switch_noise_mm and switch_force_noise_kN")
+                          f"{' and '.join(missing)} (give the resolution, and the noise where there is any)")
     off = DEFAULTS["integrator"]  # each option's default is its "off" value
     for key in MIXED_GUARDS:
         if i["method"] != "mixed" and i[key] != off[key]:

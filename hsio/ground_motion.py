@@ -126,8 +126,6 @@ def read_at2(path: str | Path) -> GroundMotion:
         pos = line.end()
     if len(lines) < 4:
         raise RecordError(f"{path}: too short for an AT2 file ({len(lines)} lines; the header alone has 4)")
-    if not data[pos:].strip():
-        raise RecordError(f"{path}: no values after the 4-line header")
     _check_units(path, lines[2])
     match = _NPTS_DT_NAMED.search(lines[3]) or _NPTS_DT_PLAIN.search(lines[3])
     if match is None:
@@ -147,6 +145,8 @@ def read_at2(path: str | Path) -> GroundMotion:
                           f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
     if not 2 <= npts <= MAX_SAMPLES:
         raise RecordError(f"{path}:4: NPTS = {npts} is out of bounds: within 2..{MAX_SAMPLES}")
+    if _WORD.search(data, pos) is None:
+        raise RecordError(f"{path}: no values after the 4-line header (NPTS = {npts})")
     values: list[float] = []
     for found in _WORD.finditer(data, pos):
         word = found.group().decode("latin-1")

@@ -103,10 +103,10 @@ def control_modes(path: Path, hs) -> Path:
         ax.set_title(f"{name}: {len(switches)} switches, {fc[1:].mean() * 100:.0f} % of steps in FC", fontsize=9, loc="left")
         ax_k.plot(hs.t, hs.secant[:, j], color="C2", lw=0.8, label="secant stiffness")
         if th is not None and th["on"] == "stiffness":
-            if th["upper"][j] is not None:  # None: kept in DC (the NS gate of the instruments rule)
+            if th["upper"][j] is not None:  # None: kept in DC (e.g. the NS gate of the instruments rule)
                 ax_k.axhline(th["upper"][j], color="C3", ls="--", lw=0.8, label="K_f (to FC)")
             else:
-                ax_k.plot([], [], color="C3", ls="--", lw=0.8, label="K_f: none (kept in DC, NS predicts dissipation)")
+                ax_k.plot([], [], color="C3", ls="--", lw=0.8, label="K_f: none (kept in DC)")
             ax_k.axhline(th["lower"][j], color="C0", ls="--", lw=0.8, label="K_d (to DC)")
         ax_k.set_ylabel("k (kN/mm)")
         ax_k.legend(loc="upper right", fontsize=8)

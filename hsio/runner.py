@@ -82,12 +82,25 @@ def load_run_structure(config: RunConfig) -> Structure:
     if not structure.experimental:
         raise ConfigError(f"{table['file'] or structure.name}: the structure has no [[experimental]] element: a "
                           f"hybrid run needs at least one (a purely numerical model runs with hsio.run_numerical)")
-    method = config["integrator"]["method"]
-    if method in IMPLICIT_METHODS and (structure.has_setups or structure.static):
-        raise ConfigError(f"{table['file'] or structure.name}: [integrator] method = {method!r} iterates on the "
-                          f"secant stiffness of elements driven by one actuator each; this structure has setups, "
-                          f"multi-DOF elements or static preloads: use method = 'alpha_os'")
     return structure
+
+
+def check_run_method(config: RunConfig, structure: Structure) -> None:
+    """The implicit methods iterate on the secant stiffness of elements driven by one actuator
+    each: a structure with setups, multi-DOF elements or static preloads runs with alpha_os.
+    Checked before anything is created or opened."""
+    method = config["integrator"]["method"]
+    if method not in IMPLICIT_METHODS:
+        return
+    coupled = [e.name for e in structure.experimental if e.has_setup]
+    static = [e.name for e in structure.static]
+    if coupled or static:
+        found = "; ".join(part for part in (f"elements with setups or several basic DOFs: {', '.join(coupled)}"
+                                            if coupled else "", f"static preloads: {', '.join(static)}"
+                                            if static else "") if part)
+        raise ConfigError(f"{config['structure']['file'] or structure.name}: [integrator] method = {method!r} "
+                          f"iterates on the secant stiffness of elements driven by one actuator each ({found}): "
+                          f"use method = 'alpha_os'")
 
 
 def check_hardware(config: RunConfig) -> None:
@@ -285,6 +298,7 @@ def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, gro
 
 def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> dict:
     structure = load_run_structure(config)
+    check_run_method(config, structure)
     ground = ground if ground is not None else build_record(config, structure)
     integ = config["integrator"]
     method, alpha = integ["method"], integ["alpha"]
@@ -376,9 +390,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             summary["clock_overruns"] = getattr(site.loop.clock, "overruns", 0)
             summary["compensation"] = compensation.summary()
             summary["start_state"], summary["end_state"] = start_state, end_state
-            final_hold = getattr(site, "report_final_hold", None)  # read back; a warning when not confirmed
-            if final_hold is not None:
-                summary.update(final_hold(recorder, notify, len(hs.t) - 1))
+            summary.update(site.report_final_hold(recorder, notify, len(hs.t) - 1))  # read back; warned if not
             if implicit:
                 summary.update(implicit_summary(hs))
         except (Exception, KeyboardInterrupt) as exc:  # before or around the steps: hold, record, re-raise

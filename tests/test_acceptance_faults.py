@@ -212,7 +212,7 @@ def test_a_server_started_again_on_its_records_folder_goes_on_numbering(tmp_path
 def test_a_controller_gone_between_sessions_is_not_reported_holding(tmp_path):
     """A session over Modbus ends with the hold read back; the controller then goes away and the
     next client's session cannot open the actuators. The server goes on listening, and what it
-    says of the hold (its stop line) no longer claims the earlier read-back."""
+    says of the hold (its stop line) does not claim the earlier session's read-back."""
     from hsio.drivers import modbus_map
     from hsio.emulators.modbus import ModbusEmulator
     from hsio.opensees import protocol as p

@@ -69,6 +69,18 @@ def test_at2_broken_header_is_named(tmp_path):
         read_at2(f)
 
 
+@pytest.mark.parametrize("tail", ["", "\n\n   \n"])
+def test_at2_with_a_header_and_no_values_says_so(tmp_path, tail):
+    f = tmp_path / "empty.AT2"
+    write_at2(f, "NPTS=   12, DT=   .0200 SEC", [])
+    f.write_text(f.read_text() + tail)
+    with pytest.raises(RecordError, match=r"empty.AT2: no values after the 4-line header \(NPTS = 12\)"):
+        read_at2(f)
+    write_at2(f, "NPTS is missing here", [])  # a broken header is named first
+    with pytest.raises(RecordError, match=r"empty.AT2:4: header line must give NPTS and DT"):
+        read_at2(f)
+
+
 def test_at2_nan_is_named_with_its_line(tmp_path):
     f = tmp_path / "nan.AT2"
     values = ["0.01"] * 12

@@ -199,3 +199,28 @@ def test_a_clear_refusal_keeps_its_short_numbers():
 
     with pytest.raises(LimitError, match=r"here: displacement command 130\.500 mm is beyond the stroke \(\+/-127\.0 mm\)"):
         Limits(stroke_mm=254.0).check_displacement(130.5, "here")
+
+
+def test_a_resumed_run_reports_its_own_final_hold(tmp_path):
+    """hsio resume reads its final hold back and reports that, not the interrupted session's."""
+    from hsio import config as config_mod
+    from hsio.experiment import ExperimentStopped
+    from hsio.safety.control import RunControl
+    from hsio.safety.resume import resume
+    from wire import write_config
+
+    control, steps = RunControl(), []
+
+    def stop_at_10(n):
+        steps.append(n)
+        if len(steps) == 10:
+            control.request_stop("stopped by the test")
+
+    out = tmp_path / "run"
+    with pytest.raises(ExperimentStopped):
+        runner.run(config_mod.load(write_config(tmp_path, duration=0.5, rate=5.0)), out, stop_at_10, control=control)
+    told = []
+    summary = resume(out, notify=told.append)
+    assert summary["exit_status"] == 0
+    assert summary["final_hold"] == "the actuators hold (confirmed by read-back)" and "warning" not in summary
+    assert not [line for line in told if line.startswith("WARNING")]

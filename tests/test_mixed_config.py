@@ -153,10 +153,12 @@ def test_guards_of_mixed_are_refused_with_other_methods():
         from_dict({"integrator": {"anchor_dc": True}})
     with pytest.raises(ConfigError, match=r"K_f is not read with switch_rule = 'instruments'"):
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "K_f": 5.0}})
-    with pytest.raises(ConfigError, match=r"on real hardware needs switch_resolution_mm"):
+    with pytest.raises(ConfigError, match=r"on real hardware needs the transducer's switch_resolution_mm or "
+                                          r"switch_noise_mm and the load cell's"):
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments"},
                    "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
-    with pytest.raises(ConfigError, match=r"on real hardware needs switch_resolution_mm"):  # no load cell
+    with pytest.raises(ConfigError, match=r"on real hardware needs the load cell's switch_force_resolution_kN "
+                                          r"or switch_force_noise_kN \("):  # no load cell
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "switch_resolution_mm": 0.025},
                    "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
     noise_only = from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "switch_noise_mm": 0.01,
@@ -302,3 +304,16 @@ def test_an_implicit_method_on_setups_or_preloads_is_refused_before_the_run_fold
     assert out.exit_code == 2, out.output
     assert "method = 'mixed'" in out.output and "alpha_os" in out.output
     assert not (tmp_path / "o").exists()
+    out = CliRunner().invoke(main, ["run", str(cfg), "--monitor", "--monitor-port", "0", "--out", str(tmp_path / "m")])
+    assert out.exit_code == 2 and not (tmp_path / "m").exists()  # no page, no folder
+    checked = CliRunner().invoke(main, ["check", str(cfg)])
+    assert checked.exit_code == 2 and "alpha_os" in checked.output
+
+
+def test_a_server_that_never_integrates_is_not_refused_for_the_method():
+    """hsio serve opensees reads the structure of a configuration whose [integrator] it ignores."""
+    from hsio.config import from_dict
+    from hsio.runner import load_run_structure
+
+    cfg = from_dict({"structure": {"name": "column_two_actuators"}, "integrator": {"method": "mixed"}})
+    assert load_run_structure(cfg).name == "column_two_actuators"

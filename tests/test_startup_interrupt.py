@@ -218,3 +218,21 @@ def test_a_run_started_with_sigint_ignored_keeps_ignoring_it_and_sigterm_still_s
     finally:
         signal.signal(signal.SIGINT, previous[0])
         signal.signal(signal.SIGTERM, previous[1])
+
+
+def test_a_server_started_with_sigint_ignored_keeps_ignoring_it(monkeypatch):
+    import os
+
+    from hsio.commands import stop_requested
+
+    monkeypatch.setattr(entry, "_previous", signal.SIG_IGN)
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN), signal.getsignal(signal.SIGTERM)
+    try:
+        done = stop_requested()
+        os.kill(os.getpid(), signal.SIGINT)
+        assert not done.is_set() and signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert done.wait(1.0)
+    finally:
+        signal.signal(signal.SIGINT, previous[0])
+        signal.signal(signal.SIGTERM, previous[1])

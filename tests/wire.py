@@ -188,8 +188,6 @@ class AtStep:
             self.action()
 
 
-
-
 def fault_at(monkeypatch, tick: int, action) -> AtStep:
     """``action`` once the experiment's lockstep clock reaches ``tick`` (every clock the run
     makes from now on carries the trigger)."""

@@ -124,8 +124,8 @@ class ImplicitAlpha:
     ramp-hold) is 19 to 60 % off NS with the reset against 47 to 1066 % without
     (docs/force_control.md).
     ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
-    per DOF) and stops iterating each one on its own convergence: used to run many single-DOF
-    cases side by side (the parametric study).
+    per DOF) and stops iterating each one on its own convergence: it runs many single-DOF cases
+    side by side (the parametric study).
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = 0.0, j_max: int = 10,

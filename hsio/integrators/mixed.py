@@ -135,8 +135,8 @@ def instrument_uncertainty(resolution: float, noise: float) -> float:
 
 def hysteretic_ratio(u, R, K_EI) -> float:
     """Energy an element dissipates over a history, against its elastic energy at the peak:
-    (W - R_end K^-1 R_end / 2) / max(u K u / 2), W the work of R on u (trapezoidal rule), the energy
-    still stored at the end taken as that of unloading along K = K^EI. ``u``, ``R``: one value per
+    (W - R_end K^+ R_end / 2) / max(u K u / 2), W the work of R on u (trapezoidal rule), the energy
+    still stored at the end taken as that of unloading along K = K^EI (K^+ its pseudo-inverse). ``u``, ``R``: one value per
     step, or one row per step and a column per basic DOF with ``K_EI`` the element's matrix. 0 for
     a linear elastic element (and below 0 for one that stiffens elastically, a closing gap); for an
     elastic-perfectly plastic one (yield at u_y) loaded to u_max, then cycled once between -u_max

@@ -94,10 +94,8 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         site.close()
         status = exit_status(error)
         steps = recorder.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
-        final_hold = getattr(site, "report_final_hold", None)  # read back; a warning when not confirmed
-        hold = final_hold(recorder, notify, steps) if final_hold is not None else {}
-        summary = dict(run.summary)
-        summary.pop("warning", None)
+        hold = site.report_final_hold(recorder, notify, steps)  # read back; a warning when not confirmed
+        summary = {k: v for k, v in run.summary.items() if k not in ("final_hold", "warning")}  # this session's
         summary.update(hold)
         summary.update(steps=steps, resumed_from=state.i, exit_status=status, outcome=outcome_name(status),
                        stopped=str(error) if error else "", run_dir=str(run_dir))
