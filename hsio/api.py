@@ -27,6 +27,7 @@ import numbers
 import numpy as np
 
 from hsio.clock import LockstepClock, RealTimeClock
+from hsio.config import BOUNDS as config_bounds
 from hsio.config import DEFAULTS as config_defaults
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
@@ -86,7 +87,12 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     """
     if method not in METHODS:
         raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
+    if not _is_number(alpha):
+        raise ConfigError(f"alpha must be a number in [-1/3, 0], got {alpha!r}")
     dofs = structure.experimental_dofs
+    if rule is not None and np.size(rule.upper) != len(structure.experimental):
+        raise ConfigError(f"switching rule: {np.size(rule.upper)} threshold(s) for the {len(structure.experimental)} "
+                          f"experimental element(s) of structure {structure.name!r}; give one per element")
     if structure.has_setups:
         if method != "alpha_os":
             coupled = [e.name for e in structure.experimental if e.has_setup or e.is_multi_dof]
@@ -156,6 +162,10 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     default: the documented defaults, on).
     """
     safety = safety or SafetySettings()
+    check_test_settings(test_rate, hold_fraction, n_avg)
+    if not structure.experimental:
+        raise ConfigError(f"structure {structure.name!r} has no experimental elements: there is nothing for the "
+                          f"actuators to load; run it with hsio.run_numerical")
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
@@ -185,6 +195,45 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     except BaseException:
         loop.close()
         raise
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def check_test_settings(test_rate, hold_fraction, n_avg) -> None:
+    """The test settings of :func:`open_site`, refused outside the bounds of a run's [test] table
+    (docs/config.md), before any actuator is opened."""
+    low, high, _ = config_bounds[("test", "rate")]
+    if not (_is_number(test_rate) and low <= test_rate <= high):
+        raise ConfigError(f"open_site: test_rate must be a number in [{low:g}, {high:g}], got {test_rate!r}")
+    if not (_is_number(hold_fraction) and 0.0 <= hold_fraction < 1.0):
+        raise ConfigError(f"open_site: hold_fraction must be a number in [0, 1), got {hold_fraction!r}")
+    low, high, _ = config_bounds[("test", "n_avg")]
+    if not (isinstance(n_avg, numbers.Integral) and not isinstance(n_avg, (bool, np.bool_)) and low <= n_avg <= high):
+        raise ConfigError(f"open_site: n_avg must be a whole number of controller periods in [{low}, {high}], "
+                          f"got {n_avg!r}")
+
+
+def check_run_inputs(structure: Structure, ground, site) -> None:
+    """What :func:`simulate` is given, checked before the first step: a ground motion of one
+    component, a site that is still open and was opened for a structure with experimental
+    elements."""
+    if not isinstance(structure, Structure):
+        raise ConfigError(f"simulate: structure must be a hsio.Structure, got {type(structure).__name__}")
+    if not isinstance(ground, GroundMotion):
+        raise ConfigError(f"simulate: ground must be a hsio.GroundMotion (hsio.read_at2, hsio.synthetic_record or "
+                          f"hsio.GroundMotion(name, dt, accel_g)), got {type(ground).__name__}")
+    if np.ndim(ground.accel_g) != 1:
+        raise ConfigError(f"ground motion {ground.name!r}: accel_g must be one component (a 1-D array), got shape "
+                          f"{np.shape(ground.accel_g)}")
+    if isinstance(site, ActuatorSite):
+        if getattr(site, "final_hold", None) is not None:
+            raise ConfigError("simulate: the site is closed (its actuators were released); open a new one with "
+                              "hsio.open_site")
+        if not structure.experimental:
+            raise ConfigError(f"structure {structure.name!r} has no experimental elements: a hybrid run needs at "
+                              f"least one; run it with hsio.run_numerical")
 
 
 def format_readback(readback: dict[str, float], units: dict[str, str] | None = None) -> str:
@@ -228,6 +277,7 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     ``options`` go to :func:`make_integrator` (or pass a ready ``integrator``). Raises :class:`hsio.experiment.ExperimentStopped`
     (carrying the steps made, the actuators holding) if the run stops early.
     """
+    check_run_inputs(structure, ground, site)
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
     static = getattr(site, "static", None)

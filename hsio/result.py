@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hsio.errors import HsioError
+
 
 @dataclass(frozen=True)
 class Switch:
@@ -116,7 +118,14 @@ class Result:
 
 
 def max_error_pct(u_hs: np.ndarray, u_ns: np.ndarray) -> tuple[float, list[float]]:
-    """Max over time and DOF of |u_HS - u_NS| / peak |u_NS| of that DOF, in percent; and per DOF."""
+    """Max over time and DOF of |u_HS - u_NS| / peak |u_NS| of that DOF, in percent; and per DOF.
+
+    Both are histories (steps x DOF) of the same DOF; the shorter one (a run stopped early) sets
+    the steps compared."""
+    u_hs, u_ns = np.asarray(u_hs, dtype=float), np.asarray(u_ns, dtype=float)
+    if u_hs.ndim != 2 or u_ns.ndim != 2 or u_hs.shape[1] != u_ns.shape[1] or not len(u_hs) or not len(u_ns):
+        raise HsioError(f"max_error_pct: u_hs and u_ns must be histories (steps x DOF) of the same DOF, got shapes "
+                        f"{u_hs.shape} and {u_ns.shape}")
     n = min(len(u_hs), len(u_ns))
     peak = np.max(np.abs(u_ns[:n]), axis=0)
     peak = np.where(peak > 0, peak, 1.0)

@@ -8,6 +8,9 @@ Each kind is a class with a ``kind`` name; :func:`make_specimen` builds one from
 
 from __future__ import annotations
 
+import math
+import numbers
+
 from hsio.errors import ConfigError
 from hsio.specimens.base import Specimen
 from hsio.specimens.degrading import PeakOriented
@@ -30,6 +33,10 @@ def make_specimen(spec: dict) -> Specimen:
     if cls is None:
         raise ConfigError(f"unknown specimen kind {kind!r}; known: {', '.join(sorted(SPECIMEN_KINDS))}")
     params = {k: v for k, v in spec.items() if k != "kind"}
+    for name, value in params.items():
+        if isinstance(value, str) or (isinstance(value, numbers.Real) and not isinstance(value, bool)
+                                      and not math.isfinite(value)):
+            raise ConfigError(f"specimen {kind!r}: {name} must be a finite number, got {value!r}")
     try:
         return cls(**params)
     except TypeError as exc:
