@@ -116,3 +116,54 @@ def test_max_error_pct_refuses_histories_of_different_dofs():
         hsio.max_error_pct(np.zeros((10, 2)), np.ones((5, 1)))
     worst, per_dof = hsio.max_error_pct(np.ones((10, 2)), np.full((5, 2), 2.0))
     assert worst == pytest.approx(50.0) and per_dof == pytest.approx([50.0, 50.0])
+
+
+# -- the monitor on records other than hsio run's ----------------------------------------------------
+TWO_STOREY = """
+[structure]
+name = "two_storey"
+dt = 0.005
+[[dof]]
+name = "f1"
+mass = 0.002
+[[dof]]
+name = "f2"
+mass = 0.0015
+[damping]
+kind = "mass"
+zeta = 0.03
+[[experimental]]
+name = "brace"
+dof = "f2"
+model = { kind = "linear", k = 1.2 }
+[[spring]]
+name = "storey1"
+dof = "f1"
+k = 3.0
+"""
+
+
+def test_the_monitor_shows_a_served_element_whose_dof_has_another_name(tmp_path):
+    """`hsio serve opensees` records the served element's channel as its DOF: the element 'brace'
+    at DOF 'f2' of its structure file is recorded as DOF 'brace'."""
+    from bokeh.document import Document
+
+    from hsio.monitor.feed import RecordFeed
+    from hsio.monitor.operator import Operator
+    from hsio.monitor.page import MonitorPage
+    from hsio.recording import Recorder
+
+    (tmp_path / "two.toml").write_text(TWO_STOREY)
+    meta = {"config": {"structure": {"name": "validation", "file": str(tmp_path / "two.toml")}},
+            "structure": "two_storey", "source": "opensees genericClient"}
+    rec = Recorder(tmp_path / "run.sqlite", ["brace"], ["brace"], meta)
+    for k in range(1, 11):
+        u = [0.1 * k]
+        rec.write_step(k, 0.005 * k, u, [0.0], [0.0], u, [1.2 * u[0]], ["displacement"], u, u, u, [1.2 * u[0]])
+    rec.write_summary({"steps": 10, "end": "DIE received"})
+    rec.close()
+    feed = RecordFeed(tmp_path)
+    page = MonitorPage(Document(), feed, Operator(tmp_path))
+    assert page.built and feed.n == 10 and feed.channel_dof == {"brace": "brace"}
+    assert "brace stroke" in page.margins.data["label"]
+    feed.close()

@@ -286,8 +286,12 @@ def channel_dofs(meta: dict, channels: list[str]) -> dict[str, str | None]:
         table = (meta.get("config") or {}).get("structure", {})
         structure = load_structure(table["file"]) if table.get("file") else get_structure(table.get("name") or meta["structure"])
         for e in structure.experimental:
-            if len(e.basic_dofs) == 1 and not e.has_setup and e.actuator in out:
-                out[e.actuator] = structure.dof_names[e.basic_dofs[0]]
+            dof = structure.dof_names[e.basic_dofs[0]]
+            if len(e.basic_dofs) == 1 and not e.has_setup and e.actuator in out and dof in dofs:
+                out[e.actuator] = dof
     except Exception:  # a structure file moved since the run: modes stay unknown
         pass
+    for c in channels:  # a record of served elements (hsio serve opensees) names its DOFs after its channels
+        if out[c] is None and c in dofs:
+            out[c] = c
     return out
