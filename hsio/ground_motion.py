@@ -35,9 +35,20 @@ class GroundMotion:
     accel_g: np.ndarray
 
     def __post_init__(self):
-        if not (self.dt > 0 and math.isfinite(self.dt)):
+        try:
+            dt_ok = self.dt > 0 and math.isfinite(self.dt)
+        except TypeError:
+            dt_ok = False
+        if not dt_ok:
             raise RecordError(f"{self.name}: time step must be positive, got {self.dt!r}")
-        accel = np.asarray(self.accel_g, dtype=float)
+        try:
+            accel = np.asarray(self.accel_g, dtype=float)
+        except (TypeError, ValueError):
+            raise RecordError(f"{self.name}: the accelerations must be numbers (in g), got "
+                              f"{type(self.accel_g).__name__}") from None
+        if accel.ndim != 1:
+            raise RecordError(f"{self.name}: the accelerations must be one history (a 1-D array), got shape "
+                              f"{accel.shape}")
         bad = np.flatnonzero(~np.isfinite(accel))
         if bad.size:
             raise RecordError(f"{self.name}: sample {bad[0]} (t = {bad[0] * self.dt:.3f} s) is {accel[bad[0]]!r}")
@@ -54,8 +65,9 @@ class GroundMotion:
         return float(np.max(np.abs(self.accel_g)))
 
     def scaled(self, factor: float) -> "GroundMotion":
-        if not math.isfinite(factor):
-            raise RecordError(f"{self.name}: scale factor {factor!r} is not finite")
+        if isinstance(factor, bool) or not isinstance(factor, (int, float, np.floating, np.integer)) \
+                or not math.isfinite(factor):
+            raise RecordError(f"{self.name}: scale factor {factor!r} is not a finite number")
         return GroundMotion(f"{self.name} x {factor:g}", self.dt, self.accel_g * factor)
 
     def truncated(self, duration_s: float) -> "GroundMotion":

@@ -81,6 +81,17 @@ def test_at2_with_a_header_and_no_values_says_so(tmp_path, tail):
         read_at2(f)
 
 
+@pytest.mark.parametrize("dt, accel, says", [
+    (0.01, "abc", "must be numbers"), (0.01, [[0.0, 1.0], [2.0, 3.0]], "one history"),
+    ("0.01", [0.0, 1.0], "time step must be positive"), (0.01, [0.0, None, 1.0], "sample 1"),
+])
+def test_a_ground_motion_built_in_code_is_checked(dt, accel, says):
+    with pytest.raises(RecordError, match=says):
+        GroundMotion("x", dt, accel)
+    with pytest.raises(RecordError, match="not a finite number"):
+        GroundMotion("x", 0.01, [0.0, 1.0]).scaled("2")
+
+
 def test_at2_nan_is_named_with_its_line(tmp_path):
     f = tmp_path / "nan.AT2"
     values = ["0.01"] * 12
