@@ -146,12 +146,14 @@ def test_two_elements_of_one_server_step_together_and_each_keeps_one_client(tmp_
     forces: dict[str, list] = {}
     errors: list[BaseException] = []
     intruder_refused = threading.Event()
+    both_connected = threading.Event()  # as in OpenSees, every element connects before the analysis
 
     def element(port: int, name: str, seed: int) -> None:
         pace = random.Random(seed)
         c = RawClient(port)
         try:
             c.setup()
+            assert both_connected.wait(30)
             forces[name] = []
             for k, d in enumerate(plans[name]):
                 forces[name].append(c.step(d, 0.01 * (k + 1)))
@@ -169,6 +171,8 @@ def test_two_elements_of_one_server_step_together_and_each_keeps_one_client(tmp_
                    for seed, (port, name) in enumerate(zip(server.ports, ["C1", "C2"]))]
         for t in threads:
             t.start()
+        assert wait_for(lambda: len(server.lab.active) == 2)
+        both_connected.set()
         assert wait_for(lambda: server.lab.steps >= 3)
         intruder = RawClient(server.ports[1])
         intruder.setup()
