@@ -110,7 +110,6 @@ def test_a_setup_message_trickled_byte_by_byte_is_dropped_in_time(opensees_serve
 def test_a_message_trickled_byte_by_byte_ends_the_session_in_time(opensees_server):
     """After a good step, a message whose bytes come one by one: the session ends after
     timeout_s (the actuators hold, read back), its committed step kept."""
-    from hsio.opensees import protocol as p
     from hsio.recording import Run
     from test_opensees_support import RawClient, session_over, wait_for
 
@@ -185,9 +184,8 @@ def test_a_server_started_again_on_its_records_folder_goes_on_numbering(tmp_path
     """The records of an earlier server (run.sqlite, run-2.sqlite) and a journal left beside a
     missing run-3.sqlite: the first client of a new server is served, its session recorded in
     run-4.sqlite, the earlier files untouched."""
-    from hsio.opensees import protocol as p
     from hsio.recording import Run
-    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for
+    from test_opensees_support import QUIET, one_step_session, serving
     from test_opensees_support import write_config as serve_config
 
     config = serve_config(tmp_path, "validation", ["C1"], extra="timeout_s = 2.0\n" + QUIET)
@@ -197,12 +195,7 @@ def test_a_server_started_again_on_its_records_folder_goes_on_numbering(tmp_path
     for name, content in earlier.items():
         (records / name).write_bytes(content)
     with serving(config) as server:
-        c = RawClient(server.ports[0])
-        c.setup()
-        assert 0.3 < c.step(1.0, 0.01) < 0.9
-        c.send(p.DIE)
-        c.close()
-        assert wait_for(lambda: session_over(server))
+        one_step_session(server)
         assert not any("cannot open" in line for line in server.lines), server.lines
     assert Run(records / "run-4.sqlite").summary["steps"] == 1
     assert not (records / "run-3.sqlite").exists()
@@ -215,8 +208,7 @@ def test_a_controller_gone_between_sessions_is_not_reported_holding(tmp_path):
     says of the hold (its stop line) does not claim the earlier session's read-back."""
     from hsio.drivers import modbus_map
     from hsio.emulators.modbus import ModbusEmulator
-    from hsio.opensees import protocol as p
-    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for
+    from test_opensees_support import QUIET, RawClient, one_step_session, serving, wait_for
     from test_opensees_support import write_config as serve_config
 
     emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True, watchdog_s=5.0),
@@ -225,12 +217,7 @@ def test_a_controller_gone_between_sessions_is_not_reported_holding(tmp_path):
     config = serve_config(tmp_path, "validation", ["C1"], extra="timeout_s = 2.0\n" + QUIET + hardware)
     try:
         with serving(config) as server:
-            c = RawClient(server.ports[0])
-            c.setup()
-            assert 0.3 < c.step(1.0, 0.01) < 0.9
-            c.send(p.DIE)
-            c.close()
-            assert wait_for(lambda: session_over(server))
+            one_step_session(server)
             assert server.lab.hold_message == "the actuators hold (confirmed by read-back)"
             emu.stop()
             late = RawClient(server.ports[0])

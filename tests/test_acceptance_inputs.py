@@ -21,7 +21,7 @@ from hsio import config, runner
 from hsio.errors import ConfigError, RecordError
 from hsio.ground_motion import G_MM_S2, GroundMotion, read_at2
 from hsio.recording import Run
-from hsio.structure_file import load_structure, parse_structure
+from hsio.structure_file import parse_structure
 
 
 def write_at2(path: Path, dt: float, accel_g, line4: str | None = None, newline: str = "\n") -> Path:

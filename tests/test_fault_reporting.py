@@ -108,17 +108,23 @@ def open_validation(proxy):
     return site
 
 
+def report_into_record(site, path):
+    """The closed site's final hold reported into a new record at ``path``: (items, lines told)."""
+    told = []
+    recorder = Recorder(path, ["u"], ["C1", "C2"], {})
+    try:
+        items = site.report_final_hold(recorder, told.append, step=1)
+    finally:
+        recorder.close()
+    return items, told
+
+
 def test_a_final_hold_read_back_is_reported_confirmed(controller, tmp_path):
     _, proxy = controller
     site = open_validation(proxy)
     report = site.close()
     assert report.confirmed and site.close() is report  # a second close reads nothing again
-    told = []
-    recorder = Recorder(tmp_path / "run.sqlite", ["u"], ["C1", "C2"], {})
-    try:
-        items = site.report_final_hold(recorder, told.append, step=1)
-    finally:
-        recorder.close()
+    items, told = report_into_record(site, tmp_path / "run.sqlite")
     assert items == {"final_hold": "the actuators hold (confirmed by read-back)"}
     assert told == [] and Run(tmp_path / "run.sqlite").events() == []
 
@@ -133,12 +139,7 @@ def test_a_controller_silent_at_the_final_hold_is_recorded_and_told(controller, 
     proxy.blackhole = True
     report = site.close()
     assert not report.confirmed and report.states == {"C1": None, "C2": None}
-    told = []
-    recorder = Recorder(tmp_path / "run.sqlite", ["u"], ["C1", "C2"], {})
-    try:
-        items = site.report_final_hold(recorder, told.append, step=1)
-    finally:
-        recorder.close()
+    items, told = report_into_record(site, tmp_path / "run.sqlite")
     warning = "WARNING: the final hold could not be confirmed: the hold of C1, C2 could not be confirmed (no read-back)"
     assert items == {"final_hold": report.message, "warning": warning}
     assert told == [warning]
@@ -203,22 +204,10 @@ def test_a_clear_refusal_keeps_its_short_numbers():
 
 def test_a_resumed_run_reports_its_own_final_hold(tmp_path):
     """hsio resume reads its final hold back and reports that, not the interrupted session's."""
-    from hsio import config as config_mod
-    from hsio.experiment import ExperimentStopped
-    from hsio.safety.control import RunControl
     from hsio.safety.resume import resume
-    from wire import write_config
+    from wire import stopped_run
 
-    control, steps = RunControl(), []
-
-    def stop_at_10(n):
-        steps.append(n)
-        if len(steps) == 10:
-            control.request_stop("stopped by the test")
-
-    out = tmp_path / "run"
-    with pytest.raises(ExperimentStopped):
-        runner.run(config_mod.load(write_config(tmp_path, duration=0.5, rate=5.0)), out, stop_at_10, control=control)
+    out = stopped_run(tmp_path)
     told = []
     summary = resume(out, notify=told.append)
     assert summary["exit_status"] == 0

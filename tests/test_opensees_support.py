@@ -171,6 +171,20 @@ def session_over(server) -> bool:
     return server.lab._call(lambda: server.lab.site is None and not server.lab.active)
 
 
+def one_step_session(server, port_index: int = 0) -> None:
+    """A client of the validation structure's element connects, makes one step of 1 mm (its
+    force that of the cantilever, 0.3 to 0.9 kN), says DIE and leaves; returns once the session
+    is over."""
+    from hsio.opensees import protocol as p
+
+    c = RawClient(server.ports[port_index])
+    c.setup()
+    assert 0.3 < c.step(1.0, 0.01) < 0.9
+    c.send(p.DIE)
+    c.close()
+    assert wait_for(lambda: session_over(server))
+
+
 # --- the [opensees] table ---------------------------------------------------------------------
 
 def test_opensees_table_is_checked_key_by_key():

@@ -43,23 +43,10 @@ def test_without_a_noted_ctrl_c_a_command_runs():
 
 
 def test_resume_answers_a_noted_ctrl_c_before_it_opens_the_record(tmp_path):
-    from hsio import config as config_mod
-    from hsio import runner
-    from hsio.experiment import ExperimentStopped
     from hsio.recording import Run
-    from hsio.safety.control import RunControl
-    from wire import write_config
+    from wire import stopped_run
 
-    control, steps = RunControl(), []
-
-    def stop_at_10(n):
-        steps.append(n)
-        if len(steps) == 10:
-            control.request_stop("stopped by the test")
-
-    out = tmp_path / "run"
-    with pytest.raises(ExperimentStopped):
-        runner.run(config_mod.load(write_config(tmp_path, duration=0.5, rate=5.0)), out, stop_at_10, control=control)
+    out = stopped_run(tmp_path)
     entry._noted.append(signal.SIGINT)
     try:
         result = CliRunner().invoke(main, ["resume", str(out)])

@@ -213,3 +213,23 @@ def terminate(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=10)
+
+
+def stopped_run(tmp_path: Path, at_step: int = 10) -> Path:
+    """A short run on the emulator stopped by the operator at step ``at_step``: a record that
+    `hsio resume` can continue. Returns its folder."""
+    from hsio.safety.control import RunControl
+
+    control, steps = RunControl(), []
+
+    def stop_at(n):
+        steps.append(n)
+        if len(steps) == at_step:
+            control.request_stop("stopped by the test")
+
+    out = tmp_path / "run"
+    try:
+        runner.run(config_mod.load(write_config(tmp_path, duration=0.5, rate=5.0)), out, stop_at, control=control)
+    except ExperimentStopped:
+        return out
+    raise AssertionError(f"the run was not stopped at step {at_step}")
