@@ -44,7 +44,7 @@ import numpy as np
 
 from hsio.clock import CONTROLLER_RATE_HZ
 from hsio.errors import ConfigError
-from hsio.interfaces import ControlMode
+from hsio.interfaces import ControlMode, shown_beyond
 from hsio.specimens import Specimen
 
 
@@ -419,8 +419,10 @@ class ServoController:
             return
         c = self.config
         if abs(self.measured_displacement) > 0.5 * c.stroke_mm:
-            self.tripped = f"displacement {self.measured_displacement:.3f} mm beyond the stroke (+/-{0.5 * c.stroke_mm:.1f} mm)"
+            shown, limit = shown_beyond(self.measured_displacement, 0.5 * c.stroke_mm)
+            self.tripped = f"displacement {shown} mm beyond the stroke (+/-{limit} mm)"
         elif abs(self.measured_force) > c.force_limit_kN:
-            self.tripped = f"force {self.measured_force:.3f} kN beyond the capacity (+/-{c.force_limit_kN:.1f} kN)"
+            shown, limit = shown_beyond(self.measured_force, c.force_limit_kN)
+            self.tripped = f"force {shown} kN beyond the capacity (+/-{limit} kN)"
         if self.tripped:
             self.hold()

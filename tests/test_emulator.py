@@ -119,6 +119,14 @@ def test_tripped_actuator_raises_interlock_error():
         act.command(0.0)
 
 
+def test_trip_message_shows_the_measurement_beyond_the_limit():
+    """A reading just past the capacity is shown with the digits that put it beyond it."""
+    ctrl = ServoController(Linear(1.0), ServoConfig(force_limit_kN=5.0, **QUIET))
+    ctrl.measured_force = 5.00004
+    ctrl._check_interlocks()
+    assert ctrl.tripped == "force 5.00004 kN beyond the capacity (+/-5.000 kN)"
+
+
 def test_unknown_emulator_setting_is_named():
     with pytest.raises(ConfigError, match="lagg"):
         ServoConfig.from_dict({"lagg": 0.02})

@@ -71,6 +71,9 @@ def test_a_step_moves_the_actuator_and_is_recorded(server):
     assert run.steps["step"].tolist() == [1, 2, 3]  # the uncommitted trial is not a step
     assert run.actuator("target", "C1").tolist() == [0.5, 1.0, 1.5]
     assert run.summary["steps"] == 3 and "closed" in run.summary["end"]
+    assert run.summary["uncommitted_trials"] == 1  # the specimen saw it; the summary says so
+    assert any("1 trial motion(s) of the actuators after the last committed step (step 3) were never committed"
+               in line for line in server.lines)
 
 
 def test_second_client_for_the_same_element_is_refused(server):

@@ -146,6 +146,7 @@ class Lab:
         self.answered = np.zeros(self.n_channels)  # the last basic forces answered, kN (kN mm)
         self.steps = 0
         self.trials = 0  # motions of the actuators, committed or not
+        self.trials_recorded = 0  # self.trials when the last step was recorded
         self.failed = ""
         self.clean_end = True  # every element that left said DIE (the preloads may ramp off)
         self.site_s = 0.0
@@ -279,10 +280,16 @@ class Lab:
             except Exception as exc:  # closing must not stop the server
                 self.log(f"closing the actuators: {exc}")
             self.site = None
+        uncommitted = self.trials - self.trials_recorded
+        if uncommitted:  # e.g. an analysis that failed to converge: its trials moved the specimen
+            self.log(f"session {self.sessions}: {uncommitted} trial motion(s) of the actuators after the last "
+                     f"committed step (step {self.steps}) were never committed by the analysis: the specimen "
+                     f"went through them, the record holds no row for them")
         if self.recorder is not None:
             wall = time.perf_counter() - self.started
             self.recorder.write_summary({"steps": self.steps, "elements": self.names, "end": reason,
-                                         "stopped": self.failed, "wall_time_s": round(wall, 3),
+                                         "stopped": self.failed, "uncommitted_trials": uncommitted,
+                                         "wall_time_s": round(wall, 3),
                                          "site_time_s": round(self.site_s, 3),
                                          "record_time_s": round(self.record_s, 3),
                                          **({"static_hold_error": static_error} if static_error is not None else {})})
@@ -430,6 +437,7 @@ class Lab:
         samples = site.take_samples()
         site.commit()
         self.steps += 1
+        self.trials_recorded = self.trials
         t0 = time.perf_counter()
         columns = [np.concatenate([r[c] if r is not None else np.zeros(n) for r, n in zip(rows, self.n_basic)])
                    for c in range(1, 9)]
