@@ -83,7 +83,7 @@ def run(pga: float, seed: int, method: str, test_rate: float, ideal: str | None 
     # figures in docs/force_control.md ("Why mixed only ties DC once the infill cracks")
     recipe = study_mixed.Recipe(margin=7.125, max_hysteretic_ratio=0.0)
     integrator = study_mixed.make_method(structure, method, 0.025, 0.01, recipe, 0.01, 0.01)
-    integrator.core.anchor_dc = method != "force_control"
+    integrator.core.anchor_dc[:] = method != "force_control"
     if method == "force_control":
         integrator.core.reset_at_reversal = True
     if fc_blend is not None:

@@ -54,7 +54,7 @@ __all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_
 # The off values are the [integrator] defaults of a run configuration (hsio.config.DEFAULTS), under
 # the configuration's key names where they differ.
 _CONFIG_KEY = {"fallback_after": "fc_fallback_after", "fc_force_limit": "fc_force_limit_kN"}
-_OFF = config_defaults["integrator"]
+_OFF = config_defaults["integrator"]  # anchor_dc, on by default, is the exception: is_off reads only False as off
 IMPLICIT_OPTIONS = {k: _OFF[_CONFIG_KEY.get(k, k)] for k in ("fc_blend", "anchor_dc", "blend_dc")}
 GUARDS = {k: _OFF[_CONFIG_KEY.get(k, k)] for k in ("fallback_after", "refractory_steps", "no_fc_at_reversal",
                                                     "explored_fraction", "fc_force_limit")}
@@ -108,6 +108,15 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     unknown = sorted(set(implicit) - set(OPTIONS_OFF))
     if unknown:
         raise ConfigError(f"make_integrator: unknown option(s) {', '.join(unknown)}")
+    anchor = implicit.get("anchor_dc")
+    one_per_element = (isinstance(anchor, (list, tuple, np.ndarray)) and np.ndim(anchor) == 1
+                       and len(anchor) == len(structure.experimental)
+                       and all(isinstance(a, (bool, np.bool_)) for a in anchor))
+    if anchor is not None and not isinstance(anchor, (bool, np.bool_)) and not one_per_element:
+        raise ConfigError(f"anchor_dc must be True or False, or one of them per experimental element "
+                          f"({len(structure.experimental)}), got {anchor!r}")
+    if method == "alpha_os":  # no secant line to anchor: alpha-OS takes the measured force as it is
+        implicit.pop("anchor_dc", None)
     allowed = (set(IMPLICIT_OPTIONS) if method != "alpha_os" else set()) | (set(GUARDS) if method == "mixed" else set())
     misplaced = sorted(k for k, v in implicit.items() if k not in allowed and not is_off(k, v))
     if misplaced:

@@ -29,7 +29,7 @@ DEFAULTS: dict[str, dict] = {
                    "switch_resolution_mm": 0.0, "switch_force_resolution_kN": 0.0, "switch_noise_mm": 0.0,
                    "switch_force_noise_kN": 0.0, "switch_max_hysteretic_ratio": 0.1,
                    "fc_blend": 1.0, "fc_fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False,
-                   "explored_fraction": 0.0, "fc_force_limit_kN": 0.0, "anchor_dc": False, "blend_dc": False},
+                   "explored_fraction": 0.0, "fc_force_limit_kN": 0.0, "anchor_dc": True, "blend_dc": False},
     "test": {"rate": 20.0, "hold_fraction": 0.5, "n_avg": 4, "measured_displacement_correction": True},
     "hardware": {"url": "emulator://", "clock": "lockstep", "actuator_model": ""},
     "output": {"samples": True, "plots": True, "ns": True},
@@ -233,12 +233,12 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
                                             known) if not ok]
         raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' on real hardware needs "
                           f"{' and '.join(missing)} (give the resolution, and the noise where there is any)")
-    off = DEFAULTS["integrator"]  # each option's default is its "off" value
+    off = DEFAULTS["integrator"]  # each option's default is its "off" value (anchor_dc, on, is not checked below)
     for key in MIXED_GUARDS:
         if i["method"] != "mixed" and i[key] != off[key]:
             raise ConfigError(f"{source}: [integrator] {key} applies to method = 'mixed', not to {i['method']!r}")
     for key in IMPLICIT_OPTIONS:
-        if i["method"] == "alpha_os" and i[key] != off[key]:
+        if i["method"] == "alpha_os" and key != "anchor_dc" and i[key] != off[key]:  # alpha-OS anchors nothing
             raise ConfigError(f"{source}: [integrator] {key} applies to the implicit methods, not to 'alpha_os'")
     if i["blend_dc"] and not i["fc_blend"] < 1:
         raise ConfigError(f"{source}: [integrator] blend_dc needs fc_blend below 1 (the estimate it uses)")

@@ -4,6 +4,7 @@
 import json
 import re
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -11,6 +12,7 @@ from hsio.api import make_integrator
 from hsio.cli import main
 from hsio.config import DEFAULTS, IMPLICIT_OPTIONS, MIXED_GUARDS, from_dict, load
 from hsio.errors import ConfigError
+from hsio.integrators import SwitchingRule
 from hsio.structures import get_structure
 
 MIXED = {"method": "mixed", "switch_rule": "instruments", "switch_margin": 3.0, "switch_hysteresis": 2.0,
@@ -149,8 +151,8 @@ def test_guards_of_mixed_are_refused_with_other_methods():
         from_dict({"integrator": {"fc_blend": 0.5}})
     with pytest.raises(ConfigError, match=r"blend_dc needs fc_blend below 1"):
         from_dict({"integrator": {"method": "mixed", "blend_dc": True}})
-    with pytest.raises(ConfigError, match=r"anchor_dc applies to the implicit methods"):
-        from_dict({"integrator": {"anchor_dc": True}})
+    for anchor in (True, False):  # alpha-OS has no secant line to anchor: either value is accepted
+        assert from_dict({"integrator": {"anchor_dc": anchor}})["integrator"]["anchor_dc"] is anchor
     with pytest.raises(ConfigError, match=r"K_f is not read with switch_rule = 'instruments'"):
         from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "K_f": 5.0}})
     with pytest.raises(ConfigError, match=r"on real hardware needs the transducer's switch_resolution_mm or "
@@ -198,7 +200,7 @@ def test_each_guard_switched_on_with_implicit_dc_exits_2_naming_it(tmp_path, key
     from_dict({"integrator": {"method": "mixed", key: ON[key]}})  # where it is read, it is taken
 
 
-@pytest.mark.parametrize("key", IMPLICIT_OPTIONS)
+@pytest.mark.parametrize("key", [k for k in IMPLICIT_OPTIONS if k != "anchor_dc"])  # alpha-OS anchors nothing
 def test_each_implicit_option_switched_on_with_alpha_os_exits_2_naming_it(tmp_path, key):
     says = f"[integrator] {key} applies to the implicit methods, not to 'alpha_os'"
     out = _run(tmp_path, {"method": "alpha_os", key: ON[key]})
@@ -276,13 +278,26 @@ def test_switching_keys_where_read_are_accepted():
     ("implicit_dc", "no_fc_at_reversal", True), ("implicit_dc", "fallback_after", 1),
     ("implicit_dc", "refractory_steps", 1), ("force_control", "refractory_steps", True),
     ("implicit_dc", "explored_fraction", 1.0), ("implicit_dc", "fc_force_limit", 1),
-    ("alpha_os", "anchor_dc", True), ("alpha_os", "blend_dc", True), ("alpha_os", "anchor_dc", 1),
+    ("alpha_os", "blend_dc", True),
     ("alpha_os", "fc_blend", 0.5), ("alpha_os", "fc_blend", True),
 ])
 def test_make_integrator_refuses_an_option_the_method_does_not_take(method, option, value):
     """A switched-on option is refused by name, never dropped, even where it equals 1 (True == 1 == 1.0)."""
     with pytest.raises(ConfigError, match=rf"^{option}: not an option of method = '{method}'"):
         make_integrator(get_structure("structure_II_infill"), method, **{option: value})
+
+
+def test_anchor_dc_is_checked_on_by_default_and_may_be_given_per_element_in_mixed():
+    structure = get_structure("structure_II_infill")
+    for bad in (1, "yes", [True], ["no", "no"], [1, 0]):
+        with pytest.raises(ConfigError, match="anchor_dc must be True or False"):
+            make_integrator(structure, "implicit_dc", anchor_dc=bad)
+    assert make_integrator(structure, "implicit_dc").core.anchor_dc.tolist() == [True, True]
+    assert make_integrator(structure, "implicit_dc", anchor_dc=False).core.anchor_dc.tolist() == [False, False]
+    assert make_integrator(structure, "implicit_dc", anchor_dc=[False, True]).core.anchor_dc.tolist() == [False, True]
+    kept = SwitchingRule([3.0, np.inf], [1.5, 1.5])  # the infill kept in DC, the frame free to switch
+    assert make_integrator(structure, "mixed", rule=kept).core.anchor_dc.tolist() == [True, True]
+    assert make_integrator(structure, "mixed", rule=kept, anchor_dc=[True, False]).core.anchor_dc.tolist() == [True, False]
 
 
 def test_make_integrator_accepts_an_option_left_off():

@@ -86,7 +86,8 @@ def test_defaults():
     every option off."""
     alg = _alpha()
     assert (alg.tol_displacement, alg.tol_force, alg.max_stiffness_ratio, alg.fc_blend) == (1e-10, 1e-10, 20.0, 1.0)
-    assert (alg.blend_dc, alg.anchor_dc, alg.reset_at_reversal, alg.independent) == (False, False, False, False)
+    assert (alg.blend_dc, alg.reset_at_reversal, alg.independent) == (False, False, False)
+    assert alg.anchor_dc.dtype == bool and alg.anchor_dc.all()  # on by default, per element
     assert alg.alpha == 0.0 and alg.j_max == 10
 
 

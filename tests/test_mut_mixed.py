@@ -97,6 +97,18 @@ def _method(n=1, **kw):
     return ImplicitMethod(**args)
 
 
+def test_mixed_starts_each_element_in_its_rules_mode_at_K_EI():
+    """At rest an element is on its initial branch: above K_f it starts in FC, below in DC; a rule
+    on the force starts in DC (|R| = 0); the other methods start as their name says."""
+    stiff_and_soft = SwitchingRule(np.array([90.0, 150.0]), np.array([50.0, 50.0]))
+    m = _method(2, method="mixed", rule=stiff_and_soft)
+    assert m.modes == [FC, DC]
+    assert m.start(np.zeros(2), _Site([100.0, 100.0]), None).modes == [FC, DC]
+    assert _method(1, method="mixed", rule=SwitchingRule(np.array([5.0]), np.array([1.0]), "force")).modes == [DC]
+    assert _method(1, method="mixed", rule=SwitchingRule(np.array([np.inf]), np.array([1.0]))).modes == [DC]
+    assert _method(1, method="force_control").modes == [FC] and _method(1, method="implicit_dc").modes == [DC]
+
+
 # -- start and step against the alpha method -------------------------------------------------------
 def test_start_is_the_initial_state_of_eq_7():
     """Step 0: v = 0, a_0 = M^-1 (P_0 - R_0) with R_0 the committed force, the secant K^EI, no
@@ -166,7 +178,7 @@ def test_options_reach_the_solver():
                 anchor_dc=True, reset_at_reversal=True)
     c = m.core
     assert (c.j_max, c.tol_displacement, c.tol_force, c.fc_blend) == (7, 0.3, 0.4, 0.5)
-    assert c.blend_dc is True and c.anchor_dc is True and c.reset_at_reversal is True
+    assert c.blend_dc is True and c.anchor_dc.tolist() == [True] and c.reset_at_reversal is True
 
 
 def test_defaults_are_those_of_the_integrator_table():
@@ -180,7 +192,7 @@ def test_defaults_are_those_of_the_integrator_table():
     c = m.core
     assert (c.alpha, c.j_max, c.tol_displacement, c.tol_force, c.fc_blend) == \
         (d["alpha"], d["j_max"], d["tol_displacement_mm"], d["tol_force_kN"], d["fc_blend"])
-    assert (c.blend_dc, c.anchor_dc, c.reset_at_reversal) == (d["blend_dc"], d["anchor_dc"], False)
+    assert (c.blend_dc, bool(c.anchor_dc.all()), c.reset_at_reversal) == (d["blend_dc"], d["anchor_dc"], False)
     assert m.fallback_after is None and d["fc_fallback_after"] == 0
     assert m.refractory_steps == d["refractory_steps"] == 0
     assert m.explored_fraction is None and m.fc_force_limit is None
@@ -303,7 +315,7 @@ def test_refractory_period_starts_only_with_a_fallback():
 # -- fc_force_limit and explored_fraction ------------------------------------------------------------
 def _guard_run(P, **kw):
     """A linear element (exact secant 100) in mixed control with K_d = 50 < K_f = 90 < 100, so that
-    the rule puts it in FC after the first step; nearly static (a small mass, the alpha method's
+    the rule puts it in FC from the start; nearly static (a small mass, the alpha method's
     damping of high frequencies). Returns per step (1-based): the mode the step
     entered with, guarded or not (its first command a displacement), R_solution, measured R."""
     site = _Site([100.0])
@@ -327,12 +339,12 @@ def test_fc_force_limit_runs_a_step_beyond_the_limit_in_dc():
     P = [2.0, 5.0, 20.0, 5.0, -5.0, -20.0, -5.0, 5.0]
     rows, m = _guard_run(P, fc_force_limit=10.0, refractory_steps=10**6)
     entered = [r[0] for r in rows]
-    assert entered[0] is DC and all(e is FC for e in entered[1:])
-    guarded = [r[1] for r in rows[1:]]
-    expect = [abs(r[2]) > 10.0 for r in rows[1:]]
-    assert guarded == expect == [False, True, False, False, True, False, False]
+    assert all(e is FC for e in entered)  # K^EI = 100 > K_f: FC from the start
+    guarded = [r[1] for r in rows]
+    expect = [abs(r[2]) > 10.0 for r in rows]
+    assert guarded == expect == [False, False, True, False, False, True, False, False]
     assert m.guarded_steps == 2
-    for r in rows[1:]:
+    for r in rows:
         within = [s for s in r[4].switches if s.within_step]
         assert [(s.to, s.step) for s in within] == ([("displacement", r[4].switches[0].step)] if r[1] else [])
 

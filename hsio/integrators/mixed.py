@@ -180,7 +180,10 @@ class ImplicitMethod:
     """``implicit_dc``, ``force_control`` or ``mixed`` as a method of the experiment loop.
 
     ``K_N`` is the stiffness of the numerical part, which must be linear (the secant model of
-    eq. 9 covers the experimental elements only). In ``mixed``, an element in FC whose secant
+    eq. 9 covers the experimental elements only). In ``mixed`` each element starts in the mode its
+    rule gives at K^EI (at rest it is on its initial branch: a stiff one starts in FC, without a
+    first DC step whose transducer noise the anchored line of eq. 9 would carry into the state),
+    and an element in FC whose secant
     falls below the lower threshold during a step goes on in DC for the rest of the step
     (:meth:`ImplicitAlpha.step`, ``fallback_below``).
 
@@ -200,8 +203,8 @@ faster than FC can follow. ``fc_blend``: the
     resolution and the secant of eq. 11 is stale or noisy, so it says little about the branch
     ahead); the rule decides again the next step. FC -> DC is never deferred: the secant below
     K_d is the rule's reason (the specimen softens). ``reset_at_reversal``: a stale secant is set
-    back to K^EI at a reversal (:class:`ImplicitAlpha`). The defaults are the behaviour
-    without these guards.
+    back to K^EI at a reversal (:class:`ImplicitAlpha`). ``anchor_dc`` (:class:`ImplicitAlpha`) is on
+    by default; the other defaults are the behaviour without these guards.
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = -0.05, method: str = "mixed",
@@ -209,7 +212,7 @@ faster than FC can follow. ``fc_blend``: the
                  tol_displacement: float = 0.02, tol_force: float = 0.05, fc_blend: float = 1.0,
                  fallback_after: int | None = None, refractory_steps: int = 0,
                  explored_fraction: float | None = None, blend_dc: bool = False, fc_force_limit=None,
-                 no_fc_at_reversal: bool = False, anchor_dc: bool = False, reset_at_reversal: bool = False):
+                 no_fc_at_reversal: bool = False, anchor_dc=True, reset_at_reversal: bool = False):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         guards = {"fallback_after": fallback_after not in (None, 0), "refractory_steps": refractory_steps != 0,
@@ -230,6 +233,8 @@ faster than FC can follow. ``fc_blend``: the
         n_e = self.dofs.size
         self.dof_names = list(dof_names) if dof_names is not None else [str(d) for d in range(self.core.n_dof)]
         self.modes = [FC if method == "force_control" else DC] * n_e
+        if self.rule is not None:  # at rest an element is on its initial branch: its rule's mode at K^EI
+            self.modes = self.rule.next_modes(self.modes, self.core.K_EI, np.zeros(n_e))
         self.fallback_after = fallback_after
         self.refractory_steps = int(refractory_steps)
         self._dc_until = np.zeros(n_e, dtype=int)  # an element that did not converge in FC stays in DC
