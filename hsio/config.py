@@ -94,9 +94,29 @@ def from_dict(data: dict, source: str = "<dict>") -> RunConfig:
             if key not in DEFAULTS[name]:
                 raise ConfigError(f"{source}: unknown key {key!r} in [{name}]; known: {', '.join(DEFAULTS[name])}")
             tables[name][key] = _check_type(f"{source}: [{name}]", key, value, DEFAULTS[name][key])
+    _mixed_defaults(tables["integrator"], set(data.get("integrator") or {}))
     _check_ranges(tables, source)
     check_bounds(tables, source)
     return RunConfig(tables, source)
+
+
+# Mixed control without thresholds of its own runs the recipe of `hsio study mixed`: K_f, K_d from
+# the instruments, FC only while NS predicts every element elastic, the complementary estimate in
+# FC, a non-converging FC step finished in DC and that element in DC for good, no switch to FC at
+# a reversal (docs/force_control.md, "Running it"). Any of these keys given is kept as given.
+MIXED_RECIPE = {"switch_rule": "instruments", "fc_blend": 0.01, "fc_fallback_after": 2, "refractory_steps": 10**9,
+                "no_fc_at_reversal": True}
+THRESHOLD_KEYS = ("switch_on", "K_f", "K_d", "R_f", "R_d")
+
+
+def _mixed_defaults(integrator: dict, given: set) -> None:
+    """``method = "mixed"`` with none of K_f, K_d, R_f, R_d, switch_on, switch_rule given: the
+    keys of MIXED_RECIPE that were not given take the recipe's values."""
+    if integrator["method"] != "mixed" or given & set(THRESHOLD_KEYS + ("switch_rule",)):
+        return
+    for key, value in MIXED_RECIPE.items():
+        if key not in given:
+            integrator[key] = value
 
 
 # -- Sanity bounds (docs/faults.md) --------------------------------------------------------------
@@ -231,8 +251,9 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
         missing = [what for what, ok in zip(("the transducer's switch_resolution_mm or switch_noise_mm",
                                              "the load cell's switch_force_resolution_kN or switch_force_noise_kN"),
                                             known) if not ok]
-        raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' on real hardware needs "
-                          f"{' and '.join(missing)} (give the resolution, and the noise where there is any)")
+        raise ConfigError(f"{source}: [integrator] switch_rule = 'instruments' (the rule of method = 'mixed' "
+                          f"without thresholds of its own) on real hardware needs {' and '.join(missing)} (give "
+                          f"the resolution, and the noise where there is any; or give K_f and K_d)")
     off = DEFAULTS["integrator"]  # each option's default is its "off" value (anchor_dc, on, is not checked below)
     for key in MIXED_GUARDS:
         if i["method"] != "mixed" and i[key] != off[key]:

@@ -18,6 +18,7 @@ duration_s = 1.5
 pga_g = 1.0
 [integrator]
 method = "mixed"
+switch_rule = "initial_stiffness"  # K^EI-based thresholds: the wall switches to FC and back
 [test]
 rate = 5.0
 [output]

@@ -150,7 +150,7 @@ def test_guards_of_mixed_are_refused_with_other_methods():
     with pytest.raises(ConfigError, match=r"fc_blend applies to the implicit methods"):
         from_dict({"integrator": {"fc_blend": 0.5}})
     with pytest.raises(ConfigError, match=r"blend_dc needs fc_blend below 1"):
-        from_dict({"integrator": {"method": "mixed", "blend_dc": True}})
+        from_dict({"integrator": {"method": "mixed", "blend_dc": True, "fc_blend": 1.0}})
     for anchor in (True, False):  # alpha-OS has no secant line to anchor: either value is accepted
         assert from_dict({"integrator": {"anchor_dc": anchor}})["integrator"]["anchor_dc"] is anchor
     with pytest.raises(ConfigError, match=r"K_f is not read with switch_rule = 'instruments'"):
@@ -246,12 +246,13 @@ def test_an_off_value_of_another_type_is_typed_by_the_default(tmp_path):
     ({"method": "force_control", "switch_resolution_mm": 0.5}, "switch_resolution_mm applies to method = 'mixed'"),
     ({"method": "implicit_dc", "K_f": 3.0}, "K_f applies to method = 'mixed'"),
     ({"method": "implicit_dc", "switch_rule": "instruments"}, "switch_rule applies to method = 'mixed'"),
-    ({"method": "mixed", "switch_margin": 10.0}, "switch_margin applies to switch_rule = 'instruments', not to "
-                                                 "'initial_stiffness'"),
-    ({"method": "mixed", "switch_hysteresis": 5.0}, "switch_hysteresis applies to switch_rule = 'instruments'"),
-    ({"method": "mixed", "switch_resolution_mm": 0.5, "switch_force_resolution_kN": 1.0},
-     "switch_resolution_mm applies to switch_rule = 'instruments'"),
-    ({"method": "mixed", "switch_force_resolution_kN": 1.0}, "switch_force_resolution_kN applies to switch_rule"),
+    ({"method": "mixed", "switch_rule": "initial_stiffness", "switch_margin": 10.0},
+     "switch_margin applies to switch_rule = 'instruments', not to 'initial_stiffness'"),
+    ({"method": "mixed", "K_f": 3.0, "switch_hysteresis": 5.0}, "switch_hysteresis applies to switch_rule = 'instruments'"),
+    ({"method": "mixed", "switch_rule": "initial_stiffness", "switch_resolution_mm": 0.5,
+      "switch_force_resolution_kN": 1.0}, "switch_resolution_mm applies to switch_rule = 'instruments'"),
+    ({"method": "mixed", "R_f": 5.0, "switch_on": "force", "switch_force_resolution_kN": 1.0},
+     "switch_force_resolution_kN applies to switch_rule"),
     ({"method": "mixed", "switch_rule": "instruments", "R_f": 5.0}, "R_f is not read with switch_rule = 'instruments'"),
     ({"method": "mixed", "switch_rule": "instruments", "R_d": 1.0}, "R_d is not read with switch_rule = 'instruments'"),
     ({"method": "mixed", "R_f": 5.0}, "R_f applies to switch_on = 'force', not to 'stiffness'"),
@@ -285,6 +286,25 @@ def test_make_integrator_refuses_an_option_the_method_does_not_take(method, opti
     """A switched-on option is refused by name, never dropped, even where it equals 1 (True == 1 == 1.0)."""
     with pytest.raises(ConfigError, match=rf"^{option}: not an option of method = '{method}'"):
         make_integrator(get_structure("structure_II_infill"), method, **{option: value})
+
+
+def test_mixed_without_thresholds_of_its_own_runs_the_study_recipe():
+    """method = "mixed" alone: K_f, K_d from the instruments with the NS gate and the guards of
+    `hsio study mixed`; any key given is kept; thresholds given keep the K^EI rule, guards off."""
+    from hsio.config import MIXED_RECIPE
+
+    i = from_dict({"integrator": {"method": "mixed"}})["integrator"]
+    assert {k: i[k] for k in MIXED_RECIPE} == MIXED_RECIPE and i["switch_rule"] == "instruments"
+    assert i["switch_max_hysteretic_ratio"] == 0.1
+    i = from_dict({"integrator": {"method": "mixed", "fc_blend": 0.2, "switch_margin": 3.0}})["integrator"]
+    assert i["fc_blend"] == 0.2 and i["switch_margin"] == 3.0 and i["switch_rule"] == "instruments"
+    for own in ({"K_f": 3.0}, {"switch_on": "force", "R_f": 5.0}, {"switch_rule": "initial_stiffness"}):
+        i = from_dict({"integrator": {"method": "mixed", **own}})["integrator"]
+        assert i["switch_rule"] == "initial_stiffness" and i["fc_blend"] == 1.0 and i["refractory_steps"] == 0
+    assert from_dict({"integrator": {"method": "implicit_dc"}})["integrator"]["fc_blend"] == 1.0
+    with pytest.raises(ConfigError, match=r"the rule of method = 'mixed' without thresholds of its own\) on real "
+                                          r"hardware needs the transducer's"):
+        from_dict({"integrator": {"method": "mixed"}, "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
 
 
 def test_anchor_dc_is_checked_on_by_default_and_may_be_given_per_element_in_mixed():
