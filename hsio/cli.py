@@ -196,14 +196,17 @@ def check(config_file: str | None, as_json: bool) -> None:
         structure = runner.load_run_structure(cfg)
         runner.check_run_method(cfg, structure)
         ground = runner.build_record(cfg, structure)
-        _, report = runner.predict(cfg, structure, ground)
+        ns, report = runner.predict(cfg, structure, ground)
+        switching = runner.describe_switching(cfg, structure, ns)
     except HsioError as exc:
         click.echo(f"hsio check: error: {exc}", err=True)
         sys.exit(2)
     if as_json:
-        click.echo(json.dumps(report.as_dict(), indent=2))
+        click.echo(json.dumps({**report.as_dict(), **({"switching": switching} if switching else {})}, indent=2))
     else:
         click.echo(report.text())
+        if switching:
+            click.echo(runner.switching_text(switching))
     sys.exit(2 if report.refused else 0)
 
 

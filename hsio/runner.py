@@ -26,6 +26,7 @@ from hsio.experiment import ExperimentStopped
 from hsio.hardware import check_options
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
+from hsio.integrators.mixed import predicted_elastic
 from hsio.ledger import Ledger
 from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
@@ -154,6 +155,42 @@ def switching_rule(structure: Structure, integ: dict, emulator: dict | None = No
         lower = integ["R_d"] if integ["R_d"] > 0 else 0.5 * integ["R_f"]
         return SwitchingRule(np.full(n, integ["R_f"]), np.full(n, lower), "force")
     return SwitchingRule.from_initial_stiffness(K_EI, integ["K_f"], integ["K_d"])
+
+
+def describe_switching(config: RunConfig, structure: Structure, ns) -> dict | None:
+    """What mixed control will do, for `hsio check`: the rule, each element's thresholds (upper
+    None: the element stays in DC) and, with the instruments rule, the NS prediction it read."""
+    integ = config["integrator"]
+    if integ["method"] != "mixed":
+        return None
+    emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
+    emulator = emulator if config["hardware"]["url"].startswith("emulator") else None
+    rule = switching_rule(structure, integ, emulator, ns)
+    unit = "kN/mm" if rule.on == "stiffness" else "kN"
+    out = {"rule": integ["switch_rule"], "on": rule.on, "unit": unit, "elements": {
+        e.name: {"upper": float(up) if np.isfinite(up) else None, "lower": float(lo)}
+        for e, up, lo in zip(structure.experimental, rule.upper, rule.lower)}}
+    if needs_prediction(integ):
+        out["ns_elastic"] = {e.name: bool(ok) for e, ok in zip(
+            structure.experimental, predicted_elastic(ns, structure, integ["switch_max_hysteretic_ratio"]))}
+    return out
+
+
+def switching_text(switching: dict) -> str:
+    """:func:`describe_switching` as lines of text."""
+    lines = [f"switching      mixed, rule {switching['rule']!r} on the {switching['on']}"]
+    elastic = switching.get("ns_elastic")
+    if elastic is not None:
+        dissipating = [name for name, ok in elastic.items() if not ok]
+        lines.append("  NS predicts every element elastic: FC allowed where the thresholds say" if not dissipating
+                     else f"  NS predicts {', '.join(dissipating)} dissipating energy: every element stays in DC")
+    for name, t in switching["elements"].items():
+        if t["upper"] is None:
+            lines.append(f"  {name:<12} DC throughout")
+        else:
+            lines.append(f"  {name:<12} to FC above {t['upper']:.4g} {switching['unit']}, "
+                         f"back to DC below {t['lower']:.4g} {switching['unit']}")
+    return "\n".join(lines)
 
 
 def needs_prediction(integ: dict) -> bool:

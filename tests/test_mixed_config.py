@@ -352,3 +352,24 @@ def test_a_server_that_never_integrates_is_not_refused_for_the_method():
 
     cfg = from_dict({"structure": {"name": "column_two_actuators"}, "integrator": {"method": "mixed"}})
     assert load_run_structure(cfg).name == "column_two_actuators"
+
+
+@pytest.mark.parametrize("pga, says", [
+    (0.05, ["NS predicts every element elastic", "BF           to FC above 4.22 kN/mm, back to DC below 2.11 kN/mm"]),
+    (0.2, ["NS predicts IF dissipating energy: every element stays in DC", "IF           DC throughout"]),
+])
+def test_check_says_what_mixed_control_will_do(tmp_path, pga, says):
+    """`hsio check` shows the switching rule of a mixed run: the thresholds (here from the
+    emulator's instruments: 5 x 0.0104 / 0.0123 kN/mm) and what the NS gate read."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(_toml({"structure": {"name": "structure_II_infill"},
+                          "record": {"synthetic_duration_s": 2.0, "pga_g": pga},
+                          "integrator": {"method": "mixed"}, "emulator": INSTRUMENTS}))
+    out = CliRunner().invoke(main, ["check", str(cfg)])
+    assert out.exit_code == 0, out.output
+    assert "switching      mixed, rule 'instruments' on the stiffness" in out.output
+    for line in says:
+        assert line in out.output, out.output
+    data = json.loads(CliRunner().invoke(main, ["check", "--json", str(cfg)]).output)
+    assert data["switching"]["ns_elastic"]["IF"] is (pga == 0.05)
+    assert (data["switching"]["elements"]["IF"]["upper"] is None) is (pga == 0.2)
