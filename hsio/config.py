@@ -103,20 +103,23 @@ def from_dict(data: dict, source: str = "<dict>") -> RunConfig:
 # Mixed control without thresholds of its own runs the recipe of `hsio study mixed`: K_f, K_d from
 # the instruments, FC only while NS predicts every element elastic, the complementary estimate in
 # FC, a non-converging FC step finished in DC and that element in DC for good, no switch to FC at
-# a reversal (docs/force_control.md, "Running it"). Any of these keys given is kept as given.
+# a reversal (docs/force_control.md, "Running it"). Any of these keys given is kept as given;
+# thresholds of its own (or switch_rule = "initial_stiffness") give the paper's rule, no guards.
 MIXED_RECIPE = {"switch_rule": "instruments", "fc_blend": 0.01, "fc_fallback_after": 2, "refractory_steps": 10**9,
                 "no_fc_at_reversal": True}
 THRESHOLD_KEYS = ("switch_on", "K_f", "K_d", "R_f", "R_d")
 
 
 def _mixed_defaults(integrator: dict, given: set) -> None:
-    """``method = "mixed"`` with none of K_f, K_d, R_f, R_d, switch_on, switch_rule given: the
-    keys of MIXED_RECIPE that were not given take the recipe's values."""
-    if integrator["method"] != "mixed" or given & set(THRESHOLD_KEYS + ("switch_rule",)):
+    """``method = "mixed"`` with none of K_f, K_d, R_f, R_d, switch_on given and no switch_rule
+    other than "instruments": the keys of MIXED_RECIPE that were not given take the recipe's
+    values (the fallback after at most j_max commands)."""
+    own_rule = "switch_rule" in given and integrator["switch_rule"] != "instruments"
+    if integrator["method"] != "mixed" or own_rule or given & set(THRESHOLD_KEYS):
         return
     for key, value in MIXED_RECIPE.items():
         if key not in given:
-            integrator[key] = value
+            integrator[key] = min(value, integrator["j_max"]) if key == "fc_fallback_after" else value
 
 
 # -- Sanity bounds (docs/faults.md) --------------------------------------------------------------

@@ -323,6 +323,14 @@ class Structure:
             raise ConfigError(f"structure {self.name!r}: two experimental elements share an actuator")
         if not self.dt > 0:
             raise ConfigError(f"structure {self.name!r}: dt must be positive")
+        if self.damping.kind not in DAMPING_KINDS:
+            raise ConfigError(f"structure {self.name!r}: damping kind must be one of {', '.join(DAMPING_KINDS)}, "
+                              f"got {self.damping.kind!r}")
+        if self.damping.kind != "modal" and any(not 1 <= m <= n for m in self.damping.mode_numbers()):
+            hint = (" (Rayleigh damping takes two modes: on one DOF give Damping(zeta, kind='mass') or "
+                    "kind='stiffness')") if self.damping.kind == "rayleigh" and n == 1 else ""
+            raise ConfigError(f"structure {self.name!r}: damping {self.damping.kind!r} on modes "
+                              f"{list(self.damping.mode_numbers())}, but the structure has {n} mode(s){hint}")
 
     @property
     def n_dof(self) -> int:

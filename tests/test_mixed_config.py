@@ -301,6 +301,8 @@ def test_mixed_without_thresholds_of_its_own_runs_the_study_recipe():
     for own in ({"K_f": 3.0}, {"switch_on": "force", "R_f": 5.0}, {"switch_rule": "initial_stiffness"}):
         i = from_dict({"integrator": {"method": "mixed", **own}})["integrator"]
         assert i["switch_rule"] == "initial_stiffness" and i["fc_blend"] == 1.0 and i["refractory_steps"] == 0
+    i = from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "j_max": 1}})["integrator"]
+    assert i["no_fc_at_reversal"] is True and i["fc_fallback_after"] == 1  # never beyond j_max
     assert from_dict({"integrator": {"method": "implicit_dc"}})["integrator"]["fc_blend"] == 1.0
     with pytest.raises(ConfigError, match=r"the rule of method = 'mixed' without thresholds of its own\) on real "
                                           r"hardware needs the transducer's"):

@@ -79,3 +79,19 @@ def test_validation_structure_modes_and_damping():
     # a stiff coupling: the first mode is the two masses moving together on both columns
     assert f[0] == pytest.approx(np.sqrt((0.613 + 0.536) / 0.0028) / (2 * np.pi), rel=0.01)
     assert np.allclose(s.C, 2 * 0.05 * 2 * np.pi * f[0] * M, rtol=1e-12)
+
+
+def test_damping_on_modes_the_structure_lacks_is_refused_when_it_is_built():
+    """A one-DOF structure built in code keeps the default Rayleigh damping (modes 1 and 2) only
+    to be refused at once, naming the fix, not later when a run asks for C."""
+    from hsio.errors import ConfigError
+
+    wall = ExperimentalElement(name="w", dof=0, specimen={"kind": "linear", "k": 1.0})
+    with pytest.raises(ConfigError, match=r"damping 'rayleigh' on modes \[1, 2\], but the structure has 1 mode\(s\) "
+                                          r"\(Rayleigh damping takes two modes: on one DOF give Damping\(zeta, kind='mass'\)"):
+        Structure("one", ("x",), (0.01,), (wall,))
+    with pytest.raises(ConfigError, match=r"damping 'mass' on modes \[3\], but the structure has 2 mode"):
+        Structure("two", ("x", "y"), (0.01, 0.01), (wall,), damping=Damping(0.05, "mass", (3,)))
+    with pytest.raises(ConfigError, match="damping kind must be one of"):
+        Structure("one", ("x",), (0.01,), (wall,), damping=Damping(0.05, "viscous"))
+    assert Structure("one", ("x",), (0.01,), (wall,), damping=Damping(0.05, "mass")).n_dof == 1

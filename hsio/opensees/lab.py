@@ -45,7 +45,7 @@ from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder, RecordExistsError
 from hsio.safety.settings import SafetySettings
 from hsio.sites.actuators import RampStopped
-from hsio.structures import ExperimentalElement, Structure, channel_names
+from hsio.structures import Damping, ExperimentalElement, Structure, channel_names
 
 
 MAX_SESSION_FILES = 100_000  # record names tried for one session
@@ -72,9 +72,11 @@ def served_structure(structure: Structure, names) -> Structure:
     # the external instruments that a served element reads its displacement from, or that sit on one
     used = {e.displacement_from for e in elements if e.displacement_from}
     instruments = tuple(i for i in structure.instruments if i.name in used or i.element in names)
+    # OpenSees integrates the model: the served structure's mass and damping are placeholders, never used
     return Structure(name=structure.name, dof_names=tuple(dof_names), masses=(1.0,) * len(dof_names),
-                     experimental=tuple(elements), dt=structure.dt, description=f"served elements of {structure.name}",
-                     static=structure.static, instruments=instruments)
+                     experimental=tuple(elements), damping=Damping(0.0, "mass"), dt=structure.dt,
+                     description=f"served elements of {structure.name}", static=structure.static,
+                     instruments=instruments)
 
 
 def length_units(element: ExperimentalElement, length_factor: float) -> np.ndarray:
