@@ -23,6 +23,7 @@ specimen stands (docs/safety.md section 6):
 from __future__ import annotations
 
 import numbers
+import warnings
 
 import numpy as np
 
@@ -289,6 +290,12 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     check_run_inputs(structure, ground, site)
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
+    if (getattr(integrator, "method", "") in ("force_control", "mixed") and isinstance(site, ActuatorSite)
+            and site.estimator is None):
+        warnings.warn(f"{integrator.method}: the site has no secant estimator, so eq. (11) is taken on each "
+                      f"step's averaged measurement, whose noise near the peaks misleads force control (a linear "
+                      f"SDOF: 10 to 14 % off NS, against 1.5 to 1.9 % with open_site(..., estimator="
+                      f"SecantEstimator('average', 16, 0.1)); docs/api.md)", stacklevel=2)
     static = getattr(site, "static", None)
     if not static and getattr(site, "instruments", None) is None:
         return run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,

@@ -39,6 +39,7 @@ def test_api_result_is_typed_and_converts_to_a_dataframe():
         hsio.run_numerical(structure, ground, method="newmark")
 
 
+@pytest.mark.filterwarnings("ignore:mixed. the site has no secant estimator")  # a linear specimen
 def test_open_site_holds_and_closes_on_exit():
     structure = hsio.load_structure("validation")
     ground = hsio.synthetic_record(duration_s=0.3, dt=structure.dt, seed=1)
@@ -80,3 +81,25 @@ def test_the_readme_structure_example_loads(tmp_path):
     assert [e.name for e in structure.experimental] and structure.experimental[0].K_EI == 60.0
     ratios = structure.damping_ratios()
     assert ratios[0] == pytest.approx(0.05, rel=1e-9) and ratios[1] == pytest.approx(0.05, rel=1e-9)
+
+
+def test_force_control_on_a_site_without_a_secant_estimator_warns():
+    """FC and mixed read the secant of eq. (11); without an estimator it comes from each step's
+    averaged measurement, noisy near the peaks: simulate says so, once per run; DC does not."""
+    import warnings
+
+    from hsio.secant import SecantEstimator
+
+    structure = hsio.load_structure("validation")
+    ground = hsio.synthetic_record(duration_s=0.1, dt=structure.dt, pga_g=0.1, seed=1)
+    with hsio.open_site(structure, "emulator://", test_rate=5.0) as site:
+        with pytest.warns(UserWarning, match=r"force_control: the site has no secant estimator.*estimator="
+                                             r"SecantEstimator\('average', 16, 0.1\)"):
+            hsio.simulate(structure, ground, site, method="force_control")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with hsio.open_site(structure, "emulator://", test_rate=5.0) as site:
+            hsio.simulate(structure, ground, site, method="implicit_dc")
+        with hsio.open_site(structure, "emulator://", test_rate=5.0,
+                            estimator=SecantEstimator("average", 16, 0.1)) as site:
+            hsio.simulate(structure, ground, site, method="mixed")
