@@ -157,19 +157,25 @@ def switching_rule(structure: Structure, integ: dict, emulator: dict | None = No
     return SwitchingRule.from_initial_stiffness(K_EI, integ["K_f"], integ["K_d"])
 
 
+def emulated_instruments(config: RunConfig) -> dict | None:
+    """The emulated controller's table (with an actuator model's settings), where the instruments
+    rule reads the transducer and the load cell; None on real hardware (the [integrator] keys)."""
+    if not config["hardware"]["url"].startswith("emulator"):
+        return None
+    return merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
+
+
 def describe_switching(config: RunConfig, structure: Structure, ns) -> dict | None:
     """What mixed control will do, for `hsio check`: the rule, each element's thresholds (upper
     None: the element stays in DC) and, with the instruments rule, the NS prediction it read."""
     integ = config["integrator"]
     if integ["method"] != "mixed":
         return None
-    emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
-    emulator = emulator if config["hardware"]["url"].startswith("emulator") else None
-    rule = switching_rule(structure, integ, emulator, ns)
-    unit = "kN/mm" if rule.on == "stiffness" else "kN"
-    out = {"rule": integ["switch_rule"], "on": rule.on, "unit": unit, "elements": {
-        e.name: {"upper": float(up) if np.isfinite(up) else None, "lower": float(lo)}
-        for e, up, lo in zip(structure.experimental, rule.upper, rule.lower)}}
+    thresholds = switching_rule(structure, integ, emulated_instruments(config), ns).as_dict()
+    unit = "kN/mm" if thresholds["on"] == "stiffness" else "kN"
+    out = {"rule": integ["switch_rule"], "on": thresholds["on"], "unit": unit, "elements": {
+        e.name: {"upper": up, "lower": lo}
+        for e, up, lo in zip(structure.experimental, thresholds["upper"], thresholds["lower"])}}
     if needs_prediction(integ):
         out["ns_elastic"] = {e.name: bool(ok) for e, ok in zip(
             structure.experimental, predicted_elastic(ns, structure, integ["switch_max_hysteretic_ratio"]))}
@@ -205,9 +211,8 @@ def integrator_options(config: RunConfig, structure: Structure, ns=None) -> dict
     integ = config["integrator"]
     if integ["method"] == "alpha_os":
         return {"correct_measured_displacement": config["test"]["measured_displacement_correction"]}
-    emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
-    emulator = emulator if config["hardware"]["url"].startswith("emulator") else None
-    options = {"rule": switching_rule(structure, integ, emulator, ns) if integ["method"] == "mixed" else None,
+    options = {"rule": (switching_rule(structure, integ, emulated_instruments(config), ns)
+                        if integ["method"] == "mixed" else None),
                "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"],
                "tol_force": integ["tol_force_kN"], "fc_blend": integ["fc_blend"], "anchor_dc": integ["anchor_dc"],
                "blend_dc": integ["blend_dc"]}

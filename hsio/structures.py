@@ -246,18 +246,25 @@ class Damping:
             raise ConfigError(f"damping {self.kind!r}: {len(z)} ratios for {count} modes")
         return tuple(float(v) for v in z)
 
-    def matrix(self, M: np.ndarray, K: np.ndarray) -> np.ndarray:
-        n = M.shape[0]
+    def check(self, n: int) -> None:
+        """The kind is known and, unless modal, its modes exist among the ``n`` of the structure."""
         if self.kind not in DAMPING_KINDS:
             raise ConfigError(f"damping kind must be one of {', '.join(DAMPING_KINDS)}, got {self.kind!r}")
+        modes = self.mode_numbers()
+        if self.kind != "modal" and any(not 1 <= m <= n for m in modes):
+            hint = (" (Rayleigh damping takes two modes: on one DOF give Damping(zeta, kind='mass') or "
+                    "kind='stiffness')") if self.kind == "rayleigh" and n == 1 else ""
+            raise ConfigError(f"damping {self.kind!r} on modes {list(modes)}, but the structure has {n} mode(s){hint}")
+
+    def matrix(self, M: np.ndarray, K: np.ndarray) -> np.ndarray:
+        n = M.shape[0]
+        self.check(n)
         if self.kind == "modal":
             w2, phi = scipy.linalg.eigh(K, M)
             zeta = np.asarray(self.ratios(n))
             Mphi = M @ phi
             return Mphi @ np.diag(2 * zeta * np.sqrt(w2)) @ Mphi.T
         modes = self.mode_numbers()
-        if any(not 1 <= m <= n for m in modes):
-            raise ConfigError(f"damping {self.kind!r} on modes {list(modes)}: the structure has {n} mode(s)")
         omega = np.sqrt(np.sort(scipy.linalg.eigh(K, M, eigvals_only=True)))
         if self.kind in ("mass", "stiffness"):
             (zeta,) = self.ratios(1)
@@ -323,14 +330,10 @@ class Structure:
             raise ConfigError(f"structure {self.name!r}: two experimental elements share an actuator")
         if not self.dt > 0:
             raise ConfigError(f"structure {self.name!r}: dt must be positive")
-        if self.damping.kind not in DAMPING_KINDS:
-            raise ConfigError(f"structure {self.name!r}: damping kind must be one of {', '.join(DAMPING_KINDS)}, "
-                              f"got {self.damping.kind!r}")
-        if self.damping.kind != "modal" and any(not 1 <= m <= n for m in self.damping.mode_numbers()):
-            hint = (" (Rayleigh damping takes two modes: on one DOF give Damping(zeta, kind='mass') or "
-                    "kind='stiffness')") if self.damping.kind == "rayleigh" and n == 1 else ""
-            raise ConfigError(f"structure {self.name!r}: damping {self.damping.kind!r} on modes "
-                              f"{list(self.damping.mode_numbers())}, but the structure has {n} mode(s){hint}")
+        try:
+            self.damping.check(n)
+        except ConfigError as exc:
+            raise ConfigError(f"structure {self.name!r}: {exc}") from None
 
     @property
     def n_dof(self) -> int:

@@ -112,6 +112,11 @@ class SwitchingRule:
         keep = np.broadcast_to(np.asarray(elements, dtype=bool), self.upper.shape)
         return SwitchingRule(np.where(keep, np.inf, self.upper), self.lower, self.on)
 
+    def as_dict(self) -> dict:
+        """``on`` and the thresholds per element as plain numbers; upper None: the element never goes to FC."""
+        return {"on": self.on, "upper": [float(v) if np.isfinite(v) else None for v in self.upper],
+                "lower": self.lower.tolist()}
+
     def next_modes(self, modes: list[ControlMode], k: np.ndarray, R: np.ndarray) -> list[ControlMode]:
         q = np.asarray(k, dtype=float) if self.on == "stiffness" else np.abs(np.asarray(R, dtype=float))
         upper = np.broadcast_to(self.upper, q.shape)
@@ -249,9 +254,7 @@ faster than FC can follow. ``fc_blend``: the
         self.deferred_at_reversal = 0
         self.not_converged: list[dict] = []  # FC elements that did not converge and went on in DC
         self.fallback = self.rule.lower if self.rule is not None and self.rule.on == "stiffness" else None
-        self.thresholds = None if self.rule is None else {  # upper None: the element never goes to FC
-            "on": self.rule.on, "upper": [float(v) if np.isfinite(v) else None for v in self.rule.upper],
-            "lower": self.rule.lower.tolist()}
+        self.thresholds = None if self.rule is None else self.rule.as_dict()
 
     def start(self, P0, site, numerical) -> StepOutcome:
         site.set_modes(self.modes)
