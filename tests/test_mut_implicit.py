@@ -196,6 +196,34 @@ def test_fc_base_is_the_complementary_estimate(lam):
     assert abs(u_m - u_s) > 1e-3  # the offset matters: lambda changes the command
 
 
+def test_a_guarded_step_restarts_the_complementary_estimate_from_the_measurement():
+    """An FC element guarded into DC for a step (its force outside the range) runs that step from
+    its measured displacement, and the complementary estimate it carries into the next FC step is
+    built from that base, u_s = u_meas + (R_m - R_meas) / k, not from the estimate it had before
+    (which FC on a stale secant may have carried far from the specimen: a cracked infill)."""
+    site = _BiasedSite(bias=0.0, estimate=False)
+    lam = 0.1
+    alg = _alpha(1, j_max=1, fc_blend=lam, tol_force=1e-9)
+    alg.start(np.zeros(1), site)
+    alg.step(np.array([40.0]), site, [FC])
+    alg._u_fc = alg._u_fc + 0.3  # an estimate that has drifted 0.3 mm from the specimen
+    u_base, R_base = (float(x[0]) for x in site.committed())
+    _, rep = alg.step(np.array([50.0]), site, [FC], fc_force_range=(np.array([-1.0]), np.array([1.0])))
+    assert rep.guarded[0] and rep.modes == [DC]
+    assert site.sent[-1][0][0] == pytest.approx(rep.u_solution[0], rel=1e-12)
+    k, u_m, R_m = rep.k[0], rep.measured_u[0], rep.measured_R[0]
+    u_s = u_base + (R_m - R_base) / k
+    expected_u_b = u_s + lam * (u_m - u_s)
+    K_star = alg.K_star[0, 0]
+    u_pred, _ = alg.predict()
+    P_star = 60.0 + K_star * u_pred[0]  # eq. (10) with alpha = 0, C = 0
+    expected = (P_star + K_star / k * R_m - K_star * expected_u_b) / (K_star / k + 1.0)
+    n = len(site.sent)
+    alg.step(np.array([60.0]), site, [FC])
+    assert site.sent[n][0][0] == pytest.approx(expected, rel=1e-9)
+    assert abs(expected_u_b - u_m) < 0.05  # the drift of 0.3 mm is gone
+
+
 def test_reset_at_reversal_only_at_a_reversal():
     """reset_at_reversal with every estimate refused and the secant stale (10 against K^EI = 100):
     a step without any increment, the first loading from rest (either sign) and small force
