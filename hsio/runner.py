@@ -26,7 +26,7 @@ from hsio.experiment import ExperimentStopped
 from hsio.hardware import check_options
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
-from hsio.integrators.mixed import predicted_elastic
+from hsio.integrators.mixed import RATIO_D, RATIO_F, initial_stiffness_thresholds, predicted_elastic
 from hsio.ledger import Ledger
 from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
@@ -154,6 +154,16 @@ def switching_rule(structure: Structure, integ: dict, emulator: dict | None = No
     if integ["switch_on"] == "force":
         lower = integ["R_d"] if integ["R_d"] > 0 else 0.5 * integ["R_f"]
         return SwitchingRule(np.full(n, integ["R_f"]), np.full(n, lower), "force")
+    upper, lower = initial_stiffness_thresholds(K_EI, integ["K_f"], integ["K_d"])
+    crossed = [(e.name, up, lo) for e, up, lo in zip(structure.experimental, upper, lower) if not lo < up]
+    if crossed:
+        name, up, lo = crossed[0]
+        given = {key: integ[key] for key in ("K_f", "K_d") if integ[key] > 0}
+        defaults = " and ".join(f"{key} = {share:g} K^EI" for key, share in (("K_f", RATIO_F), ("K_d", RATIO_D))
+                                if key not in given)
+        raise ConfigError(f"[integrator] element {name}: K_d = {lo:.4g} kN/mm must be below K_f = {up:.4g} kN/mm "
+                          f"(to FC above K_f, back to DC below K_d; {defaults or 'both given'} where not given); "
+                          f"give K_d below K_f, or K_f above K_d")
     return SwitchingRule.from_initial_stiffness(K_EI, integ["K_f"], integ["K_d"])
 
 
@@ -401,6 +411,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                     ns = None
             if ns is not None:
                 recorder.write_ns(ns.t, ns.u)
+            integrator = api.make_integrator(structure, method, alpha, **integrator_options(config, structure, predicted))
             control.enter("start-up")
             control.check_stop()
             estimator = (SecantEstimator(integ["secant"], integ["secant_n_avg"], integ["secant_min_increment_mm"])
@@ -424,8 +435,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             control.check_stop()
             control.enter("HS")
             try:
-                hs = api.simulate(structure, ground, site, method, alpha, recorder, progress, control=control,
-                                  start=test["start"], **integrator_options(config, structure, predicted))
+                hs = api.simulate(structure, ground, site, method, alpha, recorder, progress, integrator=integrator,
+                                  control=control, start=test["start"])
             except ExperimentStopped as exc:
                 hs, error = exc.result, exc
             control.enter("closing")

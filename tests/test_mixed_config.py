@@ -375,3 +375,24 @@ def test_check_says_what_mixed_control_will_do(tmp_path, pga, says):
     data = json.loads(CliRunner().invoke(main, ["check", "--json", str(cfg)]).output)
     assert data["switching"]["ns_elastic"]["IF"] is (pga == 0.05)
     assert (data["switching"]["elements"]["IF"]["upper"] is None) is (pga == 0.2)
+
+
+@pytest.mark.parametrize("integrator, says", [
+    ({"method": "mixed", "K_f": 5.0}, "element BF: K_d = 5.76 kN/mm must be below K_f = 5 kN/mm"),
+    ({"method": "mixed", "K_d": 200.0}, "element BF: K_d = 200 kN/mm must be below K_f = 8.64 kN/mm"),
+    ({"method": "mixed", "K_f": 3.0, "K_d": 4.0}, "K_d (4.0) must be below K_f (3.0)"),
+])
+def test_crossed_stiffness_thresholds_exit_2_before_the_actuators_open(tmp_path, integrator, says):
+    """K_f given alone below 0.8 K^EI (the default K_d), or K_d alone above 1.2 K^EI: refused with
+    the element and both values, and what the missing one defaults to, before the site opens
+    (no "actuators stand at"); `hsio check` says the same."""
+    out = _run(tmp_path, integrator)
+    assert out.exit_code == 2, out.output
+    assert says in out.output and "[integrator]" in out.output
+    assert "stand at" not in out.output
+    if len(integrator) == 2:
+        missing = "K_d = 0.8 K^EI" if "K_f" in integrator else "K_f = 1.2 K^EI"
+        assert missing in out.output
+    cfg = tmp_path / "c.toml"
+    checked = CliRunner().invoke(main, ["check", str(cfg)])
+    assert checked.exit_code == 2 and says in checked.output

@@ -31,6 +31,7 @@ from hsio.result import Switch
 METHODS = ("implicit_dc", "force_control", "mixed")
 DC = ControlMode.DISPLACEMENT
 FC = ControlMode.FORCE
+RATIO_F, RATIO_D = 1.2, 0.8  # the paper's thresholds, as multiples of K^EI
 
 
 @dataclass(frozen=True)
@@ -62,13 +63,10 @@ class SwitchingRule:
         object.__setattr__(self, "lower", lower)
 
     @classmethod
-    def from_initial_stiffness(cls, K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio_f: float = 1.2,
-                               ratio_d: float = 0.8) -> "SwitchingRule":
+    def from_initial_stiffness(cls, K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio_f: float = RATIO_F,
+                               ratio_d: float = RATIO_D) -> "SwitchingRule":
         """K_f, K_d in kN/mm, or (when zero) ratio_f K^EI and ratio_d K^EI per element."""
-        K_EI = np.asarray(K_EI, dtype=float)
-        upper = np.full(K_EI.shape, K_f) if K_f > 0 else ratio_f * K_EI
-        lower = np.full(K_EI.shape, K_d) if K_d > 0 else ratio_d * K_EI
-        return cls(upper, lower, "stiffness")
+        return cls(*initial_stiffness_thresholds(K_EI, K_f, K_d, ratio_f, ratio_d), "stiffness")
 
     @classmethod
     def from_instruments(cls, K_EI, resolution_mm: float, force_resolution_kN: float, margin: float = 5.0,
@@ -130,6 +128,15 @@ class SwitchingRule:
             else:
                 out.append(m)
         return out
+
+
+def initial_stiffness_thresholds(K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio_f: float = RATIO_F,
+                                 ratio_d: float = RATIO_D) -> tuple[np.ndarray, np.ndarray]:
+    """(K_f, K_d) per element: as given (kN/mm), or where zero ratio_f K^EI and ratio_d K^EI."""
+    K_EI = np.asarray(K_EI, dtype=float)
+    upper = np.full(K_EI.shape, K_f) if K_f > 0 else ratio_f * K_EI
+    lower = np.full(K_EI.shape, K_d) if K_d > 0 else ratio_d * K_EI
+    return upper, lower
 
 
 def instrument_uncertainty(resolution: float, noise: float) -> float:
