@@ -175,6 +175,7 @@ class DriveNode:
         self.identity: dict = {}
         self.max_torque_permille: int | None = None
         self.limits_counts = (0, 0)
+        self.watchdog_s = 0.0  # host watchdog time (0x2103, where the drive has it; 0: off or unknown)
         self.enabling = False  # set once the drive may be enabled: a failure must disable it
 
     def sdo_read(self, index: int, sub: int = 0, what: str = ""):
@@ -404,6 +405,8 @@ class CanopenLink(common.AxisLink):
         lo = self._read_optional(d, 0x607D, 1, "min position limit")
         hi = self._read_optional(d, 0x607D, 2, "max position limit")
         d.limits_counts = (lo or 0, hi or 0) if lo is not None and hi is not None else (0, 0)
+        watchdog_ms = self._read_optional(d, cod.WATCHDOG_MS, 0, "host watchdog time")
+        d.watchdog_s = watchdog_ms / 1000.0 if watchdog_ms else 0.0
         flag = self._read_optional(d, cod.LOCKSTEP_FLAG, 0, "lockstep flag")
         self.lockstep = bool(flag)
         if self.lockstep:
@@ -568,6 +571,11 @@ class CanopenActuator(Actuator, ActuatorChannels):
     @property
     def mode(self) -> ControlMode:
         return self.drive.mode
+
+    @property
+    def watchdog_s(self) -> float:
+        """The drive's host watchdog time (0x2103; 0: off or not in its dictionary)."""
+        return self.drive.watchdog_s
 
     def set_mode(self, mode: ControlMode) -> None:
         d = self.drive

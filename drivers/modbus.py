@@ -398,6 +398,12 @@ class ModbusActuator(Actuator, ActuatorChannels):
     def mode(self) -> ControlMode:
         return self._mode
 
+    @property
+    def watchdog_s(self) -> float:
+        """The controller's host watchdog time (its info register ``watchdog_s``; 0: off or not reported)."""
+        value = self.link.info.get("watchdog_s", 0.0)
+        return float(value) if value and value > 0 else 0.0
+
     def set_mode(self, mode: ControlMode) -> None:
         """Bumpless: the new command starts at the present measurement."""
         if mode is self._mode:

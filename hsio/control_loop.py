@@ -269,6 +269,13 @@ class ControlLoop:
                 if keep is not None:
                     keep()
 
+    def keep_alive_period_s(self) -> float | None:
+        """How often :meth:`keep_alive` must run: a quarter of the shortest host watchdog an
+        actuator reports (None: none reports one)."""
+        times = [float(getattr(a, "watchdog_s", 0.0) or 0.0) for a in self.actuators]
+        times = [t for t in times if t > 0]
+        return min(times) / 4.0 if times else None
+
     def confirm_hold(self) -> HoldReport:
         """Ask every actuator whether it holds (True, False or None: cannot tell)."""
         with self._lock:

@@ -191,3 +191,41 @@ def test_sigterm_during_start_up_holds_the_actuators(tmp_path, monkeypatch):
     run = Run(tmp_path / "o" / "run.sqlite")
     assert run.summary["exit_status"] == 5 and "the actuators hold (confirmed" in run.events()[-1]["message"]
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the handler is restored
+
+
+class _WatchedSite:
+    """What a pause needs of a site, with a host watchdog of ``watchdog_s`` (None: none reported)."""
+
+    def __init__(self, watchdog_s=None):
+        self.watchdog_s = watchdog_s
+        self.fed: list[float] = []
+
+    def keep_alive(self):
+        self.fed.append(time.monotonic())
+
+    def keep_alive_period_s(self):
+        return None if self.watchdog_s is None else self.watchdog_s / 4.0
+
+
+@pytest.mark.parametrize("watchdog_s", [None, 0.06, 0.0001])
+def test_a_pause_feeds_the_watchdog_within_a_quarter_of_its_time(watchdog_s):
+    """docs/safety.md section 4: the pause's wait feeds the controllers' host watchdogs every
+    0.1 s, or every quarter of the shortest watchdog they report where that is shorter (a
+    60 ms watchdog: every 15 ms), never more often than every 5 ms."""
+    control, site = RunControl(), _WatchedSite(watchdog_s)
+    control.request_pause("test")
+
+    def resume():
+        time.sleep(0.4)
+        control.request_resume("test")
+
+    threading.Thread(target=resume, daemon=True).start()
+    control.checkpoint(site, 1)
+    gaps = np.diff(site.fed)
+    if watchdog_s is None:
+        assert 2 <= len(site.fed) <= 5 and gaps.min() >= 0.09  # every 0.1 s
+    elif watchdog_s == 0.06:
+        assert len(site.fed) >= 10 and gaps.min() >= 0.014  # every 15 ms (more on a loaded machine)
+        assert np.median(gaps) < 0.06  # within the watchdog, with a margin
+    else:
+        assert gaps.min() >= 0.0049 and len(site.fed) <= 81  # the 5 ms floor

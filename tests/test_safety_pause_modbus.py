@@ -39,14 +39,15 @@ def strict_emulator(cfg, watchdog_s: float = WATCHDOG_S):
     return ModbusEmulator(bank, modbus_map.load()).start()
 
 
-def run_over_modbus(tmp_path, name: str, pause: bool):
-    """60 steps at TR 3 in real time (1.8 s of lab time); with ``pause``, a pause of 2 s of wall
-    time after step 20 through the run's control socket, the emulator watched throughout."""
+def run_over_modbus(tmp_path, name: str, pause: bool, watchdog_s: float = WATCHDOG_S, pause_s: float = PAUSE_S):
+    """60 steps at TR 3 in real time (1.8 s of lab time); with ``pause``, a pause of ``pause_s`` of
+    wall time after step 20 through the run's control socket, the emulator (host watchdog
+    ``watchdog_s``, watching holding axes) watched throughout."""
     cfg_path = write_config(tmp_path, duration=0.6, rate=3.0, clock="realtime", name=f"{name}.toml")
     cfg_path.write_text(cfg_path.read_text().replace("[output]\nplots = false\nsamples = false\n", "")
                         .replace("[record]\n", "[record]\nscale = 4.0\n")
                         + QUIET_SENSORS + SAFETY)
-    emu = strict_emulator(cfg_path)
+    emu = strict_emulator(cfg_path, watchdog_s)
     out = tmp_path / name
     seen: dict = {"rods": [], "expired": [], "counters": [], "replies": []}
 
@@ -65,7 +66,7 @@ def run_over_modbus(tmp_path, name: str, pause: bool):
         while not control_socket.send(path, "status").startswith("ok paused") and time.monotonic() < deadline:
             time.sleep(0.005)
         began = time.monotonic()
-        while time.monotonic() < began + PAUSE_S:
+        while time.monotonic() < began + pause_s:
             bank = emu.bank
             with bank.lock:
                 seen["rods"].append([c.d_rod for c in bank.controllers])
@@ -179,3 +180,15 @@ def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path, protocol):
                 pass  # a drive in FAULT does not confirm the halt; it holds anyway
     finally:
         emu.stop()
+
+
+def test_a_watchdog_shorter_than_the_pause_wait_is_fed_from_what_the_controller_reports(tmp_path):
+    """A controller whose host watchdog (60 ms, read by the driver from its info registers) is
+    shorter than the pause's 0.1 s wait: the wait feeds it every quarter of that time, so a pause
+    of 1 s latches nothing and the run resumes to the end."""
+    summary, run, seen = run_over_modbus(tmp_path, "short", pause=True, watchdog_s=0.06, pause_s=1.0)
+    assert seen["replies"] == ["ok pausing", "ok resuming"]
+    assert summary["exit_status"] == 0 and summary["steps"] == 60
+    assert seen["paused_s"] >= 1.0 and len(seen["rods"]) > 10
+    assert not any(any(e) for e in seen["expired"])  # (a latch after the resume would have stopped the run)
+    assert float(np.max(np.ptp(np.array(seen["rods"]), axis=0))) < 1e-9  # held still throughout

@@ -6,9 +6,11 @@ from signal handlers (SIGTERM, SIGINT); the experiment loop acts on them between
 resume or stop, for as long as the operator wants; a stop holds the actuators and closes the
 record. A second SIGINT while a stop is pending interrupts at once.
 
-While paused, the wait feeds the controllers' host watchdogs every :attr:`RunControl.WAIT_SLICE_S`
-(the site's ``keep_alive``: the axes keep holding), so a pause may last any time; a host that
-dies stops feeding them, and the controllers' watchdogs trip as they should.
+While paused, the wait feeds the controllers' host watchdogs every :attr:`RunControl.WAIT_SLICE_S`,
+or every quarter of the shortest watchdog time the controllers report where that is shorter,
+down to :attr:`RunControl.MIN_SLICE_S` (the site's ``keep_alive`` and ``keep_alive_period_s``: the
+axes keep holding), so a pause may last any time; a host that dies stops feeding them, and the
+controllers' watchdogs trip as they should.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ class RunControl:
     """Pause / resume / stop requests, and where the run stands."""
 
     WAIT_SLICE_S = 0.1  # a paused run wakes this often to look for a stop and feed the watchdogs
+    MIN_SLICE_S = 0.005  # however short a controller's watchdog, the wait wakes no more often than this
 
     def __init__(self):
         self._lock = threading.Lock()
@@ -110,8 +113,11 @@ class RunControl:
         self._tell(message)
         started = time.monotonic()
         keep_alive = getattr(site, "keep_alive", None)
+        period = getattr(site, "keep_alive_period_s", None)
+        period = period() if period is not None else None
+        wait_s = self.WAIT_SLICE_S if not period else max(self.MIN_SLICE_S, min(self.WAIT_SLICE_S, period))
         while True:  # as long as the operator wants; each wait is bounded
-            self._wake.wait(self.WAIT_SLICE_S)
+            self._wake.wait(wait_s)
             self._wake.clear()
             if self.state == STOPPING:
                 raise OperatorStop(self.stop_reason)

@@ -332,6 +332,10 @@ class ActuatorSite:
         """While paused: keep the controllers' host watchdogs fed (the actuators keep holding)."""
         self.loop.keep_alive()
 
+    def keep_alive_period_s(self) -> float | None:
+        """A quarter of the shortest host watchdog the controllers report (None: none does)."""
+        return self.loop.keep_alive_period_s()
+
     def hold(self):
         """Every actuator holds; returns the read-back (:class:`hsio.safety.hold.HoldReport`)."""
         self.loop.hold_all()
