@@ -270,11 +270,8 @@ class ControlLoop:
                     keep()
 
     def keep_alive_period_s(self) -> float | None:
-        """How often :meth:`keep_alive` must run: a quarter of the shortest host watchdog an
-        actuator reports (None: none reports one)."""
-        times = [float(getattr(a, "watchdog_s", 0.0) or 0.0) for a in self.actuators]
-        times = [t for t in times if t > 0]
-        return min(times) / 4.0 if times else None
+        """How often :meth:`keep_alive` must run (:func:`keep_alive_period_s`)."""
+        return keep_alive_period_s(self.actuators)
 
     def confirm_hold(self) -> HoldReport:
         """Ask every actuator whether it holds (True, False or None: cannot tell)."""
@@ -314,3 +311,11 @@ class ControlLoop:
             except Exception:
                 pass
         return self._final_hold
+
+
+def keep_alive_period_s(actuators) -> float | None:
+    """A quarter of the shortest host watchdog time the actuators report (their ``watchdog_s``,
+    0 or absent: none); None when none reports one."""
+    times = [float(getattr(a, "watchdog_s", 0.0) or 0.0) for a in actuators]
+    times = [t for t in times if t > 0]
+    return min(times) / 4.0 if times else None

@@ -183,6 +183,28 @@ def test_watchdog_emcy_in_real_time(cfg):
         emu.stop()
 
 
+def test_the_driver_reads_the_host_watchdog_time_and_the_site_feeds_a_quarter_of_it(cfg):
+    """0x2103 (ms) read at open: the actuator's watchdog_s, and the pause's keep-alive period a
+    quarter of the shortest (docs/canopen.md); a drive without the object reports 0 (none)."""
+    from hsio.control_loop import keep_alive_period_s
+
+    bank = bank_from_config(cfg, lockstep=True, watchdog_s=0.06)
+    emu = CanopenEmulator(bank, channel()).start()
+    try:
+        acts = open_link(emu.url, ["C1", "C2"], LockstepClock())
+        assert [a.watchdog_s for a in acts] == [pytest.approx(0.06), pytest.approx(0.06)]
+        assert keep_alive_period_s(acts) == pytest.approx(0.015)
+        acts[0].link.drives[0].watchdog_s = 0.0  # as a drive that lacks 0x2103
+        assert keep_alive_period_s(acts) == pytest.approx(0.015)
+        for a in acts:
+            a.drive.watchdog_s = 0.0
+        assert keep_alive_period_s(acts) is None
+        for a in acts:
+            a.close()
+    finally:
+        emu.stop()
+
+
 def test_bad_url_is_a_config_error():
     with pytest.raises(ConfigError, match="node id 300 is not in 1..127"):
         CanopenLink("canopen+virtual://bus/300", 1)
