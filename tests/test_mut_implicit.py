@@ -174,6 +174,15 @@ class _BiasedSite(_Site):
         self._daq = Daq(u=u, R=d.R, k=k, targets=d.targets, commands=d.commands, samples=None)
 
 
+def _first_force_command(alg, P_next: float, k: float, R_b: float, u_b: float) -> float:
+    """Eq. (12) on one DOF without a numerical spring, alpha = 0, C = 0 (eq. 10: P* = P + K* u_pred):
+    {K*/k + 1} R = P* + K*/k R_b - K* u_b."""
+    K_star = alg.K_star[0, 0]
+    u_pred, _ = alg.predict()
+    P_star = P_next + K_star * u_pred[0]
+    return (P_star + K_star / k * R_b - K_star * u_b) / (K_star / k + 1.0)
+
+
 @pytest.mark.parametrize("lam", [0.1, 0.5])
 def test_fc_base_is_the_complementary_estimate(lam):
     """fc_blend lambda < 1: the next FC step starts from u_b = u_s + lambda (u_meas - u_s), u_s the
@@ -186,10 +195,7 @@ def test_fc_base_is_the_complementary_estimate(lam):
     k, u_m, R_m = rep.k[0], rep.measured_u[0], rep.measured_R[0]
     u_s = 0.0 + (R_m - 0.0) / k
     u_b = u_s + lam * (u_m - u_s)
-    K_star = alg.K_star[0, 0]
-    u_pred, _ = alg.predict()
-    P_star = 60.0 + K_star * u_pred[0]  # eq. (10) with alpha = 0, C = 0
-    expected = (P_star + K_star / k * R_m - K_star * u_b) / (K_star / k + 1.0)
+    expected = _first_force_command(alg, 60.0, k, R_m, u_b)
     n = len(site.sent)
     alg.step(np.array([60.0]), site, [FC])
     assert site.sent[n][0][0] == pytest.approx(expected, rel=1e-12)
@@ -214,10 +220,7 @@ def test_a_guarded_step_restarts_the_complementary_estimate_from_the_measurement
     k, u_m, R_m = rep.k[0], rep.measured_u[0], rep.measured_R[0]
     u_s = u_base + (R_m - R_base) / k
     expected_u_b = u_s + lam * (u_m - u_s)
-    K_star = alg.K_star[0, 0]
-    u_pred, _ = alg.predict()
-    P_star = 60.0 + K_star * u_pred[0]  # eq. (10) with alpha = 0, C = 0
-    expected = (P_star + K_star / k * R_m - K_star * expected_u_b) / (K_star / k + 1.0)
+    expected = _first_force_command(alg, 60.0, k, R_m, expected_u_b)
     n = len(site.sent)
     alg.step(np.array([60.0]), site, [FC])
     assert site.sent[n][0][0] == pytest.approx(expected, rel=1e-9)
