@@ -27,7 +27,7 @@ import warnings
 
 import numpy as np
 
-from hsio.clock import LockstepClock, RealTimeClock
+from hsio.clock import CONTROLLER_RATE_HZ, LockstepClock, RealTimeClock
 from hsio.config import BOUNDS as config_bounds
 from hsio.config import DEFAULTS as config_defaults
 from hsio.control_loop import ControlLoop
@@ -173,6 +173,7 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     """
     safety = safety or SafetySettings()
     check_test_settings(test_rate, hold_fraction, n_avg)
+    check_dwell(structure.dt, test_rate, hold_fraction, n_avg)
     if not structure.experimental:
         raise ConfigError(f"structure {structure.name!r} has no experimental elements: there is nothing for the "
                           f"actuators to load; run it with hsio.run_numerical")
@@ -223,6 +224,21 @@ def check_test_settings(test_rate, hold_fraction, n_avg) -> None:
     if not (isinstance(n_avg, numbers.Integral) and not isinstance(n_avg, (bool, np.bool_)) and low <= n_avg <= high):
         raise ConfigError(f"open_site: n_avg must be a whole number of controller periods in [{low}, {high}], "
                           f"got {n_avg!r}")
+
+
+def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
+                rate_hz: float = CONTROLLER_RATE_HZ) -> None:
+    """The measurement of a step averages its last ``n_avg`` controller periods: they must lie in
+    the step's dwell (hold_fraction > 0), or in the step (continuous ramps), never reach back into
+    the ramp or the step before."""
+    periods = int(round(test_rate * dt * rate_hz))
+    dwell = max(int(hold_fraction * periods), 1) if hold_fraction > 0 else periods
+    if n_avg > dwell:
+        what = (f"the dwell of a step: {dwell} periods (TR {test_rate:g} x dt {dt:g} s x {rate_hz:g} Hz x "
+                f"hold_fraction {hold_fraction:g})" if hold_fraction > 0 else
+                f"a step: {periods} periods (TR {test_rate:g} x dt {dt:g} s x {rate_hz:g} Hz)")
+        raise ConfigError(f"[test] n_avg = {n_avg} controller periods is more than {what}; the average would take "
+                          f"in the motion before it. Give n_avg at most {dwell}, or a slower test rate")
 
 
 def check_run_inputs(structure: Structure, ground, site) -> None:

@@ -97,7 +97,49 @@ def from_dict(data: dict, source: str = "<dict>") -> RunConfig:
     _mixed_defaults(tables["integrator"], set(data.get("integrator") or {}))
     _check_ranges(tables, source)
     check_bounds(tables, source)
+    _check_unread(tables, source)
     return RunConfig(tables, source)
+
+
+# Keys that only some settings read: given (away from their defaults) where nothing reads them,
+# they are refused rather than silently ignored (docs/config.md).
+SYNTHETIC_ONLY = ("pga_g", "seed", "synthetic_duration_s")
+INTERLOCK_KEYS = ("following_error_mm", "following_error_kN", "following_time_s", "jump_mm", "jump_kN",
+                  "warning_fraction", "force_drop_fraction", "force_drop_min_kN", "force_drop_window_s")
+DRY_RUN_KEYS = ("override", "stroke_margin", "force_margin", "velocity_margin")
+
+
+def _check_unread(t: dict, source: str) -> None:
+    def changed(table: str, keys) -> list[str]:
+        defaults = SAFETY_DEFAULTS if table == "safety" else DEFAULTS[table]
+        return [k for k in keys if t[table][k] != defaults[k]]
+
+    if t["record"]["file"]:
+        unread = changed("record", SYNTHETIC_ONLY)
+        if unread:
+            raise ConfigError(f"{source}: [record] {', '.join(unread)}: not read with a record file "
+                              f"({t['record']['file']}), only for the synthetic record; scale the file with "
+                              f"[record] scale (a factor) and cut it with duration_s")
+    if t["compensation"]["mode"] == "off":
+        unread = changed("compensation", [k for k in DEFAULTS["compensation"] if k != "mode"])
+        if unread:
+            raise ConfigError(f"{source}: [compensation] {', '.join(unread)}: not read with mode = 'off' (no "
+                              f"compensation); set mode = 'offline' or 'online', or remove them")
+    if not t["safety"]["interlocks"]:
+        unread = changed("safety", INTERLOCK_KEYS)
+        if unread:
+            raise ConfigError(f"{source}: [safety] {', '.join(unread)}: not read with interlocks = false (the "
+                              f"interlocks off); remove them or turn the interlocks on")
+    if not t["safety"]["dry_run"]:
+        unread = changed("safety", DRY_RUN_KEYS)
+        if unread:
+            raise ConfigError(f"{source}: [safety] {', '.join(unread)}: not read with dry_run = false (no dry "
+                              f"run); remove them or turn the dry run on")
+    method = t["integrator"]["method"]
+    if method != "alpha_os" and not t["output"]["samples"]:
+        raise ConfigError(f"{source}: [integrator] method = {method!r} estimates the secant stiffness (eq. 11) from "
+                          f"the controller-rate samples, which [output] samples = false leaves out: set samples = "
+                          f"true, or method = 'alpha_os'")
 
 
 # Mixed control without thresholds of its own runs the recipe of `hsio study mixed`: K_f, K_d from

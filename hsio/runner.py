@@ -36,10 +36,11 @@ from hsio.sites.numerical import StandingSite
 from hsio.sites.setup_map import SetupMap
 from hsio.safety.settings import SafetySettings
 from hsio.safety.socket import ControlServer
-from hsio.safety.status import DryRunRefused, exit_status, outcome_name
+from hsio.safety.status import DryRunRefused, OperatorStop, exit_status, outcome_name
 from hsio.result import Result, max_error_pct
 from hsio.secant import SecantEstimator
 from hsio.structures import Structure, channel_names, get_structure, load_structure  # channel_names: re-exported
+from hsio.structure_file import is_plain_name
 
 
 def build_record(config: RunConfig, structure: Structure, replay: bool = False) -> GroundMotion:
@@ -263,11 +264,17 @@ def run_folder(config: RunConfig, structure: Structure, out_dir: str | Path | No
     if out_dir is not None and not str(out_dir).strip():
         raise ConfigError("--out: the run folder is an empty path; name a folder (or omit --out for a new "
                           "numbered folder)")
+    if out_dir is None and not is_plain_name(structure.name):
+        raise ConfigError(f"structure {structure.name!r}: its name would make the run folder runs/{structure.name}/, "
+                          f"outside runs/ or nested; give the structure a plain name (without '/', '\\', a "
+                          f"leading '.' or control characters), or name the run folder with --out")
     target = Path("runs") / structure.name if out_dir is None else Path(out_dir)
     try:
         if out_dir is None:
             return new_run_folder(target)
         out = refuse_recorded_folder(target)
+        if out.exists() and not out.is_dir():
+            raise ConfigError(f"--out {out}: this is a file (or a device), not a folder; name a folder for the run")
         out.mkdir(parents=True, exist_ok=True)
         return out
     except OSError as exc:
@@ -284,11 +291,33 @@ def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Le
     return Ledger(folder, spec["id"]) if folder else None
 
 
+def check_dwell(config: RunConfig, structure: Structure) -> None:
+    """[test] n_avg within a step's dwell (:func:`hsio.api.check_dwell`), named with the configuration."""
+    test = config["test"]
+    try:
+        api.check_dwell(structure.dt, test["rate"], test["hold_fraction"], test["n_avg"])
+    except ConfigError as exc:
+        raise ConfigError(f"{config.source}: {exc}") from None
+
+
 def predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):
     """NS and the dry run of the configured test (docs/safety.md section 2): (NS result, report)."""
     integ, test, hardware = config["integrator"], config["test"], config["hardware"]
     check_hardware(config)  # `hsio check` and library callers: the URL and its options, as a run checks them
-    ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
+    check_dwell(config, structure)
+    try:
+        ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
+    except ExperimentStopped as exc:  # the models cannot be evaluated along the record: bad input, not a fault
+        cause = exc.cause
+        if cause is None or isinstance(cause, (KeyboardInterrupt, OperatorStop)):
+            raise
+        steps = len(exc.result.t) if exc.result is not None else 0
+        what = str(cause) if isinstance(cause, HsioError) else f"{type(cause).__name__}: {cause}"
+        raise ConfigError(f"{config.source}: the prediction (NS: the structure with its specimen models in place of "
+                          f"the actuators) could not go past step {steps} (t = {steps * structure.dt:.3f} s): "
+                          f"{what}. Nothing was sent to the actuators; check the models' parameters "
+                          f"({config['structure']['file'] or config['structure']['name']}) and the record's "
+                          f"scale") from None
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     setups = SetupMap.of(structure) if structure.has_setups else None
     report = dry_run(ns, test["rate"] * structure.dt, test["hold_fraction"], hardware["url"], emulator,
@@ -363,11 +392,15 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     safety = SafetySettings.from_table(config["safety"])
     # one stage channel per actuator (through setups, the setups' actuators, not the basic DOFs)
     actuator_names = SetupMap.of(structure).actuator_names if structure.has_setups else channel_names(structure)
-    compensation = CompensationStage(list(actuator_names), test["rate"] * structure.dt,
-                                     CompensationSettings.from_table(config["compensation"]))
+    try:
+        compensation = CompensationStage(list(actuator_names), test["rate"] * structure.dt,
+                                         CompensationSettings.from_table(config["compensation"]))
+    except ConfigError as exc:
+        raise ConfigError(f"{config.source}: {exc}") from None
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     check_hardware(config)
+    check_dwell(config, structure)
     out = run_folder(config, structure, out_dir)
     ledger = open_ledger(config, specimen_dir)
     meta = {
@@ -428,6 +461,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             if ledger:
                 ledger.update(run_id, start_state=start_state)
             notify(format_state("the actuators stand at", start_state))
+            if not hardware["url"].startswith("emulator") and (config["emulator"] or hardware["actuator_model"]):
+                notify(f"[emulator] and [hardware] actuator_model are not read by a run on {hardware['url']}: they "
+                       f"set the emulated controller (`hsio emulate ... CONFIG`), not the real one")
             if test["start"] == "present" and report is not None:
                 _dry_run_from_present(config, structure, ground, report, start_state, safety, recorder, notify,
                                       ledger, run_id)

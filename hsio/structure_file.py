@@ -105,6 +105,13 @@ def structure_from_tables(doc: dict, filename: str, default_name: str = "structu
     return _Reader(filename, default_name).build(doc)
 
 
+def is_plain_name(name: str) -> bool:
+    """A name that can be one folder of a path as it is: no separator, not '.' or '..' (nor any
+    leading '.'), no control character."""
+    return (bool(name.strip()) and not name.startswith(".") and not any(c in name for c in "/\\")
+            and all(ord(c) >= 32 for c in name))
+
+
 class _Reader:
     def __init__(self, filename: str, default_name: str):
         self.file = filename
@@ -160,6 +167,10 @@ class _Reader:
             raise self.error("structure", "missing: a structure file starts with a [structure] table (dt at least)")
         head = self.table("structure", doc["structure"], TABLES["structure"])
         name = self.string("structure.name", head.get("name", self.default_name))
+        if not is_plain_name(name):
+            raise self.error("structure.name", f"{name!r}: the structure's name names its runs' folder "
+                             f"(runs/<name>/run-NNNN), so it is a plain name, without '/', '\\', a leading '.' "
+                             f"or control characters")
         description = head.get("description", "")
         if not isinstance(description, str):
             raise self.error("structure.description", f"must be a string, got {description!r}")

@@ -181,6 +181,47 @@ def test_specimen_parameters_that_divide_by_zero_are_refused_at_load(model, matc
         parse_structure(structure_text(extra=inline), "s.toml")
 
 
+@pytest.mark.parametrize("n", [1.0, 2.0, 20.0, 1000.0, 1e6])
+def test_a_near_bilinear_menegotto_pinto_spring_evaluates_without_overflow(n):
+    """E&M 2007 eq. (13) with a large n (a spring close to bilinear, k0 then theta k0 beyond u_y):
+    finite everywhere, odd, equal to the formula where its powers are representable, and the
+    bilinear limit R = k0 u_y (theta x + (1 - theta) sign(x) min(|x|, 1)) for n = 1e6."""
+    m = make_specimen({"kind": "menegotto_pinto", "k0": 60.0, "u_y": 5.0, "theta": 0.1, "n": n})
+    for u in (1e-9, 0.5, 2.5, 5.0, 7.5, 10.0, 1e3, 1e9):
+        x = u / 5.0
+        R = m.trial(u)
+        assert math.isfinite(R) and m.trial(-u) == pytest.approx(-R, rel=1e-15)
+        if math.log10(max(x, 1e-300)) * n < 300:  # x^n representable: the formula as written
+            assert R == pytest.approx(300.0 * (0.1 * x + 0.9 * x / (1.0 + x ** n) ** (1.0 / n)), rel=1e-12)
+        if n == 1e6 and abs(x - 1.0) > 0.01:
+            assert R == pytest.approx(300.0 * (0.1 * x + 0.9 * min(x, 1.0)), rel=1e-4)
+
+
+def test_a_prediction_that_cannot_be_computed_is_bad_input_not_a_fault(tmp_path, monkeypatch):
+    """NS failing along the record (a model that raises) exits 2 naming the step and the cause,
+    says nothing was sent, and claims no recorded steps."""
+    from hsio.specimens.elastic import MenegottoPinto
+
+    def broken(self, u, dt=0.0):
+        if abs(u) > 0.01:
+            raise OverflowError(34, "Numerical result out of range")
+        return self.k0 * u
+
+    monkeypatch.setattr(MenegottoPinto, "trial", broken)
+    c = tmp_path / "c.toml"
+    c.write_text(f'[structure]\nfile = "{tmp_path / "s.toml"}"\n[record]\nsynthetic_duration_s = 0.5\n'
+                 f'[output]\nplots = false\n')
+    (tmp_path / "s.toml").write_text(structure_text(extra='model = { kind = "menegotto_pinto", k0 = 1.0, '
+                                                          'u_y = 1.0, theta = 0.1, n = 2.0 }\n'))
+    from click.testing import CliRunner
+    from hsio.cli import main
+
+    out = CliRunner().invoke(main, ["run", str(c), "--out", str(tmp_path / "run")])
+    assert out.exit_code == 2, out.output
+    assert "the prediction (NS" in out.output and "OverflowError" in out.output and "could not go past step" in out.output
+    assert "Nothing was sent to the actuators" in out.output and "steps recorded" not in out.output
+
+
 # -- the emulator -----------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("key, value, match", [
@@ -487,3 +528,24 @@ def test_units_of_g_in_parentheses_are_read_as_g(tmp_path):
     path.write_text("PEER\nEVENT\nACCELERATION TIME SERIES IN UNITS OF (G)\nNPTS=  4, DT= .0100 SEC\n"
                     "0.0 0.1 -0.1 0.0\n")
     assert read_at2(path).accel_g.tolist() == [0.0, 0.1, -0.1, 0.0]
+
+
+def test_out_naming_a_file_or_a_device_is_refused_plainly(tmp_path):
+    """--out pointing at an existing file (or /dev/null) is named as not a folder, exit 2."""
+    c = tmp_path / "c.toml"
+    c.write_text('[record]\nsynthetic_duration_s = 0.2\n[output]\nplots = false\n')
+    a_file = tmp_path / "a_file"
+    a_file.write_text("keep me")
+    for target in (a_file, Path("/dev/null")):
+        if not target.exists():
+            continue
+        proc = hsio("run", c, "--out", target)
+        assert_exit_2(proc, "--out", str(target), "is a file")
+    assert a_file.read_text() == "keep me"
+
+
+def test_an_unknown_compensated_actuator_names_the_configuration(tmp_path):
+    c = tmp_path / "c.toml"
+    c.write_text('[compensation]\nmode = "online"\nactuators = ["nope"]\n[record]\nsynthetic_duration_s = 0.2\n')
+    proc = hsio("run", c, "--out", tmp_path / "run")
+    assert_exit_2(proc, "c.toml: [compensation] actuators: unknown actuator(s) nope; known: C1, C2")

@@ -78,7 +78,14 @@ class MenegottoPinto(Specimen):
 
     def trial(self, u: float, dt: float = 0.0) -> float:
         x = u / self.u_y
-        shape = self.theta * x + (1.0 - self.theta) * x / (1.0 + abs(x) ** self.n) ** (1.0 / self.n)
+        ax = abs(x)
+        # x / (1 + |x|^n)^(1/n), written so that no power overflows for a large n (a near-bilinear
+        # spring): beyond |x| = 1, sign(x) / (1 + |x|^-n)^(1/n)
+        if ax <= 1.0:
+            transition = x / (1.0 + ax ** self.n) ** (1.0 / self.n)
+        else:
+            transition = math.copysign(1.0, x) / (1.0 + ax ** -self.n) ** (1.0 / self.n)
+        shape = self.theta * x + (1.0 - self.theta) * transition
         return self.k0 * self.u_y * shape
 
 

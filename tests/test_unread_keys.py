@@ -1,0 +1,96 @@
+"""Settings that nothing would read are refused, not ignored (docs/config.md): record keys of the
+synthetic record beside a record file, compensation keys with compensation off, interlock and dry
+run keys with those off, an implicit method without the samples its secant needs, an n_avg longer
+than a step's dwell, a structure name that would put its runs outside runs/. Each exits 2 from
+`hsio run` naming the key, before the run folder is made; `hsio check` says the same."""
+
+from __future__ import annotations
+
+
+import pytest
+from click.testing import CliRunner
+
+from hsio import api, config
+from hsio.cli import main
+from hsio.errors import ConfigError
+from hsio.structures import validation
+
+
+def _cli(tmp_path, text: str, command: str = "run"):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(text)
+    args = [command, str(cfg)] + (["--out", str(tmp_path / "out")] if command == "run" else [])
+    return CliRunner().invoke(main, args)
+
+
+@pytest.mark.parametrize("text, says", [
+    ('[record]\nfile = "{at2}"\npga_g = 9.0\n', "[record] pga_g: not read with a record file"),
+    ('[record]\nfile = "{at2}"\nseed = 7\nsynthetic_duration_s = 3.0\n',
+     "[record] seed, synthetic_duration_s: not read with a record file"),
+    ('[compensation]\na_mm_s = 5.0\n', "[compensation] a_mm_s: not read with mode = 'off'"),
+    ('[safety]\ninterlocks = false\nfollowing_error_mm = 3.0\n',
+     "[safety] following_error_mm: not read with interlocks = false"),
+    ('[safety]\ndry_run = false\nstroke_margin = 0.2\n', "[safety] stroke_margin: not read with dry_run = false"),
+    ('[integrator]\nmethod = "implicit_dc"\n[output]\nsamples = false\n',
+     "method = 'implicit_dc' estimates the secant stiffness (eq. 11) from the controller-rate samples"),
+    ('[test]\nn_avg = 1024\n[record]\nsynthetic_duration_s = 0.2\n',
+     "n_avg = 1024 controller periods is more than the dwell of a step: 102 periods"),
+    ('[test]\nn_avg = 103\n[record]\nsynthetic_duration_s = 0.2\n', "Give n_avg at most 102"),
+    ('[test]\nn_avg = 206\nhold_fraction = 0.0\n[record]\nsynthetic_duration_s = 0.2\n',
+     "more than a step: 205 periods"),
+])
+def test_a_key_nothing_reads_exits_2_before_the_run_folder(tmp_path, text, says):
+    at2 = tmp_path / "r.at2"
+    at2.write_text("t\nt\nACCELERATION TIME SERIES IN UNITS OF G\nNPTS= 4, DT= 0.01 SEC\n0.01 0.02 -0.01 0.0\n")
+    text = text.replace("{at2}", str(at2))
+    out = _cli(tmp_path, text)
+    assert out.exit_code == 2, out.output
+    assert says in out.output, out.output
+    assert not (tmp_path / "out").exists()
+    checked = _cli(tmp_path, text, "check")
+    assert checked.exit_code == 2 and says in checked.output, checked.output
+
+
+@pytest.mark.parametrize("tables", [
+    {"record": {"file": "x.at2", "pga_g": 0.6, "seed": 1994, "scale": 2.0, "duration_s": 1.0}},  # at their defaults
+    {"compensation": {"mode": "online", "a_mm_s": 5.0}},
+    {"safety": {"interlocks": True, "following_error_mm": 3.0}},
+    {"integrator": {"method": "alpha_os"}, "output": {"samples": False}},
+])
+def test_the_same_keys_where_they_are_read_are_accepted(tables):
+    config.from_dict(tables)
+
+
+def test_open_site_refuses_an_average_longer_than_the_dwell():
+    """The API: open_site refuses it before any actuator opens; at the bound it opens."""
+    s = validation()
+    with pytest.raises(ConfigError, match="n_avg = 103 controller periods is more than the dwell"):
+        api.open_site(s, "emulator://", test_rate=20.0, hold_fraction=0.5, n_avg=103)
+    with api.open_site(s, "emulator://", test_rate=20.0, hold_fraction=0.5, n_avg=102) as site:
+        assert site.loop.n_avg == 102
+
+
+@pytest.mark.parametrize("name", ["../../escape", "/tmp/abs", "..", ".hidden", "a/b", "a\\\\b"])
+def test_a_structure_name_that_is_not_a_plain_name_is_refused(tmp_path, monkeypatch, name):
+    """The name makes the run folder runs/<name>/: a path in it would put the run elsewhere."""
+    work = tmp_path / "a" / "b"
+    work.mkdir(parents=True)
+    monkeypatch.chdir(work)
+    structure = tmp_path / "s.toml"
+    structure.write_text(f'[structure]\nname = "{name}"\ndt = 0.01\n[[dof]]\nname = "a"\nmass = 0.01\n'
+                         f'[[experimental]]\nname = "a"\ndof = "a"\nmodel = {{ kind = "linear", k = 1.0 }}\n')
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[structure]\nfile = "{structure}"\n[record]\nsynthetic_duration_s = 0.2\n')
+    out = CliRunner().invoke(main, ["run", str(cfg)], catch_exceptions=False)
+    assert out.exit_code == 2 and "structure.name" in out.output and "plain name" in out.output, out.output
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a", "b", "c.toml", "s.toml"]  # no run folder anywhere
+
+
+def test_a_structure_built_in_code_with_a_path_for_a_name_needs_out(tmp_path):
+    from hsio import runner
+    from dataclasses import replace
+
+    s = replace(validation(), name="../elsewhere")
+    with pytest.raises(ConfigError, match="give the structure a plain name"):
+        runner.run_folder(config.from_dict({}), s, None)
+    assert runner.run_folder(config.from_dict({}), s, tmp_path / "named") == tmp_path / "named"
