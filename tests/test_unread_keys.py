@@ -94,3 +94,27 @@ def test_a_structure_built_in_code_with_a_path_for_a_name_needs_out(tmp_path):
     with pytest.raises(ConfigError, match="give the structure a plain name"):
         runner.run_folder(config.from_dict({}), s, None)
     assert runner.run_folder(config.from_dict({}), s, tmp_path / "named") == tmp_path / "named"
+
+
+def test_a_run_on_a_real_controller_says_the_emulator_table_is_not_read(tmp_path):
+    """The same configuration serves `hsio emulate modbus CONFIG` ([emulator]) and `hsio run
+    CONFIG` (a Modbus URL): the run reads no [emulator] key, and says so when it starts."""
+    from hsio import runner
+    from hsio.commands.emulate import bank_from_config
+    from hsio.drivers import modbus_map
+    from hsio.emulators.modbus import ModbusEmulator
+
+    cfg_path = tmp_path / "c.toml"
+    cfg_path.write_text('[record]\nsynthetic_duration_s = 0.1\n[emulator]\nlag_s = 0.03\n'
+                        '[output]\nplots = false\n[safety]\nkeys = false\ncontrol_socket = false\n')
+    emu = ModbusEmulator(bank_from_config(cfg_path, lockstep=True), modbus_map.load()).start()
+    try:
+        cfg = config.load(cfg_path)
+        cfg["hardware"]["url"] = emu.url
+        lines: list[str] = []
+        summary = runner.run(cfg, tmp_path / "run", notify=lines.append)
+    finally:
+        emu.stop()
+    assert summary["exit_status"] == 0
+    assert any("[emulator] and [hardware] actuator_model are not read by a run on modbus+tcp://" in line
+               for line in lines), lines
