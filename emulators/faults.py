@@ -144,21 +144,27 @@ def _number(item: str, text: str, kind=float, low=0.0, high=math.inf):
 
 
 def parse(spec: str) -> FaultSchedule:
-    """A SPEC string (see the module's docstring) as a schedule; a bad item is a ConfigError
-    naming it."""
+    """A SPEC string (see the module's docstring) as a schedule; an empty SPEC, an empty item or a
+    bad one is a ConfigError quoting the item as given."""
     faults: list[Fault] = []
-    rnd: dict[str, str] = {}
+    rnd: dict[str, tuple[str, str]] = {}  # key -> (the item as given, its value)
     if len(spec) > 100_000:
         raise ConfigError(f"--faults: SPEC of {len(spec)} characters is too long (at most 100000)")
-    for item in (s.strip() for s in spec.split(",")):
+    if not spec.strip():
+        raise ConfigError(f"--faults {spec!r}: empty SPEC; give items such as 'drop@3000' or 'seed=7,every=2000' "
+                          "separated by commas (docs/faults.md)")
+    for n, item in enumerate((s.strip() for s in spec.split(",")), 1):
         if not item:
-            continue
+            raise ConfigError(f"--faults {spec!r}: item {n} is empty (a comma at the start or the end, or two "
+                              "in a row)")
         if "=" in item:
             key, _, value = item.partition("=")
             key = key.strip()
             if key not in ("seed", "every", "kinds", "until"):
                 raise ConfigError(f"--faults {item!r}: unknown key {key!r}; known: seed, every, kinds, until")
-            rnd[key] = value.strip()
+            if key in rnd:
+                raise ConfigError(f"--faults {item!r}: {key} is given twice (also {rnd[key][0]!r}); give it once")
+            rnd[key] = (item, value.strip())
             continue
         kind, at, rest = item.partition("@")
         kind = kind.strip()
@@ -174,11 +180,16 @@ def parse(spec: str) -> FaultSchedule:
         if len(faults) > MAX_FAULTS:
             raise ConfigError(f"--faults: more than {MAX_FAULTS} faults")
     if rnd:
+        def number(key, default, kind, low, high):
+            item, value = rnd.get(key, (f"{key}={default}", str(default)))
+            return _number(item, value, kind, low, high)
+
+        item, value = rnd.get("kinds", ("", "+".join(RECOVERABLE)))
         faults += random_faults(
-            seed=_number("seed=", rnd.get("seed", "0"), int, 0, 2**32 - 1),
-            every=_number("every=", rnd.get("every", "1000"), int, 10, MAX_TICK),
-            kinds=_kinds(rnd.get("kinds", "+".join(RECOVERABLE))),
-            until=_number("until=", rnd.get("until", str(10**7)), int, 1, MAX_TICK),
+            seed=number("seed", 0, int, 0, 2**32 - 1),
+            every=number("every", 1000, int, 10, MAX_TICK),
+            kinds=_kinds(item, value),
+            until=number("until", 10**7, int, 1, MAX_TICK),
         )
     return FaultSchedule(faults)
 
@@ -187,11 +198,16 @@ def _arg_max(kind: str) -> float:
     return {"delay": MAX_DELAY_S, "spike": 1e30, "stuck": MAX_TICK}.get(kind, 0.0)
 
 
-def _kinds(text: str) -> tuple[str, ...]:
-    kinds = tuple(k.strip() for k in text.split("+") if k.strip())
+def _kinds(item: str, text: str) -> tuple[str, ...]:
+    """The kinds of ``kinds=K1+K2+...`` (``item`` as given), each a known one."""
+    kinds = tuple(k.strip() for k in text.split("+"))
+    if not any(kinds):
+        raise ConfigError(f"--faults {item!r}: no kind given; known: {', '.join(KINDS)}")
+    if not all(kinds):
+        raise ConfigError(f"--faults {item!r}: an empty kind (a '+' at the start or the end, or two in a row)")
     bad = [k for k in kinds if k not in KINDS]
-    if bad or not kinds:
-        raise ConfigError(f"--faults kinds={text!r}: unknown fault(s) {', '.join(bad) or '(none given)'}; known: {', '.join(KINDS)}")
+    if bad:
+        raise ConfigError(f"--faults {item!r}: unknown fault(s) {', '.join(map(repr, bad))}; known: {', '.join(KINDS)}")
     return kinds
 
 

@@ -7,6 +7,7 @@ import importlib
 import json
 import signal
 import sys
+from pathlib import Path
 
 import click
 
@@ -81,7 +82,9 @@ def main(ctx: click.Context) -> None:
               help="The specimen folder whose ledger lists this run (else [specimen] folder / id).")
 @click.option("--override-dry-run", is_flag=True,
               help="Run even if the dry run predicts a limit is exceeded (recorded in the run and the ledger).")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the summary as JSON on stdout, also when the run is refused or stops (what summary.json "
+                   "holds; where none was written, the error).")
 @click.option("--monitor", "with_monitor", is_flag=True,
               help="Serve the live monitor page during the run (docs/monitor.md).")
 @click.option("--monitor-port", default=8765, show_default=True, type=click.IntRange(0, 65535),
@@ -133,6 +136,8 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
     except DryRunRefused as exc:
         click.echo(f"hsio run: {exc}", err=True)
         _where(exc)
+        if as_json:
+            click.echo(json.dumps(_summary_written(exc, 2), indent=2))
         sys.exit(2)
     except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run has held and closed: report it whole
@@ -143,6 +148,8 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         else:
             click.echo(f"hsio run: error: {exc}", err=True)
         _where(exc)
+        if as_json:
+            click.echo(json.dumps(_summary_written(exc, status), indent=2))
         sys.exit(status)
     if as_json:
         click.echo(json.dumps(summary, indent=2))
@@ -171,6 +178,20 @@ def resume(run_dir: str) -> None:
         click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{str(exc) or 'interrupted'}", err=True)
         sys.exit(status)
     click.echo(f"resumed from step {summary['resumed_from']}: {summary['steps']} steps in {run_dir}/run.sqlite")
+
+
+def _summary_written(exc: BaseException, status: int) -> dict:
+    """What `hsio run --json` prints for a run that did not finish: the summary.json the run wrote
+    in its folder, or, where it wrote none (bad input before the folder), the error and the exit
+    status."""
+    from hsio.safety.status import outcome_name
+
+    run_dir = getattr(exc, "run_dir", None)
+    if run_dir is not None:
+        with contextlib.suppress(OSError, ValueError):  # ValueError: not JSON, not text
+            return json.loads((Path(run_dir) / "summary.json").read_text())
+    error = {"error": str(exc) or "interrupted (Ctrl-C)", "exit_status": status, "outcome": outcome_name(status)}
+    return {**error, "run_dir": str(run_dir)} if run_dir is not None else error
 
 
 def _where(exc: BaseException) -> None:

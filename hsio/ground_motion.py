@@ -51,7 +51,8 @@ class GroundMotion:
                               f"{accel.shape}")
         bad = np.flatnonzero(~np.isfinite(accel))
         if bad.size:
-            raise RecordError(f"{self.name}: sample {bad[0]} (t = {bad[0] * self.dt:.3f} s) is {accel[bad[0]]!r}")
+            raise RecordError(f"{self.name}: sample {bad[0]} (t = {bad[0] * self.dt:.3f} s) is {float(accel[bad[0]])}, "
+                              "not a finite number")
         if accel.size < 2:
             raise RecordError(f"{self.name}: needs at least 2 samples, has {accel.size}")
         object.__setattr__(self, "accel_g", accel)
@@ -68,7 +69,15 @@ class GroundMotion:
         if isinstance(factor, bool) or not isinstance(factor, (int, float, np.floating, np.integer)) \
                 or not math.isfinite(factor):
             raise RecordError(f"{self.name}: scale factor {factor!r} is not a finite number")
-        return GroundMotion(f"{self.name} x {factor:g}", self.dt, self.accel_g * factor)
+        with np.errstate(over="ignore"):
+            accel = self.accel_g * float(factor)
+        over = np.flatnonzero(~np.isfinite(accel))
+        if over.size:
+            i = over[0]
+            raise RecordError(f"{self.name}: sample {i} (t = {i * self.dt:.3f} s) = {float(self.accel_g[i]):g} g "
+                              f"overflows to {float(accel[i])} when scaled by the factor {float(factor):g}: the product "
+                              f"is beyond the largest floating-point number ({np.finfo(float).max:.4g})")
+        return GroundMotion(f"{self.name} x {factor:g}", self.dt, accel)
 
     def truncated(self, duration_s: float) -> "GroundMotion":
         """The first ``duration_s`` of the record; shorter than one of its time steps, or longer than

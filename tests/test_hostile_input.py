@@ -85,6 +85,28 @@ def test_at2_huge_npts_is_refused_before_reading(tmp_path):
         read_at2(f)
 
 
+def test_a_value_that_overflows_when_scaled_is_named_in_plain_numbers(tmp_path):
+    """1.7e308 g is a finite value, read; scaled by -2 it is -inf: refused naming the file, the sample,
+    the value and the factor (no numpy repr, no overflow warning)."""
+    f = tmp_path / "huge.AT2"
+    write_at2(f, "NPTS=    5, DT= 0.01 SEC", ["0.01", "1.7e308", "-0.01", "0.0", "0.01"])
+    with pytest.raises(RecordError) as exc:
+        read_at2(f).scaled(-2.0)
+    assert str(exc.value) == ("huge.AT2: sample 1 (t = 0.010 s) = 1.7e+308 g overflows to -inf when scaled by the "
+                              "factor -2: the product is beyond the largest floating-point number (1.798e+308)")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[record]\nfile = "huge.AT2"\nscale = -2.0\n')
+    proc = hsio("run", cfg, "--out", tmp_path / "o")
+    assert_clear_error(proc, "huge.AT2: sample 1", "overflows to -inf when scaled by the factor -2")
+    assert "np.float64" not in proc.stderr and "RuntimeWarning" not in proc.stderr
+
+
+def test_a_value_that_is_not_finite_is_named_in_plain_numbers():
+    with pytest.raises(RecordError) as exc:
+        GroundMotion("r", 0.01, np.array([0.0, 0.1, -np.inf]))
+    assert str(exc.value) == "r: sample 2 (t = 0.020 s) is -inf, not a finite number"
+
+
 def test_too_many_steps_are_refused():
     g = GroundMotion("long", 1.0, np.zeros(4001))
     with pytest.raises(RecordError, match="more than the bound of 1000000 steps"):

@@ -24,6 +24,52 @@ class RegularFile(click.Path):
         return path
 
 
+class PlotFile(click.Path):
+    """The file a figure is written to, its format named by its extension. A format matplotlib
+    cannot write is refused before any work starts, naming those it can; a name without an
+    extension gets ``.png`` so that the path the command prints is the file written (matplotlib
+    would add it silently). The value is the path to write to."""
+
+    name = "plot file"
+
+    def __init__(self, **kwargs):
+        super().__init__(dir_okay=False, **kwargs)
+
+    def convert(self, value, param, ctx):
+        path = os.fsdecode(super().convert(value, param, ctx))
+        folder, name = os.path.split(path)
+        ext = os.path.splitext(name)[1]
+        if not name.strip("."):
+            self.fail(f"{path!r} names no file", param, ctx)
+        if not ext.strip("."):  # no extension, or a trailing dot
+            return os.path.join(folder, name.rstrip(".") + ".png")
+        fmt = ext[1:].lower()
+        formats = plot_formats()
+        if fmt == "pgf" and fmt not in formats:
+            import matplotlib
+
+            self.fail(f"{path!r}: matplotlib writes .pgf with {matplotlib.rcParams['pgf.texsystem']}, which is not "
+                      "installed", param, ctx)
+        if fmt not in formats:
+            self.fail(f"{path!r}: format {ext[1:]!r} is not one matplotlib writes; give a file ending in one "
+                      f"of {', '.join('.' + f for f in formats)} (or none, for .png)", param, ctx)
+        return path
+
+
+def plot_formats() -> list[str]:
+    """The file formats (extensions) matplotlib writes a figure in: pgf only where the TeX it runs
+    is installed."""
+    import shutil
+
+    import matplotlib
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = set(FigureCanvasBase.get_supported_filetypes())
+    if shutil.which(matplotlib.rcParams["pgf.texsystem"]) is None:
+        formats.discard("pgf")
+    return sorted(formats)
+
+
 def refuse_repeated_options(command: click.Command) -> click.Command:
     """An option that takes one value and is given twice is refused naming it (click would keep the
     last one silently: ``--out a --out b`` writes to b); flags and repeatable options are not

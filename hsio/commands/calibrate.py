@@ -7,14 +7,15 @@ import sys
 
 import click
 
-from hsio.commands import output_error
+from hsio.commands import PlotFile, output_error
 from hsio.errors import HsioError
 
 
 @click.command()
 @click.argument("source", type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print {a_mm_s, b_s_mm, lag_s, a_std, b_std, n} as JSON.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Draw error against velocity with the fit (PNG).")
+@click.option("--plot", "plot_path", type=PlotFile(),
+              help="Draw error against velocity with the fit to this file (.png unless its extension names another format).")
 @click.option("--actuator", "actuators", multiple=True, help="Calibrate this actuator only (repeatable; default: all).")
 @click.option("--t-d", "t_d", type=float, help="Lab duration of one step (s); default from the run or the CSV times.")
 @click.option("--test-rate", type=float, help="CSV only: time_s is record time; t_d = test rate x its step.")

@@ -18,7 +18,7 @@ from hsio.errors import HsioError
 
 
 def _common(func):
-    func = click.option("--faults", "faults_spec", default="", metavar="SPEC",
+    func = click.option("--faults", "faults_spec", default=None, metavar="SPEC",
                         help="Inject faults on a seeded schedule, e.g. 'drop@3000,spike@5000:40' or "
                              "'seed=7,every=2000' (docs/faults.md).")(func)
     func = click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
@@ -55,7 +55,7 @@ def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float 
     return ControllerBank(controllers, [s.name for s in specs], lockstep, watchdog_s)
 
 
-def _bank(config_file, clock, watchdog_s, settings, faults_spec="", watch_holding=False):
+def _bank(config_file, clock, watchdog_s, settings, faults_spec=None, watch_holding=False):
     from hsio.emulators.bank import parse_settings
     from hsio.emulators.faults import parse
     from hsio import config as config_mod
@@ -65,7 +65,7 @@ def _bank(config_file, clock, watchdog_s, settings, faults_spec="", watch_holdin
         raise ConfigError(f"--watchdog-s {watchdog_s!r}: must be within 0..3600 s")
     if watch_holding and watchdog_s == 0:
         raise ConfigError("--watch-holding needs a watchdog: give --watchdog-s above 0")
-    schedule = parse(faults_spec) if faults_spec else None
+    schedule = parse(faults_spec) if faults_spec is not None else None  # given empty: refused by name
     if clock == "config":
         clock = config_mod.load(config_file)["hardware"]["clock"]
     bank = bank_from_config(config_file, lockstep=(clock == "lockstep"), watchdog_s=watchdog_s,

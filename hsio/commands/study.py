@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from hsio.commands import output_error
+from hsio.commands import PlotFile, output_error
 from hsio.errors import HsioError
 
 
@@ -27,7 +27,8 @@ def study() -> None:
 
 @study.command("fc-vs-dc")
 @click.option("--json", "as_json", is_flag=True, help="Print the rows as JSON on stdout.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Write Er against theta to this PNG.")
+@click.option("--plot", "plot_path", type=PlotFile(),
+              help="Write Er against theta to this file (.png unless its extension names another format).")
 @click.option("--thetas", "n_theta", default=15, show_default=True, type=click.IntRange(2, 200),
               help="Number of theta values, log-spaced from 0.2 to 5.0.")
 def fc_vs_dc(as_json: bool, plot_path: str | None, n_theta: int) -> None:
@@ -63,7 +64,8 @@ GRID_BOUNDS = {"stiffness": (0.0, 10000.0, "kN/mm"), "resolution": (0.0, 10.0, "
 
 @study.command("mixed")
 @click.option("--json", "as_json", is_flag=True, help="Print the rows as JSON on stdout.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="Write the error maps to this PNG.")
+@click.option("--plot", "plot_path", type=PlotFile(),
+              help="Write the error maps to this file (.png unless its extension names another format).")
 @click.option("--stiffness", "stiffnesses", multiple=True, type=float, help="k0 of the grid (kN/mm); repeat.")
 @click.option("--resolution", "resolutions", multiple=True, type=float, help="Transducer resolution (mm); repeat.")
 @click.option("--force-resolution", "force_resolutions", multiple=True, type=float,
