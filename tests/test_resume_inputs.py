@@ -176,6 +176,8 @@ def test_the_files_of_the_hardware_backends_are_inputs(tmp_path):
     daq.write_text("# another DAQ map\n")
     changed, _ = compare_inputs(recorded, modbus)
     assert len(changed) == 1 and changed[0].startswith(f"{daq} ([driver] instrument_map): changed")
+    older = [e for e in recorded if e["what"] != "[driver] map"]  # a file the recording hsio did not fingerprint
+    assert compare_inputs(older, modbus)[1] == [f"{regmap} ([driver] map)"]
 
     eds = tmp_path / "drive.eds"
     eds.write_text("[FileInfo]\n")
