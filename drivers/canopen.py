@@ -106,6 +106,12 @@ def check_options(url: str, options: dict | None = None) -> None:
     parse_url(url, options)
 
 
+def input_files(url: str, options: dict | None = None) -> list[tuple[str, Path]]:
+    """The drive's EDS the link reads when it opens (``eds``; none for hsio's own object dictionary)."""
+    eds = common.parse_options(url, options, DEFAULT_OPTIONS, RULES)["eds"]
+    return [("[driver] eds", Path(eds))] if eds else []
+
+
 def sdo_error(node_id: int, what: str, exc: Exception) -> CommunicationError:
     if isinstance(exc, SdoAbortedError):
         return SdoAbortError(f"CANopen node {node_id}: SDO {what} aborted with code 0x{exc.code:08X} ({exc})", exc.code)

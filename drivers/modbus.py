@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from pathlib import Path
 from urllib.parse import urlsplit
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -84,6 +85,11 @@ def check_options(url: str, options: dict | None = None) -> None:
         raise ConfigError(f"{url!r}: expected modbus+rtu:///dev/ttyXXX")
     if table["map"]:
         modbus_map.load(table["map"])
+
+
+def input_files(url: str, options: dict | None = None) -> list[tuple[str, Path]]:
+    """The register map the link reads when it opens: ``map``, else hsio's default."""
+    return [("[driver] map", Path(parse_options(url, options)["map"] or modbus_map.DEFAULT_MAP))]
 
 
 class ModbusLink(common.AxisLink):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 from importlib.metadata import entry_points
+from pathlib import Path
 from urllib.parse import urlsplit
 
 from hsio.errors import ConfigError
@@ -67,6 +68,19 @@ def check_options(url: str, options: dict | None = None) -> None:
     check = getattr(module, "check_options", None)
     if check is not None:
         check(url, controller_options(options))
+
+
+def input_files(url: str, options: dict | None = None) -> list[tuple[str, Path]]:
+    """``(what, path)`` of each file that the backend of ``url`` reads when it opens (its module's
+    ``input_files(url, options)``, where it defines one: a register map, an EDS), and the external
+    instruments' DAQ map (``[driver] instrument_map``) off the emulator."""
+    module, _ = _backend(url)
+    own = getattr(module, "input_files", None)
+    files = list(own(url, controller_options(options))) if own is not None else []
+    daq_map = (options or {}).get("instrument_map")
+    if daq_map and not url.startswith("emulator"):
+        files.append(("[driver] instrument_map", Path(daq_map)))
+    return files
 
 
 # [driver] keys that name the external instruments' DAQ module (docs/setups.md), not the

@@ -32,6 +32,7 @@ from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_f
 from hsio.safety.control import RunControl, stop_on_signals
 from hsio.safety.dry_run import check, dry_run, enforce, from_present
 from hsio.safety.dry_run import predict as predict_peaks
+from hsio.safety.inputs import fingerprints, ground_fingerprint
 from hsio.sites.numerical import StandingSite
 from hsio.sites.setup_map import SetupMap
 from hsio.safety.settings import SafetySettings
@@ -401,6 +402,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     check_hardware(config)
     check_dwell(config, structure)
+    inputs = fingerprints(config)  # before the folder: a file that cannot be read leaves none
     out = run_folder(config, structure, out_dir)
     ledger = open_ledger(config, specimen_dir)
     meta = {
@@ -409,6 +411,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "version": hsio.__version__,
         "specimen_id": ledger.specimen_id if ledger else config["specimen"]["id"],
         "dry_run_override": safety.override, "start": test["start"],
+        "inputs": inputs, "ground_motion_sha256": ground_fingerprint(ground),
     }
     site = None
     summary: dict = {}

@@ -66,18 +66,33 @@ def load_shipped(name: str) -> Structure:
     return parse_structure(resource.read_bytes(), f"{name}.toml (shipped)")
 
 
+def is_shipped_name(path_or_name: str | Path) -> bool:
+    """Whether :func:`load_structure` takes ``path_or_name`` as a shipped structure's name (a
+    string with no suffix and no folder) rather than a path."""
+    text = str(path_or_name)
+    return not isinstance(path_or_name, Path) and "/" not in text and "\\" not in text and not text.endswith(".toml")
+
+
+def structure_file(path_or_name: str | Path, relative_to: str | Path | None = None) -> Path | None:
+    """The file that :func:`load_structure` reads for ``path_or_name``: the path, or the shipped
+    structure's file in ``hsio/library/`` (None for a name that no shipped structure has)."""
+    if is_shipped_name(path_or_name):
+        if str(path_or_name) not in shipped_names():
+            return None
+        return Path(str(resources.files("hsio") / "library" / f"{path_or_name}.toml"))
+    path = Path(path_or_name).expanduser()
+    return Path(relative_to) / path if relative_to is not None and not path.is_absolute() else path
+
+
 def load_structure(path_or_name: str | Path, relative_to: str | Path | None = None) -> Structure:
     """A structure from a file path, or a shipped structure's name (no suffix, no folder).
 
     A relative path is taken relative to the folder ``relative_to`` (e.g. that of the run
     configuration that names the file), else to the working directory.
     """
-    text = str(path_or_name)
-    if not isinstance(path_or_name, Path) and "/" not in text and "\\" not in text and not text.endswith(".toml"):
-        return load_shipped(text)
-    path = Path(path_or_name).expanduser()
-    if relative_to is not None and not path.is_absolute():
-        path = Path(relative_to) / path
+    if is_shipped_name(path_or_name):
+        return load_shipped(str(path_or_name))
+    path = structure_file(path_or_name, relative_to)
     try:
         data = read_bounded(path, MAX_FILE_BYTES, lambda reason: ConfigError(
             f"{path}: {reason} (a structure file is TOML text of at most {MAX_FILE_BYTES} bytes)"))

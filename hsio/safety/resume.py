@@ -24,6 +24,7 @@ from hsio.experiment import ExperimentStopped, excitation
 from hsio.integrators.alpha_os import AlphaOSState
 from hsio.recording import RUN_FILE, Recorder, Run, column
 from hsio.safety.control import RunControl, stop_on_signals
+from hsio.safety.inputs import compare_inputs, ground_fingerprint
 from hsio.safety.settings import SafetySettings
 from hsio.safety.socket import ControlServer
 from hsio.safety.status import exit_status, outcome_name
@@ -41,6 +42,37 @@ def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
     return AlphaOSState(k, u, v, a, u_pred, v_pred, R, P[k].copy())
 
 
+def check_inputs(run: Run, cfg, notify) -> None:
+    """The files the resume reads again (structure, record, the driver's) as the run read them
+    when it began (their SHA-256 in meta ``inputs``), else a ConfigError naming each that changed
+    or is missing; a record without fingerprints is resumed with a warning."""
+    recorded = run.meta.get("inputs")
+    if recorded is None:
+        notify(f"WARNING: {run.path} holds no fingerprints of the run's input files (recorded by an hsio "
+               f"that took none): cannot check that the structure, record and driver files are those the run "
+               f"began with")
+        return
+    changed, unchecked = compare_inputs(recorded, cfg)
+    if changed:
+        raise ConfigError(f"{run.path}: the resume would not continue the same test: input files differ from "
+                          f"those the run began with:\n  " + "\n  ".join(changed)
+                          + "\nrestore them as they were, or start a new run; the record is unchanged and nothing moved")
+    for line in unchecked:
+        notify(f"WARNING: {line} has no fingerprint in the record: cannot check that it is unchanged")
+
+
+def check_ground(run: Run, ground) -> None:
+    """The ground motion built again from the configuration is the one the run began with (its
+    SHA-256 in meta ``ground_motion_sha256``), else a ConfigError: a record given in code, or a
+    synthetic record that this hsio builds differently."""
+    recorded = run.meta.get("ground_motion_sha256")
+    if recorded is not None and ground_fingerprint(ground) != recorded:
+        raise ConfigError(f"{run.path}: the resume would not continue the same test: the ground motion built "
+                          f"from the configuration ({ground.name}) differs from the one the run began with "
+                          f"({run.meta.get('record', '?')}; the sha256 of their samples differ); the record is "
+                          f"unchanged and nothing moved")
+
+
 def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None) -> dict:
     """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary."""
     from hsio.runner import build_record, integrator_options, load_run_structure
@@ -56,15 +88,17 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
     cfg = config_mod.from_dict(run.meta["config"], f"{path} (meta config)")
     if cfg["integrator"]["method"] != "alpha_os":
         raise ConfigError(f"{path}: resume is available for the alpha_os method, not {cfg['integrator']['method']!r}")
+    notify = notify or (lambda line: None)
+    check_inputs(run, cfg, notify)
     structure = load_run_structure(cfg)
     if not structure.numerical_assembly().is_linear:
         raise ConfigError(f"{path}: resume needs a linear numerical part (its state is not in the record)")
     ground = build_record(cfg, structure, replay=True)
+    check_ground(run, ground)
     _, P = excitation(structure, ground)
     integrator = api.make_integrator(structure, "alpha_os", cfg["integrator"]["alpha"], **integrator_options(cfg, structure))
     state = last_state(run, structure, P, integrator)
     control = control or RunControl()
-    notify = notify or (lambda line: None)
     test, hardware = cfg["test"], cfg["hardware"]
     safety = SafetySettings.from_table(cfg["safety"])
     error = None
