@@ -1,15 +1,19 @@
 """The error budget of a hybrid run (`hsio diagnose --run`): structure I on an emulated actuator
 with a 20 ms lag, the physical wall 20 % stiffer than its model. The budget must account for
-most of the HS-vs-NS difference and name the specimen mismatch as its main source."""
+most of the HS-vs-NS difference and name the specimen mismatch as its main source. A main source
+is named only by the documented rule (budgets with shares in closed form), and a run stopped
+early by SIGTERM is budgeted over the steps it recorded and says so."""
 
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from hsio import config as cfg
 from hsio.commands.diagnose import diagnose
+from hsio.diagnose.budget import TITLES
 from hsio.runner import run
 
 
@@ -75,3 +79,131 @@ def test_a_report_folder_that_cannot_be_written_is_named(run_dir, tmp_path):
     result = CliRunner().invoke(diagnose, ["--run", str(run_dir), "--report", str(blocker / "b")])
     assert result.exit_code == 2
     assert "cannot write the report" in result.stderr and "taken" in result.stderr
+
+
+# -- when a main source is named (docs/diagnose.md, "Error budget of a hybrid run") ---------------
+
+def _budget(tracking, force_noise, specimen, together, **run):
+    """A budget whose shares are known in closed form: with D = u_HS - u_NS and a replay
+    u = u_NS + c D, the share 1 - RMS(D - c D) / RMS(D) is 1 - |1 - c|, so c <= 1 gives share c."""
+    from hsio.diagnose.budget import Budget
+
+    t = np.linspace(0.0, 4.0, 401)
+    u_ns = np.zeros((t.size, 1))
+    u_hs = np.sin(2 * np.pi * t)[:, None]
+    replay = lambda c: u_ns + c * (u_hs - u_ns)  # noqa: E731
+    return Budget("synthetic", t, u_hs, u_ns, {"tracking": replay(tracking), "force_noise": replay(force_noise),
+                                               "specimen": replay(specimen)}, replay(together), **run)
+
+
+def test_the_closed_form_shares():
+    b = _budget(0.3, 0.038, -0.1, 0.8)
+    shares = {r["source"]: r["share"] for r in b.rows()}
+    assert shares == pytest.approx({"tracking": 0.3, "force_noise": 0.038, "specimen": -0.1, "rest": 0.2})
+    assert b.accounted == pytest.approx(0.8)
+
+
+def test_no_main_source_is_named_when_the_sources_account_for_nothing():
+    """The sources together account for -5.2 % of the difference, the largest 3.8 %: naming it
+    the main source would be wrong; the budget says nothing modelled explains the difference and
+    gives the part left over."""
+    b = _budget(0.01, 0.038, -0.02, -0.052)
+    assert b.accounted == pytest.approx(-0.052)
+    assert b.main_source is None and b.verdict == "unexplained"
+    text = " ".join(b.table().split())  # the conclusion is wrapped
+    assert "; main source:" not in text
+    assert "no modelled source explains the difference" in text and "-5.2 %" in text and "negative" in text
+    assert "105.2 % of the difference" in text  # the part left over, its share
+    out = b.to_json()
+    assert out["main_source"] is None and out["verdict"] == "unexplained"
+    assert out["unexplained"]["share"] == pytest.approx(1.052)
+    assert out["unexplained"]["rms_mm"] == pytest.approx(1.052 * np.sqrt(np.mean(np.sin(2 * np.pi * b.t) ** 2)))
+    assert out["rule"] == {"accounted_min": 0.5, "dominance": 2.0}
+
+
+@pytest.mark.parametrize("shares, together, named", [
+    ((0.058, 0.0, 0.918), 0.994, "specimen"),  # structure I with a stiffer wall (docs)
+    ((0.45, 0.0, 0.30), 0.50, None),  # half accounted, the largest 1.5 x the next: not twice
+    ((0.45, 0.0, 0.22), 0.50, "tracking"),  # half accounted, the largest over twice the next
+    ((0.45, 0.0, 0.22), 0.49, None),  # under half accounted
+    ((0.45, 0.40, 0.0), 0.90, None),  # two comparable sources
+    ((0.20, 0.05, 0.05), 0.90, None),  # the largest alone reproduces under half of what all do
+])
+def test_the_rule_for_naming_a_main_source(shares, together, named):
+    b = _budget(*shares, together)
+    assert b.main_source == named
+    text = " ".join(b.table().split())
+    if named:
+        assert b.verdict == "main_source" and f"main source: {TITLES[named]}" in text
+    elif b.accounted >= 0.5:
+        assert b.verdict == "together" and "none of them alone is the main source" in text and "; main source:" not in text
+    else:
+        assert b.verdict == "unexplained" and "no modelled source explains the difference" in text
+
+
+def test_a_complete_run_says_so(run_dir):
+    result = CliRunner().invoke(diagnose, ["--run", str(run_dir), "--json"])
+    run = json.loads(result.stdout)["run"]
+    assert run == {"steps_recorded": 800, "steps_planned": 800, "stopped_early": False, "stop_reason": None}
+    text = CliRunner().invoke(diagnose, ["--run", str(run_dir)]).stdout
+    assert "run complete: 800 of 800 planned steps recorded" in text and "stopped early" not in text
+
+
+# -- a run stopped early ---------------------------------------------------------------------------
+
+def _stopped_run(out, duration_s, at_step):
+    """The validation structure on emulated actuators, `hsio run` stopped by a SIGTERM sent to
+    itself once HS reaches step ``at_step`` (docs/safety.md: stopped at the next step boundary)."""
+    import os
+    import signal
+
+    from hsio.experiment import ExperimentStopped
+    from hsio.safety.control import RunControl
+
+    class SigtermAt(RunControl):
+        def checkpoint(self, site, step, log=None):
+            if self.phase == "HS" and step == at_step:
+                os.kill(os.getpid(), signal.SIGTERM)
+            super().checkpoint(site, step, log)
+
+    config = cfg.from_dict({"record": {"synthetic_duration_s": duration_s}, "output": {"plots": False}})
+    with pytest.raises(ExperimentStopped, match="SIGTERM"):
+        run(config, out, control=SigtermAt())
+    return out
+
+
+@pytest.fixture(scope="module")
+def stopped_dir(tmp_path_factory):
+    return _stopped_run(tmp_path_factory.mktemp("stopped_run"), 4.0, 100)
+
+
+def test_a_run_stopped_early_is_budgeted_over_its_steps_and_says_so(stopped_dir, tmp_path):
+    from hsio.diagnose.budget import error_budget
+    from hsio.recording import Run
+
+    recorded = Run(stopped_dir / "run.sqlite").summary["steps"]
+    assert 95 <= recorded <= 105  # 4 s at dt = 0.01 s: 400 steps planned
+    b = error_budget(stopped_dir)
+    assert b.t.size == recorded + 1  # every recorded step, no more
+    result = CliRunner().invoke(diagnose, ["--run", str(stopped_dir), "--json", "--report", str(tmp_path / "b")])
+    assert result.exit_code == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["run"]["steps_recorded"] == recorded and out["run"]["steps_planned"] == 400
+    assert out["run"]["stopped_early"] is True
+    assert "stopped by SIGTERM during HS" in out["run"]["stop_reason"]
+    text = " ".join(CliRunner().invoke(diagnose, ["--run", str(stopped_dir)]).stdout.split())
+    assert f"run stopped early: {recorded} of 400 planned steps recorded" in text
+    assert "stop recorded: step" in text and "stopped by SIGTERM during HS" in text
+    assert "stopped early" in (tmp_path / "b" / "budget.md").read_text()
+    # Early in the record the difference is small and the sources reproduce little of it: no
+    # main source is named, and the report gives the part they leave.
+    assert out["accounted"] < 0.5
+    assert out["main_source"] is None and "no modelled source explains the difference" in text
+
+
+def test_a_run_stopped_too_early_to_budget_says_how_far_it_got(tmp_path):
+    stopped = _stopped_run(tmp_path / "o", 1.0, 10)
+    result = CliRunner().invoke(diagnose, ["--run", str(stopped)])
+    assert result.exit_code == 2
+    assert "fewer than 20 recorded steps" in result.stderr and "of 100 planned" in result.stderr
+    assert "stopped by SIGTERM during HS" in result.stderr

@@ -14,13 +14,22 @@ The difference D(t) = u_HS - u_NS is attributed by replaying NS with one source 
   leaves of D.
 
 A source's share is 1 - RMS(D - Delta_s) / RMS(D), Delta_s = u_s - u_NS (the part of D its replay
-reproduces); the budget accounts for 1 - RMS(u_HS - u_all) / RMS(D).
+reproduces); the budget accounts for A = 1 - RMS(u_HS - u_all) / RMS(D).
+
+A main source is named only when the sources together account for at least ACCOUNTED_MIN of D
+and the largest share s_1 is at least DOMINANCE times the next one's and at least 1 / DOMINANCE
+of A (it carries most of what the sources reproduce). Below ACCOUNTED_MIN no modelled source
+explains D, and the budget says so, with the part it leaves (u_HS - u_all).
+
+A run stopped early (fewer steps recorded than its record has) is budgeted over the steps it
+recorded; the budget says how many of how many, and why it stopped when the run recorded that.
 
 Every call into hsio's run and NS machinery is in :func:`load_run` and :func:`replay`.
 """
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +39,8 @@ from hsio.errors import HsioError, RecordError
 from hsio.diagnose.threads import one_blas_thread
 
 SOURCES = ("tracking", "force_noise", "specimen")
+ACCOUNTED_MIN = 0.5  # a main source is named only when the sources together reproduce this share of D
+DOMINANCE = 2.0  # ... and the largest share is this many times the next and at least 1 / DOMINANCE of A
 TITLES = {"tracking": "actuator tracking error", "force_noise": "force measurement noise",
           "specimen": "specimen-model mismatch", "rest": "integrator and interaction (the rest)"}
 
@@ -40,7 +51,7 @@ class RunData:
 
     source: str
     structure: object  # hsio.structures.Structure
-    ground: object  # hsio.ground_motion.GroundMotion
+    ground: object  # hsio.ground_motion.GroundMotion, up to the last recorded step
     alpha: float
     correction: bool  # the measured force corrected to the target displacement
     t: np.ndarray
@@ -49,11 +60,23 @@ class RunData:
     targets: np.ndarray  # steps x actuators
     displacement: np.ndarray
     force: np.ndarray
+    steps_planned: int = 0  # the steps of the run's record (more than recorded: stopped early)
+    stop_reason: str | None = None  # why the run stopped, as it recorded it
+
+
+def stop_reason(run) -> str | None:
+    """Why a recorded run stopped: its summary's ``stopped``, else its last ``stop`` event."""
+    stopped = run.summary.get("stopped")
+    if stopped:
+        return str(stopped)
+    stops = [e["message"] for e in run.events() if e["kind"] == "stop" and e["message"]]
+    return stops[-1] if stops else None
 
 
 def load_run(run_dir: str | Path) -> RunData:
     """Read run.sqlite with the structure, record and integrator it was run with."""
     from hsio.config import from_dict
+    from hsio.experiment import excitation
     from hsio.recording import Run
     from hsio.runner import build_record, load_run_structure
 
@@ -68,9 +91,14 @@ def load_run(run_dir: str | Path) -> RunData:
     if config["integrator"]["method"] != "alpha_os":
         raise RecordError(f"{path}: the error budget replays alpha_os runs; this one used {config['integrator']['method']!r}")
     structure = load_run_structure(config)
+    ground = build_record(config, structure, replay=True)
+    planned = len(excitation(structure, ground)[0]) - 1
     steps = run.steps
     if steps.get("step") is None or steps["step"].size < 20:
-        raise RecordError(f"{path}: fewer than 20 recorded steps")
+        n = 0 if steps.get("step") is None else steps["step"].size
+        why = stop_reason(run)
+        raise RecordError(f"{path}: fewer than 20 recorded steps ({n} of {planned} planned"
+                          f"{'; ' + why if why else ''})")
 
     def rows(prefix, names):
         return np.vstack([np.zeros(len(names)), np.column_stack([run.steps[f"{prefix}_{n}"] for n in names])])
@@ -82,9 +110,11 @@ def load_run(run_dir: str | Path) -> RunData:
     else:
         u_ns = None
     t = np.r_[0.0, steps["time_s"]]
-    data = RunData(str(path), structure, build_record(config, structure, replay=True), config["integrator"]["alpha"],
+    if t.size - 1 < planned:  # stopped early: the replays need the record up to the last recorded step
+        ground = ground.truncated(min(t[-1] + 2 * max(ground.dt, structure.dt), ground.duration_s))
+    data = RunData(str(path), structure, ground, config["integrator"]["alpha"],
                    bool(config["test"]["measured_displacement_correction"]), t, u_hs, u_ns, rows("target", acts),
-                   rows("disp", acts), rows("force", acts))
+                   rows("disp", acts), rows("force", acts), planned, stop_reason(run))
     if data.u_ns is None or data.u_ns.shape != u_hs.shape:
         data.u_ns = replay(data, [e.model() for e in structure.experimental])
     return data
@@ -251,6 +281,8 @@ class Budget:
     replays: dict  # source -> u history with that source alone
     u_all: np.ndarray
     specimen_notes: list = field(default_factory=list)
+    steps_planned: int = 0  # 0: not known (taken as the steps recorded)
+    stop_reason: str | None = None
 
     @property
     def difference(self) -> np.ndarray:
@@ -265,8 +297,79 @@ class Budget:
         return self.share(self.u_all)
 
     @property
-    def main_source(self) -> str:
-        return max(self.replays, key=lambda s: self.share(self.replays[s]))
+    def ranked(self) -> list[tuple[str, float]]:
+        """The sources by share, largest first."""
+        return sorted(((k, self.share(u)) for k, u in self.replays.items()), key=lambda x: -x[1])
+
+    @property
+    def verdict(self) -> str:
+        """``main_source`` (one source carries the difference), ``together`` (the sources account
+        for it, none alone), ``unexplained`` (they account for less than ACCOUNTED_MIN of it) or
+        ``no_difference`` (HS and NS agree: nothing to budget)."""
+        if _rms(self.difference) == 0:
+            return "no_difference"
+        a = self.accounted
+        if not a >= ACCOUNTED_MIN:
+            return "unexplained"
+        (_, s1), rest = self.ranked[0], self.ranked[1:]
+        s2 = max([s for _, s in rest] + [0.0])
+        return "main_source" if s1 >= DOMINANCE * s2 and s1 >= a / DOMINANCE else "together"
+
+    @property
+    def main_source(self) -> str | None:
+        """The source named as the main one, None when the rule above names none."""
+        return self.ranked[0][0] if self.verdict == "main_source" else None
+
+    @property
+    def steps_recorded(self) -> int:
+        return self.t.size - 1
+
+    @property
+    def stopped_early(self) -> bool:
+        return self.steps_recorded < self.steps_planned
+
+    def run_json(self) -> dict:
+        return {"steps_recorded": self.steps_recorded, "steps_planned": self.steps_planned or self.steps_recorded,
+                "stopped_early": self.stopped_early, "stop_reason": self.stop_reason}
+
+    def run_line(self) -> str:
+        planned = self.steps_planned or self.steps_recorded
+        if self.stopped_early:
+            line = (f"run stopped early: {self.steps_recorded} of {planned} planned steps recorded; "
+                    f"the budget covers these")
+        else:
+            line = f"run complete: {self.steps_recorded} of {planned} planned steps recorded"
+        if self.stop_reason:
+            line += f"\nstop recorded: {self.stop_reason}"
+        elif self.stopped_early:
+            line += "\nstop recorded: none (the run did not record why it stopped)"
+        return line
+
+    def unexplained(self) -> dict:
+        rest = self.u_hs - self.u_all
+        return {"rms_mm": _rms(rest), "peak_mm": float(np.max(np.abs(rest))), "share": 1.0 - self.accounted}
+
+    def conclusion(self) -> str:
+        a, verdict = self.accounted, self.verdict
+        (top, s1), rest = self.ranked[0], self.ranked[1:]
+        if verdict == "no_difference":
+            return "HS and NS agree at every recorded step: there is no difference to budget"
+        if verdict == "main_source":
+            return f"all sources together account for {100 * a:.1f} % of the difference; main source: {TITLES[top]}"
+        if verdict == "together":
+            nxt, s2 = rest[0] if rest else (None, 0.0)
+            why = (f"the largest, {TITLES[top]} ({100 * s1:.1f} %), is under {DOMINANCE:g} times the next, "
+                   f"{TITLES[nxt]} ({100 * s2:.1f} %)" if s1 < DOMINANCE * max(s2, 0.0) else
+                   f"the largest, {TITLES[top]} ({100 * s1:.1f} %), reproduces under 1/{DOMINANCE:g} of what they "
+                   f"do together (they act through their interaction)")
+            return (f"all sources together account for {100 * a:.1f} % of the difference; none of them alone is the "
+                    f"main source: {why}")
+        u = self.unexplained()
+        sign = " (negative: with every source put in, the replay is further from HS than NS is)" if a < 0 else ""
+        return (f"no modelled source explains the difference: all sources together account for {100 * a:.1f} % of "
+                f"it{sign}, under the {100 * ACCOUNTED_MIN:.0f} % needed to name a main source; what they leave "
+                f"(the integrator, their interaction or an effect none of them models): RMS {u['rms_mm']:.4f} mm, "
+                f"peak {u['peak_mm']:.4f} mm, {100 * u['share']:.1f} % of the difference")
 
     def rows(self) -> list[dict]:
         out = []
@@ -281,17 +384,19 @@ class Budget:
     def to_json(self) -> dict:
         return {"source": self.source, "rms_difference_mm": _rms(self.difference),
                 "peak_difference_mm": float(np.max(np.abs(self.difference))), "sources": self.rows(),
-                "accounted": self.accounted, "main_source": self.main_source, "specimen_models": self.specimen_notes,
+                "accounted": self.accounted, "main_source": self.main_source, "verdict": self.verdict,
+                "conclusion": self.conclusion(), "unexplained": self.unexplained(),
+                "rule": {"accounted_min": ACCOUNTED_MIN, "dominance": DOMINANCE}, "run": self.run_json(),
+                "specimen_models": self.specimen_notes,
                 "method": "NS replayed with one measured source at a time; share = 1 - RMS(HS - replay) / RMS(HS - NS)"}
 
     def table(self) -> str:
         lines = [f"error budget of {self.source}: HS - NS RMS {_rms(self.difference):.4f} mm, peak "
-                 f"{np.max(np.abs(self.difference)):.4f} mm", "",
+                 f"{np.max(np.abs(self.difference)):.4f} mm", self.run_line(), "",
                  f"{'source':<40} {'RMS (mm)':>10} {'peak (mm)':>10} {'share':>8}"]
         for r in self.rows():
             lines.append(f"{r['title']:<40} {r['rms_mm']:10.4f} {r['peak_mm']:10.4f} {100 * r['share']:7.1f}%")
-        lines += ["", f"all sources together account for {100 * self.accounted:.1f} % of the difference; "
-                      f"main source: {TITLES[self.main_source]}"]
+        lines += ["", textwrap.fill(self.conclusion(), 100)]
         return "\n".join(lines)
 
 
@@ -308,7 +413,8 @@ def error_budget(run_dir: str | Path) -> Budget:
                "specimen": replay(data, models)}
     u_all = replay(data, models, tracking_error=error, force_noise=noise)
     m = min(n, data.u_ns.shape[0], u_all.shape[0], *(u.shape[0] for u in replays.values()))
-    return Budget(data.source, data.t[:m], data.u_hs[:m], data.u_ns[:m], {k: u[:m] for k, u in replays.items()}, u_all[:m], notes)
+    return Budget(data.source, data.t[:m], data.u_hs[:m], data.u_ns[:m], {k: u[:m] for k, u in replays.items()}, u_all[:m], notes,
+                  data.steps_planned, data.stop_reason)
 
 
 def write_budget(b: Budget, out_dir: str | Path) -> dict:
@@ -327,8 +433,9 @@ def write_budget(b: Budget, out_dir: str | Path) -> dict:
     label(axes[0], None, "displacement difference (mm)")
     axes[1].plot(b.t, (b.u_hs - b.u_all)[:, dof], color="0.4", lw=0.8, label=TITLES["rest"])
     label(axes[1], "time (s)", "unaccounted (mm)")
-    save(fig, out / "budget.png",
-         f"Error budget: {100 * b.accounted:.1f} % of HS - NS accounted; main source {TITLES[b.main_source]}")
+    named = f"main source {TITLES[b.main_source]}" if b.main_source else "no main source named"
+    early = f" (stopped early: {b.steps_recorded} of {b.steps_planned} steps)" if b.stopped_early else ""
+    save(fig, out / "budget.png", f"Error budget: {100 * b.accounted:.1f} % of HS - NS accounted; {named}{early}")
     (out / "budget.md").write_text("# Error budget\n\n```\n" + b.table() + "\n```\n", encoding="utf-8")
     (out / "budget.json").write_text(json.dumps(b.to_json(), indent=2), encoding="utf-8")
     return {"plot": str(out / "budget.png"), "text": str(out / "budget.md"), "json": str(out / "budget.json")}
