@@ -23,6 +23,7 @@ import signal
 
 _noted: list[int] = []
 _previous = None
+_program = False
 
 
 def _note(signum, frame) -> None:
@@ -32,7 +33,8 @@ def _note(signum, frame) -> None:
 
 
 def main():
-    global _previous
+    global _previous, _program
+    _program = True
     _previous = signal.getsignal(signal.SIGINT)
     if _previous is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, _note)
@@ -51,6 +53,11 @@ def noted_interrupt() -> bool:
 def started_ignoring_sigint() -> bool:
     """Whether the program was started with SIGINT ignored (then it keeps ignoring it)."""
     return _previous is signal.SIG_IGN
+
+
+def running_as_program() -> bool:
+    """Whether hsio runs as the `hsio` program (:func:`main`), not as a command called in process."""
+    return _program
 
 
 def after_start_up(handler):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import click
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -14,6 +15,7 @@ from hsio.commands.emulate import bank_from_config
 from hsio.commands.probe import _ramp, probe
 from hsio.drivers import modbus_map
 from hsio.emulators.modbus import ModbusEmulator
+from hsio.interfaces import Limits
 from wire import QUIET_SENSORS, write_config
 
 
@@ -71,7 +73,8 @@ def test_probe_move_with_a_sine_beyond_the_velocity_limit_is_refused_before_movi
     result, report, holding, rod = probe_move(tmp_path, "--sine-mm", "5", "--sine-hz", "20")
     assert result.exit_code == 2
     assert report["error"] == ("--sine-mm 5 at --sine-hz 20: peak velocity 2 pi f A = 628.3 mm/s is beyond the "
-                               "velocity limit (500.0 mm/s); refused, nothing moved")
+                               "velocity limit (500.0 mm/s); refused, nothing moved (at 20 Hz the amplitude may be "
+                               "up to 3.979 mm)")
     assert "move" not in report and rod < 1e-9
     assert all(holding) and report["hold"] == CONFIRMED
 
@@ -88,6 +91,48 @@ def test_probe_move_bad_settings_are_refused_naming_the_option(tmp_path, args, o
     assert f"Invalid value for '{option}'" in result.stderr or f"Invalid value for {option}" in result.stderr, \
         result.stderr
     assert rod < 1e-9 and all(holding)
+
+
+@pytest.mark.parametrize("hz, why", [("1e-9", "2/f = 2e+09 s, beyond 40 s"), ("0.049", "2/f = 40.82 s, beyond 40 s"),
+                                     ("51", "beyond 50 Hz")])
+def test_probe_move_sine_frequency_outside_its_range_is_refused_before_anything_opens(tmp_path, hz, why):
+    """The sine lasts two periods, at most 40 s (0.05 Hz); at most 50 Hz (20 commands a period at
+    1024 Hz). A 1e-9 Hz sine would last 63 years and take terabytes of commands."""
+    result, holding, rod = invoke_probe(tmp_path, "--sine-hz", hz)
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
+    assert "Invalid value for '--sine-hz'" in result.stderr and "allowed 0.05 to 50 Hz" in result.stderr, result.stderr
+    assert why in result.stderr and "identity" not in result.stdout  # refused before connecting
+    assert rod < 1e-9 and all(holding)
+
+
+def test_probe_move_step_whose_ramp_would_outlast_its_bound_is_refused_before_moving(tmp_path):
+    """At a velocity limit of 1e-9 mm/s the 1 mm step would ramp for 35 years: refused, naming
+    --step-mm and what this controller allows (0.9 x 1e-9 mm/s x 10 s)."""
+    result, holding, rod = invoke_probe(tmp_path, "--option", "velocity_mm_s=1e-9", "--sine-mm", "1e-12",
+                                        "--sine-hz", "0.1")
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
+    assert "Invalid value for --step-mm: 1 mm: must be non-zero and within +/-9e-09 mm" in result.stderr, result.stderr
+    assert "for at most 10 s" in result.stderr
+    assert "refused before anything moved; the actuators hold (confirmed by read-back)" in result.stderr
+    assert rod < 1e-9 and all(holding)
+
+
+def test_check_move_bounds_the_move_from_where_the_axis_stands():
+    """From 126 mm of a +/-127 mm stroke a 2 mm step or a 1.5 mm sine would leave the stroke part
+    way through: refused before anything moves, naming the range allowed from there."""
+    from hsio.commands.probe import MOVE_MAX_S, SINE_MAX_S, check_move
+
+    limits = Limits()
+    check_move(limits, 0.0, 2.0, 1.5, 0.5)
+    with pytest.raises(click.BadParameter, match=r"step would end at 128.000 mm.*allowed here -12.7 to 1 mm"):
+        check_move(limits, 126.0, 2.0, 0.5, 0.5)
+    check_move(limits, 126.0, -2.0, 0.5, 0.5)
+    with pytest.raises(click.BadParameter, match=r"allowed here up to 1 mm") as refused:
+        check_move(limits, 126.0, -2.0, 1.5, 0.5)
+    assert refused.value.param_hint == "--sine-mm"
+    with pytest.raises(click.BadParameter, match=r"allowed 0.05 to 50 Hz"):
+        check_move(limits, 0.0, 1.0, 1.0, 1e-9)
+    assert SINE_MAX_S == 40.0 and MOVE_MAX_S == pytest.approx(60.15)
 
 
 def test_probe_move_trips_on_an_actuator_that_does_not_follow(tmp_path):

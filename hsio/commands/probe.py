@@ -3,12 +3,19 @@
 Reports the connection and identity, the state of each axis, and the round-trip latency of the
 driver's requests (median, p99 and max over N requests, in ms). Without --move it only reads:
 no axis is enabled and nothing is commanded. With --move, axis 0 makes a small step (ramped at 90 %
-of the velocity limit, there and back) and a slow sine from where it stands (rise time, overshoot,
-RMS tracking error) and comes back; a sine whose peak velocity 2 pi f A is beyond the velocity
-limit is refused before anything moves. Every command goes through the limit checks and
-interlocks of a run, and a refusal or a trip ends the probe with exit status 2. At the end every
-axis is told to hold and the hold is read back from the controller (docs/safety.md section 3):
-the report says the axes hold only when the controller confirms it.
+of the velocity limit, there and back) and a slow sine of two periods from where it stands (rise
+time, overshoot, RMS tracking error) and comes back. The move is bounded before anything moves
+(:func:`check_move`): the sine lasts at most :data:`SINE_MAX_S` (--sine-hz from
+:data:`SINE_MIN_HZ` to :data:`SINE_MAX_HZ`), each ramp of the step at most :data:`RAMP_MAX_S`, the
+step and the amplitude stay within 5 % of the stroke and inside it, and the sine's peak velocity
+2 pi f A within the velocity limit. Every command goes through the limit checks and interlocks of
+a run, and a refusal or a trip ends the probe with exit status 2.
+
+SIGTERM and SIGINT (Ctrl-C) stop the move at the next command, as they stop a run
+(:func:`hsio.safety.control.stop_on_signals`): exit status 5. Whatever ends the move (its end, a
+refusal, a trip, a signal, an unexpected error, exit status 3) every axis is told to hold where it
+stands and the hold is read back from the controller (docs/safety.md section 3): the report says
+the axes hold only when the controller confirms it. Ctrl-C is ignored while they are told to hold.
 
 With --config the probe uses a run configuration's [safety] interlock settings and its [driver]
 options (each --option overrides one), so that it moves the rig under the same checks as the run;
@@ -17,9 +24,12 @@ without it, the defaults of docs/config.md.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import signal
 import sys
+import threading
 import time
 from urllib.parse import urlsplit
 
@@ -29,6 +39,14 @@ import numpy as np
 from hsio.commands import RegularFile
 from hsio.errors import HsioError, LimitError
 from hsio.hardware import controller_options
+
+SINE_PERIODS = 2  # the sine of --move lasts two periods, 2 / f
+SINE_MIN_HZ = 0.05  # so the sine lasts at most SINE_MAX_S
+SINE_MAX_S = SINE_PERIODS / SINE_MIN_HZ  # 40 s
+SINE_MAX_HZ = 50.0  # at least 20 commands per period at 1024 Hz
+RAMP_MAX_S = 10.0  # each ramp of the step (there, and back)
+MOVE_MAX_S = 0.05 + 2 * RAMP_MAX_S + SINE_MAX_S + 0.1  # still, step, back, sine, still: 60.15 s
+OK, REFUSED, UNEXPECTED, STOPPED = 0, 2, 3, 5  # exit statuses
 
 
 def latency_stats(samples_s: list[float]) -> dict:
@@ -84,21 +102,21 @@ def _state(link, actuators) -> list[dict]:
     return out
 
 
-def _latency(link, n: int) -> dict:
+def _latency(link, n: int, control=None) -> dict:
     times = []
     if hasattr(link, "status"):
         what = "Modbus read of every status register (function 3)"
-        for _ in range(n):
-            t = time.perf_counter()
-            link.read_status()
-            times.append(time.perf_counter() - t)
+        request = link.read_status
     else:
         what = "CANopen SDO upload of the statusword 0x6041"
         d = link.drives[0]
-        for _ in range(n):
-            t = time.perf_counter()
-            d.sdo_read(0x6041)
-            times.append(time.perf_counter() - t)
+        request = lambda: d.sdo_read(0x6041)  # noqa: E731
+    for _ in range(n):
+        if control is not None:
+            control.check_stop()
+        t = time.perf_counter()
+        request()
+        times.append(time.perf_counter() - t)
     return {"what": what, **latency_stats(times)}
 
 
@@ -106,20 +124,25 @@ class _Guard:
     """The checks every command of a run goes through (docs/safety.md section 3), for probe's
     motion: the stroke and force limits (:meth:`hsio.interfaces.Actuator.command`), the velocity
     limit against the previous command, and the interlocks of the control loop (following error,
-    implausible measurement) on every sample. A refusal or a trip raises; the caller holds."""
+    implausible measurement) on every sample; and, before each command, a stop asked by a signal
+    (``control``, :class:`hsio.safety.control.RunControl`). A refusal, a trip or a stop raises;
+    the caller holds."""
 
-    def __init__(self, actuator, clock, safety=None):
+    def __init__(self, actuator, clock, safety=None, control=None):
         from hsio.safety.interlocks import InterlockMonitor
         from hsio.safety.settings import SafetySettings
 
         self.actuator = actuator
         self.clock = clock
+        self.control = control
         safety = safety or SafetySettings.from_table({})
         self.monitor = InterlockMonitor([actuator], safety) if safety.interlocks else None
-        self.previous = actuator.feedback().displacement_mm
+        self.start = self.previous = actuator.feedback().displacement_mm
 
     def send(self, command: float) -> float:
         """One checked command; the measured displacement after one controller period."""
+        if self.control is not None:
+            self.control.check_stop()
         a = self.actuator
         a.limits.check_velocity((command - self.previous) / self.clock.period_s, f"actuator {a.name!r}")
         a.command(command)
@@ -143,31 +166,65 @@ def _ramp(x_from: float, x_to: float, speed_mm_s: float, rate: float) -> np.ndar
     return x_from + (x_to - x_from) * np.arange(1, n + 1) / n
 
 
-def check_move(limits, step_mm: float, sine_mm: float, sine_hz: float) -> None:
-    """Before anything moves: the step and the sine amplitude within 5 % of the stroke, and the
-    sine's peak velocity 2 pi f A within the velocity limit (a sine beyond it would be refused
-    part way through, with the axis away from where it stood)."""
+def _sine_hz(ctx, param, value: float) -> float:
+    """--sine-hz: the sine lasts two periods, so at most SINE_MAX_S; at most SINE_MAX_HZ."""
+    if SINE_MIN_HZ <= value <= SINE_MAX_HZ:
+        return value
+    allowed = f"allowed {SINE_MIN_HZ:g} to {SINE_MAX_HZ:g} Hz"
+    if 0 < value < SINE_MIN_HZ:
+        why = f"the sine of --move lasts two periods, 2/f = {SINE_PERIODS / value:.4g} s, beyond {SINE_MAX_S:g} s"
+    elif value > SINE_MAX_HZ:
+        why = f"beyond {SINE_MAX_HZ:g} Hz (20 commands a period at 1024 Hz)"
+    else:
+        why = f"the sine of --move lasts two periods, at most {SINE_MAX_S:g} s"
+    raise click.BadParameter(f"{value:g} Hz: {why}; {allowed}", param_hint=None if param is not None else "--sine-hz")
+
+
+def check_move(limits, x0: float, step_mm: float, sine_mm: float, sine_hz: float) -> None:
+    """Before anything moves: the step within 5 % of the stroke and within what a ramp at 90 % of
+    the velocity limit covers in :data:`RAMP_MAX_S`; the sine amplitude within 5 % of the stroke;
+    both from where axis 0 stands (``x0``) inside the stroke; the sine's frequency within
+    :data:`SINE_MIN_HZ` .. :data:`SINE_MAX_HZ` (so it lasts at most :data:`SINE_MAX_S`) and its
+    peak velocity 2 pi f A within the velocity limit (a sine beyond it would be refused part way
+    through, with the axis away from where it stood)."""
     small = 0.05 * limits.stroke_mm
-    if step_mm == 0 or abs(step_mm) > small:
-        raise click.BadParameter(f"{step_mm:g} mm: must be non-zero and within 5 % of the stroke "
-                                 f"(+/-{small:g} mm)", param_hint="--step-mm")
-    if sine_mm > small:
-        raise click.BadParameter(f"{sine_mm:g} mm: must be within 5 % of the stroke ({small:g} mm)",
+    reach = 0.9 * limits.velocity_mm_s * RAMP_MAX_S
+    half = limits.half_stroke_mm
+    if step_mm == 0 or not abs(step_mm) <= min(small, reach):
+        raise click.BadParameter(f"{step_mm:g} mm: must be non-zero and within +/-{min(small, reach):.4g} mm "
+                                 f"(5 % of the stroke, {small:g} mm; a ramp at 90 % of the velocity limit, "
+                                 f"{limits.velocity_mm_s:g} mm/s, for at most {RAMP_MAX_S:g} s, {reach:.4g} mm)",
+                                 param_hint="--step-mm")
+    if not abs(x0 + step_mm) <= half:
+        raise click.BadParameter(f"{step_mm:g} mm: axis 0 stands at {x0:.3f} mm, the step would end at "
+                                 f"{x0 + step_mm:.3f} mm, beyond the stroke (+/-{half:g} mm); allowed here "
+                                 f"{max(-small, -reach, -half - x0):.4g} to {min(small, reach, half - x0):.4g} mm",
+                                 param_hint="--step-mm")
+    if not 0 < sine_mm <= small:
+        raise click.BadParameter(f"{sine_mm:g} mm: must be within 5 % of the stroke (0 to {small:g} mm)",
                                  param_hint="--sine-mm")
+    if not abs(x0) + sine_mm <= half:
+        raise click.BadParameter(f"{sine_mm:g} mm: axis 0 stands at {x0:.3f} mm, the sine would reach "
+                                 f"{abs(x0) + sine_mm:.3f} mm from the centre, beyond the stroke (+/-{half:g} mm); "
+                                 f"allowed here up to {half - abs(x0):.4g} mm", param_hint="--sine-mm")
+    _sine_hz(None, None, sine_hz)
     peak = 2.0 * math.pi * sine_hz * sine_mm
     if peak > limits.velocity_mm_s:
         raise LimitError(f"--sine-mm {sine_mm:g} at --sine-hz {sine_hz:g}: peak velocity 2 pi f A = {peak:.1f} mm/s "
-                         f"is beyond the velocity limit ({limits.velocity_mm_s:.1f} mm/s); refused, nothing moved")
+                         f"is beyond the velocity limit ({limits.velocity_mm_s:.1f} mm/s); refused, nothing moved "
+                         f"(at {sine_hz:g} Hz the amplitude may be up to "
+                         f"{limits.velocity_mm_s / (2.0 * math.pi * sine_hz):.4g} mm)")
 
 
-def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float, safety=None) -> dict:
-    """A step and back (each ramped at 90 % of the velocity limit), a slow sine, back: every
-    command checked as in a run (:class:`_Guard`, with the interlock settings ``safety``). The
-    caller holds the axis afterwards."""
-    rate = clock.rate_hz
+def _move(guard: _Guard, step_mm: float, sine_mm: float, sine_hz: float, control=None) -> dict:
+    """A step and back (each ramped at 90 % of the velocity limit), a slow sine of two periods,
+    back: every command checked as in a run (:class:`_Guard`). Checked beforehand by
+    :func:`check_move`, it lasts at most :data:`MOVE_MAX_S`. The caller holds the axis afterwards."""
+    phase = control.enter if control is not None else (lambda name: None)
+    actuator, rate = guard.actuator, guard.clock.rate_hz
     speed = 0.9 * actuator.limits.velocity_mm_s
-    guard = _Guard(actuator, clock, safety)
-    x0 = guard.previous
+    x0 = guard.start
+    phase("the step")
     _drive(guard, np.full(int(0.05 * rate), x0))
     rise_cmd = _ramp(x0, x0 + step_mm, speed, rate)
     step = np.concatenate([rise_cmd, np.full(max(int(0.5 * rate) - len(rise_cmd), 1), x0 + step_mm)])
@@ -179,12 +236,14 @@ def _move(actuator, clock, step_mm: float, sine_mm: float, sine_hz: float, safet
     overshoot = float(max(y.max() - step_mm, 0.0) / step_mm * 100.0)
     back = _ramp(x0 + step_mm, x0, speed, rate)
     _drive(guard, np.concatenate([back, np.full(max(int(0.25 * rate) - len(back), 1), x0)]))
-    n = int(2.0 / sine_hz * rate)
+    phase("the sine")
+    n = int(SINE_PERIODS / sine_hz * rate)
     ts = np.arange(n) / rate
     cmd = x0 + sine_mm * np.sin(2 * np.pi * sine_hz * ts)
     meas = _drive(guard, cmd)
     settle = int(0.25 / sine_hz * rate)
     rms = float(np.sqrt(np.mean((cmd[settle:] - meas[settle:]) ** 2)))
+    phase("the return")
     _drive(guard, np.full(int(0.1 * rate), x0))
     return {"step_mm": step_mm, "step_ramp_s": len(rise_cmd) / rate, "rise_time_s": rise, "overshoot_pct": overshoot,
             "sine_amplitude_mm": sine_mm, "sine_hz": sine_hz, "rms_tracking_error_mm": rms}
@@ -197,6 +256,21 @@ def _finite(ctx, param, value: float) -> float:
     if not math.isfinite(value):
         raise click.BadParameter(f"{value!r} is not a finite number")
     return value
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ctrl-C is ignored while the axes are told to hold and the hold is read back: the stop is
+    under way, and a second Ctrl-C must not cut it short (each request is bounded by the driver's
+    timeout). The handler before comes back afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _hold(actuators):
@@ -212,19 +286,32 @@ def _hold(actuators):
     return read_back(actuators)
 
 
+def _stands(actuators, x0: float | None) -> str:
+    """Where axis 0 stands after the hold (read from the controller), and how far from its start."""
+    try:
+        d = _state(actuators[0].link, actuators)[0]["displacement_mm"]
+    except Exception as exc:
+        return f"where axis 0 stands could not be read ({exc})"
+    where = f"axis 0 stands at {d:.3f} mm"
+    return where + (f", {d - x0:+.3f} mm from where it stood" if x0 is not None else "")
+
+
 @click.command()
 @click.argument("url")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
-@click.option("--move", is_flag=True, help="Also make a small step and a slow sine on axis 0 (moves the actuator).")
+@click.option("--move", is_flag=True, help="Also make a small step and a slow sine on axis 0 (moves the actuator; "
+                                           f"at most {MOVE_MAX_S:.0f} s).")
 @click.option("--axes", default=1, show_default=True, type=click.IntRange(1, 64), help="Number of axes to open.")
 @click.option("--requests", "n_requests", default=200, show_default=True, type=click.IntRange(1, 100000),
               help="Requests for the latency figures.")
 @click.option("--step-mm", default=1.0, show_default=True, type=float, callback=_finite,
-              help="Step of axis 0 with --move (non-zero, within 5 % of the stroke; either sign).")
+              help="Step of axis 0 with --move (non-zero, within 5 % of the stroke and what a ramp at 90 % of "
+                   f"the velocity limit covers in {RAMP_MAX_S:g} s; either sign).")
 @click.option("--sine-mm", default=1.0, show_default=True, type=POSITIVE, callback=_finite,
               help="Sine amplitude with --move (within 5 % of the stroke).")
-@click.option("--sine-hz", default=0.5, show_default=True, type=POSITIVE, callback=_finite,
-              help="Sine frequency with --move (2 pi f A within the velocity limit).")
+@click.option("--sine-hz", default=0.5, show_default=True, type=float, callback=_sine_hz,
+              help=f"Sine frequency with --move, {SINE_MIN_HZ:g} to {SINE_MAX_HZ:g} Hz (two periods: at most "
+                   f"{SINE_MAX_S:g} s; 2 pi f A within the velocity limit).")
 @click.option("--option", "options", multiple=True, metavar="KEY=VALUE", help="A [driver] setting (repeatable).")
 @click.option("--reset-interlock", is_flag=True,
               help="Modbus: hold every axis and clear the latched interlocks (docs/modbus.md, Interlock reset).")
@@ -232,9 +319,16 @@ def _hold(actuators):
               help="A run configuration: its [safety] interlocks and its [driver] options (--option overrides).")
 def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, options, reset_interlock=False,
           config_path=None) -> None:
-    """Diagnose the controller at URL: identity, state, latency; with --move, step and sine."""
+    """Diagnose the controller at URL: identity, state, latency; with --move, step and sine.
+
+    Exit status: 0 done, 2 bad input, a refusal or a trip, 3 an unexpected error, 5 stopped by a
+    signal (SIGTERM, SIGINT). With --move every axis holds at the end, read back.
+    """
     from hsio.clock import LockstepClock, RealTimeClock
+    from hsio.entry import running_as_program
+    from hsio.safety.control import RunControl, stop_on_signals
     from hsio.safety.settings import SafetySettings
+    from hsio.safety.status import OperatorStop
 
     bad = [o for o in options if "=" not in o]
     if bad:
@@ -259,44 +353,88 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
         table = {**controller_options(cfg["driver"]), **table}
         report["config"] = str(config_path)
         report["interlocks"] = "on" if safety.interlocks else "off ([safety] interlocks = false)"
-    actuators = []
-    try:
-        started = time.perf_counter()
-        actuators = _open(url, axes, table, enable=move)
-        link = actuators[0].link
-        report["connect_s"] = round(time.perf_counter() - started, 4)
-        report["clock"] = "lockstep" if link.lockstep else "realtime"
-        report["identity"] = _identity(link)
-        if reset_interlock:
-            if not hasattr(link, "reset_interlock"):
-                raise click.BadParameter("--reset-interlock: only Modbus controllers have a reset register")
-            link.reset_interlock()
-            report["interlock_reset"] = True
-        report["axes"] = _state(link, actuators)
-        report["latency"] = _latency(link, n_requests)
-        if move:
-            clock = LockstepClock() if link.lockstep else RealTimeClock()
-            clock.attach(link)
-            check_move(actuators[0].limits, step_mm, sine_mm, sine_hz)
-            report["move"] = _move(actuators[0], clock, step_mm, sine_mm, sine_hz, safety)
-    except HsioError as exc:
-        report["error"] = str(exc)
-    finally:
-        if actuators and move:
-            report["hold"] = _hold(actuators).as_dict()
-        for a in actuators:
-            try:
-                a.close() if move else None
-            except Exception:
-                pass
-        if actuators and not move:
+    control = RunControl()
+    actuators: list = []
+    refusal: click.ClickException | None = None
+    start: float | None = None
+    status = OK
+    with stop_on_signals(control):  # SIGTERM and SIGINT ask the probe to stop (exit 5), as they ask a run
+        try:
+            started = time.perf_counter()
+            actuators = _open(url, axes, table, enable=move)
+            control.check_stop()
+            link = actuators[0].link
+            report["connect_s"] = round(time.perf_counter() - started, 4)
+            report["clock"] = "lockstep" if link.lockstep else "realtime"
+            report["identity"] = _identity(link)
+            if reset_interlock:
+                if not hasattr(link, "reset_interlock"):
+                    raise click.BadParameter("--reset-interlock: only Modbus controllers have a reset register")
+                link.reset_interlock()
+                report["interlock_reset"] = True
+            report["axes"] = _state(link, actuators)
+            control.enter("the latency measurement")
+            report["latency"] = _latency(link, n_requests, control)
+            if move:
+                clock = LockstepClock() if link.lockstep else RealTimeClock()
+                clock.attach(link)
+                guard = _Guard(actuators[0], clock, safety, control)
+                start = guard.start
+                check_move(actuators[0].limits, start, step_mm, sine_mm, sine_hz)
+                report["move"] = _move(guard, step_mm, sine_mm, sine_hz, control)
+            control.check_stop()
+        except click.ClickException as exc:  # a bad value found once the controller answered: nothing moved
+            refusal = exc
+        except OperatorStop as exc:
+            report["stopped"], status = str(exc), STOPPED
+        except KeyboardInterrupt:  # a second Ctrl-C
+            report["stopped"], status = f"interrupted (Ctrl-C) during {control.phase}", STOPPED
+        except HsioError as exc:
+            report["error"], status = str(exc), REFUSED
+        except Exception as exc:
+            report["error"], status = f"unexpected {exc!r}", UNEXPECTED
+        finally:
+            with _sigint_ignored():
+                _release(actuators, move, report, start)
+    if running_as_program():  # the axes hold: the program only reports and ends, whatever a late Ctrl-C says
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _report(report, as_json, refusal, status)
+
+
+def _release(actuators, move: bool, report: dict, start: float | None) -> None:
+    """After --move, whatever ended it: every axis holds, the hold is read back (``report["hold"]``),
+    and a stop says where axis 0 stands; then the link closes."""
+    if actuators and move:
+        report["hold"] = _hold(actuators).as_dict()
+        if "stopped" in report:
+            report["stopped"] += f"; {_stands(actuators, start)}"
+    for a in actuators:
+        try:
+            a.close() if move else None
+        except Exception:
+            pass
+    if actuators and not move:
+        try:
             actuators[0].link.close()
+        except Exception:
+            pass
+
+
+def _report(report: dict, as_json: bool, refusal, status: int) -> None:
+    """The report on stdout, a stop or an error on stderr, and the exit status."""
+    if refusal is not None:
+        if "hold" in report:
+            click.echo(f"hsio probe: refused before anything moved; {report['hold']['message']}", err=True)
+        raise refusal
     if as_json:
         click.echo(json.dumps(report, indent=2, default=str))
     else:
         _print(report)
-    if "error" in report:
-        sys.exit(2)
+    if "stopped" in report:
+        held = report["hold"]["message"] if "hold" in report else "nothing was enabled"
+        click.echo(f"hsio probe: {report['stopped']}; {held}", err=True)
+    if status != OK:
+        sys.exit(status)
 
 
 def _print(r: dict) -> None:
@@ -306,10 +444,11 @@ def _print(r: dict) -> None:
     if "clock" in r:
         click.echo(f"connected  in {r['connect_s'] * 1e3:.1f} ms; clock {r['clock']}")
         click.echo(f"identity   {json.dumps(r['identity'], default=str)}")
-        for a in r["axes"]:
-            click.echo(f"axis {a['axis']}     d = {a['displacement_mm']:.4f} mm, F = {a['force_kN']:.4f} kN, "
-                       + (f"flags {', '.join(k for k, v in a['flags'].items() if v) or '-'}" if "flags" in a
-                          else f"state {a['state']} ({a['statusword']}), mode {a['mode']}"))
+    for a in r.get("axes", []):
+        click.echo(f"axis {a['axis']}     d = {a['displacement_mm']:.4f} mm, F = {a['force_kN']:.4f} kN, "
+                   + (f"flags {', '.join(k for k, v in a['flags'].items() if v) or '-'}" if "flags" in a
+                      else f"state {a['state']} ({a['statusword']}), mode {a['mode']}"))
+    if "latency" in r:
         lat = r["latency"]
         click.echo(f"latency    {lat['what']}: median {lat['median_ms']:.3f} ms, p99 {lat['p99_ms']:.3f} ms, "
                    f"max {lat['max_ms']:.3f} ms over {lat['requests']} requests")
