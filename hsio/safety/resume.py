@@ -93,6 +93,15 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
     structure = load_run_structure(cfg)
     if not structure.numerical_assembly().is_linear:
         raise ConfigError(f"{path}: resume needs a linear numerical part (its state is not in the record)")
+    if cfg["compensation"]["mode"] != "off":
+        raise ConfigError(f"{path}: the run compensated its actuators ([compensation] mode = "
+                          f"{cfg['compensation']['mode']!r}), and the compensation's state (the commands of eq. 2, "
+                          f"the online estimates) is not in the record: a resume would go on uncompensated, a "
+                          f"different test. Nothing was opened or moved")
+    if structure.static:
+        raise ConfigError(f"{path}: the structure holds static preloads ({', '.join(s.name for s in structure.static)}), "
+                          f"which a resume cannot take over where the run left them (it would ramp them in again); "
+                          f"nothing was opened or moved")
     ground = build_record(cfg, structure, replay=True)
     check_ground(run, ground)
     _, P = excitation(structure, ground)
