@@ -28,6 +28,7 @@ import warnings
 import numpy as np
 
 from hsio.clock import CONTROLLER_RATE_HZ, LockstepClock, RealTimeClock
+from hsio.command import step_samples
 from hsio.config import BOUNDS as config_bounds
 from hsio.config import DEFAULTS as config_defaults
 from hsio.control_loop import ControlLoop
@@ -173,7 +174,10 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     """
     safety = safety or SafetySettings()
     check_test_settings(test_rate, hold_fraction, n_avg)
-    check_dwell(structure.dt, test_rate, hold_fraction, n_avg)
+    try:
+        check_dwell(structure.dt, test_rate, hold_fraction, n_avg)
+    except ConfigError as exc:
+        raise ConfigError(f"open_site: {exc}") from None
     if not structure.experimental:
         raise ConfigError(f"structure {structure.name!r} has no experimental elements: there is nothing for the "
                           f"actuators to load; run it with hsio.run_numerical")
@@ -230,15 +234,15 @@ def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
                 rate_hz: float = CONTROLLER_RATE_HZ) -> None:
     """The measurement of a step averages its last ``n_avg`` controller periods: they must lie in
     the step's dwell (hold_fraction > 0), or in the step (continuous ramps), never reach back into
-    the ramp or the step before."""
-    periods = int(round(test_rate * dt * rate_hz))
-    dwell = max(int(hold_fraction * periods), 1) if hold_fraction > 0 else periods
-    if n_avg > dwell:
+    the ramp or the step before (the command generator's own count, :func:`hsio.command.step_samples`)."""
+    periods, dwell = step_samples(test_rate * dt, 1.0 / rate_hz, hold_fraction)
+    limit = dwell if dwell >= 1 else periods  # a dwell that rounds to nothing: the step moves throughout
+    if n_avg > limit:
         what = (f"the dwell of a step: {dwell} periods (TR {test_rate:g} x dt {dt:g} s x {rate_hz:g} Hz x "
-                f"hold_fraction {hold_fraction:g})" if hold_fraction > 0 else
+                f"hold_fraction {hold_fraction:g})" if dwell >= 1 else
                 f"a step: {periods} periods (TR {test_rate:g} x dt {dt:g} s x {rate_hz:g} Hz)")
-        raise ConfigError(f"[test] n_avg = {n_avg} controller periods is more than {what}; the average would take "
-                          f"in the motion before it. Give n_avg at most {dwell}, or a slower test rate")
+        raise ConfigError(f"n_avg = {n_avg} controller periods is more than {what}; the average would take in the "
+                          f"motion before it. Give n_avg at most {limit}, or a slower test rate")
 
 
 def check_run_inputs(structure: Structure, ground, site) -> None:

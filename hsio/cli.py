@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from hsio.commands import RegularFile, refuse_repeated_options
-from hsio.errors import HsioError
+from hsio.errors import ConfigError, HsioError
 
 
 class _Progress:
@@ -113,6 +113,9 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         with stop_on_signals(control):  # from here a Ctrl-C asks the run to stop, before and during it
             cfg = config_mod.load(config_file)
             if override_dry_run:
+                if not cfg["safety"]["dry_run"]:
+                    raise ConfigError(f"--override-dry-run: {config_file or 'the configuration'} turns the dry run "
+                                      f"off ([safety] dry_run = false): there is no refusal to override")
                 cfg["safety"]["override"] = True
             structure = runner.load_run_structure(cfg)
             runner.check_run_method(cfg, structure)
@@ -124,6 +127,8 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                     from hsio.monitor.server import MonitorProcess
 
                     runner.check_hardware(cfg)  # before the page's folder: a typing error leaves no folder
+                    runner.check_dwell(cfg, structure)
+                    runner.fingerprints(cfg)  # an input file that cannot be read: refused before the folder too
                     out_dir = runner.run_folder(cfg, structure, out_dir)
                     page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
                     click.echo(f"hsio run: monitor at {page.url}", err=True)

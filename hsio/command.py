@@ -34,6 +34,13 @@ class Phase(enum.Enum):
     HOLD = "hold"
 
 
+
+def step_samples(t_d: float, period: float, hold_fraction: float = 0.0) -> tuple[int, int]:
+    """Controller periods of one integration step (at least one) and of its dwell at the target."""
+    per_step = max(int(round(t_d / period)), 1)
+    return per_step, int(round(hold_fraction * per_step))
+
+
 class PredictorCorrector:
     """Controller-rate command generator for one actuator.
 
@@ -49,10 +56,9 @@ class PredictorCorrector:
             raise ValueError(f"t_d and period must be positive, got {t_d!r}, {period!r}")
         self.t_d = float(t_d)
         self.period = float(period)
-        self.samples_per_step = max(int(round(self.t_d / self.period)), 1)
         if not 0.0 <= hold_fraction < 1.0:
             raise ValueError(f"hold_fraction must be in [0, 1), got {hold_fraction!r}")
-        self.dwell_samples = int(round(hold_fraction * self.samples_per_step))
+        self.samples_per_step, self.dwell_samples = step_samples(self.t_d, self.period, hold_fraction)
         self.slow_after = slow_after
         self.slow_decay = math.exp(-self.period / (slow_tau * self.t_d))
         self.hold_after = hold_after

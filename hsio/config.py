@@ -78,7 +78,11 @@ def _check_type(where: str, key: str, value, default):
     return value
 
 
-def from_dict(data: dict, source: str = "<dict>") -> RunConfig:
+def from_dict(data: dict, source: str = "<dict>", replay: bool = False) -> RunConfig:
+    """Check ``data`` (tables of keys) and fill in the defaults. ``replay``: the configuration a run
+    recorded (every key, as it ran), read back by resume and the error budget: keys that nothing
+    reads are not refused there (a run recorded them, and the command line may have set some,
+    e.g. --override-dry-run)."""
     tables = {name: dict(values) for name, values in DEFAULTS.items()}
     for free in FREE_TABLES:
         tables[free] = {}
@@ -97,7 +101,8 @@ def from_dict(data: dict, source: str = "<dict>") -> RunConfig:
     _mixed_defaults(tables["integrator"], set(data.get("integrator") or {}))
     _check_ranges(tables, source)
     check_bounds(tables, source)
-    _check_unread(tables, source)
+    if not replay:
+        _check_unread(tables, source)
     return RunConfig(tables, source)
 
 
@@ -205,8 +210,9 @@ def check_bounds(tables: dict, source: str) -> None:
 
 
 def _resolve_beside(config: "RunConfig", path: Path) -> None:
-    """File names inside the configuration ([driver] map, eds) are relative to the configuration file."""
-    for key in ("map", "eds"):
+    """File names inside the configuration ([driver] map, eds, instrument_map) are relative to the
+    configuration file."""
+    for key in ("map", "eds", "instrument_map"):
         value = config["driver"].get(key)
         if isinstance(value, str) and value and not Path(value).is_absolute():
             config["driver"][key] = str((path.parent / value).resolve())

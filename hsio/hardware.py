@@ -73,12 +73,12 @@ def check_options(url: str, options: dict | None = None) -> None:
 def input_files(url: str, options: dict | None = None) -> list[tuple[str, Path]]:
     """``(what, path)`` of each file that the backend of ``url`` reads when it opens (its module's
     ``input_files(url, options)``, where it defines one: a register map, an EDS), and the external
-    instruments' DAQ map (``[driver] instrument_map``) off the emulator."""
+    instruments' DAQ map (``[driver] instrument_map``) off the emulator, where a DAQ module is named."""
     module, _ = _backend(url)
     own = getattr(module, "input_files", None)
     files = list(own(url, controller_options(options))) if own is not None else []
     daq_map = (options or {}).get("instrument_map")
-    if daq_map and not url.startswith("emulator"):
+    if daq_map and (options or {}).get("instruments") and not url.startswith("emulator"):  # read with a DAQ only
         files.append(("[driver] instrument_map", Path(daq_map)))
     return files
 

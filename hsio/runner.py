@@ -298,7 +298,7 @@ def check_dwell(config: RunConfig, structure: Structure) -> None:
     try:
         api.check_dwell(structure.dt, test["rate"], test["hold_fraction"], test["n_avg"])
     except ConfigError as exc:
-        raise ConfigError(f"{config.source}: {exc}") from None
+        raise ConfigError(f"{config.source}: [test] {exc}") from None
 
 
 def predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):

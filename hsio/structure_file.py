@@ -182,10 +182,6 @@ class _Reader:
             raise self.error("structure", "missing: a structure file starts with a [structure] table (dt at least)")
         head = self.table("structure", doc["structure"], TABLES["structure"])
         name = self.string("structure.name", head.get("name", self.default_name))
-        if not is_plain_name(name):
-            raise self.error("structure.name", f"{name!r}: the structure's name names its runs' folder "
-                             f"(runs/<name>/run-NNNN), so it is a plain name, without '/', '\\', a leading '.' "
-                             f"or control characters")
         description = head.get("description", "")
         if not isinstance(description, str):
             raise self.error("structure.description", f"must be a string, got {description!r}")

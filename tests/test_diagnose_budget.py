@@ -128,6 +128,7 @@ def test_no_main_source_is_named_when_the_sources_account_for_nothing():
     ((0.45, 0.0, 0.22), 0.49, None),  # under half accounted
     ((0.45, 0.40, 0.0), 0.90, None),  # two comparable sources
     ((0.20, 0.05, 0.05), 0.90, None),  # the largest alone reproduces under half of what all do
+    ((-0.05, -0.07, -0.02), 0.80, None),  # every share negative: only their interaction accounts
 ])
 def test_the_rule_for_naming_a_main_source(shares, together, named):
     b = _budget(*shares, together)
@@ -137,6 +138,8 @@ def test_the_rule_for_naming_a_main_source(shares, together, named):
         assert b.verdict == "main_source" and f"main source: {TITLES[named]}" in text
     elif b.accounted >= 0.5:
         assert b.verdict == "together" and "none of them alone is the main source" in text and "; main source:" not in text
+        if max(shares) <= 0:
+            assert "none alone reproduces any of it" in text and "times the next" not in text
     else:
         assert b.verdict == "unexplained" and "no modelled source explains the difference" in text
 

@@ -62,3 +62,17 @@ def test_run_without_a_model_is_unchanged():
     with pytest.raises(ConfigError, match="actuator_model must be a string"):
         config_mod.from_dict({"hardware": {"actuator_model": 3}})
     assert ServoConfig.from_dict(merged_emulator_table("", {"lag_s": 0.03})).lag_s == 0.03
+
+
+def test_hsio_emulate_builds_its_controllers_from_the_model_too(tmp_path):
+    """`hsio emulate ... CONFIG` gives its axes the actuator model under the [emulator] table, as
+    the in-process emulator does: the same controller in either place."""
+    from hsio.commands.emulate import bank_from_config
+
+    write_model(tmp_path / "m.toml", {"lag_s": 0.031, "transport_delay_s": 0.004}, {"cause": "lag"})
+    run_toml = tmp_path / "run.toml"
+    run_toml.write_text('[hardware]\nactuator_model = "m.toml"\n[emulator]\ntransport_delay_s = 0.002\n')
+    bank = bank_from_config(str(run_toml), lockstep=True)
+    for controller in bank.controllers:
+        assert controller.config.lag_s == pytest.approx(0.031)  # from the model
+        assert controller.config.transport_delay_s == pytest.approx(0.002)  # [emulator] over the model

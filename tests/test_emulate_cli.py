@@ -162,5 +162,5 @@ def test_emulate_watch_holding_is_announced_and_reaches_the_controller(tmp_path)
         assert emu.lines["watchdog"] == "0.5 s, holding axes watched too"
     finally:
         emu.stop()
-    assert _bank(str(cfg), "lockstep", 0.5, (), "", True).watch_holding
+    assert _bank(str(cfg), "lockstep", 0.5, (), None, True).watch_holding
     assert not _bank(str(cfg), "lockstep", 0.5, ()).watch_holding

@@ -17,14 +17,13 @@ import pytest
 from click.testing import CliRunner
 
 from hsio import config as config_mod
-from hsio import runner
 from hsio.cli import main
 from hsio.errors import ConfigError
-from hsio.experiment import ExperimentStopped
 from hsio.ground_motion import GroundMotion
 from hsio.recording import Run
-from hsio.safety.control import RunControl
 from hsio.safety.resume import resume
+
+from wire import stopped_run
 
 # An SDOF of f = sqrt(k / m) / 2 pi = 3.0 Hz; the edit below makes both ten times larger (the same
 # frequency, a specimen ten times stiffer: the recorded force would jump tenfold at the resumed step).
@@ -70,17 +69,7 @@ def stopped(tmp_path: Path, ground: GroundMotion | None = None, at_step: int = 1
     (tmp_path / "s.toml").write_text(STRUCTURE)
     write_at2(tmp_path / "quake.at2", quake())
     (tmp_path / "run.toml").write_text(CONFIG)
-    control, steps = RunControl(), []
-
-    def stop_at(n):
-        steps.append(n)
-        if len(steps) == at_step:
-            control.request_stop("stopped by the test")
-
-    out = tmp_path / "run"
-    with pytest.raises(ExperimentStopped):
-        runner.run(config_mod.load(tmp_path / "run.toml"), out, stop_at, ground=ground, control=control)
-    return out
+    return stopped_run(tmp_path, at_step, config_path=tmp_path / "run.toml", ground=ground)
 
 
 def untouched(out: Path) -> tuple[int, list[str]]:
@@ -170,6 +159,8 @@ def test_the_files_of_the_hardware_backends_are_inputs(tmp_path):
     daq = tmp_path / "daq.toml"
     daq.write_text("# the DAQ map\n")
     modbus["driver"].update(map=str(regmap), instrument_map=str(daq))
+    assert "[driver] instrument_map" not in {w for w, _ in input_files(modbus)}  # no DAQ named: not read
+    modbus["driver"]["instruments"] = "modbus+tcp://127.0.0.1:1503"
     recorded = fingerprints(modbus)
     assert {e["what"] for e in recorded} == {"[structure] name (shipped)", "[driver] map", "[driver] instrument_map"}
     assert compare_inputs(recorded, modbus) == ([], [])

@@ -10,28 +10,9 @@ import sqlite3
 import pytest
 from click.testing import CliRunner
 
-from hsio import config as config_mod
-from hsio import runner
 from hsio.cli import main
-from hsio.experiment import ExperimentStopped
-from hsio.safety.control import RunControl
 
-from wire import write_config
-
-
-def _stopped(tmp_path, extra: str, at_step: int = 5):
-    control, steps = RunControl(), []
-
-    def stop_at(n):
-        steps.append(n)
-        if len(steps) == at_step:
-            control.request_stop("stopped by the test")
-
-    out = tmp_path / "run"
-    with pytest.raises(ExperimentStopped):
-        runner.run(config_mod.load(write_config(tmp_path, duration=0.5, rate=5.0, extra=extra)), out, stop_at,
-                   control=control)
-    return out
+from wire import stopped_run
 
 
 def _rows(out):
@@ -41,29 +22,12 @@ def _rows(out):
 
 @pytest.mark.parametrize("extra, says", [
     ('[compensation]\nmode = "online"\n', "the run compensated its actuators ([compensation] mode = 'online')"),
+    ('[structure]\nname = "preloaded_column"\n', "the structure holds static preloads"),
 ])
 def test_a_run_resume_cannot_continue_as_it_began_is_refused(tmp_path, extra, says):
-    out = _stopped(tmp_path, extra)
+    out = stopped_run(tmp_path, 5, extra=extra)
     before = _rows(out)
     result = CliRunner().invoke(main, ["resume", str(out)])
     assert result.exit_code == 2, result.output
-    assert says in result.output and "Nothing was opened or moved" in result.output
+    assert says in result.output and "the record is unchanged and nothing moved" in result.output
     assert _rows(out) == before
-
-
-def test_a_structure_with_static_preloads_is_not_resumed(tmp_path):
-    cfg = write_config(tmp_path, duration=0.5, rate=5.0, extra='[structure]\nname = "preloaded_column"\n',
-                       name="pre.toml")
-    control, steps = RunControl(), []
-
-    def stop_at(n):
-        steps.append(n)
-        if len(steps) == 5:
-            control.request_stop("stopped by the test")
-
-    out = tmp_path / "pre"
-    with pytest.raises(ExperimentStopped):
-        runner.run(config_mod.load(cfg), out, stop_at, control=control)
-    result = CliRunner().invoke(main, ["resume", str(out)])
-    assert result.exit_code == 2, result.output
-    assert "holds static preloads" in result.output and "nothing was opened or moved" in result.output

@@ -214,6 +214,7 @@ def test_a_pause_feeds_the_watchdog_within_a_quarter_of_its_time(watchdog_s):
     60 ms watchdog: every 15 ms), never more often than every 5 ms."""
     control, site = RunControl(), _WatchedSite(watchdog_s)
     control.request_pause("test")
+    began = time.monotonic()
 
     def resume():
         time.sleep(0.4)
@@ -221,11 +222,13 @@ def test_a_pause_feeds_the_watchdog_within_a_quarter_of_its_time(watchdog_s):
 
     threading.Thread(target=resume, daemon=True).start()
     control.checkpoint(site, 1)
+    paused = time.monotonic() - began
     gaps = np.diff(site.fed)
     if watchdog_s is None:
-        assert 2 <= len(site.fed) <= 5 and gaps.min() >= 0.09  # every 0.1 s
+        assert len(site.fed) >= 2 and gaps.min() >= 0.09  # every 0.1 s
+        assert len(site.fed) <= paused / 0.1 + 1
     elif watchdog_s == 0.06:
         assert len(site.fed) >= 10 and gaps.min() >= 0.014  # every 15 ms (more on a loaded machine)
         assert np.median(gaps) < 0.06  # within the watchdog, with a margin
     else:
-        assert gaps.min() >= 0.0049 and len(site.fed) <= 81  # the 5 ms floor
+        assert gaps.min() >= 0.0049 and len(site.fed) <= paused / 0.005 + 1  # the 5 ms floor

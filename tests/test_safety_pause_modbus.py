@@ -183,10 +183,10 @@ def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path, protocol):
 
 
 def test_a_watchdog_shorter_than_the_pause_wait_is_fed_from_what_the_controller_reports(tmp_path):
-    """A controller whose host watchdog (60 ms, read by the driver from its info registers) is
+    """A controller whose host watchdog (80 ms, read by the driver from its info registers) is
     shorter than the pause's 0.1 s wait: the wait feeds it every quarter of that time, so a pause
     of 1 s latches nothing and the run resumes to the end."""
-    summary, run, seen = run_over_modbus(tmp_path, "short", pause=True, watchdog_s=0.06, pause_s=1.0)
+    summary, run, seen = run_over_modbus(tmp_path, "short", pause=True, watchdog_s=0.08, pause_s=1.0)
     assert seen["replies"] == ["ok pausing", "ok resuming"]
     assert summary["exit_status"] == 0 and summary["steps"] == 60
     assert seen["paused_s"] >= 1.0 and len(seen["rods"]) > 10

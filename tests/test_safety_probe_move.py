@@ -177,7 +177,7 @@ def test_probe_move_uses_the_interlocks_and_driver_options_of_a_run_configuratio
 
 
 def test_probe_with_interlocks_off_in_its_configuration_says_so(tmp_path):
-    off = probe_config(tmp_path, "[safety]\ninterlocks = false\nfollowing_error_mm = 0.05\nfollowing_time_s = 0.0\n")
+    off = probe_config(tmp_path, "[safety]\ninterlocks = false\n")
     result, holding, _ = invoke_probe(tmp_path, "--sine-hz", "2.0", "--config", off)
     assert result.exit_code == 0, result.output
     assert "interlocks off ([safety] interlocks = false)" in result.stdout

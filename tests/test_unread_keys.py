@@ -82,8 +82,11 @@ def test_a_structure_name_that_is_not_a_plain_name_is_refused(tmp_path, monkeypa
     cfg = tmp_path / "c.toml"
     cfg.write_text(f'[structure]\nfile = "{structure}"\n[record]\nsynthetic_duration_s = 0.2\n')
     out = CliRunner().invoke(main, ["run", str(cfg)], catch_exceptions=False)
-    assert out.exit_code == 2 and "structure.name" in out.output and "plain name" in out.output, out.output
+    assert out.exit_code == 2 and "give the structure a plain name" in out.output, out.output
+    assert "or name the run folder with --out" in out.output
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["a", "b", "c.toml", "s.toml"]  # no run folder anywhere
+    named = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "named")])
+    assert named.exit_code == 0, named.output  # with --out the name is only a name
 
 
 def test_a_structure_built_in_code_with_a_path_for_a_name_needs_out(tmp_path):
@@ -118,3 +121,22 @@ def test_a_run_on_a_real_controller_says_the_emulator_table_is_not_read(tmp_path
     assert summary["exit_status"] == 0
     assert any("[emulator] and [hardware] actuator_model are not read by a run on modbus+tcp://" in line
                for line in lines), lines
+
+
+def test_a_recorded_configuration_is_read_back_whatever_it_holds():
+    """Resume and the error budget read back the full tables a run recorded (every key, some set
+    by the command line): keys nothing reads are not refused there."""
+    recorded = {"record": {"file": "x.at2", "pga_g": 9.0}, "safety": {"dry_run": False, "override": True},
+                "compensation": {"mode": "off", "a_mm_s": 5.0}}
+    with pytest.raises(ConfigError):
+        config.from_dict(recorded)
+    assert config.from_dict(recorded, replay=True)["record"]["pga_g"] == 9.0
+
+
+def test_override_dry_run_without_a_dry_run_is_refused(tmp_path):
+    out = _cli(tmp_path, '[safety]\ndry_run = false\n[record]\nsynthetic_duration_s = 0.2\n')
+    assert out.exit_code == 0, out.output
+    cfg = tmp_path / "c.toml"
+    refused = CliRunner().invoke(main, ["run", str(cfg), "--override-dry-run", "--out", str(tmp_path / "o2")])
+    assert refused.exit_code == 2 and "--override-dry-run" in refused.output and "no refusal to override" in refused.output
+    assert not (tmp_path / "o2").exists()

@@ -215,9 +215,11 @@ def terminate(proc: subprocess.Popen, timeout_s: float = 20.0) -> None:
             proc.wait(timeout=10)
 
 
-def stopped_run(tmp_path: Path, at_step: int = 10) -> Path:
+def stopped_run(tmp_path: Path, at_step: int = 10, extra: str = "", config_path: Path | None = None,
+                ground=None, out: Path | None = None) -> Path:
     """A short run on the emulator stopped by the operator at step ``at_step``: a record that
-    `hsio resume` can continue. Returns its folder."""
+    `hsio resume` can continue (``extra``: tables added to the configuration; or ``config_path``
+    to run; ``ground``: a record given in code). Returns its folder."""
     from hsio.safety.control import RunControl
 
     control, steps = RunControl(), []
@@ -227,9 +229,10 @@ def stopped_run(tmp_path: Path, at_step: int = 10) -> Path:
         if len(steps) == at_step:
             control.request_stop("stopped by the test")
 
-    out = tmp_path / "run"
+    out = out or tmp_path / "run"
+    config_path = config_path or write_config(tmp_path, duration=0.5, rate=5.0, extra=extra)
     try:
-        runner.run(config_mod.load(write_config(tmp_path, duration=0.5, rate=5.0)), out, stop_at, control=control)
+        runner.run(config_mod.load(config_path), out, stop_at, ground=ground, control=control)
     except ExperimentStopped:
         return out
     raise AssertionError(f"the run was not stopped at step {at_step}")

@@ -47,11 +47,13 @@ def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float 
     from hsio.emulators.bank import ControllerBank
     from hsio.emulators.servo import make_controllers
     from hsio.interfaces import ActuatorSpec
+    from hsio.diagnose.modelfile import merged_emulator_table
     from hsio.runner import load_run_structure
 
     cfg = config_mod.load(config_path)
     specs = [ActuatorSpec(e.actuator, e.specimen) for e in load_run_structure(cfg).experimental]
-    controllers = make_controllers(specs, {**cfg["emulator"], **(overrides or {})})
+    table = merged_emulator_table(cfg["hardware"]["actuator_model"], cfg["emulator"])  # as emulator:// does
+    controllers = make_controllers(specs, {**table, **(overrides or {})})
     return ControllerBank(controllers, [s.name for s in specs], lockstep, watchdog_s)
 
 

@@ -33,7 +33,7 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
     from hsio.opensees.lab import Lab
     from hsio.opensees.server import OpenSeesServer
     from hsio.opensees.settings import split_config
-    from hsio.runner import check_hardware, load_run_structure
+    from hsio.runner import check_dwell, check_hardware, load_run_structure
 
     def log(line: str) -> None:
         click.echo(f"hsio serve opensees: {line}", err=True)
@@ -44,6 +44,7 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
             settings = type(settings)(**{**settings.__dict__, "out": out_dir})
         structure = load_run_structure(config)
         check_hardware(config)  # before serving: a bad URL would otherwise wait for the first client
+        check_dwell(config, structure)  # likewise an average longer than a step's dwell
         try:  # likewise a records folder that cannot be created
             Path(settings.out).mkdir(parents=True, exist_ok=True)
         except OSError as exc:

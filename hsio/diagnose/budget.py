@@ -87,7 +87,7 @@ def load_run(run_dir: str | Path) -> RunData:
         raise RecordError(f"{run_dir}: no run.sqlite (give the folder `hsio run` wrote)") from None
     except Exception as exc:
         raise RecordError(f"{path}: not an hsio recording: {exc}") from None
-    config = from_dict(run.meta.get("config", {}), str(path))
+    config = from_dict(run.meta.get("config", {}), str(path), replay=True)
     if config["integrator"]["method"] != "alpha_os":
         raise RecordError(f"{path}: the error budget replays alpha_os runs; this one used {config['integrator']['method']!r}")
     structure = load_run_structure(config)
@@ -358,7 +358,9 @@ class Budget:
             return f"all sources together account for {100 * a:.1f} % of the difference; main source: {TITLES[top]}"
         if verdict == "together":
             nxt, s2 = rest[0] if rest else (None, 0.0)
-            why = (f"the largest, {TITLES[top]} ({100 * s1:.1f} %), is under {DOMINANCE:g} times the next, "
+            why = (f"none alone reproduces any of it (the largest share, {TITLES[top]}, is {100 * s1:.1f} %): they "
+                   f"act through their interaction" if s1 <= 0 else
+                   f"the largest, {TITLES[top]} ({100 * s1:.1f} %), is under {DOMINANCE:g} times the next, "
                    f"{TITLES[nxt]} ({100 * s2:.1f} %)" if s1 < DOMINANCE * max(s2, 0.0) else
                    f"the largest, {TITLES[top]} ({100 * s1:.1f} %), reproduces under 1/{DOMINANCE:g} of what they "
                    f"do together (they act through their interaction)")

@@ -75,7 +75,7 @@ def check_ground(run: Run, ground) -> None:
 
 def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None) -> dict:
     """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary."""
-    from hsio.runner import build_record, integrator_options, load_run_structure
+    from hsio.runner import build_record, check_dwell, integrator_options, load_run_structure
 
     run_dir = Path(run_dir)
     path = run_dir / RUN_FILE
@@ -85,7 +85,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         raise ConfigError(f"{path}: not a run record that can be resumed ({exc})") from None
     if run.summary.get("exit_status") == 0:
         raise ConfigError(f"{path}: the run finished; nothing to resume")
-    cfg = config_mod.from_dict(run.meta["config"], f"{path} (meta config)")
+    cfg = config_mod.from_dict(run.meta["config"], f"{path} (meta config)", replay=True)
     if cfg["integrator"]["method"] != "alpha_os":
         raise ConfigError(f"{path}: resume is available for the alpha_os method, not {cfg['integrator']['method']!r}")
     notify = notify or (lambda line: None)
@@ -97,13 +97,14 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         raise ConfigError(f"{path}: the run compensated its actuators ([compensation] mode = "
                           f"{cfg['compensation']['mode']!r}), and the compensation's state (the commands of eq. 2, "
                           f"the online estimates) is not in the record: a resume would go on uncompensated, a "
-                          f"different test. Nothing was opened or moved")
+                          f"different test; the record is unchanged and nothing moved")
     if structure.static:
         raise ConfigError(f"{path}: the structure holds static preloads ({', '.join(s.name for s in structure.static)}), "
                           f"which a resume cannot take over where the run left them (it would ramp them in again); "
-                          f"nothing was opened or moved")
+                          f"the record is unchanged and nothing moved")
     ground = build_record(cfg, structure, replay=True)
     check_ground(run, ground)
+    check_dwell(cfg, structure)  # before the record is opened for writing
     _, P = excitation(structure, ground)
     integrator = api.make_integrator(structure, "alpha_os", cfg["integrator"]["alpha"], **integrator_options(cfg, structure))
     state = last_state(run, structure, P, integrator)
