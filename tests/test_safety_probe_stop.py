@@ -47,7 +47,7 @@ def test_a_signal_during_the_sine_stops_it_holds_the_axis_and_reports_the_hold(t
     try:
         wait_until(lambda: axis.enabled and servo.command > IN_THE_SINE_MM, 30.0, proc)
         proc.send_signal(signum)
-        out, err = proc.communicate(timeout=10)  # the sine alone would last 20 s
+        out, err = proc.communicate(timeout=40)  # unstopped, the sine would end by itself after 20 s, exit 0
         held_at = servo.d_rod
         time.sleep(0.2)
         with emu.bank.lock:
