@@ -42,8 +42,11 @@ def wait_until(predicate, timeout_s: float, proc) -> None:
 def test_a_signal_during_the_sine_stops_it_holds_the_axis_and_reports_the_hold(tmp_path, signum):
     emu = realtime_emulator(tmp_path)
     axis, servo = emu.bank.axes[0], emu.bank.controllers[0]
+    # SIGINT as from an interactive shell: a process started with it ignored (a pytest-xdist
+    # worker's child) keeps ignoring it, by design (hsio.entry)
     proc = subprocess.Popen([*HSIO, "probe", emu.url, "--move", "--requests", "5", *SINE],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         wait_until(lambda: axis.enabled and servo.command > IN_THE_SINE_MM, 30.0, proc)
         proc.send_signal(signum)
