@@ -207,7 +207,8 @@ def _where(exc: BaseException) -> None:
 
 @main.command()
 @click.argument("config_file", required=False, type=RegularFile())
-@click.option("--json", "as_json", is_flag=True, help="Print the dry run's report as JSON on stdout.")
+@click.option("--json", "as_json", is_flag=True, help="Print the dry run's report as JSON on stdout (a bad "
+              "configuration: its error, exit_status 2).")
 def check(config_file: str | None, as_json: bool) -> None:
     """Dry run: predict the test with NS and the command generator, compare with the limits.
 
@@ -226,6 +227,8 @@ def check(config_file: str | None, as_json: bool) -> None:
         switching = runner.describe_switching(cfg, structure, ns)
     except HsioError as exc:
         click.echo(f"hsio check: error: {exc}", err=True)
+        if as_json:  # a reader of stdout gets the error too
+            click.echo(json.dumps({"error": str(exc), "exit_status": 2, "refused": True}, indent=2))
         sys.exit(2)
     if as_json:
         click.echo(json.dumps({**report.as_dict(), **({"switching": switching} if switching else {})}, indent=2))

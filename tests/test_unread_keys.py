@@ -140,3 +140,14 @@ def test_override_dry_run_without_a_dry_run_is_refused(tmp_path):
     refused = CliRunner().invoke(main, ["run", str(cfg), "--override-dry-run", "--out", str(tmp_path / "o2")])
     assert refused.exit_code == 2 and "--override-dry-run" in refused.output and "no refusal to override" in refused.output
     assert not (tmp_path / "o2").exists()
+
+
+def test_check_json_prints_the_error_of_a_bad_configuration_on_stdout(tmp_path):
+    import json
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[compensation]\na_mm_s = 5.0\n')
+    out = CliRunner().invoke(main, ["check", "--json", str(cfg)])
+    assert out.exit_code == 2
+    data = json.loads(out.stdout)
+    assert data["exit_status"] == 2 and data["refused"] is True and "a_mm_s: not read with mode = 'off'" in data["error"]
