@@ -22,8 +22,10 @@ specimen stands (docs/safety.md section 6):
 
 from __future__ import annotations
 
+import math
 import numbers
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -45,7 +47,7 @@ from hsio.safety.settings import SafetySettings
 from hsio.secant import SecantEstimator
 from hsio.sites import ActuatorSite, NumericalSite
 from hsio.sites.setup_map import SetupMap
-from hsio.structures import Structure
+from hsio.structures import Structure, channel_names
 
 __all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_readback"]
 
@@ -178,6 +180,11 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
         check_dwell(structure.dt, test_rate, hold_fraction, n_avg)
     except ConfigError as exc:
         raise ConfigError(f"open_site: {exc}") from None
+    t_d = test_rate * structure.dt
+    if compensation is not None and not math.isclose(getattr(compensation, "t_d", t_d), t_d, rel_tol=1e-9):
+        raise ConfigError(f"open_site: the compensation stage was built for t_d = {compensation.t_d:g} s, and a step "
+                          f"here lasts test_rate x dt = {test_rate:g} x {structure.dt:g} s = {t_d:g} s; build it with "
+                          f"CompensationStage(names, {t_d:g}, ...)")
     if not structure.experimental:
         raise ConfigError(f"structure {structure.name!r} has no experimental elements: there is nothing for the "
                           f"actuators to load; run it with hsio.run_numerical")
@@ -206,7 +213,9 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
             if setups is None:
                 external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
                             for e in structure.experimental]
-        return ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
+        site = ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
+        site.opened_for = OpenedFor(structure.name, tuple(channel_names(structure)), float(structure.dt))
+        return site
     except BaseException:
         loop.close()
         raise
@@ -245,10 +254,19 @@ def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
                           f"motion before it. Give n_avg at most {limit}, or a slower test rate")
 
 
-def check_run_inputs(structure: Structure, ground, site) -> None:
+@dataclass(frozen=True)
+class OpenedFor:
+    """What an actuator site was opened for: the structure's name, its channels and time step."""
+
+    name: str
+    channels: tuple
+    dt: float
+
+
+def check_run_inputs(structure: Structure, ground, site, start: str = "rest") -> None:
     """What :func:`simulate` is given, checked before the first step: a ground motion of one
-    component, a site that is still open and was opened for a structure with experimental
-    elements."""
+    component, a site that is still open, was opened for this structure (its channels and time
+    step) and, once it has run, is started from where the specimen stands (``start="present"``)."""
     if not isinstance(structure, Structure):
         raise ConfigError(f"simulate: structure must be a hsio.Structure, got {type(structure).__name__}")
     if not isinstance(ground, GroundMotion):
@@ -264,6 +282,18 @@ def check_run_inputs(structure: Structure, ground, site) -> None:
         if not structure.experimental:
             raise ConfigError(f"structure {structure.name!r} has no experimental elements: a hybrid run needs at "
                               f"least one; run it with hsio.run_numerical")
+        opened = getattr(site, "opened_for", None)
+        if opened is not None:
+            channels = tuple(channel_names(structure))
+            if channels != opened.channels or not math.isclose(structure.dt, opened.dt, rel_tol=1e-12):
+                raise ConfigError(f"simulate: the site was opened for structure {opened.name!r} (actuators "
+                                  f"{', '.join(opened.channels)}, dt {opened.dt:g} s), not for {structure.name!r} "
+                                  f"(actuators {', '.join(channels)}, dt {structure.dt:g} s); nothing moved. Open a "
+                                  f"site for this structure")
+        if getattr(site, "runs", 0) and start == "rest":
+            raise ConfigError("simulate: this site has run a record already, and its actuators stand where that run "
+                              "left them, not at rest: start=\"present\" goes on from there (docs/safety.md section "
+                              "6), or open a new site to start a test from rest; nothing moved")
 
 
 def format_readback(readback: dict[str, float], units: dict[str, str] | None = None) -> str:
@@ -307,9 +337,17 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     ``options`` go to :func:`make_integrator` (or pass a ready ``integrator``). Raises :class:`hsio.experiment.ExperimentStopped`
     (carrying the steps made, the actuators holding) if the run stops early.
     """
-    check_run_inputs(structure, ground, site)
+    check_run_inputs(structure, ground, site, start)
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
+    else:
+        ignored = sorted(options) + (["method"] if method != "alpha_os" and method != getattr(integrator, "method", method)
+                                     else [])
+        if ignored:
+            raise ConfigError(f"simulate: {', '.join(ignored)} given beside a ready integrator, which they would not "
+                              f"change; build the integrator with them (make_integrator), or leave them out")
+    if isinstance(site, ActuatorSite):
+        site.runs = getattr(site, "runs", 0) + 1  # from now on its actuators may stand away from rest
     if (getattr(integrator, "method", "") in ("force_control", "mixed") and isinstance(site, ActuatorSite)
             and site.estimator is None):
         warnings.warn(f"{integrator.method}: the site has no secant estimator, so eq. (11) is taken on each "

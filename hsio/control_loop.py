@@ -137,7 +137,7 @@ class ControlLoop:
                 raise self._error
         self.hold_all()
         raise HsioError(f"the step to {np.round(targets, 4).tolist()} did not land within {limit} controller "
-                        "periods; the actuators hold")
+                        "periods; every actuator was told to hold")
 
     def _start_step(self, targets: np.ndarray) -> None:
         """New targets; every generator gets the same segment length so that they land together."""

@@ -56,7 +56,7 @@ def excitation(structure: Structure, ground: GroundMotion) -> tuple[np.ndarray, 
 def stop_reason(exc: BaseException, last: int, dt: float) -> str:
     """Why a run stopped after step ``last``: an HsioError says it plainly; anything else is named."""
     if isinstance(exc, KeyboardInterrupt):
-        return f"interrupted at step {last + 1}"
+        return f"step {last + 1} (t = {(last + 1) * dt:.3f} s): interrupted (Ctrl-C)"
     from hsio.safety.status import OperatorStop
 
     if isinstance(exc, OperatorStop):

@@ -151,7 +151,7 @@ class FailingSite:
 
 @pytest.mark.parametrize("error, reason", [
     (ValueError("boom"), r"step 5 \(t = 0\.050 s\): unexpected ValueError\('boom'\)"),
-    (KeyboardInterrupt(), r"interrupted at step 5"),
+    (KeyboardInterrupt(), r"run stopped at step 5 \(t = 0\.050 s\): interrupted \(Ctrl-C\)"),
 ])
 def test_a_run_that_stops_keeps_every_step_made_and_holds(error, reason):
     from hsio.api import make_integrator

@@ -38,7 +38,10 @@ method and are refused.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field
+
 import numpy as np
 
 from hsio.errors import ConfigError
@@ -46,6 +49,7 @@ from hsio.interfaces import ControlMode
 
 DC = ControlMode.DISPLACEMENT
 FC = ControlMode.FORCE
+J_MAX_LIMIT = 100  # commands per step at most (the bound of [integrator] j_max)
 
 
 @dataclass
@@ -136,10 +140,12 @@ class ImplicitAlpha:
             raise ConfigError(f"force control: alpha must be in [-1/3, 0], got {alpha!r}")
         if not dt > 0:
             raise ConfigError(f"force control: dt must be positive, got {dt!r}")
-        if int(j_max) < 1:
-            raise ConfigError(f"force control: j_max must be at least 1, got {j_max!r}")
-        if not (tol_displacement >= 0 and tol_force >= 0):
-            raise ConfigError("force control: tolerances must be zero or positive")
+        if isinstance(j_max, bool) or not isinstance(j_max, numbers.Integral) or not 1 <= j_max <= J_MAX_LIMIT:
+            raise ConfigError(f"force control: j_max (commands per step) must be a whole number in 1..{J_MAX_LIMIT}, "
+                              f"got {j_max!r}")
+        for name, tol in (("tol_displacement", tol_displacement), ("tol_force", tol_force)):
+            if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not (math.isfinite(tol) and tol >= 0):
+                raise ConfigError(f"force control: {name} must be a number, zero or positive, got {tol!r}")
         self.M = np.atleast_2d(np.asarray(M, dtype=float))
         n = self.M.shape[0]
         if self.M.ndim != 2 or self.M.shape != (n, n):

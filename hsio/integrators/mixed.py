@@ -18,6 +18,7 @@ as a method of the experiment loop and reports the switches.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -139,6 +140,23 @@ def initial_stiffness_thresholds(K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio
     return upper, lower
 
 
+def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max) -> None:
+    """The guards of mixed control as :class:`ImplicitMethod` takes them (their bounds as in a run
+    configuration, docs/config.md)."""
+    def whole(value) -> bool:
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+    if fallback_after is not None and not (whole(fallback_after) and 0 <= fallback_after <= j_max):
+        raise ConfigError(f"fallback_after must be None (off) or a whole number of commands in 0..j_max ({j_max}), "
+                          f"got {fallback_after!r}")
+    if not (whole(refractory_steps) and 0 <= refractory_steps <= 10**9):
+        raise ConfigError(f"refractory_steps must be a whole number of steps in 0..1e9, got {refractory_steps!r}")
+    if explored_fraction is not None and not (isinstance(explored_fraction, numbers.Real)
+                                              and not isinstance(explored_fraction, bool)
+                                              and 0 < explored_fraction <= 1):
+        raise ConfigError(f"explored_fraction must be None (off) or a number in (0, 1], got {explored_fraction!r}")
+
+
 def instrument_uncertainty(resolution: float, noise: float) -> float:
     """Standard uncertainty of an instrument: its noise (standard deviation) and its resolution (a
     uniform quantisation error, resolution / sqrt(12)) combined in quadrature."""
@@ -227,6 +245,7 @@ faster than FC can follow. ``fc_blend``: the
                  no_fc_at_reversal: bool = False, anchor_dc=True, reset_at_reversal: bool = False):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
+        _check_guards(fallback_after, refractory_steps, explored_fraction, j_max)
         guards = {"fallback_after": fallback_after not in (None, 0), "refractory_steps": refractory_steps != 0,
                   "explored_fraction": explored_fraction is not None, "fc_force_limit": fc_force_limit is not None,
                   "no_fc_at_reversal": bool(no_fc_at_reversal)}

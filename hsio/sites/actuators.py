@@ -67,7 +67,8 @@ class ActuatorSite:
         self.estimator = estimator
         if estimator is not None and not loop.keep_samples:
             raise ConfigError("the secant stiffness is estimated from the controller-rate samples: "
-                              "set [output] samples = true")
+                              "open the site with keep_samples=True ([output] samples = true in a run "
+                              "configuration)")
         self.compensation = compensation  # hsio.compensation.stage.CompensationStage or None
         if compensation is not None and len(compensation.names) != self.n_dynamic:
             raise ConfigError(f"the compensation stage names {len(compensation.names)} actuators "
