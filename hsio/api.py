@@ -89,11 +89,15 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     ``fallback_after``, ``refractory_steps``, ``no_fc_at_reversal``, ``explored_fraction``,
     ``fc_force_limit``; docs/force_control.md).
     """
+    _check_structure("make_integrator", structure)
     if method not in METHODS:
         raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
     if not _is_number(alpha):
         raise ConfigError(f"alpha must be a number in [-1/3, 0], got {alpha!r}")
     dofs = structure.experimental_dofs
+    if rule is not None and not isinstance(rule, SwitchingRule):
+        raise ConfigError(f"rule must be a hsio.integrators.SwitchingRule (e.g. SwitchingRule.from_initial_stiffness"
+                          f"(K_EI, K_f, K_d)), got {rule!r}")
     if rule is not None and np.size(rule.upper) != len(structure.experimental):
         raise ConfigError(f"switching rule: {np.size(rule.upper)} threshold(s) for the {len(structure.experimental)} "
                           f"experimental element(s) of structure {structure.name!r}; give one per element")
@@ -148,6 +152,7 @@ def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alp
     For the implicit methods the reference is implicit DC iterated to 1e-10 (at most 20
     iterations): the converged solution that any of them approaches.
     """
+    _check_structure("run_numerical", structure)
     if method in IMPLICIT_METHODS:
         if options:
             raise ConfigError(f"run_numerical: the reference of the implicit methods is implicit DC converged "
@@ -174,6 +179,7 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     ``safety`` sets the interlocks checked every controller period (docs/safety.md section 3;
     default: the documented defaults, on).
     """
+    _check_site_arguments(structure, hardware, options, estimator, compensation, safety)
     safety = safety or SafetySettings()
     check_test_settings(test_rate, hold_fraction, n_avg)
     try:
@@ -254,6 +260,28 @@ def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
                           f"motion before it. Give n_avg at most {limit}, or a slower test rate")
 
 
+def _check_structure(where: str, structure) -> None:
+    if not isinstance(structure, Structure):
+        hint = f" (hsio.load_structure({structure!r}))" if isinstance(structure, str) else ""
+        raise ConfigError(f"{where}: structure must be a hsio.Structure{hint}, got {type(structure).__name__}")
+
+
+def _check_site_arguments(structure, hardware, options, estimator, compensation, safety) -> None:
+    """The types of :func:`open_site`'s arguments, named, before anything opens."""
+    from hsio.compensation.stage import CompensationStage
+
+    _check_structure("open_site", structure)
+    expected = [("hardware", hardware, str, "a URL string such as 'emulator://'"),
+                ("options", options, (dict, type(None)), "a dict (the [emulator] or [driver] table) or None"),
+                ("estimator", estimator, (SecantEstimator, type(None)), "a hsio.secant.SecantEstimator or None"),
+                ("compensation", compensation, (CompensationStage, type(None)),
+                 "a hsio.compensation.stage.CompensationStage or None"),
+                ("safety", safety, (SafetySettings, type(None)), "a hsio.safety.settings.SafetySettings or None")]
+    for name, value, kind, what in expected:
+        if not isinstance(value, kind):
+            raise ConfigError(f"open_site: {name} must be {what}, got {value!r}")
+
+
 @dataclass(frozen=True)
 class OpenedFor:
     """What an actuator site was opened for: the structure's name, its channels and time step."""
@@ -275,6 +303,8 @@ def check_run_inputs(structure: Structure, ground, site, start: str = "rest") ->
     if np.ndim(ground.accel_g) != 1:
         raise ConfigError(f"ground motion {ground.name!r}: accel_g must be one component (a 1-D array), got shape "
                           f"{np.shape(ground.accel_g)}")
+    if not hasattr(site, "set_trial"):
+        raise ConfigError(f"simulate: site must be one hsio.open_site opened (or a NumericalSite), got {site!r}")
     if isinstance(site, ActuatorSite):
         if getattr(site, "final_hold", None) is not None:
             raise ConfigError("simulate: the site is closed (its actuators were released); open a new one with "
@@ -338,6 +368,9 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     (carrying the steps made, the actuators holding) if the run stops early.
     """
     check_run_inputs(structure, ground, site, start)
+    if integrator is not None and not hasattr(integrator, "step"):
+        raise ConfigError(f"simulate: integrator must be one make_integrator built, got {integrator!r} (to choose a "
+                          f"method by name, pass method=...)")
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
     else:

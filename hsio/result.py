@@ -121,12 +121,20 @@ def max_error_pct(u_hs: np.ndarray, u_ns: np.ndarray) -> tuple[float, list[float
     """Max over time and DOF of |u_HS - u_NS| / peak |u_NS| of that DOF, in percent; and per DOF.
 
     Both are histories (steps x DOF) of the same DOF; the shorter one (a run stopped early) sets
-    the steps compared."""
-    u_hs, u_ns = np.asarray(u_hs, dtype=float), np.asarray(u_ns, dtype=float)
+    the steps compared. Two :class:`Result` objects are compared by their ``u``."""
+    u_hs, u_ns = (x.u if isinstance(x, Result) else x for x in (u_hs, u_ns))
+    try:
+        u_hs, u_ns = np.asarray(u_hs, dtype=float), np.asarray(u_ns, dtype=float)
+    except (TypeError, ValueError):
+        raise HsioError(f"max_error_pct: u_hs and u_ns must be histories of numbers (steps x DOF) or Results, got "
+                        f"{type(u_hs).__name__} and {type(u_ns).__name__}") from None
     if u_hs.ndim != 2 or u_ns.ndim != 2 or u_hs.shape[1] != u_ns.shape[1] or not len(u_hs) or not len(u_ns):
         raise HsioError(f"max_error_pct: u_hs and u_ns must be histories (steps x DOF) of the same DOF, got shapes "
                         f"{u_hs.shape} and {u_ns.shape}")
     n = min(len(u_hs), len(u_ns))
+    if not (np.all(np.isfinite(u_hs[:n])) and np.all(np.isfinite(u_ns[:n]))):
+        raise HsioError("max_error_pct: a history holds values that are not finite (a run that diverged?); "
+                        "the error is not defined")
     peak = np.max(np.abs(u_ns[:n]), axis=0)
     peak = np.where(peak > 0, peak, 1.0)
     per_dof = np.max(np.abs(u_hs[:n] - u_ns[:n]), axis=0) / peak * 100.0

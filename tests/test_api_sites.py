@@ -76,3 +76,35 @@ def test_integrator_settings_outside_the_run_bounds_are_refused(options, says):
     with pytest.raises(ConfigError) as refused:
         hsio.make_integrator(hsio.load_structure("structure_I"), "mixed", **options)
     assert says in str(refused.value)
+
+
+@pytest.mark.parametrize("call, says", [
+    (lambda V, G: hsio.open_site(V, None), "open_site: hardware must be a URL string"),
+    (lambda V, G: hsio.open_site(V, options=[1]), "open_site: options must be a dict"),
+    (lambda V, G: hsio.open_site(V, estimator="average"), "open_site: estimator must be a hsio.secant.SecantEstimator"),
+    (lambda V, G: hsio.open_site(V, compensation="offline"), "open_site: compensation must be a"),
+    (lambda V, G: hsio.open_site(V, safety="off"), "open_site: safety must be a"),
+    (lambda V, G: hsio.open_site("validation"), "open_site: structure must be a hsio.Structure (hsio.load_structure("),
+    (lambda V, G: hsio.make_integrator("validation"), "make_integrator: structure must be a hsio.Structure"),
+    (lambda V, G: hsio.run_numerical("validation", G), "run_numerical: structure must be a hsio.Structure"),
+    (lambda V, G: hsio.simulate(V, G, None), "simulate: site must be one hsio.open_site opened"),
+    (lambda V, G: hsio.simulate(V, G, NumericalSite.of(V), integrator="alpha_os"), "integrator must be one make_integrator"),
+    (lambda V, G: hsio.make_integrator(V, "mixed", rule={"K_f": 1.0}), "rule must be a hsio.integrators.SwitchingRule"),
+])
+def test_arguments_of_the_wrong_kind_are_named(call, says):
+    V = hsio.load_structure("validation")
+    G = hsio.synthetic_record(duration_s=0.2, dt=V.dt)
+    with pytest.raises(ConfigError) as refused:
+        call(V, G)
+    assert says in str(refused.value)
+
+
+def test_max_error_pct_takes_results_and_refuses_histories_that_are_not_finite():
+    V = hsio.load_structure("validation")
+    G = hsio.synthetic_record(duration_s=0.2, dt=V.dt)
+    ns = hsio.run_numerical(V, G)
+    assert hsio.max_error_pct(ns, ns) == (0.0, [0.0, 0.0])
+    bad = ns.u.copy()
+    bad[3, 0] = np.nan
+    with pytest.raises(hsio.HsioError, match="not finite"):
+        hsio.max_error_pct(bad, ns.u)
