@@ -12,10 +12,10 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import urlsplit
 
 from hsio.errors import ConfigError, HsioError
-from hsio.interfaces import Limits
+from hsio.interfaces import Limits, query_pairs
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ def parse_options(url: str, options: dict | None, defaults: dict, rules: dict[st
     A key without a rule is a string; a default of None means "not set" (the controller's own).
     """
     table = dict(defaults)
-    given = {**(options or {}), **dict(parse_qsl(split_url(url).query))}
+    given = {**(options or {}), **dict(query_pairs(url, split_url(url).query))}
     for key, value in given.items():
         if key not in defaults:
             raise ConfigError(f"[driver] for {url!r}: unknown key {key!r}; known: {', '.join(defaults)}")

@@ -7,14 +7,14 @@ own loop in a thread (:class:`RealTimeLoop`) and the experiment only writes and 
 from __future__ import annotations
 
 import threading
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import urlsplit
 
 import numpy as np
 
 from hsio.emulators.servo import ServoConfig, ServoController, make_controllers, parse_value, quantise
 from hsio.clock import Clock, RealTimeClock
 from hsio.errors import ConfigError, InterlockError
-from hsio.interfaces import DAQ, Actuator, ActuatorChannels, Channel, ControlMode, Feedback, Limits
+from hsio.interfaces import DAQ, Actuator, ActuatorChannels, Channel, ControlMode, Feedback, Limits, query_pairs
 
 
 class RealTimeLoop:
@@ -112,7 +112,7 @@ def _settings(url: str, options: dict | None) -> dict:
         raise ConfigError(f"hardware URL {url!r}: the in-process emulator takes no host or path "
                           f"(emulator:// or emulator://?KEY=VALUE&...)")
     table = dict(options or {})
-    for key, value in parse_qsl(parts.query):
+    for key, value in query_pairs(url, parts.query):
         table[key] = parse_value(value)
     return table
 

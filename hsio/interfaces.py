@@ -16,8 +16,9 @@ import enum
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from urllib.parse import parse_qsl
 
-from hsio.errors import LimitError
+from hsio.errors import ConfigError, LimitError
 
 
 class ControlMode(enum.Enum):
@@ -178,3 +179,14 @@ class ActuatorChannels(DAQ):
     def read(self) -> dict[str, float]:
         fb = self.feedback()
         return {f"{self.name}.displacement": fb.displacement_mm, f"{self.name}.force": fb.force_kN}
+
+
+def query_pairs(url: str, query: str) -> list[tuple[str, str]]:
+    """The ``KEY=VALUE`` settings of a hardware URL's query, each key at most once (a key given
+    twice, with one of the values silently winning, is refused: ConfigError naming it)."""
+    pairs = parse_qsl(query)
+    keys = [k for k, _ in pairs]
+    twice = sorted({k for k in keys if keys.count(k) > 1})
+    if twice:
+        raise ConfigError(f"hardware URL {url!r}: {', '.join(twice)} given more than once; give each setting once")
+    return pairs

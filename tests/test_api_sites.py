@@ -108,3 +108,10 @@ def test_max_error_pct_takes_results_and_refuses_histories_that_are_not_finite()
     bad[3, 0] = np.nan
     with pytest.raises(hsio.HsioError, match="not finite"):
         hsio.max_error_pct(bad, ns.u)
+
+
+@pytest.mark.parametrize("url", ["emulator://?stroke_mm=500&stroke_mm=20",
+                                 "modbus+tcp://127.0.0.1:1?timeout_s=1&timeout_s=2"])
+def test_a_url_setting_given_twice_is_refused_not_settled_by_order(url):
+    with pytest.raises(ConfigError, match="given more than once"):
+        hsio.open_site(hsio.load_structure("validation"), url)
