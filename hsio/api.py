@@ -182,10 +182,14 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
     _check_site_arguments(structure, hardware, options, estimator, compensation, safety)
     safety = safety or SafetySettings()
     check_test_settings(test_rate, hold_fraction, n_avg)
-    try:
-        check_dwell(structure.dt, test_rate, hold_fraction, n_avg)
-    except ConfigError as exc:
-        raise ConfigError(f"open_site: {exc}") from None
+    averaged = [("", n_avg)]
+    if estimator is not None and estimator.method == "average":  # it averages the last n_avg samples too
+        averaged.append(("the secant estimator's ", estimator.n_avg))
+    for whose, count in averaged:
+        try:
+            check_dwell(structure.dt, test_rate, hold_fraction, count)
+        except ConfigError as exc:
+            raise ConfigError(f"open_site: {whose}{exc}") from None
     t_d = test_rate * structure.dt
     if compensation is not None and not math.isclose(getattr(compensation, "t_d", t_d), t_d, rel_tol=1e-9):
         raise ConfigError(f"open_site: the compensation stage was built for t_d = {compensation.t_d:g} s, and a step "

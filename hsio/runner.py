@@ -294,11 +294,15 @@ def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Le
 
 def check_dwell(config: RunConfig, structure: Structure) -> None:
     """[test] n_avg within a step's dwell (:func:`hsio.api.check_dwell`), named with the configuration."""
-    test = config["test"]
-    try:
-        api.check_dwell(structure.dt, test["rate"], test["hold_fraction"], test["n_avg"])
-    except ConfigError as exc:
-        raise ConfigError(f"{config.source}: [test] {exc}") from None
+    test, integ = config["test"], config["integrator"]
+    averaged = [("[test] ", test["n_avg"])]
+    if integ["method"] in IMPLICIT_METHODS and integ["secant"] == "average":
+        averaged.append(("[integrator] secant_", integ["secant_n_avg"]))
+    for key, count in averaged:
+        try:
+            api.check_dwell(structure.dt, test["rate"], test["hold_fraction"], count)
+        except ConfigError as exc:
+            raise ConfigError(f"{config.source}: {key}{exc}") from None
 
 
 def predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):

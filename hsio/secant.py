@@ -22,6 +22,8 @@ increment is below ``min_increment`` or the result is not a finite positive numb
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 from hsio.errors import ConfigError
@@ -40,8 +42,8 @@ class SecantEstimator:
     def __init__(self, method: str = "average", n_avg: int = 100, min_increment: float = 0.0):
         if method not in METHODS:
             raise ConfigError(f"secant stiffness: method must be one of {', '.join(METHODS)}, got {method!r}")
-        if int(n_avg) < 1:
-            raise ConfigError(f"secant stiffness: n_avg must be at least 1, got {n_avg!r}")
+        if isinstance(n_avg, bool) or not isinstance(n_avg, numbers.Integral) or n_avg < 1:
+            raise ConfigError(f"secant stiffness: n_avg must be a whole number of samples, at least 1, got {n_avg!r}")
         if not min_increment >= 0:
             raise ConfigError(f"secant stiffness: min_increment must be zero or positive, got {min_increment!r}")
         self.method = method

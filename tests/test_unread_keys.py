@@ -151,3 +151,9 @@ def test_check_json_prints_the_error_of_a_bad_configuration_on_stdout(tmp_path):
     assert out.exit_code == 2
     data = json.loads(out.stdout)
     assert data["exit_status"] == 2 and data["refused"] is True and "a_mm_s: not read with mode = 'off'" in data["error"]
+
+
+def test_a_secant_average_longer_than_the_dwell_is_refused(tmp_path):
+    out = _cli(tmp_path, '[integrator]\nmethod = "implicit_dc"\nsecant_n_avg = 500\n[record]\nsynthetic_duration_s = 0.2\n')
+    assert out.exit_code == 2 and "[integrator] secant_n_avg = 500 controller periods is more than the dwell" in out.output
+    assert not (tmp_path / "out").exists()
