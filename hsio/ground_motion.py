@@ -8,6 +8,8 @@ integration time step.
 from __future__ import annotations
 
 import math
+import numbers
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +28,13 @@ MAX_FILE_BYTES = 200_000_000
 SYNTHETIC_MIN_SAMPLES = 10
 
 
+def _real(what: str, name: str, value) -> float:
+    """``value`` as a finite real number, or :class:`RecordError` naming ``what``, ``name`` and it."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+        raise RecordError(f"{what}: {name} must be a finite number, got {value!r}")
+    return float(value)
+
+
 @dataclass(frozen=True)
 class GroundMotion:
     """A uniformly sampled ground acceleration history, in g."""
@@ -35,13 +44,13 @@ class GroundMotion:
     accel_g: np.ndarray
 
     def __post_init__(self):
-        try:
-            dt_ok = self.dt > 0 and math.isfinite(self.dt)
-        except TypeError:
-            dt_ok = False
+        dt_ok = (not isinstance(self.dt, (bool, np.bool_)) and isinstance(self.dt, numbers.Real)
+                 and math.isfinite(self.dt) and self.dt > 0)
         if not dt_ok:
             raise RecordError(f"{self.name}: time step must be positive, got {self.dt!r}")
         try:
+            if np.iscomplexobj(self.accel_g):
+                raise RecordError(f"{self.name}: the accelerations must be real numbers (in g), got complex values")
             accel = np.asarray(self.accel_g, dtype=float)
         except (TypeError, ValueError):
             raise RecordError(f"{self.name}: the accelerations must be numbers (in g), got "
@@ -82,6 +91,7 @@ class GroundMotion:
     def truncated(self, duration_s: float) -> "GroundMotion":
         """The first ``duration_s`` of the record; shorter than one of its time steps, or longer than
         the record, is refused (a cut, never a silent clamp)."""
+        duration_s = _real(self.name, "cut duration_s", duration_s)
         if not duration_s >= self.dt * (1 - 1e-9):
             raise RecordError(f"{self.name}: a cut to {duration_s:g} s is shorter than one time step of the record "
                               f"({self.dt:g} s)")
@@ -94,7 +104,8 @@ class GroundMotion:
     def resampled(self, dt: float) -> "GroundMotion":
         """Linear interpolation to time step ``dt`` over the same duration (at most
         :data:`MAX_STEPS` steps: a longer run is refused, naming the record and the bound)."""
-        if not (dt > 0 and math.isfinite(dt)):
+        dt = _real(self.name, "time step dt", dt)
+        if not dt > 0:
             raise RecordError(f"{self.name}: time step must be positive, got {dt!r}")
         steps = self.duration_s / dt
         if steps > MAX_STEPS:
@@ -132,6 +143,8 @@ def read_at2(path: str | Path) -> GroundMotion:
     is not a number, a NaN, or a count that differs from NPTS raises :class:`RecordError` naming
     the file and line.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise RecordError(f"read_at2: path must be a file path, got {path!r}")
     path = Path(path)
     try:
         data = read_bounded(path, MAX_FILE_BYTES, lambda reason: RecordError(
@@ -222,10 +235,23 @@ def synthetic_record(
     """
     from scipy import signal
 
+    what = "synthetic record"
+    duration_s, dt = _real(what, "duration_s", duration_s), _real(what, "dt", dt)
+    pga_g, f_g_hz, zeta_g = _real(what, "pga_g", pga_g), _real(what, "f_g_hz", f_g_hz), _real(what, "zeta_g", zeta_g)
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise RecordError(f"{what}: seed must be a whole number from 0, got {seed!r}")
+    if not pga_g > 0:
+        raise RecordError(f"{what}: pga_g must be positive, got {pga_g!r} (a negative record is scaled by a "
+                          "negative factor: GroundMotion.scaled)")
+    if not zeta_g > 0:
+        raise RecordError(f"{what}: zeta_g must be positive (the ground filter's damping ratio), got {zeta_g!r}")
     if not (duration_s > 0 and dt > 0 and duration_s / dt <= MAX_STEPS):
         raise RecordError(f"synthetic record: {duration_s!r} s at {dt!r} s is beyond the bound of {MAX_STEPS} steps")
     if not DT_MIN_S <= dt <= DT_MAX_S:
         raise RecordError(f"synthetic record: time step {dt:g} s is out of bounds: within {DT_MIN_S:g}..{DT_MAX_S:g} s")
+    if not 0 < f_g_hz < 0.5 / dt:
+        raise RecordError(f"{what}: f_g_hz = {f_g_hz!r} Hz must be positive and below the Nyquist frequency "
+                          f"1/(2 dt) = {0.5 / dt:g} Hz of the time step {dt:g} s")
     n = int(round(duration_s / dt)) + 1
     if n < SYNTHETIC_MIN_SAMPLES:  # the drift filter runs forwards and backwards over 9 samples
         raise RecordError(f"synthetic record: {duration_s:g} s at {dt:g} s is {n} samples; it needs at least "

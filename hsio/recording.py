@@ -33,11 +33,12 @@ import json
 import os
 import re
 import sqlite3
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
-from hsio.errors import HsioError
+from hsio.errors import HsioError, RecordError
 
 RUN_FILE = "run.sqlite"
 MAX_RUN_NUMBER = 9999
@@ -45,6 +46,15 @@ MAX_RUN_NUMBER = 9999
 
 class RecordExistsError(HsioError):
     """A run would overwrite an earlier record; nothing was written."""
+
+
+class RunFileMissingError(RecordError, FileNotFoundError):
+    """:class:`Run` was given a path where no file is."""
+
+
+class NotARunError(RecordError, sqlite3.DatabaseError):
+    """:class:`Run` was given a directory, a file that is no SQLite database, or a database that
+    is no hsio run record."""
 
 
 # What a run leaves in its folder beside run.sqlite: SQLite's journals (a journal left without its
@@ -98,21 +108,31 @@ def column(prefix: str, name: str) -> str:
     return f"{prefix}_{_NAME.sub('_', name)}"
 
 
+def _names(path: Path, what: str, names) -> list[str]:
+    """DOF or actuator names: strings whose columns (:func:`column`) are distinct."""
+    if isinstance(names, (str, bytes)) or not hasattr(names, "__iter__"):
+        raise RecordError(f"{path}: {what} must be a list of names, got {names!r}")
+    names = list(names)
+    seen: dict[str, str] = {}
+    for name in names:
+        if not isinstance(name, str) or not name:
+            raise RecordError(f"{path}: {what}: a name must be a non-empty string, got {name!r}")
+        key = column("", name)
+        if key in seen:
+            same = "twice" if seen[key] == name else f"and {seen[key]!r} (both recorded as column suffix {key[1:]!r})"
+            raise RecordError(f"{path}: {what}: {name!r} {same}; give names that differ in letters, digits or _")
+        seen[key] = name
+    return names
+
+
 class Recorder:
-    """Writes a run, step by step, to ``path`` (an SQLite database)."""
+    """Writes a run, step by step, to ``path`` (an SQLite database): a new file, never one that
+    exists (:class:`RecordExistsError`)."""
 
     def __init__(self, path: str | Path, dof_names, actuator_names, meta: dict | None = None):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        try:  # created exclusively: an earlier record is never replaced
-            os.close(os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
-        except FileExistsError:
-            raise RecordExistsError(f"{self.path} already holds a record; records are never overwritten") from None
-        self.dof_names = list(dof_names)
-        self.actuator_names = list(actuator_names)
-        self.db = sqlite3.connect(self.path, check_same_thread=False)
-        self.db.execute("PRAGMA journal_mode=WAL")
-        self.db.execute("PRAGMA synchronous=FULL")  # each commit on disk before the next step
+        self.dof_names = _names(self.path, "dof_names", dof_names)
+        self.actuator_names = _names(self.path, "actuator_names", actuator_names)
         dof_cols = [column(p, d) for d in self.dof_names for p in ("u", "v", "a", "u_pred", "r")]
         mode_cols = [column("mode", d) for d in self.dof_names]
         act_cols = [column(p, a) for a in self.actuator_names for p in ("target", "command", "disp", "force")]
@@ -120,6 +140,41 @@ class Recorder:
         self._sample_cols = ["step", "k", *[column(p, a) for a in self.actuator_names for p in ("cmd", "disp", "force")],
                              "lab_time_s", *[column("phase", a) for a in self.actuator_names]]
         self._ns_cols = ["step", "time_s", *[column("u", d) for d in self.dof_names]]
+        for table, cols in (("steps", self._step_cols), ("samples", self._sample_cols), ("ns", self._ns_cols)):
+            twice = sorted(c for c, count in Counter(cols).items() if count > 1)
+            if twice:
+                raise RecordError(f"{self.path}: the DOF names {self.dof_names} and actuator names "
+                                  f"{self.actuator_names} give the {table} table column {twice[0]!r} twice; "
+                                  "rename one")
+        meta = dict(meta or {})
+        for key, value in meta.items():
+            try:
+                json.dumps(value)
+            except (TypeError, ValueError) as exc:
+                raise RecordError(f"{self.path}: meta[{key!r}] cannot be recorded as JSON ({exc}); give lists, "
+                                  "numbers, strings and dicts (e.g. array.tolist())") from None
+        if self.path.is_dir():
+            raise RecordError(f"{self.path} is a directory; a record is a file (e.g. {self.path / RUN_FILE})")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:  # created exclusively: an earlier record is never replaced
+            os.close(os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+        except FileExistsError:
+            raise RecordExistsError(f"{self.path} already holds a record; records are never overwritten") from None
+        self.db = None
+        try:
+            self._create(meta)
+        except BaseException:  # no half-made record is left behind: the same call can be made again
+            if self.db is not None:
+                self.db.close()
+                self.db = None
+            for suffix in ("", "-wal", "-shm", "-journal"):
+                Path(f"{self.path}{suffix}").unlink(missing_ok=True)
+            raise
+
+    def _create(self, meta: dict) -> None:
+        self.db = sqlite3.connect(self.path, check_same_thread=False)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=FULL")  # each commit on disk before the next step
         self.db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
         self.db.execute("CREATE TABLE summary (key TEXT PRIMARY KEY, value TEXT)")
         self.db.execute(
@@ -130,7 +185,6 @@ class Recorder:
         self.db.execute("CREATE TABLE samples (step INTEGER, k INTEGER, " + ", ".join(f"{c} REAL" for c in self._sample_cols[2:]) + ")")
         self.db.execute("CREATE TABLE events (time_s REAL, step INTEGER, kind TEXT, actuator TEXT, message TEXT)")
         self.db.execute("CREATE TABLE ns (step INTEGER PRIMARY KEY, time_s REAL, " + ", ".join(f"{c} REAL" for c in self._ns_cols[2:]) + ")")
-        meta = dict(meta or {})
         meta.update(dof_names=self.dof_names, actuator_names=self.actuator_names,
                     units={"displacement": "mm", "force": "kN", "time": "s", "mass": "kN s^2/mm"},
                     phase_codes=PHASE_CODES)
@@ -245,18 +299,24 @@ class Run:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         if not self.path.exists():
-            raise FileNotFoundError(f"{self.path}: no such run file")
-        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+            raise RunFileMissingError(f"{self.path}: no such run file")
+        if self.path.is_dir():
+            raise NotARunError(f"{self.path} is a directory, not a run file (a run's folder holds {RUN_FILE})")
         try:
-            self.meta = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
-            self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
-            self.steps = self._table(db, "steps")
-            self.ns = self._table(db, "ns")
-            self._db_path = self.path
-        finally:
-            db.close()
-        self.dof_names = self.meta["dof_names"]
-        self.actuator_names = self.meta["actuator_names"]
+            db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+            try:
+                self.meta = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
+                self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
+                self.steps = self._table(db, "steps")
+                self.ns = self._table(db, "ns")
+                self._db_path = self.path
+            finally:
+                db.close()
+            self.dof_names = self.meta["dof_names"]
+            self.actuator_names = self.meta["actuator_names"]
+        except (sqlite3.Error, KeyError, ValueError) as exc:
+            detail = f"no {exc} in its meta table" if isinstance(exc, KeyError) else str(exc)
+            raise NotARunError(f"{self.path}: not an hsio run record ({detail})") from None
 
     @staticmethod
     def _table(db, name: str) -> dict[str, np.ndarray]:

@@ -12,6 +12,7 @@ E&M 2007, Tables I-III) ship with hsio as ``validation``, ``structure_I`` and ``
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,6 +20,43 @@ import scipy.linalg
 
 from hsio.errors import ConfigError
 from hsio.specimens import Specimen, make_specimen
+
+
+def _checker(what: str):
+    """The structure-file loader's value checks, with errors that name ``what`` (a structure or
+    an element built in code) and the argument."""
+    from hsio.structure_file import _Reader
+
+    return _Reader(what, what)
+
+
+def _index(what: str, where: str, value) -> int:
+    """A DOF index: a whole number (not a bool)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ConfigError(f"{what}: {where}: must be a DOF index (a whole number from 0), got {value!r}")
+    return int(value)
+
+
+def _check_specimen(what: str, spec) -> None:
+    """A specimen table that builds a model of positive, finite initial stiffness."""
+    try:
+        model = make_specimen(spec)
+        k = float(model.initial_stiffness)
+    except ConfigError as exc:
+        raise ConfigError(f"{what}: specimen: {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{what}: specimen {spec!r}: {exc}") from None
+    if not (math.isfinite(k) and k > 0):
+        raise ConfigError(f"{what}: specimen {spec!r}: initial stiffness must be positive, got {k!r}")
+
+
+def _elements(what: str, where: str, value, kind: type) -> tuple:
+    """A tuple of ``kind`` (a list is taken as a tuple; one element alone is refused)."""
+    if isinstance(value, list):
+        value = tuple(value)
+    if not isinstance(value, tuple) or any(not isinstance(e, kind) for e in value):
+        raise ConfigError(f"{what}: {where}: must be a tuple of {kind.__name__}, got {value!r}")
+    return value
 
 
 @dataclass(frozen=True)
@@ -48,6 +86,29 @@ class ExperimentalElement:
     outer_loop: OuterLoop | None = None
 
     def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ConfigError(f"experimental element: name must be a non-empty string, got {self.name!r}")
+        what = f"experimental element {self.name!r}"
+        _index(what, "dof", self.dof)
+        if not isinstance(self.dofs, (tuple, list)):
+            raise ConfigError(f"{what}: dofs must be a tuple of DOF indices, got {self.dofs!r}")
+        for k, d in enumerate(self.dofs):
+            _index(what, f"dofs[{k}]", d)
+        if not isinstance(self.specimen, dict):
+            raise ConfigError(f"{what}: specimen must be a table such as {{'kind': 'linear', 'k': 1.0}}, "
+                              f"got {self.specimen!r}")
+        if not self.is_multi_dof:  # a multi-DOF model is built with its setup (model())
+            _check_specimen(what, self.specimen)
+        if isinstance(self.K_EI_declared, (int, float, np.number)) and not isinstance(self.K_EI_declared, bool):
+            _checker(what).number("K_EI_declared", float(self.K_EI_declared), positive=True)
+        elif self.K_EI_declared is not None:
+            try:
+                K = np.array(self.K_EI_declared, dtype=float)
+            except (TypeError, ValueError):
+                K = None
+            if K is None or K.ndim != 2 or K.shape[0] != K.shape[1] or not np.all(np.isfinite(K)):
+                raise ConfigError(f"{what}: K_EI_declared must be a positive number or a square matrix of finite "
+                                  f"numbers, got {self.K_EI_declared!r}")
         if not self.actuator:
             object.__setattr__(self, "actuator", self.actuators[0] if self.actuators else self.name)
         if self.dofs and self.dof != self.dofs[0]:
@@ -178,6 +239,13 @@ class Spring:
     k: float
     name: str = ""
 
+    def __post_init__(self):
+        what = f"spring {self.name!r}" if self.name else "spring"
+        _index(what, "i", self.i)
+        if self.j is not None:
+            _index(what, "j", self.j)
+        _checker(what).number("k", self.k, positive=True)
+
 
 @dataclass(frozen=True)
 class NumericalElement:
@@ -190,6 +258,16 @@ class NumericalElement:
     i: int
     specimen: dict
     j: int | None = None
+
+    def __post_init__(self):
+        what = f"numerical element {self.name!r}"
+        _index(what, "i", self.i)
+        if self.j is not None:
+            _index(what, "j", self.j)
+        if not isinstance(self.specimen, dict):
+            raise ConfigError(f"{what}: specimen must be a table such as {{'kind': 'linear', 'k': 1.0}}, "
+                              f"got {self.specimen!r}")
+        _check_specimen(what, self.specimen)
 
     @property
     def dof(self) -> int:
@@ -306,6 +384,7 @@ class Structure:
     instruments: tuple[Instrument, ...] = ()
 
     def __post_init__(self):
+        self._check_arguments()
         n = len(self.dof_names)
         if n == 0 or len(self.masses) != n:
             raise ConfigError(f"structure {self.name!r}: {len(self.masses)} masses for {n} DOF")
@@ -334,6 +413,68 @@ class Structure:
             self.damping.check(n)
         except ConfigError as exc:
             raise ConfigError(f"structure {self.name!r}: {exc}") from None
+        self._check_model()
+
+    def _check_arguments(self) -> None:
+        """Each argument is of its type and holds finite numbers where numbers are due (the
+        structure-file loader's checks, docs/structures.md, for a structure built in code)."""
+        what = self.source or f"structure {self.name!r}"
+        check = _checker(what)
+        sequences = {"dof_names": self.dof_names, "masses": self.masses}
+        if self.influence is not None:
+            sequences["influence"] = self.influence
+        for key, value in sequences.items():
+            if isinstance(value, (str, bytes, dict)) or not isinstance(value, (tuple, list, np.ndarray)):
+                raise ConfigError(f"{what}: {key}: must be a tuple (one per DOF), got {value!r}")
+            object.__setattr__(self, key, tuple(float(v) if isinstance(v, np.number) else v for v in value))
+        seen: dict[str, int] = {}
+        for k, name in enumerate(self.dof_names):
+            check.string(f"dof_names[{k}]", name)
+            if name in seen:
+                raise ConfigError(f"{what}: dof_names[{k}]: DOF {name!r} is declared twice")
+            seen[name] = k
+        for k, m in enumerate(self.masses):
+            check.number(f"masses[{k}]", m, positive=self.mass_matrix is None)
+        if self.influence is not None:
+            iota = [check.number(f"influence[{k}]", v) for k, v in enumerate(self.influence)]
+            if iota and not any(iota):
+                raise ConfigError(f"{what}: influence: every DOF has iota = 0: the ground motion would load none of them")
+        for key, kind in (("experimental", ExperimentalElement), ("springs", Spring), ("numerical", NumericalElement),
+                          ("static", StaticLoad), ("instruments", Instrument)):
+            object.__setattr__(self, key, _elements(what, key, getattr(self, key), kind))
+        if not isinstance(self.damping, Damping):
+            raise ConfigError(f"{what}: damping: must be a Damping, got {self.damping!r}")
+        dt = check.number("dt", self.dt, positive=True)
+        from hsio.ground_motion import DT_MAX_S, DT_MIN_S
+
+        if not DT_MIN_S <= dt <= DT_MAX_S:
+            raise ConfigError(f"{what}: dt: {dt:g} s is out of bounds: the integration time step must be within "
+                              f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
+        if self.mass_matrix is not None:
+            rows = self.mass_matrix
+            if isinstance(rows, np.ndarray):
+                rows = rows.tolist()
+            if not isinstance(rows, (tuple, list)) or any(not isinstance(r, (tuple, list, np.ndarray)) for r in rows):
+                raise ConfigError(f"{what}: mass_matrix: must be {len(self.dof_names)} rows of "
+                                  f"{len(self.dof_names)} numbers, got {self.mass_matrix!r}")
+            rows = [list(r) for r in rows]
+            try:
+                M = check.mass_matrix({"matrix": rows}, len(self.dof_names))
+            except ConfigError as exc:  # the file's key, mass.matrix, is the argument mass_matrix here
+                raise ConfigError(str(exc).replace(": mass.matrix", ": mass_matrix", 1)) from None
+            object.__setattr__(self, "mass_matrix", tuple(tuple(float(v) for v in r) for r in M))
+
+    def _check_model(self) -> None:
+        """The damping ratios are fractions of critical, K_I is not singular and no mode gets a
+        negative damping ratio (the loader's checks)."""
+        check = _checker(self.source or f"structure {self.name!r}")
+        zeta = self.damping.zeta
+        table = {"kind": self.damping.kind, "zeta": list(zeta) if isinstance(zeta, (tuple, list)) else zeta}
+        if self.damping.modes:
+            table["modes"] = list(self.damping.modes)
+        check.damping(table, self.n_dof)
+        check.check_stable(self)
+        check.check_damping(self)
 
     @property
     def n_dof(self) -> int:
@@ -479,11 +620,13 @@ def channel_names(structure: Structure) -> list[str]:
 
 def sdof(m: float = 1.0, k: float = 4 * np.pi**2, zeta: float = 0.0, dt: float = 0.01, specimen: dict | None = None) -> Structure:
     """A single-DOF structure with one experimental element (linear unless ``specimen`` says)."""
+    if specimen is not None and not isinstance(specimen, dict):
+        raise ConfigError(f"sdof: specimen must be a table such as {{'kind': 'linear', 'k': 1.0}}, got {specimen!r}")
     return Structure(
         name="sdof",
         dof_names=("x",),
         masses=(m,),
-        experimental=(ExperimentalElement("x", 0, specimen or {"kind": "linear", "k": k}),),
+        experimental=(ExperimentalElement("x", 0, {"kind": "linear", "k": k} if specimen is None else specimen),),
         damping=Damping(zeta, "mass"),
         dt=dt,
     )

@@ -157,7 +157,15 @@ def energy_error_pct(S_alg: np.ndarray, S_exact: np.ndarray) -> np.ndarray:
 def fc_vs_dc(theta_values=None, alphas=(0.0, -0.3), zetas=(0.0, 0.05), dts=(0.02, 0.005),
              duration_s: float = DURATION_S, dt_exact: float = DT_EXACT) -> list[Row]:
     """The whole study: one row per (alpha, zeta, dt, theta)."""
-    theta_values = thetas() if theta_values is None else np.asarray(theta_values, dtype=float)
+    if theta_values is None:
+        theta_values = thetas()
+    else:
+        try:
+            theta_values = np.asarray(theta_values, dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError(f"study: theta_values must be numbers, got {theta_values!r}") from None
+        if theta_values.ndim != 1 or theta_values.size == 0 or not np.all(np.isfinite(theta_values)):
+            raise ConfigError(f"study: theta_values must be a non-empty list of finite numbers, got {theta_values!r}")
     for dt in dts:
         ratio = dt / dt_exact
         if abs(ratio - round(ratio)) > 1e-9:

@@ -54,6 +54,41 @@ class Recipe:
     tol_force: float = 0.05
     alpha: float = -0.05
 
+    def __post_init__(self):
+        real = {"margin": (0.0, math.inf, False), "hysteresis": (1.0, math.inf, False),
+                "max_hysteretic_ratio": (0.0, math.inf, True), "fc_blend": (0.0, 1.0, False),
+                "tol_displacement": (0.0, math.inf, True), "tol_force": (0.0, math.inf, True),
+                "alpha": (-1.0 / 3.0, 0.0, True)}
+        for key, (low, high, closed) in real.items():
+            value = getattr(self, key)
+            number = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+            if not number or not (low <= value if closed else low < value) or value > high:
+                bound = f"{'[' if closed else '('}{low:g}, {high:g}]" if math.isfinite(high) else \
+                    f"{'at least' if closed else 'above'} {low:g}"
+                raise ConfigError(f"Recipe: {key} must be a number {'in ' if math.isfinite(high) else ''}{bound}, "
+                                  f"got {value!r}")
+        for key, low in (("fallback_after", 1), ("refractory_steps", 0), ("j_max", 1)):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ConfigError(f"Recipe: {key} must be a whole number from {low}, got {value!r}")
+        if not isinstance(self.no_fc_at_reversal, bool):
+            raise ConfigError(f"Recipe: no_fc_at_reversal must be True or False, got {self.no_fc_at_reversal!r}")
+
+
+def check_ns(ns, structure: Structure) -> None:
+    """``ns`` is a :class:`hsio.result.Result` of ``structure``: its DOFs, its experimental
+    channels and its time step."""
+    from hsio.result import Result
+
+    if not isinstance(ns, Result):
+        raise ConfigError(f"ns must be the Result of run_numerical(structure, ground), got {type(ns).__name__} {ns!r:.80}")
+    mine = (tuple(structure.dof_names), tuple(structure.experimental_dofs))
+    theirs = (tuple(ns.dof_names), tuple(ns.element_dofs))
+    if mine != theirs or np.shape(ns.u)[1:] != (structure.n_dof,) or not math.isclose(ns.dt, structure.dt):
+        raise ConfigError(f"ns is the NS of structure {ns.structure!r} (DOFs {list(ns.dof_names)}, experimental DOFs "
+                          f"{list(ns.element_dofs)}, dt {ns.dt:g} s), not of structure {structure.name!r} (DOFs "
+                          f"{list(mine[0])}, experimental DOFs {list(mine[1])}, dt {structure.dt:g} s)")
+
 
 def make_method(structure: Structure, method: str, resolution_mm: float, force_resolution_kN: float,
                 recipe: Recipe = Recipe(), noise_mm: float = 0.0, force_noise_kN: float = 0.0,
@@ -61,6 +96,14 @@ def make_method(structure: Structure, method: str, resolution_mm: float, force_r
     """The integrator of ``method`` for ``structure`` with the given instruments; in ``mixed``, no
     element goes to FC where ``ns`` (NS of the same structure and record) predicts one to
     dissipate energy (:meth:`SwitchingRule.elastic_only`)."""
+    if not isinstance(structure, Structure):
+        raise ConfigError(f"structure must be a Structure, got {structure!r:.80}")
+    if method not in METHODS:
+        raise ConfigError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if not isinstance(recipe, Recipe):
+        raise ConfigError(f"recipe must be a Recipe (for a table: Recipe(**table)), got {recipe!r:.80}")
+    if ns is not None:
+        check_ns(ns, structure)
     K_EI = [e.K_EI for e in structure.experimental]
     r = recipe
     rule = None
