@@ -18,7 +18,9 @@ import numpy as np
 import hsio
 from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
-from hsio.config import BOUNDS, RunConfig
+from hsio.clock import CONTROLLER_RATE_HZ
+from hsio.command import step_samples
+from hsio.config import BOUNDS, DEFAULTS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.emulators.servo import ServoConfig
 from hsio.errors import ConfigError, HsioError, RecordError
@@ -292,12 +294,23 @@ def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Le
     return Ledger(folder, spec["id"]) if folder else None
 
 
+def secant_n_avg(config: RunConfig, structure: Structure) -> int:
+    """[integrator] secant_n_avg; at its default (16), no more than a step's dwell (a fast test at
+    a small dt has fewer periods than that to average: TR 5 at dt 0.005 s, 13). A value given
+    otherwise is checked against the dwell (:func:`check_dwell`)."""
+    test, n = config["test"], config["integrator"]["secant_n_avg"]
+    if n != DEFAULTS["integrator"]["secant_n_avg"]:
+        return n
+    periods, dwell = step_samples(test["rate"] * structure.dt, 1.0 / CONTROLLER_RATE_HZ, test["hold_fraction"])
+    return min(n, dwell if dwell >= 1 else periods)
+
+
 def check_dwell(config: RunConfig, structure: Structure) -> None:
     """[test] n_avg within a step's dwell (:func:`hsio.api.check_dwell`), named with the configuration."""
     test, integ = config["test"], config["integrator"]
     averaged = [("[test] ", test["n_avg"])]
     if integ["method"] in IMPLICIT_METHODS and integ["secant"] == "average":
-        averaged.append(("[integrator] secant_", integ["secant_n_avg"]))
+        averaged.append(("[integrator] secant_", secant_n_avg(config, structure)))
     for key, count in averaged:
         try:
             api.check_dwell(structure.dt, test["rate"], test["hold_fraction"], count)
@@ -454,7 +467,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             integrator = api.make_integrator(structure, method, alpha, **integrator_options(config, structure, predicted))
             control.enter("start-up")
             control.check_stop()
-            estimator = (SecantEstimator(integ["secant"], integ["secant_n_avg"], integ["secant_min_increment_mm"])
+            estimator = (SecantEstimator(integ["secant"], secant_n_avg(config, structure), integ["secant_min_increment_mm"])
                          if implicit else None)
             site = api.open_site(structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
                                  hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],

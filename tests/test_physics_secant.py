@@ -91,7 +91,7 @@ def test_update_before_begin_step_and_bad_arguments():
         SecantEstimator().update([[1.0]], [[1.0]])
     with pytest.raises(ConfigError, match="method must be one of"):
         SecantEstimator("median")
-    with pytest.raises(ConfigError, match="n_avg must be at least 1"):
+    with pytest.raises(ConfigError, match="n_avg must be a whole number of samples, at least 1"):
         SecantEstimator(n_avg=0)
     SecantEstimator(n_avg=1, min_increment=0.0)
     with pytest.raises(ConfigError, match="min_increment"):

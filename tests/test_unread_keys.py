@@ -157,3 +157,20 @@ def test_a_secant_average_longer_than_the_dwell_is_refused(tmp_path):
     out = _cli(tmp_path, '[integrator]\nmethod = "implicit_dc"\nsecant_n_avg = 500\n[record]\nsynthetic_duration_s = 0.2\n')
     assert out.exit_code == 2 and "[integrator] secant_n_avg = 500 controller periods is more than the dwell" in out.output
     assert not (tmp_path / "out").exists()
+
+
+def test_the_default_secant_average_fits_a_short_dwell_and_a_given_one_is_checked(tmp_path):
+    """TR 5 at dt 0.005 s leaves 13 periods of dwell: the default of 16 averages those 13; a
+    value given above the dwell is refused."""
+    from hsio import runner
+
+    s = runner.load_run_structure(config.from_dict({"structure": {"name": "structure_II"}}))
+    assert s.dt == 0.005
+    cfg = config.from_dict({"structure": {"name": "structure_II"}, "test": {"rate": 5.0},
+                            "integrator": {"method": "implicit_dc"}})
+    assert runner.secant_n_avg(cfg, s) == 13
+    runner.check_dwell(cfg, s)
+    given = config.from_dict({"structure": {"name": "structure_II"}, "test": {"rate": 5.0},
+                              "integrator": {"method": "implicit_dc", "secant_n_avg": 20}})
+    with pytest.raises(ConfigError, match=r"secant_n_avg = 20 controller periods is more than the dwell of a step: 13"):
+        runner.check_dwell(given, s)
