@@ -307,8 +307,10 @@ def check_run_inputs(structure: Structure, ground, site, start: str = "rest") ->
     if np.ndim(ground.accel_g) != 1:
         raise ConfigError(f"ground motion {ground.name!r}: accel_g must be one component (a 1-D array), got shape "
                           f"{np.shape(ground.accel_g)}")
+    if start not in ("rest", "present"):
+        raise ConfigError(f"simulate: start must be 'rest' or 'present', got {start!r}")
     if not hasattr(site, "set_trial"):
-        raise ConfigError(f"simulate: site must be one hsio.open_site opened (or a NumericalSite), got {site!r}")
+        raise ConfigError(f"simulate: site must be a site from hsio.open_site (or a NumericalSite), got {site!r}")
     if isinstance(site, ActuatorSite):
         if getattr(site, "final_hold", None) is not None:
             raise ConfigError("simulate: the site is closed (its actuators were released); open a new one with "
@@ -324,7 +326,7 @@ def check_run_inputs(structure: Structure, ground, site, start: str = "rest") ->
                                   f"{', '.join(opened.channels)}, dt {opened.dt:g} s), not for {structure.name!r} "
                                   f"(actuators {', '.join(channels)}, dt {structure.dt:g} s); nothing moved. Open a "
                                   f"site for this structure")
-        if getattr(site, "runs", 0) and start == "rest":
+        if getattr(site, "moved", False) and start == "rest":
             raise ConfigError("simulate: this site has run a record already, and its actuators stand where that run "
                               "left them, not at rest: start=\"present\" goes on from there (docs/safety.md section "
                               "6), or open a new site to start a test from rest; nothing moved")
@@ -373,18 +375,16 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     """
     check_run_inputs(structure, ground, site, start)
     if integrator is not None and not hasattr(integrator, "step"):
-        raise ConfigError(f"simulate: integrator must be one make_integrator built, got {integrator!r} (to choose a "
-                          f"method by name, pass method=...)")
+        raise ConfigError(f"simulate: integrator must be an integrator from make_integrator, got {integrator!r} (to "
+                          f"choose a method by name, pass method=...)")
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
     else:
         ignored = sorted(options) + (["method"] if method != "alpha_os" and method != getattr(integrator, "method", method)
-                                     else [])
+                                     else []) + (["alpha"] if alpha != -0.05 else [])
         if ignored:
             raise ConfigError(f"simulate: {', '.join(ignored)} given beside a ready integrator, which they would not "
                               f"change; build the integrator with them (make_integrator), or leave them out")
-    if isinstance(site, ActuatorSite):
-        site.runs = getattr(site, "runs", 0) + 1  # from now on its actuators may stand away from rest
     if (getattr(integrator, "method", "") in ("force_control", "mixed") and isinstance(site, ActuatorSite)
             and site.estimator is None):
         warnings.warn(f"{integrator.method}: the site has no secant estimator, so eq. (11) is taken on each "
@@ -396,6 +396,7 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         return run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
                          resume_state=resume_state)
     # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off
+    site.moved = True  # from here the actuators may stand away from rest
     try:
         site.preload()
     except BaseException:

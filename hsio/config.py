@@ -51,10 +51,12 @@ FREE_TABLES = ("emulator", "driver")
 
 @dataclass
 class RunConfig:
-    """A checked configuration: ``tables[table][key]``, defaults filled in."""
+    """A checked configuration: ``tables[table][key]``, defaults filled in; ``given``: the keys
+    the configuration wrote, per table (a default can then adapt where a key was left out)."""
 
     tables: dict = field(default_factory=dict)
     source: str = "<defaults>"
+    given: dict = field(default_factory=dict)
 
     def __getitem__(self, table: str) -> dict:
         return self.tables[table]
@@ -103,7 +105,8 @@ def from_dict(data: dict, source: str = "<dict>", replay: bool = False) -> RunCo
     check_bounds(tables, source)
     if not replay:
         _check_unread(tables, source)
-    return RunConfig(tables, source)
+    given = {name: set(values) for name, values in data.items() if isinstance(values, dict)}
+    return RunConfig(tables, source, given)
 
 
 # Keys that only some settings read: given (away from their defaults) where nothing reads them,

@@ -187,6 +187,8 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
             h.put(0, start_present(integrator, structure, P[0], site, numerical), dofs)
         else:
             h.put(0, integrator.start(P[0], site, numerical), dofs)
+        if hasattr(site, "opened_for"):
+            site.moved = True  # from the first command on, the actuators may stand away from rest
         for i in range(first, n_steps - 1):
             k = i + 1
             t0 = time.perf_counter()

@@ -117,9 +117,10 @@ def _names(path: Path, what: str, names) -> list[str]:
     for name in names:
         if not isinstance(name, str) or not name:
             raise RecordError(f"{path}: {what}: a name must be a non-empty string, got {name!r}")
-        key = column("", name)
+        key = column("", name).casefold()  # SQLite's column names ignore case
         if key in seen:
-            same = "twice" if seen[key] == name else f"and {seen[key]!r} (both recorded as column suffix {key[1:]!r})"
+            same = "twice" if seen[key] == name else (f"and {seen[key]!r} (both recorded as column suffix "
+                                                      f"{column('', name)[1:]!r}, column names ignoring case)")
             raise RecordError(f"{path}: {what}: {name!r} {same}; give names that differ in letters, digits or _")
         seen[key] = name
     return names
@@ -141,7 +142,7 @@ class Recorder:
                              "lab_time_s", *[column("phase", a) for a in self.actuator_names]]
         self._ns_cols = ["step", "time_s", *[column("u", d) for d in self.dof_names]]
         for table, cols in (("steps", self._step_cols), ("samples", self._sample_cols), ("ns", self._ns_cols)):
-            twice = sorted(c for c, count in Counter(cols).items() if count > 1)
+            twice = sorted(c for c, count in Counter(c.casefold() for c in cols).items() if count > 1)
             if twice:
                 raise RecordError(f"{self.path}: the DOF names {self.dof_names} and actuator names "
                                   f"{self.actuator_names} give the {table} table column {twice[0]!r} twice; "

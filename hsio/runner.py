@@ -20,7 +20,7 @@ from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.clock import CONTROLLER_RATE_HZ
 from hsio.command import step_samples
-from hsio.config import BOUNDS, DEFAULTS, RunConfig
+from hsio.config import BOUNDS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.emulators.servo import ServoConfig
 from hsio.errors import ConfigError, HsioError, RecordError
@@ -58,8 +58,9 @@ def build_record(config: RunConfig, structure: Structure, replay: bool = False) 
             ground = synthetic_record(duration_s=rec["synthetic_duration_s"], dt=structure.dt, pga_g=rec["pga_g"],
                                       seed=rec["seed"])
         except RecordError as exc:
-            raise ConfigError(f"{config.source}: [record] synthetic_duration_s = {rec['synthetic_duration_s']!r}: "
-                              f"{exc}") from None
+            raise ConfigError(f"{config.source}: [record] synthetic_duration_s = {rec['synthetic_duration_s']!r}, the "
+                              f"synthetic record at the structure's dt of {structure.dt:g} s: {exc}; give a [record] "
+                              f"file, or another synthetic_duration_s or dt") from None
     if rec["scale"] != 1.0:
         ground = ground.scaled(rec["scale"])
     if rec["duration_s"] > 0:
@@ -295,11 +296,11 @@ def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Le
 
 
 def secant_n_avg(config: RunConfig, structure: Structure) -> int:
-    """[integrator] secant_n_avg; at its default (16), no more than a step's dwell (a fast test at
-    a small dt has fewer periods than that to average: TR 5 at dt 0.005 s, 13). A value given
-    otherwise is checked against the dwell (:func:`check_dwell`)."""
+    """[integrator] secant_n_avg; left out, its default (16) but no more than a step's dwell (a fast
+    test at a small dt has fewer periods than that to average: TR 5 at dt 0.005 s, 13). A value
+    written is checked against the dwell (:func:`check_dwell`), never cut."""
     test, n = config["test"], config["integrator"]["secant_n_avg"]
-    if n != DEFAULTS["integrator"]["secant_n_avg"]:
+    if "secant_n_avg" in config.given.get("integrator", ()):
         return n
     periods, dwell = step_samples(test["rate"] * structure.dt, 1.0 / CONTROLLER_RATE_HZ, test["hold_fraction"])
     return min(n, dwell if dwell >= 1 else periods)
@@ -469,6 +470,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             control.check_stop()
             estimator = (SecantEstimator(integ["secant"], secant_n_avg(config, structure), integ["secant_min_increment_mm"])
                          if implicit else None)
+            if estimator is not None:
+                recorder.write_meta({"secant_n_avg": estimator.n_avg})  # the samples averaged, as used
             site = api.open_site(structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
                                  hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
                                  keep_samples=config["output"]["samples"],

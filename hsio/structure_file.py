@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import numbers
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -138,8 +139,9 @@ class _Reader:
     # -- values ---------------------------------------------------------------------------
 
     def number(self, where: str, value, *, positive: bool = False, non_negative: bool = False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
             raise self.error(where, f"must be a number, got {value!r}")
+        value = float(value)  # numpy scalars (np.float32, np.int64) as Python floats
         if not math.isfinite(value):
             raise self.error(where, f"must be finite, got {value!r}")
         if positive and not value > 0:
@@ -274,9 +276,7 @@ class _Reader:
                               springs=springs, numerical=numerical, damping=damping, dt=dt, description=description,
                               mass_matrix=matrix, influence=None if all(v == 1.0 for v in iota) else tuple(iota),
                               source=self.file, static=static, instruments=instruments)
-        self.check_stable(structure)
-        self.check_damping(structure)
-        return structure
+        return structure  # Structure checks its stability and damping itself (check_stable, check_damping)
 
     def mass_matrix(self, table: dict, n: int) -> np.ndarray:
         rows = self.required("mass", table, "matrix")

@@ -59,6 +59,8 @@ def test_options_beside_a_ready_integrator_are_refused():
 
     with pytest.raises(ConfigError, match="j_max given beside a ready integrator"):
         hsio.simulate(s, ground, NumericalSite.of(s), integrator=ready, j_max=99)
+    with pytest.raises(ConfigError, match="alpha given beside a ready integrator"):
+        hsio.simulate(s, ground, NumericalSite.of(s), alpha=-0.1, integrator=ready)
     with pytest.raises(ConfigError, match="method given beside a ready integrator"):
         hsio.simulate(s, ground, NumericalSite.of(s), method="implicit_dc", integrator=ready)
     assert np.all(np.isfinite(hsio.simulate(s, ground, NumericalSite.of(s), integrator=ready).u))
@@ -87,8 +89,8 @@ def test_integrator_settings_outside_the_run_bounds_are_refused(options, says):
     (lambda V, G: hsio.open_site("validation"), "open_site: structure must be a hsio.Structure (hsio.load_structure("),
     (lambda V, G: hsio.make_integrator("validation"), "make_integrator: structure must be a hsio.Structure"),
     (lambda V, G: hsio.run_numerical("validation", G), "run_numerical: structure must be a hsio.Structure"),
-    (lambda V, G: hsio.simulate(V, G, None), "simulate: site must be one hsio.open_site opened"),
-    (lambda V, G: hsio.simulate(V, G, NumericalSite.of(V), integrator="alpha_os"), "integrator must be one make_integrator"),
+    (lambda V, G: hsio.simulate(V, G, None), "simulate: site must be a site from hsio.open_site"),
+    (lambda V, G: hsio.simulate(V, G, NumericalSite.of(V), integrator="alpha_os"), "integrator must be an integrator from make_integrator"),
     (lambda V, G: hsio.make_integrator(V, "mixed", rule={"K_f": 1.0}), "rule must be a hsio.integrators.SwitchingRule"),
 ])
 def test_arguments_of_the_wrong_kind_are_named(call, says):
@@ -115,3 +117,24 @@ def test_max_error_pct_takes_results_and_refuses_histories_that_are_not_finite()
 def test_a_url_setting_given_twice_is_refused_not_settled_by_order(url):
     with pytest.raises(ConfigError, match="given more than once"):
         hsio.open_site(hsio.load_structure("validation"), url)
+
+
+def test_a_refusal_before_any_motion_leaves_the_site_usable_from_rest():
+    s = hsio.load_structure("validation")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=s.dt)
+    with hsio.open_site(s, "emulator://") as site:
+        with pytest.raises(ConfigError, match="start must be 'rest' or 'present'"):
+            hsio.simulate(s, ground, site, start="bogus")
+        assert len(hsio.simulate(s, ground, site).t) == len(ground.accel_g)
+
+
+def test_recorder_names_that_differ_only_in_case_are_refused_and_leave_no_file(tmp_path):
+    from hsio.errors import RecordError
+    from hsio.recording import Recorder
+
+    with pytest.raises(RecordError, match="column names ignoring case"):
+        Recorder(tmp_path / "r.sqlite", ["a", "A"], ["C1"])
+    with pytest.raises(RecordError, match="column names ignoring case"):
+        Recorder(tmp_path / "r.sqlite", ["a"], ["C1", "c1"])
+    assert list(tmp_path.iterdir()) == []
+    Recorder(tmp_path / "r.sqlite", ["a"], ["C1"]).close()
