@@ -69,12 +69,13 @@ def main() -> None:
         for structure, label, record in CASES:
             for rate in RATES:
                 started = time.perf_counter()
-                off, e_off = one_run(tmp / "off", structure, record, rate, {"mode": "off"})
-                cals = calibration.calibrate(tmp / "off")
+                case = tmp / f"{structure}-{label.replace(' ', '_')}-TR{rate:g}"  # records are never overwritten
+                off, e_off = one_run(case / "off", structure, record, rate, {"mode": "off"})
+                cals = calibration.calibrate(case / "off")
                 fit = cals[0].fit  # one actuator type per structure: the first actuator's calibration
-                offline, e_offline = one_run(tmp / "offline", structure, record, rate,
+                offline, e_offline = one_run(case / "offline", structure, record, rate,
                                              {"mode": "offline", "a_mm_s": fit.a_mm_s, "b_s_mm": fit.b_s_mm})
-                online, e_online = one_run(tmp / "online", structure, record, rate, {"mode": "online"})
+                online, e_online = one_run(case / "online", structure, record, rate, {"mode": "online"})
                 half = len(e_off) // 2
                 wall = time.perf_counter() - started
                 print(f"{structure:<13}{label:<22}{rate:>6g}  {rms(e_off):8.4f}  {fit.a_mm_s:6.2f} {fit.lag_s * 1e3:5.1f}ms"

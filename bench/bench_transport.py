@@ -64,20 +64,19 @@ def step_time(url: str, cfg) -> tuple[float, float]:
                        keep_samples=False, hold_fraction=cfg["test"]["hold_fraction"])
     sub = ActuatorSite(loop)
     times = []
-    original = sub.restoring_force
+    original = sub.set_trial
 
-    def timed_force(u):
+    def timed_trial(commands, modes):  # one integration step of alpha-OS: one trial, sent and measured
         t = time.perf_counter()
-        r = original(u)
+        original(commands, modes)
         times.append(time.perf_counter() - t)
-        return r
 
-    sub.restoring_force = timed_force
+    sub.set_trial = timed_trial
     try:
         result = simulate(structure, ground, sub, "alpha_os", cfg["integrator"]["alpha"])
     finally:
         sub.close()
-    return float(np.median(times)), clock.ticks / max(result.steps, 1)
+    return float(np.median(times)), clock.ticks / max(len(result.t) - 1, 1)
 
 
 def main() -> None:
