@@ -289,3 +289,17 @@ def test_the_server_does_not_import_the_runner():
     assert runner.channel_names is structures.channel_names
     assert structures.channel_names(structures.get_structure("column_two_actuators")) == ["column.top_x",
                                                                                           "column.top_rot"]
+
+
+def test_a_trial_without_time_does_not_read_the_time_slot():
+    """sizeCtrl time = 0: slot 3n+1 carries nothing (here 9.0, or not a number) and is not taken as
+    the trial's time; with time it is."""
+    n = 2
+    frame = np.array([3.0, 1.0, 2.0, 0.1, 0.2, 0.01, 0.02, 9.0, 0.0])
+    assert p.Trial.from_frame(frame, n, "t").t == 9.0
+    untimed = p.Trial.from_frame(frame, n, "t", has_time=False)
+    assert np.isnan(untimed.t) and untimed.d.tolist() == [1.0, 2.0] and untimed.a.tolist() == [0.01, 0.02]
+    frame[7] = np.nan
+    assert np.isnan(p.Trial.from_frame(frame, n, "t", has_time=False).t)  # a NaN there is not refused either
+    with pytest.raises(p.ProtocolError, match="not finite"):
+        p.Trial.from_frame(frame, n, "t")

@@ -24,8 +24,9 @@ class Done(Exception):
 class ElementHandler:
     """Answers one connected element ``j`` of ``lab``; :meth:`serve` runs until it leaves."""
 
-    def __init__(self, lab: Lab, j: int, framer: p.Framer):
+    def __init__(self, lab: Lab, j: int, framer: p.Framer, has_time: bool = True):
         self.lab = lab
+        self.has_time = has_time  # the setup's sizeCtrl time: 0, the time slot carries nothing
         self.j = j
         self.name = lab.names[j]
         self.framer = framer
@@ -52,7 +53,7 @@ class ElementHandler:
     def answer(self, action: int, frame: np.ndarray, where: str):
         lab, j, n = self.lab, self.j, self.n
         if action == p.SET_TRIAL:
-            trial = p.Trial.from_frame(frame, n, where)
+            trial = p.Trial.from_frame(frame, n, where, self.has_time)
             lab.set_trial(j, trial)
             return None
         if action == p.COMMIT:

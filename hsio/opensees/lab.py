@@ -26,6 +26,7 @@ section 2).
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import replace
@@ -444,7 +445,9 @@ class Lab:
         columns = [np.concatenate([r[c] if r is not None else np.zeros(n) for r, n in zip(rows, self.n_basic)])
                    for c in range(1, 9)]
         u, v, a, target, answered, command, disp, force = columns
-        self.recorder.write_step(self.steps, float(next(r[0] for r in rows if r is not None)), u, v, a, target,
+        times = [r[0] for r in rows if r is not None and math.isfinite(r[0])]
+        t_step = float(times[0]) if times else self.steps * self.structure.dt  # elements without time: step x dt
+        self.recorder.write_step(self.steps, t_step, u, v, a, target,
                                  answered, [ControlMode.DISPLACEMENT.value] * self.n_channels, target, command, disp,
                                  force, samples)
         self.record_s += time.perf_counter() - t0
@@ -535,7 +538,7 @@ class Lab:
 
     def latest_time(self, j: int) -> float:
         trial = self.latest[j]
-        return trial.t if trial is not None else 0.0
+        return trial.t if trial is not None and math.isfinite(trial.t) else 0.0  # an element without time: 0
 
     def close(self) -> None:
         """End any session (actuators hold, record closed) and stop the worker."""

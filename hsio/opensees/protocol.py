@@ -117,12 +117,14 @@ class Trial:
     t: float
 
     @classmethod
-    def from_frame(cls, frame: np.ndarray, n: int, where: str) -> "Trial":
-        body = frame[1: 3 * n + 2]
+    def from_frame(cls, frame: np.ndarray, n: int, where: str, has_time: bool = True) -> "Trial":
+        """``has_time`` False (the setup's sizeCtrl time is 0): the time slot is not read, t is nan."""
+        body = frame[1: 3 * n + 1 + int(has_time)]
         if not np.all(np.isfinite(body)):
             raise ProtocolError(f"{where}: setTrialResponse carries a value that is not finite: "
                                 f"{np.round(body, 6).tolist()}")
-        return cls(body[0:n].copy(), body[n:2 * n].copy(), body[2 * n:3 * n].copy(), float(body[3 * n]))
+        t = float(body[3 * n]) if has_time else float("nan")
+        return cls(body[0:n].copy(), body[n:2 * n].copy(), body[2 * n:3 * n].copy(), t)
 
 
 def action_of(frame: np.ndarray, where: str) -> int:
