@@ -58,6 +58,7 @@ __all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_
 # The off values are the [integrator] defaults of a run configuration (hsio.config.DEFAULTS), under
 # the configuration's key names where they differ.
 _CONFIG_KEY = {"fallback_after": "fc_fallback_after", "fc_force_limit": "fc_force_limit_kN"}
+ALPHA = config_defaults["integrator"]["alpha"]  # the default of the alpha method (-0.05)
 _OFF = config_defaults["integrator"]  # anchor_dc, on by default, is the exception: is_off reads only False as off
 IMPLICIT_OPTIONS = {k: _OFF[_CONFIG_KEY.get(k, k)] for k in ("fc_blend", "anchor_dc", "blend_dc")}
 GUARDS = {k: _OFF[_CONFIG_KEY.get(k, k)] for k in ("fallback_after", "refractory_steps", "no_fc_at_reversal",
@@ -76,7 +77,7 @@ def is_off(key: str, value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and value == off
 
 
-def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float = -0.05, *,
+def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float = ALPHA, *,
                     correct_measured_displacement: bool = True, rule: SwitchingRule | None = None,
                     j_max: int = 3, tol_displacement: float = 0.02, tol_force: float = 0.05, **implicit):
     """The integration method ``method`` for ``structure`` (docs/method.md sections 2, 3 and 5).
@@ -145,7 +146,7 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
                           tol_force=tol_force, **implicit)
 
 
-def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alpha_os", alpha: float = -0.05,
+def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alpha_os", alpha: float = ALPHA,
                   control=None, **options) -> Result:
     """NS: the run with the specimen models in place of the actuators.
 
@@ -249,13 +250,20 @@ def check_test_settings(test_rate, hold_fraction, n_avg) -> None:
                           f"got {n_avg!r}")
 
 
+def dwell_periods(dt: float, test_rate: float, hold_fraction: float, rate_hz: float = CONTROLLER_RATE_HZ) -> int:
+    """The controller periods a step's measurement can average: those of its dwell (hold_fraction
+    > 0), or of the whole step (continuous ramps, or a dwell that rounds to nothing), counted as
+    the command generator counts them (:func:`hsio.command.step_samples`)."""
+    periods, dwell = step_samples(test_rate * dt, 1.0 / rate_hz, hold_fraction)
+    return dwell if dwell >= 1 else periods
+
+
 def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
                 rate_hz: float = CONTROLLER_RATE_HZ) -> None:
     """The measurement of a step averages its last ``n_avg`` controller periods: they must lie in
-    the step's dwell (hold_fraction > 0), or in the step (continuous ramps), never reach back into
-    the ramp or the step before (the command generator's own count, :func:`hsio.command.step_samples`)."""
+    the step's dwell (:func:`dwell_periods`), never reach back into the ramp or the step before."""
     periods, dwell = step_samples(test_rate * dt, 1.0 / rate_hz, hold_fraction)
-    limit = dwell if dwell >= 1 else periods  # a dwell that rounds to nothing: the step moves throughout
+    limit = dwell_periods(dt, test_rate, hold_fraction, rate_hz)
     if n_avg > limit:
         what = (f"the dwell of a step: {dwell} periods (TR {test_rate:g} x dt {dt:g} s x {rate_hz:g} Hz x "
                 f"hold_fraction {hold_fraction:g})" if dwell >= 1 else
@@ -360,7 +368,7 @@ def open_instruments(hardware: str, structure: Structure, elements, actuators, o
     return open_daq(url, structure.instruments, options.get("instrument_map"))
 
 
-def simulate(structure: Structure, ground: GroundMotion, site, method: str = "alpha_os", alpha: float = -0.05,
+def simulate(structure: Structure, ground: GroundMotion, site, method: str = "alpha_os", alpha: float = ALPHA,
              recorder: Recorder | None = None, progress=None, integrator=None, control=None, start: str = "rest",
              resume_state=None, **options) -> Result:
     """``method`` over the whole record against ``site``: HS on actuators (from :func:`open_site`),
@@ -381,7 +389,7 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         integrator = make_integrator(structure, method, alpha, **options)
     else:
         ignored = sorted(options) + (["method"] if method != "alpha_os" and method != getattr(integrator, "method", method)
-                                     else []) + (["alpha"] if alpha != -0.05 else [])
+                                     else []) + (["alpha"] if alpha != ALPHA else [])
         if ignored:
             raise ConfigError(f"simulate: {', '.join(ignored)} given beside a ready integrator, which they would not "
                               f"change; build the integrator with them (make_integrator), or leave them out")

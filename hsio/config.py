@@ -100,12 +100,12 @@ def from_dict(data: dict, source: str = "<dict>", replay: bool = False) -> RunCo
             if key not in DEFAULTS[name]:
                 raise ConfigError(f"{source}: unknown key {key!r} in [{name}]; known: {', '.join(DEFAULTS[name])}")
             tables[name][key] = _check_type(f"{source}: [{name}]", key, value, DEFAULTS[name][key])
-    _mixed_defaults(tables["integrator"], set(data.get("integrator") or {}))
+    given = {name: set(values) for name, values in data.items() if isinstance(values, dict)}
+    _mixed_defaults(tables["integrator"], given.get("integrator", set()))
     _check_ranges(tables, source)
     check_bounds(tables, source)
     if not replay:
         _check_unread(tables, source)
-    given = {name: set(values) for name, values in data.items() if isinstance(values, dict)}
     return RunConfig(tables, source, given)
 
 

@@ -18,8 +18,6 @@ import numpy as np
 import hsio
 from hsio import api, plots
 from hsio.compensation.stage import CompensationSettings, CompensationStage
-from hsio.clock import CONTROLLER_RATE_HZ
-from hsio.command import step_samples
 from hsio.config import BOUNDS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.emulators.servo import ServoConfig
@@ -302,8 +300,7 @@ def secant_n_avg(config: RunConfig, structure: Structure) -> int:
     test, n = config["test"], config["integrator"]["secant_n_avg"]
     if "secant_n_avg" in config.given.get("integrator", ()):
         return n
-    periods, dwell = step_samples(test["rate"] * structure.dt, 1.0 / CONTROLLER_RATE_HZ, test["hold_fraction"])
-    return min(n, dwell if dwell >= 1 else periods)
+    return min(n, api.dwell_periods(structure.dt, test["rate"], test["hold_fraction"]))
 
 
 def check_dwell(config: RunConfig, structure: Structure) -> None:
