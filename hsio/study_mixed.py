@@ -76,15 +76,16 @@ class Recipe:
 
 
 def check_ns(ns, structure: Structure) -> None:
-    """``ns`` is a :class:`hsio.result.Result` of ``structure``: its DOFs, its experimental
-    channels and its time step."""
+    """``ns`` is a :class:`hsio.result.Result` of ``structure``: its name, its DOFs, its
+    experimental channels and its time step (a look-alike with other elements, such as
+    structure_II beside structure_II_infill, differs by name)."""
     from hsio.result import Result
 
     if not isinstance(ns, Result):
         raise ConfigError(f"ns must be the Result of run_numerical(structure, ground), got {type(ns).__name__} {ns!r:.80}")
     mine = (tuple(structure.dof_names), tuple(structure.experimental_dofs))
     theirs = (tuple(ns.dof_names), tuple(ns.element_dofs))
-    if mine != theirs or np.shape(ns.u)[1:] != (structure.n_dof,) or not math.isclose(ns.dt, structure.dt):
+    if ns.structure != structure.name or mine != theirs or np.shape(ns.u)[1:] != (structure.n_dof,) or not math.isclose(ns.dt, structure.dt):
         raise ConfigError(f"ns is the NS of structure {ns.structure!r} (DOFs {list(ns.dof_names)}, experimental DOFs "
                           f"{list(ns.element_dofs)}, dt {ns.dt:g} s), not of structure {structure.name!r} (DOFs "
                           f"{list(mine[0])}, experimental DOFs {list(mine[1])}, dt {structure.dt:g} s)")

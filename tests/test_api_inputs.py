@@ -153,6 +153,11 @@ def test_make_method_checks_recipe_ns_and_its_structure():
     ns = run_numerical(other, synthetic_record(duration_s=0.2, dt=other.dt, seed=1))
     with pytest.raises(ConfigError, match=r"ns is the NS of structure 'validation' \(DOFs \['C1', 'C2'\]"):
         make_method(structure, "mixed", 0.0025, 0.002, ns=ns)
+    # same DOFs, channels and dt, another infill: its NS predicts nothing about this one's cracking
+    bare, infill = get_structure("structure_II"), get_structure("structure_II_infill")
+    ns_bare = run_numerical(bare, synthetic_record(duration_s=0.1, dt=bare.dt, seed=1))
+    with pytest.raises(ConfigError, match=r"ns is the NS of structure 'structure_II' .*not of structure 'structure_II_infill'"):
+        make_method(infill, "mixed", 0.025, 0.01, ns=ns_bare)
 
 
 def test_fc_vs_dc_refuses_no_theta():
