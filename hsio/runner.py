@@ -570,7 +570,6 @@ def implicit_summary(hs: Result) -> dict:
     fc_act = hs.force_control[1:]
     d_err = np.where(~fc_act, hs.targets[1:] - hs.measured_displacement[1:], np.nan)
     f_err = np.where(fc_act, hs.targets[1:] - hs.measured_force[1:], np.nan)
-    fc = hs.modes[1:] == "force"
 
     def rms(columns):
         return [float(np.sqrt(np.nanmean(c ** 2))) if np.isfinite(c).any() else 0.0 for c in columns.T]
@@ -581,7 +580,7 @@ def implicit_summary(hs: Result) -> dict:
         "method": hs.method,
         "switches": len(hs.switches),
         "switch_log": [s.as_dict() for s in hs.switches],
-        "fc_step_fraction": [float(x) for x in fc.mean(axis=0)] if len(fc) else [],
+        "fc_step_fraction": [float(x) for x in fc_act.mean(axis=0)] if len(fc_act) else [],  # per channel
         **({"test_time_s": round(hs.lab_time_s, 3)} if hs.lab_time_s is not None else {}),
         "iterations_per_step_mean": float(its.mean()) if its.size else 0.0,
         "iterations_per_step_max": int(its.max()) if its.size else 0,

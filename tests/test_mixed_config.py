@@ -396,3 +396,17 @@ def test_crossed_stiffness_thresholds_exit_2_before_the_actuators_open(tmp_path,
     cfg = tmp_path / "c.toml"
     checked = CliRunner().invoke(main, ["check", str(cfg)])
     assert checked.exit_code == 2 and says in checked.output
+
+
+def test_fc_share_is_given_per_actuator_channel_not_per_dof():
+    """structure_II_infill has three DOFs (BF, IF, the numerical BF_mirror) and two actuators:
+    the share of steps in FC is one number per actuator, beside the per-channel tracking RMS."""
+    from hsio.api import run_numerical
+    from hsio.ground_motion import synthetic_record
+    from hsio.runner import implicit_summary
+    from hsio.structures import get_structure
+
+    structure = get_structure("structure_II_infill")
+    ns = run_numerical(structure, synthetic_record(duration_s=0.05, dt=structure.dt, seed=1), "mixed")
+    summary = implicit_summary(ns)
+    assert len(summary["fc_step_fraction"]) == len(summary["rms_tracking_error_mm"]) == 2
