@@ -181,3 +181,35 @@ def test_opensees_analysis_that_fails_and_retries_keeps_its_committed_steps_and_
     flagged = [s for s, f in zip(run.steps["step"].tolist(), run.steps["flags"].tolist()) if f]
     assert flagged == [3, 7] and set(run.steps["flags"].tolist()) == {"", "retried"}
     assert run.summary["retried_steps"] == 2 and run.summary["abandoned_trials"] >= 4
+
+
+def test_an_element_that_left_is_recorded_as_its_actuator_stands(tmp_path):
+    """C2's client says DIE after step 2 while C1's goes on: C2's actuator holds 2 mm, and the
+    rows of steps 3 and 4 say so (target, measured); C2 has no model values there (NULL)."""
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 5.0\n" + QUIET)
+    with serving(config) as server:
+        a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
+        a.setup()
+        b.setup()
+        for k in (1, 2):
+            for c in (a, b):
+                c.send(p.SET_TRIAL, [1.0 * k], t=0.01 * k)
+                c.ask(p.GET_FORCE)
+            for c in (a, b):
+                c.send(p.COMMIT)
+        b.send(p.DIE)
+        b.close()
+        assert wait_for(lambda: server.lab._call(lambda: server.lab.active == {0}))
+        for k in (3, 4):
+            a.step(1.0 * k, 0.01 * k)
+        a.send(p.DIE)
+        a.close()
+        assert wait_for(lambda: session_over(server))
+    run = Run(tmp_path / "records" / "run.sqlite")
+    assert run.steps["time_s"].tolist() == [0.01, 0.02, 0.03, 0.04]
+    assert run.actuator("target", "C2").tolist() == [1.0, 2.0, 2.0, 2.0]
+    np.testing.assert_allclose(run.actuator("disp", "C2"), [1.0, 2.0, 2.0, 2.0], atol=0.01)  # quiet sensors
+    np.testing.assert_allclose(run.actuator("force", "C2"), 0.536 * np.array([1.0, 2.0, 2.0, 2.0]), rtol=0.01)
+    u2 = run.dof("u", "C2")
+    assert u2[:2].tolist() == [1.0, 2.0] and np.isnan(u2[2:]).all() and np.isnan(run.dof("r", "C2")[2:]).all()
+    assert run.actuator("target", "C1").tolist() == [1.0, 2.0, 3.0, 4.0]

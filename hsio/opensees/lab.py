@@ -476,15 +476,17 @@ class Lab:
             self._stepped.notify_all()
         if all(r is None for r in rows):
             return
+        for k, r in enumerate(rows):  # an element that left (or did not move in the step): as its actuators stand
+            if r is None:
+                rows[k] = self._standing(site, k)
         samples = site.take_samples()
         site.commit()
         self.steps += 1
         self.trials_recorded = self.trials
         t0 = time.perf_counter()
-        columns = [np.concatenate([r[c] if r is not None else np.zeros(n) for r, n in zip(rows, self.n_basic)])
-                   for c in range(1, 9)]
+        columns = [np.concatenate([r[c] for r in rows]) for c in range(1, 9)]
         u, v, a, target, answered, command, disp, force = columns
-        times = [r[0] for r in rows if r is not None and math.isfinite(r[0])]
+        times = [r[0] for r in rows if math.isfinite(r[0])]
         t_step = float(times[0]) if times else self.steps * self.structure.dt  # elements without time: step x dt
         events = self._write_events(site, self.steps)
         lab_time = self._lab_time(site)
@@ -507,6 +509,21 @@ class Lab:
                                  force, samples, late_steps=getattr(site, "late_steps", 0),
                                  flags=sorted({e["kind"] for e in events}))
         self.record_s += time.perf_counter() - t0
+
+    def _standing(self, site, j: int) -> tuple:
+        """A step's row for element ``j`` without a committed trial in it (it left the session, or
+        committed without moving): no model values (time, u, v, a and the force answered are nan:
+        NULL in the record), and its actuators as they stand: the target they hold, their last
+        command and measurement."""
+        b = self.blocks[j]
+        blank = np.full(self.n_basic[j], np.nan)
+        try:
+            daq = site.get_daq()
+            command, disp, force = daq.commands[b].copy(), daq.u[b].copy(), daq.R[b].copy()
+        except RuntimeError:  # nothing moved yet in this session
+            command, (disp, force) = blank, (x[b].copy() for x in site.committed()[:2])
+        target = self.imposed[b].copy() if self.has_imposed else site.committed()[0][b].copy()
+        return (float("nan"), blank, blank, blank, target, blank, command, disp, force)
 
     def _write_events(self, site, step: int) -> list[dict]:
         """The safety layer's warnings and trips since the last call, into the record with ``step``
