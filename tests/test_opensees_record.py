@@ -11,6 +11,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 from hsio.opensees import protocol as p
 from hsio.recording import Run
@@ -213,3 +214,22 @@ def test_an_element_that_left_is_recorded_as_its_actuator_stands(tmp_path):
     u2 = run.dof("u", "C2")
     assert u2[:2].tolist() == [1.0, 2.0] and np.isnan(u2[2:]).all() and np.isnan(run.dof("r", "C2")[2:]).all()
     assert run.actuator("target", "C1").tolist() == [1.0, 2.0, 3.0, 4.0]
+
+
+def test_a_force_asked_after_the_commit_moves_nothing(tmp_path):
+    """OpenSees asks a genericClient for its force after commitState when the script reads it
+    (eleForce, an element recorder): the committed step's force is answered, the actuators do
+    not move again, and no motion is left uncommitted at the end."""
+    srv, server = serve(tmp_path)
+    try:
+        c = RawClient(server.ports[0])
+        c.setup()
+        for k in (1, 2, 3):
+            force = c.step(0.5 * k, 0.01 * k)
+            assert c.ask(p.GET_FORCE)[0] == pytest.approx(force, rel=1e-9)
+            assert server.lab.trials == k  # one motion per step
+        run = finish(server, c)
+    finally:
+        srv.__exit__(None, None, None)
+    assert run.summary["uncommitted_trials"] == 0 and run.summary["steps"] == 3
+    assert not any("never committed" in line for line in server.lines)

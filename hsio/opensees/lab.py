@@ -383,6 +383,8 @@ class Lab:
         trial = self.latest[j]
         if trial is None:
             return site.committed()[1][b].copy()
+        if trial is self.committed_trial[j]:  # asked again after the commit (eleForce, a recorder): nothing moves
+            return self.answered[b].copy()
         if not self.moved_this_step[j] or np.any(self.to_mm(j, trial.d) != self.imposed[b]):
             self._impose(site)
         daq = site.get_daq()
