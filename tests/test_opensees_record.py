@@ -185,8 +185,9 @@ def test_opensees_analysis_that_fails_and_retries_keeps_its_committed_steps_and_
 
 
 def test_an_element_that_left_is_recorded_as_its_actuator_stands(tmp_path):
-    """C2's client says DIE after step 2 while C1's goes on: C2's actuator holds 2 mm, and the
-    rows of steps 3 and 4 say so (target, measured); C2 has no model values there (NULL)."""
+    """C2's client vanishes (no DIE) after step 2 while C1's goes on: C2's actuator keeps 2 mm,
+    and the rows of steps 3 and 4 say so (target, measured); C2 has no model values there (NULL).
+    Its leaving is an event; the session, ended by C1's DIE, did not stop."""
     config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 5.0\n" + QUIET)
     with serving(config) as server:
         a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
@@ -198,7 +199,6 @@ def test_an_element_that_left_is_recorded_as_its_actuator_stands(tmp_path):
                 c.ask(p.GET_FORCE)
             for c in (a, b):
                 c.send(p.COMMIT)
-        b.send(p.DIE)
         b.close()
         assert wait_for(lambda: server.lab._call(lambda: server.lab.active == {0}))
         for k in (3, 4):
@@ -214,6 +214,8 @@ def test_an_element_that_left_is_recorded_as_its_actuator_stands(tmp_path):
     u2 = run.dof("u", "C2")
     assert u2[:2].tolist() == [1.0, 2.0] and np.isnan(u2[2:]).all() and np.isnan(run.dof("r", "C2")[2:]).all()
     assert run.actuator("target", "C1").tolist() == [1.0, 2.0, 3.0, 4.0]
+    assert [(e["kind"], e["step"], e["actuator"]) for e in run.events()] == [("left", 3, "C2")]
+    assert "closed the connection" in run.events()[0]["message"] and run.summary["stopped"] == ""
 
 
 def test_a_force_asked_after_the_commit_moves_nothing(tmp_path):

@@ -179,16 +179,21 @@ class Lab:
 
     def _detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: with DIE); the last one ends the session: actuators
-        hold, record closed."""
+        hold, record closed. One that leaves otherwise while others go on is an event (``left``)."""
         self.active.discard(j)
         if not clean:
             self.clean_end = False
         self.committed_flags[j] = False  # its snapshot, if it committed this step, stays in the step's row
         self.log(f"element {self.names[j]}: {reason}")
         if not self.active:
-            self._close(reason)
-        elif self.site is not None and not self.failed:
-            self._record_if_all_committed(self.site)
+            self._close(reason, clean)
+        elif self.site is not None:
+            if not clean and self.recorder is not None:
+                self.recorder.write_event(self._lab_time(self.site), self.steps + 1, "left", self.names[j],
+                                          f"element {self.names[j]} left the session ({reason}); its actuators "
+                                          f"keep their last target while the other elements go on")
+            if not self.failed:
+                self._record_if_all_committed(self.site)
         with self._stepped:
             self._stepped.notify_all()
 
@@ -276,7 +281,9 @@ class Lab:
             self.failed = f"ramping the static preloads off: {exc}"
             self.log(f"session {self.sessions}: {self.failed}; they stay held")
 
-    def _close(self, reason: str) -> None:
+    def _close(self, reason: str, clean: bool = False) -> None:
+        """End the session (``clean``: its last element ended with DIE and nothing failed, else it
+        stopped: the record gets the hold and the stop as events)."""
         self._release_preloads(reason)
         if self.site is not None and self.recorder is not None:
             self.recorder.write_tables(self.site.record_tables())
@@ -296,7 +303,7 @@ class Lab:
             if self.recorder is not None:  # as `hsio run` records a stop: what the safety layer saw, the hold
                 self._write_events(self.site, self.steps + 1)
                 lab_time = self._lab_time(self.site)
-                stopped = bool(self.failed) or not self.clean_end
+                stopped = bool(self.failed) or not clean
                 if stopped or not confirmed:
                     self.recorder.write_event(lab_time, self.steps + 1, "hold", "", self.hold_message, commit=False)
                 if stopped:
