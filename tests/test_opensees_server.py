@@ -303,3 +303,33 @@ def test_a_trial_without_time_does_not_read_the_time_slot():
     assert np.isnan(p.Trial.from_frame(frame, n, "t", has_time=False).t)  # a NaN there is not refused either
     with pytest.raises(p.ProtocolError, match="not finite"):
         p.Trial.from_frame(frame, n, "t")
+
+
+def test_a_trial_without_velocity_or_acceleration_is_read_where_its_signals_are(server):
+    """sizeCtrl vel = accel = 0 (an OpenFresco-style element sending displacements only): the
+    trial is ``d, t`` from slot 1; the time is the next slot, not slot 3n+1."""
+    c = RawClient(server.ports[0])
+    c.sock.sendall(p.Setup((1, 0, 0, 0, 1), (0, 0, 0, 1, 0), 256).encode())
+    for k in (1, 2):
+        c.sock.sendall(np.pad([3.0, 0.5 * k, 0.01 * k], (0, 253)).astype("<f8").tobytes())
+        assert c.ask(p.GET_TIME)[0] == 0.01 * k
+        assert 0.613 * 0.5 * k == pytest.approx(c.ask(p.GET_FORCE)[0], rel=1e-9)  # quiet sensors, corrected
+        c.send(p.COMMIT)
+    c.send(p.DIE)
+    c.close()
+    assert wait_for(lambda: session_over(server))
+    run = Run(records(server)[-1])
+    assert run.steps["time_s"].tolist() == [0.01, 0.02]
+    assert run.dof("u", "C1").tolist() == [0.5, 1.0] and run.dof("v", "C1").tolist() == [0.0, 0.0]
+    frame = np.array([3.0, 1.5, 0.07, 0.0, 0.0])
+    trial = p.Trial.from_frame(frame, 1, "t", has_vel=False, has_accel=False)
+    assert trial.d.tolist() == [1.5] and trial.t == 0.07 and trial.v.size == trial.a.size == 0
+
+
+def test_an_element_sending_trial_forces_is_refused(server):
+    c = RawClient(server.ports[0])
+    c.sock.sendall(p.Setup((1, 1, 1, 1, 1), (0, 0, 0, 1, 0), 256).encode())
+    assert c.closed_by_server()
+    c.close()
+    assert any("sizeCtrl force = 1" in line and "displacements only" in line for line in server.lines)
+    assert session_over(server)

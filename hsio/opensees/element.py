@@ -24,9 +24,10 @@ class Done(Exception):
 class ElementHandler:
     """Answers one connected element ``j`` of ``lab``; :meth:`serve` runs until it leaves."""
 
-    def __init__(self, lab: Lab, j: int, framer: p.Framer, has_time: bool = True):
+    def __init__(self, lab: Lab, j: int, framer: p.Framer, ctrl=(1, 1, 1, 0, 1)):
         self.lab = lab
-        self.has_time = has_time  # the setup's sizeCtrl time: 0, the time slot carries nothing
+        # which signals a trial carries (the setup's sizeCtrl; a signal of size 0 takes no slot)
+        self.has_vel, self.has_accel, self.has_time = bool(ctrl[1]), bool(ctrl[2]), bool(ctrl[4])
         self.j = j
         self.name = lab.names[j]
         self.framer = framer
@@ -53,7 +54,7 @@ class ElementHandler:
     def answer(self, action: int, frame: np.ndarray, where: str):
         lab, j, n = self.lab, self.j, self.n
         if action == p.SET_TRIAL:
-            trial = p.Trial.from_frame(frame, n, where, self.has_time)
+            trial = p.Trial.from_frame(frame, n, where, self.has_time, self.has_vel, self.has_accel)
             lab.set_trial(j, trial)
             return None
         if action == p.COMMIT:

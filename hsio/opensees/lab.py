@@ -22,6 +22,14 @@ asked for (getForce), once per step unless the trial displacement changes within
 AlphaOS sends the predicted displacement twice per step (before and after its corrector, with
 corrected velocities); the specimen moves once, as in `hsio run`'s alpha-OS (docs/method.md
 section 2).
+
+The record says what the model did, as the model said it: a step's time is the committed trial's
+time as the element sent it (a static analysis sends its pseudo-time, and a model may set its
+clock back, e.g. ``loadConst -time 0``: such a step is flagged ``time_back``). OpenSees cannot
+revert a genericClient: when an analysis fails to converge it sends the last committed trial
+again and tries the step anew; the step it then commits is flagged ``retried``, with the trial
+motions of the abandoned attempts (which the specimen went through) counted in its event. The
+safety layer's warnings and trips go to the ``events`` table with their step, as in `hsio run`.
 """
 
 from __future__ import annotations
@@ -39,7 +47,7 @@ from hsio import api
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
-from hsio.errors import ConfigError, HsioError
+from hsio.errors import ConfigError, HsioError, LimitError
 from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
@@ -150,6 +158,11 @@ class Lab:
         self.steps = 0
         self.trials = 0  # motions of the actuators, committed or not
         self.trials_recorded = 0  # self.trials when the last step was recorded
+        self.committed_trial: list[Trial | None] = [None] * n  # per element, its trial at its last commit
+        self.abandoned = 0  # motions of this step's attempts the analysis went back from (0: none)
+        self.abandoned_total = 0
+        self.retried_steps = 0
+        self.last_time: float | None = None  # the time of the last recorded step
         self.failed = ""
         self.clean_end = True  # every element that left said DIE (the preloads may ramp off)
         self.site_s = 0.0
@@ -166,16 +179,21 @@ class Lab:
 
     def _detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: with DIE); the last one ends the session: actuators
-        hold, record closed."""
+        hold, record closed. One that leaves otherwise while others go on is an event (``left``)."""
         self.active.discard(j)
         if not clean:
             self.clean_end = False
         self.committed_flags[j] = False  # its snapshot, if it committed this step, stays in the step's row
         self.log(f"element {self.names[j]}: {reason}")
         if not self.active:
-            self._close(reason)
-        elif self.site is not None and not self.failed:
-            self._record_if_all_committed(self.site)
+            self._close(reason, clean)
+        elif self.site is not None:
+            if not clean and self.recorder is not None:
+                self.recorder.write_event(self._lab_time(self.site), self.steps + 1, "left", self.names[j],
+                                          f"element {self.names[j]} left the session ({reason}); its actuators "
+                                          f"keep their last target while the other elements go on")
+            if not self.failed:
+                self._record_if_all_committed(self.site)
         with self._stepped:
             self._stepped.notify_all()
 
@@ -263,7 +281,9 @@ class Lab:
             self.failed = f"ramping the static preloads off: {exc}"
             self.log(f"session {self.sessions}: {self.failed}; they stay held")
 
-    def _close(self, reason: str) -> None:
+    def _close(self, reason: str, clean: bool = False) -> None:
+        """End the session (``clean``: its last element ended with DIE and nothing failed, else it
+        stopped: the record gets the hold and the stop as events)."""
         self._release_preloads(reason)
         if self.site is not None and self.recorder is not None:
             self.recorder.write_tables(self.site.record_tables())
@@ -272,12 +292,22 @@ class Lab:
             static_error = {s.name: float(e) for s, e in zip(self.site.static, self.site.static_hold_error())
                             if np.isfinite(e)}
         if self.site is not None:
+            confirmed = False
             try:
                 report = self.site.hold()  # every actuator holds; the hold is read back
                 self.hold_message = report.message if report is not None else "no actuators to hold"
+                confirmed = report is None or report.confirmed
             except Exception as exc:
                 self.hold_message = f"the hold could not be confirmed ({exc})"
             self.log(f"session {self.sessions}: {self.hold_message}")
+            if self.recorder is not None:  # as `hsio run` records a stop: what the safety layer saw, the hold
+                self._write_events(self.site, self.steps + 1)
+                lab_time = self._lab_time(self.site)
+                stopped = bool(self.failed) or not clean
+                if stopped or not confirmed:
+                    self.recorder.write_event(lab_time, self.steps + 1, "hold", "", self.hold_message, commit=False)
+                if stopped:
+                    self.recorder.write_event(lab_time, self.steps + 1, "stop", "", self.failed or reason, commit=False)
             try:
                 self.site.close()  # every actuator holds, then is released
             except Exception as exc:  # closing must not stop the server
@@ -292,6 +322,9 @@ class Lab:
             wall = time.perf_counter() - self.started
             self.recorder.write_summary({"steps": self.steps, "elements": self.names, "end": reason,
                                          "stopped": self.failed, "uncommitted_trials": uncommitted,
+                                         "retried_steps": self.retried_steps,
+                                         "abandoned_trials": self.abandoned_total,
+                                         "final_hold": self.hold_message,
                                          "wall_time_s": round(wall, 3),
                                          "site_time_s": round(self.site_s, 3),
                                          "record_time_s": round(self.record_s, 3),
@@ -357,6 +390,8 @@ class Lab:
         trial = self.latest[j]
         if trial is None:
             return site.committed()[1][b].copy()
+        if trial is self.committed_trial[j]:  # asked again after the commit (eleForce, a recorder): nothing moves
+            return self.answered[b].copy()
         if not self.moved_this_step[j] or np.any(self.to_mm(j, trial.d) != self.imposed[b]):
             self._impose(site)
         daq = site.get_daq()
@@ -379,7 +414,13 @@ class Lab:
         for actuator, value in zip(site.loop.actuators, strokes):  # refused before anything moves
             actuator.limits.check(ControlMode.DISPLACEMENT, float(value), f"actuator {actuator.name!r} trial")
         t0 = time.perf_counter()
-        site.set_trial(targets, [ControlMode.DISPLACEMENT] * self.n_channels)
+        try:
+            site.set_trial(targets, [ControlMode.DISPLACEMENT] * self.n_channels)
+        except LimitError:  # refused before it was sent: nothing moved
+            raise
+        except BaseException:  # stopped on the way (an interlock): the specimen went part of it
+            self.trials += 1
+            raise
         self.site_s += time.perf_counter() - t0
         self.trials += 1
         self.imposed = targets
@@ -423,7 +464,14 @@ class Lab:
                                  daq.commands[b].copy(), daq.u[b].copy(), daq.R[b].copy())
         self.committed_flags[j] = True
         self.moved_this_step[j] = False
+        self.committed_trial[j] = self.latest[j]
         self._record_if_all_committed(site)
+
+    def _went_back(self, j: int) -> None:
+        """Element ``j`` was sent its committed trial again after the actuators moved in this step:
+        the analysis abandoned the attempt (it failed to converge) and tries the step again. The
+        motions so far are the abandoned ones; the step committed next is flagged ``retried``."""
+        self.abandoned = max(self.abandoned, self.trials - self.trials_recorded)
 
     def _record_if_all_committed(self, site) -> None:
         """Once every connected element has committed, the step is one row of the record; the
@@ -437,20 +485,76 @@ class Lab:
             self._stepped.notify_all()
         if all(r is None for r in rows):
             return
+        for k, r in enumerate(rows):  # an element that left (or did not move in the step): as its actuators stand
+            if r is None:
+                rows[k] = self._standing(site, k)
         samples = site.take_samples()
         site.commit()
         self.steps += 1
         self.trials_recorded = self.trials
         t0 = time.perf_counter()
-        columns = [np.concatenate([r[c] if r is not None else np.zeros(n) for r, n in zip(rows, self.n_basic)])
-                   for c in range(1, 9)]
+        columns = [np.concatenate([r[c] for r in rows]) for c in range(1, 9)]
         u, v, a, target, answered, command, disp, force = columns
-        times = [r[0] for r in rows if r is not None and math.isfinite(r[0])]
+        times = [r[0] for r in rows if math.isfinite(r[0])]
         t_step = float(times[0]) if times else self.steps * self.structure.dt  # elements without time: step x dt
+        events = self._write_events(site, self.steps)
+        lab_time = self._lab_time(site)
+        if self.abandoned:
+            self.retried_steps += 1
+            self.abandoned_total += self.abandoned
+            note = (f"step {self.steps} (t = {t_step:g} s) was committed after the analysis went back to step "
+                    f"{self.steps - 1} and tried again: {self.abandoned} trial motion(s) of the actuators before it "
+                    f"were abandoned (the specimen went through them; they are no step of the record)")
+            events.append(self._note(lab_time, "retried", note))
+            self.log(f"session {self.sessions}: {note}")
+            self.abandoned = 0
+        if self.last_time is not None and not t_step > self.last_time:
+            events.append(self._note(lab_time, "time_back", f"step {self.steps}: the model's time {t_step:g} s is not "
+                                     f"after the previous step's {self.last_time:g} s; recorded as the model sent it "
+                                     f"(a static analysis' pseudo-time, or a clock set back, e.g. loadConst -time)"))
+        self.last_time = t_step
         self.recorder.write_step(self.steps, t_step, u, v, a, target,
                                  answered, [ControlMode.DISPLACEMENT.value] * self.n_channels, target, command, disp,
-                                 force, samples)
+                                 force, samples, late_steps=getattr(site, "late_steps", 0),
+                                 flags=sorted({e["kind"] for e in events}))
         self.record_s += time.perf_counter() - t0
+
+    def _standing(self, site, j: int) -> tuple:
+        """A step's row for element ``j`` without a committed trial in it (it left the session, or
+        committed without moving): no model values (time, u, v, a and the force answered are nan:
+        NULL in the record), and its actuators as they stand: the target they hold, their last
+        command and measurement."""
+        b = self.blocks[j]
+        blank = np.full(self.n_basic[j], np.nan)
+        try:
+            daq = site.get_daq()
+            command, disp, force = daq.commands[b].copy(), daq.u[b].copy(), daq.R[b].copy()
+        except RuntimeError:  # nothing moved yet in this session
+            command, (disp, force) = blank, (x[b].copy() for x in site.committed()[:2])
+        target = self.imposed[b].copy() if self.has_imposed else site.committed()[0][b].copy()
+        return (float("nan"), blank, blank, blank, target, blank, command, disp, force)
+
+    def _write_events(self, site, step: int) -> list[dict]:
+        """The safety layer's warnings and trips since the last call, into the record with ``step``
+        (committed with the step's row) and the log."""
+        take = getattr(site, "take_events", None)
+        events = take() if take is not None else []
+        for e in events:
+            self.recorder.write_event(e["time_s"], step, e["kind"], e["actuator"], e["message"], commit=False)
+            self.log(f"session {self.sessions}, step {step}: {e['kind']}: {e['actuator']}: {e['message']}")
+        return events
+
+    def _note(self, lab_time: float | None, kind: str, message: str) -> dict:
+        """An event of the server itself (``retried``, ``time_back``), with the step being written."""
+        self.recorder.write_event(lab_time, self.steps, kind, "", message, commit=False)
+        return {"kind": kind}
+
+    @staticmethod
+    def _lab_time(site) -> float | None:
+        try:
+            return float(site.lab_time_s)
+        except Exception:
+            return None
 
     def _stop(self) -> None:
         if self.active:
@@ -490,7 +594,13 @@ class Lab:
 
     def set_trial(self, j: int, trial: Trial) -> None:
         """Store element ``j``'s trial (nothing moves until a force is asked for); no worker hop:
-        one reference is replaced, and :meth:`_impose` works on a copy of the list."""
+        one reference is replaced, and :meth:`_impose` works on a copy of the list. A trial equal to
+        the element's last committed one (displacement and time) after the actuators moved in this
+        step is OpenSees going back after a failed attempt: noted (:meth:`_went_back`)."""
+        committed = self.committed_trial[j]
+        if (committed is not None and self.trials > self.trials_recorded and trial.t == committed.t
+                and np.array_equal(trial.d, committed.d)):
+            self._call(self._went_back, j)
         self.latest[j] = trial
 
     def force(self, j: int) -> np.ndarray:

@@ -95,9 +95,12 @@ class Setup:
                     raise ProtocolError(f"{where}: {label} {name} = {size}, expected 0 or {n_expected}")
             if sizes[4] not in (0, 1):
                 raise ProtocolError(f"{where}: {label} time = {sizes[4]}, expected 0 or 1")
+        if self.ctrl[3]:
+            raise ProtocolError(f"{where}: sizeCtrl force = {self.ctrl[3]}: the element sends trial forces, and this "
+                                f"server imposes displacements only (sizeCtrl force must be 0)")
         if self.daq[3] != n_expected:
             raise ProtocolError(f"{where}: sizeDaq force = {self.daq[3]}, expected {n_expected} (the element's forces)")
-        need = max(1 + 3 * n_expected + 1, n_expected * n_expected)
+        need = max(1 + sum(self.ctrl), n_expected * n_expected)
         if not need <= self.data_size <= MAX_DATA_SIZE:
             raise ProtocolError(f"{where}: dataSize = {self.data_size} doubles, expected {need} to {MAX_DATA_SIZE}")
 
@@ -112,19 +115,25 @@ class Trial:
     """Slots 1.. of a setTrialResponse: displacement, velocity, acceleration (model units), time."""
 
     d: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
+    v: np.ndarray  # empty when the element sends no velocity (sizeCtrl vel = 0)
+    a: np.ndarray  # empty when it sends no acceleration
     t: float
 
     @classmethod
-    def from_frame(cls, frame: np.ndarray, n: int, where: str, has_time: bool = True) -> "Trial":
-        """``has_time`` False (the setup's sizeCtrl time is 0): the time slot is not read, t is nan."""
-        body = frame[1: 3 * n + 1 + int(has_time)]
+    def from_frame(cls, frame: np.ndarray, n: int, where: str, has_time: bool = True, has_vel: bool = True,
+                   has_accel: bool = True) -> "Trial":
+        """The signals follow one another from slot 1, each present only when its size in the setup's
+        sizeCtrl is not 0: ``d`` (n), then ``v`` (n), ``a`` (n) and ``t`` (1). ``has_time`` False: no
+        time is read, t is nan; ``has_vel``/``has_accel`` False: v/a are empty."""
+        sizes = (n, n * has_vel, n * has_accel, int(has_time))
+        body = frame[1: 1 + sum(sizes)]
         if not np.all(np.isfinite(body)):
             raise ProtocolError(f"{where}: setTrialResponse carries a value that is not finite: "
                                 f"{np.round(body, 6).tolist()}")
-        t = float(body[3 * n]) if has_time else float("nan")
-        return cls(body[0:n].copy(), body[n:2 * n].copy(), body[2 * n:3 * n].copy(), t)
+        ends = np.cumsum(sizes)
+        d, v, a = (body[end - size: end].copy() for end, size in zip(ends[:3], sizes[:3]))
+        t = float(body[ends[3] - 1]) if has_time else float("nan")
+        return cls(d, v, a, t)
 
 
 def action_of(frame: np.ndarray, where: str) -> int:

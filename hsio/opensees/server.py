@@ -129,7 +129,7 @@ class OpenSeesServer:
                 self.log(f"{who}: cannot open the actuators: {_describe(exc)}")
                 return
             self.log(f"{who}: connected (dataSize {setup.data_size})")
-            handler = ElementHandler(self.lab, j, p.Framer(conn, setup.data_size), has_time=bool(setup.ctrl[4]))
+            handler = ElementHandler(self.lab, j, p.Framer(conn, setup.data_size), ctrl=setup.ctrl)
             reason = "left"
             try:
                 reason = handler.serve()

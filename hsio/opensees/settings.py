@@ -2,11 +2,11 @@
 
     [opensees]
     elements = ["C1"]          # experimental elements of [structure] this server serves
-    length_factor = 1.0        # mm per length unit of the OpenSees model (1000 for metres)
-    force_factor = 1.0         # kN per force unit of the OpenSees model (1 for kN, 0.001 for N)
+    length_factor = 1.0        # mm per length unit of the OpenSees model (1000 for metres), 1e-6 to 1e6
+    force_factor = 1.0         # kN per force unit of the OpenSees model (1 for kN, 0.001 for N), idem
     stiffness = "initial"      # getTangentStiff: "initial" (K^EI) or "secant" (estimated per step)
     force_correction = true    # getForce: measured force + K^EI (target - measured displacement)
-    timeout_s = 60.0           # a silent element is disconnected after this long
+    timeout_s = 60.0           # a silent element is disconnected after this long (at most 86400 s)
     mass = {}                  # per element, kN s^2/mm, answered to getMass (default 0): a number
                                # (times the identity) or a matrix over its basic DOFs
     damping = {}               # per element, kN s/mm, answered to getDamp (default 0): idem
@@ -25,6 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from hsio.errors import ConfigError
+
+# Bounds: any unit system of a model lies well within FACTOR_RANGE (mm per km is 1e6, kN per
+# N 1e-3), and a silence of more than a day is no session; beyond MAX_TIMEOUT_S a socket's
+# timeout would not even fit the platform's time type.
+FACTOR_RANGE = (1e-6, 1e6)
+MAX_TIMEOUT_S = 86400.0
 
 KEYS = ("elements", "length_factor", "force_factor", "stiffness", "force_correction", "timeout_s", "mass",
         "damping", "out")
@@ -52,6 +58,13 @@ def _number(where: str, key: str, value, positive: bool = True) -> float:
     if not positive and value < 0:
         raise ConfigError(f"{where}: {key} must not be negative, got {value!r}")
     return float(value)
+
+
+def _bounded(where: str, key: str, value, low: float, high: float) -> float:
+    value = _number(where, key, value)
+    if not low <= value <= high:
+        raise ConfigError(f"{where}: {key} must be between {low:g} and {high:g}, got {value!r}")
+    return value
 
 
 def _matrix(where: str, key: str, value) -> tuple[tuple[float, ...], ...]:
@@ -117,10 +130,10 @@ def parse(table, source: str) -> OpenSeesSettings:
         raise ConfigError(f"{where}: out must be a folder name, got {out!r}")
     return OpenSeesSettings(
         elements=tuple(elements),
-        length_factor=_number(where, "length_factor", table.get("length_factor", 1.0)),
-        force_factor=_number(where, "force_factor", table.get("force_factor", 1.0)),
+        length_factor=_bounded(where, "length_factor", table.get("length_factor", 1.0), *FACTOR_RANGE),
+        force_factor=_bounded(where, "force_factor", table.get("force_factor", 1.0), *FACTOR_RANGE),
         stiffness=stiffness, force_correction=correction,
-        timeout_s=_number(where, "timeout_s", table.get("timeout_s", 60.0)),
+        timeout_s=_bounded(where, "timeout_s", table.get("timeout_s", 60.0), 0.0, MAX_TIMEOUT_S),
         mass=_per_element(where, "mass", table.get("mass", {}), elements),
         damping=_per_element(where, "damping", table.get("damping", {}), elements),
         out=out,
