@@ -232,3 +232,19 @@ def test_setup_message_round_trip_and_column_major_matrices():
     assert s == p.Setup.decode(s.encode()) and s.encode() == struct.pack("<11i", 2, 2, 2, 0, 1, 0, 0, 0, 2, 0, 256)
     s.check(2, "here")
     assert p.matrix_payload(np.array([[1.0, 2.0], [3.0, 4.0]])).tolist() == [1.0, 3.0, 2.0, 4.0]
+
+
+def test_settings_a_server_does_not_read_are_named(tmp_path):
+    """A server configuration copied from a run's: its record, integrator, dry run, plots and
+    ledger are never read (OpenSees sends and integrates the motion), and the server names them."""
+    from hsio.opensees.settings import split_config, unread_settings
+
+    path = tmp_path / "serve.toml"
+    path.write_text('[structure]\nname = "validation"\n[record]\npga_g = 0.3\n[integrator]\nmethod = "implicit_dc"\n'
+                    '[test]\nrate = 10.0\nstart = "present"\n[output]\nplots = false\nsamples = true\n'
+                    '[safety]\ndry_run = false\ninterlocks = true\n[opensees]\nelements = ["C1"]\n')
+    _, run = split_config(path)
+    assert unread_settings(run) == ["[record] pga_g", "[integrator] method", "[test] start", "[output] plots",
+                                    "[safety] dry_run"]
+    path.write_text('[structure]\nname = "validation"\n[test]\nrate = 10.0\n[opensees]\nelements = ["C1"]\n')
+    assert unread_settings(split_config(path)[1]) == []

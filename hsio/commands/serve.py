@@ -32,7 +32,7 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
     """Serve the [opensees] elements of CONFIG to OpenSees genericClient elements."""
     from hsio.opensees.lab import Lab
     from hsio.opensees.server import OpenSeesServer
-    from hsio.opensees.settings import split_config
+    from hsio.opensees.settings import split_config, unread_settings
     from hsio.runner import check_dwell, check_hardware, load_run_structure
 
     def log(line: str) -> None:
@@ -40,6 +40,10 @@ def opensees(config_file: str, host: str, port: int, out_dir: str | None) -> Non
 
     try:
         settings, config = split_config(config_file)
+        unread = unread_settings(config)
+        if unread:
+            log(f"{config_file}: {', '.join(unread)} not read by a server (OpenSees sends the motion and "
+                "integrates it; no dry run, plots, NS or specimen ledger here)")
         if out_dir is not None:
             settings = type(settings)(**{**settings.__dict__, "out": out_dir})
         structure = load_run_structure(config)

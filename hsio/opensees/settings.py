@@ -154,3 +154,20 @@ def split_config(path: str | Path):
     run = config_mod.from_dict(data, str(path))
     config_mod.resolve_paths(run, path)
     return settings, run
+
+
+# What a server never reads of a run configuration: it has no record of its own (OpenSees sends
+# the motion), no integrator (OpenSees integrates), no dry run (it cannot predict the analysis),
+# no plots, no NS and no specimen ledger. Written there, they are named at start.
+UNREAD_TABLES = ("record", "integrator", "specimen")
+UNREAD_KEYS = {"test": ("start",), "output": ("plots", "ns"),
+               "safety": ("dry_run", "override", "stroke_margin", "force_margin", "velocity_margin")}
+
+
+def unread_settings(run) -> list[str]:
+    """The settings written in a server's configuration that the server does not read, as
+    ``[table] key`` (empty when there are none)."""
+    given = run.given
+    out = [f"[{t}] {k}" for t in UNREAD_TABLES for k in sorted(given.get(t, ()))]
+    out += [f"[{t}] {k}" for t, keys in UNREAD_KEYS.items() for k in keys if k in given.get(t, ())]
+    return out
