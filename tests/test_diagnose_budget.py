@@ -210,3 +210,38 @@ def test_a_run_stopped_too_early_to_budget_says_how_far_it_got(tmp_path):
     assert result.exit_code == 2
     assert "fewer than 20 recorded steps" in result.stderr and "of 100 planned" in result.stderr
     assert "stopped by SIGTERM during HS" in result.stderr
+
+
+# -- names and elements the budget reads -----------------------------------------------------------
+
+def test_names_with_punctuation_are_read_from_their_recorded_columns(tmp_path):
+    """A DOF 'floor-1' and an actuator 'act-1' are recorded as columns u_floor_1, target_act_1...:
+    the budget reads those, and its HS is the recorded displacement."""
+    from hsio.diagnose.budget import error_budget
+    from hsio.recording import Run
+
+    (tmp_path / "s.toml").write_text(
+        '[structure]\nname = "punctuated"\ndt = 0.01\n[[dof]]\nname = "floor-1"\nmass = 0.01\n'
+        '[damping]\nkind = "mass"\nzeta = 0.05\n[[experimental]]\nname = "wall.A"\ndof = "floor-1"\n'
+        'actuator = "act-1"\nmodel = { kind = "linear", k = 2.0 }\n')
+    config = cfg.from_dict({"structure": {"file": str(tmp_path / "s.toml")},
+                            "record": {"pga_g": 0.3, "synthetic_duration_s": 1.0}, "test": {"rate": 10.0},
+                            "output": {"plots": False}})
+    run(config, tmp_path / "o")
+    b = error_budget(tmp_path / "o")
+    recorded = Run(tmp_path / "o" / "run.sqlite")
+    assert np.array_equal(b.u_hs[1:, 0], recorded.steps["u_floor_1"])
+    result = CliRunner().invoke(diagnose, ["--run", str(tmp_path / "o"), "--json"])
+    assert result.exit_code == 0, result.stderr
+    assert json.loads(result.stdout)["run"]["steps_recorded"] == 100
+
+
+def test_an_element_on_several_basic_dofs_is_refused_by_name(tmp_path):
+    config = cfg.from_dict({"structure": {"name": "column_two_actuators"},
+                            "record": {"pga_g": 0.3, "synthetic_duration_s": 0.1}, "test": {"rate": 10.0},
+                            "output": {"plots": False}})
+    run(config, tmp_path / "o")
+    result = CliRunner().invoke(diagnose, ["--run", str(tmp_path / "o")])
+    assert result.exit_code == 2
+    assert "one basic DOF each; element 'column' has 2 (top_x, top_rot)" in result.stderr
+    assert "Traceback" not in result.stderr

@@ -77,7 +77,7 @@ def load_run(run_dir: str | Path) -> RunData:
     """Read run.sqlite with the structure, record and integrator it was run with."""
     from hsio.config import from_dict
     from hsio.experiment import excitation
-    from hsio.recording import Run
+    from hsio.recording import Run, column
     from hsio.runner import build_record, load_run_structure
 
     path = Path(run_dir) / "run.sqlite"
@@ -91,6 +91,11 @@ def load_run(run_dir: str | Path) -> RunData:
     if config["integrator"]["method"] != "alpha_os":
         raise RecordError(f"{path}: the error budget replays alpha_os runs; this one used {config['integrator']['method']!r}")
     structure = load_run_structure(config)
+    several = [e for e in structure.experimental if len(e.basic_dofs) != 1]
+    if several:
+        e = several[0]
+        raise RecordError(f"{path}: the error budget replays elements on one basic DOF each; element {e.name!r} "
+                          f"has {len(e.basic_dofs)} ({', '.join(structure.dof_names[d] for d in e.basic_dofs)})")
     ground = build_record(config, structure, replay=True)
     planned = len(excitation(structure, ground)[0]) - 1
     steps = run.steps
@@ -101,12 +106,12 @@ def load_run(run_dir: str | Path) -> RunData:
                           f"{'; ' + why if why else ''})")
 
     def rows(prefix, names):
-        return np.vstack([np.zeros(len(names)), np.column_stack([run.steps[f"{prefix}_{n}"] for n in names])])
+        return np.vstack([np.zeros(len(names)), np.column_stack([run.steps[column(prefix, n)] for n in names])])
 
     dofs, acts = run.dof_names, run.actuator_names
     u_hs = rows("u", dofs)
     if run.ns and run.ns.get("step") is not None and run.ns["step"].size:
-        u_ns = np.column_stack([run.ns[f"u_{n}"] for n in dofs])[: u_hs.shape[0]]
+        u_ns = np.column_stack([run.ns[column("u", n)] for n in dofs])[: u_hs.shape[0]]
     else:
         u_ns = None
     t = np.r_[0.0, steps["time_s"]]
