@@ -214,26 +214,48 @@ def test_a_run_stopped_too_early_to_budget_says_how_far_it_got(tmp_path):
 
 # -- names and elements the budget reads -----------------------------------------------------------
 
-def test_names_with_punctuation_are_read_from_their_recorded_columns(tmp_path):
-    """A DOF 'floor-1' and an actuator 'act-1' are recorded as columns u_floor_1, target_act_1...:
-    the budget reads those, and its HS is the recorded displacement."""
-    from hsio.diagnose.budget import error_budget
-    from hsio.recording import Run
-
-    (tmp_path / "s.toml").write_text(
+@pytest.fixture(scope="module")
+def file_run(tmp_path_factory):
+    """A run of a structure file whose DOF 'floor-1' and actuator 'act-1' are recorded as columns
+    u_floor_1, target_act_1, ..."""
+    folder = tmp_path_factory.mktemp("file_run")
+    (folder / "s.toml").write_text(
         '[structure]\nname = "punctuated"\ndt = 0.01\n[[dof]]\nname = "floor-1"\nmass = 0.01\n'
         '[damping]\nkind = "mass"\nzeta = 0.05\n[[experimental]]\nname = "wall.A"\ndof = "floor-1"\n'
         'actuator = "act-1"\nmodel = { kind = "linear", k = 2.0 }\n')
-    config = cfg.from_dict({"structure": {"file": str(tmp_path / "s.toml")},
+    config = cfg.from_dict({"structure": {"file": str(folder / "s.toml")},
                             "record": {"pga_g": 0.3, "synthetic_duration_s": 1.0}, "test": {"rate": 10.0},
                             "output": {"plots": False}})
-    run(config, tmp_path / "o")
-    b = error_budget(tmp_path / "o")
-    recorded = Run(tmp_path / "o" / "run.sqlite")
+    run(config, folder / "o")
+    return folder
+
+
+def test_names_with_punctuation_are_read_from_their_recorded_columns(file_run):
+    """The budget reads the recorded columns, and its HS is the recorded displacement."""
+    from hsio.diagnose.budget import error_budget
+    from hsio.recording import Run
+
+    b = error_budget(file_run / "o")
+    recorded = Run(file_run / "o" / "run.sqlite")
     assert np.array_equal(b.u_hs[1:, 0], recorded.steps["u_floor_1"])
-    result = CliRunner().invoke(diagnose, ["--run", str(tmp_path / "o"), "--json"])
+    result = CliRunner().invoke(diagnose, ["--run", str(file_run / "o"), "--json"])
     assert result.exit_code == 0, result.stderr
     assert json.loads(result.stdout)["run"]["steps_recorded"] == 100
+
+
+def test_a_structure_file_edited_since_the_run_is_refused_by_name(file_run):
+    """The replays read the structure file again: edited since the run (a specimen twice as
+    stiff), it would budget another test, so the budget refuses and names it."""
+    structure = file_run / "s.toml"
+    text = structure.read_text()
+    structure.write_text(text.replace("k = 2.0", "k = 4.0"))
+    try:
+        result = CliRunner().invoke(diagnose, ["--run", str(file_run / "o")])
+    finally:
+        structure.write_text(text)
+    assert result.exit_code == 2
+    assert "input files differ from those the run began with" in result.stderr
+    assert f"{structure} ([structure] file): changed" in result.stderr
 
 
 def test_an_element_on_several_basic_dofs_is_refused_by_name(tmp_path):

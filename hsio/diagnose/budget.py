@@ -79,6 +79,7 @@ def load_run(run_dir: str | Path) -> RunData:
     from hsio.experiment import excitation
     from hsio.recording import Run, column
     from hsio.runner import build_record, load_run_structure
+    from hsio.safety.inputs import ground_fingerprint
 
     path = Path(run_dir) / "run.sqlite"
     try:
@@ -90,6 +91,7 @@ def load_run(run_dir: str | Path) -> RunData:
     config = from_dict(run.meta.get("config", {}), str(path), replay=True)
     if config["integrator"]["method"] != "alpha_os":
         raise RecordError(f"{path}: the error budget replays alpha_os runs; this one used {config['integrator']['method']!r}")
+    _same_inputs(run, config, path)
     structure = load_run_structure(config)
     several = [e for e in structure.experimental if len(e.basic_dofs) != 1]
     if several:
@@ -97,6 +99,11 @@ def load_run(run_dir: str | Path) -> RunData:
         raise RecordError(f"{path}: the error budget replays elements on one basic DOF each; element {e.name!r} "
                           f"has {len(e.basic_dofs)} ({', '.join(structure.dof_names[d] for d in e.basic_dofs)})")
     ground = build_record(config, structure, replay=True)
+    recorded = run.meta.get("ground_motion_sha256")
+    if recorded is not None and ground_fingerprint(ground) != recorded:
+        raise RecordError(f"{path}: the ground motion built from the run's configuration ({ground.name}) is not the one "
+                          f"the run ran ({run.meta.get('record', '?')}; the sha256 of their samples differ): the replays "
+                          "would budget another test")
     planned = len(excitation(structure, ground)[0]) - 1
     steps = run.steps
     if steps.get("step") is None or steps["step"].size < 20:
@@ -123,6 +130,19 @@ def load_run(run_dir: str | Path) -> RunData:
     if data.u_ns is None or data.u_ns.shape != u_hs.shape:
         data.u_ns = replay(data, [e.model() for e in structure.experimental])
     return data
+
+
+def _same_inputs(run, config, path: Path) -> None:
+    """The structure and record files the replays read again are those the run began with (their
+    SHA-256 in meta ``inputs``), else a RecordError naming each that changed or is missing: a file
+    edited since the run would budget another test."""
+    from hsio.safety.inputs import compare_inputs
+
+    read_again = [e for e in run.meta.get("inputs") or [] if str(e.get("what", "")).startswith(("[structure]", "[record]"))]
+    changed, _ = compare_inputs(read_again, config)
+    if changed:
+        raise RecordError(f"{path}: the budget replays the run's structure and record, but input files differ from "
+                          "those the run began with:\n  " + "\n  ".join(changed) + "\nrestore them as they were")
 
 
 class _Replay:
