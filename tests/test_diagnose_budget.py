@@ -267,3 +267,24 @@ def test_an_element_on_several_basic_dofs_is_refused_by_name(tmp_path):
     assert result.exit_code == 2
     assert "one basic DOF each; element 'column' has 2 (top_x, top_rot)" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_the_replays_evaluate_a_rate_dependent_specimen_as_ns_does(tmp_path):
+    """NS and the emulated actuator evaluate the structure's specimen quasi-statically (no move
+    time): the budget's replay with no error put in is NS itself, also for a model with a dashpot,
+    and the tracking and noise replays differ from NS by their source only."""
+    from hsio.diagnose.budget import error_budget, load_run, replay, structure_models
+
+    (tmp_path / "s.toml").write_text(
+        '[structure]\nname = "dashpot"\ndt = 0.01\n[[dof]]\nname = "x"\nmass = 0.01\n[damping]\nkind = "mass"\n'
+        'zeta = 0.05\n[[experimental]]\nname = "w"\ndof = "x"\nmodel = { kind = "diagnosed", k = 2.0, c = 0.05 }\n')
+    config = cfg.from_dict({"structure": {"file": str(tmp_path / "s.toml")},
+                            "record": {"pga_g": 0.3, "synthetic_duration_s": 1.0}, "test": {"rate": 10.0},
+                            "output": {"plots": False}})
+    run(config, tmp_path / "o")
+    data = load_run(tmp_path / "o")
+    u = replay(data, structure_models(data.structure))
+    assert np.max(np.abs(u - data.u_ns[: u.shape[0]])) < 1e-9 * np.max(np.abs(data.u_ns))
+    b = error_budget(tmp_path / "o")
+    for source in ("tracking", "force_noise"):
+        assert np.sqrt(np.mean((b.replays[source] - b.u_ns) ** 2)) < 3 * np.sqrt(np.mean(b.difference ** 2))

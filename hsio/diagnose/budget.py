@@ -128,7 +128,7 @@ def load_run(run_dir: str | Path) -> RunData:
                    bool(config["test"]["measured_displacement_correction"]), t, u_hs, u_ns, rows("target", acts),
                    rows("disp", acts), rows("force", acts), planned, stop_reason(run))
     if data.u_ns is None or data.u_ns.shape != u_hs.shape:
-        data.u_ns = replay(data, [e.model() for e in structure.experimental])
+        data.u_ns = replay(data, structure_models(structure))
     return data
 
 
@@ -215,6 +215,36 @@ def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else 0.0
 
 
+class _QuasiStatic:
+    """A structure's specimen model evaluated as NS and the emulated actuator evaluate it: with no
+    move time, so that a rate-dependent model (a dashpot, friction, inertia) gives its
+    quasi-static force, whatever time step the replay passes."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    @property
+    def initial_stiffness(self) -> float:
+        return self.inner.initial_stiffness
+
+    def trial(self, u, dt=0.0):
+        return self.inner.trial(u)
+
+    def commit(self):
+        self.inner.commit()
+
+    def revert_to_start(self):
+        self.inner.revert_to_start()
+
+    def force(self, u, dt=0.0):
+        return self.inner.force(u)
+
+
+def structure_models(structure) -> list:
+    """The structure's specimen models, one per experimental element, as NS evaluates them."""
+    return [_QuasiStatic(e.model()) for e in structure.experimental]
+
+
 def _path_force(specimen, d: np.ndarray, dt: float) -> np.ndarray:
     specimen.revert_to_start()
     out = np.array([specimen.force(x, dt) for x in d.tolist()])
@@ -234,9 +264,9 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
     for j, element in enumerate(data.structure.experimental):
         d, f = data.displacement[:, j], data.force[:, j]
         n_fit = int(0.8 * d.size)
-        base = _path_force(element.model(), d, dt)
+        base = _path_force(_QuasiStatic(element.model()), d, dt)
         scale = float(np.dot(base[:n_fit], f[:n_fit]) / max(np.dot(base[:n_fit], base[:n_fit]), 1e-300))
-        scaled = _scaled(element.model(), scale)
+        scaled = _scaled(_QuasiStatic(element.model()), scale)
         options = [("structure's model scaled by %.3f" % scale, scaled, {"scale": scale})]
         try:
             diag = diagnose_specimen(SpecimenRecord(f"{data.source}#{element.name}", dt, d, f))
@@ -432,11 +462,10 @@ def error_budget(run_dir: str | Path) -> Budget:
     data = load_run(run_dir)
     n = data.u_hs.shape[0]
     models, notes = specimen_models(data)
-    structure_models = lambda: [e.model() for e in data.structure.experimental]  # noqa: E731
     error = data.targets - data.displacement
     noise = force_noise(data, models)
-    replays = {"tracking": replay(data, structure_models(), tracking_error=error),
-               "force_noise": replay(data, structure_models(), force_noise=noise),
+    replays = {"tracking": replay(data, structure_models(data.structure), tracking_error=error),
+               "force_noise": replay(data, structure_models(data.structure), force_noise=noise),
                "specimen": replay(data, models)}
     u_all = replay(data, models, tracking_error=error, force_noise=noise)
     m = min(n, data.u_ns.shape[0], u_all.shape[0], *(u.shape[0] for u in replays.values()))
