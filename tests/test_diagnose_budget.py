@@ -270,9 +270,9 @@ def test_an_element_on_several_basic_dofs_is_refused_by_name(tmp_path):
 
 
 def test_the_replays_evaluate_a_rate_dependent_specimen_as_ns_does(tmp_path):
-    """NS and the emulated actuator evaluate the structure's specimen quasi-statically (no move
-    time): the budget's replay with no error put in is NS itself, also for a model with a dashpot,
-    and the tracking and noise replays differ from NS by their source only."""
+    """NS evaluates the structure's specimen quasi-statically (no move time): the budget's replay
+    with no error put in is NS itself, also for a model with a dashpot, and the tracking and noise
+    replays differ from NS by their source only."""
     from hsio.diagnose.budget import error_budget, load_run, replay, structure_models
 
     (tmp_path / "s.toml").write_text(

@@ -216,9 +216,9 @@ def _rms(x) -> float:
 
 
 class _QuasiStatic:
-    """A structure's specimen model evaluated as NS and the emulated actuator evaluate it: with no
-    move time, so that a rate-dependent model (a dashpot, friction, inertia) gives its
-    quasi-static force, whatever time step the replay passes."""
+    """A structure's specimen model evaluated as NS evaluates it: with no move time, so that a
+    rate-dependent model (a dashpot, friction, inertia) gives its quasi-static force, whatever
+    time step the replay passes."""
 
     def __init__(self, inner):
         self.inner = inner
