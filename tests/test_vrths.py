@@ -243,6 +243,8 @@ def _swap_lines_11_12(lines):
     (_json(lambda d: d.pop("experimental_substructure")), "KeyError 'experimental_substructure'"),
     (_json(lambda d: d["cases"]["2"].update(K=[[1.0, 2.0], [3.0, 4.0]])), "cases.2.K must be a 3 x 3 matrix"),
     (_json(lambda d: d["plant"].update(a3="fast")), "a case, the plant or a constraint is missing or not a number"),
+    (_json(lambda d: d["cases"]["1"].update(M=[[29.1, 0, 0], [0, 1000, 0], [0, 0, 1000]])),
+     "cases.1.M must be symmetric, and positive definite less the specimen's me = 29.1 kg"),
     (_json(lambda d: d["experimental_substructure"].update(ke_N_m=-1.0)), "me, ke and the converters' scales positive"),
 ])
 def test_a_data_folder_it_cannot_run_on_is_refused_naming_the_file(shared_data, tmp_path, change, message):

@@ -69,7 +69,8 @@ def load(folder: str | Path) -> Benchmark:
 def check(bm: Benchmark, folder: Path) -> None:
     """The record: at least two finite rows, time increasing over at most MAX_RECORD_S, a ground
     that moves; benchmark.json: every number the cases, the plant and the constraints
-    need (3 x 3 matrices for each case, finite, the substructure's me, ce, ke positive)."""
+    need (3 x 3 matrices for each case, finite, a mass that leaves the numerical substructure a
+    positive definite one, the substructure's me, ke and the converters' scales positive)."""
     from hsio.rths import plant as plant_mod
 
     csv, js = folder / "elcentro_vrths.csv", folder / "benchmark.json"
@@ -99,6 +100,9 @@ def check(bm: Benchmark, folder: Path) -> None:
             m = getattr(cs, name)
             if m.shape != (3, 3) or not np.all(np.isfinite(m)):
                 raise ValueError(f"{js}: cases.{cs.number}.{name} must be a 3 x 3 matrix of finite numbers")
+        if not np.allclose(cs.M, cs.M.T) or np.min(np.linalg.eigvalsh(cs.Mn)) <= 0.0:
+            raise ValueError(f"{js}: cases.{cs.number}.M must be symmetric, and positive definite less the "
+                             f"specimen's me = {cs.me:g} kg at the first floor (the numerical substructure's mass)")
     values = [getattr(plant, f) for f in plant.__dataclass_fields__] + std
     if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
         raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
