@@ -110,6 +110,17 @@ def test_daq_header_size_must_be_a_whole_number_of_lines(tmp_path, size):
         read_daq(path)
 
 
+def test_an_actuator_is_chosen_only_in_a_run_recording(tmp_path):
+    """--actuator names one actuator of a run.sqlite; given with a CSV or DAQ record (one
+    actuator, one specimen) it is refused rather than ignored."""
+    from hsio.diagnose.specimen_record import read_specimen
+
+    with pytest.raises(RecordError, match="--actuator chooses an actuator of an hsio recording .* a daq record"):
+        read_record(_daq(tmp_path), actuator="C2")
+    with pytest.raises(RecordError, match="--actuator chooses an actuator of an hsio recording .* a daq record"):
+        read_specimen(_daq(tmp_path), actuator="C2")
+
+
 def test_daq_sample_count_must_match(tmp_path):
     path = _daq(tmp_path)
     path.write_bytes(path.read_bytes().replace(b"Sample Count:  300", b"Sample Count:  301"))

@@ -281,6 +281,9 @@ def read_record(path: str | Path, fmt: str | None = None, channels: DaqChannels 
                 actuator: str | None = None) -> ActuatorRecord:
     """Read a record in ``fmt`` (csv, daq or run; None: from the name and first bytes)."""
     fmt = fmt or detect_format(path)
+    if actuator is not None and fmt != "run":
+        raise RecordError(f"{path}: --actuator chooses an actuator of an hsio recording (run.sqlite); "
+                          f"this is a {fmt} record of one actuator")
     if fmt == "csv":
         return read_csv(path)
     if fmt == "daq":
