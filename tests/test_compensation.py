@@ -262,3 +262,14 @@ def test_online_starts_from_the_configured_guess():
     assert nothing.feedforward[0].lag == 0.0
     d_a = [nothing.adjust([x])[0] for x in (0.0, 2.0, 4.0)]
     assert d_a == [0.0, 2.0, 4.0]  # nothing learnt yet: commands pass unchanged
+
+
+def test_a_test_rate_for_a_run_is_refused_rather_than_ignored(tmp_path):
+    """--test-rate reads a CSV file's time_s as record time; a run records its own test rate, so
+    the option given with a run is refused, naming --t-d as the way to set t_d."""
+    from hsio.compensation import calibration
+    from hsio.errors import RecordError
+
+    (tmp_path / "run.sqlite").write_bytes(b"SQLite format 3\x00" + bytes(100))
+    with pytest.raises(RecordError, match="a run records its own test rate .*--t-d"):
+        calibration.load(tmp_path, test_rate=8.0)

@@ -113,6 +113,9 @@ def load(source: str | Path, t_d: float | None = None, test_rate: float | None =
     with open(path, "rb") as fh:
         magic = fh.read(16)
     if magic.startswith(b"SQLite format 3"):
+        if test_rate is not None:
+            raise RecordError(f"{path}: --test-rate says a CSV file's time_s is record time; a run records its "
+                              "own test rate (give --t-d to set the lab duration of a step)")
         return read_run(path, t_d)
     raise RecordError(f"{path}: neither a run (SQLite) nor a CSV file with {','.join(CSV_COLUMNS)}")
 
