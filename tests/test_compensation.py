@@ -273,3 +273,20 @@ def test_a_test_rate_for_a_run_is_refused_rather_than_ignored(tmp_path):
     (tmp_path / "run.sqlite").write_bytes(b"SQLite format 3\x00" + bytes(100))
     with pytest.raises(RecordError, match="a run records its own test rate .*--t-d"):
         calibration.load(tmp_path, test_rate=8.0)
+
+
+def test_calibration_through_setups_fits_the_actuators_strokes(tmp_path):
+    """A column on two actuators through a setup records its basic DOFs (x and a rotation); the
+    calibration is of each actuator's stroke, from the compensation table, by the actuator's
+    name (as [compensation] actuators names them): b d_max is the emulator's lag on both."""
+    from hsio.compensation import calibration
+
+    cfg = config_mod.from_dict({"structure": {"name": "column_two_actuators"},
+                                "record": {"pga_g": 0.3, "synthetic_duration_s": 0.6},
+                                "test": {"rate": 10.0, "hold_fraction": 0.0, "n_avg": 1},
+                                "emulator": {"lag_s": 0.03}, "output": {"plots": False}})
+    runner.run(cfg, tmp_path / "col")
+    cals = {c.actuator: c for c in calibration.calibrate(tmp_path / "col")}
+    assert set(cals) == {"lower", "upper"}
+    for cal in cals.values():
+        assert cal.fit.b_s_mm * 254.0 == pytest.approx(0.03, rel=0.05)
