@@ -267,3 +267,14 @@ def test_a_case_the_data_lack_is_a_usage_error_and_table3_is_optional(shared_dat
     res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--data", str(tmp_path)])
     assert res.exit_code == 0, res.output
     assert "Table 3" not in res.output
+
+
+@pytest.mark.parametrize("shift_s", [10.0, -3.0, 0.02])
+def test_the_ground_motion_starts_at_the_records_first_sample(bm, shift_s):
+    """A record whose time column starts elsewhere than 0 is the same ground motion: nothing is
+    prepended before its first sample, nothing cut after it."""
+    shifted = benchmark.Benchmark(bm.data, bm.record_t + shift_s, bm.record_a)
+    for duration in (None, 2.0):
+        a, b = benchmark.ground_motion(shifted, duration), benchmark.ground_motion(bm, duration)
+        assert a.shape == b.shape
+        assert np.max(np.abs(a - b)) < 1e-9 * np.max(np.abs(b))  # the same samples, to round-off in time

@@ -111,13 +111,13 @@ def check(bm: Benchmark, folder: Path) -> None:
 
 def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) -> np.ndarray:
     """a_g at the controller rate (m/s^2): the record x 0.4, linearly interpolated. The whole
-    record by default; with ``duration``, that many seconds from the last quiet sample before the
+    record by default, from its first sample (whatever its time); with ``duration``, that many seconds from the last quiet sample before the
     ground starts to move (the record opens with 5 s of zeros, during which nothing happens)."""
-    t0 = 0.0
+    t0 = bm.record_t[0]
     t_end = bm.record_t[-1]
     if duration is not None:
         moving = np.flatnonzero(bm.record_a != 0.0)
-        t0 = bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else 0.0
+        t0 = bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else t0
         t_end = min(t0 + duration, t_end)
     n = int(np.floor((t_end - t0) * fs + 1e-9)) + 1
     t = t0 + np.arange(n) / fs
