@@ -90,6 +90,18 @@ def test_fit_finds_threshold_and_slope_with_uncertainties():
         hockey_stick.fit(np.zeros(50), rng.normal(0, 1e-5, 50))
 
 
+@pytest.mark.parametrize("speeds", [[10.0], [10.0, -10.0], [2.0, 10.0]])
+def test_one_speed_beyond_the_threshold_cannot_tell_a_from_b(speeds):
+    """Steps at one speed beyond a (a ramp at constant velocity, or back and forth at it) give
+    eq. 1's b (|v| - a) only as a product: any a below the speed fits with its b. The fit refuses
+    rather than print one of them with an uncertainty of 0; below a (2 mm/s) nothing counts."""
+    rng = np.random.default_rng(5)
+    v = np.resize(np.array(speeds), 60)
+    er = hockey_stick.error(v, 4.3, 9e-5) + rng.normal(0, 2e-6, v.size)
+    with pytest.raises(hockey_stick.FitError, match=r"one speed \(10 mm/s\): eq. 1 fixes only b \(\|v\| - a\)"):
+        hockey_stick.fit(v, er)
+
+
 @pytest.mark.parametrize("form", ["lead", "eq2"])
 def test_eq2_makes_the_model_land_on_the_command(form):
     t_d, a, lag = 0.2, A_I, B_I * 254.0
