@@ -148,11 +148,24 @@ def test_online_estimator_is_bounded_and_rate_limited():
     ({"mode": "online", "window": 10, "min_samples": 40}, "min_samples"),
     ({"mode": "online", "actuators": "wall"}, "list of actuator names"),
     ({"mode": "online", "forgetting": 0.99}, "unknown key"),
+    ({"mode": "online", "a_mm_s": 100.0}, r"starting a_mm_s = 100 is beyond a_max_mm_s = 50"),
+    ({"mode": "online", "b_s_mm": 1.3e-4, "lag_max_s": 0.01}, r"starting lag .* = 0.03302 s is beyond lag_max_s = 0.01"),
 ])
 def test_bad_compensation_table_is_named(table, message):
     with pytest.raises(ConfigError, match=message) as info:
         config_mod.from_dict({"compensation": table}, "lab.toml")
     assert "lab.toml" in str(info.value) and "[compensation]" in str(info.value)
+
+
+def test_an_online_starting_guess_beyond_the_eq2_bound_is_refused_not_clamped():
+    """With form = 'eq2' the online lag stays below 0.45 t_d (eq. 2's recursion is stable below
+    t_d / 2); a starting guess beyond it is refused where the stage is built, before any step."""
+    from hsio.compensation.stage import CompensationSettings, CompensationStage
+
+    settings = CompensationSettings.from_table({"mode": "online", "form": "eq2", "b_s_mm": 1.3e-4})
+    with pytest.raises(ConfigError, match=r"starting lag b d_max = 0.03302 s is beyond 0.45 t_d = 0.018 s"):
+        CompensationStage(["wall"], 0.04, settings)
+    assert CompensationStage(["wall"], 0.08, settings).feedforward[0].lag == pytest.approx(1.3e-4 * 254.0)
 
 
 def test_offline_compensation_with_ramp_hold_is_refused():
