@@ -111,8 +111,9 @@ def check(bm: Benchmark, folder: Path) -> None:
 
 def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) -> np.ndarray:
     """a_g at the controller rate (m/s^2): the record x 0.4, linearly interpolated. The whole
-    record by default, from its first sample (whatever its time); with ``duration``, that many seconds from the last quiet sample before the
-    ground starts to move (the record opens with 5 s of zeros, during which nothing happens)."""
+    record by default, from its first sample (whatever its time); with ``duration``, that many
+    seconds from the last quiet sample before the ground starts to move (the record opens with
+    5 s of zeros, during which nothing happens)."""
     t0 = bm.record_t[0]
     t_end = bm.record_t[-1]
     if duration is not None:
