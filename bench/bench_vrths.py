@@ -61,7 +61,7 @@ def main() -> None:
     print(f"{'case':>4} {'controller':<10} " + " ".join(f"{f'J{i}':>6}" for i in range(1, 10)))
     for row in rows:
         print(f"{row['case']:>4} {row['controller']:<10} " + " ".join(f"{j:6.2f}" for j in row["J"]))
-        if row["controller"] == "pi-lead":
+        if row["controller"] == "pi-lead" and bm.table3(row["case"]) is not None:
             print(f"{'':>4} {'Table 3':<10} " + " ".join(f"{j:6.2f}" for j in bm.table3(row["case"])))
     if args.perturbed:
         print(f"\nJ2 and J4 (%) over {args.perturbed} perturbed plants (seed {args.seed}): mean / worst")

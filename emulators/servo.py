@@ -21,6 +21,8 @@ Physics per period dt = 1/rate (explicit, one tick at a time):
   ``displacement_bandwidth_hz``; 0, the default, is ideal). The force loop closes on the load
   cell's reading, so its resolution, noise and bandwidth are what force control can achieve; the
   displacement loop closes on the rod transducer (``resolution_mm``, ``noise_mm``).
+  The specimen moves once a period, the move taking dt of lab time: a rate-dependent model (the
+  dashpot, friction and moving mass of hsio.specimens.Diagnosed) acts at the lab's velocity.
 * Further effects, off by default: a dead band (the loop ignores errors below
   ``dead_band_mm``: e' = e - clip(e, -w, w)); a second-order servo-valve or oil-column mode
   between the rod and the specimen (natural frequency ``servo_frequency_hz``, damping
@@ -347,7 +349,7 @@ class ServoController:
             self.d_spec, self.force = self._behind_compliance(d)
         else:
             self.d_spec = d
-            self.force = self.specimen.force(d)
+            self.force = self.specimen.force(d, self.dt)
 
     COMPLIANCE_ITERATIONS = 20  # bounds the solve of d = x - c F(d) in a period
     COMPLIANCE_TOLERANCE_MM = 1e-10
@@ -364,13 +366,13 @@ class ServoController:
         specimen = self.specimen
         slope = 1.0 + cf * max(specimen.initial_stiffness, 0.0)
         d = x - cf * self.force  # the start: the force of the period before
-        force = specimen.trial(d)
+        force = specimen.trial(d, self.dt)
         for _ in range(self.COMPLIANCE_ITERATIONS):
             residual = d + cf * force - x
             if abs(residual) <= self.COMPLIANCE_TOLERANCE_MM:
                 break
             d_next = d - residual / slope
-            f_next = specimen.trial(d_next)
+            f_next = specimen.trial(d_next, self.dt)
             if d_next != d:
                 secant = 1.0 + cf * (f_next - force) / (d_next - d)
                 if secant > 0.0:

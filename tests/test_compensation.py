@@ -90,6 +90,18 @@ def test_fit_finds_threshold_and_slope_with_uncertainties():
         hockey_stick.fit(np.zeros(50), rng.normal(0, 1e-5, 50))
 
 
+@pytest.mark.parametrize("speeds", [[10.0], [10.0, -10.0], [2.0, 10.0]])
+def test_one_speed_beyond_the_threshold_cannot_tell_a_from_b(speeds):
+    """Steps at one speed beyond a (a ramp at constant velocity, or back and forth at it) give
+    eq. 1's b (|v| - a) only as a product: any a below the speed fits with its b. The fit refuses
+    rather than print one of them with an uncertainty of 0; below a (2 mm/s) nothing counts."""
+    rng = np.random.default_rng(5)
+    v = np.resize(np.array(speeds), 60)
+    er = hockey_stick.error(v, 4.3, 9e-5) + rng.normal(0, 2e-6, v.size)
+    with pytest.raises(hockey_stick.FitError, match=r"one speed \(10 mm/s\): eq. 1 fixes only b \(\|v\| - a\)"):
+        hockey_stick.fit(v, er)
+
+
 @pytest.mark.parametrize("form", ["lead", "eq2"])
 def test_eq2_makes_the_model_land_on_the_command(form):
     t_d, a, lag = 0.2, A_I, B_I * 254.0
@@ -136,11 +148,24 @@ def test_online_estimator_is_bounded_and_rate_limited():
     ({"mode": "online", "window": 10, "min_samples": 40}, "min_samples"),
     ({"mode": "online", "actuators": "wall"}, "list of actuator names"),
     ({"mode": "online", "forgetting": 0.99}, "unknown key"),
+    ({"mode": "online", "a_mm_s": 100.0}, r"starting a_mm_s = 100 is beyond a_max_mm_s = 50"),
+    ({"mode": "online", "b_s_mm": 1.3e-4, "lag_max_s": 0.01}, r"starting lag .* = 0.03302 s is beyond lag_max_s = 0.01"),
 ])
 def test_bad_compensation_table_is_named(table, message):
     with pytest.raises(ConfigError, match=message) as info:
         config_mod.from_dict({"compensation": table}, "lab.toml")
     assert "lab.toml" in str(info.value) and "[compensation]" in str(info.value)
+
+
+def test_an_online_starting_guess_beyond_the_eq2_bound_is_refused_not_clamped():
+    """With form = 'eq2' the online lag stays below 0.45 t_d (eq. 2's recursion is stable below
+    t_d / 2); a starting guess beyond it is refused where the stage is built, before any step."""
+    from hsio.compensation.stage import CompensationSettings, CompensationStage
+
+    settings = CompensationSettings.from_table({"mode": "online", "form": "eq2", "b_s_mm": 1.3e-4})
+    with pytest.raises(ConfigError, match=r"starting lag b d_max = 0.03302 s is beyond 0.45 t_d = 0.018 s"):
+        CompensationStage(["wall"], 0.04, settings)
+    assert CompensationStage(["wall"], 0.08, settings).feedforward[0].lag == pytest.approx(1.3e-4 * 254.0)
 
 
 def test_offline_compensation_with_ramp_hold_is_refused():
@@ -262,3 +287,31 @@ def test_online_starts_from_the_configured_guess():
     assert nothing.feedforward[0].lag == 0.0
     d_a = [nothing.adjust([x])[0] for x in (0.0, 2.0, 4.0)]
     assert d_a == [0.0, 2.0, 4.0]  # nothing learnt yet: commands pass unchanged
+
+
+def test_a_test_rate_for_a_run_is_refused_rather_than_ignored(tmp_path):
+    """--test-rate reads a CSV file's time_s as record time; a run records its own test rate, so
+    the option given with a run is refused, naming --t-d as the way to set t_d."""
+    from hsio.compensation import calibration
+    from hsio.errors import RecordError
+
+    (tmp_path / "run.sqlite").write_bytes(b"SQLite format 3\x00" + bytes(100))
+    with pytest.raises(RecordError, match="a run records its own test rate .*--t-d"):
+        calibration.load(tmp_path, test_rate=8.0)
+
+
+def test_calibration_through_setups_fits_the_actuators_strokes(tmp_path):
+    """A column on two actuators through a setup records its basic DOFs (x and a rotation); the
+    calibration is of each actuator's stroke, from the compensation table, by the actuator's
+    name (as [compensation] actuators names them): b d_max is the emulator's lag on both."""
+    from hsio.compensation import calibration
+
+    cfg = config_mod.from_dict({"structure": {"name": "column_two_actuators"},
+                                "record": {"pga_g": 0.3, "synthetic_duration_s": 0.6},
+                                "test": {"rate": 10.0, "hold_fraction": 0.0, "n_avg": 1},
+                                "emulator": {"lag_s": 0.03}, "output": {"plots": False}})
+    runner.run(cfg, tmp_path / "col")
+    cals = {c.actuator: c for c in calibration.calibrate(tmp_path / "col")}
+    assert set(cals) == {"lower", "upper"}
+    for cal in cals.values():
+        assert cal.fit.b_s_mm * 254.0 == pytest.approx(0.03, rel=0.05)

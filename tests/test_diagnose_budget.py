@@ -210,3 +210,81 @@ def test_a_run_stopped_too_early_to_budget_says_how_far_it_got(tmp_path):
     assert result.exit_code == 2
     assert "fewer than 20 recorded steps" in result.stderr and "of 100 planned" in result.stderr
     assert "stopped by SIGTERM during HS" in result.stderr
+
+
+# -- names and elements the budget reads -----------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def file_run(tmp_path_factory):
+    """A run of a structure file whose DOF 'floor-1' and actuator 'act-1' are recorded as columns
+    u_floor_1, target_act_1, ..."""
+    folder = tmp_path_factory.mktemp("file_run")
+    (folder / "s.toml").write_text(
+        '[structure]\nname = "punctuated"\ndt = 0.01\n[[dof]]\nname = "floor-1"\nmass = 0.01\n'
+        '[damping]\nkind = "mass"\nzeta = 0.05\n[[experimental]]\nname = "wall.A"\ndof = "floor-1"\n'
+        'actuator = "act-1"\nmodel = { kind = "linear", k = 2.0 }\n')
+    config = cfg.from_dict({"structure": {"file": str(folder / "s.toml")},
+                            "record": {"pga_g": 0.3, "synthetic_duration_s": 1.0}, "test": {"rate": 10.0},
+                            "output": {"plots": False}})
+    run(config, folder / "o")
+    return folder
+
+
+def test_names_with_punctuation_are_read_from_their_recorded_columns(file_run):
+    """The budget reads the recorded columns, and its HS is the recorded displacement."""
+    from hsio.diagnose.budget import error_budget
+    from hsio.recording import Run
+
+    b = error_budget(file_run / "o")
+    recorded = Run(file_run / "o" / "run.sqlite")
+    assert np.array_equal(b.u_hs[1:, 0], recorded.steps["u_floor_1"])
+    result = CliRunner().invoke(diagnose, ["--run", str(file_run / "o"), "--json"])
+    assert result.exit_code == 0, result.stderr
+    assert json.loads(result.stdout)["run"]["steps_recorded"] == 100
+
+
+def test_a_structure_file_edited_since_the_run_is_refused_by_name(file_run):
+    """The replays read the structure file again: edited since the run (a specimen twice as
+    stiff), it would budget another test, so the budget refuses and names it."""
+    structure = file_run / "s.toml"
+    text = structure.read_text()
+    structure.write_text(text.replace("k = 2.0", "k = 4.0"))
+    try:
+        result = CliRunner().invoke(diagnose, ["--run", str(file_run / "o")])
+    finally:
+        structure.write_text(text)
+    assert result.exit_code == 2
+    assert "input files differ from those the run began with" in result.stderr
+    assert f"{structure} ([structure] file): changed" in result.stderr
+
+
+def test_an_element_on_several_basic_dofs_is_refused_by_name(tmp_path):
+    config = cfg.from_dict({"structure": {"name": "column_two_actuators"},
+                            "record": {"pga_g": 0.3, "synthetic_duration_s": 0.1}, "test": {"rate": 10.0},
+                            "output": {"plots": False}})
+    run(config, tmp_path / "o")
+    result = CliRunner().invoke(diagnose, ["--run", str(tmp_path / "o")])
+    assert result.exit_code == 2
+    assert "one basic DOF each; element 'column' has 2 (top_x, top_rot)" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_the_replays_evaluate_a_rate_dependent_specimen_as_ns_does(tmp_path):
+    """NS evaluates the structure's specimen quasi-statically (no move time): the budget's replay
+    with no error put in is NS itself, also for a model with a dashpot, and the tracking and noise
+    replays differ from NS by their source only."""
+    from hsio.diagnose.budget import error_budget, load_run, replay, structure_models
+
+    (tmp_path / "s.toml").write_text(
+        '[structure]\nname = "dashpot"\ndt = 0.01\n[[dof]]\nname = "x"\nmass = 0.01\n[damping]\nkind = "mass"\n'
+        'zeta = 0.05\n[[experimental]]\nname = "w"\ndof = "x"\nmodel = { kind = "diagnosed", k = 2.0, c = 0.05 }\n')
+    config = cfg.from_dict({"structure": {"file": str(tmp_path / "s.toml")},
+                            "record": {"pga_g": 0.3, "synthetic_duration_s": 1.0}, "test": {"rate": 10.0},
+                            "output": {"plots": False}})
+    run(config, tmp_path / "o")
+    data = load_run(tmp_path / "o")
+    u = replay(data, structure_models(data.structure))
+    assert np.max(np.abs(u - data.u_ns[: u.shape[0]])) < 1e-9 * np.max(np.abs(data.u_ns))
+    b = error_budget(tmp_path / "o")
+    for source in ("tracking", "force_noise"):
+        assert np.sqrt(np.mean((b.replays[source] - b.u_ns) ** 2)) < 3 * np.sqrt(np.mean(b.difference ** 2))

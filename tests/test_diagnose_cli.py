@@ -41,3 +41,24 @@ def test_bad_record_exits_with_the_line(tmp_path):
     proc = _diagnose(path)
     assert proc.returncode == 2
     assert "bad.csv:3: expected 3 fields" in proc.stderr
+
+
+def _strict(text):
+    def refuse(constant):
+        raise ValueError(f"{constant} is not JSON")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_json_of_a_delay_without_force_is_strict_json(tmp_path):
+    """A delay names the timing block; with no force to time it, its counts and ratio are null,
+    never NaN (which strict JSON readers refuse)."""
+    record = emulate(chirp_command(8.0, 500.0, amplitude_mm=4.0, f1_hz=3.0),
+                     ServoConfig(rate_hz=500.0, lag_s=0.02, transport_delay_s=0.006, noise_mm=0.01, resolution_mm=0.025))
+    path = write_csv(dataclasses.replace(record, force_kN=None), tmp_path / "delay.csv")
+    result = CliRunner().invoke(diagnose, [str(path), "--json", "--report", str(tmp_path / "r")])
+    assert result.exit_code == 0, result.stderr
+    out = _strict(result.stdout)
+    assert out["cause"] == "transport_delay"
+    assert out["timing"]["verdict"] == "undecided" and out["timing"]["reason"] == "the record has no force"
+    assert out["timing"]["ratio"] is None and out["timing"]["violations_at_zero"] is None
+    assert _strict((tmp_path / "r" / "diagnosis.json").read_text())["timing"]["ratio"] is None

@@ -102,6 +102,25 @@ def test_daq_export_refuses_bad_input(tmp_path, edit, channels, words):
         read_daq(_daq(tmp_path, edit=edit), channels)
 
 
+@pytest.mark.parametrize("size", ["-3", "7.5", "1"])
+def test_daq_header_size_must_be_a_whole_number_of_lines(tmp_path, size):
+    path = _daq(tmp_path)
+    path.write_bytes(path.read_bytes().replace(b"Header Size:  7", f"Header Size:  {size}".encode(), 1))
+    with pytest.raises(RecordError, match=f"rec.txt:1: Header Size must be a whole number of lines, at least 2 .* got '{size}'"):
+        read_daq(path)
+
+
+def test_an_actuator_is_chosen_only_in_a_run_recording(tmp_path):
+    """--actuator names one actuator of a run.sqlite; given with a CSV or DAQ record (one
+    actuator, one specimen) it is refused rather than ignored."""
+    from hsio.diagnose.specimen_record import read_specimen
+
+    with pytest.raises(RecordError, match="--actuator chooses an actuator of an hsio recording .* a daq record"):
+        read_record(_daq(tmp_path), actuator="C2")
+    with pytest.raises(RecordError, match="--actuator chooses an actuator of an hsio recording .* a daq record"):
+        read_specimen(_daq(tmp_path), actuator="C2")
+
+
 def test_daq_sample_count_must_match(tmp_path):
     path = _daq(tmp_path)
     path.write_bytes(path.read_bytes().replace(b"Sample Count:  300", b"Sample Count:  301"))

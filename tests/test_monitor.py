@@ -361,6 +361,16 @@ def test_a_port_in_use_is_a_clear_error(tmp_path):
         assert "Traceback" not in proc.stderr and not (out / "run.sqlite").exists()  # nothing ran
 
 
+def test_an_empty_address_is_refused_not_taken_for_every_interface(tmp_path):
+    """An empty --host (an unset variable) would bind every interface: refused, exit 2 (a server
+    that started instead would outlive the bounded wait: TimeoutExpired)."""
+    write_record(tmp_path, 5).close()
+    for host in ("", "  "):
+        proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--host", host, "--port", "0"],
+                              env=ENV, capture_output=True, text=True, timeout=30)
+        assert proc.returncode == 2 and "the address to listen on is empty" in proc.stderr
+
+
 def test_a_request_without_a_run_to_answer_is_refused_and_logged(tmp_path):
     op = Operator(tmp_path)
     assert op.request("pause").startswith("error: no control socket")

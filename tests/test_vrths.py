@@ -198,3 +198,83 @@ def test_bench_vrths_perturbed_table(shared_data):
 def test_bench_vrths_bad_options_exit_2(args, message):
     res = CliRunner().invoke(main, ["bench", "vrths", *args])
     assert res.exit_code == 2 and message in res.output, res.output
+
+
+# -- a data folder the benchmark cannot run on ----------------------------------------------------
+
+def _lines(text):
+    return text.splitlines()
+
+
+def _record(edit):
+    def change(folder):
+        path = folder / "elcentro_vrths.csv"
+        path.write_text("\n".join(edit(_lines(path.read_text()))) + "\n")
+    return change
+
+
+def _json(edit):
+    def change(folder):
+        path = folder / "benchmark.json"
+        data = json.loads(path.read_text())
+        edit(data)
+        path.write_text(json.dumps(data))
+    return change
+
+
+def _nan_at_line_300(lines):
+    lines[299] = lines[299].split(",")[0] + ",nan"
+    return lines
+
+
+def _swap_lines_11_12(lines):
+    lines[10], lines[11] = lines[11], lines[10]
+    return lines
+
+
+@pytest.mark.parametrize("change, message", [
+    (_record(lambda lines: lines[:2]), "elcentro_vrths.csv: needs a header and at least two rows"),
+    (_record(lambda lines: lines[:1]), "elcentro_vrths.csv: needs a header and at least two rows"),
+    (_record(lambda lines: [lines[0]] + [line + ",1" for line in lines[1:]]), "(has 2060 rows of 3 columns)"),
+    (_record(_nan_at_line_300), "elcentro_vrths.csv:300: a value that is not a finite number"),
+    (_record(_swap_lines_11_12), "elcentro_vrths.csv:12: time does not increase (0.2 s, then 0.18 s)"),
+    (_record(lambda lines: [lines[0]] + [f"{line.split(',')[0]},0" for line in lines[1:]]), "the ground never moves"),
+    (_record(lambda lines: [lines[0], "0,0", "1e9,1"]), "the record lasts 1e+09 s"),
+    (_json(lambda d: d.pop("experimental_substructure")), "KeyError 'experimental_substructure'"),
+    (_json(lambda d: d["cases"]["2"].update(K=[[1.0, 2.0], [3.0, 4.0]])), "cases.2.K must be a 3 x 3 matrix"),
+    (_json(lambda d: d["plant"].update(a3="fast")), "a case, the plant or a constraint is missing or not a number"),
+    (_json(lambda d: d["cases"]["1"].update(M=[[29.1, 0, 0], [0, 1000, 0], [0, 0, 1000]])),
+     "cases.1.M must be symmetric, and positive definite less the specimen's me = 29.1 kg"),
+    (_json(lambda d: d["experimental_substructure"].update(ke_N_m=-1.0)), "me, ke and the converters' scales positive"),
+])
+def test_a_data_folder_it_cannot_run_on_is_refused_naming_the_file(shared_data, tmp_path, change, message):
+    for name in ("benchmark.json", "elcentro_vrths.csv"):
+        (tmp_path / name).write_bytes((shared_data / "vrths" / name).read_bytes())
+    change(tmp_path)
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--duration", "0.5",
+                                    "--data", str(tmp_path)])
+    assert res.exit_code == 2, res.output
+    assert message in " ".join(res.output.split()), res.output
+    assert "Traceback" not in res.output
+
+
+def test_a_case_the_data_lack_is_a_usage_error_and_table3_is_optional(shared_data, tmp_path):
+    for name in ("benchmark.json", "elcentro_vrths.csv"):
+        (tmp_path / name).write_bytes((shared_data / "vrths" / name).read_bytes())
+    _json(lambda d: (d["cases"].pop("3"), d.pop("table3_sample_controller_elcentro")))(tmp_path)
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "3", "--data", str(tmp_path)])
+    assert res.exit_code == 2 and "has cases [1, 2, 4]" in res.output, res.output
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--data", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "Table 3" not in res.output
+
+
+@pytest.mark.parametrize("shift_s", [10.0, -3.0, 0.02])
+def test_the_ground_motion_starts_at_the_records_first_sample(bm, shift_s):
+    """A record whose time column starts elsewhere than 0 is the same ground motion: nothing is
+    prepended before its first sample, nothing cut after it."""
+    shifted = benchmark.Benchmark(bm.data, bm.record_t + shift_s, bm.record_a)
+    for duration in (None, 2.0):
+        a, b = benchmark.ground_motion(shifted, duration), benchmark.ground_motion(bm, duration)
+        assert a.shape == b.shape
+        assert np.max(np.abs(a - b)) < 1e-9 * np.max(np.abs(b))  # the same samples, to round-off in time

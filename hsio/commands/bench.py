@@ -63,6 +63,8 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
         if duration > available + 0.5 / benchmark.FS:  # a cut, never a silent clamp
             raise click.BadParameter(f"{duration:g} s is longer than the record ({available:g} s from the first "
                                      "motion); leave --duration out to run the whole record", param_hint="--duration")
+    if case and case not in bm.cases:
+        raise click.BadParameter(f"{folder / 'benchmark.json'} has cases {bm.cases}", param_hint="--case")
     cases = [case] if case else bm.cases
     names = list(controllers.NAMES) if controller == "all" else [controller]
     use_numba = False if no_numba else None
@@ -76,6 +78,7 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
         for kind, J in kinds:
             values = " ".join(f"{j:6.2f}" for j in J)
             click.echo(f"{row['case']:>4} {row['controller']:<8} {kind:<6} {values}  {row['x_real_time']:11.0f}")
-        if "J" in row and perturbed == 0 and duration is None and row["controller"] == "pi-lead":
+        if "J" in row and perturbed == 0 and duration is None and row["controller"] == "pi-lead" \
+                and bm.table3(row["case"]) is not None:
             t3 = " ".join(f"{j:6.2f}" for j in bm.table3(row["case"]))
             click.echo(f"{'':>4} {'Table 3':<8} {'':<6} {t3}")

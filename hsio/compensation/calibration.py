@@ -97,9 +97,35 @@ def read_run(path: Path, t_d: float | None = None) -> StepData:
                           "calibrate on a run in displacement control")
     if t_d is None:
         t_d = float(run.meta["test_rate"]) * float(run.meta["dt"])
-    commands = {a: run.actuator("command", a) for a in run.actuator_names}  # steps 1..n
-    measured = {a: run.actuator("disp", a) for a in run.actuator_names}
+    strokes = setup_strokes(run, config)
+    if strokes is not None:
+        commands, measured = strokes
+    else:
+        commands = {a: run.actuator("command", a) for a in run.actuator_names}  # steps 1..n
+        measured = {a: run.actuator("disp", a) for a in run.actuator_names}
     return StepData(commands, measured, t_d, warnings)
+
+
+def setup_strokes(run, config: dict) -> tuple[dict, dict] | None:
+    """The actuators' own strokes when the run drove its elements through setups (its recorded
+    channels are then basic DOFs, a rotation among them): from the compensation table, one row per
+    step, the command sent d^a and the measured stroke, d^a - Er^aa d_max for a compensated
+    actuator, d^c - Er^cc d_max for one that was not (d^a = d^c). None for a run without setups."""
+    from hsio.recording import column
+
+    table = run.compensation()
+    found = [c[len("da_"):] for c in table if c.startswith("da_")]
+    if not found or sorted(found) == sorted(column("", a)[1:] for a in run.actuator_names):
+        return None
+    names = {column("", a)[1:]: a for a in run.meta.get("start_state", {})}  # the names as the structure gives them
+    d_max = float(config.get("compensation", {}).get("d_max_mm", D_MAX_MM))
+    commands, measured = {}, {}
+    for key in found:
+        sent, aa, cc = table[f"da_{key}"], table[f"er_aa_{key}"], table[f"er_cc_{key}"]
+        name = names.get(key, key)
+        commands[name] = sent
+        measured[name] = np.where(np.isfinite(aa), sent - aa * d_max, table[f"dc_{key}"] - cc * d_max)
+    return commands, measured
 
 
 def load(source: str | Path, t_d: float | None = None, test_rate: float | None = None) -> StepData:
@@ -113,6 +139,9 @@ def load(source: str | Path, t_d: float | None = None, test_rate: float | None =
     with open(path, "rb") as fh:
         magic = fh.read(16)
     if magic.startswith(b"SQLite format 3"):
+        if test_rate is not None:
+            raise RecordError(f"{path}: --test-rate says a CSV file's time_s is record time; a run records its "
+                              "own test rate (give --t-d to set the lab duration of a step)")
         return read_run(path, t_d)
     raise RecordError(f"{path}: neither a run (SQLite) nor a CSV file with {','.join(CSV_COLUMNS)}")
 

@@ -168,6 +168,11 @@ def fit(v, er, d_max_mm: float = D_MAX_MM, a_max: float | None = None) -> Hockey
     dof = max(n - 2, 1)
     s2 = float(r @ r) / dof
     J = jacobian(sol.x)
+    if np.linalg.matrix_rank(J) < 2:
+        beyond = speeds[speeds > a]
+        raise FitError(f"hockey-stick fit: every step beyond the threshold moves at one speed "
+                       f"({float(np.median(beyond)) if beyond.size else top:g} mm/s): eq. 1 fixes only b (|v| - a) "
+                       "there, not a and b apart; calibrate on motion at several speeds (a record or a sine)")
     try:
         cov = s2 * np.linalg.inv(J.T @ J)
         a_std, b_std = (float(math.sqrt(max(c, 0.0))) for c in np.diag(cov))

@@ -99,6 +99,14 @@ class CompensationSettings:
             if value > high:
                 what = "b_s_mm x d_max_mm (the lag)" if name == "lag_s" else name
                 raise ConfigError(f"{where}: {what} = {value!r} is out of bounds: at most {high:g}{unit}")
+        # Online, the estimates stay within 0..a_max_mm_s and 0..lag_max_s: a starting guess beyond
+        # them is refused, not clamped.
+        if self.mode == "online" and self.a_mm_s > e.a_max_mm_s:
+            raise ConfigError(f"{where}: the starting a_mm_s = {self.a_mm_s:g} is beyond a_max_mm_s = "
+                              f"{e.a_max_mm_s:g}, the bound on the online estimate; raise a_max_mm_s or lower a_mm_s")
+        if self.mode == "online" and self.lag_s > e.lag_max_s:
+            raise ConfigError(f"{where}: the starting lag b_s_mm x d_max_mm = {self.lag_s:g} s is beyond lag_max_s = "
+                              f"{e.lag_max_s:g} s, the bound on the online estimate; raise lag_max_s or lower b_s_mm")
 
     @property
     def lag_s(self) -> float:
@@ -123,6 +131,10 @@ class CompensationStage:
         if s.mode == "offline" and s.form == "eq2" and s.lag_s >= 0.5 * self.t_d:
             raise ConfigError(f"[compensation] form = 'eq2' is unstable here: b d_max = {s.lag_s:.4g} s >= "
                               f"t_d / 2 = {0.5 * self.t_d:.4g} s (raise the test rate or use form = 'lead')")
+        if s.mode == "online" and s.lag_s > lag_limit:
+            raise ConfigError(f"[compensation] form = 'eq2': the starting lag b d_max = {s.lag_s:.4g} s is beyond "
+                              f"0.45 t_d = {lag_limit:.4g} s, the bound on the online estimate that keeps eq. 2 "
+                              "stable (raise the test rate, lower b_s_mm or use form = 'lead')")
         self.feedforward: list[FeedForward] = []
         self.estimators: list[OnlineEstimator | None] = []
         for on in self.enabled:

@@ -77,8 +77,9 @@ def load_run(run_dir: str | Path) -> RunData:
     """Read run.sqlite with the structure, record and integrator it was run with."""
     from hsio.config import from_dict
     from hsio.experiment import excitation
-    from hsio.recording import Run
+    from hsio.recording import Run, column
     from hsio.runner import build_record, load_run_structure
+    from hsio.safety.inputs import ground_fingerprint
 
     path = Path(run_dir) / "run.sqlite"
     try:
@@ -90,8 +91,19 @@ def load_run(run_dir: str | Path) -> RunData:
     config = from_dict(run.meta.get("config", {}), str(path), replay=True)
     if config["integrator"]["method"] != "alpha_os":
         raise RecordError(f"{path}: the error budget replays alpha_os runs; this one used {config['integrator']['method']!r}")
+    _same_inputs(run, config, path)
     structure = load_run_structure(config)
+    several = [e for e in structure.experimental if len(e.basic_dofs) != 1]
+    if several:
+        e = several[0]
+        raise RecordError(f"{path}: the error budget replays elements on one basic DOF each; element {e.name!r} "
+                          f"has {len(e.basic_dofs)} ({', '.join(structure.dof_names[d] for d in e.basic_dofs)})")
     ground = build_record(config, structure, replay=True)
+    recorded = run.meta.get("ground_motion_sha256")
+    if recorded is not None and ground_fingerprint(ground) != recorded:
+        raise RecordError(f"{path}: the ground motion built from the run's configuration ({ground.name}) is not the one "
+                          f"the run ran ({run.meta.get('record', '?')}; the sha256 of their samples differ): the replays "
+                          "would budget another test")
     planned = len(excitation(structure, ground)[0]) - 1
     steps = run.steps
     if steps.get("step") is None or steps["step"].size < 20:
@@ -101,12 +113,12 @@ def load_run(run_dir: str | Path) -> RunData:
                           f"{'; ' + why if why else ''})")
 
     def rows(prefix, names):
-        return np.vstack([np.zeros(len(names)), np.column_stack([run.steps[f"{prefix}_{n}"] for n in names])])
+        return np.vstack([np.zeros(len(names)), np.column_stack([run.steps[column(prefix, n)] for n in names])])
 
     dofs, acts = run.dof_names, run.actuator_names
     u_hs = rows("u", dofs)
     if run.ns and run.ns.get("step") is not None and run.ns["step"].size:
-        u_ns = np.column_stack([run.ns[f"u_{n}"] for n in dofs])[: u_hs.shape[0]]
+        u_ns = np.column_stack([run.ns[column("u", n)] for n in dofs])[: u_hs.shape[0]]
     else:
         u_ns = None
     t = np.r_[0.0, steps["time_s"]]
@@ -116,8 +128,21 @@ def load_run(run_dir: str | Path) -> RunData:
                    bool(config["test"]["measured_displacement_correction"]), t, u_hs, u_ns, rows("target", acts),
                    rows("disp", acts), rows("force", acts), planned, stop_reason(run))
     if data.u_ns is None or data.u_ns.shape != u_hs.shape:
-        data.u_ns = replay(data, [e.model() for e in structure.experimental])
+        data.u_ns = replay(data, structure_models(structure))
     return data
+
+
+def _same_inputs(run, config, path: Path) -> None:
+    """The structure and record files the replays read again are those the run began with (their
+    SHA-256 in meta ``inputs``), else a RecordError naming each that changed or is missing: a file
+    edited since the run would budget another test."""
+    from hsio.safety.inputs import compare_inputs
+
+    read_again = [e for e in run.meta.get("inputs") or [] if str(e.get("what", "")).startswith(("[structure]", "[record]"))]
+    changed, _ = compare_inputs(read_again, config)
+    if changed:
+        raise RecordError(f"{path}: the budget replays the run's structure and record, but input files differ from "
+                          "those the run began with:\n  " + "\n  ".join(changed) + "\nrestore them as they were")
 
 
 class _Replay:
@@ -190,6 +215,36 @@ def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else 0.0
 
 
+class _QuasiStatic:
+    """A structure's specimen model evaluated as NS evaluates it: with no move time, so that a
+    rate-dependent model (a dashpot, friction, inertia) gives its quasi-static force, whatever
+    time step the replay passes."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    @property
+    def initial_stiffness(self) -> float:
+        return self.inner.initial_stiffness
+
+    def trial(self, u, dt=0.0):
+        return self.inner.trial(u)
+
+    def commit(self):
+        self.inner.commit()
+
+    def revert_to_start(self):
+        self.inner.revert_to_start()
+
+    def force(self, u, dt=0.0):
+        return self.inner.force(u)
+
+
+def structure_models(structure) -> list:
+    """The structure's specimen models, one per experimental element, as NS evaluates them."""
+    return [_QuasiStatic(e.model()) for e in structure.experimental]
+
+
 def _path_force(specimen, d: np.ndarray, dt: float) -> np.ndarray:
     specimen.revert_to_start()
     out = np.array([specimen.force(x, dt) for x in d.tolist()])
@@ -209,9 +264,9 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
     for j, element in enumerate(data.structure.experimental):
         d, f = data.displacement[:, j], data.force[:, j]
         n_fit = int(0.8 * d.size)
-        base = _path_force(element.model(), d, dt)
+        base = _path_force(_QuasiStatic(element.model()), d, dt)
         scale = float(np.dot(base[:n_fit], f[:n_fit]) / max(np.dot(base[:n_fit], base[:n_fit]), 1e-300))
-        scaled = _scaled(element.model(), scale)
+        scaled = _scaled(_QuasiStatic(element.model()), scale)
         options = [("structure's model scaled by %.3f" % scale, scaled, {"scale": scale})]
         try:
             diag = diagnose_specimen(SpecimenRecord(f"{data.source}#{element.name}", dt, d, f))
@@ -407,11 +462,10 @@ def error_budget(run_dir: str | Path) -> Budget:
     data = load_run(run_dir)
     n = data.u_hs.shape[0]
     models, notes = specimen_models(data)
-    structure_models = lambda: [e.model() for e in data.structure.experimental]  # noqa: E731
     error = data.targets - data.displacement
     noise = force_noise(data, models)
-    replays = {"tracking": replay(data, structure_models(), tracking_error=error),
-               "force_noise": replay(data, structure_models(), force_noise=noise),
+    replays = {"tracking": replay(data, structure_models(data.structure), tracking_error=error),
+               "force_noise": replay(data, structure_models(data.structure), force_noise=noise),
                "specimen": replay(data, models)}
     u_all = replay(data, models, tracking_error=error, force_noise=noise)
     m = min(n, data.u_ns.shape[0], u_all.shape[0], *(u.shape[0] for u in replays.values()))

@@ -163,7 +163,11 @@ def read_daq(path: str | Path, channels: DaqChannels | None = None) -> ActuatorR
     all_lines = text.splitlines()
     if not all_lines or not all_lines[0].lower().startswith("header size"):
         raise RecordError(f"{path}:1: not a DAQ export (expected 'Header Size: n', got {all_lines[0][:40] if all_lines else ''!r})")
-    header_size = int(_number(all_lines[0].split(":", 1)[1], path, 1, "Header Size"))
+    size = _number(all_lines[0].split(":", 1)[1], path, 1, "Header Size")
+    if size != int(size) or size < 2:
+        raise RecordError(f"{path}:1: Header Size must be a whole number of lines, at least 2 (the header and the "
+                          f"column names), got {all_lines[0].split(':', 1)[1].strip()!r}")
+    header_size = int(size)
     info = {}
     # The header lines include the row of column names (the last one).
     for lineno in range(2, header_size):
@@ -277,6 +281,9 @@ def read_record(path: str | Path, fmt: str | None = None, channels: DaqChannels 
                 actuator: str | None = None) -> ActuatorRecord:
     """Read a record in ``fmt`` (csv, daq or run; None: from the name and first bytes)."""
     fmt = fmt or detect_format(path)
+    if actuator is not None and fmt != "run":
+        raise RecordError(f"{path}: --actuator chooses an actuator of an hsio recording (run.sqlite); "
+                          f"this is a {fmt} record of one actuator")
     if fmt == "csv":
         return read_csv(path)
     if fmt == "daq":

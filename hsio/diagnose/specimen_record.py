@@ -103,6 +103,9 @@ def read_specimen(path: str | Path, fmt: str | None = None, displacement: str = 
     from hsio.diagnose.readers import detect_format, read_run
 
     fmt = fmt or detect_format(path)
+    if actuator is not None and fmt != "run":
+        raise RecordError(f"{path}: --actuator chooses an actuator of an hsio recording (run.sqlite); "
+                          f"this is a {fmt} record of one specimen")
     if fmt == "csv":
         return [read_csv(path)]
     if fmt == "daq":

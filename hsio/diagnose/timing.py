@@ -29,6 +29,7 @@ one: with a late channel the feedback leads the record by tau, with a delay it d
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,9 +70,14 @@ class Timing:
         return float("inf") if v0 > 0 else float("nan")
 
     def to_json(self) -> dict:
-        return {"verdict": self.verdict, "tau_s": self.tau_s, "violations_at_zero": self.violations_at_zero,
-                "violations_at_tau": self.violations_at_tau, "ratio": self.ratio, "reversals": self.reversals,
-                "reason": self.reason, "extra_channel": EXTRA_CHANNEL}
+        """The verdict with its evidence; a count or ratio that does not exist (no force, nothing
+        to compare) is null, so that the output is strict JSON."""
+        def number(x: float) -> float | None:
+            return float(x) if math.isfinite(x) else None
+
+        return {"verdict": self.verdict, "tau_s": number(self.tau_s), "violations_at_zero": number(self.violations_at_zero),
+                "violations_at_tau": number(self.violations_at_tau), "ratio": number(self.ratio),
+                "reversals": self.reversals, "reason": self.reason, "extra_channel": EXTRA_CHANNEL}
 
 
 def reversal_mask(u: np.ndarray, dt: float, min_excursion_mm: float) -> tuple[np.ndarray, int]:

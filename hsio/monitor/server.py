@@ -116,6 +116,9 @@ def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT
     from hsio.monitor.page import MonitorPage
 
     run_dir = Path(run_dir)
+    if not host.strip():  # an empty address would bind every interface (an unset variable, a typing error)
+        raise ConfigError("the address to listen on is empty: give one (127.0.0.1, this machine; 0.0.0.0, every "
+                          "interface, with a token)")
     if needs_token(host) and not token:
         token = secrets.token_urlsafe(18)
     feed = RecordFeed(run_dir)

@@ -13,6 +13,7 @@ measured restoring force f_m of the specimen:
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -22,6 +23,7 @@ from scipy import signal
 
 FS = 4096.0  # controller rate, Hz (benchmark constraint)
 RECORD_SCALE = 0.4  # El Centro 1940 x 0.4
+MAX_RECORD_S = 1000.0  # longest record run (the benchmark's lasts 41.18 s)
 
 
 @dataclass(frozen=True)
@@ -36,27 +38,87 @@ class Benchmark:
     def cases(self) -> list[int]:
         return sorted(int(c) for c in self.data["cases"])
 
-    def table3(self, case: int) -> list[float]:
-        return list(self.data["table3_sample_controller_elcentro"][str(case)])
+    def table3(self, case: int) -> list[float] | None:
+        """The paper's J1-J9 of the sample controller for ``case`` (None when the data lack them)."""
+        table = self.data.get("table3_sample_controller_elcentro")
+        row = table.get(str(case)) if isinstance(table, dict) else None
+        try:
+            return [float(j) for j in row] if row is not None and len(row) == 9 else None
+        except (TypeError, ValueError):
+            return None
 
 
 @lru_cache(maxsize=4)
 def load(folder: str | Path) -> Benchmark:
+    """Read and check the data folder; anything the benchmark cannot run on is a ValueError
+    naming the file and what is wrong there."""
     folder = Path(folder)
     data = json.loads((folder / "benchmark.json").read_text())
-    rec = np.loadtxt(folder / "elcentro_vrths.csv", delimiter=",", skiprows=1)
-    return Benchmark(data, rec[:, 0].copy(), rec[:, 1].copy())
+    csv = folder / "elcentro_vrths.csv"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # an empty file: refused below
+        rec = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
+    if rec.shape[0] < 2 or rec.shape[1] != 2:
+        raise ValueError(f"{csv}: needs a header and at least two rows of time_s,accel_m_s2 "
+                         f"(has {rec.shape[0]} rows of {rec.shape[1]} columns)")
+    bm = Benchmark(data, rec[:, 0].copy(), rec[:, 1].copy())
+    check(bm, folder)
+    return bm
+
+
+def check(bm: Benchmark, folder: Path) -> None:
+    """The record: at least two finite rows, time increasing over at most MAX_RECORD_S, a ground
+    that moves; benchmark.json: every number the cases, the plant and the constraints
+    need (3 x 3 matrices for each case, finite, a mass that leaves the numerical substructure a
+    positive definite one, the substructure's me, ke and the converters' scales positive)."""
+    from hsio.rths import plant as plant_mod
+
+    csv, js = folder / "elcentro_vrths.csv", folder / "benchmark.json"
+    t, a = bm.record_t, bm.record_a
+    bad = np.flatnonzero(~(np.isfinite(t) & np.isfinite(a)))
+    if bad.size:
+        raise ValueError(f"{csv}:{int(bad[0]) + 2}: a value that is not a finite number")
+    back = np.flatnonzero(np.diff(t) <= 0.0)
+    if back.size:
+        raise ValueError(f"{csv}:{int(back[0]) + 3}: time does not increase ({t[back[0]]:g} s, then {t[back[0] + 1]:g} s)")
+    if t[-1] - t[0] > MAX_RECORD_S:
+        raise ValueError(f"{csv}: the record lasts {t[-1] - t[0]:g} s; the benchmark runs at most {MAX_RECORD_S:g} s "
+                         f"at {FS:g} Hz (is the time column in seconds?)")
+    if not np.any(a != 0.0):
+        raise ValueError(f"{csv}: the ground never moves (every acceleration is 0)")
+    if not isinstance(bm.data, dict) or not isinstance(bm.data.get("cases"), dict) or not bm.data["cases"]:
+        raise ValueError(f"{js}: needs a 'cases' table of partitioning cases")
+    try:
+        numbers = [case(bm, int(c)) for c in bm.data["cases"]]
+        plant = plant_mod.nominal(bm.data)
+        std = [float(bm.data["plant"]["std"][k]) for k in plant_mod.UNCERTAIN]
+    except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
+        raise ValueError(f"{js}: a case, the plant or a constraint is missing or not a number: "
+                         f"{type(exc).__name__} {exc}") from None
+    for cs in numbers:
+        for name in ("M", "C", "K"):
+            m = getattr(cs, name)
+            if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+                raise ValueError(f"{js}: cases.{cs.number}.{name} must be a 3 x 3 matrix of finite numbers")
+        if not np.allclose(cs.M, cs.M.T) or np.min(np.linalg.eigvalsh(cs.Mn)) <= 0.0:
+            raise ValueError(f"{js}: cases.{cs.number}.M must be symmetric, and positive definite less the "
+                             f"specimen's me = {cs.me:g} kg at the first floor (the numerical substructure's mass)")
+    values = [getattr(plant, f) for f in plant.__dataclass_fields__] + std
+    if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
+        raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
+                         "me, ke and the converters' scales positive")
 
 
 def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) -> np.ndarray:
     """a_g at the controller rate (m/s^2): the record x 0.4, linearly interpolated. The whole
-    record by default; with ``duration``, that many seconds from the last quiet sample before the
-    ground starts to move (the record opens with 5 s of zeros, during which nothing happens)."""
-    t0 = 0.0
+    record by default, from its first sample (whatever its time); with ``duration``, that many
+    seconds from the last quiet sample before the ground starts to move (the record opens with
+    5 s of zeros, during which nothing happens)."""
+    t0 = bm.record_t[0]
     t_end = bm.record_t[-1]
     if duration is not None:
         moving = np.flatnonzero(bm.record_a != 0.0)
-        t0 = bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else 0.0
+        t0 = bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else t0
         t_end = min(t0 + duration, t_end)
     n = int(np.floor((t_end - t0) * fs + 1e-9)) + 1
     t = t0 + np.arange(n) / fs
