@@ -24,11 +24,15 @@ One file per run (``run.sqlite``), readable by any SQLite tool, pandas or MATLAB
 Each step is committed durably (WAL journal, ``synchronous=FULL``) before the next begins: a run
 that stops for any reason, a killed process or a power loss included, keeps every step it made.
 A record is never overwritten: the Recorder refuses a file that exists, and
-:func:`new_run_folder` creates a fresh numbered folder per run (docs/safety.md section 1).
+:func:`new_run_folder` creates a fresh numbered folder per run (docs/safety.md section 1). A
+record has one writer at a time: the Recorder holds an exclusive lock (``flock``) on its file
+while it writes, so a resume of a record that a run (or another resume) is still writing is
+refused (:class:`RecordInUseError`) before anything is written or opened.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import re
@@ -46,6 +50,23 @@ MAX_RUN_NUMBER = 9999
 
 class RecordExistsError(HsioError):
     """A run would overwrite an earlier record; nothing was written."""
+
+
+class RecordInUseError(RecordError):
+    """Another process (a run, a resume) is writing the record; nothing was written."""
+
+
+def _lock(path: Path, fd: int) -> int:
+    """Take the writer's lock on the record ``path`` through ``fd`` (kept open while it writes);
+    :class:`RecordInUseError` if another process holds it."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise RecordInUseError(f"{path} is being written by another process (a run or a resume still going): "
+                               f"one writer at a time; stop that one first (its control socket, or Ctrl-C), "
+                               f"the record is unchanged and nothing moved") from None
+    return fd
 
 
 class RunFileMissingError(RecordError, FileNotFoundError):
@@ -158,16 +179,18 @@ class Recorder:
             raise RecordError(f"{self.path} is a directory; a record is a file (e.g. {self.path / RUN_FILE})")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:  # created exclusively: an earlier record is never replaced
-            os.close(os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             raise RecordExistsError(f"{self.path} already holds a record; records are never overwritten") from None
         self.db = None
+        self._lock_fd = _lock(self.path, fd)
         try:
             self._create(meta)
         except BaseException:  # no half-made record is left behind: the same call can be made again
             if self.db is not None:
                 self.db.close()
                 self.db = None
+            self.close()
             for suffix in ("", "-wal", "-shm", "-journal"):
                 Path(f"{self.path}{suffix}").unlink(missing_ok=True)
             raise
@@ -203,7 +226,25 @@ class Recorder:
         run, docs/safety.md section 8)."""
         self = cls.__new__(cls)
         self.path = Path(path)
+        self.db = None
+        self._lock_fd = _lock(self.path, os.open(self.path, os.O_RDONLY))
+        try:
+            self._reopen()
+        except BaseException:
+            if self.db is not None:
+                self.db.close()
+                self.db = None
+            self.close()
+            raise
+        return self
+
+    def _reopen(self) -> None:
         self.db = sqlite3.connect(self.path, check_same_thread=False)
+        tables = {name for (name,) in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        missing = sorted({"meta", "summary", "steps", "samples", "events", "ns"} - tables)
+        if missing:
+            raise NotARunError(f"{self.path}: not an hsio run record that can be continued (no {', '.join(missing)} "
+                               f"table); the record is unchanged")
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")
         meta = {k: json.loads(v) for k, v in self.db.execute("SELECT key, value FROM meta")}
@@ -218,7 +259,6 @@ class Recorder:
         for (name,) in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'").fetchall():
             if name in ("compensation", "implicit"):
                 self._extra_tables[name] = cols(name)[1:]
-        return self
 
     def write_step(self, step: int, time_s: float, u, v, a, u_pred, r, modes, targets, commands, disp, force, samples=None,
                    sample_meta=None, late_steps: int = 0, flags=()) -> None:
@@ -283,15 +323,25 @@ class Recorder:
         self.db.executemany(self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
         self.db.commit()
 
-    def write_summary(self, summary: dict) -> None:
+    def write_summary(self, summary: dict, replace: bool = False) -> None:
+        """Add or replace summary entries; ``replace``: the summary becomes ``summary`` alone."""
+        if replace:
+            self.db.execute("DELETE FROM summary")
         self.db.executemany("INSERT OR REPLACE INTO summary VALUES (?, ?)", [(k, json.dumps(v)) for k, v in summary.items()])
         self.db.commit()
 
     def close(self) -> None:
-        if self.db is not None:
-            self.db.commit()
-            self.db.close()
+        """Commit and close; then let go of the writer's lock (after SQLite's own file is closed:
+        closing a descriptor of the file drops the process's locks on it)."""
+        try:
+            if self.db is not None:
+                self.db.commit()
+                self.db.close()
+        finally:
             self.db = None
+            fd, self._lock_fd = getattr(self, "_lock_fd", None), None
+            if fd is not None:
+                os.close(fd)
 
 
 class Run:
@@ -315,6 +365,10 @@ class Run:
                 db.close()
             self.dof_names = self.meta["dof_names"]
             self.actuator_names = self.meta["actuator_names"]
+            for key in ("dof_names", "actuator_names"):
+                names = self.meta[key]
+                if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+                    raise ValueError(f"meta {key} is {json.dumps(names)[:60]}, not a list of names")
         except (sqlite3.Error, KeyError, ValueError) as exc:
             detail = f"no {exc} in its meta table" if isinstance(exc, KeyError) else str(exc)
             raise NotARunError(f"{self.path}: not an hsio run record ({detail})") from None

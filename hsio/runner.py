@@ -438,6 +438,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
         run_id = ledger.begin(out, config.tables, structure.name, ground.name, hsio.__version__) if ledger else None
         if ledger:
             cleanup.callback(ledger.close)
+            recorder.write_meta({"ledger": str(ledger.folder.resolve())})  # where a resume lists itself
         if safety.control_socket:
             server = ControlServer(out, control)
             cleanup.callback(server.close)
