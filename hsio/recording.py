@@ -227,7 +227,14 @@ class Recorder:
         self = cls.__new__(cls)
         self.path = Path(path)
         self.db = None
-        self._lock_fd = _lock(self.path, os.open(self.path, os.O_RDONLY))
+        try:
+            if not os.access(self.path.parent, os.W_OK | os.X_OK):  # SQLite writes its journal beside the record
+                raise PermissionError(13, "its folder cannot be written to")
+            fd = os.open(self.path, os.O_RDWR)
+        except OSError as exc:
+            raise RecordError(f"{self.path}: cannot write to the record ({exc.strerror or exc}); the record is "
+                              f"unchanged") from None
+        self._lock_fd = _lock(self.path, fd)
         try:
             self._reopen()
         except BaseException:
@@ -344,6 +351,30 @@ class Recorder:
                 os.close(fd)
 
 
+def connect_read_only(path: str | Path, check_same_thread: bool = True) -> sqlite3.Connection:
+    """A read-only SQLite connection to the record at ``path``, whatever its folder is called (the
+    path is percent-encoded into SQLite's URI: a ``#``, ``?`` or ``%`` in a name would otherwise
+    cut it short and open another file, read-write).
+
+    A record in a folder this process cannot write to (a write-protected archive) is read as
+    immutable: SQLite cannot create the WAL index beside it, and a closed record has no journal
+    left to merge. A journal (``-wal``) that still holds steps is named instead of being skipped."""
+    path = Path(path).absolute()
+    db = sqlite3.connect(path.as_uri() + "?mode=ro", uri=True, check_same_thread=check_same_thread)
+    try:
+        db.execute("SELECT name FROM sqlite_master LIMIT 1").fetchall()
+        return db
+    except sqlite3.OperationalError:
+        db.close()
+        if os.access(path.parent, os.W_OK) or not os.access(path, os.R_OK):
+            raise
+    wal = Path(f"{path}-wal")
+    if wal.exists() and wal.stat().st_size > 0:
+        raise sqlite3.OperationalError(f"its folder is write-protected and its journal {wal.name} holds steps not "
+                                       f"yet merged into it: let the folder be written to, or copy it, to read it")
+    return sqlite3.connect(path.as_uri() + "?mode=ro&immutable=1", uri=True, check_same_thread=check_same_thread)
+
+
 class Run:
     """A recorded run, read back as arrays (for plots, calibration and diagnostics)."""
 
@@ -354,7 +385,7 @@ class Run:
         if self.path.is_dir():
             raise NotARunError(f"{self.path} is a directory, not a run file (a run's folder holds {RUN_FILE})")
         try:
-            db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+            db = connect_read_only(self.path)
             try:
                 self.meta = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
                 self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
@@ -388,7 +419,7 @@ class Run:
 
     def samples(self) -> dict[str, np.ndarray]:
         """Every controller-period sample (may be large)."""
-        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+        db = connect_read_only(self.path)
         try:
             return self._table_samples(db)
         finally:
@@ -405,7 +436,7 @@ class Run:
     def table(self, name: str) -> dict[str, np.ndarray]:
         """An extra per-step table (``compensation``, ``implicit``); empty if the run has none.
         Missing values are NaN."""
-        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+        db = connect_read_only(self.path)
         try:
             if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name=?", (name,)).fetchone():
                 return {}
@@ -418,7 +449,7 @@ class Run:
 
     def events(self) -> list[dict]:
         """The events table as a list of dicts (time_s, step, kind, actuator, message)."""
-        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+        db = connect_read_only(self.path)
         try:
             if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='events'").fetchone():
                 return []

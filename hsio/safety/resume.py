@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import sqlite3
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import numpy as np
 
 import hsio
 from hsio import api, config as config_mod
-from hsio.errors import ConfigError, HsioError
+from hsio.errors import ConfigError, HsioError, RecordError
 from hsio.experiment import ExperimentStopped, excitation
 from hsio.integrators.alpha_os import AlphaOSState
 from hsio.ledger import LEDGER_FILE, Ledger
@@ -158,6 +159,9 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
     error = None
     with stop_on_signals(control), contextlib.ExitStack() as cleanup:
         control.check_stop()  # a Ctrl-C while the program started: nothing opened, the record untouched
+        summary_file = run_dir / "summary.json"
+        if summary_file.exists() and not os.access(summary_file, os.W_OK):
+            raise RecordError(f"{summary_file}: cannot write to it; the record is unchanged and nothing moved")
         recorder = Recorder.append(path)
         cleanup.callback(recorder.close)
         if safety.control_socket:
