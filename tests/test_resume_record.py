@@ -124,3 +124,4 @@ def test_the_summary_and_the_ledger_describe_the_whole_resumed_record(tmp_path):
     assert again["run_dir"] == this["run_dir"] and "(resumed after step 20)" in again["record"]
     assert again["outcome"] == "finished" and again["exit_status"] == 0
     assert again["end_state"] == summary["end_state"] and set(again["start_state"]) == {"C1", "C2"}
+    assert summary["earlier_sessions"] == [stopped]  # the stopped session's summary, as it was

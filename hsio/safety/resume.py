@@ -207,8 +207,12 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         status = exit_status(error)
         steps = recorder.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
         # what the earlier session measured of itself alone (its wall time, late steps, tracking,
-        # plots) would misdescribe the whole record: kept are the run's description and start
+        # plots) would misdescribe the whole record: kept are the run's description and start; the
+        # earlier sessions' summaries as they were are under ``earlier_sessions``
         summary = {k: v for k, v in run.summary.items() if k not in SESSION_KEYS}
+        earlier = {k: v for k, v in run.summary.items() if k != "earlier_sessions"}  # kept whole, in order
+        summary["earlier_sessions"] = [*run.summary.get("earlier_sessions", []), earlier] if earlier else \
+            list(run.summary.get("earlier_sessions", []))
         summary.update(hold)
         summary.update(steps=steps, resumed_from=state.i, exit_status=status, outcome=outcome_name(status),
                        stopped=str(error) if error else "", run_dir=str(run_dir), end_state=end_state)
