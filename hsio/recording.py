@@ -396,10 +396,18 @@ class Run:
                 db.close()
             self.dof_names = self.meta["dof_names"]
             self.actuator_names = self.meta["actuator_names"]
-            for key in ("dof_names", "actuator_names"):
+            for key, prefixes in (("dof_names", ("u", "r")), ("actuator_names", ("target", "disp", "force"))):
                 names = self.meta[key]
                 if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
                     raise ValueError(f"meta {key} is {json.dumps(names)[:60]}, not a list of names")
+                missing = [column(p, n) for n in names for p in prefixes if column(p, n) not in self.steps]
+                if missing:
+                    raise ValueError(f"meta {key} names {', '.join(names)}, but the steps table has no "
+                                     f"{', '.join(missing[:4])}")
+            if not self.dof_names:
+                raise ValueError("meta dof_names is empty")
+            if not isinstance(self.meta.get("config", {}), dict):
+                raise ValueError(f"meta config is {json.dumps(self.meta['config'])[:60]}, not a table")
         except (sqlite3.Error, KeyError, ValueError) as exc:
             detail = f"no {exc} in its meta table" if isinstance(exc, KeyError) else str(exc)
             raise NotARunError(f"{self.path}: not an hsio run record ({detail})") from None
@@ -419,11 +427,14 @@ class Run:
 
     def samples(self) -> dict[str, np.ndarray]:
         """Every controller-period sample (may be large)."""
-        db = connect_read_only(self.path)
         try:
-            return self._table_samples(db)
-        finally:
-            db.close()
+            db = connect_read_only(self.path)
+            try:
+                return self._table_samples(db)
+            finally:
+                db.close()
+        except (sqlite3.Error, ValueError, TypeError) as exc:
+            raise NotARunError(f"{self.path}: its samples cannot be read ({exc})") from None
 
     @staticmethod
     def _table_samples(db) -> dict[str, np.ndarray]:
@@ -436,16 +447,19 @@ class Run:
     def table(self, name: str) -> dict[str, np.ndarray]:
         """An extra per-step table (``compensation``, ``implicit``); empty if the run has none.
         Missing values are NaN."""
-        db = connect_read_only(self.path)
         try:
-            if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name=?", (name,)).fetchone():
-                return {}
-            cur = db.execute(f"SELECT * FROM {name} ORDER BY step")
-            cols = [c[0] for c in cur.description]
-            data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
-            return {c: data[:, i] for i, c in enumerate(cols)}
-        finally:
-            db.close()
+            db = connect_read_only(self.path)
+            try:
+                if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name=?", (name,)).fetchone():
+                    return {}
+                cur = db.execute(f"SELECT * FROM {name} ORDER BY step")
+                cols = [c[0] for c in cur.description]
+                data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
+                return {c: data[:, i] for i, c in enumerate(cols)}
+            finally:
+                db.close()
+        except (sqlite3.Error, ValueError, TypeError) as exc:
+            raise NotARunError(f"{self.path}: its {name} table cannot be read ({exc})") from None
 
     def events(self) -> list[dict]:
         """The events table as a list of dicts (time_s, step, kind, actuator, message)."""

@@ -64,7 +64,8 @@ def _last_step(column, value):
 
 
 @pytest.mark.parametrize("damage, says", [
-    (_meta("config", [1, 2]), "its meta holds no configuration table"),
+    (_meta("config", [1, 2]), "meta config is [1, 2], not a table"),
+    (lambda db: db.execute("DELETE FROM meta WHERE key = 'config'"), "its meta holds no configuration table"),
     (_meta("inputs", "x"), "meta inputs is not a list of fingerprints"),
     (_meta("inputs", [{"what": 1}]), "meta inputs is not a list of fingerprints"),
     (_meta("dof_names", 7), "meta dof_names is 7, not a list of names"),
@@ -72,7 +73,7 @@ def _last_step(column, value):
     (_last_step("a_C2", float("inf")), "not finite (a_C2)"),
     (_last_step("step", 10 ** 9), "its last committed step is 1000000000, not one of the record's steps"),
     (lambda db: db.execute("DROP TABLE events"), "(no events table)"),
-], ids=["config", "inputs-text", "inputs-entry", "dof-names", "nan-force", "inf-acceleration", "step", "events"])
+], ids=["config", "no-config", "inputs-text", "inputs-entry", "dof-names", "nan-force", "inf-acceleration", "step", "events"])
 def test_a_damaged_record_is_refused_by_name(tmp_path, damage, says):
     out = stopped_run(tmp_path, 5)
     with sqlite3.connect(out / "run.sqlite") as db:

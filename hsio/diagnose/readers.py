@@ -239,6 +239,8 @@ def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
         raise RecordError(f"{path}: a real-time run keeps the samples of each step only, with gaps between "
                           "steps; diagnose needs a lockstep run or a continuous record")
     names = run.actuator_names
+    if not names:
+        raise RecordError(f"{path}: the recording names no actuator")
     name = actuator or names[0]
     if name not in names:
         raise RecordError(f"{path}: no actuator {name!r}; actuators: {', '.join(names)}")
