@@ -418,8 +418,13 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     check_hardware(config)
     check_dwell(config, structure)
     inputs = fingerprints(config)  # before the folder: a file that cannot be read leaves none
-    out = run_folder(config, structure, out_dir)
-    ledger = open_ledger(config, specimen_dir)
+    ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
+    try:
+        out = run_folder(config, structure, out_dir)
+    except BaseException:
+        if ledger:
+            ledger.close()
+        raise
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,

@@ -99,20 +99,16 @@ def check_ground(run: Run, ground) -> None:
                           f"unchanged and nothing moved")
 
 
-def open_ledger(run: Run, cfg, structure, ground, after: int, notify):
-    """The specimen ledger the run is listed in (meta ``ledger``), with a new row for this resumed
-    session (the earlier rows are left as they are); (None, None) for a run without a ledger."""
+def open_ledger(run: Run, notify) -> Ledger | None:
+    """The specimen ledger the run is listed in (meta ``ledger``); None for a run without one."""
     folder = run.meta.get("ledger")
     if not isinstance(folder, str) or not folder:
-        return None, None
+        return None
     if not (Path(folder) / LEDGER_FILE).is_file():
         notify(f"WARNING: the specimen ledger {Path(folder) / LEDGER_FILE} the run was listed in is gone: "
                f"this resumed session is not listed")
-        return None, None
-    ledger = Ledger(folder, run.meta.get("specimen_id") or "")
-    row = ledger.begin(run.path.parent, cfg.tables, structure.name, f"{ground.name} (resumed after step {after})",
-                       hsio.__version__)
-    return ledger, row
+        return None
+    return Ledger(folder, run.meta.get("specimen_id") or "")
 
 
 def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None) -> dict:
@@ -162,6 +158,9 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         summary_file = run_dir / "summary.json"
         if summary_file.exists() and not os.access(summary_file, os.W_OK):
             raise RecordError(f"{summary_file}: cannot write to it; the record is unchanged and nothing moved")
+        ledger = open_ledger(run, notify)
+        if ledger is not None:
+            cleanup.callback(ledger.close)
         recorder = Recorder.append(path)
         cleanup.callback(recorder.close)
         if safety.control_socket:
@@ -169,9 +168,9 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             cleanup.callback(server.close)
         recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
         notify(f"resuming {path} after step {state.i}")
-        ledger, ledger_id = open_ledger(run, cfg, structure, ground, state.i, notify)
-        if ledger is not None:
-            cleanup.callback(ledger.close)
+        # a row of its own for this session (the earlier rows are left as they are)
+        ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
+                                 hsio.__version__) if ledger is not None else None
         site = end_state = None
         hold = {}
         try:
