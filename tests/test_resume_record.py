@@ -109,7 +109,11 @@ def test_the_summary_and_the_ledger_describe_the_whole_resumed_record(tmp_path):
     whole = runner.run(config_mod.load(cfg), tmp_path / "whole")  # the same run, never stopped
     out = stopped_run(tmp_path, 20, config_path=cfg, out=tmp_path / "stopped")
     stopped = Run(out / "run.sqlite").summary
-    assert _resume(out).exit_code == 0
+    result = _resume(out)
+    assert result.exit_code == 0
+    last = Run(out / "run.sqlite").steps
+    assert (f"the record's last step measured C1 {last['disp_C1'][19]:+.3f} mm; C2 {last['disp_C2'][19]:+.3f} mm"
+            in result.output) and "the actuators stand at: C1 " in result.output
     summary = json.loads((out / "summary.json").read_text())
     assert summary == Run(out / "run.sqlite").summary
     for name in ("C1", "C2"):  # where the specimen stands at the end, not where the stop left it

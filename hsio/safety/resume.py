@@ -113,7 +113,7 @@ def open_ledger(run: Run, notify) -> Ledger | None:
 
 def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None) -> dict:
     """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary."""
-    from hsio.runner import _state, build_record, check_dwell, integrator_options, load_run_structure
+    from hsio.runner import _state, build_record, check_dwell, format_state, integrator_options, load_run_structure
 
     run_dir = Path(run_dir)
     path = run_dir / RUN_FILE
@@ -181,8 +181,14 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
                                  options=run.meta.get("emulator_settings", {}) if hardware["url"].startswith("emulator")
                                  else cfg["driver"], safety=safety)
             cleanup.callback(site.close)
+            standing = _state(site)
             if ledger is not None:
-                ledger.update(ledger_id, start_state=_state(site))
+                ledger.update(ledger_id, start_state=standing)
+            last = {name: run.steps[column("disp", name)][-1] for name in run.actuator_names
+                    if column("disp", name) in run.steps}
+            notify(format_state("the actuators stand at", standing) + "; the record's last step measured "
+                   + "; ".join(f"{name} {x:+.3f} mm" for name, x in last.items()) + " (the first step goes on from "
+                   "where they stand)")
             control.check_stop()
             control.enter("HS")
             try:
