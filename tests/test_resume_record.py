@@ -130,3 +130,23 @@ def test_the_summary_and_the_ledger_describe_the_whole_resumed_record(tmp_path):
     assert again["outcome"] == "finished" and again["exit_status"] == 0
     assert again["end_state"] == summary["end_state"] and set(again["start_state"]) == {"C1", "C2"}
     assert summary["earlier_sessions"] == [stopped]  # the stopped session's summary, as it was
+
+
+def test_a_resume_names_its_own_control_socket(tmp_path, monkeypatch):
+    """A run folder whose path is too long for a UNIX socket gets its socket in a new temporary
+    folder each session: the meta that the monitor and other tools read names the resume's."""
+    from hsio.safety import resume as resume_mod
+
+    out = stopped_run(tmp_path, 5, out=tmp_path / ("r" * 120))
+    first = Run(out / "run.sqlite").meta["control_socket"]
+    opened = []
+    real = resume_mod.ControlServer
+
+    def server(run_dir, control):
+        opened.append(real(run_dir, control))
+        return opened[0]
+
+    monkeypatch.setattr(resume_mod, "ControlServer", server)
+    assert _resume(out).exit_code == 0
+    assert str(opened[0].path) != first
+    assert Run(out / "run.sqlite").meta["control_socket"] == str(opened[0].path)

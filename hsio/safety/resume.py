@@ -166,6 +166,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         if safety.control_socket:
             server = ControlServer(run_dir, control)
             cleanup.callback(server.close)
+            recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
         recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
         notify(f"resuming {path} after step {state.i}")
         # a row of its own for this session (the earlier rows are left as they are)
