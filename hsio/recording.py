@@ -278,6 +278,17 @@ class Recorder:
         for j in range(len(self.actuator_names)):
             row += [float(targets[j]), float(commands[j]), float(disp[j]), float(force[j])]
         row += [int(late_steps), ",".join(flags)]
+        try:
+            self._write_step(step, row, samples, sample_meta)
+        except sqlite3.Error as exc:  # a full or vanished disk: the run stops, the steps before are kept
+            try:
+                self.db.rollback()  # a step is written whole or not at all (a later commit must not keep half)
+            except sqlite3.Error:
+                pass
+            raise RecordError(f"{self.path}: step {step} could not be written ({exc})") from None
+        self.steps_written += 1
+
+    def _write_step(self, step: int, row: list, samples, sample_meta) -> None:
         self.db.execute(self._insert_step, row)
         if samples is not None and len(samples):
             flat = np.asarray(samples, dtype=float).reshape(len(samples), -1)
@@ -290,7 +301,6 @@ class Recorder:
             self.db.executemany(self._insert_sample,
                                 [(step, k, *map(float, r_), *e) for k, (r_, e) in enumerate(zip(flat, extra))])
         self.db.commit()
-        self.steps_written += 1
 
     def write_tables(self, tables: dict[str, list[tuple[int, dict]]]) -> None:
         """Whole extra tables at once, ``{table: [(step, row), ...]}`` (a site's ``record_tables``)."""

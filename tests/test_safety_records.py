@@ -158,3 +158,42 @@ def test_a_write_protected_record_is_read_and_not_resumed(tmp_path):
             if d.is_dir():
                 d.chmod(0o755)
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_a_full_disk_stops_the_run_holding_and_keeps_the_steps_before(tmp_path, monkeypatch):
+    """The disk fills at step 5: that step is not kept in part (its row without its samples), the
+    run stops like any fault (actuators held, exit status 3), and a summary that cannot be written
+    is a warning, not a traceback."""
+    import errno
+    import sqlite3
+
+    from hsio.experiment import ExperimentStopped
+    from hsio.safety.status import exit_status
+
+    real_step = Recorder._write_step
+
+    def filling(self, step, row, samples, sample_meta):
+        if step < 5:
+            return real_step(self, step, row, samples, sample_meta)
+        self.db.execute(self._insert_step, row)  # the step's row goes in, its samples do not
+        raise sqlite3.OperationalError("database or disk is full")
+
+    real_write_text = Path.write_text
+
+    def full_disk(self, *args, **kwargs):
+        if self.name == "summary.json":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write_text(self, *args, **kwargs)
+
+    monkeypatch.setattr(Recorder, "_write_step", filling)
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    heard = []
+    with pytest.raises(ExperimentStopped) as stopped:
+        runner.run(config.from_dict(SHORT), tmp_path / "o", notify=heard.append)
+    assert exit_status(stopped.value) == 3
+    assert "step 5 could not be written (database or disk is full)" in str(stopped.value)
+    assert "the actuators hold (confirmed by read-back)" in str(stopped.value)
+    assert any("WARNING: the summary could not be written" in line and "No space left" in line for line in heard)
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert list(run.steps["step"]) == [1, 2, 3, 4] and set(run.samples()["step"]) == {1, 2, 3, 4}
+    assert run.events()[-1]["kind"] == "stop"

@@ -113,7 +113,8 @@ def open_ledger(run: Run, notify) -> Ledger | None:
 
 def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None) -> dict:
     """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary."""
-    from hsio.runner import _state, build_record, check_dwell, format_state, integrator_options, load_run_structure
+    from hsio.runner import (_state, build_record, check_dwell, format_state, integrator_options,
+                             load_run_structure, write_summary)
 
     run_dir = Path(run_dir)
     path = run_dir / RUN_FILE
@@ -229,8 +230,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         if len(u) and len(ns.get("step", ())):
             u_ns = np.column_stack([ns[column("u", d)] for d in structure.dof_names])[1:]  # NS from step 1, as u
             summary["max_error_pct"], summary["max_error_pct_per_dof"] = max_error_pct(u, u_ns)
-        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-        recorder.write_summary(summary, replace=True)
+        write_summary(run_dir, recorder, summary, notify, replace=True)
         if ledger is not None:
             ledger.finish(ledger_id, summary["outcome"], status, summary["stopped"], end_state)
     if error is not None:
