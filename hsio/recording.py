@@ -326,10 +326,13 @@ class Recorder:
     def write_event(self, time_s: float | None, step: int | None, kind: str, actuator: str, message: str,
                     commit: bool = True) -> None:
         """One event (docs/safety.md): committed at once unless ``commit`` is false (then with the step)."""
-        self.db.execute("INSERT INTO events VALUES (?, ?, ?, ?, ?)",
-                        (None if time_s is None else float(time_s), step, kind, actuator or "", message))
-        if commit:
-            self.db.commit()
+        try:
+            self.db.execute("INSERT INTO events VALUES (?, ?, ?, ?, ?)",
+                            (None if time_s is None else float(time_s), step, kind, actuator or "", message))
+            if commit:
+                self.db.commit()
+        except sqlite3.Error as exc:  # a full or vanished disk
+            raise RecordError(f"{self.path}: the {kind} event could not be written ({exc})") from None
 
     def write_meta(self, items: dict) -> None:
         """Add or replace metadata (e.g. an override of the dry run, the control socket)."""
