@@ -150,3 +150,14 @@ def test_a_resume_names_its_own_control_socket(tmp_path, monkeypatch):
     assert _resume(out).exit_code == 0
     assert str(opened[0].path) != first
     assert Run(out / "run.sqlite").meta["control_socket"] == str(opened[0].path)
+
+
+def test_a_resume_through_setups_names_the_actuators_where_they_stand(tmp_path):
+    """Through setups the record's channels are the element's basic DOFs (a rotation among them),
+    not the actuators: the resume says where the actuators stand, and compares nothing in mm."""
+    cfg = write_config(tmp_path, duration=0.1, rate=5.0, extra='[structure]\nname = "column_two_actuators"\n')
+    out = stopped_run(tmp_path, 3, config_path=cfg)
+    result = _resume(out)
+    assert result.exit_code == 0, result.output
+    assert "the actuators stand at: lower " in result.output and "; upper " in result.output
+    assert "top_rot" not in result.output

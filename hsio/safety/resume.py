@@ -186,11 +186,13 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             standing = _state(site)
             if ledger is not None:
                 ledger.update(ledger_id, start_state=standing)
-            last = {name: run.steps[column("disp", name)][-1] for name in run.actuator_names
-                    if column("disp", name) in run.steps}
-            notify(format_state("the actuators stand at", standing) + "; the record's last step measured "
-                   + "; ".join(f"{name} {x:+.3f} mm" for name, x in last.items()) + " (the first step goes on from "
-                   "where they stand)")
+            line = format_state("the actuators stand at", standing)
+            if standing and "error" not in standing and set(standing) == set(run.actuator_names):
+                # elements on one actuator each: the record's channels are the actuators (through
+                # setups they are the elements' basic DOFs, not comparable)
+                line += "; the record's last step measured " + "; ".join(
+                    f"{name} {run.steps[column('disp', name)][-1]:+.3f} mm" for name in run.actuator_names)
+            notify(line + " (the first step goes on from where they stand)")
             control.check_stop()
             control.enter("HS")
             try:
