@@ -472,9 +472,11 @@ class CanopenLink(common.AxisLink):
         d.node.rpdo_pointers[0x6060].raw = cod.CSP
         if d.node.state == "FAULT":
             d.node.reset_from_fault()
-        # Start from where the axis stands.
+        # Start from where the axis stands: the targets, and the actual values that the first
+        # feedback reads before any SYNC (in lockstep no exchange precedes it).
         d.target_counts = d.sdo_read(0x6064, what="position actual value")
         d.target_torque = d.sdo_read(0x6077, what="torque actual value")
+        d.actual = (d.target_counts, d.target_torque, d.actual[2])
         d.send_targets()
         try:
             d.node.state = "OPERATION ENABLED"

@@ -87,6 +87,7 @@ class ControlLoop:
         self._sample_meta: list[tuple] = []  # (lab time, phases) of each of those periods
         self._phases: list[str] = []
         self._paused = False
+        self._paused_at: float | None = None  # lab time when a pause began
         self._commands: list[float] = []
         self._thread: threading.Thread | None = None
         self._lock = threading.RLock()
@@ -246,6 +247,7 @@ class ControlLoop:
                     raise self._error
         with self._lock:
             self._paused = True
+            self._paused_at = self.clock.now_s
             for actuator in self.actuators:
                 try:
                     actuator.hold()
@@ -257,6 +259,9 @@ class ControlLoop:
         """Command again after :meth:`pause`: the generators go on from where they stand."""
         with self._lock:
             self._paused = False
+            if self.monitor is not None and getattr(self, "_paused_at", None) is not None:
+                self.monitor.skip(self.clock.now_s - self._paused_at)  # the pause's lab time does not count
+            self._paused_at = None
 
     def keep_alive(self) -> None:
         """While paused: each actuator that has a host watchdog is kept alive (it keeps holding).

@@ -41,6 +41,15 @@ class Ledger:
         except OSError as exc:
             raise ConfigError(f"specimen folder {self.folder}: cannot create it: {exc.strerror}") from None
         self.path = self.folder / LEDGER_FILE
+        self.db = None
+        try:
+            self._open(specimen_id)
+        except sqlite3.Error as exc:
+            self.close()
+            raise ConfigError(f"specimen ledger {self.path}: not a ledger hsio can keep ({exc}); move it aside or "
+                              f"name another specimen folder") from None
+
+    def _open(self, specimen_id: str) -> None:
         self.db = sqlite3.connect(self.path, timeout=10.0)
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")
@@ -49,6 +58,11 @@ class Ledger:
                         "run_dir TEXT, started TEXT, ended TEXT, version TEXT, structure TEXT, record TEXT, "
                         "config TEXT, start_state TEXT, end_state TEXT, dry_run TEXT, override INTEGER, "
                         "outcome TEXT, exit_status INTEGER, message TEXT)")
+        for table, wanted in (("specimen", ("key", "value")), ("runs", _COLUMNS)):
+            have = {r[1] for r in self.db.execute(f"PRAGMA table_info({table})")}
+            missing = [c for c in wanted if c not in have]
+            if missing:
+                raise sqlite3.DatabaseError(f"its {table} table has no column {', '.join(missing)}")
         row = self.db.execute("SELECT value FROM specimen WHERE key = 'id'").fetchone()
         wanted = specimen_id or self.folder.resolve().name
         if row is None:

@@ -24,11 +24,15 @@ One file per run (``run.sqlite``), readable by any SQLite tool, pandas or MATLAB
 Each step is committed durably (WAL journal, ``synchronous=FULL``) before the next begins: a run
 that stops for any reason, a killed process or a power loss included, keeps every step it made.
 A record is never overwritten: the Recorder refuses a file that exists, and
-:func:`new_run_folder` creates a fresh numbered folder per run (docs/safety.md section 1).
+:func:`new_run_folder` creates a fresh numbered folder per run (docs/safety.md section 1). A
+record has one writer at a time: the Recorder holds an exclusive lock (``flock``) on its file
+while it writes, so a resume of a record that a run (or another resume) is still writing is
+refused (:class:`RecordInUseError`) before anything is written or opened.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import re
@@ -46,6 +50,23 @@ MAX_RUN_NUMBER = 9999
 
 class RecordExistsError(HsioError):
     """A run would overwrite an earlier record; nothing was written."""
+
+
+class RecordInUseError(RecordError):
+    """Another process (a run, a resume) is writing the record; nothing was written."""
+
+
+def _lock(path: Path, fd: int) -> int:
+    """Take the writer's lock on the record ``path`` through ``fd`` (kept open while it writes);
+    :class:`RecordInUseError` if another process holds it."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise RecordInUseError(f"{path} is being written by another process (a run or a resume still going): "
+                               f"one writer at a time; stop that one first (its control socket, or Ctrl-C), "
+                               f"the record is unchanged and nothing moved") from None
+    return fd
 
 
 class RunFileMissingError(RecordError, FileNotFoundError):
@@ -158,16 +179,18 @@ class Recorder:
             raise RecordError(f"{self.path} is a directory; a record is a file (e.g. {self.path / RUN_FILE})")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:  # created exclusively: an earlier record is never replaced
-            os.close(os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             raise RecordExistsError(f"{self.path} already holds a record; records are never overwritten") from None
         self.db = None
+        self._lock_fd = _lock(self.path, fd)
         try:
             self._create(meta)
         except BaseException:  # no half-made record is left behind: the same call can be made again
             if self.db is not None:
                 self.db.close()
                 self.db = None
+            self.close()
             for suffix in ("", "-wal", "-shm", "-journal"):
                 Path(f"{self.path}{suffix}").unlink(missing_ok=True)
             raise
@@ -203,7 +226,32 @@ class Recorder:
         run, docs/safety.md section 8)."""
         self = cls.__new__(cls)
         self.path = Path(path)
+        self.db = None
+        try:
+            if not os.access(self.path.parent, os.W_OK | os.X_OK):  # SQLite writes its journal beside the record
+                raise PermissionError(13, "its folder cannot be written to")
+            fd = os.open(self.path, os.O_RDWR)
+        except OSError as exc:
+            raise RecordError(f"{self.path}: cannot write to the record ({exc.strerror or exc}); the record is "
+                              f"unchanged") from None
+        self._lock_fd = _lock(self.path, fd)
+        try:
+            self._reopen()
+        except BaseException:
+            if self.db is not None:
+                self.db.close()
+                self.db = None
+            self.close()
+            raise
+        return self
+
+    def _reopen(self) -> None:
         self.db = sqlite3.connect(self.path, check_same_thread=False)
+        tables = {name for (name,) in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        missing = sorted({"meta", "summary", "steps", "samples", "events", "ns"} - tables)
+        if missing:
+            raise NotARunError(f"{self.path}: not an hsio run record that can be continued (no {', '.join(missing)} "
+                               f"table); the record is unchanged")
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")
         meta = {k: json.loads(v) for k, v in self.db.execute("SELECT key, value FROM meta")}
@@ -218,7 +266,6 @@ class Recorder:
         for (name,) in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'").fetchall():
             if name in ("compensation", "implicit"):
                 self._extra_tables[name] = cols(name)[1:]
-        return self
 
     def write_step(self, step: int, time_s: float, u, v, a, u_pred, r, modes, targets, commands, disp, force, samples=None,
                    sample_meta=None, late_steps: int = 0, flags=()) -> None:
@@ -231,6 +278,17 @@ class Recorder:
         for j in range(len(self.actuator_names)):
             row += [float(targets[j]), float(commands[j]), float(disp[j]), float(force[j])]
         row += [int(late_steps), ",".join(flags)]
+        try:
+            self._write_step(step, row, samples, sample_meta)
+        except sqlite3.Error as exc:  # a full or vanished disk: the run stops, the steps before are kept
+            try:
+                self.db.rollback()  # a step is written whole or not at all (a later commit must not keep half)
+            except sqlite3.Error:
+                pass
+            raise RecordError(f"{self.path}: step {step} could not be written ({exc})") from None
+        self.steps_written += 1
+
+    def _write_step(self, step: int, row: list, samples, sample_meta) -> None:
         self.db.execute(self._insert_step, row)
         if samples is not None and len(samples):
             flat = np.asarray(samples, dtype=float).reshape(len(samples), -1)
@@ -243,7 +301,6 @@ class Recorder:
             self.db.executemany(self._insert_sample,
                                 [(step, k, *map(float, r_), *e) for k, (r_, e) in enumerate(zip(flat, extra))])
         self.db.commit()
-        self.steps_written += 1
 
     def write_tables(self, tables: dict[str, list[tuple[int, dict]]]) -> None:
         """Whole extra tables at once, ``{table: [(step, row), ...]}`` (a site's ``record_tables``)."""
@@ -269,10 +326,13 @@ class Recorder:
     def write_event(self, time_s: float | None, step: int | None, kind: str, actuator: str, message: str,
                     commit: bool = True) -> None:
         """One event (docs/safety.md): committed at once unless ``commit`` is false (then with the step)."""
-        self.db.execute("INSERT INTO events VALUES (?, ?, ?, ?, ?)",
-                        (None if time_s is None else float(time_s), step, kind, actuator or "", message))
-        if commit:
-            self.db.commit()
+        try:
+            self.db.execute("INSERT INTO events VALUES (?, ?, ?, ?, ?)",
+                            (None if time_s is None else float(time_s), step, kind, actuator or "", message))
+            if commit:
+                self.db.commit()
+        except sqlite3.Error as exc:  # a full or vanished disk
+            raise RecordError(f"{self.path}: the {kind} event could not be written ({exc})") from None
 
     def write_meta(self, items: dict) -> None:
         """Add or replace metadata (e.g. an override of the dry run, the control socket)."""
@@ -283,15 +343,49 @@ class Recorder:
         self.db.executemany(self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
         self.db.commit()
 
-    def write_summary(self, summary: dict) -> None:
+    def write_summary(self, summary: dict, replace: bool = False) -> None:
+        """Add or replace summary entries; ``replace``: the summary becomes ``summary`` alone."""
+        if replace:
+            self.db.execute("DELETE FROM summary")
         self.db.executemany("INSERT OR REPLACE INTO summary VALUES (?, ?)", [(k, json.dumps(v)) for k, v in summary.items()])
         self.db.commit()
 
     def close(self) -> None:
-        if self.db is not None:
-            self.db.commit()
-            self.db.close()
+        """Commit and close; then let go of the writer's lock (after SQLite's own file is closed:
+        closing a descriptor of the file drops the process's locks on it)."""
+        try:
+            if self.db is not None:
+                self.db.commit()
+                self.db.close()
+        finally:
             self.db = None
+            fd, self._lock_fd = getattr(self, "_lock_fd", None), None
+            if fd is not None:
+                os.close(fd)
+
+
+def connect_read_only(path: str | Path, check_same_thread: bool = True) -> sqlite3.Connection:
+    """A read-only SQLite connection to the record at ``path``, whatever its folder is called (the
+    path is percent-encoded into SQLite's URI: a ``#``, ``?`` or ``%`` in a name would otherwise
+    cut it short and open another file, read-write).
+
+    A record in a folder this process cannot write to (a write-protected archive) is read as
+    immutable: SQLite cannot create the WAL index beside it, and a closed record has no journal
+    left to merge. A journal (``-wal``) that still holds steps is named instead of being skipped."""
+    path = Path(path).absolute()
+    db = sqlite3.connect(path.as_uri() + "?mode=ro", uri=True, check_same_thread=check_same_thread)
+    try:
+        db.execute("SELECT name FROM sqlite_master LIMIT 1").fetchall()
+        return db
+    except sqlite3.OperationalError:
+        db.close()
+        if os.access(path.parent, os.W_OK) or not os.access(path, os.R_OK):
+            raise
+    wal = Path(f"{path}-wal")
+    if wal.exists() and wal.stat().st_size > 0:
+        raise sqlite3.OperationalError(f"its folder is write-protected and its journal {wal.name} holds steps not "
+                                       f"yet merged into it: let the folder be written to, or copy it, to read it")
+    return sqlite3.connect(path.as_uri() + "?mode=ro&immutable=1", uri=True, check_same_thread=check_same_thread)
 
 
 class Run:
@@ -304,7 +398,7 @@ class Run:
         if self.path.is_dir():
             raise NotARunError(f"{self.path} is a directory, not a run file (a run's folder holds {RUN_FILE})")
         try:
-            db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+            db = connect_read_only(self.path)
             try:
                 self.meta = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
                 self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
@@ -315,6 +409,18 @@ class Run:
                 db.close()
             self.dof_names = self.meta["dof_names"]
             self.actuator_names = self.meta["actuator_names"]
+            for key, prefixes in (("dof_names", ("u", "r")), ("actuator_names", ("target", "disp", "force"))):
+                names = self.meta[key]
+                if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+                    raise ValueError(f"meta {key} is {json.dumps(names)[:60]}, not a list of names")
+                missing = [column(p, n) for n in names for p in prefixes if column(p, n) not in self.steps]
+                if missing:
+                    raise ValueError(f"meta {key} names {', '.join(names)}, but the steps table has no "
+                                     f"{', '.join(missing[:4])}")
+            if not self.dof_names:
+                raise ValueError("meta dof_names is empty")
+            if not isinstance(self.meta.get("config", {}), dict):
+                raise ValueError(f"meta config is {json.dumps(self.meta['config'])[:60]}, not a table")
         except (sqlite3.Error, KeyError, ValueError) as exc:
             detail = f"no {exc} in its meta table" if isinstance(exc, KeyError) else str(exc)
             raise NotARunError(f"{self.path}: not an hsio run record ({detail})") from None
@@ -334,11 +440,14 @@ class Run:
 
     def samples(self) -> dict[str, np.ndarray]:
         """Every controller-period sample (may be large)."""
-        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
         try:
-            return self._table_samples(db)
-        finally:
-            db.close()
+            db = connect_read_only(self.path)
+            try:
+                return self._table_samples(db)
+            finally:
+                db.close()
+        except (sqlite3.Error, ValueError, TypeError) as exc:
+            raise NotARunError(f"{self.path}: its samples cannot be read ({exc})") from None
 
     @staticmethod
     def _table_samples(db) -> dict[str, np.ndarray]:
@@ -351,20 +460,23 @@ class Run:
     def table(self, name: str) -> dict[str, np.ndarray]:
         """An extra per-step table (``compensation``, ``implicit``); empty if the run has none.
         Missing values are NaN."""
-        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
         try:
-            if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name=?", (name,)).fetchone():
-                return {}
-            cur = db.execute(f"SELECT * FROM {name} ORDER BY step")
-            cols = [c[0] for c in cur.description]
-            data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
-            return {c: data[:, i] for i, c in enumerate(cols)}
-        finally:
-            db.close()
+            db = connect_read_only(self.path)
+            try:
+                if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name=?", (name,)).fetchone():
+                    return {}
+                cur = db.execute(f"SELECT * FROM {name} ORDER BY step")
+                cols = [c[0] for c in cur.description]
+                data = np.array(cur.fetchall(), dtype=float).reshape(-1, len(cols))
+                return {c: data[:, i] for i, c in enumerate(cols)}
+            finally:
+                db.close()
+        except (sqlite3.Error, ValueError, TypeError) as exc:
+            raise NotARunError(f"{self.path}: its {name} table cannot be read ({exc})") from None
 
     def events(self) -> list[dict]:
         """The events table as a list of dicts (time_s, step, kind, actuator, message)."""
-        db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+        db = connect_read_only(self.path)
         try:
             if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='events'").fetchone():
                 return []

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import sqlite3
 import time
 from pathlib import Path
 
@@ -418,8 +419,13 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     check_hardware(config)
     check_dwell(config, structure)
     inputs = fingerprints(config)  # before the folder: a file that cannot be read leaves none
-    out = run_folder(config, structure, out_dir)
-    ledger = open_ledger(config, specimen_dir)
+    ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
+    try:
+        out = run_folder(config, structure, out_dir)
+    except BaseException:
+        if ledger:
+            ledger.close()
+        raise
     meta = {
         "config": config.tables, "config_source": config.source, "structure": structure.name,
         "record": ground.name, "dt": structure.dt, "test_rate": test["rate"], "emulator_settings": emulator,
@@ -438,6 +444,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
         run_id = ledger.begin(out, config.tables, structure.name, ground.name, hsio.__version__) if ledger else None
         if ledger:
             cleanup.callback(ledger.close)
+            recorder.write_meta({"ledger": str(ledger.folder.resolve())})  # where a resume lists itself
         if safety.control_socket:
             server = ControlServer(out, control)
             cleanup.callback(server.close)
@@ -520,20 +527,35 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                        dry_run_override=safety.override, version=hsio.__version__)
         if error is not None and not summary.get("stopped"):
             summary["stopped"] = str(error)
-        (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-        recorder.write_summary(summary)
+        written = write_summary(out, recorder, summary, notify)
         if ledger:
             ledger.finish(run_id, summary["outcome"], status, summary.get("stopped", ""), summary.get("end_state"))
-        if config["output"]["plots"] and summary.get("steps", 0) > 0 and not isinstance(error, KeyboardInterrupt):
-            summary["plots"] = make_plots(out, structure, hs, ns, config)
-            if implicit:
-                summary["plots"].append(str(plots.control_modes(out / "modes.png", hs)))
-            (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-            recorder.write_summary(summary)
+        if written and config["output"]["plots"] and summary.get("steps", 0) > 0 and not isinstance(error, KeyboardInterrupt):
+            try:
+                summary["plots"] = make_plots(out, structure, hs, ns, config)
+                if implicit:
+                    summary["plots"].append(str(plots.control_modes(out / "modes.png", hs)))
+            except OSError as exc:
+                notify(f"WARNING: the plots could not be written to {out} ({exc.strerror or exc})")
+            write_summary(out, recorder, summary, notify)
     if error is not None:
         error.run_dir = out
         raise error
     return summary
+
+
+def write_summary(out: Path, recorder, summary: dict, notify, replace: bool = False) -> bool:
+    """``summary.json`` and the record's ``summary`` table. A disk that refuses them (full, gone)
+    is reported, not raised: the steps committed before stay in the record, and the run ends
+    with the status it had. False when not written."""
+    try:
+        (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+        recorder.write_summary(summary, replace=replace)
+        return True
+    except (OSError, sqlite3.Error) as exc:
+        notify(f"WARNING: the summary could not be written in {out} ({getattr(exc, 'strerror', None) or exc}); "
+               f"the steps committed before are in {out / RUN_FILE}")
+        return False
 
 
 def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs: Result, ns: Result | None, out: Path) -> dict:

@@ -278,3 +278,28 @@ def test_a_frame_checked_against_the_previous_cycle_cannot_signal_the_next():
     exchange.join(10)
     assert drive.expected_cycle == 7
     assert not drive.received.is_set() or drive.actual[2] == drive.expected_cycle, drive.actual
+
+
+def test_a_drive_opened_where_it_stands_reads_there_before_the_first_sync(drive):
+    """In lockstep the first feedback comes before any SYNC: it is where the axis stands (read by
+    SDO when the drive is enabled), so a run that starts from the present state (or a resume)
+    commands from there, not from zero."""
+    from hsio import api
+    from hsio.structures import validation
+
+    structure = validation()
+    site = api.open_site(structure, drive.url, n_avg=1)
+    try:
+        site.loop.execute(np.array([4.0, -3.0]))  # move both axes away from zero, then leave them holding
+    finally:
+        site.close()
+    stands = [drive.bank.measured(k)[0] for k in range(2)]
+    assert abs(stands[0] - 4.0) < 0.5 and abs(stands[1] + 3.0) < 0.5
+    site = api.open_site(structure, drive.url, n_avg=1)
+    try:
+        read = [f.displacement_mm for f in site.loop.feedback()]
+        assert read == pytest.approx(stands, abs=POSITION_RESOLUTION_MM)
+        first = site.loop.execute(np.array(stands))  # a step to where they stand: no motion
+        assert np.abs(first.commands - stands).max() < POSITION_RESOLUTION_MM
+    finally:
+        site.close()

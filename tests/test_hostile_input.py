@@ -293,3 +293,55 @@ def test_diagnose_daq_header_line_without_a_colon(tmp_path):
     path = tmp_path / "daq.txt"
     path.write_text("\n".join(lines) + "\n")
     assert_clear_error(hsio("diagnose", str(path)), "daq.txt")
+
+
+@pytest.fixture(scope="module")
+def lockstep_record(tmp_path_factory):
+    """A short lockstep run with its controller samples (what `hsio diagnose` reads)."""
+    from hsio import runner
+
+    out = tmp_path_factory.mktemp("record") / "run"
+    runner.run(config.from_dict({"record": {"duration_s": 0.3}, "output": {"plots": False}}), out)
+    return out
+
+
+def _meta(key, value):
+    import json
+
+    return lambda db: db.execute("UPDATE meta SET value = ? WHERE key = ?", (json.dumps(value), key))
+
+
+NAMES = "not those of its structure"  # the error budget checks the names against the structure
+DAMAGED = [  # (id, damage, words of the samples' readers, words of the error budget: None, it reads no samples)
+    ("no-actuator", _meta("actuator_names", []), "names no actuator", NAMES),
+    ("actuator", _meta("actuator_names", ["zz"]), "the steps table has no target_zz", "the steps table has no target_zz"),
+    ("dof", _meta("dof_names", ["zz"]), "the steps table has no u_zz", "the steps table has no u_zz"),
+    ("config", _meta("config", 5), "meta config is 5, not a table", "meta config is 5, not a table"),
+    ("text-sample", lambda db: db.execute("UPDATE samples SET disp_C1 = 'x' WHERE k = 3"), "samples cannot be read", None),
+    ("no-samples", lambda db: db.execute("DROP TABLE samples"), "no such table: samples", None),
+]
+
+
+@pytest.mark.parametrize("damage, how, words", [
+    pytest.param(damage, how, words if how != ["--run"] else budget, id=f"{name}-{how[0][2:] if how else 'actuator'}")
+    for name, damage, words, budget in DAMAGED for how in ([], ["--specimen"], ["--run"])
+    if how != ["--run"] or budget is not None])
+def test_diagnose_of_a_damaged_run_record_is_named(tmp_path, lockstep_record, damage, how, words):
+    """Each reader of a run record (the actuator's samples, the specimen's, the error budget's
+    steps) names what is wrong with a damaged one, exit 2."""
+    import shutil
+    import sqlite3
+
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    out = tmp_path / "run"
+    shutil.copytree(lockstep_record, out)
+    with sqlite3.connect(out / "run.sqlite") as db:
+        damage(db)
+    target = out if how == ["--run"] else out / "run.sqlite"
+    result = CliRunner().invoke(main, ["diagnose", *how, str(target)])
+    assert result.exit_code == 2 and not (result.exception and not isinstance(result.exception, SystemExit)), \
+        (result.exit_code, result.exception, result.output[-600:])
+    assert words in result.output

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sqlite3
+
 import pytest
 
 import hsio
@@ -44,3 +46,19 @@ def test_a_ledger_belongs_to_one_specimen(tmp_path):
     ledger.Ledger(tmp_path / "s", "wall-01").close()
     with pytest.raises(ConfigError, match="keeps the ledger of specimen 'wall-01', not 'wall-02'"):
         ledger.Ledger(tmp_path / "s", "wall-02")
+
+
+@pytest.mark.parametrize("spoil, says", [
+    (lambda path: path.write_text("not a database\n"), "file is not a database"),
+    (lambda path: sqlite3.connect(path).executescript("CREATE TABLE runs (x INTEGER);"),
+     "its runs table has no column id"),
+    (lambda path: path.mkdir(), "unable to open database file"),
+], ids=["garbage", "other-schema", "folder"])
+def test_a_ledger_hsio_cannot_keep_is_refused_before_the_run_folder(tmp_path, spoil, says):
+    (tmp_path / "s").mkdir()
+    spoil(tmp_path / "s" / ledger.LEDGER_FILE)
+    cfg = config.from_dict({"record": {"duration_s": 0.1}, "output": {"plots": False},
+                            "specimen": {"folder": str(tmp_path / "s")}})
+    with pytest.raises(ConfigError, match=f"specimen ledger .*ledger.sqlite: not a ledger hsio can keep \\({says}"):
+        runner.run(cfg, tmp_path / "out")
+    assert not (tmp_path / "out").exists()  # no run folder, no record begun

@@ -1,5 +1,5 @@
 """Property-based tests (hypothesis) of every parser of input from outside: run configurations,
-AT2 records, register maps, Modbus values and replies, CANopen frames, URLs and fault SPECs.
+AT2 records, register maps, Modbus values and replies, CANopen frames, URLs, fault SPECs and run records.
 Each either accepts its input or refuses it with hsio's own error; nothing else escapes.
 Bounded: the whole file runs in well under two minutes."""
 
@@ -411,3 +411,57 @@ def test_modbus_driver_given_any_replies(reply_server, answers):
         pass
     finally:
         link.close()
+
+
+@pytest.fixture(scope="module")
+def recorded_run(tmp_path_factory):
+    """A short lockstep run's record, with its controller samples."""
+    from hsio import runner
+
+    out = tmp_path_factory.mktemp("record") / "run"
+    runner.run(config.from_dict({"record": {"duration_s": 0.1}, "output": {"plots": False}}), out)
+    return out / "run.sqlite"
+
+
+json_values = st.one_of(scalars, st.lists(st.one_of(st.text(max_size=4), st.integers()), max_size=3),
+                        st.dictionaries(st.text(max_size=4), scalars, max_size=2))
+record_edits = st.one_of(
+    st.tuples(st.just("meta"), st.sampled_from(["dof_names", "actuator_names", "config", "dt", "emulator_settings"]),
+              json_values),
+    st.tuples(st.just("steps"), st.sampled_from(["step", "u_C1", "disp_C2", "force_C1", "time_s", "mode_C1"]), scalars),
+    st.tuples(st.just("samples"), st.sampled_from(["step", "k", "cmd_C1", "disp_C1", "force_C2"]), scalars),
+    st.tuples(st.just("drop"), st.sampled_from(["meta", "summary", "steps", "samples", "events", "ns"]), st.none()))
+
+
+@FAST
+@given(st.lists(record_edits, min_size=1, max_size=3))
+def test_a_run_record_is_read_whole_or_named_as_damaged(tmp_path_factory, recorded_run, edits):
+    """run.sqlite as `hsio diagnose`, `hsio resume` and notebooks read it back (hsio.recording.Run
+    and the diagnose reader of an actuator's samples): any edit of its meta, steps, samples or
+    tables is read or refused with hsio's own error."""
+    import json
+    import sqlite3
+
+    from hsio.diagnose.readers import read_run
+    from hsio.recording import Run
+
+    path = tmp_path_factory.mktemp("run") / "run.sqlite"
+    path.write_bytes(recorded_run.read_bytes())
+    with sqlite3.connect(path) as db:
+        for where, key, value in edits:
+            try:
+                if where == "meta":
+                    db.execute("UPDATE meta SET value = ? WHERE key = ?", (json.dumps(value), key))
+                elif where == "drop":
+                    db.execute(f"DROP TABLE IF EXISTS {key}")
+                else:
+                    value = value if not isinstance(value, float) or math.isfinite(value) else str(value)
+                    db.execute(f"UPDATE {where} SET {key} = ? WHERE rowid % 3 = 0", (value,))
+            except sqlite3.Error:
+                pass  # an edit SQLite itself refuses (a step that is not an integer): the record as it was
+    try:
+        run = Run(path)
+        run.events(), run.table("compensation")
+        read_run(path)
+    except (HsioError, RecordError):
+        pass

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 import subprocess
 import sys
 from pathlib import Path
@@ -162,3 +163,64 @@ def test_holding_reads_back_none_by_default():
     from hsio.interfaces import Actuator
 
     assert Actuator.holding(object()) is None
+
+
+class _Axis:
+    name = "C1"
+
+    def __init__(self):
+        from hsio.interfaces import Limits
+
+        self.limits = Limits()
+
+
+def _cycles(monitor, t0, t1, pause_at=None, pause_s=0.0, skip=True):
+    """A specimen's force 10 sin(2 pi t) kN (one cycle per second of lab time) checked every
+    1/1024 s from t0 to t1; with ``pause_at``, a pause of ``pause_s`` of lab time (no check) there."""
+    from hsio.interfaces import ControlMode, Feedback
+
+    dt, t, shift = 1.0 / 1024, t0, 0.0
+    while t < t1:
+        if pause_at is not None and shift == 0.0 and t >= pause_at:
+            shift = pause_s
+            if skip:
+                monitor.skip(pause_s)
+        f = 10.0 * math.sin(2 * math.pi * t)
+        monitor.check(t + shift, [0.0], [Feedback(0.0, f, t + shift)], [ControlMode.DISPLACEMENT])
+        t += dt
+
+
+def test_the_lab_time_of_a_pause_does_not_count_in_the_force_drop_window():
+    """Paused where the force is near zero for longer than the window: on resume the envelope would
+    hold only that small force, and a specimen that is fine would trip as failed."""
+    from hsio.safety.interlocks import InterlockMonitor
+
+    settings = SafetySettings.from_table({"force_drop_fraction": 0.5, "force_drop_window_s": 1.5})
+    _cycles(InterlockMonitor([_Axis()], settings), 0.0, 6.0, pause_at=2.0, pause_s=5.0)  # no trip
+    with pytest.raises(InterlockTrip, match="the specimen failed"):  # the same run, the pause counted
+        _cycles(InterlockMonitor([_Axis()], settings), 0.0, 6.0, pause_at=2.0, pause_s=5.0, skip=False)
+    with pytest.raises(InterlockTrip, match="the specimen failed"):  # a force that does drop still trips
+        monitor = InterlockMonitor([_Axis()], settings)
+        _cycles(monitor, 0.0, 2.0, pause_at=1.0, pause_s=5.0)
+        from hsio.interfaces import ControlMode, Feedback
+
+        for k in range(2 * 1024):  # after the pause the force stays at 0.1 kN: the specimen failed
+            t = 7.0 + k / 1024
+            monitor.check(t, [0.0], [Feedback(0.0, 0.1, t)], [ControlMode.DISPLACEMENT])
+
+
+def test_a_real_time_pause_tells_the_interlocks_how_long_it_lasted():
+    s = validation()
+    site = api.open_site(s, "emulator://", clock="realtime", test_rate=10.0,
+                         safety=SafetySettings.from_table({"force_drop_fraction": 0.5}))
+    skipped = []
+    site.loop.monitor.skip = skipped.append
+    try:
+        site.loop.pause()
+        started = site.loop.clock.now_s
+        time.sleep(0.3)
+        site.loop.resume()
+        lasted = site.loop.clock.now_s - started
+    finally:
+        site.close()
+    assert len(skipped) == 1 and 0.29 <= skipped[0] <= lasted + 0.01  # lab time in controller periods

@@ -94,3 +94,106 @@ def test_records_carry_version_specimen_and_sample_phases(tmp_path):
     assert {0, 1} <= set(samples["phase_C1"].astype(int))  # interpolate and dwell (ramp-hold)
     assert (samples["lab_time_s"][1:] > samples["lab_time_s"][:-1]).all()  # lab time stamps, increasing
     assert "late_steps" in run.steps and "flags" in run.steps
+
+
+def test_a_record_in_a_folder_named_with_uri_characters_is_read_and_resumed(tmp_path):
+    """SQLite opens records through a URI: a '#', '?' or '%' in a folder's name must not cut the
+    path short (which opened another file, read-write, and created it)."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+    from wire import stopped_run
+
+    out = tmp_path / "wall #3?a%20b"
+    stopped_run(tmp_path, 5, out=out)
+    run = Run(out / "run.sqlite")
+    assert len(run.steps["step"]) == 5 and run.summary["exit_status"] == 5 and run.events()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["run.toml", out.name])  # nothing else created
+    result = CliRunner().invoke(main, ["resume", str(out)])
+    assert result.exit_code == 0, result.output
+    assert Run(out / "run.sqlite").summary["exit_status"] == 0
+
+
+READ_BACK = "import sys; from hsio.recording import Run; r = Run(sys.argv[1]); print(len(r.steps['step']), len(r.events()))"
+
+
+def test_a_write_protected_record_is_read_and_not_resumed(tmp_path):
+    """An archived record, its folder and files write-protected, read by a user who cannot write
+    there (as root: the user nobody, through setpriv): read back whole; `hsio resume` refused by
+    name, exit 2."""
+    import shutil
+    import stat
+    import tempfile
+
+    from wire import stopped_run
+
+    as_user = []
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("as root, the test needs setpriv to read as another user")
+        as_user = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+    folder = Path(tempfile.mkdtemp(dir="/tmp" if as_user else tmp_path))
+    try:
+        out = stopped_run(tmp_path, 5)
+        archived = folder / "archived"
+        shutil.copytree(out, archived)
+        for p in archived.iterdir():
+            p.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
+        for d in (archived, folder):
+            d.chmod(0o555)
+        env = {**os.environ, "PYTHONPATH": str(ROOT), "HOME": str(folder)}
+        read = subprocess.run([*as_user, sys.executable, "-c", READ_BACK, str(archived / "run.sqlite")],
+                              capture_output=True, text=True, timeout=120, env=env)
+        if as_user and ("Permission denied" in read.stderr and "hsio" not in read.stderr or read.returncode in (126, 127)):
+            pytest.skip(f"the user nobody cannot start this Python: {read.stderr.strip()[-200:]}")
+        assert read.returncode == 0, read.stderr
+        assert read.stdout.split() == ["5", str(len(Run(out / "run.sqlite").events()))]
+        resumed = subprocess.run([*as_user, sys.executable, "-m", "hsio.cli", "resume", str(archived)],
+                                 capture_output=True, text=True, timeout=120, env=env)
+        assert resumed.returncode == 2, resumed.stderr
+        assert "cannot write to" in resumed.stderr and "Traceback" not in resumed.stderr
+        assert sorted(p.name for p in archived.iterdir()) == ["run.sqlite", "summary.json"]
+    finally:
+        for d in (folder, *folder.rglob("*")):
+            if d.is_dir():
+                d.chmod(0o755)
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_a_full_disk_stops_the_run_holding_and_keeps_the_steps_before(tmp_path, monkeypatch):
+    """The disk fills at step 5: that step is not kept in part (its row without its samples), the
+    run stops like any fault (actuators held, exit status 3), and a summary that cannot be written
+    is a warning, not a traceback."""
+    import errno
+    import sqlite3
+
+    from hsio.experiment import ExperimentStopped
+    from hsio.safety.status import exit_status
+
+    real_step = Recorder._write_step
+
+    def filling(self, step, row, samples, sample_meta):
+        if step < 5:
+            return real_step(self, step, row, samples, sample_meta)
+        self.db.execute(self._insert_step, row)  # the step's row goes in, its samples do not
+        raise sqlite3.OperationalError("database or disk is full")
+
+    real_write_text = Path.write_text
+
+    def full_disk(self, *args, **kwargs):
+        if self.name == "summary.json":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write_text(self, *args, **kwargs)
+
+    monkeypatch.setattr(Recorder, "_write_step", filling)
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    heard = []
+    with pytest.raises(ExperimentStopped) as stopped:
+        runner.run(config.from_dict(SHORT), tmp_path / "o", notify=heard.append)
+    assert exit_status(stopped.value) == 3
+    assert "step 5 could not be written (database or disk is full)" in str(stopped.value)
+    assert "the actuators hold (confirmed by read-back)" in str(stopped.value)
+    assert any("WARNING: the summary could not be written" in line and "No space left" in line for line in heard)
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert list(run.steps["step"]) == [1, 2, 3, 4] and set(run.samples()["step"]) == {1, 2, 3, 4}
+    assert run.events()[-1]["kind"] == "stop"

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from hsio.errors import HsioError
-from hsio.recording import RUN_FILE
+from hsio.recording import RUN_FILE, connect_read_only
 
 
 def _refuse_foreign_record(path: Path) -> None:
@@ -19,7 +19,7 @@ def _refuse_foreign_record(path: Path) -> None:
     if not path.is_file() or path.stat().st_size == 0:
         return
     try:
-        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
+        with contextlib.closing(connect_read_only(path)) as db:
             db.execute("SELECT name FROM sqlite_master").fetchall()
     except sqlite3.DatabaseError as exc:
         raise HsioError(f"{path}: not an hsio recording ({exc})") from None

@@ -80,6 +80,7 @@ def load_run(run_dir: str | Path) -> RunData:
     from hsio.recording import Run, column
     from hsio.runner import build_record, load_run_structure
     from hsio.safety.inputs import ground_fingerprint
+    from hsio.structures import channel_names
 
     path = Path(run_dir) / "run.sqlite"
     try:
@@ -116,6 +117,9 @@ def load_run(run_dir: str | Path) -> RunData:
         return np.vstack([np.zeros(len(names)), np.column_stack([run.steps[column(prefix, n)] for n in names])])
 
     dofs, acts = run.dof_names, run.actuator_names
+    if list(acts) != channel_names(structure) or list(dofs) != list(structure.dof_names):
+        raise RecordError(f"{path}: the recording names DOFs {dofs} and actuators {acts}, not those of its structure "
+                          f"{structure.name} ({list(structure.dof_names)}, {channel_names(structure)})")
     u_hs = rows("u", dofs)
     if run.ns and run.ns.get("step") is not None and run.ns["step"].size:
         u_ns = np.column_stack([run.ns[column("u", n)] for n in dofs])[: u_hs.shape[0]]

@@ -15,6 +15,7 @@ are not uniform (gaps, repeats) and missing channels.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -239,10 +240,14 @@ def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
         raise RecordError(str(exc)) from None
     except Exception as exc:  # sqlite3.DatabaseError and friends: not an hsio run file
         raise RecordError(f"{path}: not an hsio recording: {exc}") from None
-    if run.meta.get("config", {}).get("hardware", {}).get("clock") == "realtime":
+    config = run.meta.get("config", {})
+    hardware = config.get("hardware") if isinstance(config.get("hardware"), dict) else {}
+    if hardware.get("clock") == "realtime":
         raise RecordError(f"{path}: a real-time run keeps the samples of each step only, with gaps between "
                           "steps; diagnose needs a lockstep run or a continuous record")
     names = run.actuator_names
+    if not names:
+        raise RecordError(f"{path}: the recording names no actuator")
     name = actuator or names[0]
     if name not in names:
         raise RecordError(f"{path}: no actuator {name!r}; actuators: {', '.join(names)}")
@@ -252,8 +257,11 @@ def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
     samples = run.samples()
     if not samples or samples[column("cmd", name)].size == 0:
         raise RecordError(f"{path}: no controller samples recorded (run with [output] samples = true)")
-    settings = run.meta.get("emulator_settings") or run.meta.get("config", {}).get("emulator", {})
-    rate = float(settings.get("rate_hz", CONTROLLER_RATE_HZ))
+    settings = run.meta.get("emulator_settings") or config.get("emulator") or {}
+    rate = settings.get("rate_hz", CONTROLLER_RATE_HZ) if isinstance(settings, dict) else None
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (math.isfinite(rate) and rate > 0):
+        raise RecordError(f"{path}: its meta gives no usable controller rate (emulator_settings "
+                          f"{json.dumps(settings, default=str)[:60]})")
     return ActuatorRecord(f"{path}#{name}", 1.0 / rate, samples[column("cmd", name)], samples[column("disp", name)],
                           samples[column("force", name)])
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from hsio.monitor.indicators import tracking_indicator
-from hsio.recording import RUN_FILE, column
+from hsio.recording import RUN_FILE, column, connect_read_only
 
 SAMPLES_WINDOW = 4096  # controller samples read for the spectrum (4 s at 1024 Hz)
 META_EVERY_S = 2.0
@@ -127,7 +127,7 @@ class RecordFeed:
         if not self.path.exists():
             return False
         try:
-            db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, check_same_thread=False)
+            db = connect_read_only(self.path, check_same_thread=False)
             meta = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
         except sqlite3.DatabaseError:
             return False

@@ -14,6 +14,9 @@ Per actuator, on each period's command and measurement:
   ``force_drop_min_kN``, the envelope (the largest |force| over the last
   ``force_drop_window_s`` of lab time) falls below ``force_drop_fraction`` of the peak.
 
+The lab time of a pause does not count (:meth:`InterlockMonitor.skip`): a window or a timer that
+spanned it would judge the run by what it did before the pause alone.
+
 A trip raises :class:`~hsio.safety.status.InterlockTrip`; the loop then holds every actuator.
 """
 
@@ -57,6 +60,19 @@ class InterlockMonitor:
         while self.events:
             out.append(self.events.popleft())
         return out
+
+    def skip(self, seconds: float) -> None:
+        """Lab time that passed while the run was paused (the actuators holding, nothing checked)
+        does not count: the following-error timer and the force-drop window go on from where they
+        stood when the pause began, as if the pause had not been."""
+        if not seconds > 0:
+            return
+        for ch in self.channels:
+            if ch.following_since is not None:
+                ch.following_since += seconds
+            if ch.window_start is not None:
+                ch.window_start += seconds
+            ch.window = collections.deque((t + seconds, f) for t, f in ch.window)
 
     def _event(self, t: float, kind: str, name: str, message: str) -> None:
         self.events.append({"time_s": t, "kind": kind, "actuator": name, "message": message})

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import sqlite3
 from pathlib import Path
 
@@ -19,15 +20,23 @@ import numpy as np
 
 import hsio
 from hsio import api, config as config_mod
-from hsio.errors import ConfigError, HsioError
+from hsio.errors import ConfigError, HsioError, RecordError
 from hsio.experiment import ExperimentStopped, excitation
 from hsio.integrators.alpha_os import AlphaOSState
+from hsio.ledger import LEDGER_FILE, Ledger
 from hsio.recording import RUN_FILE, Recorder, Run, column
+from hsio.result import max_error_pct
 from hsio.safety.control import RunControl, stop_on_signals
 from hsio.safety.inputs import compare_inputs, ground_fingerprint
 from hsio.safety.settings import SafetySettings
 from hsio.safety.socket import ControlServer
 from hsio.safety.status import exit_status, outcome_name
+
+# Summary entries that describe one session of a run rather than its record: a resume leaves them
+# out (the earlier session's are not those of the whole record).
+SESSION_KEYS = ("final_hold", "warning", "wall_time_s", "late_steps", "clock_overruns", "rms_tracking_error_mm",
+                "rms_force_tracking_error_kN", "test_time_s", "plots", "max_error_pct", "max_error_pct_per_dof",
+                "compensation")
 
 
 def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
@@ -36,8 +45,20 @@ def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
     if len(steps) == 0:
         raise ConfigError(f"{run.path}: no committed step to resume from; start the run again")
     k = int(steps[-1])
-    row = lambda prefix: np.array([run.steps[column(prefix, d)][-1] for d in structure.dof_names])  # noqa: E731
-    u, v, a, u_pred, R = row("u"), row("v"), row("a"), row("u_pred"), row("r")
+    if not 0 < k < len(P):
+        raise ConfigError(f"{run.path}: its last committed step is {k}, not one of the record's steps 1..{len(P) - 1}: "
+                          f"the record does not belong to this ground motion; the record is unchanged and nothing moved")
+    try:
+        row = lambda prefix: np.array([run.steps[column(prefix, d)][-1] for d in structure.dof_names])  # noqa: E731
+        u, v, a, u_pred, R = row("u"), row("v"), row("a"), row("u_pred"), row("r")
+    except KeyError as exc:
+        raise ConfigError(f"{run.path}: the steps table has no column {exc} for the structure's DOFs "
+                          f"{list(structure.dof_names)}; the record is unchanged and nothing moved") from None
+    bad = [f"{prefix}_{d}" for prefix, values in (("u", u), ("v", v), ("a", a), ("u_pred", u_pred), ("r", R))
+           for d, x in zip(structure.dof_names, values) if not np.isfinite(x)]
+    if bad:
+        raise ConfigError(f"{run.path}: the state of its last committed step {k} is not finite ({', '.join(bad)}): "
+                          f"nothing to continue from; the record is unchanged and nothing moved")
     v_pred = v - structure.dt * integrator.core.gamma * a
     return AlphaOSState(k, u, v, a, u_pred, v_pred, R, P[k].copy())
 
@@ -47,6 +68,11 @@ def check_inputs(run: Run, cfg, notify) -> None:
     when it began (their SHA-256 in meta ``inputs``), else a ConfigError naming each that changed
     or is missing; a record without fingerprints is resumed with a warning."""
     recorded = run.meta.get("inputs")
+    if recorded is not None and not (isinstance(recorded, list) and all(
+            isinstance(e, dict) and all(isinstance(e.get(k), str) for k in ("what", "path", "sha256")) for e in recorded)):
+        raise ConfigError(f"{run.path}: meta inputs is not a list of fingerprints ({{what, path, sha256}} each): "
+                          f"{json.dumps(recorded)[:80]}; cannot check the run's input files; the record is "
+                          f"unchanged and nothing moved")
     if recorded is None:
         notify(f"WARNING: {run.path} holds no fingerprints of the run's input files (recorded by an hsio "
                f"that took none): cannot check that the structure, record and driver files are those the run "
@@ -73,9 +99,22 @@ def check_ground(run: Run, ground) -> None:
                           f"unchanged and nothing moved")
 
 
+def open_ledger(run: Run, notify) -> Ledger | None:
+    """The specimen ledger the run is listed in (meta ``ledger``); None for a run without one."""
+    folder = run.meta.get("ledger")
+    if not isinstance(folder, str) or not folder:
+        return None
+    if not (Path(folder) / LEDGER_FILE).is_file():
+        notify(f"WARNING: the specimen ledger {Path(folder) / LEDGER_FILE} the run was listed in is gone: "
+               f"this resumed session is not listed")
+        return None
+    return Ledger(folder, run.meta.get("specimen_id") or "")
+
+
 def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None) -> dict:
     """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary."""
-    from hsio.runner import build_record, check_dwell, integrator_options, load_run_structure
+    from hsio.runner import (_state, build_record, check_dwell, format_state, integrator_options,
+                             load_run_structure, write_summary)
 
     run_dir = Path(run_dir)
     path = run_dir / RUN_FILE
@@ -85,6 +124,9 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         raise ConfigError(f"{path}: not a run record that can be resumed ({exc})") from None
     if run.summary.get("exit_status") == 0:
         raise ConfigError(f"{path}: the run finished; nothing to resume")
+    if not isinstance(run.meta.get("config"), dict):
+        raise ConfigError(f"{path}: not a run record that can be resumed (its meta holds no configuration table: "
+                          f"config = {json.dumps(run.meta.get('config'))[:60]})")
     cfg = config_mod.from_dict(run.meta["config"], f"{path} (meta config)", replay=True)
     if cfg["integrator"]["method"] != "alpha_os":
         raise ConfigError(f"{path}: resume is available for the alpha_os method, not {cfg['integrator']['method']!r}")
@@ -114,40 +156,85 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
     error = None
     with stop_on_signals(control), contextlib.ExitStack() as cleanup:
         control.check_stop()  # a Ctrl-C while the program started: nothing opened, the record untouched
+        summary_file = run_dir / "summary.json"
+        if summary_file.exists() and not os.access(summary_file, os.W_OK):
+            raise RecordError(f"{summary_file}: cannot write to it; the record is unchanged and nothing moved")
+        ledger = open_ledger(run, notify)
+        if ledger is not None:
+            cleanup.callback(ledger.close)
         recorder = Recorder.append(path)
         cleanup.callback(recorder.close)
         if safety.control_socket:
             server = ControlServer(run_dir, control)
             cleanup.callback(server.close)
+            recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
         recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
         notify(f"resuming {path} after step {state.i}")
-        control.enter("start-up")
-        site = api.open_site(structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
-                             hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
-                             keep_samples=cfg["output"]["samples"],
-                             options=run.meta.get("emulator_settings", {}) if hardware["url"].startswith("emulator")
-                             else cfg["driver"], safety=safety)
-        cleanup.callback(site.close)
-        control.check_stop()
-        control.enter("HS")
+        # a row of its own for this session (the earlier rows are left as they are)
+        ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
+                                 hsio.__version__) if ledger is not None else None
+        site = end_state = None
+        hold = {}
         try:
-            api.simulate(structure, ground, site, recorder=recorder, progress=progress, integrator=integrator,
-                         control=control, resume_state=state)
-        except ExperimentStopped as exc:
+            control.enter("start-up")
+            site = api.open_site(structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
+                                 hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
+                                 keep_samples=cfg["output"]["samples"],
+                                 options=run.meta.get("emulator_settings", {}) if hardware["url"].startswith("emulator")
+                                 else cfg["driver"], safety=safety)
+            cleanup.callback(site.close)
+            standing = _state(site)
+            if ledger is not None:
+                ledger.update(ledger_id, start_state=standing)
+            line = format_state("the actuators stand at", standing)
+            if standing and "error" not in standing and set(standing) == set(run.actuator_names):
+                # elements on one actuator each: the record's channels are the actuators (through
+                # setups they are the elements' basic DOFs, not comparable)
+                line += "; the record's last step measured " + "; ".join(
+                    f"{name} {run.steps[column('disp', name)][-1]:+.3f} mm" for name in run.actuator_names)
+            notify(line + " (the first step goes on from where they stand)")
+            control.check_stop()
+            control.enter("HS")
+            try:
+                api.simulate(structure, ground, site, recorder=recorder, progress=progress, integrator=integrator,
+                             control=control, resume_state=state)
+            except ExperimentStopped as exc:
+                error = exc
+            end_state = _state(site)  # where the specimen stands now, before the link closes
+            site.close()
+            steps = recorder.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
+            hold = site.report_final_hold(recorder, notify, steps)  # read back; a warning when not confirmed
+        except (Exception, KeyboardInterrupt) as exc:  # before the steps (the hardware opening): hold, record
             error = exc
-        site.close()
+            held = site.hold() if site is not None else None
+            reason = (str(exc) if isinstance(exc, HsioError) else "interrupted (Ctrl-C)"
+                      if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
+            if held is not None:
+                reason += f"; {held.message}"
+            recorder.write_event(None, state.i, "stop", "", reason)
+            end_state = _state(site)
         status = exit_status(error)
         steps = recorder.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
-        hold = site.report_final_hold(recorder, notify, steps)  # read back; a warning when not confirmed
-        summary = {k: v for k, v in run.summary.items() if k not in ("final_hold", "warning")}  # this session's
+        # what the earlier session measured of itself alone (its wall time, late steps, tracking,
+        # plots) would misdescribe the whole record: kept are the run's description and start; the
+        # earlier sessions' summaries as they were are under ``earlier_sessions``
+        summary = {k: v for k, v in run.summary.items() if k not in SESSION_KEYS}
+        earlier = {k: v for k, v in run.summary.items() if k != "earlier_sessions"}  # kept whole, in order
+        summary["earlier_sessions"] = [*run.summary.get("earlier_sessions", []), earlier] if earlier else \
+            list(run.summary.get("earlier_sessions", []))
         summary.update(hold)
         summary.update(steps=steps, resumed_from=state.i, exit_status=status, outcome=outcome_name(status),
-                       stopped=str(error) if error else "", run_dir=str(run_dir))
-        peaks = recorder.db.execute("SELECT " + ", ".join(f"MAX(ABS(u_{d}))" for d in structure.dof_names)
-                                    + " FROM steps").fetchone()
-        summary["peak_displacement_mm"] = [float(x) for x in peaks]
-        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-        recorder.write_summary(summary)
+                       stopped=str(error) if error else "", run_dir=str(run_dir), end_state=end_state)
+        u = np.array(recorder.db.execute("SELECT " + ", ".join(column("u", d) for d in structure.dof_names)
+                                         + " FROM steps ORDER BY step").fetchall(), dtype=float)
+        summary["peak_displacement_mm"] = [float(x) for x in np.max(np.abs(u), axis=0)] if len(u) else []
+        ns = run.ns
+        if len(u) and len(ns.get("step", ())):
+            u_ns = np.column_stack([ns[column("u", d)] for d in structure.dof_names])[1:]  # NS from step 1, as u
+            summary["max_error_pct"], summary["max_error_pct_per_dof"] = max_error_pct(u, u_ns)
+        write_summary(run_dir, recorder, summary, notify, replace=True)
+        if ledger is not None:
+            ledger.finish(ledger_id, summary["outcome"], status, summary["stopped"], end_state)
     if error is not None:
         error.run_dir = run_dir
         raise error

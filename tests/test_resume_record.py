@@ -1,0 +1,163 @@
+"""`hsio resume` and the record it continues (docs/safety.md sections 1 and 8): one writer at a
+time (a record that a run or another resume is still writing is refused before anything opens);
+a record whose meta or last step is damaged is refused by name (exit 2, no traceback, the record
+unchanged); a resume that cannot open the hardware says so in the record; the summary and the
+specimen ledger describe the whole record after a resume, not the session before it.
+
+The interruption is an operator stop of a short run on the in-process emulator (tests/wire.py
+stopped_run), which leaves a record that `hsio resume` continues."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from hsio import config as config_mod
+from hsio import ledger, runner
+from hsio.cli import main
+from hsio.recording import Recorder, Run
+
+from wire import QUIET_SENSORS, refused_port, stopped_run, write_config
+
+
+def _resume(out):
+    result = CliRunner().invoke(main, ["resume", str(out)])
+    assert not (result.exception and not isinstance(result.exception, SystemExit)), result.exception
+    return result
+
+
+def _fingerprint(out):
+    with sqlite3.connect(out / "run.sqlite") as db:
+        return [db.execute(f"SELECT * FROM {t} ORDER BY rowid").fetchall() for t in ("steps", "events", "summary")]
+
+
+def test_a_record_another_process_writes_is_not_resumed(tmp_path):
+    """A resume started while the run (or another resume) still writes the record would command
+    the same actuators as a second host and write the same steps again."""
+    out = stopped_run(tmp_path, 5)
+    before = _fingerprint(out)
+    writer = Recorder.append(out / "run.sqlite")  # the live writer: a run or resume still going
+    try:
+        result = _resume(out)
+        assert result.exit_code == 2, result.output
+        assert "is being written by another process" in result.output and "nothing moved" in result.output
+        assert _fingerprint(out) == before
+    finally:
+        writer.close()
+    assert _resume(out).exit_code == 0  # once the writer let go
+
+
+def _meta(key, value):
+    def damage(db):
+        db.execute("UPDATE meta SET value = ? WHERE key = ?", (json.dumps(value), key))
+    return damage
+
+
+def _last_step(column, value):
+    def damage(db):
+        db.execute(f"UPDATE steps SET {column} = ? WHERE step = (SELECT MAX(step) FROM steps)", (value,))
+    return damage
+
+
+@pytest.mark.parametrize("damage, says", [
+    (_meta("config", [1, 2]), "meta config is [1, 2], not a table"),
+    (lambda db: db.execute("DELETE FROM meta WHERE key = 'config'"), "its meta holds no configuration table"),
+    (_meta("inputs", "x"), "meta inputs is not a list of fingerprints"),
+    (_meta("inputs", [{"what": 1}]), "meta inputs is not a list of fingerprints"),
+    (_meta("dof_names", 7), "meta dof_names is 7, not a list of names"),
+    (_last_step("r_C1", None), "the state of its last committed step 5 is not finite (r_C1)"),
+    (_last_step("a_C2", float("inf")), "not finite (a_C2)"),
+    (_last_step("step", 10 ** 9), "its last committed step is 1000000000, not one of the record's steps"),
+    (lambda db: db.execute("DROP TABLE events"), "(no events table)"),
+], ids=["config", "no-config", "inputs-text", "inputs-entry", "dof-names", "nan-force", "inf-acceleration", "step", "events"])
+def test_a_damaged_record_is_refused_by_name(tmp_path, damage, says):
+    out = stopped_run(tmp_path, 5)
+    with sqlite3.connect(out / "run.sqlite") as db:
+        damage(db)
+    with sqlite3.connect(out / "run.sqlite") as db:
+        before = db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
+    result = _resume(out)
+    assert result.exit_code == 2, result.output
+    assert says in result.output
+    with sqlite3.connect(out / "run.sqlite") as db:
+        assert db.execute("SELECT COUNT(*) FROM steps").fetchone()[0] == before
+
+
+def test_a_resume_that_cannot_open_the_hardware_records_why(tmp_path):
+    out = stopped_run(tmp_path, 5)
+    with refused_port() as port, sqlite3.connect(out / "run.sqlite") as db:
+        meta = json.loads(db.execute("SELECT value FROM meta WHERE key = 'config'").fetchone()[0])
+        meta["hardware"]["url"] = f"modbus+tcp://127.0.0.1:{port}/1"
+        db.execute("UPDATE meta SET value = ? WHERE key = 'config'", (json.dumps(meta),))
+        db.commit()
+        result = _resume(out)
+    assert result.exit_code == 3, result.output
+    run = Run(out / "run.sqlite")
+    kinds = [e["kind"] for e in run.events()]
+    assert kinds[-2:] == ["resume", "stop"] and "cannot connect" in run.events()[-1]["message"]
+    assert run.summary["exit_status"] == 3 and run.summary["resumed_from"] == 5
+    assert json.loads((out / "summary.json").read_text())["exit_status"] == 3
+
+
+def test_the_summary_and_the_ledger_describe_the_whole_resumed_record(tmp_path):
+    spec = f'[specimen]\nid = "wall-r"\nfolder = "{tmp_path / "wall-r"}"\n'
+    cfg = write_config(tmp_path, duration=0.5, rate=5.0, extra=QUIET_SENSORS + spec)
+    whole = runner.run(config_mod.load(cfg), tmp_path / "whole")  # the same run, never stopped
+    out = stopped_run(tmp_path, 20, config_path=cfg, out=tmp_path / "stopped")
+    stopped = Run(out / "run.sqlite").summary
+    result = _resume(out)
+    assert result.exit_code == 0
+    last = Run(out / "run.sqlite").steps
+    assert (f"the record's last step measured C1 {last['disp_C1'][19]:+.3f} mm; C2 {last['disp_C2'][19]:+.3f} mm"
+            in result.output) and "the actuators stand at: C1 " in result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary == Run(out / "run.sqlite").summary
+    for name in ("C1", "C2"):  # where the specimen stands at the end, not where the stop left it
+        for key in ("displacement_mm", "force_kN"):
+            assert summary["end_state"][name][key] == pytest.approx(whole["end_state"][name][key], abs=1e-9)
+            assert abs(summary["end_state"][name][key] - stopped["end_state"][name][key]) > 1e-3
+    assert summary["max_error_pct"] == pytest.approx(whole["max_error_pct"], abs=1e-9)
+    assert np.allclose(summary["peak_displacement_mm"], whole["peak_displacement_mm"], atol=1e-9)
+    assert "wall_time_s" not in summary and "rms_tracking_error_mm" not in summary  # the first session's alone
+    first, this, again = ledger.read(tmp_path / "wall-r")[-3:]  # the whole run, the stopped one, its resume
+    assert this["outcome"] == "stopped by the operator" and this["exit_status"] == 5  # left as it was
+    assert this["end_state"] == stopped["end_state"]
+    assert again["run_dir"] == this["run_dir"] and "(resumed after step 20)" in again["record"]
+    assert again["outcome"] == "finished" and again["exit_status"] == 0
+    assert again["end_state"] == summary["end_state"] and set(again["start_state"]) == {"C1", "C2"}
+    assert summary["earlier_sessions"] == [stopped]  # the stopped session's summary, as it was
+
+
+def test_a_resume_names_its_own_control_socket(tmp_path, monkeypatch):
+    """A run folder whose path is too long for a UNIX socket gets its socket in a new temporary
+    folder each session: the meta that the monitor and other tools read names the resume's."""
+    from hsio.safety import resume as resume_mod
+
+    out = stopped_run(tmp_path, 5, out=tmp_path / ("r" * 120))
+    first = Run(out / "run.sqlite").meta["control_socket"]
+    opened = []
+    real = resume_mod.ControlServer
+
+    def server(run_dir, control):
+        opened.append(real(run_dir, control))
+        return opened[0]
+
+    monkeypatch.setattr(resume_mod, "ControlServer", server)
+    assert _resume(out).exit_code == 0
+    assert str(opened[0].path) != first
+    assert Run(out / "run.sqlite").meta["control_socket"] == str(opened[0].path)
+
+
+def test_a_resume_through_setups_names_the_actuators_where_they_stand(tmp_path):
+    """Through setups the record's channels are the element's basic DOFs (a rotation among them),
+    not the actuators: the resume says where the actuators stand, and compares nothing in mm."""
+    cfg = write_config(tmp_path, duration=0.1, rate=5.0, extra='[structure]\nname = "column_two_actuators"\n')
+    out = stopped_run(tmp_path, 3, config_path=cfg)
+    result = _resume(out)
+    assert result.exit_code == 0, result.output
+    assert "the actuators stand at: lower " in result.output and "; upper " in result.output
+    assert "top_rot" not in result.output
