@@ -1,0 +1,88 @@
+"""An element that takes its displacement from an external instrument (docs/setups.md): the
+instrument's reading is the element's measured displacement whatever else the site does with the
+actuators' samples (a secant estimator, as the implicit methods of `hsio run` use), and under
+relative trials the instrument's reading at enabling is its zero, as the actuators' positions are
+theirs."""
+
+import numpy as np
+import pytest
+
+import hsio
+from hsio.clock import LockstepClock
+from hsio.control_loop import ControlLoop
+from hsio.emulators.local import open_instruments, open_url
+from hsio.result import max_error_pct
+from hsio.secant import SecantEstimator
+from hsio.sites import ActuatorSite
+from hsio.structure_file import parse_structure
+from hsio.structures import OuterLoop
+from test_instruments_readback import TEXT, Installed
+
+# A linear wall whose actuator transducer reads 10 % short (gain 0.9): only the LVDT reads the truth.
+WALL = """
+[structure]
+dt = 0.005
+[[dof]]
+name = "wall"
+mass = 0.011
+[damping]
+kind = "mass"
+zeta = 0.05
+[[experimental]]
+name = "wall"
+dof = "wall"
+K_EI = 2.0
+{source}
+model = {{ kind = "linear", k = 2.6 }}
+[[instrument]]
+name = "lvdt"
+kind = "lvdt"
+element = "wall"
+"""
+
+
+@pytest.mark.parametrize("method", ["implicit_dc", "force_control"])
+def test_the_instrument_is_the_displacement_with_a_secant_estimator(method):
+    lvdt = parse_structure(WALL.format(source='displacement_from = "lvdt"'), "wall.toml")
+    transducer = parse_structure(WALL.format(source=""), "wall.toml")
+    ground = hsio.synthetic_record(duration_s=1.5, dt=lvdt.dt, pga_g=0.3, seed=1)
+    ns = hsio.run_numerical(transducer, ground, method=method)
+    errors = {}
+    for label, structure in (("lvdt", lvdt), ("transducer", transducer)):
+        with hsio.open_site(structure, "emulator://", test_rate=20, options={"displacement_gain": 0.9},
+                            estimator=SecantEstimator("average", 16, 0.1)) as site:
+            hs = hsio.simulate(structure, ground, site, method=method)
+        errors[label] = max_error_pct(hs, ns)[0]
+    assert errors["transducer"] > 20.0  # the gain error does the damage
+    assert errors["lvdt"] < 2.0
+
+
+
+def offset_site(external):
+    """A specimen installed with the actuator and the string pot at 7.5 mm; relative trials."""
+    structure = parse_structure(TEXT, "offset.toml")
+    clock = LockstepClock()
+    actuators = open_url("emulator://", structure.experimental, clock, {"noise_mm": 0.0, "resolution_mm": 0.0})
+    controller = actuators[0].controller
+    controller.specimen = Installed(1.5, 7.5)
+    controller.set_command(7.5)
+    controller.advance(600)
+    loop = ControlLoop(actuators, clock, structure.dt, 10.0, n_avg=4, hold_fraction=0.5)
+    daq = open_instruments(structure.instruments, structure.experimental, actuators)
+    return structure, controller, ActuatorSite(loop, instruments=daq, external=external, relative=True)
+
+
+@pytest.mark.parametrize("outer_loop", [None, OuterLoop(0.05, 4)], ids=["reading", "outer loop"])
+def test_relative_trials_zero_the_instrument_at_enabling(outer_loop):
+    structure, controller, site = offset_site([("x_pot", outer_loop)])
+    ground = hsio.synthetic_record(duration_s=1.5, dt=structure.dt, pga_g=0.3, seed=3)
+    ns = hsio.run_numerical(structure, ground)
+    with site:
+        assert site.committed()[0][0] == pytest.approx(0.0, abs=1e-3)
+        hs = hsio.simulate(structure, ground, site)
+    # no jump back to the instrument's own zero: the first commands are those of the record
+    assert np.all(np.abs(hs.commands[:3, 0]) < 0.5)
+    assert abs(hs.measured_displacement[1, 0]) < 0.5
+    assert max_error_pct(hs.u, ns.u)[0] < 2.0
+    readings = np.array([r["x_pot"] for _, _, r in site.instrument_log])
+    np.testing.assert_allclose(readings - 7.5, hs.measured_displacement[1:, 0], atol=0.02)  # logged as read
