@@ -35,7 +35,7 @@ from hsio.config import BOUNDS as config_bounds
 from hsio.config import DEFAULTS as config_defaults
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
-from hsio.experiment import run_steps
+from hsio.experiment import ExperimentStopped, run_steps
 from hsio.ground_motion import GroundMotion
 from hsio.hardware import open_hardware
 from hsio.interfaces import ActuatorSpec
@@ -412,13 +412,21 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         raise
     try:
         result = run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
-                         resume_state=resume_state)
+                           resume_state=resume_state)
         site.release()
+    except ExperimentStopped as exc:  # the partial result keeps the logs as far as they go
+        _site_logs(exc.result, site, static)
+        raise
     finally:
         if recorder is not None:
             recorder.write_tables(site.record_tables())
+    return _site_logs(result, site, static)
+
+
+def _site_logs(result: Result, site, static) -> Result:
+    """``result`` with the site's preload and instrument logs (docs/setups.md)."""
     if static:
-        result.static_log = site.static_log
+        result.static_log = list(site.static_log)
         result.static_hold_error = site.static_hold_error()
-    result.instrument_log = site.instrument_log
+    result.instrument_log = list(site.instrument_log)
     return result
