@@ -44,8 +44,10 @@ from hsio.recording import Recorder
 from hsio.result import Result
 from hsio.safety.interlocks import InterlockMonitor
 from hsio.safety.settings import SafetySettings
+from hsio.safety.status import OperatorStop
 from hsio.secant import SecantEstimator
 from hsio.sites import ActuatorSite, NumericalSite
+from hsio.sites.actuators import RampStopped
 from hsio.sites.setup_map import SetupMap
 from hsio.structures import Structure, channel_names
 
@@ -403,17 +405,28 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     if not static and getattr(site, "instruments", None) is None:
         return run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
                          resume_state=resume_state)
-    # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off
+    # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off;
+    # an operator's stop (control) ends a ramp where it stands
+    stop = (lambda: control.stop_requested) if control is not None else None
     site.moved = True  # from here the actuators may stand away from rest
     try:
-        site.preload()
-    except BaseException:
+        site.preload(stop=stop)
+    except BaseException as exc:
         site.hold()
+        if isinstance(exc, RampStopped):
+            raise OperatorStop(f"{control.stop_reason}: {exc}") from None
         raise
     try:
         result = run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
                            resume_state=resume_state)
-        site.release()
+        try:
+            site.release(stop=stop)
+        except (Exception, KeyboardInterrupt) as exc:  # the record is complete: keep it, say where the ramp stood
+            hold = site.hold()
+            cause = OperatorStop(control.stop_reason) if isinstance(exc, RampStopped) else exc
+            result.stopped = f"the ramp off of the static preloads, after the record: {exc}"
+            raise ExperimentStopped(f"run stopped in {result.stopped}; {hold.message}; {result.steps} steps recorded",
+                                    result, cause, hold) from None
     except ExperimentStopped as exc:  # the partial result keeps the logs as far as they go
         _site_logs(exc.result, site, static)
         raise

@@ -32,6 +32,7 @@ MAX_DOF = 1000
 MAX_ELEMENTS = 10000
 MAX_FILE_BYTES = 4_000_000
 FREQUENCY_BOUNDS_HZ = (1e-3, 1e7)
+MAX_RAMP_S = 3600.0  # a static preload's ramp (lab time), as a record lasts at most an hour
 GROUND = "ground"
 PAPER = ("validation", "structure_I", "structure_II")  # E&M 2007, Tables I-III
 
@@ -519,6 +520,9 @@ class _Reader:
         if force == 0:
             raise self.error(f"{where}.force_kN", "a preload of zero needs no static actuator")
         ramp = self.number(f"{where}.ramp_s", entry.get("ramp_s", 5.0), positive=True)
+        if ramp > MAX_RAMP_S:
+            raise self.error(f"{where}.ramp_s", f"{ramp:g} s is out of bounds: a preload's ramp lasts at most "
+                             f"{MAX_RAMP_S:g} s (lab time)")
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
         return StaticLoad(name, force, spec, ramp, actuator)
 
