@@ -222,10 +222,9 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
         instruments = external = None
         if structure.instruments:
             instruments = open_instruments(hardware, structure, elements, actuators, options or {})
-            external = [None] * len(structure.experimental_dofs)
-            if setups is None:
-                external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
-                            for e in structure.experimental]
+            # per channel (an element with a setup has one per basic DOF and takes no instrument)
+            external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
+                        for e in structure.experimental for _ in e.basic_dofs]
         site = ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
         site.opened_for = OpenedFor(structure.name, tuple(channel_names(structure)), float(structure.dt))
         return site

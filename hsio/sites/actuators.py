@@ -50,8 +50,9 @@ class ActuatorSite:
         self.external = list(external) if external is not None else []
         if any(x is not None for x in self.external) and instruments is None:
             raise ConfigError("an element takes its displacement from an external instrument: open the instruments' DAQ")
-        if any(x is not None for x in self.external) and setups is not None:
-            raise ConfigError("an external displacement is taken for elements without setups only")
+        # the actuator of each channel that takes an instrument's reading: its element has no setup
+        self._actuator_of = {j: setups.identity_actuator(j) if setups is not None else j
+                             for j, x in enumerate(self.external) if x is not None}
         self.instrument_log: list[tuple] = []  # (trial, iterations, readings)
         self._trials = 0
         self.setups = setups
@@ -281,7 +282,7 @@ class ActuatorSite:
                 if all(abs(errors[j]) <= src[1].tolerance_mm for j, src in loops):
                     break
                 for j, src in loops:
-                    commands[j] += errors[j]
+                    commands[self._actuator_of[j]] += errors[j]
                 fb = self._execute(commands)
                 readings = self.read_instruments()
                 iterations += 1
