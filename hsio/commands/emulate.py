@@ -36,8 +36,9 @@ def _common(func):
 
 def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float = 1.0,
                      overrides: dict | None = None):
-    """An emulated controller with one axis per experimental element of the structure in an
-    ``hsio run`` configuration, named as the structure file names its actuators.
+    """An emulated controller with one axis per experimental element and one per static preload
+    of the structure in an ``hsio run`` configuration, named as the structure file names its
+    actuators (elements loaded through setups are refused: their actuators share a specimen).
 
     Each axis gets the [emulator] settings and its own noise seed (seed + index), exactly as the
     in-process emulator (``emulator://``) builds them, so both give the same controller. The
@@ -50,8 +51,17 @@ def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float 
     from hsio.diagnose.modelfile import merged_emulator_table
     from hsio.runner import load_run_structure
 
+    from hsio.errors import ConfigError
+
     cfg = config_mod.load(config_path)
-    specs = [ActuatorSpec(e.actuator, e.specimen) for e in load_run_structure(cfg).experimental]
+    structure = load_run_structure(cfg)
+    rigged = [e.name for e in structure.experimental if e.has_setup or e.is_multi_dof]
+    if rigged:
+        raise ConfigError(f"structure {structure.name!r}: element(s) {', '.join(rigged)} are loaded through a setup "
+                          "(several actuators on one specimen); hsio emulate serves independent axes only: run such "
+                          "a structure on emulator:// (docs/setups.md)")
+    # one axis per element, then one per static preload: the order in which a run opens them
+    specs = [ActuatorSpec(e.actuator, e.specimen) for e in (*structure.experimental, *structure.static)]
     table = merged_emulator_table(cfg["hardware"]["actuator_model"], cfg["emulator"])  # as emulator:// does
     controllers = make_controllers(specs, {**table, **(overrides or {})})
     return ControllerBank(controllers, [s.name for s in specs], lockstep, watchdog_s)
