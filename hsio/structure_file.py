@@ -236,6 +236,7 @@ class _Reader:
             by_name[inst.name] = k
             if inst.element and inst.element not in {e.name for e in experimental}:
                 raise self.error(f"instrument[{k}].element", f"no experimental element {inst.element!r}")
+        taken: dict[str, str] = {}
         for k, e in enumerate(experimental):
             if e.displacement_from:
                 if e.displacement_from not in by_name:
@@ -248,6 +249,17 @@ class _Reader:
                 if e.has_setup:
                     raise self.error(f"experimental[{k}].displacement_from",
                                      "an external displacement is taken for elements without setups only")
+                if inst.scale < 0:  # emulation: it would read against the element's direction
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} has scale {inst.scale:g}: it would read the element's "
+                                     "displacement with the opposite sign (give a positive scale)")
+                if inst.element and inst.element != e.name:  # an outer loop would drive this actuator by it
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} reads element {inst.element!r}, not {e.name!r}")
+                if e.displacement_from in taken:
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} already gives the displacement of {taken[inst.name]}")
+                taken[inst.name] = f"experimental[{k}]"
         named = [(f"spring[{k}]", s.name) for k, s in enumerate(springs) if s.name]
         named += [(f"numerical[{k}]", e.name) for k, e in enumerate(numerical)]
         named += [(f"experimental[{k}]", e.name) for k, e in enumerate(experimental)]
@@ -506,6 +518,8 @@ class _Reader:
             raise self.error(f"{where}.kind", f"unknown instrument {kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
         element = self.string(f"{where}.element", entry["element"]) if "element" in entry else ""
         scale = self.number(f"{where}.scale", entry.get("scale", 1.0))
+        if scale == 0:
+            raise self.error(f"{where}.scale", "must not be zero (the instrument would read nothing)")
         noise = self.number(f"{where}.noise", entry.get("noise", 0.0), non_negative=True)
         resolution = self.number(f"{where}.resolution", entry.get("resolution", 0.0), non_negative=True)
         return Instrument(name, kind, element, scale, noise, resolution)

@@ -9,6 +9,7 @@ import pytest
 
 import hsio
 from hsio.clock import LockstepClock
+from hsio.errors import ConfigError
 from hsio.control_loop import ControlLoop
 from hsio.emulators.local import open_instruments, open_url
 from hsio.result import max_error_pct
@@ -141,3 +142,51 @@ def test_an_element_beside_a_setup_takes_its_instrument_and_closes_its_outer_loo
     assert iterations.max() > 0  # the outer loop corrected the wall's actuator
     converged = iterations < 3
     assert np.all(np.abs(readings - hs.targets[1:, wall])[converged] <= 0.002 + 1e-12)
+
+
+TWO = """
+[structure]
+dt = 0.01
+[[dof]]
+name = "x"
+mass = 0.01
+[[dof]]
+name = "y"
+mass = 0.02
+[[experimental]]
+name = "w"
+dof = "x"
+{w}
+model = {{ kind = "linear", k = 1.0 }}
+[[experimental]]
+name = "v"
+dof = "y"
+{v}
+model = {{ kind = "linear", k = 3.0 }}
+[[instrument]]
+name = "l"
+kind = "lvdt"
+{element}
+{scale}
+"""
+
+
+@pytest.mark.parametrize("fields, message", [
+    (dict(w='displacement_from = "l"', element='element = "v"'),
+     r"experimental\[0\]\.displacement_from: instrument 'l' reads element 'v', not 'w'"),
+    (dict(w='displacement_from = "l"', v='displacement_from = "l"'),
+     r"experimental\[1\]\.displacement_from: instrument 'l' already gives the displacement of experimental\[0\]"),
+    (dict(w='displacement_from = "l"', element='element = "w"', scale="scale = 0.0"),
+     r"instrument\[0\]\.scale: must not be zero"),
+    (dict(w='displacement_from = "l"', element='element = "w"', scale="scale = -1.0"),
+     r"experimental\[0\]\.displacement_from: instrument 'l' has scale -1: it would read the element's displacement "
+     r"with the opposite sign"),
+], ids=["another element's", "two elements", "scale zero", "scale negative"])
+def test_an_instrument_that_cannot_be_the_elements_displacement_is_refused(fields, message):
+    """An outer loop would drive the element's actuator by what the instrument reads: on another
+    element, shared, or reading nothing (scale 0: the loop winds the command up to a limit)."""
+    text = TWO.format(**{"w": "", "v": "", "element": "", "scale": "", **fields})
+    with pytest.raises(ConfigError, match=r"two\.toml: " + message):
+        parse_structure(text, "two.toml")
+    assert parse_structure(TWO.format(w="", v="", element='element = "w"', scale="scale = -1.0"),
+                           "two.toml").instruments[0].scale == -1.0  # only read and recorded: fine
