@@ -61,9 +61,9 @@ class ActuatorSite:
         if setups is not None and setups.n_actuators != self.n_dynamic:
             raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {self.n_dynamic} "
                               f"beside the static ones")
-        if (setups is not None or self.static) and estimator is not None:
-            raise ConfigError("the secant estimator works per actuator; elements with setups or static preloads "
-                              "take the averaged measurement (no estimator)")
+        if setups is not None and estimator is not None:
+            raise ConfigError("the secant estimator works per actuator; elements with setups take the averaged "
+                              "measurement (no estimator)")
         self.n_elements = setups.n_channels if setups is not None else self.n_dynamic
         self.estimator = estimator
         if estimator is not None and not loop.keep_samples:
