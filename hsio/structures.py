@@ -452,6 +452,7 @@ class Structure:
             object.__setattr__(self, key, _elements(what, key, getattr(self, key), kind))
         if not isinstance(self.damping, Damping):
             raise ConfigError(f"{what}: damping: must be a Damping, got {self.damping!r}")
+        check.check_instruments(self.experimental, self.instruments)
         dt = check.number("dt", self.dt, positive=True)
         from hsio.ground_motion import DT_MAX_S, DT_MIN_S
 

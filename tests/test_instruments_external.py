@@ -16,7 +16,7 @@ from hsio.result import max_error_pct
 from hsio.secant import SecantEstimator
 from hsio.sites import ActuatorSite
 from hsio.structure_file import parse_structure
-from hsio.structures import OuterLoop
+from hsio.structures import Damping, ExperimentalElement, Instrument, OuterLoop, Structure
 from test_instruments_readback import TEXT, Installed
 
 # A linear wall whose actuator transducer reads 10 % short (gain 0.9): only the LVDT reads the truth.
@@ -190,3 +190,18 @@ def test_an_instrument_that_cannot_be_the_elements_displacement_is_refused(field
         parse_structure(text, "two.toml")
     assert parse_structure(TWO.format(w="", v="", element='element = "w"', scale="scale = -1.0"),
                            "two.toml").instruments[0].scale == -1.0  # only read and recorded: fine
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (dict(instruments=(Instrument("l", "laser", "x"),)), r"instrument\[0\]\.kind: unknown instrument 'laser'"),
+    (dict(instruments=(Instrument("l", "lvdt", "y"),)), r"instrument\[0\]\.element: no experimental element 'y'"),
+    (dict(instruments=(Instrument("l", "lvdt", "x", scale=float("nan")),)), r"instrument\[0\]\.scale: must be finite"),
+    (dict(displacement_from="l"), r"experimental\[0\]\.displacement_from: no instrument 'l'; instruments: none"),
+], ids=["kind", "element", "scale", "displacement_from"])
+def test_a_structure_built_in_code_gets_the_instrument_checks(arguments, message):
+    """As a file would be refused: not a KeyError later, nor an element left silently on its
+    actuator's transducer."""
+    element = ExperimentalElement("x", 0, {"kind": "linear", "k": 1.0},
+                                  displacement_from=arguments.pop("displacement_from", ""))
+    with pytest.raises(ConfigError, match=r"structure 's': " + message):
+        Structure("s", ("x",), (0.01,), (element,), damping=Damping(0.05, "mass"), dt=0.01, **arguments)
