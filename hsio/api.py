@@ -203,6 +203,9 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
                           f"actuators to load; run it with hsio.run_numerical")
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
+    if structure.instruments and not hardware.startswith("emulator://") and not (options or {}).get("instruments"):
+        raise ConfigError(f"structure {structure.name!r} names instruments; give the DAQ module's URL as the "
+                          f"driver option 'instruments' (modbus+tcp://HOST:PORT)")  # before any axis is enabled
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
     elements = list(structure.experimental) + list(structure.static)  # static preloads after the channels
     actuators = open_hardware(hardware, elements, ticker, options or {})

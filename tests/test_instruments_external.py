@@ -205,3 +205,16 @@ def test_a_structure_built_in_code_gets_the_instrument_checks(arguments, message
                                   displacement_from=arguments.pop("displacement_from", ""))
     with pytest.raises(ConfigError, match=r"structure 's': " + message):
         Structure("s", ("x",), (0.01,), (element,), damping=Damping(0.05, "mass"), dt=0.01, **arguments)
+
+
+def test_instruments_without_their_daq_are_refused_before_any_actuator_opens(monkeypatch):
+    """On a controller's URL, a structure with instruments needs the DAQ module's URL: refused
+    before the hardware is opened (no axis enabled), not after."""
+    import hsio.api
+
+    opened = []
+    monkeypatch.setattr(hsio.api, "open_hardware", lambda *args: opened.append(args) or [])
+    structure = parse_structure(WALL.format(source='displacement_from = "lvdt"'), "wall.toml")
+    with pytest.raises(ConfigError, match="names instruments; give the DAQ module's URL as the driver option"):
+        hsio.open_site(structure, "modbus+tcp://127.0.0.1:1", options={"stroke_mm": 100.0, "force_kN": 50.0})
+    assert opened == []
