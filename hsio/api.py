@@ -35,7 +35,7 @@ from hsio.config import BOUNDS as config_bounds
 from hsio.config import DEFAULTS as config_defaults
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
-from hsio.experiment import ExperimentStopped, run_steps
+from hsio.experiment import ExperimentStopped, excitation, run_steps
 from hsio.ground_motion import GroundMotion
 from hsio.hardware import open_hardware
 from hsio.interfaces import ActuatorSpec
@@ -410,7 +410,9 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off;
     # an operator's stop (control) ends a ramp where it stands
     stop = (lambda: control.stop_requested) if control is not None else None
-    site.moved = True  # from here the actuators may stand away from rest
+    if static:
+        excitation(structure, ground)  # a record refused before the preloads move anything
+        site.moved = True  # the preloads move the actuators from here
     try:
         site.preload(stop=stop)
     except BaseException as exc:

@@ -218,3 +218,13 @@ def test_instruments_without_their_daq_are_refused_before_any_actuator_opens(mon
     with pytest.raises(ConfigError, match="names instruments; give the DAQ module's URL as the driver option"):
         hsio.open_site(structure, "modbus+tcp://127.0.0.1:1", options={"stroke_mm": 100.0, "force_kN": 50.0})
     assert opened == []
+
+
+def test_a_refusal_before_any_motion_leaves_a_site_with_instruments_usable_from_rest():
+    structure = parse_structure(WALL.format(source='displacement_from = "lvdt"'), "wall.toml")
+    too_long = hsio.GroundMotion("long", 0.01, np.zeros(600_000))  # 6000 s: 1.2e6 steps at 0.005 s
+    ground = hsio.synthetic_record(duration_s=0.2, dt=structure.dt, pga_g=0.3, seed=1)
+    with hsio.open_site(structure, "emulator://") as site:
+        with pytest.raises(hsio.HsioError, match="more than the bound"):
+            hsio.simulate(structure, too_long, site)
+        assert hsio.simulate(structure, ground, site).steps == 40  # from rest: nothing had moved

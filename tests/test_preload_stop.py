@@ -73,3 +73,12 @@ def test_a_ramp_longer_than_an_hour_is_refused():
     assert parse_structure(base + "ramp_s = 3600\n", "c.toml").static[0].ramp_s == 3600.0
     with pytest.raises(ConfigError, match=r"static load 'axial': ramp_s: 7200 s is out of bounds"):
         StaticLoad("axial", 100.0, {"kind": "linear", "k": 50.0}, 7200.0)
+
+
+def test_a_record_refused_is_refused_before_the_preload_moves_anything():
+    structure = hsio.load_structure("preloaded_column")
+    too_long = hsio.GroundMotion("long", 0.01, np.zeros(1_200_000))  # 1.2e6 steps at 0.01 s: beyond the bound
+    with hsio.open_site(structure, "emulator://", test_rate=10) as site:
+        with pytest.raises(hsio.HsioError, match="more than the bound"):
+            hsio.simulate(structure, too_long, site)
+        assert site.static_log == [] and abs(site.loop.feedback()[1].force_kN) < 0.1
