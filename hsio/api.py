@@ -203,6 +203,11 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
                           f"actuators to load; run it with hsio.run_numerical")
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
+    rigged = {e.name for e in structure.experimental if e.has_setup or e.is_multi_dof}
+    for inst in structure.instruments:
+        if hardware.startswith("emulator://") and inst.element in rigged:
+            raise ConfigError(f"instrument {inst.name!r} reads element {inst.element!r}, which is loaded through a "
+                              f"setup: the emulator emulates instruments on elements without setups only")
     if structure.instruments and not hardware.startswith("emulator://") and not (options or {}).get("instruments"):
         raise ConfigError(f"structure {structure.name!r} names instruments; give the DAQ module's URL as the "
                           f"driver option 'instruments' (modbus+tcp://HOST:PORT)")  # before any axis is enabled

@@ -228,3 +228,15 @@ def test_a_refusal_before_any_motion_leaves_a_site_with_instruments_usable_from_
         with pytest.raises(hsio.HsioError, match="more than the bound"):
             hsio.simulate(structure, too_long, site)
         assert hsio.simulate(structure, ground, site).steps == 40  # from rest: nothing had moved
+
+
+def test_an_emulated_instrument_on_an_element_with_a_setup_is_refused_before_anything_opens(monkeypatch):
+    import hsio.api
+
+    opened = []
+    monkeypatch.setattr(hsio.api, "open_hardware", lambda *args: opened.append(args) or [])
+    structure = parse_structure(RIG.replace('element = "wall"', 'element = "column"').replace(
+        'displacement_from = "lvdt"\nouter_loop = { tolerance_mm = 0.002, max_iterations = 3 }\n', ""), "rig.toml")
+    with pytest.raises(ConfigError, match="instrument 'lvdt' reads element 'column', which is loaded through a setup"):
+        hsio.open_site(structure, "emulator://")
+    assert opened == []
