@@ -205,6 +205,9 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
     rigged = {e.name for e in structure.experimental if e.has_setup or e.is_multi_dof}
     for inst in structure.instruments:
+        if hardware.startswith("emulator://") and not inst.element:
+            raise ConfigError(f"instrument {inst.name!r} names no element: the emulator has nothing for it to read "
+                              f"(give its element)")
         if hardware.startswith("emulator://") and inst.element in rigged:
             raise ConfigError(f"instrument {inst.name!r} reads element {inst.element!r}, which is loaded through a "
                               f"setup: the emulator emulates instruments on elements without setups only")

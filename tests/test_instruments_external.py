@@ -239,4 +239,8 @@ def test_an_emulated_instrument_on_an_element_with_a_setup_is_refused_before_any
         'displacement_from = "lvdt"\nouter_loop = { tolerance_mm = 0.002, max_iterations = 3 }\n', ""), "rig.toml")
     with pytest.raises(ConfigError, match="instrument 'lvdt' reads element 'column', which is loaded through a setup"):
         hsio.open_site(structure, "emulator://")
+    structure = parse_structure(RIG.replace('element = "wall"\n', "").replace(
+        'displacement_from = "lvdt"\nouter_loop = { tolerance_mm = 0.002, max_iterations = 3 }\n', ""), "rig.toml")
+    with pytest.raises(ConfigError, match="instrument 'lvdt' names no element: the emulator has nothing for it to read"):
+        hsio.open_site(structure, "emulator://")
     assert opened == []
