@@ -548,6 +548,12 @@ def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs:
         "run_file": str(out / "run.sqlite"),
         "stopped": hs.stopped,
     }
+    if structure.static and hs.static_hold_error is not None:  # the largest |measured - preload| / preload
+        summary["static_hold_error_pct"] = {load.name: float(100.0 * e)
+                                            for load, e in zip(structure.static, hs.static_hold_error)}
+    if hs.instrument_log:
+        iterations = np.array([n for _, n, _ in hs.instrument_log], dtype=float)
+        summary["outer_loop_iterations"] = {"mean": float(iterations.mean()), "max": int(iterations.max())}
     if ns is not None:
         summary["ns_peak_displacement_mm"] = [float(x) for x in np.max(np.abs(ns.u), axis=0)]
         worst, per_dof = max_error_pct(hs.u, ns.u)

@@ -244,3 +244,16 @@ def test_an_emulated_instrument_on_an_element_with_a_setup_is_refused_before_any
     with pytest.raises(ConfigError, match="instrument 'lvdt' names no element: the emulator has nothing for it to read"):
         hsio.open_site(structure, "emulator://")
     assert opened == []
+
+
+def test_hsio_run_summarises_the_outer_loop(tmp_path):
+    from hsio import config as config_mod
+    from hsio import runner
+
+    (tmp_path / "wall.toml").write_text(WALL.format(
+        source='displacement_from = "lvdt"\nouter_loop = { tolerance_mm = 0.02, max_iterations = 4 }'))
+    (tmp_path / "run.toml").write_text('[structure]\nfile = "wall.toml"\n[record]\nsynthetic_duration_s = 0.5\n'
+                                       '[emulator]\ncompliance_mm_per_kN = 0.05\n[output]\nplots = false\n')
+    summary = runner.run(config_mod.load(tmp_path / "run.toml"), tmp_path / "out")
+    loops = summary["outer_loop_iterations"]
+    assert 0.5 < loops["mean"] <= loops["max"] <= 4

@@ -95,6 +95,7 @@ def test_preload_held_while_the_lateral_dof_runs_an_implicit_method(method, tmp_
                       f'[integrator]\nmethod = "{method}"\n[test]\nrate = 10\n[output]\nplots = false\n')
     summary = runner.run(config_mod.load(config), tmp_path / "out")
     assert summary["exit_status"] == 0 and summary["max_error_pct"] < 2.0
+    assert 0 < summary["static_hold_error_pct"]["axial"] < 1.0
     table = Run(tmp_path / "out" / "run.sqlite").table("static")
     held = table["phase"] == 1
     np.testing.assert_allclose(table["force_axial"][held], 125.0, rtol=0.01)
