@@ -331,7 +331,7 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     setups = SetupMap.of(structure) if structure.has_setups else None
     report = dry_run(ns, test["rate"] * structure.dt, test["hold_fraction"], hardware["url"], emulator,
-                     config["driver"], SafetySettings.from_table(config["safety"]), setups)
+                     config["driver"], SafetySettings.from_table(config["safety"]), setups, structure.static)
     return ns, report
 
 
