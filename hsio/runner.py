@@ -475,6 +475,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             if ledger:
                 ledger.update(run_id, start_state=start_state)
             notify(format_state("the actuators stand at", start_state))
+            if structure.instruments:  # every channel's reading, before the first command (docs/setups.md)
+                notify("initial read-back:\n" + api.format_readback(site.readback,
+                                                                      {i.name: i.unit for i in structure.instruments}))
             if not hardware["url"].startswith("emulator") and (config["emulator"] or hardware["actuator_model"]):
                 notify(f"[emulator] and [hardware] actuator_model are not read by a run on {hardware['url']}: they "
                        f"set the emulated controller (`hsio emulate ... CONFIG`), not the real one")

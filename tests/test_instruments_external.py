@@ -246,7 +246,7 @@ def test_an_emulated_instrument_on_an_element_with_a_setup_is_refused_before_any
     assert opened == []
 
 
-def test_hsio_run_summarises_the_outer_loop(tmp_path):
+def test_hsio_run_shows_the_initial_read_back_and_summarises_the_outer_loop(tmp_path):
     from hsio import config as config_mod
     from hsio import runner
 
@@ -254,6 +254,9 @@ def test_hsio_run_summarises_the_outer_loop(tmp_path):
         source='displacement_from = "lvdt"\nouter_loop = { tolerance_mm = 0.02, max_iterations = 4 }'))
     (tmp_path / "run.toml").write_text('[structure]\nfile = "wall.toml"\n[record]\nsynthetic_duration_s = 0.5\n'
                                        '[emulator]\ncompliance_mm_per_kN = 0.05\n[output]\nplots = false\n')
-    summary = runner.run(config_mod.load(tmp_path / "run.toml"), tmp_path / "out")
+    said = []
+    summary = runner.run(config_mod.load(tmp_path / "run.toml"), tmp_path / "out", notify=said.append)
     loops = summary["outer_loop_iterations"]
     assert 0.5 < loops["mean"] <= loops["max"] <= 4
+    readback = next(line for line in said if line.startswith("initial read-back:"))
+    assert readback.splitlines()[-1].split() == ["lvdt", "0.0000", "mm"]  # the specimen at rest
