@@ -75,3 +75,51 @@ def test_the_structures_instruments_are_served_on_the_controllers_wire(tmp_path)
     readings = [r["lvdt"] for _, _, r in hs.instrument_log]
     assert hs.measured_displacement[1:, 0].tolist() == readings  # the LVDT over the wire, 0.01 mm a count
     assert hsio.max_error_pct(hs, ns)[0] < 2.0
+
+
+def test_more_instruments_than_the_daq_map_has_inputs_are_refused_by_the_emulator(tmp_path):
+    from hsio.commands.emulate import _with_instruments
+
+    many = "".join(f'[[instrument]]\nname = "l{k}"\nkind = "lvdt"\nelement = "wall"\n' for k in range(11))
+    (tmp_path / "wall.toml").write_text(WALL + many)
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[structure]\nfile = "wall.toml"\n')
+    bank = bank_from_config(str(cfg), lockstep=True, watchdog_s=0)
+    with pytest.raises(ValueError, match="DAQ map .hsio-daq. has 8 inputs for 12 instruments"):
+        _with_instruments(ModbusEmulator(bank, modbus_map.load()), str(cfg))
+
+
+def test_an_instrument_beyond_its_inputs_full_scale_is_named_not_a_device_failure():
+    """The default DAQ map's int16 inputs with scale 100 hold +/-327.67: a strain gauge of 12.5
+    microstrain per kN is beyond at 26 kN. The emulated converter saturates, as a real one does,
+    and the driver refuses the saturated reading by name (the wire stays healthy)."""
+    from hsio.drivers.modbus_daq import ModbusDAQ, load_daq_map
+    from hsio.emulators.bank import ControllerBank
+    from hsio.emulators.local import EmulatedInstruments
+    from hsio.emulators.servo import make_controllers
+    from hsio.errors import ImplausibleMeasurementError
+    from hsio.structure_file import parse_structure
+
+    gauges = '[[instrument]]\nname = "lc"\nkind = "load_cell"\nelement = "wall"\n' \
+             '[[instrument]]\nname = "sg"\nkind = "strain_gauge"\nelement = "wall"\nscale = 12.5\n'
+    structure = parse_structure(WALL + gauges, "wall.toml")
+    (controller,) = make_controllers(structure.experimental, {"noise_mm": 0.0, "force_noise_kN": 0.0,
+                                                              "resolution_mm": 0.0})
+    daq = EmulatedInstruments(structure.instruments, {"wall": controller})
+    with ModbusEmulator(ControllerBank([controller], ["wall"], lockstep=True, watchdog_s=0), modbus_map.load()) as emu:
+        emu.context.add_instruments(daq, load_daq_map())
+        reader = ModbusDAQ(emu.url, structure.instruments)
+        try:
+            controller.set_command(8.0)  # 20.8 kN: 260 microstrain, within the input
+            controller.advance(800)
+            assert reader.read()["sg"] == pytest.approx(12.5 * 2.6 * 8.0, abs=0.01)
+            controller.set_command(12.0)  # 31.2 kN: 390 microstrain, beyond +/-327.67
+            controller.advance(800)
+            with pytest.raises(ImplausibleMeasurementError, match=r"instrument 'sg' on input 'ai2' reads 327\.67 "
+                                                                  r"microstrain, the full scale of its int16 register"):
+                reader.read()
+            controller.set_command(8.0)
+            controller.advance(800)
+            assert reader.read()["lc"] == pytest.approx(20.8, abs=0.01)  # the module still answers
+        finally:
+            reader.close()
