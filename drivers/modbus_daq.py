@@ -14,7 +14,7 @@ from urllib.parse import urlsplit
 
 from hsio.config import read_toml
 from hsio.drivers.modbus_map import MAPS_DIR, Register, _check_overlap, _register
-from hsio.errors import CommunicationError, ConfigError
+from hsio.errors import CommunicationError, ConfigError, ImplausibleMeasurementError
 from hsio.interfaces import DAQ, Channel
 
 DEFAULT_DAQ_MAP = MAPS_DIR / "daq_default.toml"
@@ -93,7 +93,14 @@ class ModbusDAQ(DAQ):
         out = {}
         for inst, reg in zip(self.instruments, self.map.inputs):
             at = reg.address - start
-            out[inst.name] = reg.decode(words[at:at + reg.words], self.map.word_order)
+            value = reg.decode(words[at:at + reg.words], self.map.word_order)
+            rails = reg.full_scale()
+            if rails is not None and value in rails:  # a saturated converter: the true value is beyond
+                raise ImplausibleMeasurementError(
+                    f"{self.url}: instrument {inst.name!r} on input {reg.name!r} reads {value:g} {inst.unit}, the full "
+                    f"scale of its {reg.type} register ({rails[0]:g}..{rails[1]:g} with scale {reg.scale:g}): over "
+                    f"range; give the input a smaller scale or a wider type in the DAQ map")
+            out[inst.name] = value
         return out
 
     def close(self) -> None:

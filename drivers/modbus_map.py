@@ -48,6 +48,16 @@ class Register:
     def words(self) -> int:
         return TYPES[self.type][1]
 
+    def full_scale(self) -> tuple[float, float] | None:
+        """The smallest and largest engineering values an integer register holds (its raw range
+        over the scale); None for a float register."""
+        fmt, words = TYPES[self.type]
+        if fmt == "f":
+            return None
+        bits = 16 * words
+        low, high = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if fmt.islower() else (0, (1 << bits) - 1)
+        return tuple(sorted((low / self.scale, high / self.scale)))
+
     def encode(self, value: float, word_order: str) -> list[int]:
         """Registers for an engineering value. Raises ValueError if it does not fit the type."""
         raw = value * self.scale

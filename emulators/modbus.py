@@ -102,6 +102,9 @@ class RegisterContext(ModbusServerContext):
         instruments' order (docs/setups.md)."""
         if daq_map.device_id != self.map.device_id:
             raise ValueError(f"the DAQ map's device id {daq_map.device_id} is not the controller's {self.map.device_id}")
+        if len(daq.instruments) > len(daq_map.inputs):
+            raise ValueError(f"DAQ map {daq_map.name!r} has {len(daq_map.inputs)} inputs for "
+                             f"{len(daq.instruments)} instruments")
         self.instrument_daq = daq
         self.instrument_map = daq_map
         for inst, reg in zip(daq.instruments, daq_map.inputs):
@@ -113,8 +116,10 @@ class RegisterContext(ModbusServerContext):
     # -- reads -------------------------------------------------------------------------------------
     def _value(self, kind: str, axis, reg) -> float:
         bank = self.bank
-        if kind == "instrument":  # axis: the instrument
-            return self.instrument_daq.value(axis)
+        if kind == "instrument":  # axis: the instrument; its converter saturates at full scale
+            value = self.instrument_daq.value(axis)
+            rails = reg.full_scale()
+            return value if rails is None else min(max(value, rails[0]), rails[1])
         if kind == "info":
             c = bank.controllers[0].config
             return {"map_version": 1.0, "axes": float(self.n), "rate_hz": bank.rate_hz, "boot_id": bank.boot_id,

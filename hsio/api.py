@@ -35,7 +35,7 @@ from hsio.config import BOUNDS as config_bounds
 from hsio.config import DEFAULTS as config_defaults
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
-from hsio.experiment import run_steps
+from hsio.experiment import ExperimentStopped, excitation, run_steps
 from hsio.ground_motion import GroundMotion
 from hsio.hardware import open_hardware
 from hsio.interfaces import ActuatorSpec
@@ -44,8 +44,10 @@ from hsio.recording import Recorder
 from hsio.result import Result
 from hsio.safety.interlocks import InterlockMonitor
 from hsio.safety.settings import SafetySettings
+from hsio.safety.status import OperatorStop
 from hsio.secant import SecantEstimator
 from hsio.sites import ActuatorSite, NumericalSite
+from hsio.sites.actuators import RampStopped
 from hsio.sites.setup_map import SetupMap
 from hsio.structures import Structure, channel_names
 
@@ -201,6 +203,17 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
                           f"actuators to load; run it with hsio.run_numerical")
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
+    rigged = {e.name for e in structure.experimental if e.has_setup or e.is_multi_dof}
+    for inst in structure.instruments:
+        if hardware.startswith("emulator://") and not inst.element:
+            raise ConfigError(f"instrument {inst.name!r} names no element: the emulator has nothing for it to read "
+                              f"(give its element)")
+        if hardware.startswith("emulator://") and inst.element in rigged:
+            raise ConfigError(f"instrument {inst.name!r} reads element {inst.element!r}, which is loaded through a "
+                              f"setup: the emulator emulates instruments on elements without setups only")
+    if structure.instruments and not hardware.startswith("emulator://") and not (options or {}).get("instruments"):
+        raise ConfigError(f"structure {structure.name!r} names instruments; give the DAQ module's URL as the "
+                          f"driver option 'instruments' (modbus+tcp://HOST:PORT)")  # before any axis is enabled
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
     elements = list(structure.experimental) + list(structure.static)  # static preloads after the channels
     actuators = open_hardware(hardware, elements, ticker, options or {})
@@ -220,10 +233,9 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
         instruments = external = None
         if structure.instruments:
             instruments = open_instruments(hardware, structure, elements, actuators, options or {})
-            external = [None] * len(structure.experimental_dofs)
-            if setups is None:
-                external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
-                            for e in structure.experimental]
+            # per channel (an element with a setup has one per basic DOF and takes no instrument)
+            external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
+                        for e in structure.experimental for _ in e.basic_dofs]
         site = ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
         site.opened_for = OpenedFor(structure.name, tuple(channel_names(structure)), float(structure.dt))
         return site
@@ -403,22 +415,43 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     if not static and getattr(site, "instruments", None) is None:
         return run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
                          resume_state=resume_state)
-    # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off
-    site.moved = True  # from here the actuators may stand away from rest
+    # static preloads (docs/setups.md): ramped in before the record, held through it, ramped off;
+    # an operator's stop (control) ends a ramp where it stands
+    stop = (lambda: control.stop_requested) if control is not None else None
+    if static:
+        excitation(structure, ground)  # a record refused before the preloads move anything
+        site.moved = True  # the preloads move the actuators from here
     try:
-        site.preload()
-    except BaseException:
+        site.preload(stop=stop)
+    except BaseException as exc:
         site.hold()
+        if isinstance(exc, RampStopped):
+            raise OperatorStop(f"{control.stop_reason}: {exc}") from None
         raise
     try:
         result = run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
-                         resume_state=resume_state)
-        site.release()
+                           resume_state=resume_state)
+        try:
+            site.release(stop=stop)
+        except (Exception, KeyboardInterrupt) as exc:  # the record is complete: keep it, say where the ramp stood
+            hold = site.hold()
+            cause = OperatorStop(control.stop_reason) if isinstance(exc, RampStopped) else exc
+            result.stopped = f"the ramp off of the static preloads, after the record: {exc}"
+            raise ExperimentStopped(f"run stopped in {result.stopped}; {hold.message}; {result.steps} steps recorded",
+                                    result, cause, hold) from None
+    except ExperimentStopped as exc:  # the partial result keeps the logs as far as they go
+        _site_logs(exc.result, site, static)
+        raise
     finally:
         if recorder is not None:
             recorder.write_tables(site.record_tables())
+    return _site_logs(result, site, static)
+
+
+def _site_logs(result: Result, site, static) -> Result:
+    """``result`` with the site's preload and instrument logs (docs/setups.md)."""
     if static:
-        result.static_log = site.static_log
+        result.static_log = list(site.static_log)
         result.static_hold_error = site.static_hold_error()
-    result.instrument_log = site.instrument_log
+    result.instrument_log = list(site.instrument_log)
     return result

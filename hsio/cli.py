@@ -252,6 +252,11 @@ def _print_summary(s: dict) -> None:
     if "max_error_pct" in s:
         click.echo(f"max error      {s['max_error_pct']:.3f} % (HS vs NS)")
     click.echo(f"tracking RMS   {', '.join(f'{x:.4f}' for x in s['rms_tracking_error_mm'])} mm")
+    for name, error in s.get("static_hold_error_pct", {}).items():
+        click.echo(f"preload {name:<6} held within {error:.3f} % through the record")
+    if "outer_loop_iterations" in s:
+        loops = s["outer_loop_iterations"]
+        click.echo(f"outer loop     {loops['mean']:.2f} corrections a trial on average, at most {loops['max']}")
     comp = s.get("compensation", {})
     if comp.get("mode", "off") != "off":
         used = ", ".join(f"{n} a = {c['a_mm_s']:.3g} mm/s, b d_max = {c['lag_s'] * 1e3:.1f} ms"

@@ -67,6 +67,16 @@ class Result:
     lab_time_s: float | None = None
     late_steps: int = 0
     stopped: str = ""
+    # on actuators with static preloads or external instruments (docs/setups.md)
+    static_log: list = field(default_factory=list)  # (phase, lab time s, targets, forces, displacements)
+    static_hold_error: np.ndarray | None = None  # per preload: max |measured - preload| / preload in the record
+    instrument_log: list = field(default_factory=list)  # (trial, outer-loop iterations, readings)
+
+    def __repr__(self) -> str:
+        """One line: what ran, on what, for how long (the histories are its arrays)."""
+        stopped = f", stopped={self.stopped!r}" if self.stopped else ""
+        return (f"Result(structure={self.structure!r}, method={self.method!r}, steps={self.steps}, dt={self.dt!r}, "
+                f"dof_names={self.dof_names!r}, element_names={self.element_names!r}{stopped})")
 
     @property
     def steps(self) -> int:

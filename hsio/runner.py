@@ -98,16 +98,10 @@ def check_run_method(config: RunConfig, structure: Structure) -> None:
     if method not in IMPLICIT_METHODS:
         return
     coupled = [e.name for e in structure.experimental if e.has_setup]
-    static = [e.name for e in structure.static]
-    found = []
     if coupled:
-        found.append(f"elements with setups or several basic DOFs: {', '.join(coupled)}")
-    if static:
-        found.append(f"static preloads: {', '.join(static)}")
-    if found:
         raise ConfigError(f"{config['structure']['file'] or structure.name}: [integrator] method = {method!r} "
                           f"iterates on the secant stiffness of elements driven by one actuator each "
-                          f"({'; '.join(found)}): "
+                          f"(elements with setups or several basic DOFs: {', '.join(coupled)}): "
                           f"use method = 'alpha_os'")
 
 
@@ -338,7 +332,7 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     setups = SetupMap.of(structure) if structure.has_setups else None
     report = dry_run(ns, test["rate"] * structure.dt, test["hold_fraction"], hardware["url"], emulator,
-                     config["driver"], SafetySettings.from_table(config["safety"]), setups)
+                     config["driver"], SafetySettings.from_table(config["safety"]), setups, structure.static)
     return ns, report
 
 
@@ -488,6 +482,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             if ledger:
                 ledger.update(run_id, start_state=start_state)
             notify(format_state("the actuators stand at", start_state))
+            if structure.instruments:  # every channel's reading, before the first command (docs/setups.md)
+                notify("initial read-back:\n" + api.format_readback(site.readback,
+                                                                      {i.name: i.unit for i in structure.instruments}))
             if not hardware["url"].startswith("emulator") and (config["emulator"] or hardware["actuator_model"]):
                 notify(f"[emulator] and [hardware] actuator_model are not read by a run on {hardware['url']}: they "
                        f"set the emulated controller (`hsio emulate ... CONFIG`), not the real one")
@@ -576,6 +573,12 @@ def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs:
         "run_file": str(out / "run.sqlite"),
         "stopped": hs.stopped,
     }
+    if structure.static and hs.static_hold_error is not None:  # the largest |measured - preload| / preload
+        summary["static_hold_error_pct"] = {load.name: float(100.0 * e)
+                                            for load, e in zip(structure.static, hs.static_hold_error)}
+    if hs.instrument_log:
+        iterations = np.array([n for _, n, _ in hs.instrument_log], dtype=float)
+        summary["outer_loop_iterations"] = {"mean": float(iterations.mean()), "max": int(iterations.max())}
     if ns is not None:
         summary["ns_peak_displacement_mm"] = [float(x) for x in np.max(np.abs(ns.u), axis=0)]
         worst, per_dof = max_error_pct(hs.u, ns.u)

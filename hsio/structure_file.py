@@ -32,6 +32,7 @@ MAX_DOF = 1000
 MAX_ELEMENTS = 10000
 MAX_FILE_BYTES = 4_000_000
 FREQUENCY_BOUNDS_HZ = (1e-3, 1e7)
+MAX_RAMP_S = 3600.0  # a static preload's ramp (lab time), as a record lasts at most an hour
 GROUND = "ground"
 PAPER = ("validation", "structure_I", "structure_II")  # E&M 2007, Tables I-III
 
@@ -228,25 +229,7 @@ class _Reader:
         experimental = tuple(self.experimental(k, e) for k, e in enumerate(doc.get("experimental", [])))
         static = tuple(self.static(k, e) for k, e in enumerate(doc.get("static", [])))
         instruments = tuple(self.instrument(k, e) for k, e in enumerate(doc.get("instrument", [])))
-        by_name = {}
-        for k, inst in enumerate(instruments):
-            if inst.name in by_name:
-                raise self.error(f"instrument[{k}].name", f"{inst.name!r} already names instrument[{by_name[inst.name]}]")
-            by_name[inst.name] = k
-            if inst.element and inst.element not in {e.name for e in experimental}:
-                raise self.error(f"instrument[{k}].element", f"no experimental element {inst.element!r}")
-        for k, e in enumerate(experimental):
-            if e.displacement_from:
-                if e.displacement_from not in by_name:
-                    raise self.error(f"experimental[{k}].displacement_from", f"no instrument {e.displacement_from!r}; "
-                                     f"instruments: {', '.join(by_name) or 'none'}")
-                inst = instruments[by_name[e.displacement_from]]
-                if inst.unit != "mm":
-                    raise self.error(f"experimental[{k}].displacement_from",
-                                     f"instrument {inst.name!r} is a {inst.kind} ({inst.unit}), not a displacement")
-                if e.has_setup:
-                    raise self.error(f"experimental[{k}].displacement_from",
-                                     "an external displacement is taken for elements without setups only")
+        self.check_instruments(experimental, instruments)
         named = [(f"spring[{k}]", s.name) for k, s in enumerate(springs) if s.name]
         named += [(f"numerical[{k}]", e.name) for k, e in enumerate(numerical)]
         named += [(f"experimental[{k}]", e.name) for k, e in enumerate(experimental)]
@@ -495,6 +478,51 @@ class _Reader:
         return ExperimentalElement(name, dofs[0], spec, actuators[0], K_EI, dofs=dofs, actuators=actuators,
                                    setup=dict(table))
 
+    def check_instruments(self, experimental, instruments) -> None:
+        """Instruments have distinct names and known kinds and read existing elements; an element's
+        ``displacement_from`` names a displacement instrument on that element (or on none), used by
+        no other element, with a positive scale (docs/setups.md): an outer loop drives the
+        element's actuator by what it reads."""
+        by_name = {}
+        for k, inst in enumerate(instruments):
+            self.string(f"instrument[{k}].name", inst.name)
+            if inst.kind not in INSTRUMENT_KINDS:
+                raise self.error(f"instrument[{k}].kind",
+                                 f"unknown instrument {inst.kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
+            if self.number(f"instrument[{k}].scale", inst.scale) == 0:
+                raise self.error(f"instrument[{k}].scale", "must not be zero (the instrument would read nothing)")
+            for key in ("noise", "resolution"):
+                self.number(f"instrument[{k}].{key}", getattr(inst, key), non_negative=True)
+            if inst.name in by_name:
+                raise self.error(f"instrument[{k}].name", f"{inst.name!r} already names instrument[{by_name[inst.name]}]")
+            by_name[inst.name] = k
+            if inst.element and inst.element not in {e.name for e in experimental}:
+                raise self.error(f"instrument[{k}].element", f"no experimental element {inst.element!r}")
+        taken: dict[str, str] = {}
+        for k, e in enumerate(experimental):
+            if e.displacement_from:
+                if e.displacement_from not in by_name:
+                    raise self.error(f"experimental[{k}].displacement_from", f"no instrument {e.displacement_from!r}; "
+                                     f"instruments: {', '.join(by_name) or 'none'}")
+                inst = instruments[by_name[e.displacement_from]]
+                if inst.unit != "mm":
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} is a {inst.kind} ({inst.unit}), not a displacement")
+                if e.has_setup:
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     "an external displacement is taken for elements without setups only")
+                if inst.scale < 0:  # emulation: it would read against the element's direction
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} has scale {inst.scale:g}: it would read the element's "
+                                     "displacement with the opposite sign (give a positive scale)")
+                if inst.element and inst.element != e.name:  # an outer loop would drive this actuator by it
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} reads element {inst.element!r}, not {e.name!r}")
+                if e.displacement_from in taken:
+                    raise self.error(f"experimental[{k}].displacement_from",
+                                     f"instrument {inst.name!r} already gives the displacement of {taken[inst.name]}")
+                taken[inst.name] = f"experimental[{k}]"
+
     def instrument(self, k: int, entry) -> Instrument:
         """An external instrument (docs/setups.md)."""
         where = f"instrument[{k}]"
@@ -519,6 +547,9 @@ class _Reader:
         if force == 0:
             raise self.error(f"{where}.force_kN", "a preload of zero needs no static actuator")
         ramp = self.number(f"{where}.ramp_s", entry.get("ramp_s", 5.0), positive=True)
+        if ramp > MAX_RAMP_S:
+            raise self.error(f"{where}.ramp_s", f"{ramp:g} s is out of bounds: a preload's ramp lasts at most "
+                             f"{MAX_RAMP_S:g} s (lab time)")
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
         return StaticLoad(name, force, spec, ramp, actuator)
 

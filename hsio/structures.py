@@ -182,8 +182,16 @@ class StaticLoad:
     actuator: str = ""
 
     def __post_init__(self):
+        from hsio.structure_file import MAX_RAMP_S
+
         if not self.actuator:
             object.__setattr__(self, "actuator", self.name)
+        check = _checker(f"static load {self.name!r}")
+        if check.number("force_kN", self.force_kN) == 0:
+            raise ConfigError(f"static load {self.name!r}: force_kN: a preload of zero needs no static actuator")
+        if check.number("ramp_s", self.ramp_s, positive=True) > MAX_RAMP_S:
+            raise ConfigError(f"static load {self.name!r}: ramp_s: {self.ramp_s:g} s is out of bounds: a preload's "
+                              f"ramp lasts at most {MAX_RAMP_S:g} s (lab time)")
 
     has_setup = False
     is_multi_dof = False
@@ -444,6 +452,7 @@ class Structure:
             object.__setattr__(self, key, _elements(what, key, getattr(self, key), kind))
         if not isinstance(self.damping, Damping):
             raise ConfigError(f"{what}: damping: must be a Damping, got {self.damping!r}")
+        check.check_instruments(self.experimental, self.instruments)
         dt = check.number("dt", self.dt, positive=True)
         from hsio.ground_motion import DT_MAX_S, DT_MIN_S
 

@@ -327,8 +327,10 @@ def test_an_emulated_instrument_on_an_element_not_served_is_refused_at_start(tmp
     config = tmp_path / "serve.toml"
     config.write_text(f'[structure]\nfile = "two.toml"\n[opensees]\nelements = ["spring"]\nout = "{tmp_path / "r"}"\n')
     settings, run = split_config(config)
-    with pytest.raises(ConfigError, match="instrument 'spring_lvdt' .* sits on element 'other', which this server "
-                                          "does not serve"):
+    # the structure file itself is refused: the instrument that gives the spring's displacement
+    # reads another element (an outer loop would drive the spring's actuator by it)
+    with pytest.raises(ConfigError, match="experimental\\[0\\]\\.displacement_from: instrument 'spring_lvdt' reads "
+                                          "element 'other', not 'spring'"):
         Lab(settings, run, load_run_structure(run), log=lambda _: None)
 
 

@@ -1,5 +1,7 @@
 """Static actuators: a preload ramped in force control, held through the record, ramped off."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -81,3 +83,50 @@ model = { kind = "linear", k = 1.0 }
     with pytest.raises(ConfigError, match=r"^f.toml: static\[0\].force_kN: missing"):
         parse_structure(text.replace('actuator = "x"\n', "").replace("force_kN = 10.0\n", ""), "f.toml")
 
+
+
+@pytest.mark.parametrize("method", ["implicit_dc", "force_control", "mixed"])
+def test_preload_held_while_the_lateral_dof_runs_an_implicit_method(method, tmp_path):
+    """The preload holds while the other DOFs run DC, FC or mixed, from `hsio run` (which gives the
+    implicit methods a secant estimator on the dynamic actuators)."""
+    from hsio import config as config_mod
+    from hsio import runner
+
+    config = tmp_path / "run.toml"
+    config.write_text(f'[structure]\nname = "preloaded_column"\n[record]\nsynthetic_duration_s = 1.0\npga_g = 0.3\n'
+                      f'[integrator]\nmethod = "{method}"\n[test]\nrate = 10\n[output]\nplots = false\n')
+    summary = runner.run(config_mod.load(config), tmp_path / "out")
+    assert summary["exit_status"] == 0 and summary["max_error_pct"] < 2.0
+    assert 0 < summary["static_hold_error_pct"]["axial"] < 1.0
+    table = Run(tmp_path / "out" / "run.sqlite").table("static")
+    held = table["phase"] == 1
+    np.testing.assert_allclose(table["force_axial"][held], 125.0, rtol=0.01)
+    assert abs(table["force_axial"][-1]) < 0.01 * 125.0  # ramped off
+
+
+def test_the_dry_run_checks_each_preload_before_anything_opens(tmp_path):
+    """A preload beyond the actuator's capacity less the margin is refused by `hsio check` as any
+    other force; the static actuator's line stands beside the others, aligned."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    library = Path(hsio.__file__).parent / "library" / "preloaded_column.toml"
+    (tmp_path / "column.toml").write_text(library.read_text().replace("force_kN = 125.0", "force_kN = -240.0"))
+    (tmp_path / "run.toml").write_text('[structure]\nfile = "column.toml"\n[record]\nsynthetic_duration_s = 0.5\n')
+    out = CliRunner().invoke(main, ["check", str(tmp_path / "run.toml")])
+    assert out.exit_code == 2, out.output
+    assert "axial   force        predicted   240.000 kN   limit +/-250 kN, margin 5%: allowed 237.500 kN  EXCEEDS" \
+        in out.output
+    assert "axial   displacement predicted     4.800 mm" in out.output  # 240 kN over 50 kN/mm
+
+
+def test_a_run_from_the_present_state_does_not_add_the_held_preload_twice():
+    from hsio.safety.dry_run import Prediction, from_present, with_static
+
+    (load,) = hsio.load_structure("preloaded_column").static
+    prediction = with_static(Prediction(("lateral",), np.array([10.0]), np.array([8.0]), np.array([50.0]), 100), [load])
+    state = {"lateral": {"displacement_mm": 2.0, "force_kN": 1.5}, "axial": {"displacement_mm": 2.5, "force_kN": 125.0}}
+    shifted = from_present(prediction, state)
+    np.testing.assert_allclose(shifted.displacement, [12.0, 2.5])
+    np.testing.assert_allclose(shifted.force, [9.5, 125.0])  # the preload, not 250 kN

@@ -36,8 +36,9 @@ def _common(func):
 
 def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float = 1.0,
                      overrides: dict | None = None):
-    """An emulated controller with one axis per experimental element of the structure in an
-    ``hsio run`` configuration, named as the structure file names its actuators.
+    """An emulated controller with one axis per experimental element and one per static preload
+    of the structure in an ``hsio run`` configuration, named as the structure file names its
+    actuators (elements loaded through setups are refused: their actuators share a specimen).
 
     Each axis gets the [emulator] settings and its own noise seed (seed + index), exactly as the
     in-process emulator (``emulator://``) builds them, so both give the same controller. The
@@ -50,11 +51,45 @@ def bank_from_config(config_path: str | None, lockstep: bool, watchdog_s: float 
     from hsio.diagnose.modelfile import merged_emulator_table
     from hsio.runner import load_run_structure
 
+    from hsio.errors import ConfigError
+
     cfg = config_mod.load(config_path)
-    specs = [ActuatorSpec(e.actuator, e.specimen) for e in load_run_structure(cfg).experimental]
+    structure = load_run_structure(cfg)
+    rigged = [e.name for e in structure.experimental if e.has_setup or e.is_multi_dof]
+    if rigged:
+        raise ConfigError(f"structure {structure.name!r}: element(s) {', '.join(rigged)} are loaded through a setup "
+                          "(several actuators on one specimen); hsio emulate serves independent axes only: run such "
+                          "a structure on emulator:// (docs/setups.md)")
+    # one axis per element, then one per static preload: the order in which a run opens them
+    specs = [ActuatorSpec(e.actuator, e.specimen) for e in (*structure.experimental, *structure.static)]
     table = merged_emulator_table(cfg["hardware"]["actuator_model"], cfg["emulator"])  # as emulator:// does
     controllers = make_controllers(specs, {**table, **(overrides or {})})
     return ControllerBank(controllers, [s.name for s in specs], lockstep, watchdog_s)
+
+
+def instruments_from_config(config_path: str | None, bank):
+    """The structure's external instruments, emulated on the bank's axes, and the DAQ map they are
+    served at ([driver] instrument_map, or hsio's): served on the controller's own device, one
+    wire for actuators and instruments (docs/setups.md). None for a structure without any."""
+    from hsio import config as config_mod
+    from hsio.drivers.modbus_daq import load_daq_map
+    from hsio.emulators.local import EmulatedInstruments
+    from hsio.runner import load_run_structure
+
+    cfg = config_mod.load(config_path)
+    structure = load_run_structure(cfg)
+    if not structure.instruments:
+        return None
+    controllers = dict(zip(structure.experimental_names, bank.controllers))
+    return EmulatedInstruments(structure.instruments, controllers), load_daq_map(cfg["driver"].get("instrument_map"))
+
+
+def _with_instruments(emulator, config_file):
+    """``emulator`` (a ModbusEmulator, not started) serving the configuration's instruments too."""
+    found = instruments_from_config(config_file, emulator.bank)
+    if found is not None:
+        emulator.context.add_instruments(*found)
+    return emulator
 
 
 def _bank(config_file, clock, watchdog_s, settings, faults_spec=None, watch_holding=False):
@@ -75,6 +110,14 @@ def _bank(config_file, clock, watchdog_s, settings, faults_spec=None, watch_hold
     bank.faults = schedule
     bank.watch_holding = bool(watch_holding)
     return bank
+
+
+def _instrument_line(emulator) -> list[str]:
+    daq = getattr(emulator.context, "instrument_daq", None)
+    if daq is None:
+        return []
+    inputs = ", ".join(f"{i.name} ({r.name} at {r.address})" for i, r in zip(daq.instruments, emulator.context.instrument_map.inputs))
+    return [f"daq       {inputs}"]
 
 
 def _fault_line(bank) -> list[str]:
@@ -123,12 +166,13 @@ def modbus_tcp(host, port, map_file, config_file, clock, watchdog_s, watch_holdi
         if not 0 <= port <= 65535:
             raise click.BadParameter(f"{port} is not in 0..65535", param_hint="--port")
         bank = _bank(config_file, clock, watchdog_s, settings, faults_spec, watch_holding)
-        emulator = ModbusEmulator(bank, modbus_map.load(map_file), "tcp", host=host, port=port).start()
+        emulator = _with_instruments(ModbusEmulator(bank, modbus_map.load(map_file), "tcp", host=host, port=port),
+                                     config_file).start()
     except (HsioError, RuntimeError, ValueError, OSError) as exc:
         click.echo(f"hsio emulate modbus: error: {exc}", err=True)
         sys.exit(2)
     _serve(emulator, bank, [f"url       {emulator.url}", f"map       {emulator.map.name} ({emulator.map.source})",
-                            *_fault_line(bank)])
+                            *_instrument_line(emulator), *_fault_line(bank)])
 
 
 @emulate.command("modbus-rtu")
@@ -142,12 +186,14 @@ def modbus_rtu(baudrate, map_file, config_file, clock, watchdog_s, watch_holding
 
     try:
         bank = _bank(config_file, clock, watchdog_s, settings, faults_spec, watch_holding)
-        emulator = ModbusEmulator(bank, modbus_map.load(map_file), "rtu", baudrate=baudrate).start()
+        emulator = _with_instruments(ModbusEmulator(bank, modbus_map.load(map_file), "rtu", baudrate=baudrate),
+                                     config_file).start()
     except (HsioError, RuntimeError, ValueError, OSError) as exc:
         click.echo(f"hsio emulate modbus-rtu: error: {exc}", err=True)
         sys.exit(2)
     _serve(emulator, bank, [f"pty       {emulator.path}", f"url       {emulator.url}",
-                            f"map       {emulator.map.name} ({emulator.map.source})", *_fault_line(bank)])
+                            f"map       {emulator.map.name} ({emulator.map.source})", *_instrument_line(emulator),
+                            *_fault_line(bank)])
 
 
 @emulate.command("canopen")

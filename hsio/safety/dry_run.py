@@ -32,6 +32,7 @@ class Prediction:
     force: np.ndarray
     velocity: np.ndarray
     steps: int
+    static: int = 0  # the last ``static`` actuators hold preloads in force control (docs/setups.md)
 
 
 @dataclass
@@ -139,13 +140,16 @@ def from_present(prediction: Prediction, state: dict) -> Prediction:
     docs/safety.md section 2): the NS from rest plus, per actuator, the measured displacement and
     force it starts from (superposition: exact for a linear specimen, an estimate otherwise).
     ``state`` is the run's start state {actuator: {displacement_mm, force_kN}}. An actuator the
-    state does not name is shifted by the largest offset of those it names."""
+    state does not name is shifted by the largest offset of those it names. A static actuator is
+    not: it ramps from where it stands to its preload, which the prediction holds already."""
     offsets = {name: (abs(float(v["displacement_mm"])), abs(float(v["force_kN"])))
                for name, v in state.items() if isinstance(v, dict)}
     worst = (max((o[0] for o in offsets.values()), default=0.0), max((o[1] for o in offsets.values()), default=0.0))
-    shift = np.array([offsets.get(name, worst) for name in prediction.actuators]).reshape(-1, 2)
+    dynamic = len(prediction.actuators) - prediction.static
+    shift = np.array([offsets.get(name, worst) if k < dynamic else (0.0, 0.0)
+                      for k, name in enumerate(prediction.actuators)]).reshape(-1, 2)
     return Prediction(prediction.actuators, prediction.displacement + shift[:, 0], prediction.force + shift[:, 1],
-                      prediction.velocity, prediction.steps)
+                      prediction.velocity, prediction.steps, prediction.static)
 
 
 def known_limits(url: str, emulator: dict, driver: dict) -> tuple[dict, str]:
@@ -176,21 +180,36 @@ def check(prediction: Prediction, limits: dict, source: str, settings: SafetySet
         full = limit / 2.0 if key == "stroke_mm" else limit
         margin = getattr(settings, margin_key)
         allowed = (1.0 - margin) * full
+        width = max((len(name) for name in prediction.actuators), default=0)
         for name, value in zip(prediction.actuators, getattr(prediction, what)):
             ok = value <= allowed
             verdict = "ok" if ok else "EXCEEDS"
-            report.lines.append(f"  {name} {what:<12} predicted {value:9.3f} {unit:<4} limit +/-{full:g} {unit}, "
+            report.lines.append(f"  {name:<{width}} {what:<12} predicted {value:9.3f} {unit:<4} limit +/-{full:g} {unit}, "
                                 f"margin {margin:.0%}: allowed {allowed:.3f} {unit}  {verdict}")
             if not ok:
                 report.exceeded.append(f"{name} {what} {value:.3f} {unit} > {allowed:.3f} {unit}")
     return report
 
 
+def with_static(prediction: Prediction, static) -> Prediction:
+    """``prediction`` and the static actuators (:class:`hsio.structures.StaticLoad`, docs/setups.md)
+    holding their preloads: the force is the preload, the displacement the preload over the
+    initial stiffness of what it loads, the command velocity nil (force control)."""
+    if not static:
+        return prediction
+    force = np.array([abs(load.force_kN) for load in static])
+    disp = np.array([abs(load.force_kN) / load.model().initial_stiffness for load in static])
+    return Prediction(prediction.actuators + tuple(load.actuator for load in static),
+                      np.concatenate([prediction.displacement, disp]), np.concatenate([prediction.force, force]),
+                      np.concatenate([prediction.velocity, np.zeros(len(static))]), prediction.steps,
+                      prediction.static + len(static))
+
+
 def dry_run(ns, t_d: float, hold_fraction: float, url: str, emulator: dict, driver: dict,
-            settings: SafetySettings, setups=None) -> DryRunReport:
-    """Predict and check; the report says whether the test is refused."""
+            settings: SafetySettings, setups=None, static=()) -> DryRunReport:
+    """Predict and check (the static preloads too); the report says whether the test is refused."""
     limits, source = known_limits(url, emulator, driver)
-    return check(predict(ns, t_d, hold_fraction, setups=setups), limits, source, settings)
+    return check(with_static(predict(ns, t_d, hold_fraction, setups=setups), static), limits, source, settings)
 
 
 def enforce(report: DryRunReport) -> None:

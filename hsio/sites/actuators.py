@@ -50,8 +50,9 @@ class ActuatorSite:
         self.external = list(external) if external is not None else []
         if any(x is not None for x in self.external) and instruments is None:
             raise ConfigError("an element takes its displacement from an external instrument: open the instruments' DAQ")
-        if any(x is not None for x in self.external) and setups is not None:
-            raise ConfigError("an external displacement is taken for elements without setups only")
+        # the actuator of each channel that takes an instrument's reading: its element has no setup
+        self._actuator_of = {j: setups.identity_actuator(j) if setups is not None else j
+                             for j, x in enumerate(self.external) if x is not None}
         self.instrument_log: list[tuple] = []  # (trial, iterations, readings)
         self._trials = 0
         self.setups = setups
@@ -60,9 +61,9 @@ class ActuatorSite:
         if setups is not None and setups.n_actuators != self.n_dynamic:
             raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {self.n_dynamic} "
                               f"beside the static ones")
-        if (setups is not None or self.static) and estimator is not None:
-            raise ConfigError("the secant estimator works per actuator; elements with setups or static preloads "
-                              "take the averaged measurement (no estimator)")
+        if setups is not None and estimator is not None:
+            raise ConfigError("the secant estimator works per actuator; elements with setups take the averaged "
+                              "measurement (no estimator)")
         self.n_elements = setups.n_channels if setups is not None else self.n_dynamic
         self.estimator = estimator
         if estimator is not None and not loop.keep_samples:
@@ -78,10 +79,14 @@ class ActuatorSite:
             feedback = loop.feedback()[: self.n_dynamic]
         except HsioError as exc:  # the axes are enabled: hold them, and say whether they hold
             raise with_hold_report(exc, loop.close())  # held, read back, released
-        # relative trials: the actuators' positions now (at enabling) are the zero of every command
+        # relative trials: the actuators' positions now (at enabling) are the zero of every command,
+        # and the readings now of the instruments that give displacements the zero of those
         self.zero = (np.array([f.displacement_mm for f in feedback]) if relative else np.zeros(self.n_dynamic))
+        self.instrument_zero = {src[0]: (self.readback[src[0]] if relative else 0.0)
+                                for src in self.external if src is not None}
         self._committed = self._to_channels(np.array([f.displacement_mm for f in feedback]) - self.zero,
                                             np.array([f.force_kN for f in feedback]))
+        self._committed = (self._external_displacements(self._committed[0], self.readback), self._committed[1])
         self._last = self._committed
         if estimator is not None:
             estimator.begin_step(*self._committed)
@@ -233,11 +238,16 @@ class ActuatorSite:
             self._sample_meta.append((fb.sample_time, phases if self.setups is None else None))
         if self.estimator is not None:
             u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
+            if any(src is not None for src in self.external):  # eq. (11) on the instrument's reading
+                u = self._external_displacements(u, readings)
+                k_ext = secant_stiffness(u, R, *self._committed)
+                base = self._committed[0]
+                for j, source in enumerate(self.external):
+                    if source is not None:
+                        k[j] = k_ext[j] if abs(u[j] - base[j]) > self.estimator.min_increment else np.nan
         else:
             u, R = self._to_channels(fb.displacement[:n], fb.force[:n])
-            for j, source in enumerate(self.external):
-                if source is not None:
-                    u[j] = readings[source[0]]
+            u = self._external_displacements(u, readings)
             k = secant_stiffness(u, R, *self._committed)
         self._last = (u, R)
         commands = fb.commands[:n] if self.setups is None else self.setups.basic(fb.commands[:n], fb.force[:n])[0]
@@ -246,6 +256,15 @@ class ActuatorSite:
 
     def read_instruments(self) -> dict[str, float]:
         return self.instruments.read() if self.instruments is not None else {}
+
+    def _external_displacements(self, u: np.ndarray, readings: dict[str, float]) -> np.ndarray:
+        """``u`` with each channel that takes its displacement from an instrument set to that
+        instrument's reading (less its zero under relative trials)."""
+        u = np.array(u, dtype=float)
+        for j, source in enumerate(self.external):
+            if source is not None:
+                u[j] = readings[source[0]] - self.instrument_zero[source[0]]
+        return u
 
     def _outer_loop(self, targets, actuator_targets, fb):
         """Read the instruments; where an element closes an outer loop on one, correct its
@@ -259,11 +278,11 @@ class ActuatorSite:
             commands = np.array(actuator_targets, dtype=float)
             max_iterations = max(src[1].max_iterations for _, src in loops)
             while iterations < max_iterations:
-                errors = {j: targets[j] - readings[src[0]] for j, src in loops}
+                errors = {j: targets[j] - (readings[src[0]] - self.instrument_zero[src[0]]) for j, src in loops}
                 if all(abs(errors[j]) <= src[1].tolerance_mm for j, src in loops):
                     break
                 for j, src in loops:
-                    commands[j] += errors[j]
+                    commands[self._actuator_of[j]] += errors[j]
                 fb = self._execute(commands)
                 readings = self.read_instruments()
                 iterations += 1

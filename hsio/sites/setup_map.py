@@ -43,6 +43,20 @@ class SetupMap:
     def of(cls, structure) -> "SetupMap":
         return cls(structure.experimental)
 
+    def identity_actuator(self, channel: int) -> int:
+        """The actuator of ``channel`` where its element has no setup (stroke = displacement);
+        a channel whose strokes come through a geometry has no actuator of its own."""
+        from hsio.setups.factory import IdentitySetup
+
+        for b in self.blocks:
+            if b.channels.start <= channel < b.channels.stop:
+                s = b.setup
+                if not isinstance(s, IdentitySetup) or s.factors.displacement != 1.0:
+                    raise ConfigError(f"setups: channel {channel} of element {b.name!r} is loaded through a setup: an "
+                                      "external displacement is taken for elements without setups only")
+                return b.actuators.start + (channel - b.channels.start)
+        raise ConfigError(f"setups: no channel {channel} (the structure has {self.n_channels})")
+
     def strokes(self, d) -> np.ndarray:
         """Actuator strokes (lab mm) for channel displacements ``d`` (exact geometry)."""
         d = np.asarray(d, dtype=float)
