@@ -164,7 +164,10 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
 
 @main.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
-def resume(run_dir: str) -> None:
+@click.option("--max-gap", "max_gap_mm", type=click.FloatRange(0.0, 1000.0, min_open=True), default=1.0,
+              show_default=True, metavar="MM",
+              help="Refuse to go on where an actuator stands farther than this from the record's last step (mm).")
+def resume(run_dir: str, max_gap_mm: float) -> None:
     """Continue a run interrupted by a crash, a kill or a power loss, from its last committed step,
     into the same record and on the same hardware (docs/safety.md). Exit statuses as for run."""
     from hsio.experiment import ExperimentStopped
@@ -176,7 +179,7 @@ def resume(run_dir: str) -> None:
     notify = lambda line: click.echo(f"hsio resume: {line}", err=True)  # noqa: E731
     control.listeners.append(notify)
     try:
-        summary = resume_run(run_dir, control=control, notify=notify)
+        summary = resume_run(run_dir, control=control, notify=notify, max_gap_mm=max_gap_mm)
     except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         status = exit_status(exc)

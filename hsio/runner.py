@@ -92,7 +92,8 @@ def load_run_structure(config: RunConfig) -> Structure:
 
 def check_run_method(config: RunConfig, structure: Structure) -> None:
     """The implicit methods iterate on the secant stiffness of elements driven by one actuator
-    each: a structure with setups, multi-DOF elements or static preloads runs with alpha_os.
+    each: a structure with setups or multi-DOF elements runs with alpha_os (static preloads are held
+    on their own actuators while the others iterate).
     Checked before anything is created or opened."""
     method = config["integrator"]["method"]
     if method not in IMPLICIT_METHODS:

@@ -330,10 +330,11 @@ def test_make_integrator_accepts_an_option_left_off():
     assert integrator.fallback_after == 1 and integrator.no_fc_at_reversal is True
 
 
-@pytest.mark.parametrize("name", ["column_two_actuators", "preloaded_column"])
-def test_an_implicit_method_on_setups_or_preloads_is_refused_before_the_run_folder(tmp_path, name):
+@pytest.mark.parametrize("name", ["column_two_actuators"])
+def test_an_implicit_method_on_setups_is_refused_before_the_run_folder(tmp_path, name):
     """The implicit methods iterate on one actuator's secant per element: a structure with setups
-    or a static preload is refused naming the method, before anything is created or opened."""
+    is refused naming the method, before anything is created or opened (a static preload is not:
+    tests/test_preload.py)."""
     cfg = tmp_path / "c.toml"
     cfg.write_text(_toml({"structure": {"name": name}, "integrator": {"method": "mixed"},
                           "output": {"plots": False}}))

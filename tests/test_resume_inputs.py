@@ -115,7 +115,7 @@ def test_unchanged_files_resume_to_the_end(tmp_path):
     out = stopped(tmp_path)
     (tmp_path / "s.toml").touch()  # a new modification time, the same bytes
     told = []
-    summary = resume(out, notify=told.append)
+    summary = resume(out, notify=told.append, max_gap_mm=100.0)  # the in-process emulator starts again at rest
     assert summary["exit_status"] == 0
     np.testing.assert_array_equal(Run(out / "run.sqlite").steps["step"], np.arange(1, STEPS))  # each step once
     assert not [line for line in told if line.startswith("WARNING")]
@@ -128,7 +128,7 @@ def test_a_record_without_fingerprints_resumes_with_a_warning(tmp_path):
     with sqlite3.connect(out / "run.sqlite") as db:
         db.execute("DELETE FROM meta WHERE key IN ('inputs', 'ground_motion_sha256')")
     told = []
-    summary = resume(out, notify=told.append)
+    summary = resume(out, notify=told.append, max_gap_mm=100.0)  # the in-process emulator starts again at rest
     assert summary["exit_status"] == 0
     warnings = [line for line in told if line.startswith("WARNING")]
     assert len(warnings) == 1 and "no fingerprints" in warnings[0] and "cannot check" in warnings[0]

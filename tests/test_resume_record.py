@@ -161,3 +161,22 @@ def test_a_resume_through_setups_names_the_actuators_where_they_stand(tmp_path):
     assert result.exit_code == 0, result.output
     assert "the actuators stand at: lower " in result.output and "; upper " in result.output
     assert "top_rot" not in result.output
+
+
+def test_actuators_far_from_where_the_record_stops_are_not_resumed(tmp_path):
+    """A new in-process emulator stands at rest, 1.05 mm from where the run stopped (step 120 of
+    the validation structure): the first step would take the actuators back within one step to a
+    specimen without the run's history, so the resume is refused (exit 2) and nothing moves;
+    --max-gap, given by the operator, lets it go on."""
+    cfg = write_config(tmp_path, duration=2.0, rate=5.0, extra=QUIET_SENSORS)
+    out = stopped_run(tmp_path, 120, config_path=cfg)
+    steps = len(Run(out / "run.sqlite").steps["step"])
+    result = _resume(out)
+    assert result.exit_code == 2, result.output
+    assert "C1 stands -1.046 mm from the record's last step" in result.stderr
+    assert "more than 1 mm: not resumed, nothing moved" in result.stderr and "in-process emulator" in result.stderr
+    run = Run(out / "run.sqlite")
+    assert len(run.steps["step"]) == steps and [e["kind"] for e in run.events()][-2:] == ["resume", "stop"]
+    assert run.summary["exit_status"] == 2
+    result = CliRunner().invoke(main, ["resume", str(out), "--max-gap", "2"])
+    assert result.exit_code == 0, result.output

@@ -111,8 +111,42 @@ def open_ledger(run: Run, notify) -> Ledger | None:
     return Ledger(folder, run.meta.get("specimen_id") or "")
 
 
-def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None) -> dict:
-    """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary."""
+# How far an actuator may stand from the record's last measurement for a resume to go on (mm).
+MAX_GAP_MM = 1.0
+
+
+def gaps(standing: dict, run: Run) -> dict[str, float]:
+    """Per actuator, where it stands less what the record's last step measured (mm); empty where
+    the two cannot be compared (a state that could not be read, channels that are an element's
+    basic DOFs through a setup rather than its actuators)."""
+    if not standing or "error" in standing or set(standing) != set(run.actuator_names):
+        return {}
+    last = {name: float(run.steps[column("disp", name)][-1]) for name in run.actuator_names}
+    return {name: float(standing[name]["displacement_mm"]) - last[name] for name in run.actuator_names}
+
+
+def check_gaps(gap: dict[str, float], max_gap_mm: float, url: str) -> None:
+    """Refuse to go on where an actuator stands more than ``max_gap_mm`` from where the record
+    stops: the first step would take it back within one step, faster than the test moves, to a
+    specimen that may no longer be where the record says (ConfigError; nothing has moved)."""
+    far = {name: g for name, g in gap.items() if not abs(g) <= max_gap_mm}
+    if not far:
+        return
+    where = "; ".join(f"{name} stands {g:+.3f} mm from the record's last step" for name, g in far.items())
+    why = ("the in-process emulator does not outlive hsio: a new one starts at rest, its specimen without "
+           "the run's history; resume against a controller that outlives the run (`hsio emulate`, real hardware) "
+           "or start the run again" if url.startswith("emulator") else
+           "the actuators moved since the run stopped (hydraulics off, a manual move, a controller restarted); "
+           "bring them back to where the record stops, or give `hsio resume --max-gap MM` if the specimen "
+           "may take that move within one step")
+    raise ConfigError(f"{where}, more than {max_gap_mm:g} mm: not resumed, nothing moved ({why})")
+
+
+def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None,
+           max_gap_mm: float = MAX_GAP_MM) -> dict:
+    """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary.
+    Refused (nothing moves) where an actuator stands more than ``max_gap_mm`` from the record's
+    last measured displacement (:func:`check_gaps`)."""
     from hsio.runner import (_state, build_record, check_dwell, format_state, integrator_options,
                              load_run_structure, write_summary)
 
@@ -187,12 +221,14 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             if ledger is not None:
                 ledger.update(ledger_id, start_state=standing)
             line = format_state("the actuators stand at", standing)
-            if standing and "error" not in standing and set(standing) == set(run.actuator_names):
-                # elements on one actuator each: the record's channels are the actuators (through
+            gap = gaps(standing, run)
+            if gap:  # elements on one actuator each: the record's channels are the actuators (through
                 # setups they are the elements' basic DOFs, not comparable)
                 line += "; the record's last step measured " + "; ".join(
                     f"{name} {run.steps[column('disp', name)][-1]:+.3f} mm" for name in run.actuator_names)
-            notify(line + " (the first step goes on from where they stand)")
+            notify(line + (" (the first step goes on from where they stand)" if all(
+                abs(g) <= max_gap_mm for g in gap.values()) else ""))
+            check_gaps(gap, max_gap_mm, hardware["url"])
             control.check_stop()
             control.enter("HS")
             try:
