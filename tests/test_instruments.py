@@ -14,6 +14,7 @@ from hsio.emulators.local import EmulatedInstruments
 from hsio.emulators.modbus import ModbusEmulator
 from hsio.emulators.servo import make_controllers
 from hsio.errors import ConfigError
+from hsio.interfaces import ControlMode
 from hsio.recording import Recorder, Run
 from hsio.result import max_error_pct
 from hsio.structure_file import parse_structure
@@ -139,3 +140,28 @@ def test_outer_loop_iterations_bounded_and_recorded(compliant):
     np.testing.assert_array_equal(table["iterations"], iterations)
     np.testing.assert_allclose(table["wall_lvdt"], readings)
     assert np.max(np.abs(table["wall_load_cell"])) > 10.0
+
+
+@pytest.mark.parametrize("reads, target, says, most", [
+    (lambda true: 0.0, 1.0, "went from +1.000 to +1.000 mm off the target", 4.0),  # detached: reads its zero for ever
+    (lambda true: -true, 0.25, "went from +0.", 7.75),  # the wrong sign: each correction doubles the error
+])
+def test_an_outer_loop_whose_instrument_does_not_follow_stops_the_run(reads, target, says, most):
+    """An outer loop adds the instrument's error to the command at every correction: on an LVDT
+    that fell off (or reads with the wrong sign) it would drive the actuator to several times its
+    target. The site stops instead (an implausible measurement: the actuators hold), naming the
+    instrument and how far the actuator went; a load train's compliance, which the LVDT follows in
+    part, does not stop it (test_outer_loop_iterations_bounded_and_recorded)."""
+    from hsio.errors import ImplausibleMeasurementError
+
+    structure = with_lvdt(tolerance=0.05, iterations=4)
+    with hsio.open_site(structure, "emulator://", test_rate=10,
+                        options={"noise_mm": 0.0, "resolution_mm": 0.0, "compliance_mm_per_kN": 0.05}) as site:
+        true_reading = site.read_instruments
+        site.read_instruments = lambda: {**true_reading(), "wall_lvdt": reads(true_reading()["wall_lvdt"])}
+        with pytest.raises(ImplausibleMeasurementError, match="instrument 'wall_lvdt': the outer loop moved actuator "
+                                                               "'wall' ") as info:
+            site.set_trial(np.array([target]), [ControlMode.DISPLACEMENT])
+        assert says in str(info.value) and "does not follow the actuator" in str(info.value)
+        moved = float(str(info.value).split("actuator 'wall' ")[1].split(" mm")[0])
+        assert 0.9 < abs(moved) <= most  # at most max_iterations corrections, then stopped

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from hsio.control_loop import ControlLoop, with_hold_report
-from hsio.errors import ConfigError, HsioError
+from hsio.errors import ConfigError, HsioError, ImplausibleMeasurementError
 from hsio.interfaces import ControlMode
 from hsio.safety.hold import HoldReport
 from hsio.secant import SecantEstimator, secant_stiffness
@@ -277,8 +277,13 @@ class ActuatorSite:
         if loops and all(m is ControlMode.DISPLACEMENT for m in self.modes):
             commands = np.array(actuator_targets, dtype=float)
             max_iterations = max(src[1].max_iterations for _, src in loops)
+
+            def off_target():
+                return {j: targets[j] - (readings[src[0]] - self.instrument_zero[src[0]]) for j, src in loops}
+
+            first = off_target()
             while iterations < max_iterations:
-                errors = {j: targets[j] - (readings[src[0]] - self.instrument_zero[src[0]]) for j, src in loops}
+                errors = off_target()
                 if all(abs(errors[j]) <= src[1].tolerance_mm for j, src in loops):
                     break
                 for j, src in loops:
@@ -286,10 +291,36 @@ class ActuatorSite:
                 fb = self._execute(commands)
                 readings = self.read_instruments()
                 iterations += 1
+            if iterations:
+                self._check_followed(loops, first, off_target(), commands - np.asarray(actuator_targets, dtype=float),
+                                     iterations)
         self._trials += 1
         if self.instruments is not None:
             self.instrument_log.append((self._trials, iterations, readings))
         return fb, readings, iterations
+
+    # An outer loop whose instrument is still this fraction of its first error off the target after
+    # its corrections has not moved with the actuator (a compliant load train in front of a stiff
+    # specimen moves it by k_train / (k_train + k_specimen) of each correction, a detached, stuck
+    # or wrongly signed instrument by nothing or the wrong way); judged only on errors beyond
+    # BEYOND_TOLERANCE times the tolerance, so that an instrument's noise near the tolerance is not.
+    NOT_FOLLOWED = 0.9
+    BEYOND_TOLERANCE = 5.0
+
+    def _check_followed(self, loops, first: dict, last: dict, corrections: np.ndarray, iterations: int) -> None:
+        """Stop (:class:`ImplausibleMeasurementError`, the actuators hold) where an outer loop's
+        instrument did not follow its actuator's corrections: without this, a detached instrument
+        would have the loop add its whole error to the command at every correction."""
+        for j, (name, outer) in loops:
+            judged = max(abs(first[j]), abs(last[j])) > self.BEYOND_TOLERANCE * outer.tolerance_mm
+            if judged and abs(last[j]) > outer.tolerance_mm and not abs(last[j]) < self.NOT_FOLLOWED * abs(first[j]):
+                k = self._actuator_of[j]
+                actuator = self.loop.actuators[k].name
+                raise ImplausibleMeasurementError(
+                    f"instrument {name!r}: the outer loop moved actuator {actuator!r} {corrections[k]:+.3f} mm beyond "
+                    f"its target in {iterations} corrections, and the instrument went from {first[j]:+.3f} to "
+                    f"{last[j]:+.3f} mm off the target: it does not follow the actuator (detached, stuck, or its "
+                    f"scale of the wrong sign); the run stops")
 
     def record_tables(self) -> dict[str, list[tuple[int, dict]]]:
         """Extra tables for the record: ``static`` (the preloads' log) and ``instruments`` (every
