@@ -156,7 +156,11 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         run = Run(path)
     except (FileNotFoundError, sqlite3.DatabaseError, KeyError) as exc:
         raise ConfigError(f"{path}: not a run record that can be resumed ({exc})") from None
-    if run.summary.get("exit_status") == 0:
+    recorded = run.summary.get("exit_status")
+    if recorded is not None and (isinstance(recorded, bool) or not isinstance(recorded, int)):
+        raise ConfigError(f"{path}: not a run record that can be resumed (its summary's exit_status is "
+                          f"{json.dumps(recorded)[:40]}, not a whole number)")
+    if recorded == 0:
         raise ConfigError(f"{path}: the run finished; nothing to resume")
     if not isinstance(run.meta.get("config"), dict):
         raise ConfigError(f"{path}: not a run record that can be resumed (its meta holds no configuration table: "
