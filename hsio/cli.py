@@ -128,6 +128,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
 
                     runner.check_hardware(cfg)  # before the page's folder: a typing error leaves no folder
                     runner.check_dwell(cfg, structure)
+                    runner.check_instruments(cfg, structure)
                     runner.fingerprints(cfg)  # an input file that cannot be read: refused before the folder too
                     out_dir = runner.run_folder(cfg, structure, out_dir)
                     page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))

@@ -299,6 +299,16 @@ def secant_n_avg(config: RunConfig, structure: Structure) -> int:
     return min(n, api.dwell_periods(structure.dt, test["rate"], test["hold_fraction"]))
 
 
+def check_instruments(config: RunConfig, structure: Structure) -> None:
+    """The structure's instruments readable on the configured hardware (:func:`hsio.api.check_instruments`),
+    checked before anything is created or opened; named with the configuration."""
+    url = config["hardware"]["url"]
+    try:
+        api.check_instruments(structure, url, None if url.startswith("emulator") else config["driver"])
+    except ConfigError as exc:
+        raise ConfigError(f"{config.source}: {exc}") from None
+
+
 def check_dwell(config: RunConfig, structure: Structure) -> None:
     """[test] n_avg within a step's dwell (:func:`hsio.api.check_dwell`), named with the configuration."""
     test, integ = config["test"], config["integrator"]
@@ -317,6 +327,7 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     integ, test, hardware = config["integrator"], config["test"], config["hardware"]
     check_hardware(config)  # `hsio check` and library callers: the URL and its options, as a run checks them
     check_dwell(config, structure)
+    check_instruments(config, structure)
     try:
         ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
     except ExperimentStopped as exc:  # the models cannot be evaluated along the record: bad input, not a fault
@@ -413,6 +424,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     check_hardware(config)
     check_dwell(config, structure)
+    check_instruments(config, structure)  # before the folder: an instrument that cannot be read leaves none
     inputs = fingerprints(config)  # before the folder: a file that cannot be read leaves none
     ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
     try:
