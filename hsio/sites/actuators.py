@@ -233,9 +233,11 @@ class ActuatorSite:
         samples = fb.samples[:, :n] if fb.samples is not None else None
         if samples is not None:
             self._samples.append(self.setups.linearised_samples(samples) if self.setups is not None else samples)
-            # phases per recorded channel: the first n actuators' (with setups, the channels' own)
-            phases = None if fb.phases is None else [list(ph[:n]) for ph in fb.phases]
-            self._sample_meta.append((fb.sample_time, phases if self.setups is None else None))
+            # phases per recorded channel: the first n actuators' (with setups, those of each
+            # channel's element: SetupMap.channel_phases)
+            phases = None if fb.phases is None else [list(ph[:n]) if self.setups is None
+                                                     else self.setups.channel_phases(list(ph[:n])) for ph in fb.phases]
+            self._sample_meta.append((fb.sample_time, phases))
         if self.estimator is not None:
             u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
             if any(src is not None for src in self.external):  # eq. (11) on the instrument's reading
