@@ -390,3 +390,33 @@ def test_monitor_is_listed_by_hsio():
     proc = subprocess.run([sys.executable, "-m", "hsio.cli", "--help"], env=ENV, capture_output=True, text=True,
                           timeout=60)
     assert "monitor" in proc.stdout
+
+
+def test_the_page_of_a_column_on_two_actuators_shows_phases_and_the_rotation_in_rad(tmp_path):
+    """A structure through a setup: each channel's command-generator phase (from its element's
+    actuators), the rotation DOF in rad and its channel's legends so; no following-error margin of
+    the rotation against a threshold in mm."""
+    from bokeh.document import Document
+    from bokeh.models import Legend
+
+    from hsio import config, runner
+    from hsio.monitor import page as page_mod
+
+    library = Path(__file__).resolve().parents[1] / "hsio" / "library"
+    cfg = config.from_dict({"structure": {"file": str(library / "column_two_actuators.toml")},
+                            "record": {"synthetic_duration_s": 0.3, "pga_g": 0.3}, "test": {"rate": 10.0},
+                            "output": {"plots": False}, "safety": {"keys": False}})
+    runner.run(cfg, tmp_path / "run")
+    feed = RecordFeed(tmp_path / "run")
+    page = page_mod.MonitorPage(Document(), feed, Operator(tmp_path / "run"))
+    status = page.status.text
+    phases = re.search(r"phase (column\.top_x \w+), (column\.top_rot \w+)", status)
+    assert phases and "n/a" not in phases.group(0), status
+    assert re.search(r"top_rot DC, 0 switches, peak \|u\| 0\.\d{5} rad \(NS 0\.\d{5}\)", status), status
+    legends = [item.label.value for doc_root in page.doc.roots for legend in doc_root.select({"type": Legend})
+               for item in legend.items]
+    assert "top_rot (rad)" in legends and "column.top_rot (rad, kN mm)" in legends, legends
+    margins = dict(zip(page.margins.data["label"], page.margins.data["text"]))
+    assert margins["column.top_rot following"] == "limit not known"
+    assert margins["column.top_x following"] != "limit not known"
+    feed.close()
