@@ -4,6 +4,7 @@ steps recorded, the token off the loopback, and clear errors."""
 
 from __future__ import annotations
 
+import html
 import os
 import re
 import socket
@@ -420,3 +421,51 @@ def test_the_page_of_a_column_on_two_actuators_shows_phases_and_the_rotation_in_
     assert margins["column.top_rot following"] == "limit not known"
     assert margins["column.top_x following"] != "limit not known"
     feed.close()
+
+
+class _RunAnswering:
+    """An operator whose run answers ``line`` on its control socket."""
+
+    def __init__(self, line: str):
+        self.line, self.answers, self.log = line, True, []
+
+    def status(self) -> str:
+        return self.line
+
+
+@pytest.mark.parametrize("message, shown", [
+    ("paused after step 5: the actuators hold (confirmed by read-back)", "the actuators hold (confirmed by read-back)"),
+    ("paused after step 5: WARNING: C1 did not confirm the hold (reads back not holding)",
+     "WARNING: C1 did not confirm the hold"),
+    (None, "the hold's read-back is not in the record yet"),
+])
+def test_a_paused_run_shows_the_hold_as_read_back_never_assumed(tmp_path, message, shown):
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_event(1.0, 3, "pause", "", "paused after step 3: the actuators hold (confirmed by read-back)")
+    if message:
+        rec.write_event(2.0, 5, "pause", "", message)
+    rec.db.commit()
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), _RunAnswering("ok paused phase HS step 5"))
+    state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+    assert state.startswith("paused (phase HS): ") and shown in state, state
+    rec.close()
+
+
+def test_a_run_over_shows_its_final_hold(tmp_path):
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_summary({"outcome": "stopped by the operator", "stopped": "step 6: stopped by the operator",
+                       "final_hold": "the hold of C2 could not be confirmed (no read-back)"})
+    operator = _RunAnswering("")
+    operator.answers = False
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), operator)
+    state = re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1)
+    assert "run over (stopped by the operator)" in state and "the hold of C2 could not be confirmed" in state, state
+    rec.close()

@@ -276,12 +276,16 @@ class MonitorPage:
         if running:
             words = line.split()
             state = f"{words[1]} (phase {words[3]})" if len(words) >= 4 else line[3:]
+            if words[1] == "paused":  # the hold as the run read it back, never assumed
+                state += f": {self._pause_hold(words[-1])}"
         elif answers is True:
             state = f"the run answers: {line}"
         elif over:
             state = f"run over ({f.summary.get('outcome', 'ended')}); the record is closed"
             if f.summary.get("stopped"):
                 state += f" ({f.summary['stopped']})"
+            if f.summary.get("final_hold"):  # as the run read it back at its end
+                state += f"; {f.summary['final_hold']}"
         elif answers is None:
             state = "waiting for the run's control socket to answer (the run busy, or hung)"
         else:
@@ -344,6 +348,16 @@ class MonitorPage:
         text = f"<span style='font-size:9pt' id='hsio-actions'>{text}</span>"
         if self.actions.text != text:
             self.actions.text = text
+
+    def _pause_hold(self, step: str) -> str:
+        """What the run read back of the actuators' hold when it paused after ``step`` (its
+        ``pause`` event), or that it is not in the record yet."""
+        for e in reversed(self.feed.events):
+            if e["kind"] == "pause":
+                if str(e["step"]) == step:
+                    return str(e["message"]).partition(": ")[2] or str(e["message"])
+                break
+        return "the hold's read-back is not in the record yet"
 
     # -- the operator --------------------------------------------------------------------------
     def _on_request(self, attr, old, new) -> None:
