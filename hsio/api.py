@@ -260,6 +260,20 @@ def dwell_periods(dt: float, test_rate: float, hold_fraction: float, rate_hz: fl
     return dwell if dwell >= 1 else periods
 
 
+def _ramp_pause(control, site, recorder, ramp: str, step: int):
+    """An operator's pause between two steps of a ramp of the static preloads: the run holds
+    there as between two steps of the record (``control.checkpoint``), its pause and resume
+    recorded as events at ``step`` (the last step of the record done); None without a control."""
+    if control is None:
+        return None
+
+    def log(kind: str, message: str) -> None:
+        if recorder is not None:
+            recorder.write_event(site.lab_time_s, step, kind, "", f"{message} (in the {ramp} of the static preloads)")
+
+    return lambda: control.checkpoint(site, step, log)
+
+
 def check_instruments(structure: Structure, hardware: str, options: dict | None = None) -> None:
     """The structure's instruments can be read on ``hardware``: on the emulator each names an
     element without a setup (what it reads); elsewhere the driver option ``instruments`` gives
@@ -431,7 +445,7 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         excitation(structure, ground)  # a record refused before the preloads move anything
         site.moved = True  # the preloads move the actuators from here
     try:
-        site.preload(stop=stop)
+        site.preload(stop=stop, pause=_ramp_pause(control, site, recorder, "ramp in", 0))
     except BaseException as exc:
         site.hold()
         if isinstance(exc, RampStopped):
@@ -441,7 +455,7 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         result = run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
                            resume_state=resume_state)
         try:
-            site.release(stop=stop)
+            site.release(stop=stop, pause=_ramp_pause(control, site, recorder, "ramp off", result.steps))
         except (Exception, KeyboardInterrupt) as exc:  # the record is complete: keep it, say where the ramp stood
             hold = site.hold()
             cause = OperatorStop(control.stop_reason) if isinstance(exc, RampStopped) else exc
