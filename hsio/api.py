@@ -444,17 +444,24 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     if static:
         excitation(structure, ground)  # a record refused before the preloads move anything
         site.moved = True  # the preloads move the actuators from here
+    phase = control.phase if control is not None else ""
     try:
+        if control is not None and static:  # the status the operator sees (the page, the socket)
+            control.phase = "ramp-in"
         site.preload(stop=stop, pause=_ramp_pause(control, site, recorder, "ramp in", 0))
     except BaseException as exc:
         site.hold()
         if isinstance(exc, RampStopped):
             raise OperatorStop(f"{control.stop_reason}: {exc}") from None
         raise
+    if control is not None:
+        control.phase = phase
     try:
         result = run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
                            resume_state=resume_state)
         try:
+            if control is not None and static:
+                control.phase = "ramp-off"
             site.release(stop=stop, pause=_ramp_pause(control, site, recorder, "ramp off", result.steps))
         except (Exception, KeyboardInterrupt) as exc:  # the record is complete: keep it, say where the ramp stood
             hold = site.hold()

@@ -98,6 +98,7 @@ class PauseAt(RunControl):
 
         self.looks += 1
         if self.looks == self.n:
+            self.phase_seen = self.phase  # what the control socket (the monitor's page) says then
             self.request_pause("socket")
             later = self.request_resume if self.then == "resume" else lambda: self.request_stop("stopped by the operator")
             threading.Timer(0.3, later).start()
@@ -107,7 +108,8 @@ class PauseAt(RunControl):
 @pytest.mark.parametrize("then", ["resume", "stop"])
 def test_a_pause_during_the_ramp_in_holds_it_there(then):
     """A pause asked during a ramp holds after the ramp's step under way, not after the ramp."""
-    site, simulate = run(PauseAt(6, then))
+    control = PauseAt(6, then)
+    site, simulate = run(control)
     with site:
         paused_at = []
         pause = site.pause
@@ -120,6 +122,7 @@ def test_a_pause_during_the_ramp_in_holds_it_there(then):
             assert [p for p, *_ in result.static_log].count("ramp_in") == 20
             assert result.static_log[-1][3][0] == pytest.approx(0.0, abs=1.0)  # ramped off again
         assert paused_at == [6]
+        assert control.phase_seen == "ramp-in"
 
 
 class PauseAfterStep(RunControl):
