@@ -469,3 +469,18 @@ def test_a_run_over_shows_its_final_hold(tmp_path):
     state = re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1)
     assert "run over (stopped by the operator)" in state and "the hold of C2 could not be confirmed" in state, state
     rec.close()
+
+
+def test_a_record_without_controller_samples_says_why_it_shows_no_phase(tmp_path):
+    from bokeh.document import Document
+
+    from hsio import config, runner
+    from hsio.monitor import page as page_mod
+
+    cfg = config.from_dict({"structure": {"name": "validation"}, "record": {"synthetic_duration_s": 0.1},
+                            "output": {"plots": False, "samples": False}, "safety": {"keys": False}})
+    runner.run(cfg, tmp_path / "run")
+    feed = RecordFeed(tmp_path / "run")
+    page = page_mod.MonitorPage(Document(), feed, Operator(tmp_path / "run"))
+    assert "phase not recorded ([output] samples = false" in page.status.text
+    feed.close()

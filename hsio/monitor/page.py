@@ -313,9 +313,12 @@ class MonitorPage:
         if n:
             late = int(f["late_steps"][n - 1]) if np.isfinite(f["late_steps"][n - 1]) else 0
             codes = f.phases()
-            phases = [f"{html.escape(c)} {PHASES.get(int(codes[c]) if c in codes else None, 'n/a')}"
-                      for c in f.channels]
-            items.append(("command generator", f"{late} late steps; phase " + ", ".join(phases)))
+            if not codes and ((meta.get("config") or {}).get("output") or {}).get("samples") is False:
+                phase = "not recorded ([output] samples = false: no controller samples)"
+            else:
+                phase = ", ".join(f"{html.escape(c)} {PHASES.get(int(codes[c]) if c in codes else None, 'n/a')}"
+                                  for c in f.channels)
+            items.append(("command generator", f"{late} late steps; phase {phase}"))
             modes = []
             for d in f.dofs:
                 fc = f[col("fc", d)]
