@@ -170,3 +170,24 @@ def test_a_run_in_force_control_paused_and_resumed_equals_the_unpaused_run():
             runs.append(hsio.simulate(structure, ground, site, method="force_control", control=control))
     assert runs[1].force_control[1:].all()
     np.testing.assert_allclose(runs[1].u, runs[0].u, atol=1e-9)
+
+
+def test_a_pause_asked_before_the_first_step_holds_before_it():
+    """The operator pressed Pause during the start-up (the page is up before the dry run): the
+    run holds before its first step, not after it, and goes on as if it had not paused."""
+    import threading
+
+    structure = hsio.load_structure("validation")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=structure.dt, pga_g=0.2, seed=3)
+    with hsio.open_site(structure, "emulator://", test_rate=10) as site:
+        reference = hsio.simulate(structure, ground, site)
+    control = RunControl()
+    control.request_pause("socket")
+    threading.Timer(0.2, control.request_resume).start()
+    with hsio.open_site(structure, "emulator://", test_rate=10) as site:
+        steps_at_pause = []
+        pause = site.pause
+        site.pause = lambda: steps_at_pause.append(site.loop.clock.now_s) or pause()
+        result = hsio.simulate(structure, ground, site, control=control)
+    assert steps_at_pause == [0.0]  # not a controller period had run: no step taken
+    np.testing.assert_allclose(result.u, reference.u, atol=1e-9)
