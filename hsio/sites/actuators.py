@@ -162,9 +162,9 @@ class ActuatorSite:
         the dynamic ones holding. ``stop`` (a callable) is asked before every step; when it
         answers true the ramp ends where it stands, the static actuators left in force control at
         their present targets, and :class:`RampStopped` says where (target and measured force).
-        ``pause`` (a callable) is called after every step but the last: an operator's pause
-        holds the ramp there (:meth:`hsio.safety.control.RunControl.checkpoint`), for as long as
-        the operator wants, and a stop while paused ends it as ``stop`` does."""
+        ``pause`` (a callable) is called before every step: an operator's pause holds the ramp
+        there (:meth:`hsio.safety.control.RunControl.checkpoint`), for as long as the operator
+        wants, and a stop while paused ends it as ``stop`` does."""
         from hsio.safety.status import OperatorStop
 
         self._phase = phase
@@ -181,15 +181,15 @@ class ActuatorSite:
 
         try:
             for k in range(1, steps + 1):
+                if pause is not None:
+                    try:
+                        pause()
+                    except OperatorStop:
+                        raise stopped(k - 1) from None
                 if stop is not None and stop():
                     raise stopped(k - 1)
                 self.static_targets = end.copy() if k == steps else start + (end - start) * (k / steps)
                 self._execute(hold)
-                if pause is not None and k < steps:
-                    try:
-                        pause()
-                    except OperatorStop:
-                        raise stopped(k) from None
         finally:
             self._phase = "test"
 
