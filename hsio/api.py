@@ -203,17 +203,7 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
                           f"actuators to load; run it with hsio.run_numerical")
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"clock must be 'lockstep' or 'realtime', got {clock!r}")
-    rigged = {e.name for e in structure.experimental if e.has_setup or e.is_multi_dof}
-    for inst in structure.instruments:
-        if hardware.startswith("emulator://") and not inst.element:
-            raise ConfigError(f"instrument {inst.name!r} names no element: the emulator has nothing for it to read "
-                              f"(give its element)")
-        if hardware.startswith("emulator://") and inst.element in rigged:
-            raise ConfigError(f"instrument {inst.name!r} reads element {inst.element!r}, which is loaded through a "
-                              f"setup: the emulator emulates instruments on elements without setups only")
-    if structure.instruments and not hardware.startswith("emulator://") and not (options or {}).get("instruments"):
-        raise ConfigError(f"structure {structure.name!r} names instruments; give the DAQ module's URL as the "
-                          f"driver option 'instruments' (modbus+tcp://HOST:PORT)")  # before any axis is enabled
+    check_instruments(structure, hardware, options)  # before any axis is enabled
     ticker = LockstepClock() if clock == "lockstep" else RealTimeClock()
     elements = list(structure.experimental) + list(structure.static)  # static preloads after the channels
     actuators = open_hardware(hardware, elements, ticker, options or {})
@@ -268,6 +258,39 @@ def dwell_periods(dt: float, test_rate: float, hold_fraction: float, rate_hz: fl
     the command generator counts them (:func:`hsio.command.step_samples`)."""
     periods, dwell = step_samples(test_rate * dt, 1.0 / rate_hz, hold_fraction)
     return dwell if dwell >= 1 else periods
+
+
+def _ramp_pause(control, site, recorder, ramp: str, step: int):
+    """An operator's pause between two steps of a ramp of the static preloads: the run holds
+    there as between two steps of the record (``control.checkpoint``), its pause and resume
+    recorded as events at ``step`` (the last step of the record done); None without a control."""
+    if control is None:
+        return None
+
+    def log(kind: str, message: str) -> None:
+        if recorder is not None:
+            recorder.write_event(site.lab_time_s, step, kind, "", f"{message} (in the {ramp} of the static preloads)")
+
+    return lambda: control.checkpoint(site, step, log)
+
+
+def check_instruments(structure: Structure, hardware: str, options: dict | None = None) -> None:
+    """The structure's instruments can be read on ``hardware``: on the emulator each names an
+    element without a setup (what it reads); elsewhere the driver option ``instruments`` gives
+    the DAQ module. Checked before anything opens (``hsio check`` and ``hsio run`` before the
+    run folder too)."""
+    emulated = hardware.startswith("emulator://")
+    rigged = {e.name for e in structure.experimental if e.has_setup or e.is_multi_dof}
+    for inst in structure.instruments:
+        if emulated and not inst.element:
+            raise ConfigError(f"instrument {inst.name!r} names no element: the emulator has nothing for it to read "
+                              f"(give its element)")
+        if emulated and inst.element in rigged:
+            raise ConfigError(f"instrument {inst.name!r} reads element {inst.element!r}, which is loaded through a "
+                              f"setup: the emulator emulates instruments on elements without setups only")
+    if structure.instruments and not emulated and not (options or {}).get("instruments"):
+        raise ConfigError(f"structure {structure.name!r} names instruments; give the DAQ module's URL as the "
+                          f"driver option 'instruments' (modbus+tcp://HOST:PORT)")
 
 
 def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
@@ -421,18 +444,25 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     if static:
         excitation(structure, ground)  # a record refused before the preloads move anything
         site.moved = True  # the preloads move the actuators from here
+    phase = control.phase if control is not None else ""
     try:
-        site.preload(stop=stop)
+        if control is not None and static:  # the status the operator sees (the page, the socket)
+            control.phase = "ramp-in"
+        site.preload(stop=stop, pause=_ramp_pause(control, site, recorder, "ramp in", 0))
     except BaseException as exc:
         site.hold()
         if isinstance(exc, RampStopped):
             raise OperatorStop(f"{control.stop_reason}: {exc}") from None
         raise
+    if control is not None:
+        control.phase = phase
     try:
         result = run_steps(structure, ground, integrator, site, recorder, progress, control=control, start=start,
                            resume_state=resume_state)
         try:
-            site.release(stop=stop)
+            if control is not None and static:
+                control.phase = "ramp-off"
+            site.release(stop=stop, pause=_ramp_pause(control, site, recorder, "ramp off", result.steps))
         except (Exception, KeyboardInterrupt) as exc:  # the record is complete: keep it, say where the ramp stood
             hold = site.hold()
             cause = OperatorStop(control.stop_reason) if isinstance(exc, RampStopped) else exc

@@ -128,6 +128,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
 
                     runner.check_hardware(cfg)  # before the page's folder: a typing error leaves no folder
                     runner.check_dwell(cfg, structure)
+                    runner.check_instruments(cfg, structure)
                     runner.fingerprints(cfg)  # an input file that cannot be read: refused before the folder too
                     out_dir = runner.run_folder(cfg, structure, out_dir)
                     page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
@@ -242,19 +243,30 @@ def check(config_file: str | None, as_json: bool) -> None:
     sys.exit(2 if report.refused else 0)
 
 
+def _amount(value: float, unit: str, width: int = 0) -> str:
+    """A displacement with its unit: mm to the micrometre, rad to the microradian."""
+    return f"{value:{width}.3f} mm" if unit == "mm" else f"{value:{width}.6f} {unit}"
+
+
 def _print_summary(s: dict) -> None:
     click.echo(f"structure      {s['structure']}  ({s['steps']} steps of {s['dt']} s, TR = {s['test_rate']:g})")
     click.echo(f"record         {s['record']}")
     click.echo(f"hardware       {s['hardware']} ({s['clock']})")
+    dof_units = s.get("dof_units") or ["mm"] * len(s["dof"])
     for k, name in enumerate(s["dof"]):
         ns = s.get("ns_peak_displacement_mm")
-        line = f"peak {name:<9} HS {s['peak_displacement_mm'][k]:8.3f} mm"
+        line = f"peak {name:<9} HS {_amount(s['peak_displacement_mm'][k], dof_units[k], 8)}"
         if ns:
-            line += f"   NS {ns[k]:8.3f} mm   max |HS-NS| {s['max_error_pct_per_dof'][k]:.3f} % of peak"
+            line += f"   NS {_amount(ns[k], dof_units[k], 8)}   max |HS-NS| {s['max_error_pct_per_dof'][k]:.3f} % of peak"
         click.echo(line)
     if "max_error_pct" in s:
         click.echo(f"max error      {s['max_error_pct']:.3f} % (HS vs NS)")
-    click.echo(f"tracking RMS   {', '.join(f'{x:.4f}' for x in s['rms_tracking_error_mm'])} mm")
+    rms = s["rms_tracking_error_mm"]
+    units = s.get("channel_units") or ["mm"] * len(rms)
+    if set(units) <= {"mm"}:
+        click.echo(f"tracking RMS   {', '.join(f'{x:.4f}' for x in rms)} mm")
+    else:
+        click.echo(f"tracking RMS   {', '.join(f'{x:.4f} mm' if u == 'mm' else _amount(x, u) for x, u in zip(rms, units))}")
     for name, error in s.get("static_hold_error_pct", {}).items():
         click.echo(f"preload {name:<6} held within {error:.3f} % through the record")
     if "outer_loop_iterations" in s:

@@ -248,6 +248,8 @@ class ControlLoop:
         with self._lock:
             self._paused = True
             self._paused_at = self.clock.now_s
+            # a hold is in displacement control: resume puts each actuator back in its own mode
+            self._paused_modes = [actuator.mode for actuator in self.actuators]
             for actuator in self.actuators:
                 try:
                     actuator.hold()
@@ -256,8 +258,18 @@ class ControlLoop:
         return read_back(self.actuators)
 
     def resume(self) -> None:
-        """Command again after :meth:`pause`: the generators go on from where they stand."""
+        """Command again after :meth:`pause`: the generators go on from where they stand. An
+        actuator that was in force control before the hold (a static preload, an element in
+        force control) goes back to it, bumplessly (its command starts at the force it measures),
+        before its generator's next command, a force, is sent: never as a displacement."""
         with self._lock:
+            for actuator, mode in zip(self.actuators, getattr(self, "_paused_modes", None) or ()):
+                if actuator.mode is not mode:
+                    try:
+                        actuator.set_mode(mode)
+                    except BaseException as exc:
+                        self._fail(exc)
+            self._paused_modes = None
             self._paused = False
             if self.monitor is not None and getattr(self, "_paused_at", None) is not None:
                 self.monitor.skip(self.clock.now_s - self._paused_at)  # the pause's lab time does not count

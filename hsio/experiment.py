@@ -189,6 +189,8 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
             h.put(0, integrator.start(P[0], site, numerical), dofs)
         if hasattr(site, "opened_for"):
             site.moved = True  # from the first command on, the actuators may stand away from rest
+        if control is not None:  # a pause or stop asked before the first step: before it, not after
+            control.checkpoint(site, first, log)
         for i in range(first, n_steps - 1):
             k = i + 1
             t0 = time.perf_counter()

@@ -28,11 +28,18 @@ class ControlMode(enum.Enum):
     FORCE = "force"
 
 
+COMPACT_FROM = 1e6  # a refused value this large or larger is shown in significant digits
+
+
 def shown_beyond(value: float, limit: float, decimals: tuple[int, int] = (3, 1)) -> tuple[str, str]:
     """``value`` and ``limit`` as text for a refusal, with ``decimals`` (value, limit) or as many
     more as it takes for the value shown to lie beyond the limit shown (|value| > limit):
-    127.0001 against 127 reads "127.0001" and "127.00", never "127.000" beyond "127.0"."""
+    127.0001 against 127 reads "127.0001" and "127.00", never "127.000" beyond "127.0". A value
+    of a million or more (far beyond any limit) reads in six significant digits: 1e308 reads
+    "1e+308", not its 309 digits."""
     dv, dl = decimals
+    if abs(value) >= COMPACT_FROM and abs(value) > 1.000001 * limit:
+        return f"{value:.6g}", f"{limit:.{dl}f}"
     for extra in range(17):
         v, lim = f"{value:.{dv + extra}f}", f"{limit:.{dl + extra}f}"
         if abs(float(v)) > float(lim):

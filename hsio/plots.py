@@ -11,9 +11,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def displacement_histories(path: Path, t, u_hs, t_ns, u_ns, dof_names, title: str = "") -> Path:
-    """Displacement of each DOF, HS against NS, with the difference underneath."""
+def displacement_histories(path: Path, t, u_hs, t_ns, u_ns, dof_names, title: str = "", units=None) -> Path:
+    """Displacement of each DOF, HS against NS, with the difference underneath; ``units`` per DOF
+    ("mm", or "rad" for a rotation; default mm)."""
     n = len(dof_names)
+    units = units or ["mm"] * n
     fig, axes = plt.subplots(2 * n, 1, figsize=(10, 3.2 * n + 1), sharex=True,
                              gridspec_kw={"height_ratios": [3, 1] * n})
     for k, name in enumerate(dof_names):
@@ -21,7 +23,7 @@ def displacement_histories(path: Path, t, u_hs, t_ns, u_ns, dof_names, title: st
         if u_ns is not None:
             ax.plot(t_ns, u_ns[:, k], color="0.55", lw=2.2, label="NS (numerical)")
         ax.plot(t, u_hs[:, k], color="C0", lw=1.0, label="HS (hybrid)")
-        ax.set_ylabel(f"{name} displacement (mm)")
+        ax.set_ylabel(f"{name} {'rotation' if units[k] == 'rad' else 'displacement'} ({units[k]})")
         ax.legend(loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)
         if u_ns is not None:
@@ -38,17 +40,20 @@ def displacement_histories(path: Path, t, u_hs, t_ns, u_ns, dof_names, title: st
     return path
 
 
-def hysteresis_loops(path: Path, disp, force, actuator_names, ns_disp=None, ns_force=None) -> Path:
-    """Measured force against measured displacement for each actuator (NS behind, in grey)."""
+def hysteresis_loops(path: Path, disp, force, actuator_names, ns_disp=None, ns_force=None, units=None) -> Path:
+    """Measured force against measured displacement for each channel (NS behind, in grey);
+    ``units`` per channel (displacement, force): ("mm", "kN"), or ("rad", "kN mm") on a rotation."""
     n = len(actuator_names)
+    units = units or [("mm", "kN")] * n
     fig, axes = plt.subplots(1, n, figsize=(5.2 * n, 4.5), squeeze=False)
     for j, name in enumerate(actuator_names):
         ax = axes[0, j]
         if ns_disp is not None:
             ax.plot(ns_disp[:, j], ns_force[:, j], color="0.6", lw=2.0, label="NS")
         ax.plot(disp[:, j], force[:, j], color="C0", lw=0.8, label="HS measured")
-        ax.set_xlabel("displacement (mm)")
-        ax.set_ylabel("force (kN)")
+        rotation = units[j][0] == "rad"
+        ax.set_xlabel(f"{'rotation' if rotation else 'displacement'} ({units[j][0]})")
+        ax.set_ylabel(f"{'moment' if rotation else 'force'} ({units[j][1]})")
         ax.set_title(name)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
@@ -59,20 +64,24 @@ def hysteresis_loops(path: Path, disp, force, actuator_names, ns_disp=None, ns_f
     return path
 
 
-def tracking_error(path: Path, t, targets, measured, actuator_names, resolution_mm: float | None = None) -> Path:
-    """Target minus measured displacement at the end of each step, per actuator."""
+def tracking_error(path: Path, t, targets, measured, actuator_names, resolution_mm: float | None = None,
+                   units=None) -> Path:
+    """Target minus measured displacement at the end of each step, per channel; ``units`` per
+    channel ("mm", or "rad" on a rotation: no resolution lines there, the transducers read mm)."""
     n = len(actuator_names)
+    units = units or ["mm"] * n
     fig, axes = plt.subplots(n, 1, figsize=(10, 2.6 * n + 0.8), sharex=True, squeeze=False)
     for j, name in enumerate(actuator_names):
         ax = axes[j, 0]
         err = targets[:, j] - measured[:, j]
         rms = float(np.sqrt(np.mean(err[1:] ** 2))) if len(err) > 1 else 0.0
         ax.plot(t, err, color="C2", lw=0.7)
-        if resolution_mm:
+        if resolution_mm and units[j] == "mm":
             for s in (-1, 1):
                 ax.axhline(s * resolution_mm, color="0.5", ls="--", lw=0.7)
-        ax.set_ylabel(f"{name} error (mm)")
-        ax.set_title(f"{name}: RMS {rms:.4f} mm", fontsize=9, loc="left")
+        ax.set_ylabel(f"{name} error ({units[j]})")
+        ax.set_title(f"{name}: RMS {rms:.4g} {units[j]}" if units[j] != "mm" else f"{name}: RMS {rms:.4f} mm",
+                     fontsize=9, loc="left")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time (s)")
     fig.suptitle("Tracking error: target - measured at the end of each step")

@@ -11,7 +11,7 @@ One file per run (``run.sqlite``), readable by any SQLite tool, pandas or MATLAB
 * ``samples``: one row per controller period - step, sample index, per actuator ``cmd_``,
   ``disp_``, ``force_``; then ``lab_time_s`` (the controller clock) and per actuator ``phase_``,
   the command generator's phase as a code (meta ``phase_codes``: 0 interpolate, 1 dwell,
-  2 extrapolate, 3 slow, 4 hold).
+  2 extrapolate, 3 slow, 4 hold; a channel on a setup: the most urgent of its element's actuators').
 * ``ns``: the purely numerical simulation, per step ``u_`` per DOF.
 * ``summary``: key/value (JSON), written at the end.
 * ``events``: what the safety layer saw (docs/safety.md) - time (s of lab time), step, kind

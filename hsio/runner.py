@@ -41,7 +41,8 @@ from hsio.safety.socket import ControlServer
 from hsio.safety.status import DryRunRefused, OperatorStop, exit_status, outcome_name
 from hsio.result import Result, max_error_pct
 from hsio.secant import SecantEstimator
-from hsio.structures import Structure, channel_names, get_structure, load_structure  # channel_names: re-exported
+from hsio.structures import (Structure, channel_names, channel_units, dof_units, get_structure,  # channel_names: re-exported
+                             load_structure)
 from hsio.structure_file import is_plain_name
 
 
@@ -299,6 +300,16 @@ def secant_n_avg(config: RunConfig, structure: Structure) -> int:
     return min(n, api.dwell_periods(structure.dt, test["rate"], test["hold_fraction"]))
 
 
+def check_instruments(config: RunConfig, structure: Structure) -> None:
+    """The structure's instruments readable on the configured hardware (:func:`hsio.api.check_instruments`),
+    checked before anything is created or opened; named with the configuration."""
+    url = config["hardware"]["url"]
+    try:
+        api.check_instruments(structure, url, None if url.startswith("emulator") else config["driver"])
+    except ConfigError as exc:
+        raise ConfigError(f"{config.source}: {exc}") from None
+
+
 def check_dwell(config: RunConfig, structure: Structure) -> None:
     """[test] n_avg within a step's dwell (:func:`hsio.api.check_dwell`), named with the configuration."""
     test, integ = config["test"], config["integrator"]
@@ -317,6 +328,7 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     integ, test, hardware = config["integrator"], config["test"], config["hardware"]
     check_hardware(config)  # `hsio check` and library callers: the URL and its options, as a run checks them
     check_dwell(config, structure)
+    check_instruments(config, structure)
     try:
         ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
     except ExperimentStopped as exc:  # the models cannot be evaluated along the record: bad input, not a fault
@@ -413,6 +425,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     check_hardware(config)
     check_dwell(config, structure)
+    check_instruments(config, structure)  # before the folder: an instrument that cannot be read leaves none
     inputs = fingerprints(config)  # before the folder: a file that cannot be read leaves none
     ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
     try:
@@ -427,6 +440,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "version": hsio.__version__,
         "specimen_id": ledger.specimen_id if ledger else config["specimen"]["id"],
         "dry_run_override": safety.override, "start": test["start"],
+        "dof_units": dof_units(structure), "channel_units": [u for u, _ in channel_units(structure)],
         "inputs": inputs, "ground_motion_sha256": ground_fingerprint(ground),
     }
     site = None
@@ -566,6 +580,9 @@ def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs:
         "hardware": config["hardware"]["url"],
         "clock": config["hardware"]["clock"],
         "dof": list(structure.dof_names),
+        # a rotation's displacements are in rad (the keys say mm): the unit of each DOF and channel
+        "dof_units": dof_units(structure),
+        "channel_units": [u for u, _ in channel_units(structure)],
         "peak_displacement_mm": [float(x) for x in np.max(np.abs(hs.u), axis=0)],
         "rms_tracking_error_mm": [float(x) for x in np.sqrt(np.mean(hs.tracking_error()[1:] ** 2, axis=0))] if hs.steps else [],
         "late_steps": hs.late_steps,
@@ -623,13 +640,16 @@ def make_plots(out: Path, structure: Structure, hs: Result, ns: Result | None, c
     if ns is not None:
         worst, _ = max_error_pct(hs.u, ns.u)
         title += f", max error {worst:.2f} % of peak"
+    units = channel_units(structure)
     paths = [
         plots.displacement_histories(out / "displacement.png", hs.t, hs.u, ns.t if ns is not None else None,
-                                     ns.u if ns is not None else None, structure.dof_names, title),
+                                     ns.u if ns is not None else None, structure.dof_names, title,
+                                     units=dof_units(structure)),
         plots.hysteresis_loops(out / "hysteresis.png", hs.measured_displacement, hs.measured_force, actuators,
-                               ns.measured_displacement if ns is not None else None, ns.measured_force if ns is not None else None),
+                               ns.measured_displacement if ns is not None else None, ns.measured_force if ns is not None else None,
+                               units=units),
         plots.tracking_error(out / "tracking.png", hs.t, hs.measured_displacement + hs.tracking_error(),
                              hs.measured_displacement, actuators,
-                             config["emulator"].get("resolution_mm", 0.025)),
+                             config["emulator"].get("resolution_mm", 0.025), units=[u for u, _ in units]),
     ]
     return [str(p) for p in paths]

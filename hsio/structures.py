@@ -627,6 +627,32 @@ def channel_names(structure: Structure) -> list[str]:
             names += [f"{e.name}.{structure.dof_names[d]}" for d in e.basic_dofs]
     return names
 
+def rotation_dofs(structure: Structure) -> set[int]:
+    """The DOFs the structure says are rotations (rad, their forces moments in kN mm): the basic
+    DOFs ``theta`` of its elements' planar setups (docs/setups.md). Every other DOF is taken as a
+    translation (mm, kN)."""
+    out: set[int] = set()
+    for e in structure.experimental:
+        if e.setup is None:
+            continue
+        basic = getattr(e.make_setup(), "basic", ())
+        out.update(d for d, b in zip(e.basic_dofs, basic) if b == "theta")
+    return out
+
+
+def dof_units(structure: Structure) -> list[str]:
+    """Per DOF, the unit of its displacement: "rad" for a rotation (:func:`rotation_dofs`), else "mm"."""
+    rotations = rotation_dofs(structure)
+    return ["rad" if k in rotations else "mm" for k in range(len(structure.dof_names))]
+
+
+def channel_units(structure: Structure) -> list[tuple[str, str]]:
+    """Per recorded channel (:func:`channel_names`), the units of its displacement and force:
+    ("rad", "kN mm") on a rotation, else ("mm", "kN")."""
+    rotations = rotation_dofs(structure)
+    return [("rad", "kN mm") if d in rotations else ("mm", "kN") for d in structure.experimental_dofs]
+
+
 def sdof(m: float = 1.0, k: float = 4 * np.pi**2, zeta: float = 0.0, dt: float = 0.01, specimen: dict | None = None) -> Structure:
     """A single-DOF structure with one experimental element (linear unless ``specimen`` says)."""
     if specimen is not None and not isinstance(specimen, dict):

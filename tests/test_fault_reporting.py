@@ -202,6 +202,25 @@ def test_a_clear_refusal_keeps_its_short_numbers():
         Limits(stroke_mm=254.0).check_displacement(130.5, "here")
 
 
+@pytest.mark.parametrize("check, value, unit", [
+    ("displacement", 1e308, "mm"), ("displacement", -1e308, "mm"), ("force", 1e30, "kN"),
+    ("velocity", -3.5e12, "mm/s"), ("displacement", 1.23456789e6, "mm"),
+])
+def test_a_huge_refused_command_reads_in_a_few_digits(check, value, unit):
+    """1e308 mm reads "1e+308 mm", not 309 digits; still the value, and still beyond the limit."""
+    import re
+
+    from hsio.errors import LimitError
+    from hsio.interfaces import Limits
+
+    with pytest.raises(LimitError) as info:
+        getattr(Limits(), f"check_{check}")(value, "here")
+    message = str(info.value)
+    assert len(message) < 120, message
+    shown = re.search(rf"command (?:velocity )?(\S+) {re.escape(unit)} is beyond", message).group(1)
+    assert float(shown) == pytest.approx(value, rel=1e-5), message
+
+
 def test_a_resumed_run_reports_its_own_final_hold(tmp_path):
     """hsio resume reads its final hold back and reports that, not the interrupted session's."""
     from hsio.safety.resume import resume

@@ -260,3 +260,21 @@ def test_hsio_run_shows_the_initial_read_back_and_summarises_the_outer_loop(tmp_
     assert 0.5 < loops["mean"] <= loops["max"] <= 4
     readback = next(line for line in said if line.startswith("initial read-back:"))
     assert readback.splitlines()[-1].split() == ["lvdt", "0.0000", "mm"]  # the specimen at rest
+
+
+@pytest.mark.parametrize("command", [["check"], ["run"], ["run", "--monitor", "--monitor-port", "0"]])
+def test_an_emulated_instrument_naming_no_element_is_refused_before_any_folder(tmp_path, command):
+    """`hsio check` refuses it as `hsio run` does (exit 2, the instrument named), and `hsio run`
+    refuses it before the run folder (or the monitor's) exists."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    (tmp_path / "wall.toml").write_text(WALL.format(source="").replace('element = "wall"\n', ""))
+    (tmp_path / "run.toml").write_text('[structure]\nfile = "wall.toml"\n[record]\nsynthetic_duration_s = 0.2\n'
+                                       '[output]\nplots = false\n[safety]\nkeys = false\n')
+    args = [*command, str(tmp_path / "run.toml")] + (["--out", str(tmp_path / "out")] if command[0] == "run" else [])
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 2, result.output
+    assert "instrument 'lvdt' names no element" in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "out").exists()

@@ -4,6 +4,7 @@ steps recorded, the token off the loopback, and clear errors."""
 
 from __future__ import annotations
 
+import html
 import os
 import re
 import socket
@@ -390,3 +391,96 @@ def test_monitor_is_listed_by_hsio():
     proc = subprocess.run([sys.executable, "-m", "hsio.cli", "--help"], env=ENV, capture_output=True, text=True,
                           timeout=60)
     assert "monitor" in proc.stdout
+
+
+def test_the_page_of_a_column_on_two_actuators_shows_phases_and_the_rotation_in_rad(tmp_path):
+    """A structure through a setup: each channel's command-generator phase (from its element's
+    actuators), the rotation DOF in rad and its channel's legends so; no following-error margin of
+    the rotation against a threshold in mm."""
+    from bokeh.document import Document
+    from bokeh.models import Legend
+
+    from hsio import config, runner
+    from hsio.monitor import page as page_mod
+
+    library = Path(__file__).resolve().parents[1] / "hsio" / "library"
+    cfg = config.from_dict({"structure": {"file": str(library / "column_two_actuators.toml")},
+                            "record": {"synthetic_duration_s": 0.3, "pga_g": 0.3}, "test": {"rate": 10.0},
+                            "output": {"plots": False}, "safety": {"keys": False}})
+    runner.run(cfg, tmp_path / "run")
+    feed = RecordFeed(tmp_path / "run")
+    page = page_mod.MonitorPage(Document(), feed, Operator(tmp_path / "run"))
+    status = page.status.text
+    phases = re.search(r"phase (column\.top_x \w+), (column\.top_rot \w+)", status)
+    assert phases and "n/a" not in phases.group(0), status
+    assert re.search(r"top_rot DC, 0 switches, peak \|u\| 0\.\d{5} rad \(NS 0\.\d{5}\)", status), status
+    legends = [item.label.value for doc_root in page.doc.roots for legend in doc_root.select({"type": Legend})
+               for item in legend.items]
+    assert "top_rot (rad)" in legends and "column.top_rot (rad, kN mm)" in legends, legends
+    margins = dict(zip(page.margins.data["label"], page.margins.data["text"]))
+    assert margins["column.top_rot following"] == "limit not known"
+    assert margins["column.top_x following"] != "limit not known"
+    feed.close()
+
+
+class _RunAnswering:
+    """An operator whose run answers ``line`` on its control socket."""
+
+    def __init__(self, line: str):
+        self.line, self.answers, self.log = line, True, []
+
+    def status(self) -> str:
+        return self.line
+
+
+@pytest.mark.parametrize("message, shown", [
+    ("paused after step 5: the actuators hold (confirmed by read-back)", "the actuators hold (confirmed by read-back)"),
+    ("paused after step 5: WARNING: C1 did not confirm the hold (reads back not holding)",
+     "WARNING: C1 did not confirm the hold"),
+    (None, "the hold's read-back is not in the record yet"),
+])
+def test_a_paused_run_shows_the_hold_as_read_back_never_assumed(tmp_path, message, shown):
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_event(1.0, 3, "pause", "", "paused after step 3: the actuators hold (confirmed by read-back)")
+    if message:
+        rec.write_event(2.0, 5, "pause", "", message)
+    rec.db.commit()
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), _RunAnswering("ok paused phase HS step 5"))
+    state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+    assert state.startswith("paused (phase HS): ") and shown in state, state
+    rec.close()
+
+
+def test_a_run_over_shows_its_final_hold(tmp_path):
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_summary({"outcome": "stopped by the operator", "stopped": "step 6: stopped by the operator",
+                       "final_hold": "the hold of C2 could not be confirmed (no read-back)"})
+    operator = _RunAnswering("")
+    operator.answers = False
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), operator)
+    state = re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1)
+    assert "run over (stopped by the operator)" in state and "the hold of C2 could not be confirmed" in state, state
+    rec.close()
+
+
+def test_a_record_without_controller_samples_says_why_it_shows_no_phase(tmp_path):
+    from bokeh.document import Document
+
+    from hsio import config, runner
+    from hsio.monitor import page as page_mod
+
+    cfg = config.from_dict({"structure": {"name": "validation"}, "record": {"synthetic_duration_s": 0.1},
+                            "output": {"plots": False, "samples": False}, "safety": {"keys": False}})
+    runner.run(cfg, tmp_path / "run")
+    feed = RecordFeed(tmp_path / "run")
+    page = page_mod.MonitorPage(Document(), feed, Operator(tmp_path / "run"))
+    assert "phase not recorded ([output] samples = false" in page.status.text
+    feed.close()

@@ -82,3 +82,112 @@ def test_a_record_refused_is_refused_before_the_preload_moves_anything():
         with pytest.raises(hsio.HsioError, match="more than the bound"):
             hsio.simulate(structure, too_long, site)
         assert site.static_log == [] and abs(site.loop.feedback()[1].force_kN) < 0.1
+
+
+class PauseAt(RunControl):
+    """A control whose pause is asked at its ``n``-th look, then ``then`` ("resume" or "stop")
+    asked from another thread a moment later (the operator at the page)."""
+
+    def __init__(self, n: int, then: str):
+        super().__init__()
+        self.looks, self.n, self.then = 0, n, then
+
+    @property
+    def stop_requested(self) -> bool:
+        import threading
+
+        self.looks += 1
+        if self.looks == self.n:
+            self.phase_seen = self.phase  # what the control socket (the monitor's page) says then
+            self.request_pause("socket")
+            later = self.request_resume if self.then == "resume" else lambda: self.request_stop("stopped by the operator")
+            threading.Timer(0.3, later).start()
+        return self.state == "stopping"
+
+
+@pytest.mark.parametrize("then", ["resume", "stop"])
+def test_a_pause_during_the_ramp_in_holds_it_there(then):
+    """A pause asked during a ramp holds after the ramp's step under way, not after the ramp."""
+    control = PauseAt(6, then)
+    site, simulate = run(control)
+    with site:
+        paused_at = []
+        pause = site.pause
+        site.pause = lambda: paused_at.append(len(site.static_log)) or pause()
+        if then == "stop":
+            with pytest.raises(OperatorStop, match=r"the ramp in of the static preloads was stopped after 6 of 20"):
+                simulate()
+        else:
+            result = simulate()
+            assert [p for p, *_ in result.static_log].count("ramp_in") == 20
+            assert result.static_log[-1][3][0] == pytest.approx(0.0, abs=1.0)  # ramped off again
+        assert paused_at == [6]
+        assert control.phase_seen == "ramp-in"
+
+
+class PauseAfterStep(RunControl):
+    """Pauses after step ``n`` of the record and resumes 0.2 s later (the operator at the page)."""
+
+    def __init__(self, n: int):
+        super().__init__()
+        self.n = n
+
+    def checkpoint(self, site, step, log=None):
+        import threading
+
+        if step == self.n:
+            self.request_pause("socket")
+            threading.Timer(0.2, self.request_resume).start()
+        return super().checkpoint(site, step, log)
+
+
+def test_a_preload_held_through_a_pause_goes_on_in_force_control_after_it():
+    """The hold of a pause is in displacement control; on resuming, the static actuator goes back
+    to force control before its next command (125 kN), which is never sent as 125 mm."""
+    structure = hsio.load_structure("preloaded_column")
+    ground = hsio.synthetic_record(duration_s=0.5, dt=structure.dt, pga_g=0.3, seed=2)
+    with hsio.open_site(structure, "emulator://", test_rate=10) as site:
+        result = hsio.simulate(structure, ground, site, control=PauseAfterStep(10))
+        assert result.steps == 50
+        assert result.static_hold_error[0] < 0.01  # held within 1 % of 125 kN, across the pause too
+
+
+def test_a_run_in_force_control_paused_and_resumed_equals_the_unpaused_run():
+    """The element's actuator goes back to force control after the pause's hold: the paused run
+    is the unpaused one (the emulator is deterministic), not one whose force commands went out
+    as displacements for a moment."""
+    import warnings
+
+    from hsio.secant import SecantEstimator
+
+    structure = hsio.load_structure("structure_I")
+    ground = hsio.synthetic_record(duration_s=0.6, dt=structure.dt, pga_g=0.2, seed=3)
+    runs = []
+    for control in (None, PauseAfterStep(40)):
+        with warnings.catch_warnings(), hsio.open_site(structure, "emulator://", test_rate=10,
+                                                       estimator=SecantEstimator("average", 16, 0.1)) as site:
+            warnings.simplefilter("ignore")
+            runs.append(hsio.simulate(structure, ground, site, method="force_control", control=control))
+    assert runs[1].force_control[1:].all()
+    np.testing.assert_allclose(runs[1].u, runs[0].u, atol=1e-9)
+
+
+def test_a_pause_asked_before_the_first_step_holds_before_it():
+    """The operator pressed Pause during the start-up (the page is up before the dry run): the
+    run holds before its first step, not after it, and goes on as if it had not paused."""
+    import threading
+
+    structure = hsio.load_structure("validation")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=structure.dt, pga_g=0.2, seed=3)
+    with hsio.open_site(structure, "emulator://", test_rate=10) as site:
+        reference = hsio.simulate(structure, ground, site)
+    control = RunControl()
+    control.request_pause("socket")
+    threading.Timer(0.2, control.request_resume).start()
+    with hsio.open_site(structure, "emulator://", test_rate=10) as site:
+        steps_at_pause = []
+        pause = site.pause
+        site.pause = lambda: steps_at_pause.append(site.loop.clock.now_s) or pause()
+        result = hsio.simulate(structure, ground, site, control=control)
+    assert steps_at_pause == [0.0]  # not a controller period had run: no step taken
+    np.testing.assert_allclose(result.u, reference.u, atol=1e-9)

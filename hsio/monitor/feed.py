@@ -65,6 +65,8 @@ class RecordFeed:
         self.dofs: list[str] = []
         self.channels: list[str] = []
         self.channel_dof: dict[str, str | None] = {}
+        self.dof_unit: dict[str, str] = {}
+        self.channel_unit: dict[str, str] = {}
         self.columns: _Columns | None = None
         self.modes: list[np.ndarray] = []  # per DOF, 1 in force control, 0 in displacement control
         self.ns: dict[str, np.ndarray] = {}
@@ -137,6 +139,11 @@ class RecordFeed:
         self.db, self.meta = db, meta
         self.dofs, self.channels = list(meta["dof_names"]), list(meta["actuator_names"])
         self.channel_dof = channel_dofs(meta, self.channels)
+        # displacement units ("mm", or "rad" for a rotation; records without them: mm)
+        units = meta.get("dof_units") or ["mm"] * len(self.dofs)
+        self.dof_unit = dict(zip(self.dofs, units))
+        units = meta.get("channel_units") or ["mm"] * len(self.channels)
+        self.channel_unit = dict(zip(self.channels, units))
         names = ["step", "time_s", "late_steps"]
         names += [column(p, d) for d in self.dofs for p in ("u", "v", "a", "u_pred", "r")]
         names += [column(p, c) for c in self.channels

@@ -103,24 +103,25 @@ class MonitorPage:
                                          name="spectrum")
         self.margins = ColumnDataSource(dict(label=[], value=[], color=[], text=[]), name="margins")
         figs = []
-        p = _fig("Displacement: HS (solid), NS (dashed)", "time (s)", "mm")
+        p = _fig("Displacement: HS (solid), NS (dashed)", "time (s)", "mm (rad for a rotation)" if self._rotations() else "mm")
         items = []
         for k, d in enumerate(f.dofs):
             a = p.line("t", col("u", d), source=self.steps, color=COLORS[k % 10], line_width=1.5)
             b = p.line("t", col("u", d), source=self.ns, color=COLORS[k % 10], line_dash="dashed", line_alpha=0.8)
             p.scatter("t", col("u", d), source=self.last, color="red", size=7)
-            items.append((d, [a, b]))
+            items.append((self._named(d, f.dof_unit), [a, b]))
         _legend(p, items)
         figs.append(p)
         p = _fig("Force-displacement per element", "measured displacement (mm)", "measured force (kN)")
         items = []
         for k, c in enumerate(f.channels):
-            items.append((c, [p.line(col("disp", c), col("force", c), source=self.steps, color=COLORS[k % 10])]))
+            named = f"{c} (rad, kN mm)" if f.channel_unit.get(c) == "rad" else c
+            items.append((named, [p.line(col("disp", c), col("force", c), source=self.steps, color=COLORS[k % 10])]))
             p.scatter(col("disp", c), col("force", c), source=self.last, color="red", size=7)
         _legend(p, items)
         figs.append(p)
         p = _fig("Tracking error (target - measured)", "time (s)", "mm (kN in force control)")
-        _legend(p, [(c, [p.line("t", col("error", c), source=self.steps, color=COLORS[k % 10])])
+        _legend(p, [(self._named(c, f.channel_unit), [p.line("t", col("error", c), source=self.steps, color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
         p = _fig("Tracking error spectrum", "frequency (Hz)", "amplitude", y_axis_type="log")
@@ -129,12 +130,13 @@ class MonitorPage:
         figs.append(p)
         p = _fig("Measured vs target displacement", "target: the integrator's command (mm)", "measured (mm)")
         p.add_layout(Slope(gradient=1, y_intercept=0, line_color="gray", line_dash="dotted"))
-        _legend(p, [(c, [p.line(col("target", c), col("disp", c), source=self.steps, color=COLORS[k % 10])])
+        _legend(p, [(self._named(c, f.channel_unit), [p.line(col("target", c), col("disp", c), source=self.steps,
+                                                             color=COLORS[k % 10])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
         p = _fig("Tracking indicator (falling: toward instability)", "time (s)", "TI, displacement control (mm^2)")
-        items = [(c, [p.line("t", col("ti", c), source=self.steps, color=COLORS[k % 10])])
-                 for k, c in enumerate(f.channels)]
+        items = [(f"{c} (rad^2)" if f.channel_unit.get(c) == "rad" else c,
+                  [p.line("t", col("ti", c), source=self.steps, color=COLORS[k % 10])]) for k, c in enumerate(f.channels)]
         # force control's own TI (kN^2) on the right axis, dashed: it moves only over FC steps
         force_lines = [p.line("t", col("tif", c), source=self.steps, color=COLORS[k % 10], line_dash="dashed",
                               y_range_name="force") for k, c in enumerate(f.channels)]
@@ -156,6 +158,14 @@ class MonitorPage:
         self.doc.add_root(grid)
         self.doc.add_root(self.events)
         self.built = True
+
+    def _rotations(self) -> bool:
+        return "rad" in self.feed.dof_unit.values() or "rad" in self.feed.channel_unit.values()
+
+    @staticmethod
+    def _named(name: str, units: dict) -> str:
+        """A legend's name, with "(rad)" for a rotation (the plot's axis reads mm)."""
+        return f"{name} (rad)" if units.get(name) == "rad" else name
 
     # -- the periodic update -------------------------------------------------------------------
     def update(self) -> None:
@@ -239,6 +249,8 @@ class MonitorPage:
             in_fc = dof is not None and f[col("fc", dof)][n] > 0
             actuator = "." not in c  # an element on a setup records its basic DOFs, not strokes
             follow = lim["following_error_kN"] if in_fc else lim["following_error_mm"]
+            if f.channel_unit.get(c) == "rad":  # a rotation: its actuators' strokes carry the interlock's mm
+                follow = None
             for what, value, limit in (("stroke", f[col("disp", c)][n], lim["half_stroke_mm"] if actuator else None),
                                        ("force", f[col("force", c)][n], lim["force_kN"] if actuator else None),
                                        ("following", f[col("error", c)][n], follow)):
@@ -264,12 +276,16 @@ class MonitorPage:
         if running:
             words = line.split()
             state = f"{words[1]} (phase {words[3]})" if len(words) >= 4 else line[3:]
+            if words[1] == "paused":  # the hold as the run read it back, never assumed
+                state += f": {self._pause_hold(words[-1])}"
         elif answers is True:
             state = f"the run answers: {line}"
         elif over:
             state = f"run over ({f.summary.get('outcome', 'ended')}); the record is closed"
             if f.summary.get("stopped"):
                 state += f" ({f.summary['stopped']})"
+            if f.summary.get("final_hold"):  # as the run read it back at its end
+                state += f"; {f.summary['final_hold']}"
         elif answers is None:
             state = "waiting for the run's control socket to answer (the run busy, or hung)"
         else:
@@ -297,17 +313,22 @@ class MonitorPage:
         if n:
             late = int(f["late_steps"][n - 1]) if np.isfinite(f["late_steps"][n - 1]) else 0
             codes = f.phases()
-            phases = [f"{html.escape(c)} {PHASES.get(int(codes[c]) if c in codes else None, 'n/a')}"
-                      for c in f.channels]
-            items.append(("command generator", f"{late} late steps; phase " + ", ".join(phases)))
+            if not codes and ((meta.get("config") or {}).get("output") or {}).get("samples") is False:
+                phase = "not recorded ([output] samples = false: no controller samples)"
+            else:
+                phase = ", ".join(f"{html.escape(c)} {PHASES.get(int(codes[c]) if c in codes else None, 'n/a')}"
+                                  for c in f.channels)
+            items.append(("command generator", f"{late} late steps; phase {phase}"))
             modes = []
             for d in f.dofs:
                 fc = f[col("fc", d)]
                 switches = int(np.count_nonzero(np.diff(fc[np.isfinite(fc)]))) if n > 1 else 0
+                unit = f.dof_unit.get(d, "mm")
+                shown = (lambda x: f"{x:.2f}") if unit == "mm" else (lambda x: f"{x:.5f}")
                 peak = float(np.nanmax(np.abs(f[col("u", d)])))
-                ns_peak = f" (NS {np.nanmax(np.abs(f.ns[col('u', d)])):.2f})" if f.ns else ""
+                ns_peak = f" (NS {shown(np.nanmax(np.abs(f.ns[col('u', d)])))})" if f.ns else ""
                 modes.append(f"{html.escape(d)} {'FC' if fc[-1] > 0 else 'DC'}, {switches} switches, "
-                             f"peak |u| {peak:.2f} mm{ns_peak}")
+                             f"peak |u| {shown(peak)} {unit}{ns_peak}")
             items.append(("DOFs", "; ".join(modes)))
         every = "every step" if self.decimation.stride == 1 else f"every {self.decimation.stride}th step"
         items.append(("plots", f"{every} "
@@ -330,6 +351,16 @@ class MonitorPage:
         text = f"<span style='font-size:9pt' id='hsio-actions'>{text}</span>"
         if self.actions.text != text:
             self.actions.text = text
+
+    def _pause_hold(self, step: str) -> str:
+        """What the run read back of the actuators' hold when it paused after ``step`` (its
+        ``pause`` event), or that it is not in the record yet."""
+        for e in reversed(self.feed.events):
+            if e["kind"] == "pause":
+                if str(e["step"]) == step:
+                    return str(e["message"]).partition(": ")[2] or str(e["message"])
+                break
+        return "the hold's read-back is not in the record yet"
 
     # -- the operator --------------------------------------------------------------------------
     def _on_request(self, attr, old, new) -> None:

@@ -36,7 +36,7 @@ class RunControl:
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self.state = RUNNING
-        self.phase = "start-up"  # start-up, NS, HS, closing
+        self.phase = "start-up"  # start-up, NS, ramp-in, HS, ramp-off, closing (ramps: of static preloads)
         self.step = 0
         self.stop_reason = ""
         self._pause_wanted = False

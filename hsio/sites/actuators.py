@@ -157,33 +157,47 @@ class ActuatorSite:
         return fb
 
     # -- static preloads ------------------------------------------------------------------------
-    def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str, stop=None) -> None:
+    def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str, stop=None, pause=None) -> None:
         """Ramp the static actuators' targets from ``start`` to ``end`` over the longest ``ramp_s``,
         the dynamic ones holding. ``stop`` (a callable) is asked before every step; when it
         answers true the ramp ends where it stands, the static actuators left in force control at
-        their present targets, and :class:`RampStopped` says where (target and measured force)."""
+        their present targets, and :class:`RampStopped` says where (target and measured force).
+        ``pause`` (a callable) is called before every step: an operator's pause holds the ramp
+        there (:meth:`hsio.safety.control.RunControl.checkpoint`), for as long as the operator
+        wants, and a stop while paused ends it as ``stop`` does."""
+        from hsio.safety.status import OperatorStop
+
         self._phase = phase
         ramp_s = max(s.ramp_s for s in self.static)
         steps = max(int(np.ceil(ramp_s / self.loop.t_d)), 1)
         hold = np.array([g.command for g in self.loop.generators[: self.n_dynamic]]) - self.zero
+
+        def stopped(done: int) -> RampStopped:
+            measured = [f.force_kN for f in self.loop.feedback()[self.n_dynamic:]]
+            left = ", ".join(f"{s.name} {t:.4g} kN (measured {f:.4g} kN)"
+                             for s, t, f in zip(self.static, self.static_targets, measured))
+            return RampStopped(f"the {phase.replace('_', ' ')} of the static preloads was stopped after "
+                               f"{done} of {steps} steps; force control left at {left}")
+
         try:
             for k in range(1, steps + 1):
+                if pause is not None:
+                    try:
+                        pause()
+                    except OperatorStop:
+                        raise stopped(k - 1) from None
                 if stop is not None and stop():
-                    measured = [f.force_kN for f in self.loop.feedback()[self.n_dynamic:]]
-                    left = ", ".join(f"{s.name} {t:.4g} kN (measured {f:.4g} kN)"
-                                     for s, t, f in zip(self.static, self.static_targets, measured))
-                    raise RampStopped(f"the {phase.replace('_', ' ')} of the static preloads was stopped after "
-                                      f"{k - 1} of {steps} steps; force control left at {left}")
+                    raise stopped(k - 1)
                 self.static_targets = end.copy() if k == steps else start + (end - start) * (k / steps)
                 self._execute(hold)
         finally:
             self._phase = "test"
 
-    def preload(self, stop=None) -> None:
+    def preload(self, stop=None, pause=None) -> None:
         """Switch the static actuators to force control and ramp their preloads in, the others
         holding where they stand (docs/setups.md). Each ramp starts from the force its actuator
         measures now, so a preload left on by an earlier session is not dropped and reapplied.
-        ``stop``: see :meth:`_ramp`."""
+        ``stop``, ``pause``: see :meth:`_ramp`."""
         if not self.static:
             return
         for j, load in enumerate(self.static):  # refused before anything moves
@@ -193,14 +207,14 @@ class ActuatorSite:
             self.loop.set_mode(self.n_dynamic + j, ControlMode.FORCE)
         present = np.array([f.force_kN for f in self.loop.feedback()[self.n_dynamic:]])
         self.static_targets = present
-        self._ramp(present, np.array([s.force_kN for s in self.static]), "ramp_in", stop)
+        self._ramp(present, np.array([s.force_kN for s in self.static]), "ramp_in", stop, pause)
 
-    def release(self, stop=None) -> None:
-        """Ramp the static preloads off, the others holding where they stand. ``stop``: see
-        :meth:`_ramp`."""
+    def release(self, stop=None, pause=None) -> None:
+        """Ramp the static preloads off, the others holding where they stand. ``stop``,
+        ``pause``: see :meth:`_ramp`."""
         if not self.static:
             return
-        self._ramp(self.static_targets.copy(), np.zeros(len(self.static)), "ramp_off", stop)
+        self._ramp(self.static_targets.copy(), np.zeros(len(self.static)), "ramp_off", stop, pause)
 
     def static_hold_error(self) -> np.ndarray:
         """Per static actuator: the largest |measured - preload| / |preload| while the test ran."""
@@ -233,9 +247,11 @@ class ActuatorSite:
         samples = fb.samples[:, :n] if fb.samples is not None else None
         if samples is not None:
             self._samples.append(self.setups.linearised_samples(samples) if self.setups is not None else samples)
-            # phases per recorded channel: the first n actuators' (with setups, the channels' own)
-            phases = None if fb.phases is None else [list(ph[:n]) for ph in fb.phases]
-            self._sample_meta.append((fb.sample_time, phases if self.setups is None else None))
+            # phases per recorded channel: the first n actuators' (with setups, those of each
+            # channel's element: SetupMap.channel_phases)
+            phases = None if fb.phases is None else [list(ph[:n]) if self.setups is None
+                                                     else self.setups.channel_phases(list(ph[:n])) for ph in fb.phases]
+            self._sample_meta.append((fb.sample_time, phases))
         if self.estimator is not None:
             u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
             if any(src is not None for src in self.external):  # eq. (11) on the instrument's reading

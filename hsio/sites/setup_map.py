@@ -13,7 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hsio.command import Phase
 from hsio.errors import ConfigError
+
+URGENCY = tuple(p.value for p in Phase)  # the command generator's phases, least urgent first
 
 
 @dataclass
@@ -90,6 +93,18 @@ class SetupMap:
             J = s.jacobian(d[b.channels]) * s.factors.force * s.factors.displacement
             f[b.actuators] = np.linalg.solve(J.T, q[b.channels])
         return f
+
+    def channel_phases(self, phases) -> list[str]:
+        """The command generator's phase per channel from its phase per actuator (``phases``, the
+        actuators in order): a channel moves with every actuator of its element, so it takes the
+        most urgent of their phases (in the order interpolate, dwell, extrapolate, slow, hold;
+        the same phase where they agree, as they do when the loop steps them together)."""
+        out: list[str] = []
+        for b in self.blocks:
+            own = list(phases[b.actuators])
+            phase = max(own, key=lambda p: URGENCY.index(p) if p in URGENCY else -1) if own else ""
+            out += [phase] * (b.channels.stop - b.channels.start)
+        return out
 
     def linearised_samples(self, samples: np.ndarray) -> np.ndarray:
         """Controller-rate samples (n x actuators x 3: command, stroke, force) in channel space
