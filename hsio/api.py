@@ -134,7 +134,7 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         takes = "the implicit methods" if misplaced[0] in IMPLICIT_OPTIONS else "method = 'mixed'"
         raise ConfigError(f"{', '.join(misplaced)}: not an option of method = {method!r} "
                           f"({misplaced[0]} applies to {takes})")
-    implicit = {k: v for k, v in implicit.items() if k in allowed}
+    implicit = {k: v for k, v in implicit.items() if k in allowed and v is not None}  # None: off, the default
     if method == "alpha_os":
         return OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha, dofs, K_EI,
                                  correct_measured_displacement)

@@ -140,11 +140,27 @@ def initial_stiffness_thresholds(K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio
     return upper, lower
 
 
-def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max) -> None:
+def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc_force_limit=None, n_elements=1,
+                  no_fc_at_reversal=False) -> None:
     """The guards of mixed control as :class:`ImplicitMethod` takes them (their bounds as in a run
     configuration, docs/config.md)."""
     def whole(value) -> bool:
         return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+    if not isinstance(no_fc_at_reversal, (bool, np.bool_)):
+        raise ConfigError(f"no_fc_at_reversal must be True or False, got {no_fc_at_reversal!r}")
+    if fc_force_limit is not None:
+        try:
+            limit = np.asarray(fc_force_limit, dtype=float)
+        except (TypeError, ValueError):
+            limit = None
+        ok = (limit is not None and not np.iscomplexobj(fc_force_limit) and limit.ndim <= 1
+              and limit.size in ((1, n_elements) if limit.ndim == 1 else (1,))
+              and not isinstance(fc_force_limit, (bool, np.bool_, str))
+              and bool(np.all(np.isfinite(limit) & (limit > 0))))
+        if not ok:
+            raise ConfigError(f"fc_force_limit must be None (off) or a force in kN above 0, one for every element or "
+                              f"one per experimental element ({n_elements}), got {fc_force_limit!r}")
 
     if fallback_after is not None and not (whole(fallback_after) and 0 <= fallback_after <= j_max):
         raise ConfigError(f"fallback_after must be None (off) or a whole number of commands in 0..j_max ({j_max}), "
@@ -245,7 +261,8 @@ faster than FC can follow. ``fc_blend``: the
                  no_fc_at_reversal: bool = False, anchor_dc=True, reset_at_reversal: bool = False):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
-        _check_guards(fallback_after, refractory_steps, explored_fraction, j_max)
+        _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc_force_limit,
+                      np.size(element_dofs), no_fc_at_reversal)
         guards = {"fallback_after": fallback_after not in (None, 0), "refractory_steps": refractory_steps != 0,
                   "explored_fraction": explored_fraction is not None, "fc_force_limit": fc_force_limit is not None,
                   "no_fc_at_reversal": bool(no_fc_at_reversal)}

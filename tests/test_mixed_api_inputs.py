@@ -1,0 +1,28 @@
+"""Options of the implicit methods from Python: a value that is not what the option takes is
+refused with a ConfigError naming it, never read as something else (docs/api.md, docs/force_control.md)."""
+
+import pytest
+
+from hsio.api import make_integrator
+from hsio.errors import ConfigError
+from hsio.structures import get_structure
+
+
+@pytest.mark.parametrize("option, value", [
+    ("fc_blend", "0.5"), ("blend_dc", "no"), ("blend_dc", 1), ("no_fc_at_reversal", "no"),
+    ("no_fc_at_reversal", 0), ("fc_force_limit", -5.0), ("fc_force_limit", float("nan")),
+    ("fc_force_limit", 0.0), ("fc_force_limit", "x"), ("fc_force_limit", [1.0, 2.0, 3.0]), ("fc_force_limit", True),
+])
+def test_a_wrong_kind_of_value_is_refused_naming_the_option(option, value):
+    structure = get_structure("structure_II")  # two experimental elements
+    extra = {"fc_blend": 0.5} if option == "blend_dc" else {}
+    with pytest.raises(ConfigError, match=option):
+        make_integrator(structure, "mixed", **{option: value}, **extra)
+
+
+def test_none_leaves_an_option_at_its_default_and_a_limit_may_be_given_per_element():
+    structure = get_structure("structure_II")
+    for option in ("fc_blend", "blend_dc", "no_fc_at_reversal", "fc_force_limit", "refractory_steps"):
+        make_integrator(structure, "mixed", **{option: None})
+    assert make_integrator(structure, "mixed", fc_force_limit=[5.0, 6.0]).fc_force_limit.tolist() == [5.0, 6.0]
+    assert make_integrator(structure, "mixed", no_fc_at_reversal=True).no_fc_at_reversal
