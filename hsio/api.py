@@ -114,6 +114,13 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         K_EI = [e.K_EI for e in structure.experimental]
     if method == "alpha_os" and rule is not None:
         raise ConfigError("a switching rule applies to method = 'mixed', not to 'alpha_os'")
+    iteration = {"j_max": (j_max, _OFF["j_max"]), "tol_displacement": (tol_displacement, _OFF["tol_displacement_mm"]),
+                 "tol_force": (tol_force, _OFF["tol_force_kN"])}
+    if method == "alpha_os":
+        given = [k for k, (value, default) in iteration.items() if value is not None and value != default]
+        if given:
+            raise ConfigError(f"{', '.join(given)}: not an option of method = 'alpha_os' (one trial per step, no "
+                              f"iteration); they apply to the implicit methods")
     if method != "alpha_os" and not correct_measured_displacement:
         raise ConfigError(f"correct_measured_displacement applies to alpha_os; {method!r} iterates to the target")
     unknown = sorted(set(implicit) - set(OPTIONS_OFF))

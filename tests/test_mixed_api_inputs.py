@@ -26,3 +26,11 @@ def test_none_leaves_an_option_at_its_default_and_a_limit_may_be_given_per_eleme
         make_integrator(structure, "mixed", **{option: None})
     assert make_integrator(structure, "mixed", fc_force_limit=[5.0, 6.0]).fc_force_limit.tolist() == [5.0, 6.0]
     assert make_integrator(structure, "mixed", no_fc_at_reversal=True).no_fc_at_reversal
+
+
+@pytest.mark.parametrize("option, value", [("j_max", 7), ("tol_displacement", 0.5), ("tol_force", 1.0)])
+def test_an_iteration_setting_given_to_alpha_os_is_refused(option, value):
+    structure = get_structure("structure_I")
+    with pytest.raises(ConfigError, match=f"{option}: not an option of method = 'alpha_os'"):
+        make_integrator(structure, "alpha_os", **{option: value})
+    make_integrator(structure, "implicit_dc", **{option: value})
