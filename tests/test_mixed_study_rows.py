@@ -4,6 +4,7 @@ actuator sized to a stiff grid specimen (docs/force_control.md, "hsio study mixe
 import json
 import math
 
+import pytest
 from click.testing import CliRunner
 
 from hsio import study_mixed as sm
@@ -46,3 +47,12 @@ def test_a_stiff_grid_specimen_runs_on_an_actuator_sized_to_it_and_a_stopped_run
     assert rows["implicit_dc"]["fc_fraction"] == 0.0
     for row in rows.values():  # a run that stopped gives its reason, and no error
         assert (row["error_pct"] is None) == bool(row["stopped"])
+
+
+@pytest.mark.parametrize("kw, says", [({"duration_s": 0.0}, "duration_s must be positive, got 0.0"),
+                                      ({"dt": -0.01}, "dt must be positive, got -0.01")])
+def test_a_synthetic_record_of_no_length_says_so(kw, says):
+    from hsio.errors import RecordError
+
+    with pytest.raises(RecordError, match=says):
+        synthetic_record(**kw)
