@@ -112,8 +112,9 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         K_EI = structure.K_EI_basic
     else:
         K_EI = [e.K_EI for e in structure.experimental]
-    if method == "alpha_os" and rule is not None:
-        raise ConfigError("a switching rule applies to method = 'mixed', not to 'alpha_os'")
+    if method != "mixed" and rule is not None:
+        raise ConfigError(f"a switching rule applies to method = 'mixed', not to {method!r} (the other methods do "
+                          f"not switch)")
     iteration = {"j_max": (j_max, _OFF["j_max"]), "tol_displacement": (tol_displacement, _OFF["tol_displacement_mm"]),
                  "tol_force": (tol_force, _OFF["tol_force_kN"])}
     if method == "alpha_os":

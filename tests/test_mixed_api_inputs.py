@@ -34,3 +34,12 @@ def test_an_iteration_setting_given_to_alpha_os_is_refused(option, value):
     with pytest.raises(ConfigError, match=f"{option}: not an option of method = 'alpha_os'"):
         make_integrator(structure, "alpha_os", **{option: value})
     make_integrator(structure, "implicit_dc", **{option: value})
+
+
+@pytest.mark.parametrize("method", ["alpha_os", "implicit_dc", "force_control"])
+def test_a_switching_rule_given_to_a_method_that_does_not_switch_is_refused(method):
+    from hsio.integrators import SwitchingRule
+
+    structure = get_structure("structure_I")
+    with pytest.raises(ConfigError, match=f"a switching rule applies to method = 'mixed', not to '{method}'"):
+        make_integrator(structure, method, rule=SwitchingRule.from_initial_stiffness([2.6]))
