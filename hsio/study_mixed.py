@@ -229,6 +229,9 @@ def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolution
     from hsio.api import run_numerical
     from hsio.ground_motion import synthetic_record
 
+    for name, values in (("stiffnesses", stiffnesses), ("resolutions", resolutions),
+                         ("force_resolutions", force_resolutions)):
+        _check_axis(name, values)
     rows = []
     for k0 in stiffnesses:
         structure = infill_sdof(float(k0))
@@ -245,6 +248,15 @@ def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolution
                 if progress:
                     progress(rows[-len(methods):])
     return rows
+
+
+def _check_axis(name: str, values) -> None:
+    """An axis of the grid: a non-empty sequence of positive finite numbers."""
+    ok = isinstance(values, (list, tuple, np.ndarray)) and len(values) > 0 and all(
+        isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+        and math.isfinite(v) and v > 0 for v in values)
+    if not ok:
+        raise ConfigError(f"grid: {name} must be a non-empty list of positive numbers, got {values!r:.80}")
 
 
 def structures(names=STRUCTURES, duration_s: float = 4.0, resolution_mm: float = 0.025,

@@ -56,3 +56,11 @@ def test_a_synthetic_record_of_no_length_says_so(kw, says):
 
     with pytest.raises(RecordError, match=says):
         synthetic_record(**kw)
+
+
+@pytest.mark.parametrize("axis", [7.2, (), (0.0,), (float("nan"),), ("7.2",), (True,)])
+def test_a_grid_axis_that_is_not_a_list_of_positive_numbers_is_refused(axis):
+    from hsio.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="grid: stiffnesses must be a non-empty list of positive numbers"):
+        sm.grid(stiffnesses=axis, duration_s=0.1)
