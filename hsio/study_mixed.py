@@ -323,21 +323,21 @@ def plot(rows: list[Row], path: str) -> None:
     dFs = sorted({r.force_resolution_kN for r in grid_rows})
     fig, axes = plt.subplots(len(dFs), len(METHODS) + 1, figsize=(4 * (len(METHODS) + 1), 3.2 * len(dFs)),
                              squeeze=False)
-    colours = {"implicit_dc": 0, "force_control": 1, "mixed": 2}
     for i, dF in enumerate(dFs):
         errs = {}
         for j, method in enumerate(METHODS):
-            E = np.full((len(dus), len(ks)), np.nan)
+            E = np.full((len(dus), len(ks)), np.nan)  # NaN: not run; inf: the run stopped
             for r in grid_rows:
                 if r.method == method and r.force_resolution_kN == dF:
-                    E[dus.index(r.resolution_mm), ks.index(r.k0_kN_mm)] = min(r.error_pct, 1e3)
+                    E[dus.index(r.resolution_mm), ks.index(r.k0_kN_mm)] = r.error_pct
             errs[method] = E
             ax = axes[i][j]
-            im = ax.imshow(np.log10(np.maximum(E, 1e-3)), origin="lower", aspect="auto", cmap="viridis")
+            shown = np.where(np.isfinite(E), np.minimum(E, 1e3), np.nan)  # a stopped run is left blank
+            im = ax.imshow(np.log10(np.maximum(shown, 1e-3)), origin="lower", aspect="auto", cmap="viridis")
             fig.colorbar(im, ax=ax, label="log10 error (%)")
-            ax.set_title(f"{method}, dF = {dF:g} kN")
-        stack = np.stack([np.nan_to_num(errs[m], nan=np.inf) for m in METHODS])
-        best = np.argmin(stack, axis=0)
+            ax.set_title(f"{method}, dF = {dF:g} kN" + (" (blank: stopped)" if np.isinf(E).any() else ""))
+        stack = np.stack([np.where(np.isnan(errs[m]), np.inf, errs[m]) for m in METHODS])
+        best = np.where(np.isfinite(stack).any(axis=0), np.argmin(stack, axis=0), np.nan)  # none where all stopped
         ax = axes[i][-1]
         ax.imshow(best, origin="lower", aspect="auto", vmin=0, vmax=2, cmap="Set1")
         ax.set_title(f"winner (0 DC, 1 FC, 2 mixed), dF = {dF:g} kN")
@@ -346,8 +346,6 @@ def plot(rows: list[Row], path: str) -> None:
             a.set_yticks(range(len(dus)), [f"{d:g}" for d in dus])
             a.set_xlabel("k0 (kN/mm)")
             a.set_ylabel("delta_u (mm)")
-        del colours
-        colours = {}
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

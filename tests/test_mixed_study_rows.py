@@ -2,6 +2,7 @@
 actuator sized to a stiff grid specimen (docs/force_control.md, "hsio study mixed")."""
 
 import json
+import numpy as np
 import math
 
 import pytest
@@ -64,3 +65,21 @@ def test_a_grid_axis_that_is_not_a_list_of_positive_numbers_is_refused(axis):
 
     with pytest.raises(ConfigError, match="grid: stiffnesses must be a non-empty list of positive numbers"):
         sm.grid(stiffnesses=axis, duration_s=0.1)
+
+
+def test_the_winner_map_names_no_winner_where_every_run_stopped(monkeypatch, tmp_path):
+    import matplotlib.pyplot as plt
+
+    rows = [_row(m, math.inf) for m in sm.METHODS]  # k0 122.6: every run stopped
+    rows += [sm.Row("grid", 500.0, 0.025, 0.01, m, e, 0, 0, 0.0, 0.49, "" if math.isfinite(e) else "stopped")
+             for m, e in zip(sm.METHODS, (math.inf, 2.0, 3.0))]  # DC stopped: FC wins
+    figures = []
+    monkeypatch.setattr(plt, "close", figures.append)
+    sm.plot(rows, str(tmp_path / "maps.png"))
+    (fig,) = figures
+    def shown(ax):
+        return np.ma.filled(np.ma.asarray(ax.get_images()[0].get_array(), dtype=float), np.nan)
+
+    winner = shown(fig.axes[len(sm.METHODS)])  # the panels come first, then the colour bars
+    assert np.isnan(winner[0, 0]) and winner[0, 1] == 1
+    assert np.isnan(shown(fig.axes[0])[0, 0])  # a stopped run is left blank, not drawn as an error
