@@ -43,3 +43,11 @@ def test_a_switching_rule_given_to_a_method_that_does_not_switch_is_refused(meth
     structure = get_structure("structure_I")
     with pytest.raises(ConfigError, match=f"a switching rule applies to method = 'mixed', not to '{method}'"):
         make_integrator(structure, method, rule=SwitchingRule.from_initial_stiffness([2.6]))
+
+
+@pytest.mark.parametrize("min_increment", ["x", True, None])
+def test_a_secant_estimator_with_a_min_increment_that_is_not_a_number_is_refused(min_increment):
+    from hsio.secant import SecantEstimator
+
+    with pytest.raises(ConfigError, match="min_increment must be zero or positive"):
+        SecantEstimator("raw", 16, min_increment)
