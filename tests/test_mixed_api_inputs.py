@@ -51,3 +51,17 @@ def test_a_secant_estimator_with_a_min_increment_that_is_not_a_number_is_refused
 
     with pytest.raises(ConfigError, match="min_increment must be zero or positive"):
         SecantEstimator("raw", 16, min_increment)
+
+
+@pytest.mark.parametrize("make", [
+    lambda S: S("x", [1.0]), lambda S: S([3.0, 4.0], [1.0, 2.0, 0.5]),
+    lambda S: S.from_initial_stiffness([2.6], -1.0), lambda S: S.from_initial_stiffness([2.6], "3"),
+    lambda S: S.from_initial_stiffness([2.6], 0.0, -2.0), lambda S: S.from_instruments([2.6], "0.025", 0.01),
+    lambda S: S.from_instruments([2.6], None, 0.01),
+])
+def test_a_switching_rule_of_values_that_are_not_thresholds_is_refused(make):
+    from hsio.integrators import SwitchingRule
+
+    with pytest.raises(ConfigError, match="switching rule"):
+        make(SwitchingRule)
+    assert SwitchingRule([3.0, 4.0], [1.0]).lower.tolist() == [1.0]  # one lower threshold for all elements

@@ -51,8 +51,15 @@ class SwitchingRule:
     def __post_init__(self):
         if self.on not in ("stiffness", "force"):
             raise ConfigError(f"switching rule: 'on' must be 'stiffness' or 'force', got {self.on!r}")
-        upper = np.atleast_1d(np.asarray(self.upper, dtype=float))
-        lower = np.atleast_1d(np.asarray(self.lower, dtype=float))
+        try:
+            upper = np.atleast_1d(np.asarray(self.upper, dtype=float))
+            lower = np.atleast_1d(np.asarray(self.lower, dtype=float))
+        except (TypeError, ValueError):
+            raise ConfigError(f"switching rule: thresholds must be numbers, one per element or one for all, got "
+                              f"{self.upper!r:.60}, {self.lower!r:.60}") from None
+        if upper.ndim != 1 or lower.ndim != 1 or not (upper.size == lower.size or 1 in (upper.size, lower.size)):
+            raise ConfigError(f"switching rule: {upper.size} upper and {lower.size} lower threshold(s): give one per "
+                              f"element, or one for all")
         # upper = +inf: the element never goes to FC (e.g. a specimen predicted to dissipate energy)
         if np.any(np.isnan(upper)) or np.any(upper == -np.inf) or np.any(~np.isfinite(lower)) or np.any(lower < 0):
             raise ConfigError(f"switching rule: thresholds must be finite (the upper one may be infinite: never "
@@ -67,6 +74,10 @@ class SwitchingRule:
     def from_initial_stiffness(cls, K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio_f: float = RATIO_F,
                                ratio_d: float = RATIO_D) -> "SwitchingRule":
         """K_f, K_d in kN/mm, or (when zero) ratio_f K^EI and ratio_d K^EI per element."""
+        for name, value in (("K_f", K_f), ("K_d", K_d), ("ratio_f", ratio_f), ("ratio_d", ratio_d)):
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not value >= 0:
+                raise ConfigError(f"switching rule: {name} must be a number, zero or positive (kN/mm; 0: from "
+                                  f"K^EI), got {value!r}")
         return cls(*initial_stiffness_thresholds(K_EI, K_f, K_d, ratio_f, ratio_d), "stiffness")
 
     @classmethod
@@ -84,6 +95,9 @@ class SwitchingRule:
         the hysteresis. Both are per element (the same instruments on every actuator).
         """
         values = (resolution_mm, force_resolution_kN, noise_mm, force_noise_kN, margin, hysteresis)
+        if not all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in values):
+            raise ConfigError(f"switching rule: resolutions, noises, margin and hysteresis must be numbers, got "
+                              f"{values!r}")
         if not all(np.isfinite(values)) or not (margin > 0 and hysteresis > 1) or min(values[:4]) < 0:
             raise ConfigError("switching rule: resolutions and noises must be zero or positive, margin positive, "
                               "hysteresis above 1")
