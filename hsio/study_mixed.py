@@ -232,6 +232,8 @@ def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolution
     for name, values in (("stiffnesses", stiffnesses), ("resolutions", resolutions),
                          ("force_resolutions", force_resolutions)):
         _check_axis(name, values)
+    stiffnesses, resolutions, force_resolutions = (list(dict.fromkeys(float(v) for v in axis))  # each value once
+                                                   for axis in (stiffnesses, resolutions, force_resolutions))
     rows = []
     for k0 in stiffnesses:
         structure = infill_sdof(float(k0))

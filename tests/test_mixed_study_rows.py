@@ -83,3 +83,9 @@ def test_the_winner_map_names_no_winner_where_every_run_stopped(monkeypatch, tmp
     winner = shown(fig.axes[len(sm.METHODS)])  # the panels come first, then the colour bars
     assert np.isnan(winner[0, 0]) and winner[0, 1] == 1
     assert np.isnan(shown(fig.axes[0])[0, 0])  # a stopped run is left blank, not drawn as an error
+
+
+def test_a_value_given_twice_is_run_once():
+    rows = sm.grid(stiffnesses=(50.0, 50), resolutions=(0.025,), force_resolutions=(0.01, 0.01),
+                   duration_s=0.1, methods=("implicit_dc",))
+    assert len(rows) == 1
