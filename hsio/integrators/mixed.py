@@ -323,9 +323,16 @@ faster than FC can follow. ``fc_blend``: the
                            measured_R=np.asarray(R_b, dtype=float), iterations=np.zeros(n_e, dtype=int), converged=True,
                            secant=self.core.k.copy(), u_solution=np.zeros(n_e), R_solution=np.zeros(n_e))
 
-    def _switch(self, step: int, time_s: float, j: int, to: ControlMode, within: bool, k, R) -> Switch:
+    def _switch(self, step: int, time_s: float, j: int, to: ControlMode, within: bool, k, R,
+                reason: str = "rule") -> Switch:
         return Switch(step=step, time_s=float(time_s), dof=self.dof_names[self.dofs[j]], to=to.value,
-                      within_step=within, secant_kN_mm=float(k[j]), force_kN=float(R[j]))
+                      within_step=within, secant_kN_mm=float(k[j]), force_kN=float(R[j]), reason=reason)
+
+    @staticmethod
+    def _fallback_reason(report, j: int) -> str:
+        if report.guarded[j]:
+            return "force outside the FC range"
+        return "not converging" if report.not_converging[j] else "secant below K_d"
 
     def step(self, P_next, site, numerical, step: int = 0, time_s: float = 0.0) -> StepOutcome:
         rng = None
@@ -342,8 +349,8 @@ faster than FC can follow. ``fc_blend``: the
             self.not_converged.append({"step": step, "time_s": float(time_s), "dof": self.dof_names[self.dofs[j]]})
         for j in np.flatnonzero(report.fell_back & ~report.guarded):
             self._dc_until[j] = step + self.refractory_steps
-        switches = [self._switch(step, time_s, j, DC, True, report.k, report.measured_R)
-                    for j in np.flatnonzero(report.fell_back)]
+        switches = [self._switch(step, time_s, j, DC, True, report.k, report.measured_R,
+                                 self._fallback_reason(report, j)) for j in np.flatnonzero(report.fell_back)]
         self.modes = report.modes
         ended_in = list(self.modes)
         if self.rule is not None:
