@@ -112,8 +112,16 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         K_EI = structure.K_EI_basic
     else:
         K_EI = [e.K_EI for e in structure.experimental]
-    if method == "alpha_os" and rule is not None:
-        raise ConfigError("a switching rule applies to method = 'mixed', not to 'alpha_os'")
+    if method != "mixed" and rule is not None:
+        raise ConfigError(f"a switching rule applies to method = 'mixed', not to {method!r} (the other methods do "
+                          f"not switch)")
+    iteration = {"j_max": (j_max, _OFF["j_max"]), "tol_displacement": (tol_displacement, _OFF["tol_displacement_mm"]),
+                 "tol_force": (tol_force, _OFF["tol_force_kN"])}
+    if method == "alpha_os":
+        given = [k for k, (value, default) in iteration.items() if value is not None and value != default]
+        if given:
+            raise ConfigError(f"{', '.join(given)}: not an option of method = 'alpha_os' (one trial per step, no "
+                              f"iteration); they apply to the implicit methods")
     if method != "alpha_os" and not correct_measured_displacement:
         raise ConfigError(f"correct_measured_displacement applies to alpha_os; {method!r} iterates to the target")
     unknown = sorted(set(implicit) - set(OPTIONS_OFF))
@@ -134,7 +142,7 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         takes = "the implicit methods" if misplaced[0] in IMPLICIT_OPTIONS else "method = 'mixed'"
         raise ConfigError(f"{', '.join(misplaced)}: not an option of method = {method!r} "
                           f"({misplaced[0]} applies to {takes})")
-    implicit = {k: v for k, v in implicit.items() if k in allowed}
+    implicit = {k: v for k, v in implicit.items() if k in allowed and v is not None}  # None: off, the default
     if method == "alpha_os":
         return OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha, dofs, K_EI,
                                  correct_measured_displacement)

@@ -143,6 +143,17 @@ def _check_unread(t: dict, source: str) -> None:
         if unread:
             raise ConfigError(f"{source}: [safety] {', '.join(unread)}: not read with dry_run = false (no dry "
                               f"run); remove them or turn the dry run on")
+    integ, off = t["integrator"], DEFAULTS["integrator"]
+    for key, why in UNREAD_BY.get(integ["method"], {}).items():
+        if integ[key] != off[key]:
+            raise ConfigError(f"{source}: [integrator] {key} = {integ[key]!r} is not read by method = "
+                              f"{integ['method']!r} ({why}); remove it, or choose a method that reads it")
+    if integ["secant"] != "average" and integ["secant_n_avg"] != off["secant_n_avg"]:
+        raise ConfigError(f"{source}: [integrator] secant_n_avg is read by secant = 'average' only, not by "
+                          f"secant = {integ['secant']!r}; remove it, or set secant = 'average'")
+    if integ["method"] == "implicit_dc" and integ["fc_blend"] != off["fc_blend"] and not integ["blend_dc"]:
+        raise ConfigError(f"{source}: [integrator] fc_blend is not read by method = 'implicit_dc' (it sets the base of "
+                          f"elements in FC, and there are none) unless blend_dc = true; remove it, or set blend_dc")
     method = t["integrator"]["method"]
     if method != "alpha_os" and not t["output"]["samples"]:
         raise ConfigError(f"{source}: [integrator] method = {method!r} estimates the secant stiffness (eq. 11) from "
@@ -272,6 +283,17 @@ def _check_ranges(t: dict, source: str) -> None:
 # default in DEFAULTS["integrator"], which leaves it off; a switched-on option is refused, never dropped.
 IMPLICIT_OPTIONS = ("fc_blend", "anchor_dc", "blend_dc")
 MIXED_GUARDS = ("fc_fallback_after", "refractory_steps", "no_fc_at_reversal", "explored_fraction", "fc_force_limit_kN")
+
+
+# Keys of the implicit iteration that a method does not read: refused away from their defaults.
+_ITERATION = "alpha-OS makes one trial per step: no iteration, no secant stiffness"
+UNREAD_BY = {
+    "alpha_os": {key: _ITERATION for key in ("j_max", "tol_displacement_mm", "tol_force_kN", "secant", "secant_n_avg",
+                                             "secant_min_increment_mm")},
+    "implicit_dc": {"tol_force_kN": "every element commands displacement: its tolerance is tol_displacement_mm"},
+    "force_control": {"tol_displacement_mm": "every element commands force: its tolerance is tol_force_kN",
+                      "anchor_dc": "no element runs in DC", "blend_dc": "no element runs in DC"},
+}
 
 
 def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:

@@ -245,7 +245,10 @@ def synthetic_record(
                           "negative factor: GroundMotion.scaled)")
     if not zeta_g > 0:
         raise RecordError(f"{what}: zeta_g must be positive (the ground filter's damping ratio), got {zeta_g!r}")
-    if not (duration_s > 0 and dt > 0 and duration_s / dt <= MAX_STEPS):
+    for name, value in (("duration_s", duration_s), ("dt", dt)):
+        if not value > 0:
+            raise RecordError(f"{what}: {name} must be positive, got {value!r}")
+    if not duration_s / dt <= MAX_STEPS:
         raise RecordError(f"synthetic record: {duration_s!r} s at {dt!r} s is beyond the bound of {MAX_STEPS} steps")
     if not DT_MIN_S <= dt <= DT_MAX_S:
         raise RecordError(f"synthetic record: time step {dt:g} s is out of bounds: within {DT_MIN_S:g}..{DT_MAX_S:g} s")

@@ -110,14 +110,19 @@ def control_modes(path: Path, hs) -> Path:
         ax.grid(alpha=0.3)
         switches = [s for s in hs.switches if s.dof == name]
         ax.set_title(f"{name}: {len(switches)} switches, {fc[1:].mean() * 100:.0f} % of steps in FC", fontsize=9, loc="left")
-        ax_k.plot(hs.t, hs.secant[:, j], color="C2", lw=0.8, label="secant stiffness")
-        if th is not None and th["on"] == "stiffness":
+        on_force = th is not None and th["on"] == "force"  # the rule reads |R|: show it against R_f, R_d
+        if on_force:
+            ax_k.plot(hs.t, np.abs(hs.measured_force[:, j]), color="C2", lw=0.8, label="|restoring force|")
+        else:
+            ax_k.plot(hs.t, hs.secant[:, j], color="C2", lw=0.8, label="secant stiffness")
+        if th is not None:
+            up, down = ("R_f", "R_d") if on_force else ("K_f", "K_d")
             if th["upper"][j] is not None:  # None: kept in DC (e.g. the NS gate of the instruments rule)
-                ax_k.axhline(th["upper"][j], color="C3", ls="--", lw=0.8, label="K_f (to FC)")
+                ax_k.axhline(th["upper"][j], color="C3", ls="--", lw=0.8, label=f"{up} (to FC)")
             else:
-                ax_k.plot([], [], color="C3", ls="--", lw=0.8, label="K_f: none (kept in DC)")
-            ax_k.axhline(th["lower"][j], color="C0", ls="--", lw=0.8, label="K_d (to DC)")
-        ax_k.set_ylabel("k (kN/mm)")
+                ax_k.plot([], [], color="C3", ls="--", lw=0.8, label=f"{up}: none (kept in DC)")
+            ax_k.axhline(th["lower"][j], color="C0", ls="--", lw=0.8, label=f"{down} (to DC)")
+        ax_k.set_ylabel("|R| (kN)" if on_force else "k (kN/mm)")
         ax_k.legend(loc="upper right", fontsize=8)
         ax_k.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time (s)")

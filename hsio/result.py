@@ -29,6 +29,10 @@ class Switch:
     within_step: bool  # a fall-back from FC to DC inside a step
     secant_kN_mm: float
     force_kN: float
+    # why: "rule" (the thresholds at the end of a step), or within a step "secant below K_d",
+    # "not converging" (fallback_after commands without reaching the tolerance), "force outside
+    # the FC range" (fc_force_limit / explored_fraction)
+    reason: str = "rule"
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)

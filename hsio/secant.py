@@ -44,7 +44,7 @@ class SecantEstimator:
             raise ConfigError(f"secant stiffness: method must be one of {', '.join(METHODS)}, got {method!r}")
         if isinstance(n_avg, bool) or not isinstance(n_avg, numbers.Integral) or n_avg < 1:
             raise ConfigError(f"secant stiffness: n_avg must be a whole number of samples, at least 1, got {n_avg!r}")
-        if not min_increment >= 0:
+        if isinstance(min_increment, bool) or not isinstance(min_increment, numbers.Real) or not min_increment >= 0:
             raise ConfigError(f"secant stiffness: min_increment must be zero or positive, got {min_increment!r}")
         self.method = method
         self.n_avg = int(n_avg)

@@ -106,6 +106,9 @@ class Row:
     er_fc_pct: float
 
 
+THETA_MAX = 1000.0  # the largest theta of the study's spring (eq. 13) taken from Python
+
+
 def thetas(count: int = 15, low: float = 0.2, high: float = 5.0) -> np.ndarray:
     if count < 2:
         raise ConfigError(f"study: need at least 2 theta values, got {count}")
@@ -166,6 +169,11 @@ def fc_vs_dc(theta_values=None, alphas=(0.0, -0.3), zetas=(0.0, 0.05), dts=(0.02
             raise ConfigError(f"study: theta_values must be numbers, got {theta_values!r}") from None
         if theta_values.ndim != 1 or theta_values.size == 0 or not np.all(np.isfinite(theta_values)):
             raise ConfigError(f"study: theta_values must be a non-empty list of finite numbers, got {theta_values!r}")
+        bad = theta_values[~((theta_values > 0) & (theta_values <= THETA_MAX))]
+        if bad.size:
+            raise ConfigError(f"study: theta = {bad[0]:g} is out of bounds: within (0, {THETA_MAX:g}] (the spring of "
+                              f"eq. 13 must stiffen monotonically for FC to find the displacement of a force, and its "
+                              f"energy stay finite)")
     for dt in dts:
         ratio = dt / dt_exact
         if abs(ratio - round(ratio)) > 1e-9:

@@ -138,8 +138,9 @@ class Row:
     error_pct: float  # inf when the run stopped (an interlock or a command beyond the limits)
     switches: int
     not_converged_steps: int
-    fc_fraction: float
+    fc_fraction: float  # share of the element-steps run in force control (the steps made)
     ns_peak_mm: float
+    stopped: str = ""  # why the run stopped before the end of the record ("": it did not)
 
 
 def infill_sdof(k0: float, dt: float = 0.005, f_hz: float = 8.0) -> Structure:
@@ -149,6 +150,13 @@ def infill_sdof(k0: float, dt: float = 0.005, f_hz: float = 8.0) -> Structure:
             "F_res": 40.0 * s, "u_res": 10.0, "gamma": 40.0}
     m = k0 / (2 * math.pi * f_hz) ** 2
     return sdof(m=m, k=k0, zeta=0.05, dt=dt, specimen=spec)
+
+
+def capacity_kN(k0: float) -> float:
+    """The grid's actuator capacity: the emulator's 250 kN, or twice the infill's peak strength
+    where that is more (a stiff specimen's strength scales with k0, and the study is about the
+    instruments, not about an actuator too small for the specimen)."""
+    return max(250.0, 2.0 * 85.0 * k0 / 122.6)
 
 
 def run_case(case: str, structure: Structure, ground, methods, resolution_mm: float, force_resolution_kN: float,
@@ -193,22 +201,39 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
             except ExperimentStopped as exc:
                 if isinstance(exc.cause, KeyboardInterrupt):  # Ctrl-C stops the study, not this run
                     raise exc.cause from None
-                rows.append(Row(case, k0, resolution_mm, force_resolution_kN, method, math.inf, 0, 0, 1.0, peak))
+                made = exc.result
+                rows.append(Row(case, k0, resolution_mm, force_resolution_kN, method, math.inf, len(made.switches),
+                                _not_converged(made), _fc_fraction(made), peak, str(exc)))
                 continue
         error, _ = max_error_pct(hs.u, ns.u)
-        modes = np.asarray(hs.modes[1:])
         rows.append(Row(case, k0, resolution_mm, force_resolution_kN, method, float(error), len(hs.switches),
-                        int(np.sum(~np.asarray(hs.converged[1:]))), float(np.mean(modes == "force")), peak))
+                        _not_converged(hs), _fc_fraction(hs), peak))
     return rows
+
+
+def _fc_fraction(result) -> float:
+    """Share of the experimental elements' steps run in FC (NaN when no step was made)."""
+    fc = np.asarray(result.force_control[1:], dtype=bool)
+    return float(np.mean(fc)) if fc.size else math.nan
+
+
+def _not_converged(result) -> int:
+    return int(np.sum(~np.asarray(result.converged[1:], dtype=bool)))
 
 
 def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolutions=(0.002, 0.02),
          duration_s: float = 2.0, methods=METHODS, recipe: Recipe = Recipe(), progress=None,
          noise_mm=None) -> list[Row]:
-    """The grid study: every combination, every method (the record scaled to just crack the infill)."""
+    """The grid study: every combination, every method (the record scaled to just crack the infill;
+    the actuator's capacity :func:`capacity_kN`)."""
     from hsio.api import run_numerical
     from hsio.ground_motion import synthetic_record
 
+    for name, values in (("stiffnesses", stiffnesses), ("resolutions", resolutions),
+                         ("force_resolutions", force_resolutions)):
+        _check_axis(name, values)
+    stiffnesses, resolutions, force_resolutions = (list(dict.fromkeys(float(v) for v in axis))  # each value once
+                                                   for axis in (stiffnesses, resolutions, force_resolutions))
     rows = []
     for k0 in stiffnesses:
         structure = infill_sdof(float(k0))
@@ -217,13 +242,23 @@ def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolution
         scale = 0.49 / max(float(np.max(np.abs(ns.u))), 1e-9)
         ground = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=0.1 * scale, seed=1994)
         ns = run_numerical(structure, ground, "mixed", recipe.alpha)
+        emulator = {"force_limit_kN": capacity_kN(float(k0))}
         for du in resolutions:
             for dF in force_resolutions:
                 rows += run_case("grid", structure, ground, methods, float(du), float(dF), recipe=recipe, ns=ns,
-                                 noise_mm=noise_mm)
+                                 noise_mm=noise_mm, emulator=emulator)
                 if progress:
                     progress(rows[-len(methods):])
     return rows
+
+
+def _check_axis(name: str, values) -> None:
+    """An axis of the grid: a non-empty sequence of positive finite numbers."""
+    ok = isinstance(values, (list, tuple, np.ndarray)) and len(values) > 0 and all(
+        isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+        and math.isfinite(v) and v > 0 for v in values)
+    if not ok:
+        raise ConfigError(f"grid: {name} must be a non-empty list of positive numbers, got {values!r:.80}")
 
 
 def structures(names=STRUCTURES, duration_s: float = 4.0, resolution_mm: float = 0.025,
@@ -248,18 +283,25 @@ def structures(names=STRUCTURES, duration_s: float = 4.0, resolution_mm: float =
 
 def winners(rows: list[Row]) -> dict:
     """Per configuration: the method with the smallest error, and whether mixed is within 20 %
-    (relative) or 0.1 percentage point of the better of DC and FC."""
+    (relative) or 0.1 percentage point of the better of DC and FC. A run that stopped (error
+    infinite) wins nothing: where every method stopped, ``best`` is None, and so is ``mixed_ok``
+    where DC, FC and mixed all stopped; a mixed run that stopped where DC or FC finished is not ok."""
     out = {}
     for row in rows:
         out.setdefault((row.case, row.k0_kN_mm, row.resolution_mm, row.force_resolution_kN), {})[row.method] = row
     summary = {}
     for key, by in out.items():
-        best = min(by.values(), key=lambda r: r.error_pct)
+        finished = [r for r in by.values() if math.isfinite(r.error_pct)]
+        best = min(finished, key=lambda r: r.error_pct).method if finished else None
         ok = None
         if {"implicit_dc", "force_control", "mixed"} <= set(by):
             ref = min(by["implicit_dc"].error_pct, by["force_control"].error_pct)
-            ok = by["mixed"].error_pct <= max(1.2 * ref, ref + 0.1)
-        summary[key] = {"best": best.method, "mixed_ok": ok}
+            mixed = by["mixed"].error_pct
+            if math.isfinite(mixed):
+                ok = mixed <= max(1.2 * ref, ref + 0.1)
+            elif math.isfinite(ref):
+                ok = False
+        summary[key] = {"best": best, "mixed_ok": ok}
     return summary
 
 
@@ -283,21 +325,21 @@ def plot(rows: list[Row], path: str) -> None:
     dFs = sorted({r.force_resolution_kN for r in grid_rows})
     fig, axes = plt.subplots(len(dFs), len(METHODS) + 1, figsize=(4 * (len(METHODS) + 1), 3.2 * len(dFs)),
                              squeeze=False)
-    colours = {"implicit_dc": 0, "force_control": 1, "mixed": 2}
     for i, dF in enumerate(dFs):
         errs = {}
         for j, method in enumerate(METHODS):
-            E = np.full((len(dus), len(ks)), np.nan)
+            E = np.full((len(dus), len(ks)), np.nan)  # NaN: not run; inf: the run stopped
             for r in grid_rows:
                 if r.method == method and r.force_resolution_kN == dF:
-                    E[dus.index(r.resolution_mm), ks.index(r.k0_kN_mm)] = min(r.error_pct, 1e3)
+                    E[dus.index(r.resolution_mm), ks.index(r.k0_kN_mm)] = r.error_pct
             errs[method] = E
             ax = axes[i][j]
-            im = ax.imshow(np.log10(np.maximum(E, 1e-3)), origin="lower", aspect="auto", cmap="viridis")
+            shown = np.where(np.isfinite(E), np.minimum(E, 1e3), np.nan)  # a stopped run is left blank
+            im = ax.imshow(np.log10(np.maximum(shown, 1e-3)), origin="lower", aspect="auto", cmap="viridis")
             fig.colorbar(im, ax=ax, label="log10 error (%)")
-            ax.set_title(f"{method}, dF = {dF:g} kN")
-        stack = np.stack([np.nan_to_num(errs[m], nan=np.inf) for m in METHODS])
-        best = np.argmin(stack, axis=0)
+            ax.set_title(f"{method}, dF = {dF:g} kN" + (" (blank: stopped)" if np.isinf(E).any() else ""))
+        stack = np.stack([np.where(np.isnan(errs[m]), np.inf, errs[m]) for m in METHODS])
+        best = np.where(np.isfinite(stack).any(axis=0), np.argmin(stack, axis=0), np.nan)  # none where all stopped
         ax = axes[i][-1]
         ax.imshow(best, origin="lower", aspect="auto", vmin=0, vmax=2, cmap="Set1")
         ax.set_title(f"winner (0 DC, 1 FC, 2 mixed), dF = {dF:g} kN")
@@ -306,8 +348,6 @@ def plot(rows: list[Row], path: str) -> None:
             a.set_yticks(range(len(dus)), [f"{d:g}" for d in dus])
             a.set_xlabel("k0 (kN/mm)")
             a.set_ylabel("delta_u (mm)")
-        del colours
-        colours = {}
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

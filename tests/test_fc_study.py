@@ -1,6 +1,7 @@
 """The FC-vs-DC parametric study (docs/method.md section 3, the paper's Figure 12), on a reduced grid."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -52,3 +53,11 @@ def test_cli_json_and_plot(tmp_path):
     assert len(data) == 2 * 2 * 2 * 2
     assert set(data[0]) == {"alpha", "zeta", "dt", "theta", "er_dc_pct", "er_fc_pct"}
     assert png.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("theta", [-1.0, 0.0, 1e9])
+def test_a_theta_outside_the_spring_is_refused_naming_it(theta):
+    from hsio.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(f"theta = {theta:g} is out of bounds")):
+        study.fc_vs_dc([1.0, theta])

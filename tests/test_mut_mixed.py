@@ -239,7 +239,7 @@ def test_switch_records_step_time_secant_and_force():
         records += [(n, s, out) for s in out.switches]
     assert len(records) == 1
     n, s, out = records[0]
-    assert (n, s.step, s.time_s, s.dof, s.to, s.within_step) == (3, 3, 0.03, "x0", "force", False)
+    assert (n, s.step, s.time_s, s.dof, s.to, s.within_step, s.reason) == (3, 3, 0.03, "x0", "force", False, "rule")
     assert s.secant_kN_mm == 200.0 and s.force_kN == pytest.approx(out.measured_R[0])
     assert out.modes == [DC] and m.modes == [FC]  # the step ran in DC; the next runs in FC
     assert site.mode_changes[-1] == [FC]
@@ -265,7 +265,8 @@ def test_fallback_after_is_reported_with_step_time_and_dof():
             assert m.not_converged == [] and within == [] and not out.converged
             continue
         assert m.not_converged == [{"step": 7, "time_s": 0.07, "dof": "x0"}]
-        assert [(s.step, s.time_s, s.dof, s.to) for s in within] == [(7, 0.07, "x0", "displacement")]
+        assert [(s.step, s.time_s, s.dof, s.to, s.reason) for s in within] == [(7, 0.07, "x0", "displacement",
+                                                                                 "not converging")]
         assert within[0].secant_kN_mm == out.secant[0]
         assert within[0].force_kN == out.measured_R[0]
         kinds = [mo[0] for _, mo in site.sent[first:]]
@@ -303,6 +304,17 @@ def test_refractory_steps_keep_dc_that_many_steps(refractory):
     in_dc = [n for n in range(3, 10) if ran[n] is DC]
     assert in_dc == list(range(3, 3 + max(refractory, 1)))
     assert all(ran[n] is FC for n in range(3 + max(refractory, 1), 10))
+
+
+def test_a_fallback_on_a_soft_secant_says_so():
+    site = _Site([100.0])
+    site.k_seen = [200.0]
+    m = _method(1, method="mixed", rule=SwitchingRule(np.array([150.0]), np.array([50.0])))
+    m.start(np.zeros(1), site, None)
+    m.step(np.array([5.0]), site, None, step=1)
+    site.k_seen = [20.0]
+    out = m.step(np.array([10.0]), site, None, step=2)
+    assert [(s.within_step, s.to, s.reason) for s in out.switches] == [(True, "displacement", "secant below K_d")]
 
 
 def test_refractory_period_starts_only_with_a_fallback():
@@ -347,6 +359,7 @@ def test_fc_force_limit_runs_a_step_beyond_the_limit_in_dc():
     for r in rows:
         within = [s for s in r[4].switches if s.within_step]
         assert [(s.to, s.step) for s in within] == ([("displacement", r[4].switches[0].step)] if r[1] else [])
+        assert all(s.reason == "force outside the FC range" for s in within)
 
 
 def test_explored_fraction_allows_fc_only_inside_rho_times_the_range_carried():

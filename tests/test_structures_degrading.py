@@ -87,6 +87,19 @@ def test_deterioration_accumulates_until_the_energy_capacity_is_spent():
     assert factors[-1] < 0.01  # the capacity E_t = 10 F_y u_y is long spent
 
 
+def test_a_spent_specimen_jittering_about_its_zero_force_point_keeps_a_force():
+    # Once the energy capacity is spent every zero crossing takes 99.9 % off the unloading
+    # stiffness; the transducer's noise about the zero-force point crosses it every few samples.
+    m = make_specimen({**PARAMS, "gamma": 1.0})
+    for u in np.linspace(0, 20, 40).tolist() + np.linspace(20, -20, 80).tolist() + np.linspace(-20, 20, 80).tolist():
+        m.force(u)
+    u_zero = 20.0 - m.force(20.0) / m.unloading_stiffness
+    rng = np.random.default_rng(7)
+    forces = [m.force(u) for u in u_zero + 0.01 * rng.standard_normal(1000)]
+    assert np.all(np.isfinite(forces))
+    assert m.unloading_stiffness >= 1e-9 * PARAMS["k0"]
+
+
 @pytest.mark.parametrize("bad", [{"k0": 0.0}, {"Fy": -1.0}, {"u_c": 1.0}, {"alpha_s": 1.0}, {"residual": 1.2}, {"gamma": 0.0}])
 def test_bad_parameters(bad):
     with pytest.raises(ConfigError, match="peak_oriented"):

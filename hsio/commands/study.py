@@ -104,7 +104,11 @@ def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, durat
     click.echo(f"{'case':>20} {'k0':>7} {'du mm':>7} {'dF kN':>7} {'method':>14} {'error %':>9} {'switches':>8} "
                f"{'not conv':>8} {'FC %':>5}")
     for r in rows:
-        click.echo(f"{r.case:>20} {r.k0_kN_mm:7.1f} {r.resolution_mm:7.4f} {r.force_resolution_kN:7.3f} {r.method:>14} "
+        click.echo(f"{r.case:>20} {r.k0_kN_mm:7.4g} {r.resolution_mm:7.4f} {r.force_resolution_kN:7.3f} {r.method:>14} "
                    f"{r.error_pct:9.3f} {r.switches:8d} {r.not_converged_steps:8d} {100 * r.fc_fraction:5.0f}")
+    for r in rows:
+        if r.stopped:
+            click.echo(f"stopped: {r.case}, k0 {r.k0_kN_mm:g} kN/mm, du {r.resolution_mm:g} mm, dF "
+                       f"{r.force_resolution_kN:g} kN, {r.method}: {r.stopped}")
     if plot_path:
         click.echo(f"plot: {plot_path}")

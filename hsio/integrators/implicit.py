@@ -183,8 +183,11 @@ class ImplicitAlpha:
         if not max_stiffness_ratio > 1:
             raise ConfigError(f"force control: max_stiffness_ratio must exceed 1, got {max_stiffness_ratio!r}")
         self.max_stiffness_ratio = float(max_stiffness_ratio)  # secant estimates above ratio x K^EI are refused
-        if not 0 < fc_blend <= 1:
-            raise ConfigError(f"force control: fc_blend must be in (0, 1], got {fc_blend!r}")
+        if isinstance(fc_blend, bool) or not isinstance(fc_blend, numbers.Real) or not 0 < fc_blend <= 1:
+            raise ConfigError(f"force control: fc_blend must be in (0, 1] (a number), got {fc_blend!r}")
+        for name, flag in (("blend_dc", blend_dc), ("reset_at_reversal", reset_at_reversal)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise ConfigError(f"force control: {name} must be True or False, got {flag!r}")
         self.fc_blend = float(fc_blend)
         self.blend_dc = bool(blend_dc)
         # per element (one bool for all): DC elements modelled through their last measurement

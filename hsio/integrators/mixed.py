@@ -51,8 +51,15 @@ class SwitchingRule:
     def __post_init__(self):
         if self.on not in ("stiffness", "force"):
             raise ConfigError(f"switching rule: 'on' must be 'stiffness' or 'force', got {self.on!r}")
-        upper = np.atleast_1d(np.asarray(self.upper, dtype=float))
-        lower = np.atleast_1d(np.asarray(self.lower, dtype=float))
+        try:
+            upper = np.atleast_1d(np.asarray(self.upper, dtype=float))
+            lower = np.atleast_1d(np.asarray(self.lower, dtype=float))
+        except (TypeError, ValueError):
+            raise ConfigError(f"switching rule: thresholds must be numbers, one per element or one for all, got "
+                              f"{self.upper!r:.60}, {self.lower!r:.60}") from None
+        if upper.ndim != 1 or lower.ndim != 1 or not (upper.size == lower.size or 1 in (upper.size, lower.size)):
+            raise ConfigError(f"switching rule: {upper.size} upper and {lower.size} lower threshold(s): give one per "
+                              f"element, or one for all")
         # upper = +inf: the element never goes to FC (e.g. a specimen predicted to dissipate energy)
         if np.any(np.isnan(upper)) or np.any(upper == -np.inf) or np.any(~np.isfinite(lower)) or np.any(lower < 0):
             raise ConfigError(f"switching rule: thresholds must be finite (the upper one may be infinite: never "
@@ -67,6 +74,10 @@ class SwitchingRule:
     def from_initial_stiffness(cls, K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio_f: float = RATIO_F,
                                ratio_d: float = RATIO_D) -> "SwitchingRule":
         """K_f, K_d in kN/mm, or (when zero) ratio_f K^EI and ratio_d K^EI per element."""
+        for name, value in (("K_f", K_f), ("K_d", K_d), ("ratio_f", ratio_f), ("ratio_d", ratio_d)):
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not value >= 0:
+                raise ConfigError(f"switching rule: {name} must be a number, zero or positive (kN/mm; 0: from "
+                                  f"K^EI), got {value!r}")
         return cls(*initial_stiffness_thresholds(K_EI, K_f, K_d, ratio_f, ratio_d), "stiffness")
 
     @classmethod
@@ -84,6 +95,9 @@ class SwitchingRule:
         the hysteresis. Both are per element (the same instruments on every actuator).
         """
         values = (resolution_mm, force_resolution_kN, noise_mm, force_noise_kN, margin, hysteresis)
+        if not all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in values):
+            raise ConfigError(f"switching rule: resolutions, noises, margin and hysteresis must be numbers, got "
+                              f"{values!r}")
         if not all(np.isfinite(values)) or not (margin > 0 and hysteresis > 1) or min(values[:4]) < 0:
             raise ConfigError("switching rule: resolutions and noises must be zero or positive, margin positive, "
                               "hysteresis above 1")
@@ -140,11 +154,27 @@ def initial_stiffness_thresholds(K_EI, K_f: float = 0.0, K_d: float = 0.0, ratio
     return upper, lower
 
 
-def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max) -> None:
+def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc_force_limit=None, n_elements=1,
+                  no_fc_at_reversal=False) -> None:
     """The guards of mixed control as :class:`ImplicitMethod` takes them (their bounds as in a run
     configuration, docs/config.md)."""
     def whole(value) -> bool:
         return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+    if not isinstance(no_fc_at_reversal, (bool, np.bool_)):
+        raise ConfigError(f"no_fc_at_reversal must be True or False, got {no_fc_at_reversal!r}")
+    if fc_force_limit is not None:
+        try:
+            limit = np.asarray(fc_force_limit, dtype=float)
+        except (TypeError, ValueError):
+            limit = None
+        ok = (limit is not None and not np.iscomplexobj(fc_force_limit) and limit.ndim <= 1
+              and limit.size in ((1, n_elements) if limit.ndim == 1 else (1,))
+              and not isinstance(fc_force_limit, (bool, np.bool_, str))
+              and bool(np.all(np.isfinite(limit) & (limit > 0))))
+        if not ok:
+            raise ConfigError(f"fc_force_limit must be None (off) or a force in kN above 0, one for every element or "
+                              f"one per experimental element ({n_elements}), got {fc_force_limit!r}")
 
     if fallback_after is not None and not (whole(fallback_after) and 0 <= fallback_after <= j_max):
         raise ConfigError(f"fallback_after must be None (off) or a whole number of commands in 0..j_max ({j_max}), "
@@ -245,7 +275,8 @@ faster than FC can follow. ``fc_blend``: the
                  no_fc_at_reversal: bool = False, anchor_dc=True, reset_at_reversal: bool = False):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
-        _check_guards(fallback_after, refractory_steps, explored_fraction, j_max)
+        _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc_force_limit,
+                      np.size(element_dofs), no_fc_at_reversal)
         guards = {"fallback_after": fallback_after not in (None, 0), "refractory_steps": refractory_steps != 0,
                   "explored_fraction": explored_fraction is not None, "fc_force_limit": fc_force_limit is not None,
                   "no_fc_at_reversal": bool(no_fc_at_reversal)}
@@ -292,9 +323,16 @@ faster than FC can follow. ``fc_blend``: the
                            measured_R=np.asarray(R_b, dtype=float), iterations=np.zeros(n_e, dtype=int), converged=True,
                            secant=self.core.k.copy(), u_solution=np.zeros(n_e), R_solution=np.zeros(n_e))
 
-    def _switch(self, step: int, time_s: float, j: int, to: ControlMode, within: bool, k, R) -> Switch:
+    def _switch(self, step: int, time_s: float, j: int, to: ControlMode, within: bool, k, R,
+                reason: str = "rule") -> Switch:
         return Switch(step=step, time_s=float(time_s), dof=self.dof_names[self.dofs[j]], to=to.value,
-                      within_step=within, secant_kN_mm=float(k[j]), force_kN=float(R[j]))
+                      within_step=within, secant_kN_mm=float(k[j]), force_kN=float(R[j]), reason=reason)
+
+    @staticmethod
+    def _fallback_reason(report, j: int) -> str:
+        if report.guarded[j]:
+            return "force outside the FC range"
+        return "not converging" if report.not_converging[j] else "secant below K_d"
 
     def step(self, P_next, site, numerical, step: int = 0, time_s: float = 0.0) -> StepOutcome:
         rng = None
@@ -311,8 +349,8 @@ faster than FC can follow. ``fc_blend``: the
             self.not_converged.append({"step": step, "time_s": float(time_s), "dof": self.dof_names[self.dofs[j]]})
         for j in np.flatnonzero(report.fell_back & ~report.guarded):
             self._dc_until[j] = step + self.refractory_steps
-        switches = [self._switch(step, time_s, j, DC, True, report.k, report.measured_R)
-                    for j in np.flatnonzero(report.fell_back)]
+        switches = [self._switch(step, time_s, j, DC, True, report.k, report.measured_R,
+                                 self._fallback_reason(report, j)) for j in np.flatnonzero(report.fell_back)]
         self.modes = report.modes
         ended_in = list(self.modes)
         if self.rule is not None:

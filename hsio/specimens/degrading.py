@@ -50,6 +50,11 @@ class PeakOriented(Specimen):
     _trial_state: tuple | None = field(default=None, init=False, repr=False)
 
     BETA_MAX = 0.999
+    # The unloading stiffness never falls below this fraction of k0: once the energy capacity is
+    # spent every zero crossing takes BETA_MAX off it, and a specimen jittering about its
+    # zero-force point (the transducer's noise) would underflow it to 0 within a few hundred
+    # crossings, leaving the zero-force point u_c - F_c / k_u undefined.
+    K_U_MIN = 1e-9
 
     def __post_init__(self):
         checks = [(self.k0 > 0, "k0 must be positive"), (self.Fy > 0, "Fy must be positive"),
@@ -143,7 +148,7 @@ class PeakOriented(Specimen):
                     beta = 1.0 if remaining <= E_i else (E_i / remaining) ** self.c
                     beta = min(beta, self.BETA_MAX)
                     s *= 1 - beta
-                    k_u *= 1 - beta
+                    k_u = max(k_u * (1 - beta), self.K_U_MIN * self.k0)
                     E_sum += E_i
                 exc, u0 = d, u_zero
                 path = self._path(u, d, u0, s, u_pos if d > 0 else u_neg)

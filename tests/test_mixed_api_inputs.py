@@ -1,0 +1,67 @@
+"""Options of the implicit methods from Python: a value that is not what the option takes is
+refused with a ConfigError naming it, never read as something else (docs/api.md, docs/force_control.md)."""
+
+import pytest
+
+from hsio.api import make_integrator
+from hsio.errors import ConfigError
+from hsio.structures import get_structure
+
+
+@pytest.mark.parametrize("option, value", [
+    ("fc_blend", "0.5"), ("blend_dc", "no"), ("blend_dc", 1), ("no_fc_at_reversal", "no"),
+    ("no_fc_at_reversal", 0), ("fc_force_limit", -5.0), ("fc_force_limit", float("nan")),
+    ("fc_force_limit", 0.0), ("fc_force_limit", "x"), ("fc_force_limit", [1.0, 2.0, 3.0]), ("fc_force_limit", True),
+])
+def test_a_wrong_kind_of_value_is_refused_naming_the_option(option, value):
+    structure = get_structure("structure_II")  # two experimental elements
+    extra = {"fc_blend": 0.5} if option == "blend_dc" else {}
+    with pytest.raises(ConfigError, match=option):
+        make_integrator(structure, "mixed", **{option: value}, **extra)
+
+
+def test_none_leaves_an_option_at_its_default_and_a_limit_may_be_given_per_element():
+    structure = get_structure("structure_II")
+    for option in ("fc_blend", "blend_dc", "no_fc_at_reversal", "fc_force_limit", "refractory_steps"):
+        make_integrator(structure, "mixed", **{option: None})
+    assert make_integrator(structure, "mixed", fc_force_limit=[5.0, 6.0]).fc_force_limit.tolist() == [5.0, 6.0]
+    assert make_integrator(structure, "mixed", no_fc_at_reversal=True).no_fc_at_reversal
+
+
+@pytest.mark.parametrize("option, value", [("j_max", 7), ("tol_displacement", 0.5), ("tol_force", 1.0)])
+def test_an_iteration_setting_given_to_alpha_os_is_refused(option, value):
+    structure = get_structure("structure_I")
+    with pytest.raises(ConfigError, match=f"{option}: not an option of method = 'alpha_os'"):
+        make_integrator(structure, "alpha_os", **{option: value})
+    make_integrator(structure, "implicit_dc", **{option: value})
+
+
+@pytest.mark.parametrize("method", ["alpha_os", "implicit_dc", "force_control"])
+def test_a_switching_rule_given_to_a_method_that_does_not_switch_is_refused(method):
+    from hsio.integrators import SwitchingRule
+
+    structure = get_structure("structure_I")
+    with pytest.raises(ConfigError, match=f"a switching rule applies to method = 'mixed', not to '{method}'"):
+        make_integrator(structure, method, rule=SwitchingRule.from_initial_stiffness([2.6]))
+
+
+@pytest.mark.parametrize("min_increment", ["x", True, None])
+def test_a_secant_estimator_with_a_min_increment_that_is_not_a_number_is_refused(min_increment):
+    from hsio.secant import SecantEstimator
+
+    with pytest.raises(ConfigError, match="min_increment must be zero or positive"):
+        SecantEstimator("raw", 16, min_increment)
+
+
+@pytest.mark.parametrize("make", [
+    lambda S: S("x", [1.0]), lambda S: S([3.0, 4.0], [1.0, 2.0, 0.5]),
+    lambda S: S.from_initial_stiffness([2.6], -1.0), lambda S: S.from_initial_stiffness([2.6], "3"),
+    lambda S: S.from_initial_stiffness([2.6], 0.0, -2.0), lambda S: S.from_instruments([2.6], "0.025", 0.01),
+    lambda S: S.from_instruments([2.6], None, 0.01),
+])
+def test_a_switching_rule_of_values_that_are_not_thresholds_is_refused(make):
+    from hsio.integrators import SwitchingRule
+
+    with pytest.raises(ConfigError, match="switching rule"):
+        make(SwitchingRule)
+    assert SwitchingRule([3.0, 4.0], [1.0]).lower.tolist() == [1.0]  # one lower threshold for all elements
