@@ -87,6 +87,66 @@ def test_a_lab_map_with_integer_counts_and_little_word_order(tmp_path, cfg):
         emu.stop()
 
 
+COMMAND_BLOCK = """displacement = { offset = 0, type = "float32" }  # mm, used in displacement control
+force        = { offset = 2, type = "float32" }  # kN, used in force control
+mode         = { offset = 4, type = "float32" }  # 0 displacement control, 1 force control
+enable       = { offset = 6, type = "float32" }  # 1 follow the command, 0 hold the present position
+watchdog     = { offset = 8, type = "float32" }  # host counter, changed at every write"""
+
+
+def test_a_command_write_that_would_cover_unnamed_registers_is_refused(tmp_path, cfg):
+    """The commands go in one write: a gap in the block (int16 values at float32 offsets), a
+    stride longer than the block or a register the driver does not know would put 0 into a
+    controller register the map does not name (or crash the exchange). Refused with the address,
+    at load for one axis and at open for the link's axes, before anything is enabled."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    assert COMMAND_BLOCK in text
+    bad = tmp_path / "lab.toml"
+    bad.write_text(text.replace('offset = 0, type = "float32" }  # mm', 'offset = 0, type = "int16", scale = 100.0 }  # mm'))
+    with pytest.raises(ConfigError, match=r"lab.toml: \[command\].*covers address 19, which no register"):
+        modbus_map.load(bad)
+    bad.write_text(text.replace("max_axes = 8", "max_axes = 2").replace(
+        COMMAND_BLOCK, COMMAND_BLOCK + '\nspare = { offset = 10, type = "float32" }').replace(
+        "base = 18\nstride = 10", "base = 18\nstride = 12"))
+    with pytest.raises(ConfigError, match=r"\[command\]: unknown register\(s\) spare"):
+        modbus_map.load(bad)
+    padded = text.replace("base = 18\nstride = 10", "base = 18\nstride = 12")
+    bad.write_text(padded)
+    lab = modbus_map.load(bad)  # one axis: contiguous
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), lab).start()
+    try:
+        with pytest.raises(ConfigError, match=r"write of 2 axis/axes covers address 28"):
+            open_link(emu.url, ["C1", "C2"], LockstepClock(), {"map": str(bad)})
+        assert all(c["enable"] == 0.0 for c in emu.context.commands)  # nothing was written
+    finally:
+        emu.stop()
+
+
+def test_a_lab_map_with_reserved_status_words_runs_on_the_emulator(tmp_path, cfg):
+    """Status blocks with reserved words (a stride longer than the block, a gap between values
+    such as int16 values at float32 offsets) are read in one request; the emulator answers the
+    reserved words with 0, as a controller does, and the run goes through."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    text = text.replace("base = 200\nstride = 8", "base = 200\nstride = 11").replace(
+        'displacement = { offset = 2, type = "float32" }', 'displacement = { offset = 2, type = "int16", scale = 100.0 }')
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(path)).start()
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path)})
+        for _ in range(200):
+            acts[0].command(0.5)
+            acts[1].command(-0.25)
+            clock.tick()
+        fb = acts[0].feedback(), acts[1].feedback()
+        assert fb[0].displacement_mm == pytest.approx(0.5, abs=0.05) and fb[1].displacement_mm == pytest.approx(-0.25, abs=0.05)
+        for a in acts:
+            a.close()
+    finally:
+        emu.stop()
+
+
 # -- hsio run over the wire ----------------------------------------------------------------------
 
 def test_run_over_modbus_tcp_lockstep_equals_in_process(tmp_path):
