@@ -34,7 +34,7 @@ from pymodbus.pdu import ExceptionResponse
 
 from hsio.drivers import common, modbus_map
 from hsio.clock import Clock
-from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError,
+from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError, LimitError,
                          ModbusExceptionError)
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
@@ -122,6 +122,9 @@ class ModbusLink(common.AxisLink):
         self.actuators: list = []
         self.enabling = False
         self._status_span = self.map.status_span(n_axes)
+        # The host watchdog counter and the controller's sequence wrap where their registers do.
+        self.watchdog_mod = self.map.command.registers["watchdog"].counter_modulus()
+        self.sequence_mod = self.map.status.registers["sequence"].counter_modulus()
 
     @property
     def rate_hz(self) -> float:
@@ -224,7 +227,24 @@ class ModbusLink(common.AxisLink):
         why = f" (register map {self.map.name!r} has no such info register or it reads 0)"
         limits = common.resolve_limits(self.url, self.options, self.info.get("stroke_mm"),
                                        self.info.get("force_limit_kN"), why, why)
+        self._check_full_scale(limits)
         return [limits] * self.n
+
+    def _check_full_scale(self, limits: Limits) -> None:
+        """Every command the limits allow, and every measurement inside them, must fit its
+        integer register: a register too narrow for the stroke or the capacity is refused when
+        the link opens, before anything is enabled, never found mid-run."""
+        ranges = {"displacement": (0.5 * limits.stroke_mm, "mm", "stroke_mm", "half stroke"),
+                  "force": (limits.force_kN, "kN", "force_kN", "force capacity")}
+        for table, block in (("command", self.map.command), ("status", self.map.status)):
+            for name, (need, unit, key, what) in ranges.items():
+                reg = block.registers[name]
+                rails = reg.full_scale()
+                if rails is not None and (rails[0] > -need or rails[1] < need):
+                    raise ConfigError(
+                        f"{self.url}: register map {self.map.source or self.map.name}: [{table}] {name} ({reg.type}, scale "
+                        f"{reg.scale:g}) carries {rails[0]:g}..{rails[1]:g} {unit}, less than the {what} +/-{need:g} "
+                        f"{unit} ([driver] {key} or the controller's); widen the register's type or lower its scale")
 
     def _connect(self) -> None:
         try:
@@ -331,10 +351,13 @@ class ModbusLink(common.AxisLink):
 
     def exchange(self, advance: bool) -> None:
         for cmd in self.commands:
-            cmd["watchdog"] = (cmd["watchdog"] + 1.0) % SEQ_MOD
+            cmd["watchdog"] = (cmd["watchdog"] + 1.0) % self.watchdog_mod
         stepping = advance and self.lockstep
         span = self.map.command_span(self.n, with_advance=stepping)
-        words = self.map.pack_commands(self.commands, self.ticks if stepping else None, span)
+        try:
+            words = self.map.pack_commands(self.commands, self.ticks if stepping else None, span)
+        except ValueError as exc:  # a value its register cannot carry: nothing is sent
+            raise LimitError(f"{self.url}: {exc} (register map {self.map.name!r}); not sent") from None
         self.submitted.clear()
         rs, rc = self._status_span
         if self.map.readwrite:
@@ -369,9 +392,9 @@ class ModbusLink(common.AxisLink):
     def _take_status(self, status: list[dict]) -> None:
         self.status = status
         seq = self.status[0]["sequence"]
-        if self.lockstep and seq != self.ticks % SEQ_MOD:
+        if self.lockstep and seq != self.ticks % self.sequence_mod:
             raise CommunicationError(
-                f"{self.url}: controller clock at tick {seq:.0f}, expected {self.ticks % SEQ_MOD} (lockstep lost)")
+                f"{self.url}: controller clock at tick {seq:.0f}, expected {self.ticks % self.sequence_mod} (lockstep lost)")
         self.last_sequence = seq
         self.fresh = [True] * self.n
 
@@ -467,7 +490,7 @@ class ModbusActuator(Actuator, ActuatorChannels):
         cmd = self.link.commands[self.axis]
         if cmd["enable"]:
             return  # a commanded axis is kept alive by its commands
-        cmd["watchdog"] = (cmd["watchdog"] + 1.0) % SEQ_MOD
+        cmd["watchdog"] = (cmd["watchdog"] + 1.0) % self.link.watchdog_mod
         self.link.write_axis(self.axis, ("watchdog",), what=f"watchdog of holding axis {self.axis}")
 
     def holding(self) -> bool:

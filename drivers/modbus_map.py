@@ -58,6 +58,12 @@ class Register:
         low, high = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if fmt.islower() else (0, (1 << bits) - 1)
         return tuple(sorted((low / self.scale, high / self.scale)))
 
+    def counter_modulus(self) -> int:
+        """Where a counter kept in this register wraps: 2^24 in a float32 (whole numbers exact),
+        else one past the largest whole value the integer register holds (2^16 in a uint16)."""
+        rails = self.full_scale()
+        return 1 << 24 if rails is None else max(1, min(1 << 24, int(math.floor(rails[1])) + 1))
+
     def encode(self, value: float, word_order: str) -> list[int]:
         """Registers for an engineering value. Raises ValueError if it does not fit the type."""
         raw = value * self.scale
@@ -305,6 +311,12 @@ def from_dict(data: dict, source: str = "<dict>") -> RegisterMap:
             or len(set(modes.values())) != 2:
         raise ConfigError(f"{source}: [modes] needs distinct whole numbers (0..65535) for 'displacement' and 'force', "
                           f"got {modes!r}")
+    for name, value in modes.items():
+        try:
+            command.registers["mode"].encode(value, word_order)
+        except ValueError:
+            raise ConfigError(f"{source}: [modes] {name} = {value} does not fit the [command] mode register "
+                              f"({command.registers['mode'].type}, scale {command.registers['mode'].scale:g})") from None
     regmap = RegisterMap(
         name=str(head.get("name", Path(source).stem)), word_order=word_order, device_id=device_id,
         max_axes=max_axes, readwrite=readwrite, info=info, lockstep=lockstep,

@@ -149,7 +149,7 @@ class RegisterContext(ModbusServerContext):
         if reg.name == "force":
             return c.measured_force
         if reg.name == "sequence":
-            return float(bank.ticks % (1 << 24))
+            return float(bank.ticks % reg.counter_modulus())
         return 0.0
 
     async def async_getValues(self, device_id, func_code, address, count=1):
@@ -171,6 +171,9 @@ class RegisterContext(ModbusServerContext):
                     return self._exception(ExcCodes.ILLEGAL_ADDRESS, f"read of unmapped register {at}")
                 kind, axis, reg = entry
                 value = self._value(kind, axis, reg)
+                rails = reg.full_scale() if kind == "status" else None
+                if rails is not None:  # a reading beyond an integer register's range saturates
+                    value = min(max(value, rails[0]), rails[1])
                 word_order = self.instrument_map.word_order if kind == "instrument" else self.map.word_order
                 out += reg.encode(value, word_order)
                 at += reg.words

@@ -147,6 +147,60 @@ def test_a_lab_map_with_reserved_status_words_runs_on_the_emulator(tmp_path, cfg
         emu.stop()
 
 
+def test_integer_registers_too_narrow_for_the_limits_are_refused_at_open(tmp_path, cfg):
+    """An int32 displacement at 1e7 counts/mm carries +/-214.7 mm: with a 1000 mm stroke a command
+    of 300 mm passes the stroke check and could not be encoded mid-run. Refused at open, naming
+    the table, the register and the range, before anything is enabled."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    path = tmp_path / "lab.toml"
+    for table, offset, scale in (("command", 0, 1e7), ("status", 2, 1e8)):
+        path.write_text(text.replace(f'displacement = {{ offset = {offset}, type = "float32" }}',
+                                     f'displacement = {{ offset = {offset}, type = "int32", scale = {scale} }}'))
+        emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(path)).start()
+        try:
+            with pytest.raises(ConfigError, match=rf"\[{table}\] displacement \(int32, scale 1e\+0[78]\) carries "
+                                                  r"-21[\d.]+\.\.21[\d.]+ mm, less than the half stroke \+/-500 mm"):
+                open_link(emu.url, ["C1", "C2"], LockstepClock(), {"map": str(path), "stroke_mm": 1000.0})
+            assert all(c["enable"] == 0.0 for c in emu.context.commands)
+        finally:
+            emu.stop()
+    path.write_text(text.replace("[modes]\ndisplacement = 0", "[modes]\ndisplacement = 40000").replace(
+        'mode         = { offset = 4, type = "float32" }', 'mode = { offset = 4, type = "int16" }\n#'))
+    with pytest.raises(ConfigError, match=r"\[modes\] displacement = 40000 does not fit the \[command\] mode register"):
+        modbus_map.load(path)
+
+
+def test_sixteen_bit_watchdog_and_sequence_registers_wrap(tmp_path, cfg):
+    """A lab map with a uint16 host watchdog counter and an int16 sequence: the counter wraps at
+    65536 and the sequence at 32768, at both ends of the wire, and the lockstep check follows."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    text = text.replace('watchdog     = { offset = 8, type = "float32" }', 'watchdog     = { offset = 8, type = "uint16" }\n#')
+    text = text.replace("base = 18\nstride = 10", "base = 18\nstride = 9")
+    text = text.replace('sequence     = { offset = 6, type = "float32" }', 'sequence     = { offset = 6, type = "int16" }')
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    bank = bank_from_config(cfg, lockstep=True)
+    emu = ModbusEmulator(bank, modbus_map.load(path)).start()
+    try:
+        for tick in (10000, 20000, 30000, 32760):
+            bank.advance_to(tick)
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path)})
+        link = acts[0].link
+        for c in link.commands:
+            c["watchdog"] = 65530.0
+        for _ in range(20):
+            acts[0].command(0.1)
+            acts[1].command(0.0)
+            clock.tick()
+        assert link.ticks == 32780 and link.status[0]["sequence"] == 12.0
+        assert link.commands[0]["watchdog"] == 14.0 and emu.context.commands[0]["watchdog"] == 14.0
+        for a in acts:
+            a.close()
+    finally:
+        emu.stop()
+
+
 # -- hsio run over the wire ----------------------------------------------------------------------
 
 def test_run_over_modbus_tcp_lockstep_equals_in_process(tmp_path):
