@@ -209,3 +209,23 @@ def test_a_driver_table_with_the_daq_modules_keys_opens_the_controller(tmp_path)
             assert [a.name for a in site.loop.actuators] == ["C1", "C2"]
     finally:
         emu.stop()
+
+
+def test_probe_move_enables_the_axis_only_after_the_latency_measurement(tmp_path):
+    """The latency measurement only reads; an axis enabled during it would see no command for as
+    long as it lasts (200 requests of 9 ms over RTU at 9600 baud: 1.8 s), and a host watchdog
+    shorter than that would latch before the move began. Here the watchdog is 30 ms and the
+    reads last longer: the move must still run, and the axis hold at its end."""
+    cfg = write_config(tmp_path, extra=QUIET_SENSORS)
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0.03), modbus_map.load()).start()
+    try:
+        result = CliRunner().invoke(probe, [emu.url, "--move", "--json", "--requests", "400", "--sine-hz", "2.0"])
+        report = json.loads(result.stdout)
+        holding = [c.holding for c in emu.bank.controllers]
+    finally:
+        emu.stop()
+    assert result.exit_code == 0, (result.output, report.get("error"))
+    assert report["latency"]["requests"] == 400 and report["latency"]["median_ms"] * 400 > 30
+    assert "error" not in report and report["move"]["rms_tracking_error_mm"] < 0.5
+    assert report["axes"][0]["flags"]["enabled"] is False  # the state is read before anything is enabled
+    assert report["hold"] == CONFIRMED and all(holding)

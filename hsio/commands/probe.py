@@ -2,7 +2,9 @@
 
 Reports the connection and identity, the state of each axis, and the round-trip latency of the
 driver's requests (median, p99 and max over N requests, in ms). Without --move it only reads:
-no axis is enabled and nothing is commanded. With --move, axis 0 makes a small step (ramped at 90 %
+no axis is enabled and nothing is commanded. With --move the axes are enabled after those reads
+(an axis enabled during them would get no command, and a host watchdog would latch), then axis 0
+makes a small step (ramped at 90 %
 of the velocity limit, there and back) and a slow sine of two periods from where it stands (rise
 time, overshoot, RMS tracking error) and comes back. The move is bounded before anything moves
 (:func:`check_move`): the sine lasts at most :data:`SINE_MAX_S` (--sine-hz from
@@ -361,7 +363,7 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
     with stop_on_signals(control):  # SIGTERM and SIGINT ask the probe to stop (exit 5), as they ask a run
         try:
             started = time.perf_counter()
-            actuators = _open(url, axes, table, enable=move)
+            actuators = _open(url, axes, table, enable=False)  # --move enables after the reads
             control.check_stop()
             link = actuators[0].link
             report["connect_s"] = round(time.perf_counter() - started, 4)
@@ -376,6 +378,8 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
             control.enter("the latency measurement")
             report["latency"] = _latency(link, n_requests, control)
             if move:
+                control.enter("the enabling of the axes")
+                link.enable()  # now: an axis enabled during the reads above would get no command
                 clock = LockstepClock() if link.lockstep else RealTimeClock()
                 clock.attach(link)
                 guard = _Guard(actuators[0], clock, safety, control)
