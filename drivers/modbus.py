@@ -2,7 +2,7 @@
 
 ``modbus+tcp://HOST:PORT`` or ``modbus+rtu:///dev/ttyUSB0?baudrate=115200``; the [driver] table
 of the configuration (or the URL's query) sets ``map`` (a TOML register map, default hsio's),
-``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
+``baudrate``, ``parity`` (N, E, O) and ``stopbits`` (RTU), ``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
 ``force_kN``, ``velocity_mm_s``. The stroke and force capacity default to the controller's own
 (its info registers); one it does not report must be set, never guessed (:mod:`hsio.drivers.common`).
 
@@ -49,10 +49,11 @@ EXCEPTION_NAMES = {
     11: "gateway target failed to respond",
 }
 SEQ_MOD = 1 << 24
+PARITIES = ("N", "E", "O")  # Modbus RTU: 8 data bits, parity none, even (the standard's default) or odd
 
 DEFAULT_OPTIONS = {
     "map": "", "timeout_s": 0.5, "retries": 2, "reconnect_delay_s": 0.1, "device_id": None,
-    "baudrate": 115200, "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "lockstep": "auto",
+    "baudrate": 115200, "parity": "N", "stopbits": 1, "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "lockstep": "auto",
     **common.PLAUSIBILITY_DEFAULTS,
 }
 
@@ -62,6 +63,7 @@ RULES = {
     "reconnect_delay_s": common.Rule(float, 0.0, 10.0, False, "between 0 and 10 s"),
     "device_id": common.whole(1, 247),  # 0 is the broadcast address: no device answers it
     "baudrate": common.Rule(int, 1, 10_000_000, False, "a whole number of bit/s, 1..10000000"),
+    "stopbits": common.whole(1, 2),
     **common.PLAUSIBILITY_RULES,
 }
 
@@ -69,6 +71,9 @@ RULES = {
 def parse_options(url: str, options: dict | None) -> dict:
     """The [driver] table and the URL's query, checked (the query wins)."""
     table = common.parse_options(url, options, DEFAULT_OPTIONS, RULES)
+    if table["parity"] not in PARITIES:
+        raise ConfigError(f"[driver] for {url!r}: parity must be one of {', '.join(PARITIES)} (none, even, odd), "
+                          f"got {table['parity']!r}")
     if table["lockstep"] not in ("auto", "on", "off"):
         raise ConfigError(f"[driver] for {url!r}: lockstep must be 'auto', 'on' or 'off', got {table['lockstep']!r}")
     return table
@@ -145,7 +150,8 @@ class ModbusLink(common.AxisLink):
             path = (parts.netloc + parts.path) if parts.netloc else parts.path
             if not path:
                 raise ConfigError(f"{url!r}: expected modbus+rtu:///dev/ttyXXX")
-            return ModbusSerialClient(path, baudrate=int(self.options["baudrate"]), timeout=timeout, retries=0,
+            return ModbusSerialClient(path, baudrate=int(self.options["baudrate"]), parity=self.options["parity"],
+                                      stopbits=int(self.options["stopbits"]), bytesize=8, timeout=timeout, retries=0,
                                       reconnect_delay=0, reconnect_delay_max=0)
         raise ConfigError(f"{url!r} is not a modbus+tcp:// or modbus+rtu:// URL")
 

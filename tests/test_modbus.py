@@ -237,6 +237,21 @@ def test_run_over_modbus_rtu_pty_lockstep_equals_in_process(tmp_path):
         emu.stop()
 
 
+def test_modbus_rtu_parity_and_stop_bits_reach_the_serial_client():
+    """A controller framed 8E1 (the Modbus standard's default for RTU) or 8N2: the [driver] table
+    or the URL's query sets the serial client's parity and stop bits; a bad value is refused by
+    name. (A pseudo-terminal takes no parity, so this is checked on the client, unopened.)"""
+    link = ModbusLink("modbus+rtu:///dev/ttyUSB0?baudrate=19200&parity=E", 1)
+    params = link.client.comm_params
+    assert (params.baudrate, params.parity, params.stopbits, params.bytesize) == (19200, "E", 1, 8)
+    params = ModbusLink("modbus+rtu:///dev/ttyUSB0", 1, {"stopbits": 2}).client.comm_params
+    assert (params.parity, params.stopbits) == ("N", 2)
+    with pytest.raises(ConfigError, match=r"parity must be one of N, E, O.*got 'X'"):
+        ModbusLink("modbus+rtu:///dev/ttyUSB0?parity=X", 1)
+    with pytest.raises(ConfigError, match=r"stopbits must be a whole number in 1..2"):
+        ModbusLink("modbus+rtu:///dev/ttyUSB0", 1, {"stopbits": 3})
+
+
 def test_run_over_modbus_tcp_real_time_within_tracking_tolerance(tmp_path):
     """Real time: the emulator runs its own 1024 Hz loop; HS over TCP matches in-process HS
     within the tracking tolerance (a few tracking-error RMS)."""
