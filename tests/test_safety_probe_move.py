@@ -229,3 +229,28 @@ def test_probe_move_enables_the_axis_only_after_the_latency_measurement(tmp_path
     assert "error" not in report and report["move"]["rms_tracking_error_mm"] < 0.5
     assert report["axes"][0]["flags"]["enabled"] is False  # the state is read before anything is enabled
     assert report["hold"] == CONFIRMED and all(holding)
+
+
+def test_probe_move_with_several_axes_in_real_time_commands_every_axis(tmp_path):
+    """In real time a link sends once every axis has its command: with --axes 2 the other axis
+    is commanded where it stood, every period, so axis 0's step and sine go out (and the host
+    watchdog is fed); both axes hold at the end."""
+    cfg = write_config(tmp_path, extra=QUIET_SENSORS, clock="realtime")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0.2), modbus_map.load()).start()
+    try:
+        result = CliRunner().invoke(probe, [emu.url, "--move", "--json", "--axes", "2", "--requests", "5",
+                                            "--sine-hz", "10", "--step-mm", "0.5"])
+        report = json.loads(result.stdout)
+        holding = [c.holding for c in emu.bank.controllers]
+        rods = [c.d_rod for c in emu.bank.controllers]
+    finally:
+        emu.stop()
+    assert result.exit_code == 0, (result.output, report.get("error"))
+    move = report["move"]
+    # A first-order lag tau = 20 ms on a 1 mm sine at 10 Hz: error amplitude w tau / sqrt(1 + (w tau)^2)
+    # = 0.78 mm, RMS 0.55 mm (axis 0's commands did go out, at the controller's rate).
+    w_tau = 2 * np.pi * 10 * 0.020
+    assert move["rms_tracking_error_mm"] == pytest.approx(w_tau / np.sqrt(1 + w_tau**2) / np.sqrt(2), rel=0.2)
+    assert move["rise_time_s"] > 0
+    assert report["hold"]["confirmed"] and all(holding)
+    assert abs(rods[1]) < 0.05 and abs(rods[0]) < 0.1  # axis 1 stayed, axis 0 came back

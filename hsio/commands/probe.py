@@ -130,30 +130,36 @@ class _Guard:
     (``control``, :class:`hsio.safety.control.RunControl`). A refusal, a trip or a stop raises;
     the caller holds."""
 
-    def __init__(self, actuator, clock, safety=None, control=None):
+    def __init__(self, actuator, clock, safety=None, control=None, others=()):
         from hsio.safety.interlocks import InterlockMonitor
         from hsio.safety.settings import SafetySettings
 
         self.actuator = actuator
+        self.others = list(others)  # the link's other axes: commanded where they stand
         self.clock = clock
         self.control = control
         safety = safety or SafetySettings.from_table({})
-        self.monitor = InterlockMonitor([actuator], safety) if safety.interlocks else None
+        self.monitor = InterlockMonitor([actuator, *self.others], safety) if safety.interlocks else None
         self.start = self.previous = actuator.feedback().displacement_mm
+        self.stands = [o.feedback().displacement_mm for o in self.others]
 
     def send(self, command: float) -> float:
-        """One checked command; the measured displacement after one controller period."""
+        """One checked command (and the other axes' where they stood: in real time a link sends
+        once every axis has its command); axis 0's measured displacement one period later."""
         if self.control is not None:
             self.control.check_stop()
         a = self.actuator
         a.limits.check_velocity((command - self.previous) / self.clock.period_s, f"actuator {a.name!r}")
         a.command(command)
+        for other, x in zip(self.others, self.stands):
+            other.command(x)
         self.previous = command
         self.clock.tick()
-        fb = a.feedback()
+        fbs = [a.feedback(), *(o.feedback() for o in self.others)]
         if self.monitor is not None:
-            self.monitor.check(self.clock.now_s, [command], [fb], [a.mode])
-        return fb.displacement_mm
+            self.monitor.check(self.clock.now_s, [command, *self.stands], fbs,
+                               [a.mode, *(o.mode for o in self.others)])
+        return fbs[0].displacement_mm
 
 
 def _drive(guard: _Guard, commands) -> np.ndarray:
@@ -382,7 +388,7 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
                 link.enable()  # now: an axis enabled during the reads above would get no command
                 clock = LockstepClock() if link.lockstep else RealTimeClock()
                 clock.attach(link)
-                guard = _Guard(actuators[0], clock, safety, control)
+                guard = _Guard(actuators[0], clock, safety, control, others=actuators[1:])
                 start = guard.start
                 check_move(actuators[0].limits, start, step_mm, sine_mm, sine_hz)
                 report["move"] = _move(guard, step_mm, sine_mm, sine_hz, control)
