@@ -160,6 +160,10 @@ class ModbusLink(common.AxisLink):
         every axis into command at the position where it stands."""
         self._connect()
         self._read_info()
+        served = self.info.get("axes")
+        if served is not None and math.isfinite(served) and 1 <= served < self.n:
+            raise ConfigError(f"{self.url}: {self.n} axes asked for, but the controller serves {served:g} (its axes "
+                              "register); one axis per experimental element (and static preload)")
         flag = None
         if self.map.lockstep and self.options["lockstep"] != "off":
             reg = self.map.lockstep["flag"]

@@ -269,6 +269,14 @@ def test_run_over_modbus_tcp_real_time_within_tracking_tolerance(tmp_path):
         emu.stop()
 
 
+def test_more_axes_than_the_controller_serves_is_a_clear_error(tcp_emulator):
+    """The controller reports its axes (info register): asking for more is refused by name at
+    open, before the status read would meet unmapped registers (exception 2)."""
+    with pytest.raises(ConfigError, match=r"3 axes asked for, but the controller serves 2 \(its axes register\)"):
+        open_link(tcp_emulator.url, ["C1", "C2", "C3"], LockstepClock())
+    assert all(c["enable"] == 0.0 for c in tcp_emulator.context.commands)
+
+
 def test_clock_mismatch_is_a_clear_error(cfg, tcp_emulator):
     with pytest.raises(ConfigError, match="lockstep"):
         open_link(tcp_emulator.url, ["C1", "C2"], RealTimeClock())
