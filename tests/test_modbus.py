@@ -350,3 +350,24 @@ def test_bad_driver_options_are_refused():
     with pytest.raises(ConfigError, match="timeout_s must be positive"):
         ModbusLink("modbus+tcp://127.0.0.1:1?timeout_s=0", 1)
     assert math.isfinite(ModbusLink("modbus+tcp://127.0.0.1:1?timeout_s=0.3", 1).timeout_s)
+
+
+def test_a_real_time_run_over_a_link_slower_than_the_period_warns(tmp_path):
+    """Modbus RTU at 9600 baud takes about 9 ms a request, nine controller periods: the real-time
+    schedule cannot be kept. The run completes, counts the overruns in its summary and says so."""
+    from hsio import config as config_mod
+    from hsio import runner
+
+    cfg = write_config(tmp_path, duration=0.03, rate=2.0, clock="realtime",
+                       extra=QUIET_SENSORS + "[safety]\ndry_run = false\n")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False), modbus_map.load(), transport="rtu", baudrate=9600).start()
+    lines: list[str] = []
+    try:
+        run_cfg = config_mod.load(cfg)
+        run_cfg["hardware"]["url"] = emu.url
+        summary = runner.run(run_cfg, tmp_path / "slow", notify=lines.append)
+    finally:
+        emu.stop()
+    assert summary["steps"] == 3 and summary["clock_overruns"] > 0.5 * 3 * 0.02 * 1024
+    warning = [line for line in lines if "did not keep the controller's rate" in line]
+    assert warning and f"{summary['clock_overruns']} of" in warning[0] and "TR 2" in warning[0]
