@@ -254,3 +254,21 @@ def test_probe_move_with_several_axes_in_real_time_commands_every_axis(tmp_path)
     assert move["rise_time_s"] > 0
     assert report["hold"]["confirmed"] and all(holding)
     assert abs(rods[1]) < 0.05 and abs(rods[0]) < 0.1  # axis 1 stayed, axis 0 came back
+
+
+def test_probe_move_over_a_link_slower_than_the_period_warns(tmp_path):
+    """Modbus RTU takes about 2 ms a request, two controller periods: in real time the move runs
+    slower than commanded. The report counts the overruns and warns that its times are in
+    controller periods, not wall-clock time."""
+    cfg = write_config(tmp_path, extra=QUIET_SENSORS, clock="realtime")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False), modbus_map.load(), transport="rtu").start()
+    try:
+        result = CliRunner().invoke(probe, [emu.url, "--move", "--json", "--requests", "5", "--sine-hz", "10",
+                                            "--step-mm", "0.5"])
+        report = json.loads(result.stdout)
+    finally:
+        emu.stop()
+    assert result.exit_code == 0, (result.output, report.get("error"))
+    move = report["move"]
+    assert move["clock_overruns"] > 100 and "ran slower than commanded" in move["warning"]
+    assert report["hold"]["confirmed"]

@@ -391,7 +391,15 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
                 guard = _Guard(actuators[0], clock, safety, control, others=actuators[1:])
                 start = guard.start
                 check_move(actuators[0].limits, start, step_mm, sine_mm, sine_hz)
+                periods = clock.ticks
                 report["move"] = _move(guard, step_mm, sine_mm, sine_hz, control)
+                overruns = getattr(clock, "overruns", 0)
+                report["move"]["clock_overruns"] = overruns
+                if overruns > 0.01 * (clock.ticks - periods):
+                    report["move"]["warning"] = (
+                        f"{overruns} of {clock.ticks - periods} controller periods started more than one period late "
+                        "(the link is slower than the period): the move ran slower than commanded, and its times "
+                        "and frequency are in controller periods, not wall-clock time")
             control.check_stop()
         except click.ClickException as exc:  # a bad value found once the controller answered: nothing moved
             refusal = exc
@@ -468,6 +476,8 @@ def _print(r: dict) -> None:
                    f"(10-90 %, ramp included) {m['rise_time_s'] * 1e3:.1f} ms, overshoot {m['overshoot_pct']:.2f} %")
         click.echo(f"sine       {m['sine_amplitude_mm']:g} mm at {m['sine_hz']:g} Hz: RMS tracking error "
                    f"{m['rms_tracking_error_mm']:.4f} mm")
+        if "warning" in m:
+            click.echo(f"WARNING    {m['warning']}")
     if "hold" in r:
         click.echo(f"hold       {r['hold']['message']}")
     if "error" in r:
