@@ -49,6 +49,7 @@ EXCEPTION_NAMES = {
     11: "gateway target failed to respond",
 }
 SEQ_MOD = 1 << 24
+FROZEN_S = 0.5  # real time: a sequence register unchanged this long means the controller's loop stopped
 PARITIES = ("N", "E", "O")  # Modbus RTU: 8 data bits, parity none, even (the standard's default) or odd
 
 DEFAULT_OPTIONS = {
@@ -122,6 +123,7 @@ class ModbusLink(common.AxisLink):
         self.fresh = [False] * n_axes
         self.submitted: set[int] = set()
         self.last_sequence: float | None = None
+        self._sequence_seen: float | None = None  # wall-clock time the sequence last changed (real time)
         self.requests = 0
         self.reconnects = 0
         self.actuators: list = []
@@ -405,8 +407,24 @@ class ModbusLink(common.AxisLink):
         if self.lockstep and seq != self.ticks % self.sequence_mod:
             raise CommunicationError(
                 f"{self.url}: controller clock at tick {seq:.0f}, expected {self.ticks % self.sequence_mod} (lockstep lost)")
+        if not self.lockstep:
+            self._check_clock_runs(seq)
         self.last_sequence = seq
         self.fresh = [True] * self.n
+
+    def _check_clock_runs(self, seq: float) -> None:
+        """Real time: the controller's sequence register must advance. One that stays put for
+        longer than :data:`FROZEN_S` of wall-clock time belongs to a controller whose loop does
+        not run (a stopped PLC still answering, a lockstep emulator driven with [driver]
+        lockstep = "off"): its measurements are stale, and the run stops."""
+        now = time.monotonic()
+        if seq != self.last_sequence or self._sequence_seen is None:
+            self._sequence_seen = now
+        elif now - self._sequence_seen > FROZEN_S:
+            raise CommunicationError(
+                f"{self.url}: the controller's clock does not run: its sequence register stayed at {seq:.0f} for "
+                f"{now - self._sequence_seen:.2f} s in real time (a controller loop that stopped, or a lockstep "
+                "emulator with [driver] lockstep = \"off\"); its measurements are stale")
 
     def write_axis(self, axis: int, names: tuple[str, ...], what: str) -> None:
         """Write some command registers of one axis (and those between them), e.g. to hold."""

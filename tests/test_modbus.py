@@ -277,6 +277,24 @@ def test_more_axes_than_the_controller_serves_is_a_clear_error(tcp_emulator):
     assert all(c["enable"] == 0.0 for c in tcp_emulator.context.commands)
 
 
+def test_a_controller_whose_clock_does_not_run_stops_a_real_time_run(tmp_path):
+    """A lockstep emulator driven with [driver] lockstep = "off": nothing advances its clock, the
+    actuators never move, and with the measured-displacement correction a linear specimen would
+    give HS == NS exactly (a perfect-looking run on stale measurements). The frozen sequence
+    register stops the run, the actuators hold, and the steps made are recorded."""
+    cfg = write_config(tmp_path, duration=0.5, rate=2.0, clock="realtime",
+                       extra=QUIET_SENSORS + "[safety]\ndry_run = false\n")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load()).start()
+    try:
+        result, rec = run(cfg, tmp_path / "frozen", url=emu.url, driver={"lockstep": "off"})
+    finally:
+        emu.stop()
+    assert not isinstance(result, dict), result
+    assert "the controller's clock does not run: its sequence register stayed at 0" in str(result)
+    assert "the actuators hold (confirmed by read-back)" in str(result)
+    assert 0 < len(rec.steps["step"]) < 50 and emu.bank.ticks == 0
+
+
 def test_clock_mismatch_is_a_clear_error(cfg, tcp_emulator):
     with pytest.raises(ConfigError, match="lockstep"):
         open_link(tcp_emulator.url, ["C1", "C2"], RealTimeClock())
