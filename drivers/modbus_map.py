@@ -311,6 +311,13 @@ def from_dict(data: dict, source: str = "<dict>") -> RegisterMap:
             or len(set(modes.values())) != 2:
         raise ConfigError(f"{source}: [modes] needs distinct whole numbers (0..65535) for 'displacement' and 'force', "
                           f"got {modes!r}")
+    word = status.registers["status_word"]
+    for name, b in bits.items():
+        try:
+            word.encode(float(1 << b), word_order)
+        except ValueError:
+            raise ConfigError(f"{source}: [status_bits] {name} = {b} does not fit the [status] status_word register "
+                              f"({word.type}, scale {word.scale:g})") from None
     for name, value in modes.items():
         try:
             command.registers["mode"].encode(value, word_order)
