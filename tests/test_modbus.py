@@ -175,12 +175,14 @@ def test_integer_registers_too_narrow_for_the_limits_are_refused_at_open(tmp_pat
 
 
 def test_sixteen_bit_watchdog_and_sequence_registers_wrap(tmp_path, cfg):
-    """A lab map with a uint16 host watchdog counter and an int16 sequence: the counter wraps at
-    65536 and the sequence at 32768, at both ends of the wire, and the lockstep check follows."""
+    """A lab map with a uint16 host watchdog counter, an int16 sequence and a uint16 boot id: the
+    counter wraps at 65536 and the sequence at 32768, at both ends of the wire, and the lockstep
+    check follows; the boot id (for restart detection) is served and read."""
     text = modbus_map.DEFAULT_MAP.read_text()
     text = text.replace('watchdog     = { offset = 8, type = "float32" }', 'watchdog     = { offset = 8, type = "uint16" }\n#')
     text = text.replace("base = 18\nstride = 10", "base = 18\nstride = 9")
     text = text.replace('sequence     = { offset = 6, type = "float32" }', 'sequence     = { offset = 6, type = "int16" }')
+    text = text.replace('boot_id        = { address = 6,  type = "float32" }', 'boot_id = { address = 6, type = "uint16" }')
     path = tmp_path / "lab.toml"
     path.write_text(text)
     bank = bank_from_config(cfg, lockstep=True)
@@ -198,6 +200,7 @@ def test_sixteen_bit_watchdog_and_sequence_registers_wrap(tmp_path, cfg):
             acts[1].command(0.0)
             clock.tick()
         assert link.ticks == 32780 and link.status[0]["sequence"] == 12.0
+        assert link.boot_id == emu.bank.boot_id % 65536  # a uint16 boot id, served and read
         assert link.commands[0]["watchdog"] == 14.0 and emu.context.commands[0]["watchdog"] == 14.0
         for a in acts:
             a.close()
