@@ -349,7 +349,8 @@ class ModbusEmulator:
     @property
     def url(self) -> str:
         if self.transport == "tcp":
-            return f"modbus+tcp://{self.host}:{self.port}"
+            host = f"[{self.host}]" if ":" in self.host else self.host  # an IPv6 address in brackets (RFC 3986)
+            return f"modbus+tcp://{host}:{self.port}"
         return f"modbus+rtu://{self.path}?baudrate={self.baudrate}"
 
     def start(self) -> "ModbusEmulator":

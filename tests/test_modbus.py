@@ -302,6 +302,20 @@ def test_a_controller_whose_clock_does_not_run_stops_a_real_time_run(tmp_path):
     assert 0 < len(rec.steps["step"]) < 50 and emu.bank.ticks == 0
 
 
+def test_an_emulator_on_ipv6_loopback_gives_a_url_the_driver_opens(cfg):
+    """Bound to ::1, the emulator's URL puts the address in brackets (RFC 3986), and the driver
+    connects with it."""
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), host="::1").start()
+    try:
+        assert emu.url == f"modbus+tcp://[::1]:{emu.port}"
+        acts = open_link(emu.url, ["C1", "C2"], LockstepClock())
+        assert acts[0].link.info["axes"] == 2.0
+        for a in acts:
+            a.close()
+    finally:
+        emu.stop()
+
+
 def test_clock_mismatch_is_a_clear_error(cfg, tcp_emulator):
     with pytest.raises(ConfigError, match="lockstep"):
         open_link(tcp_emulator.url, ["C1", "C2"], RealTimeClock())
