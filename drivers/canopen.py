@@ -66,6 +66,7 @@ RULES = {
     "counts_per_mm": common.Rule(float, 1e-3, 1e9, False, "between 0.001 and 1e9 counts per mm"),
     **common.PLAUSIBILITY_RULES,
 }
+COUNTS_MAX = 2**31 - 1  # the target and actual positions 0x607A, 0x6064 are int32 counts
 PERMILLE_MAX = 32767  # the CiA 402 torque objects are int16, per mille of the rated value 0x6076
 
 
@@ -301,6 +302,12 @@ class DriveNode:
         force = None if self.max_torque_permille is None else self.max_torque_permille * self.rated_N / 1e6
         limits = common.resolve_limits(where, options, stroke, force, stroke_why,
                                        " (no max torque 0x6072)")
+        reach = COUNTS_MAX / self.counts_per_mm
+        if limits.half_stroke_mm > reach:
+            key = "[driver] stroke_mm" if options["stroke_mm"] is not None else "0x607D"
+            raise ConfigError(f"{where}: the half stroke {limits.half_stroke_mm:g} mm ({key}) at {self.counts_per_mm:g} "
+                              f"counts per mm is beyond what the int32 target position 0x607A carries ({COUNTS_MAX} "
+                              f"counts = {reach:.6g} mm); check [driver] counts_per_mm or the drive's position factor")
         top = PERMILLE_MAX * self.rated_N / 1e6
         if limits.force_kN > top:
             key = "[driver] force_kN" if options["force_kN"] is not None else "the max torque 0x6072"

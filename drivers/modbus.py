@@ -2,7 +2,7 @@
 
 ``modbus+tcp://HOST:PORT`` or ``modbus+rtu:///dev/ttyUSB0?baudrate=115200``; the [driver] table
 of the configuration (or the URL's query) sets ``map`` (a TOML register map, default hsio's),
-``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
+``baudrate``, ``parity`` (N, E, O) and ``stopbits`` (RTU), ``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
 ``force_kN``, ``velocity_mm_s``. The stroke and force capacity default to the controller's own
 (its info registers); one it does not report must be set, never guessed (:mod:`hsio.drivers.common`).
 
@@ -34,7 +34,7 @@ from pymodbus.pdu import ExceptionResponse
 
 from hsio.drivers import common, modbus_map
 from hsio.clock import Clock
-from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError,
+from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError, LimitError,
                          ModbusExceptionError)
 from hsio.interfaces import Actuator, ActuatorChannels, ControlMode, Feedback, Limits
 
@@ -49,10 +49,12 @@ EXCEPTION_NAMES = {
     11: "gateway target failed to respond",
 }
 SEQ_MOD = 1 << 24
+FROZEN_S = 0.5  # real time: a sequence register unchanged this long means the controller's loop stopped
+PARITIES = ("N", "E", "O")  # Modbus RTU: 8 data bits, parity none, even (the standard's default) or odd
 
 DEFAULT_OPTIONS = {
     "map": "", "timeout_s": 0.5, "retries": 2, "reconnect_delay_s": 0.1, "device_id": None,
-    "baudrate": 115200, "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "lockstep": "auto",
+    "baudrate": 115200, "parity": "N", "stopbits": 1, "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "lockstep": "auto",
     **common.PLAUSIBILITY_DEFAULTS,
 }
 
@@ -62,6 +64,7 @@ RULES = {
     "reconnect_delay_s": common.Rule(float, 0.0, 10.0, False, "between 0 and 10 s"),
     "device_id": common.whole(1, 247),  # 0 is the broadcast address: no device answers it
     "baudrate": common.Rule(int, 1, 10_000_000, False, "a whole number of bit/s, 1..10000000"),
+    "stopbits": common.whole(1, 2),
     **common.PLAUSIBILITY_RULES,
 }
 
@@ -69,6 +72,9 @@ RULES = {
 def parse_options(url: str, options: dict | None) -> dict:
     """The [driver] table and the URL's query, checked (the query wins)."""
     table = common.parse_options(url, options, DEFAULT_OPTIONS, RULES)
+    if table["parity"] not in PARITIES:
+        raise ConfigError(f"[driver] for {url!r}: parity must be one of {', '.join(PARITIES)} (none, even, odd), "
+                          f"got {table['parity']!r}")
     if table["lockstep"] not in ("auto", "on", "off"):
         raise ConfigError(f"[driver] for {url!r}: lockstep must be 'auto', 'on' or 'off', got {table['lockstep']!r}")
     return table
@@ -117,11 +123,15 @@ class ModbusLink(common.AxisLink):
         self.fresh = [False] * n_axes
         self.submitted: set[int] = set()
         self.last_sequence: float | None = None
+        self._sequence_seen: float | None = None  # wall-clock time the sequence last changed (real time)
         self.requests = 0
         self.reconnects = 0
         self.actuators: list = []
         self.enabling = False
         self._status_span = self.map.status_span(n_axes)
+        # The host watchdog counter and the controller's sequence wrap where their registers do.
+        self.watchdog_mod = self.map.command.registers["watchdog"].counter_modulus()
+        self.sequence_mod = self.map.status.registers["sequence"].counter_modulus()
 
     @property
     def rate_hz(self) -> float:
@@ -142,7 +152,8 @@ class ModbusLink(common.AxisLink):
             path = (parts.netloc + parts.path) if parts.netloc else parts.path
             if not path:
                 raise ConfigError(f"{url!r}: expected modbus+rtu:///dev/ttyXXX")
-            return ModbusSerialClient(path, baudrate=int(self.options["baudrate"]), timeout=timeout, retries=0,
+            return ModbusSerialClient(path, baudrate=int(self.options["baudrate"]), parity=self.options["parity"],
+                                      stopbits=int(self.options["stopbits"]), bytesize=8, timeout=timeout, retries=0,
                                       reconnect_delay=0, reconnect_delay_max=0)
         raise ConfigError(f"{url!r} is not a modbus+tcp:// or modbus+rtu:// URL")
 
@@ -151,6 +162,10 @@ class ModbusLink(common.AxisLink):
         every axis into command at the position where it stands."""
         self._connect()
         self._read_info()
+        served = self.info.get("axes")
+        if served is not None and math.isfinite(served) and 1 <= served < self.n:
+            raise ConfigError(f"{self.url}: {self.n} axes asked for, but the controller serves {served:g} (its axes "
+                              "register); one axis per experimental element (and static preload)")
         flag = None
         if self.map.lockstep and self.options["lockstep"] != "off":
             reg = self.map.lockstep["flag"]
@@ -224,7 +239,24 @@ class ModbusLink(common.AxisLink):
         why = f" (register map {self.map.name!r} has no such info register or it reads 0)"
         limits = common.resolve_limits(self.url, self.options, self.info.get("stroke_mm"),
                                        self.info.get("force_limit_kN"), why, why)
+        self._check_full_scale(limits)
         return [limits] * self.n
+
+    def _check_full_scale(self, limits: Limits) -> None:
+        """Every command the limits allow, and every measurement inside them, must fit its
+        integer register: a register too narrow for the stroke or the capacity is refused when
+        the link opens, before anything is enabled, never found mid-run."""
+        ranges = {"displacement": (0.5 * limits.stroke_mm, "mm", "stroke_mm", "half stroke"),
+                  "force": (limits.force_kN, "kN", "force_kN", "force capacity")}
+        for table, block in (("command", self.map.command), ("status", self.map.status)):
+            for name, (need, unit, key, what) in ranges.items():
+                reg = block.registers[name]
+                rails = reg.full_scale()
+                if rails is not None and (rails[0] > -need or rails[1] < need):
+                    raise ConfigError(
+                        f"{self.url}: register map {self.map.source or self.map.name}: [{table}] {name} ({reg.type}, scale "
+                        f"{reg.scale:g}) carries {rails[0]:g}..{rails[1]:g} {unit}, less than the {what} +/-{need:g} "
+                        f"{unit} ([driver] {key} or the controller's); widen the register's type or lower its scale")
 
     def _connect(self) -> None:
         try:
@@ -331,10 +363,13 @@ class ModbusLink(common.AxisLink):
 
     def exchange(self, advance: bool) -> None:
         for cmd in self.commands:
-            cmd["watchdog"] = (cmd["watchdog"] + 1.0) % SEQ_MOD
+            cmd["watchdog"] = (cmd["watchdog"] + 1.0) % self.watchdog_mod
         stepping = advance and self.lockstep
         span = self.map.command_span(self.n, with_advance=stepping)
-        words = self.map.pack_commands(self.commands, self.ticks if stepping else None, span)
+        try:
+            words = self.map.pack_commands(self.commands, self.ticks if stepping else None, span)
+        except ValueError as exc:  # a value its register cannot carry: nothing is sent
+            raise LimitError(f"{self.url}: {exc} (register map {self.map.name!r}); not sent") from None
         self.submitted.clear()
         rs, rc = self._status_span
         if self.map.readwrite:
@@ -369,11 +404,27 @@ class ModbusLink(common.AxisLink):
     def _take_status(self, status: list[dict]) -> None:
         self.status = status
         seq = self.status[0]["sequence"]
-        if self.lockstep and seq != self.ticks % SEQ_MOD:
+        if self.lockstep and seq != self.ticks % self.sequence_mod:
             raise CommunicationError(
-                f"{self.url}: controller clock at tick {seq:.0f}, expected {self.ticks % SEQ_MOD} (lockstep lost)")
+                f"{self.url}: controller clock at tick {seq:.0f}, expected {self.ticks % self.sequence_mod} (lockstep lost)")
+        if not self.lockstep:
+            self._check_clock_runs(seq)
         self.last_sequence = seq
         self.fresh = [True] * self.n
+
+    def _check_clock_runs(self, seq: float) -> None:
+        """Real time: the controller's sequence register must advance. One that stays put for
+        longer than :data:`FROZEN_S` of wall-clock time belongs to a controller whose loop does
+        not run (a stopped PLC still answering, a lockstep emulator driven with [driver]
+        lockstep = "off"): its measurements are stale, and the run stops."""
+        now = time.monotonic()
+        if seq != self.last_sequence or self._sequence_seen is None:
+            self._sequence_seen = now
+        elif now - self._sequence_seen > FROZEN_S:
+            raise CommunicationError(
+                f"{self.url}: the controller's clock does not run: its sequence register stayed at {seq:.0f} for "
+                f"{now - self._sequence_seen:.2f} s in real time (a controller loop that stopped, or a lockstep "
+                "emulator with [driver] lockstep = \"off\"); its measurements are stale")
 
     def write_axis(self, axis: int, names: tuple[str, ...], what: str) -> None:
         """Write some command registers of one axis (and those between them), e.g. to hold."""
@@ -467,7 +518,7 @@ class ModbusActuator(Actuator, ActuatorChannels):
         cmd = self.link.commands[self.axis]
         if cmd["enable"]:
             return  # a commanded axis is kept alive by its commands
-        cmd["watchdog"] = (cmd["watchdog"] + 1.0) % SEQ_MOD
+        cmd["watchdog"] = (cmd["watchdog"] + 1.0) % self.link.watchdog_mod
         self.link.write_axis(self.axis, ("watchdog",), what=f"watchdog of holding axis {self.axis}")
 
     def holding(self) -> bool:

@@ -58,6 +58,12 @@ class Register:
         low, high = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if fmt.islower() else (0, (1 << bits) - 1)
         return tuple(sorted((low / self.scale, high / self.scale)))
 
+    def counter_modulus(self) -> int:
+        """Where a counter kept in this register wraps: 2^24 in a float32 (whole numbers exact),
+        else one past the largest whole value the integer register holds (2^16 in a uint16)."""
+        rails = self.full_scale()
+        return 1 << 24 if rails is None else max(1, min(1 << 24, int(math.floor(rails[1])) + 1))
+
     def encode(self, value: float, word_order: str) -> list[int]:
         """Registers for an engineering value. Raises ValueError if it does not fit the type."""
         raw = value * self.scale
@@ -132,6 +138,18 @@ class RegisterMap:
         if write > write_max:
             raise ConfigError(f"{self.source}: [command] {n_axes} axis/axes span {write} registers from {start} (stride "
                               f"{self.command.stride}, with the lockstep advance); one Modbus write carries at most {write_max}")
+        named = {a for k in range(n_axes) for r in self.command.registers.values()
+                 for a in range(self.command.address(k, r.name), self.command.address(k, r.name) + r.words)}
+        if self.lockstep:
+            adv = self.lockstep["advance"]
+            named.update(range(adv.address, adv.address + adv.words))
+        gaps = [a for a in range(start, start + write) if a not in named]
+        if gaps:
+            raise ConfigError(f"{self.source}: [command] the write of {n_axes} axis/axes covers address {gaps[0]}, which "
+                              f"no register of the map names ({len(gaps)} such address(es) from {start} to "
+                              f"{start + write - 1}); the commands of every axis (and the lockstep advance) go in one "
+                              "write, which would put 0 there: make the block contiguous (stride equal to its length, "
+                              "no gap between its registers or before the advance)")
 
     # -- conversion ----------------------------------------------------------------------------
     def encode(self, reg: Register, value: float) -> list[int]:
@@ -221,13 +239,16 @@ def _check_overlap(where: str, regs) -> None:
             used[a] = r.name
 
 
-def _block(where: str, table, required) -> Block:
+def _block(where: str, table, required, only: bool = False) -> Block:
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: must be a table")
     for key in ("base", "stride"):
         if isinstance(table.get(key), bool) or not isinstance(table.get(key), int) or not 0 <= table[key] <= 0xFFFF:
             raise ConfigError(f"{where}: {key} must be an integer in 0..65535, got {table.get(key)!r}")
     regs = _registers(where, table, "offset", required, skip=("base", "stride"))
+    unknown = set(regs) - set(required)
+    if only and unknown:
+        raise ConfigError(f"{where}: unknown register(s) {', '.join(sorted(unknown))}; known: {', '.join(required)}")
     block = Block(table["base"], table["stride"], regs)
     if block.stride < block.extent:
         raise ConfigError(f"{where}: stride {block.stride} is shorter than the block ({block.extent} registers)")
@@ -268,7 +289,7 @@ def from_dict(data: dict, source: str = "<dict>") -> RegisterMap:
     reset = _registers(f"{source}: [reset]", data.get("reset", {}), "address", ())
     if reset and set(reset) != {"interlock"}:
         raise ConfigError(f"{source}: [reset] has one register, 'interlock'; got {', '.join(sorted(reset))}")
-    command = _block(f"{source}: [command]", data.get("command"), COMMAND_NAMES)
+    command = _block(f"{source}: [command]", data.get("command"), COMMAND_NAMES, only=True)
     status = _block(f"{source}: [status]", data.get("status"), STATUS_NAMES)
     bits = dict(data.get("status_bits", {}))
     missing = [b for b in STATUS_BITS if b not in bits]
@@ -290,6 +311,19 @@ def from_dict(data: dict, source: str = "<dict>") -> RegisterMap:
             or len(set(modes.values())) != 2:
         raise ConfigError(f"{source}: [modes] needs distinct whole numbers (0..65535) for 'displacement' and 'force', "
                           f"got {modes!r}")
+    word = status.registers["status_word"]
+    for name, b in bits.items():
+        try:
+            word.encode(float(1 << b), word_order)
+        except ValueError:
+            raise ConfigError(f"{source}: [status_bits] {name} = {b} does not fit the [status] status_word register "
+                              f"({word.type}, scale {word.scale:g})") from None
+    for name, value in modes.items():
+        try:
+            command.registers["mode"].encode(value, word_order)
+        except ValueError:
+            raise ConfigError(f"{source}: [modes] {name} = {value} does not fit the [command] mode register "
+                              f"({command.registers['mode'].type}, scale {command.registers['mode'].scale:g})") from None
     regmap = RegisterMap(
         name=str(head.get("name", Path(source).stem)), word_order=word_order, device_id=device_id,
         max_axes=max_axes, readwrite=readwrite, info=info, lockstep=lockstep,

@@ -24,7 +24,7 @@ from pymodbus.exceptions import NoSuchIdException
 from pymodbus.pdu.device import ModbusDeviceIdentification
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
-from hsio.drivers.modbus_map import RegisterMap
+from hsio.drivers.modbus_map import Register, RegisterMap
 from hsio.emulators.bank import CommandRefused, ControllerBank
 from hsio.interfaces import ControlMode
 
@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())
 
 READ_CODES = (3, 23)
+_RESERVED = Register("reserved", 0, "uint16")
 WRITE_CODES = (6, 16, 23)
 
 
@@ -64,6 +65,15 @@ class RegisterContext(ModbusServerContext):
                 self.readable[at] = self.writable[at] = ("command", k, reg)
             for name, reg in regmap.status.registers.items():
                 self.readable[regmap.status.address(k, name)] = ("status", k, reg)
+        # An address inside a status block that the map leaves unnamed (a reserved word, the
+        # stride's padding) reads as 0, as a controller's reserved status words do.
+        status = regmap.status
+        covered = {a for k in range(self.n) for r in status.registers.values()
+                   for a in range(status.address(k, r.name), status.address(k, r.name) + r.words)}
+        for k in range(self.n):
+            for a in range(status.base + k * status.stride, status.base + (k + 1) * status.stride):
+                if a not in covered and a <= 0xFFFF:
+                    self.readable[a] = ("reserved", k, _RESERVED)
         # The command registers as last written (the host reads back what it wrote).
         self.commands = [{"displacement": 0.0, "force": 0.0, "mode": float(regmap.modes["displacement"]),
                           "enable": 0.0, "watchdog": 0.0} for _ in range(self.n)]
@@ -109,7 +119,7 @@ class RegisterContext(ModbusServerContext):
         self.instrument_map = daq_map
         for inst, reg in zip(daq.instruments, daq_map.inputs):
             for a in range(reg.address, reg.address + reg.words):
-                if a in self.readable or a in self.writable:
+                if self.readable.get(a, ("reserved",))[0] != "reserved" or a in self.writable:
                     raise ValueError(f"DAQ input {reg.name!r} at {a} overlaps the controller's registers")
             self.readable[reg.address] = ("instrument", inst, reg)
 
@@ -121,6 +131,8 @@ class RegisterContext(ModbusServerContext):
             rails = reg.full_scale()
             return value if rails is None else min(max(value, rails[0]), rails[1])
         if kind == "info":
+            if reg.name == "boot_id":  # a random number: wrapped into the register a lab map gives it
+                return float(int(bank.boot_id) % reg.counter_modulus())
             c = bank.controllers[0].config
             return {"map_version": 1.0, "axes": float(self.n), "rate_hz": bank.rate_hz, "boot_id": bank.boot_id,
                     "stroke_mm": c.stroke_mm, "force_limit_kN": c.force_limit_kN,
@@ -129,7 +141,7 @@ class RegisterContext(ModbusServerContext):
             return (1.0 if bank.lockstep else 0.0) if reg.name == "flag" else float(bank.ticks)
         if kind == "command":
             return self.commands[axis][reg.name]
-        if kind == "reset":
+        if kind in ("reset", "reserved"):
             return 0.0
         c = bank.controllers[axis]
         if reg.name == "status_word":
@@ -139,7 +151,7 @@ class RegisterContext(ModbusServerContext):
         if reg.name == "force":
             return c.measured_force
         if reg.name == "sequence":
-            return float(bank.ticks % (1 << 24))
+            return float(bank.ticks % reg.counter_modulus())
         return 0.0
 
     async def async_getValues(self, device_id, func_code, address, count=1):
@@ -161,6 +173,9 @@ class RegisterContext(ModbusServerContext):
                     return self._exception(ExcCodes.ILLEGAL_ADDRESS, f"read of unmapped register {at}")
                 kind, axis, reg = entry
                 value = self._value(kind, axis, reg)
+                rails = reg.full_scale() if kind == "status" else None
+                if rails is not None:  # a reading beyond an integer register's range saturates
+                    value = min(max(value, rails[0]), rails[1])
                 word_order = self.instrument_map.word_order if kind == "instrument" else self.map.word_order
                 out += reg.encode(value, word_order)
                 at += reg.words
@@ -334,7 +349,8 @@ class ModbusEmulator:
     @property
     def url(self) -> str:
         if self.transport == "tcp":
-            return f"modbus+tcp://{self.host}:{self.port}"
+            host = f"[{self.host}]" if ":" in self.host else self.host  # an IPv6 address in brackets (RFC 3986)
+            return f"modbus+tcp://{host}:{self.port}"
         return f"modbus+rtu://{self.path}?baudrate={self.baudrate}"
 
     def start(self) -> "ModbusEmulator":

@@ -385,6 +385,9 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ground: Groun
         raise DryRunRefused(text)
 
 
+OVERRUN_WARNING = 0.01  # a real-time run warns when more than this fraction of its periods overran
+
+
 def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, ground: GroundMotion | None = None,
         control: RunControl | None = None, specimen_dir: str | Path | None = None, notify=None) -> dict:
     """Run a hybrid simulation as configured; write run.sqlite, plots and summary.json in a new
@@ -518,7 +521,12 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             end_state = _state(site)
             site.close()
             summary = summarise(structure, config, ground, hs, ns, out)
-            summary["clock_overruns"] = getattr(site.loop.clock, "overruns", 0)
+            summary["clock_overruns"] = overruns = getattr(site.loop.clock, "overruns", 0)
+            periods = getattr(site.loop.clock, "ticks", 0)
+            if periods and overruns > OVERRUN_WARNING * periods:
+                notify(f"WARNING: the host did not keep the controller's rate: {overruns} of {periods} periods started "
+                       "more than one period late (a link slower than the period, or a loaded machine); the test took "
+                       f"{summary['wall_time_s']:g} s for {summary['test_time_s']:g} s at its rate TR {test['rate']:g}")
             summary["compensation"] = compensation.summary()
             summary["start_state"], summary["end_state"] = start_state, end_state
             summary.update(site.report_final_hold(recorder, notify, len(hs.t) - 1))  # read back; warned if not

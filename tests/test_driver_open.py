@@ -120,6 +120,20 @@ def test_canopen_force_capacity_beyond_int16_is_refused_at_open(cfg):
         emu.stop()
 
 
+def test_canopen_stroke_beyond_the_int32_target_position_is_refused_at_open(cfg):
+    """At 1e8 counts per mm the int32 target position 0x607A carries +/-21.47 mm: a 254 mm
+    stroke would let a 25 mm command pass the stroke check and fail to encode mid-run. Refused
+    at open, naming the object and the reach, before anything is enabled."""
+    emu = canopen_emulator(cfg)
+    try:
+        with pytest.raises(ConfigError, match=r"half stroke 127 mm \(\[driver\] stroke_mm\) at 1e\+08 counts per mm "
+                                              r"is beyond .*0x607A.*21.4748 mm"):
+            canopen_open(emu.url, NAMES, LockstepClock(), {"counts_per_mm": 1e8, "stroke_mm": 254.0})
+        assert none_enabled(emu.bank) and all(a.state != OE for a in emu.axes)
+    finally:
+        emu.stop()
+
+
 def test_canopen_drive_without_software_limits_needs_stroke_configured(cfg):
     emu = canopen_emulator(cfg, position_limits_mm=(0.0, 0.0))
     try:

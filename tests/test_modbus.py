@@ -87,6 +87,127 @@ def test_a_lab_map_with_integer_counts_and_little_word_order(tmp_path, cfg):
         emu.stop()
 
 
+COMMAND_BLOCK = """displacement = { offset = 0, type = "float32" }  # mm, used in displacement control
+force        = { offset = 2, type = "float32" }  # kN, used in force control
+mode         = { offset = 4, type = "float32" }  # 0 displacement control, 1 force control
+enable       = { offset = 6, type = "float32" }  # 1 follow the command, 0 hold the present position
+watchdog     = { offset = 8, type = "float32" }  # host counter, changed at every write"""
+
+
+def test_a_command_write_that_would_cover_unnamed_registers_is_refused(tmp_path, cfg):
+    """The commands go in one write: a gap in the block (int16 values at float32 offsets), a
+    stride longer than the block or a register the driver does not know would put 0 into a
+    controller register the map does not name (or crash the exchange). Refused with the address,
+    at load for one axis and at open for the link's axes, before anything is enabled."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    assert COMMAND_BLOCK in text
+    bad = tmp_path / "lab.toml"
+    bad.write_text(text.replace('offset = 0, type = "float32" }  # mm', 'offset = 0, type = "int16", scale = 100.0 }  # mm'))
+    with pytest.raises(ConfigError, match=r"lab.toml: \[command\].*covers address 19, which no register"):
+        modbus_map.load(bad)
+    bad.write_text(text.replace("max_axes = 8", "max_axes = 2").replace(
+        COMMAND_BLOCK, COMMAND_BLOCK + '\nspare = { offset = 10, type = "float32" }').replace(
+        "base = 18\nstride = 10", "base = 18\nstride = 12"))
+    with pytest.raises(ConfigError, match=r"\[command\]: unknown register\(s\) spare"):
+        modbus_map.load(bad)
+    padded = text.replace("base = 18\nstride = 10", "base = 18\nstride = 12")
+    bad.write_text(padded)
+    lab = modbus_map.load(bad)  # one axis: contiguous
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), lab).start()
+    try:
+        with pytest.raises(ConfigError, match=r"write of 2 axis/axes covers address 28"):
+            open_link(emu.url, ["C1", "C2"], LockstepClock(), {"map": str(bad)})
+        assert all(c["enable"] == 0.0 for c in emu.context.commands)  # nothing was written
+    finally:
+        emu.stop()
+
+
+def test_a_lab_map_with_reserved_status_words_runs_on_the_emulator(tmp_path, cfg):
+    """Status blocks with reserved words (a stride longer than the block, a gap between values
+    such as int16 values at float32 offsets) are read in one request; the emulator answers the
+    reserved words with 0, as a controller does, and the run goes through."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    text = text.replace("base = 200\nstride = 8", "base = 200\nstride = 11").replace(
+        'displacement = { offset = 2, type = "float32" }', 'displacement = { offset = 2, type = "int16", scale = 100.0 }')
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(path)).start()
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path)})
+        for _ in range(200):
+            acts[0].command(0.5)
+            acts[1].command(-0.25)
+            clock.tick()
+        fb = acts[0].feedback(), acts[1].feedback()
+        assert fb[0].displacement_mm == pytest.approx(0.5, abs=0.05) and fb[1].displacement_mm == pytest.approx(-0.25, abs=0.05)
+        for a in acts:
+            a.close()
+    finally:
+        emu.stop()
+
+
+def test_integer_registers_too_narrow_for_the_limits_are_refused_at_open(tmp_path, cfg):
+    """An int32 displacement at 1e7 counts/mm carries +/-214.7 mm: with a 1000 mm stroke a command
+    of 300 mm passes the stroke check and could not be encoded mid-run. Refused at open, naming
+    the table, the register and the range, before anything is enabled."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    path = tmp_path / "lab.toml"
+    for table, offset, scale in (("command", 0, 1e7), ("status", 2, 1e8)):
+        path.write_text(text.replace(f'displacement = {{ offset = {offset}, type = "float32" }}',
+                                     f'displacement = {{ offset = {offset}, type = "int32", scale = {scale} }}'))
+        emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(path)).start()
+        try:
+            with pytest.raises(ConfigError, match=rf"\[{table}\] displacement \(int32, scale 1e\+0[78]\) carries "
+                                                  r"-21[\d.]+\.\.21[\d.]+ mm, less than the half stroke \+/-500 mm"):
+                open_link(emu.url, ["C1", "C2"], LockstepClock(), {"map": str(path), "stroke_mm": 1000.0})
+            assert all(c["enable"] == 0.0 for c in emu.context.commands)
+        finally:
+            emu.stop()
+    path.write_text(text.replace("[modes]\ndisplacement = 0", "[modes]\ndisplacement = 40000").replace(
+        'mode         = { offset = 4, type = "float32" }', 'mode = { offset = 4, type = "int16" }\n#'))
+    with pytest.raises(ConfigError, match=r"\[modes\] displacement = 40000 does not fit the \[command\] mode register"):
+        modbus_map.load(path)
+    path.write_text(text.replace("lockstep = 6", "lockstep = 15").replace(
+        'status_word  = { offset = 0, type = "float32" }', 'status_word = { offset = 0, type = "int16" }\n#'))
+    with pytest.raises(ConfigError, match=r"\[status_bits\] lockstep = 15 does not fit the \[status\] status_word register"):
+        modbus_map.load(path)
+
+
+def test_sixteen_bit_watchdog_and_sequence_registers_wrap(tmp_path, cfg):
+    """A lab map with a uint16 host watchdog counter, an int16 sequence and a uint16 boot id: the
+    counter wraps at 65536 and the sequence at 32768, at both ends of the wire, and the lockstep
+    check follows; the boot id (for restart detection) is served and read."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    text = text.replace('watchdog     = { offset = 8, type = "float32" }', 'watchdog     = { offset = 8, type = "uint16" }\n#')
+    text = text.replace("base = 18\nstride = 10", "base = 18\nstride = 9")
+    text = text.replace('sequence     = { offset = 6, type = "float32" }', 'sequence     = { offset = 6, type = "int16" }')
+    text = text.replace('boot_id        = { address = 6,  type = "float32" }', 'boot_id = { address = 6, type = "uint16" }')
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    bank = bank_from_config(cfg, lockstep=True)
+    emu = ModbusEmulator(bank, modbus_map.load(path)).start()
+    try:
+        for tick in (10000, 20000, 30000, 32760):
+            bank.advance_to(tick)
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path)})
+        link = acts[0].link
+        for c in link.commands:
+            c["watchdog"] = 65530.0
+        for _ in range(20):
+            acts[0].command(0.1)
+            acts[1].command(0.0)
+            clock.tick()
+        assert link.ticks == 32780 and link.status[0]["sequence"] == 12.0
+        assert link.boot_id == emu.bank.boot_id % 65536  # a uint16 boot id, served and read
+        assert link.commands[0]["watchdog"] == 14.0 and emu.context.commands[0]["watchdog"] == 14.0
+        for a in acts:
+            a.close()
+    finally:
+        emu.stop()
+
+
 # -- hsio run over the wire ----------------------------------------------------------------------
 
 def test_run_over_modbus_tcp_lockstep_equals_in_process(tmp_path):
@@ -123,6 +244,21 @@ def test_run_over_modbus_rtu_pty_lockstep_equals_in_process(tmp_path):
         emu.stop()
 
 
+def test_modbus_rtu_parity_and_stop_bits_reach_the_serial_client():
+    """A controller framed 8E1 (the Modbus standard's default for RTU) or 8N2: the [driver] table
+    or the URL's query sets the serial client's parity and stop bits; a bad value is refused by
+    name. (A pseudo-terminal takes no parity, so this is checked on the client, unopened.)"""
+    link = ModbusLink("modbus+rtu:///dev/ttyUSB0?baudrate=19200&parity=E", 1)
+    params = link.client.comm_params
+    assert (params.baudrate, params.parity, params.stopbits, params.bytesize) == (19200, "E", 1, 8)
+    params = ModbusLink("modbus+rtu:///dev/ttyUSB0", 1, {"stopbits": 2}).client.comm_params
+    assert (params.parity, params.stopbits) == ("N", 2)
+    with pytest.raises(ConfigError, match=r"parity must be one of N, E, O.*got 'X'"):
+        ModbusLink("modbus+rtu:///dev/ttyUSB0?parity=X", 1)
+    with pytest.raises(ConfigError, match=r"stopbits must be a whole number in 1..2"):
+        ModbusLink("modbus+rtu:///dev/ttyUSB0", 1, {"stopbits": 3})
+
+
 def test_run_over_modbus_tcp_real_time_within_tracking_tolerance(tmp_path):
     """Real time: the emulator runs its own 1024 Hz loop; HS over TCP matches in-process HS
     within the tracking tolerance (a few tracking-error RMS)."""
@@ -136,6 +272,46 @@ def test_run_over_modbus_tcp_real_time_within_tracking_tolerance(tmp_path):
         tracking = max(wire["rms_tracking_error_mm"])
         assert max_abs_diff(a, b) <= max(5 * tracking, 0.02 * peak), (max_abs_diff(a, b), tracking, peak)
         assert wire["max_error_pct"] < 5.0
+    finally:
+        emu.stop()
+
+
+def test_more_axes_than_the_controller_serves_is_a_clear_error(tcp_emulator):
+    """The controller reports its axes (info register): asking for more is refused by name at
+    open, before the status read would meet unmapped registers (exception 2)."""
+    with pytest.raises(ConfigError, match=r"3 axes asked for, but the controller serves 2 \(its axes register\)"):
+        open_link(tcp_emulator.url, ["C1", "C2", "C3"], LockstepClock())
+    assert all(c["enable"] == 0.0 for c in tcp_emulator.context.commands)
+
+
+def test_a_controller_whose_clock_does_not_run_stops_a_real_time_run(tmp_path):
+    """A lockstep emulator driven with [driver] lockstep = "off": nothing advances its clock, the
+    actuators never move, and with the measured-displacement correction a linear specimen would
+    give HS == NS exactly (a perfect-looking run on stale measurements). The frozen sequence
+    register stops the run, the actuators hold, and the steps made are recorded."""
+    cfg = write_config(tmp_path, duration=0.5, rate=2.0, clock="realtime",
+                       extra=QUIET_SENSORS + "[safety]\ndry_run = false\n")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load()).start()
+    try:
+        result, rec = run(cfg, tmp_path / "frozen", url=emu.url, driver={"lockstep": "off"})
+    finally:
+        emu.stop()
+    assert not isinstance(result, dict), result
+    assert "the controller's clock does not run: its sequence register stayed at 0" in str(result)
+    assert "the actuators hold (confirmed by read-back)" in str(result)
+    assert 0 < len(rec.steps["step"]) < 50 and emu.bank.ticks == 0
+
+
+def test_an_emulator_on_ipv6_loopback_gives_a_url_the_driver_opens(cfg):
+    """Bound to ::1, the emulator's URL puts the address in brackets (RFC 3986), and the driver
+    connects with it."""
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(), host="::1").start()
+    try:
+        assert emu.url == f"modbus+tcp://[::1]:{emu.port}"
+        acts = open_link(emu.url, ["C1", "C2"], LockstepClock())
+        assert acts[0].link.info["axes"] == 2.0
+        for a in acts:
+            a.close()
     finally:
         emu.stop()
 
@@ -213,3 +389,24 @@ def test_bad_driver_options_are_refused():
     with pytest.raises(ConfigError, match="timeout_s must be positive"):
         ModbusLink("modbus+tcp://127.0.0.1:1?timeout_s=0", 1)
     assert math.isfinite(ModbusLink("modbus+tcp://127.0.0.1:1?timeout_s=0.3", 1).timeout_s)
+
+
+def test_a_real_time_run_over_a_link_slower_than_the_period_warns(tmp_path):
+    """Modbus RTU at 9600 baud takes about 9 ms a request, nine controller periods: the real-time
+    schedule cannot be kept. The run completes, counts the overruns in its summary and says so."""
+    from hsio import config as config_mod
+    from hsio import runner
+
+    cfg = write_config(tmp_path, duration=0.03, rate=2.0, clock="realtime",
+                       extra=QUIET_SENSORS + "[safety]\ndry_run = false\n")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False), modbus_map.load(), transport="rtu", baudrate=9600).start()
+    lines: list[str] = []
+    try:
+        run_cfg = config_mod.load(cfg)
+        run_cfg["hardware"]["url"] = emu.url
+        summary = runner.run(run_cfg, tmp_path / "slow", notify=lines.append)
+    finally:
+        emu.stop()
+    assert summary["steps"] == 3 and summary["clock_overruns"] > 0.5 * 3 * 0.02 * 1024
+    warning = [line for line in lines if "did not keep the controller's rate" in line]
+    assert warning and f"{summary['clock_overruns']} of" in warning[0] and "TR 2" in warning[0]

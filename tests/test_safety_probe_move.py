@@ -209,3 +209,66 @@ def test_a_driver_table_with_the_daq_modules_keys_opens_the_controller(tmp_path)
             assert [a.name for a in site.loop.actuators] == ["C1", "C2"]
     finally:
         emu.stop()
+
+
+def test_probe_move_enables_the_axis_only_after_the_latency_measurement(tmp_path):
+    """The latency measurement only reads; an axis enabled during it would see no command for as
+    long as it lasts (200 requests of 9 ms over RTU at 9600 baud: 1.8 s), and a host watchdog
+    shorter than that would latch before the move began. Here the watchdog is 30 ms and the
+    reads last longer: the move must still run, and the axis hold at its end."""
+    cfg = write_config(tmp_path, extra=QUIET_SENSORS)
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0.03), modbus_map.load()).start()
+    try:
+        result = CliRunner().invoke(probe, [emu.url, "--move", "--json", "--requests", "400", "--sine-hz", "2.0"])
+        report = json.loads(result.stdout)
+        holding = [c.holding for c in emu.bank.controllers]
+    finally:
+        emu.stop()
+    assert result.exit_code == 0, (result.output, report.get("error"))
+    assert report["latency"]["requests"] == 400 and report["latency"]["median_ms"] * 400 > 30
+    assert "error" not in report and report["move"]["rms_tracking_error_mm"] < 0.5
+    assert report["axes"][0]["flags"]["enabled"] is False  # the state is read before anything is enabled
+    assert report["hold"] == CONFIRMED and all(holding)
+
+
+def test_probe_move_with_several_axes_in_real_time_commands_every_axis(tmp_path):
+    """In real time a link sends once every axis has its command: with --axes 2 the other axis
+    is commanded where it stood, every period, so axis 0's step and sine go out (and the host
+    watchdog is fed); both axes hold at the end."""
+    cfg = write_config(tmp_path, extra=QUIET_SENSORS, clock="realtime")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0.2), modbus_map.load()).start()
+    try:
+        result = CliRunner().invoke(probe, [emu.url, "--move", "--json", "--axes", "2", "--requests", "5",
+                                            "--sine-hz", "10", "--step-mm", "0.5"])
+        report = json.loads(result.stdout)
+        holding = [c.holding for c in emu.bank.controllers]
+        rods = [c.d_rod for c in emu.bank.controllers]
+    finally:
+        emu.stop()
+    assert result.exit_code == 0, (result.output, report.get("error"))
+    move = report["move"]
+    # A first-order lag tau = 20 ms on a 1 mm sine at 10 Hz: error amplitude w tau / sqrt(1 + (w tau)^2)
+    # = 0.78 mm, RMS 0.55 mm (axis 0's commands did go out, at the controller's rate).
+    w_tau = 2 * np.pi * 10 * 0.020
+    assert move["rms_tracking_error_mm"] == pytest.approx(w_tau / np.sqrt(1 + w_tau**2) / np.sqrt(2), rel=0.2)
+    assert move["rise_time_s"] > 0
+    assert report["hold"]["confirmed"] and all(holding)
+    assert abs(rods[1]) < 0.05 and abs(rods[0]) < 0.1  # axis 1 stayed, axis 0 came back
+
+
+def test_probe_move_over_a_link_slower_than_the_period_warns(tmp_path):
+    """Modbus RTU takes about 2 ms a request, two controller periods: in real time the move runs
+    slower than commanded. The report counts the overruns and warns that its times are in
+    controller periods, not wall-clock time."""
+    cfg = write_config(tmp_path, extra=QUIET_SENSORS, clock="realtime")
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False), modbus_map.load(), transport="rtu").start()
+    try:
+        result = CliRunner().invoke(probe, [emu.url, "--move", "--json", "--requests", "5", "--sine-hz", "10",
+                                            "--step-mm", "0.5"])
+        report = json.loads(result.stdout)
+    finally:
+        emu.stop()
+    assert result.exit_code == 0, (result.output, report.get("error"))
+    move = report["move"]
+    assert move["clock_overruns"] > 100 and "ran slower than commanded" in move["warning"]
+    assert report["hold"]["confirmed"]

@@ -2,7 +2,9 @@
 
 Reports the connection and identity, the state of each axis, and the round-trip latency of the
 driver's requests (median, p99 and max over N requests, in ms). Without --move it only reads:
-no axis is enabled and nothing is commanded. With --move, axis 0 makes a small step (ramped at 90 %
+no axis is enabled and nothing is commanded. With --move the axes are enabled after those reads
+(an axis enabled during them would get no command, and a host watchdog would latch), then axis 0
+makes a small step (ramped at 90 %
 of the velocity limit, there and back) and a slow sine of two periods from where it stands (rise
 time, overshoot, RMS tracking error) and comes back. The move is bounded before anything moves
 (:func:`check_move`): the sine lasts at most :data:`SINE_MAX_S` (--sine-hz from
@@ -128,30 +130,36 @@ class _Guard:
     (``control``, :class:`hsio.safety.control.RunControl`). A refusal, a trip or a stop raises;
     the caller holds."""
 
-    def __init__(self, actuator, clock, safety=None, control=None):
+    def __init__(self, actuator, clock, safety=None, control=None, others=()):
         from hsio.safety.interlocks import InterlockMonitor
         from hsio.safety.settings import SafetySettings
 
         self.actuator = actuator
+        self.others = list(others)  # the link's other axes: commanded where they stand
         self.clock = clock
         self.control = control
         safety = safety or SafetySettings.from_table({})
-        self.monitor = InterlockMonitor([actuator], safety) if safety.interlocks else None
+        self.monitor = InterlockMonitor([actuator, *self.others], safety) if safety.interlocks else None
         self.start = self.previous = actuator.feedback().displacement_mm
+        self.stands = [o.feedback().displacement_mm for o in self.others]
 
     def send(self, command: float) -> float:
-        """One checked command; the measured displacement after one controller period."""
+        """One checked command (and the other axes' where they stood: in real time a link sends
+        once every axis has its command); axis 0's measured displacement one period later."""
         if self.control is not None:
             self.control.check_stop()
         a = self.actuator
         a.limits.check_velocity((command - self.previous) / self.clock.period_s, f"actuator {a.name!r}")
         a.command(command)
+        for other, x in zip(self.others, self.stands):
+            other.command(x)
         self.previous = command
         self.clock.tick()
-        fb = a.feedback()
+        fbs = [a.feedback(), *(o.feedback() for o in self.others)]
         if self.monitor is not None:
-            self.monitor.check(self.clock.now_s, [command], [fb], [a.mode])
-        return fb.displacement_mm
+            self.monitor.check(self.clock.now_s, [command, *self.stands], fbs,
+                               [a.mode, *(o.mode for o in self.others)])
+        return fbs[0].displacement_mm
 
 
 def _drive(guard: _Guard, commands) -> np.ndarray:
@@ -361,7 +369,7 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
     with stop_on_signals(control):  # SIGTERM and SIGINT ask the probe to stop (exit 5), as they ask a run
         try:
             started = time.perf_counter()
-            actuators = _open(url, axes, table, enable=move)
+            actuators = _open(url, axes, table, enable=False)  # --move enables after the reads
             control.check_stop()
             link = actuators[0].link
             report["connect_s"] = round(time.perf_counter() - started, 4)
@@ -376,12 +384,22 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
             control.enter("the latency measurement")
             report["latency"] = _latency(link, n_requests, control)
             if move:
+                control.enter("the enabling of the axes")
+                link.enable()  # now: an axis enabled during the reads above would get no command
                 clock = LockstepClock() if link.lockstep else RealTimeClock()
                 clock.attach(link)
-                guard = _Guard(actuators[0], clock, safety, control)
+                guard = _Guard(actuators[0], clock, safety, control, others=actuators[1:])
                 start = guard.start
                 check_move(actuators[0].limits, start, step_mm, sine_mm, sine_hz)
+                periods = clock.ticks
                 report["move"] = _move(guard, step_mm, sine_mm, sine_hz, control)
+                overruns = getattr(clock, "overruns", 0)
+                report["move"]["clock_overruns"] = overruns
+                if overruns > 0.01 * (clock.ticks - periods):
+                    report["move"]["warning"] = (
+                        f"{overruns} of {clock.ticks - periods} controller periods started more than one period late "
+                        "(the link is slower than the period): the move ran slower than commanded, and its times "
+                        "and frequency are in controller periods, not wall-clock time")
             control.check_stop()
         except click.ClickException as exc:  # a bad value found once the controller answered: nothing moved
             refusal = exc
@@ -458,6 +476,8 @@ def _print(r: dict) -> None:
                    f"(10-90 %, ramp included) {m['rise_time_s'] * 1e3:.1f} ms, overshoot {m['overshoot_pct']:.2f} %")
         click.echo(f"sine       {m['sine_amplitude_mm']:g} mm at {m['sine_hz']:g} Hz: RMS tracking error "
                    f"{m['rms_tracking_error_mm']:.4f} mm")
+        if "warning" in m:
+            click.echo(f"WARNING    {m['warning']}")
     if "hold" in r:
         click.echo(f"hold       {r['hold']['message']}")
     if "error" in r:
