@@ -95,7 +95,9 @@ class ModbusDAQ(DAQ):
             at = reg.address - start
             value = reg.decode(words[at:at + reg.words], self.map.word_order)
             rails = reg.full_scale()
-            if rails is not None and value in rails:  # a saturated converter: the true value is beyond
+            # a saturated converter: the true value is beyond the rail. An unsigned input's rail at
+            # 0 is also where its instrument stands at rest: a reading, not an over range.
+            if rails is not None and value in rails and value != 0.0:
                 raise ImplausibleMeasurementError(
                     f"{self.url}: instrument {inst.name!r} on input {reg.name!r} reads {value:g} {inst.unit}, the full "
                     f"scale of its {reg.type} register ({rails[0]:g}..{rails[1]:g} with scale {reg.scale:g}): over "

@@ -123,3 +123,34 @@ def test_an_instrument_beyond_its_inputs_full_scale_is_named_not_a_device_failur
             assert reader.read()["lc"] == pytest.approx(20.8, abs=0.01)  # the module still answers
         finally:
             reader.close()
+
+
+def test_an_unsigned_input_reading_zero_is_a_reading_not_a_saturated_converter():
+    """A uint16 input holds 0..655.35 at scale 100: its zero is where the instrument stands at
+    rest, read as 0.0, while its top (655.35) is the converter's full scale, refused by name."""
+    from hsio.drivers.modbus_daq import ModbusDAQ, daq_map_from_dict
+    from hsio.emulators.bank import ControllerBank
+    from hsio.emulators.local import EmulatedInstruments
+    from hsio.emulators.servo import make_controllers
+    from hsio.errors import ImplausibleMeasurementError
+    from hsio.structure_file import parse_structure
+
+    gauge = '[[instrument]]\nname = "sg"\nkind = "strain_gauge"\nelement = "wall"\nscale = 30.0\n'
+    structure = parse_structure(WALL + gauge, "wall.toml")
+    (controller,) = make_controllers(structure.experimental, {"noise_mm": 0.0, "force_noise_kN": 0.0,
+                                                              "resolution_mm": 0.0})
+    daq_map = daq_map_from_dict({"map": {"name": "unsigned"},
+                                 "inputs": {"ai0": {"address": 600, "type": "uint16", "scale": 100.0},
+                                            "ai1": {"address": 601, "type": "uint16", "scale": 100.0}}})
+    daq = EmulatedInstruments(structure.instruments, {"wall": controller})
+    with ModbusEmulator(ControllerBank([controller], ["wall"], lockstep=True, watchdog_s=0), modbus_map.load()) as emu:
+        emu.context.add_instruments(daq, daq_map)
+        reader = ModbusDAQ(emu.url, structure.instruments, daq_map)
+        try:
+            assert reader.read() == {"lvdt": 0.0, "sg": 0.0}  # at rest
+            controller.set_command(12.0)  # 31.2 kN: 936 microstrain, beyond 655.35
+            controller.advance(800)
+            with pytest.raises(ImplausibleMeasurementError, match=r"instrument 'sg' on input 'ai1' reads 655\.35"):
+                reader.read()
+        finally:
+            reader.close()
