@@ -65,11 +65,13 @@ class RegisterContext(ModbusServerContext):
                 self.readable[at] = self.writable[at] = ("command", k, reg)
             for name, reg in regmap.status.registers.items():
                 self.readable[regmap.status.address(k, name)] = ("status", k, reg)
-        # An address inside a status block that the map leaves unnamed (a reserved word, the
-        # stride's padding) reads as 0, as a controller's reserved status words do.
+        # An address inside a status block that no register of the map names (a reserved word,
+        # the stride's padding) reads as 0, as a controller's reserved status words do.
         status = regmap.status
-        covered = {a for k in range(self.n) for r in status.registers.values()
-                   for a in range(status.address(k, r.name), status.address(k, r.name) + r.words)}
+        covered = {a for block in (regmap.command, status) for k in range(self.n) for r in block.registers.values()
+                   for a in range(block.address(k, r.name), block.address(k, r.name) + r.words)}
+        for reg in (*regmap.info.values(), *regmap.lockstep.values(), *regmap.reset.values()):
+            covered.update(range(reg.address, reg.address + reg.words))
         for k in range(self.n):
             for a in range(status.base + k * status.stride, status.base + (k + 1) * status.stride):
                 if a not in covered and a <= 0xFFFF:

@@ -410,3 +410,24 @@ def test_a_real_time_run_over_a_link_slower_than_the_period_warns(tmp_path):
     assert summary["steps"] == 3 and summary["clock_overruns"] > 0.5 * 3 * 0.02 * 1024
     warning = [line for line in lines if "did not keep the controller's rate" in line]
     assert warning and f"{summary['clock_overruns']} of" in warning[0] and "TR 2" in warning[0]
+
+
+def test_a_register_in_a_status_blocks_padding_is_served_as_mapped(tmp_path, cfg):
+    """A lab map may put a controller-wide register in the padding of a status block (stride 10
+    for a block of 8 words): the emulator serves it as the map names it, and only the words no
+    register names as reserved (0)."""
+    text = modbus_map.DEFAULT_MAP.read_text()
+    text = text.replace("base = 200\nstride = 8", "base = 200\nstride = 10").replace(
+        'force_limit_kN = { address = 10, type = "float32" }', 'force_limit_kN = { address = 208, type = "float32" }')
+    path = tmp_path / "lab.toml"
+    path.write_text(text)
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(path)).start()
+    try:
+        acts = open_link(emu.url, ["C1", "C2"], LockstepClock(), {"map": str(path)})
+        try:
+            assert acts[0].limits.force_kN == pytest.approx(emu.bank.controllers[0].config.force_limit_kN)
+        finally:
+            for a in acts:
+                a.close()
+    finally:
+        emu.stop()
