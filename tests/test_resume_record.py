@@ -183,3 +183,18 @@ def test_actuators_far_from_where_the_record_stops_are_not_resumed(tmp_path):
     assert run.summary["exit_status"] == 2
     result = CliRunner().invoke(main, ["resume", str(out), "--max-gap", "2"])
     assert result.exit_code == 0, result.output
+
+
+def test_a_channel_that_records_an_instruments_reading_is_not_compared_with_its_rod(tmp_path):
+    """An element with displacement_from records its LVDT's reading, which a compliant load train
+    keeps c F short of the rod the actuator reports: comparing the two would refuse a resume where
+    nothing moved, so that channel is left out of the gaps."""
+    from hsio.safety.resume import gaps
+
+    out = stopped_run(tmp_path, 5)
+    run = Run(out / "run.sqlite")
+    last = {name: float(run.steps[f"disp_{name}"][-1]) for name in ("C1", "C2")}
+    standing = {"C1": {"displacement_mm": last["C1"] + 2.0, "force_kN": 0.0},
+                "C2": {"displacement_mm": last["C2"] + 0.1, "force_kN": 0.0}}
+    assert gaps(standing, run) == pytest.approx({"C1": 2.0, "C2": 0.1})
+    assert gaps(standing, run, external=["C1"]) == pytest.approx({"C2": 0.1})

@@ -276,7 +276,7 @@ class MonitorPage:
         if running:
             words = line.split()
             state = f"{words[1]} (phase {words[3]})" if len(words) >= 4 else line[3:]
-            if words[1] == "paused":  # the hold as the run read it back, never assumed
+            if len(words) >= 2 and words[1] == "paused":  # the hold as the run read it back, never assumed
                 state += f": {self._pause_hold(words[-1])}"
         elif answers is True:
             state = f"the run answers: {line}"

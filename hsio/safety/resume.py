@@ -115,14 +115,17 @@ def open_ledger(run: Run, notify) -> Ledger | None:
 MAX_GAP_MM = 1.0
 
 
-def gaps(standing: dict, run: Run) -> dict[str, float]:
+def gaps(standing: dict, run: Run, external=()) -> dict[str, float]:
     """Per actuator, where it stands less what the record's last step measured (mm); empty where
     the two cannot be compared (a state that could not be read, channels that are an element's
-    basic DOFs through a setup rather than its actuators)."""
+    basic DOFs through a setup rather than its actuators). Channels in ``external`` record an
+    instrument's reading (``displacement_from``), which a compliant load train keeps c F short of
+    the rod: they are left out."""
     if not standing or "error" in standing or set(standing) != set(run.actuator_names):
         return {}
-    last = {name: float(run.steps[column("disp", name)][-1]) for name in run.actuator_names}
-    return {name: float(standing[name]["displacement_mm"]) - last[name] for name in run.actuator_names}
+    names = [name for name in run.actuator_names if name not in set(external)]
+    last = {name: float(run.steps[column("disp", name)][-1]) for name in names}
+    return {name: float(standing[name]["displacement_mm"]) - last[name] for name in names}
 
 
 def check_gaps(gap: dict[str, float], max_gap_mm: float, url: str) -> None:
@@ -225,7 +228,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             if ledger is not None:
                 ledger.update(ledger_id, start_state=standing)
             line = format_state("the actuators stand at", standing)
-            gap = gaps(standing, run)
+            gap = gaps(standing, run, [e.name for e in structure.experimental if e.displacement_from])
             if gap:  # elements on one actuator each: the record's channels are the actuators (through
                 # setups they are the elements' basic DOFs, not comparable)
                 line += "; the record's last step measured " + "; ".join(
