@@ -88,6 +88,7 @@ class ControlLoop:
         self._phases: list[str] = []
         self._paused = False
         self._paused_at: float | None = None  # lab time when a pause began
+        self._paused_modes: list | None = None  # each actuator's mode before the pause's hold
         self._commands: list[float] = []
         self._thread: threading.Thread | None = None
         self._lock = threading.RLock()
@@ -263,7 +264,7 @@ class ControlLoop:
         force control) goes back to it, bumplessly (its command starts at the force it measures),
         before its generator's next command, a force, is sent: never as a displacement."""
         with self._lock:
-            for actuator, mode in zip(self.actuators, getattr(self, "_paused_modes", None) or ()):
+            for actuator, mode in zip(self.actuators, self._paused_modes or ()):
                 if actuator.mode is not mode:
                     try:
                         actuator.set_mode(mode)
@@ -271,7 +272,7 @@ class ControlLoop:
                         self._fail(exc)
             self._paused_modes = None
             self._paused = False
-            if self.monitor is not None and getattr(self, "_paused_at", None) is not None:
+            if self.monitor is not None and self._paused_at is not None:
                 self.monitor.skip(self.clock.now_s - self._paused_at)  # the pause's lab time does not count
             self._paused_at = None
 

@@ -58,6 +58,17 @@ def test_map_errors_name_the_table_and_register(tmp_path):
         modbus_map.load(bad)
 
 
+def _hold_two_axes(url, map_path):
+    """Both axes of the emulator at ``url`` (register map ``map_path``) commanded to 0.5 and
+    -0.25 mm for 200 lockstep periods; the actuators and their feedback."""
+    clock = LockstepClock()
+    acts = open_link(url, ["C1", "C2"], clock, {"map": str(map_path)})
+    for _ in range(200):
+        acts[0].command(0.5)
+        acts[1].command(-0.25)
+        clock.tick()
+    return acts, (acts[0].feedback(), acts[1].feedback())
+
 def test_a_lab_map_with_integer_counts_and_little_word_order(tmp_path, cfg):
     """The map is data: integer registers with scales and the low word first work unchanged."""
     text = modbus_map.DEFAULT_MAP.read_text()
@@ -70,13 +81,7 @@ def test_a_lab_map_with_integer_counts_and_little_word_order(tmp_path, cfg):
     assert lab.encode(lab.command.registers["displacement"], -1.2344) == [(-1234) & 0xFFFF, 0xFFFF]
     emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), lab).start()
     try:
-        clock = LockstepClock()
-        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path)})
-        for _ in range(200):
-            acts[0].command(0.5)
-            acts[1].command(-0.25)
-            clock.tick()
-        fb = acts[0].feedback(), acts[1].feedback()
+        acts, fb = _hold_two_axes(emu.url, path)
         # Measured displacement travels as integer micrometres.
         assert fb[0].displacement_mm == pytest.approx(emu.bank.controllers[0].measured_displacement, abs=0.0005)
         assert fb[0].displacement_mm == pytest.approx(0.5, abs=0.05) and fb[1].displacement_mm == pytest.approx(-0.25, abs=0.05)
@@ -133,13 +138,7 @@ def test_a_lab_map_with_reserved_status_words_runs_on_the_emulator(tmp_path, cfg
     path.write_text(text)
     emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(path)).start()
     try:
-        clock = LockstepClock()
-        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path)})
-        for _ in range(200):
-            acts[0].command(0.5)
-            acts[1].command(-0.25)
-            clock.tick()
-        fb = acts[0].feedback(), acts[1].feedback()
+        acts, fb = _hold_two_axes(emu.url, path)
         assert fb[0].displacement_mm == pytest.approx(0.5, abs=0.05) and fb[1].displacement_mm == pytest.approx(-0.25, abs=0.05)
         for a in acts:
             a.close()
