@@ -306,7 +306,7 @@ def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
     """The measurement of a step averages its last ``n_avg`` controller periods: they must lie in
     the step's dwell (:func:`dwell_periods`), never reach back into the ramp or the step before."""
     periods, dwell = step_samples(test_rate * dt, 1.0 / rate_hz, hold_fraction)
-    limit = dwell_periods(dt, test_rate, hold_fraction, rate_hz)
+    limit = dwell if dwell >= 1 else periods  # dwell_periods
     if n_avg > limit:
         what = (f"the dwell of a step: {dwell} periods (TR {test_rate:g} x dt {dt:g} s x {rate_hz:g} Hz x "
                 f"hold_fraction {hold_fraction:g})" if dwell >= 1 else

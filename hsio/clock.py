@@ -14,6 +14,8 @@ from abc import ABC, abstractmethod
 from typing import Protocol
 
 CONTROLLER_RATE_HZ = 1024.0
+# A real-time run (or probe move) warns when more than this fraction of its periods overran.
+OVERRUN_WARNING = 0.01
 
 
 class Steppable(Protocol):

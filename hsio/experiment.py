@@ -136,7 +136,9 @@ def start_present(integrator, structure: Structure, P0: np.ndarray, site, numeri
     return out
 
 
-def _write_events(recorder, site, step: int) -> list[dict]:
+def write_events(recorder, site, step: int) -> list[dict]:
+    """The safety layer's events since the last call (``site.take_events``), written with ``step``
+    into ``recorder`` (committed with the step's row); returned."""
     take = getattr(site, "take_events", None)
     events = take() if take is not None else []
     if recorder is not None:
@@ -203,7 +205,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
                 if integrator.method != "alpha_os":
                     recorder.write_row("implicit", k, _implicit_row(names, out))
                 meta = site.take_sample_meta() if hasattr(site, "take_sample_meta") else None
-                events = _write_events(recorder, site, k)
+                events = write_events(recorder, site, k)
                 recorder.write_step(k, float(t[k]), h.u[k], h.v[k], h.a[k], h.u_pred[k], h.R[k], h.modes[k],
                                     h.targets[k], h.commands[k], h.measured_displacement[k], h.measured_force[k],
                                     samples, sample_meta=meta, late_steps=site.late_steps,
@@ -221,7 +223,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
             hold_report = hold()
         if recorder is not None:
             try:
-                _write_events(recorder, site, last + 1)
+                write_events(recorder, site, last + 1)
                 if hold_report is not None:
                     recorder.write_event(site.lab_time_s, last + 1, "hold", "", hold_report.message, commit=False)
                 recorder.write_event(site.lab_time_s, last + 1, "stop", "", stopped)

@@ -18,6 +18,7 @@ import numpy as np
 
 import hsio
 from hsio import api, plots
+from hsio.clock import OVERRUN_WARNING
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import BOUNDS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
@@ -385,7 +386,6 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ground: Groun
         raise DryRunRefused(text)
 
 
-OVERRUN_WARNING = 0.01  # a real-time run warns when more than this fraction of its periods overran
 
 
 def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, ground: GroundMotion | None = None,

@@ -32,6 +32,7 @@ import numpy as np
 
 from hsio.errors import ConfigError
 from hsio.integrators import ImplicitMethod, SwitchingRule
+from hsio.integrators.mixed import check_ns
 from hsio.structures import Structure, get_structure, sdof
 
 METHODS = ("implicit_dc", "force_control", "mixed")
@@ -73,22 +74,6 @@ class Recipe:
                 raise ConfigError(f"Recipe: {key} must be a whole number from {low}, got {value!r}")
         if not isinstance(self.no_fc_at_reversal, bool):
             raise ConfigError(f"Recipe: no_fc_at_reversal must be True or False, got {self.no_fc_at_reversal!r}")
-
-
-def check_ns(ns, structure: Structure) -> None:
-    """``ns`` is a :class:`hsio.result.Result` of ``structure``: its name, its DOFs, its
-    experimental channels and its time step (a look-alike with other elements, such as
-    structure_II beside structure_II_infill, differs by name)."""
-    from hsio.result import Result
-
-    if not isinstance(ns, Result):
-        raise ConfigError(f"ns must be the Result of run_numerical(structure, ground), got {type(ns).__name__} {ns!r:.80}")
-    mine = (tuple(structure.dof_names), tuple(structure.experimental_dofs))
-    theirs = (tuple(ns.dof_names), tuple(ns.element_dofs))
-    if ns.structure != structure.name or mine != theirs or np.shape(ns.u)[1:] != (structure.n_dof,) or not math.isclose(ns.dt, structure.dt):
-        raise ConfigError(f"ns is the NS of structure {ns.structure!r} (DOFs {list(ns.dof_names)}, experimental DOFs "
-                          f"{list(ns.element_dofs)}, dt {ns.dt:g} s), not of structure {structure.name!r} (DOFs "
-                          f"{list(mine[0])}, experimental DOFs {list(mine[1])}, dt {structure.dt:g} s)")
 
 
 def make_method(structure: Structure, method: str, resolution_mm: float, force_resolution_kN: float,

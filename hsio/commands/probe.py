@@ -38,9 +38,11 @@ from urllib.parse import urlsplit
 import click
 import numpy as np
 
+from hsio.clock import OVERRUN_WARNING
 from hsio.commands import RegularFile
 from hsio.errors import HsioError, LimitError
 from hsio.hardware import controller_options
+from hsio.safety.status import OK, BAD_INPUT as REFUSED, LIMIT_OR_FAULT as UNEXPECTED, OPERATOR as STOPPED
 
 SINE_PERIODS = 2  # the sine of --move lasts two periods, 2 / f
 SINE_MIN_HZ = 0.05  # so the sine lasts at most SINE_MAX_S
@@ -48,7 +50,6 @@ SINE_MAX_S = SINE_PERIODS / SINE_MIN_HZ  # 40 s
 SINE_MAX_HZ = 50.0  # at least 20 commands per period at 1024 Hz
 RAMP_MAX_S = 10.0  # each ramp of the step (there, and back)
 MOVE_MAX_S = 0.05 + 2 * RAMP_MAX_S + SINE_MAX_S + 0.1  # still, step, back, sine, still: 60.15 s
-OK, REFUSED, UNEXPECTED, STOPPED = 0, 2, 3, 5  # exit statuses
 
 
 def latency_stats(samples_s: list[float]) -> dict:
@@ -142,6 +143,7 @@ class _Guard:
         self.monitor = InterlockMonitor([actuator, *self.others], safety) if safety.interlocks else None
         self.start = self.previous = actuator.feedback().displacement_mm
         self.stands = [o.feedback().displacement_mm for o in self.others]
+        self.modes = [actuator.mode, *(o.mode for o in self.others)]  # the move is in displacement throughout
 
     def send(self, command: float) -> float:
         """One checked command (and the other axes' where they stood: in real time a link sends
@@ -157,8 +159,7 @@ class _Guard:
         self.clock.tick()
         fbs = [a.feedback(), *(o.feedback() for o in self.others)]
         if self.monitor is not None:
-            self.monitor.check(self.clock.now_s, [command, *self.stands], fbs,
-                               [a.mode, *(o.mode for o in self.others)])
+            self.monitor.check(self.clock.now_s, [command, *self.stands], fbs, self.modes)
         return fbs[0].displacement_mm
 
 
@@ -395,7 +396,7 @@ def probe(url, as_json, move, axes, n_requests, step_mm, sine_mm, sine_hz, optio
                 report["move"] = _move(guard, step_mm, sine_mm, sine_hz, control)
                 overruns = getattr(clock, "overruns", 0)
                 report["move"]["clock_overruns"] = overruns
-                if overruns > 0.01 * (clock.ticks - periods):
+                if overruns > OVERRUN_WARNING * (clock.ticks - periods):
                     report["move"]["warning"] = (
                         f"{overruns} of {clock.ticks - periods} controller periods started more than one period late "
                         "(the link is slower than the period): the move ran slower than commanded, and its times "

@@ -18,6 +18,7 @@ as a method of the experiment loop and reports the switches.
 
 from __future__ import annotations
 
+import math
 import numbers
 from dataclasses import dataclass
 
@@ -219,6 +220,22 @@ def hysteretic_ratio(u, R, K_EI) -> float:
     return (work - stored) / peak
 
 
+def check_ns(ns, structure) -> None:
+    """``ns`` is a :class:`hsio.result.Result` of ``structure``: its name, its DOFs, its
+    experimental channels and its time step (a look-alike with other elements, such as
+    structure_II beside structure_II_infill, differs by name)."""
+    from hsio.result import Result
+
+    if not isinstance(ns, Result):
+        raise ConfigError(f"ns must be the Result of run_numerical(structure, ground), got {type(ns).__name__} {ns!r:.80}")
+    mine = (tuple(structure.dof_names), tuple(structure.experimental_dofs))
+    theirs = (tuple(ns.dof_names), tuple(ns.element_dofs))
+    if ns.structure != structure.name or mine != theirs or np.shape(ns.u)[1:] != (structure.n_dof,) or not math.isclose(ns.dt, structure.dt):
+        raise ConfigError(f"ns is the NS of structure {ns.structure!r} (DOFs {list(ns.dof_names)}, experimental DOFs "
+                          f"{list(ns.element_dofs)}, dt {ns.dt:g} s), not of structure {structure.name!r} (DOFs "
+                          f"{list(mine[0])}, experimental DOFs {list(mine[1])}, dt {structure.dt:g} s)")
+
+
 def predicted_elastic(ns, structure, max_ratio: float) -> np.ndarray:
     """Per experimental element of ``structure``, whether the purely numerical simulation ``ns``
     (a :class:`hsio.result.Result` of that structure) predicts it to stay elastic: its hysteretic
@@ -226,6 +243,7 @@ def predicted_elastic(ns, structure, max_ratio: float) -> np.ndarray:
     follows an elastic specimen with the load cell's accuracy and runs away on one that
     dissipates energy (a pinched wall, a cracking infill, a yielding storey), where a force error
     leaves a displacement offset that nothing brings back."""
+    check_ns(ns, structure)
     elastic, channel = [], 0
     for element in structure.experimental:
         K = element.K_EI_matrix

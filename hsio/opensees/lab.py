@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from hsio import api
+from hsio.experiment import write_events
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
@@ -537,10 +538,8 @@ class Lab:
     def _write_events(self, site, step: int) -> list[dict]:
         """The safety layer's warnings and trips since the last call, into the record with ``step``
         (committed with the step's row) and the log."""
-        take = getattr(site, "take_events", None)
-        events = take() if take is not None else []
+        events = write_events(self.recorder, site, step)
         for e in events:
-            self.recorder.write_event(e["time_s"], step, e["kind"], e["actuator"], e["message"], commit=False)
             self.log(f"session {self.sessions}, step {step}: {e['kind']}: {e['actuator']}: {e['message']}")
         return events
 
