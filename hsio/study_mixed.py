@@ -141,7 +141,9 @@ def capacity_kN(k0: float) -> float:
     """The grid's actuator capacity: the emulator's 250 kN, or twice the infill's peak strength
     where that is more (a stiff specimen's strength scales with k0, and the study is about the
     instruments, not about an actuator too small for the specimen)."""
-    return max(250.0, 2.0 * 85.0 * k0 / 122.6)
+    from hsio.emulators.servo import ServoConfig
+
+    return max(ServoConfig().force_limit_kN, 2.0 * infill_sdof(k0).experimental[0].specimen["F_max"])
 
 
 def run_case(case: str, structure: Structure, ground, methods, resolution_mm: float, force_resolution_kN: float,
