@@ -187,10 +187,7 @@ class Recorder:
         try:
             self._create(meta)
         except BaseException:  # no half-made record is left behind: the same call can be made again
-            if self.db is not None:
-                self.db.close()
-                self.db = None
-            self.close()
+            self._abandon()
             for suffix in ("", "-wal", "-shm", "-journal"):
                 Path(f"{self.path}{suffix}").unlink(missing_ok=True)
             raise
@@ -238,10 +235,7 @@ class Recorder:
         try:
             self._reopen()
         except BaseException:
-            if self.db is not None:
-                self.db.close()
-                self.db = None
-            self.close()
+            self._abandon()
             raise
         return self
 
@@ -349,6 +343,13 @@ class Recorder:
             self.db.execute("DELETE FROM summary")
         self.db.executemany("INSERT OR REPLACE INTO summary VALUES (?, ?)", [(k, json.dumps(v)) for k, v in summary.items()])
         self.db.commit()
+
+    def _abandon(self) -> None:
+        """Close without committing what a failed creation or reopening began, and let go of the lock."""
+        if self.db is not None:
+            self.db.close()
+            self.db = None
+        self.close()
 
     def close(self) -> None:
         """Commit and close; then let go of the writer's lock (after SQLite's own file is closed:
