@@ -28,7 +28,7 @@ from hsio.integrators.base import Integrator, StepOutcome
 from hsio.interfaces import ControlMode
 from hsio.recording import Recorder, column
 from hsio.result import Result, Switch, max_error_pct
-from hsio.structures import Structure
+from hsio.structures import Structure, dof_units
 
 __all__ = ["ExperimentStopped", "excitation", "run_steps", "max_error_pct", "stop_reason"]
 
@@ -234,7 +234,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
         dof_names=tuple(structure.dof_names), element_names=tuple(names), element_dofs=tuple(dofs),
         t=t[: last + 1], **h.cut(last), switches=switches, thresholds=integrator.thresholds,
         wall_time_s=time.perf_counter() - started, lab_time_s=site.lab_time_s, late_steps=site.late_steps,
-        stopped=stopped,
+        stopped=stopped, dof_units=tuple(dof_units(structure)),
     )
     if stopped:
         held = hold_report.message if hold_report is not None else "no actuators to hold"

@@ -144,14 +144,15 @@ def result_figure(result, reference=None, path: str | Path | None = None):
         if reference is not None:
             ax.plot(reference.t, reference.u[:, k], color="0.55", lw=2.0, label="reference")
         ax.plot(result.t, result.u[:, k], color="C0", lw=0.9, label=result.method)
-        ax.set_ylabel(f"{name} (mm)")
+        ax.set_ylabel(f"{name} ({result.unit_of_dof(k)})")
         ax.grid(alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
     for j, name in enumerate(result.element_names):
         ax = axes[j, 1]
         ax.plot(result.measured_displacement[1:, j], result.measured_force[1:, j], color="C1", lw=0.8)
-        ax.set_xlabel(f"{name} displacement (mm)")
-        ax.set_ylabel("force (kN)")
+        rotation = result.unit_of_dof(result.element_dofs[j]) == "rad"
+        ax.set_xlabel(f"{name} {'rotation (rad)' if rotation else 'displacement (mm)'}")
+        ax.set_ylabel("moment (kN mm)" if rotation else "force (kN)")
         ax.grid(alpha=0.3)
     for row in range(rows):
         if row >= n:

@@ -75,6 +75,12 @@ class Result:
     static_log: list = field(default_factory=list)  # (phase, lab time s, targets, forces, displacements)
     static_hold_error: np.ndarray | None = None  # per preload: max |measured - preload| / preload in the record
     instrument_log: list = field(default_factory=list)  # (trial, outer-loop iterations, readings)
+    # per DOF, the unit of its displacement: "rad" for a rotation, "mm" otherwise (all "mm" when not given)
+    dof_units: tuple[str, ...] = ()
+
+    def unit_of_dof(self, k: int) -> str:
+        """The unit of DOF ``k``'s displacement ("mm" or "rad"); its forces are kN or kN mm."""
+        return self.dof_units[k] if k < len(self.dof_units) else "mm"
 
     def __repr__(self) -> str:
         """One line: what ran, on what, for how long (the histories are its arrays)."""

@@ -72,3 +72,17 @@ def test_the_plots_label_a_rotation_in_rad_and_its_moment_in_kN_mm(tmp_path, mon
     assert (hysteresis[1].get_xlabel(), hysteresis[1].get_ylabel()) == ("rotation (rad)", "moment (kN mm)")
     assert tracking[1].get_ylabel().endswith("(rad)") and tracking[1].get_title(loc="left").endswith(" rad")
     assert dof_units(load_structure(LIBRARY / "joint_three_actuators.toml")) == ["mm", "mm", "rad"]
+
+
+def test_a_results_plot_labels_a_rotation_in_rad_and_its_moment_in_kN_mm():
+    import hsio
+
+    structure = hsio.load_structure(LIBRARY / "column_two_actuators.toml")
+    ns = hsio.run_numerical(structure, hsio.synthetic_record(duration_s=0.2, dt=structure.dt, pga_g=0.1))
+    assert ns.dof_units == ("mm", "rad")
+    figure = ns.plot()
+    left = [ax for ax in figure.axes[0::2] if ax.get_visible()]
+    right = [ax for ax in figure.axes[1::2] if ax.get_visible()]
+    assert left[0].get_ylabel().endswith("(mm)") and left[1].get_ylabel().endswith("(rad)")
+    assert right[0].get_ylabel() == "force (kN)"
+    assert right[1].get_xlabel().endswith("rotation (rad)") and right[1].get_ylabel() == "moment (kN mm)"
