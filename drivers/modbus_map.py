@@ -317,7 +317,8 @@ def from_dict(data: dict, source: str = "<dict>") -> RegisterMap:
             word.encode(float(1 << b), word_order)
         except ValueError:
             raise ConfigError(f"{source}: [status_bits] {name} = {b} does not fit the [status] status_word register "
-                              f"({word.type}, scale {word.scale:g})") from None
+                              f"({word.type}, scale {word.scale:g})"
+                              + ("; declare a bit field type = \"uint16\" to use bit 15" if word.type == "int16" else "")) from None
     for name, value in modes.items():
         try:
             command.registers["mode"].encode(value, word_order)

@@ -169,8 +169,12 @@ def test_integer_registers_too_narrow_for_the_limits_are_refused_at_open(tmp_pat
         modbus_map.load(path)
     path.write_text(text.replace("lockstep = 6", "lockstep = 15").replace(
         'status_word  = { offset = 0, type = "float32" }', 'status_word = { offset = 0, type = "int16" }\n#'))
-    with pytest.raises(ConfigError, match=r"\[status_bits\] lockstep = 15 does not fit the \[status\] status_word register"):
+    with pytest.raises(ConfigError, match=r"\[status_bits\] lockstep = 15 does not fit the \[status\] status_word register"
+                                          r".*type = \"uint16\" to use bit 15"):
         modbus_map.load(path)
+    path.write_text(text.replace("lockstep = 6", "lockstep = 15").replace(
+        'status_word  = { offset = 0, type = "float32" }', 'status_word = { offset = 0, type = "uint16" }\n#'))
+    assert modbus_map.load(path).bits["lockstep"] == 15
 
 
 def test_sixteen_bit_watchdog_and_sequence_registers_wrap(tmp_path, cfg):
