@@ -513,7 +513,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             control.check_stop()
             control.enter("HS")
             try:
-                hs = api.simulate(structure, ground, site, method, alpha, recorder, progress, integrator=integrator,
+                hs = api.simulate(structure, ground, site, recorder=recorder, progress=progress, integrator=integrator,
                                   control=control, start=test["start"])
             except ExperimentStopped as exc:
                 hs, error = exc.result, exc

@@ -571,7 +571,16 @@ class _Reader:
         """No mode gets a negative damping ratio. Rayleigh damping anchored on two modes whose
         ratios grow faster (or slower) than their frequencies has a0 < 0 (or a1 < 0): the modes
         below the first anchor (or above the second) then get zeta_r = a0 / (2 w_r) + a1 w_r / 2
-        < 0, a C that feeds energy into them rather than dissipating it."""
+        < 0, a C that feeds energy into them rather than dissipating it. Two modes of one
+        frequency (a symmetric structure) cannot take two different Rayleigh ratios."""
+        d = structure.damping
+        if d.kind == "rayleigh":
+            (i, j), (z_i, z_j) = d.mode_numbers(), d.ratios(2)
+            w = np.sqrt(np.sort(scipy.linalg.eigh(structure.K_init, structure.M, eigvals_only=True)))
+            if z_i != z_j and abs(w[j - 1] - w[i - 1]) <= 1e-9 * max(w[i - 1], w[j - 1]):
+                raise self.error("damping.modes", f"rayleigh damping cannot give modes {i} and {j} two ratios "
+                                 f"({100 * z_i:g} % and {100 * z_j:g} %): both are at {w[i - 1] / (2 * math.pi):.6g} "
+                                 "Hz; give one ratio, anchor modes of two frequencies, or use kind = \"modal\"")
         zeta = structure.damping_ratios()
         bad = np.flatnonzero(zeta < -1e-9)
         if bad.size:

@@ -95,3 +95,24 @@ def test_damping_on_modes_the_structure_lacks_is_refused_when_it_is_built():
     with pytest.raises(ConfigError, match="damping kind must be one of"):
         Structure("one", ("x",), (0.01,), (wall,), damping=Damping(0.05, "viscous"))
     assert Structure("one", ("x",), (0.01,), (wall,), damping=Damping(0.05, "mass")).n_dof == 1
+
+
+def two_equal_storeys(damping: Damping) -> Structure:
+    """Two uncoupled identical specimens: two modes at one frequency, w = sqrt(k / m) = 10 rad/s."""
+    return Structure("twins", ("a", "b"), (0.01, 0.01),
+                     tuple(ExperimentalElement(d, k, {"kind": "linear", "k": 1.0}) for k, d in enumerate("ab")),
+                     damping=damping, dt=0.01)
+
+
+def test_rayleigh_on_two_modes_of_one_frequency():
+    """One ratio on two modes at one frequency w gives a0 = zeta w, a1 = zeta / w and that ratio
+    to both; two different ratios cannot be met there and are refused naming the key."""
+    from hsio.errors import ConfigError
+
+    s = two_equal_storeys(Damping(0.05, "rayleigh"))
+    np.testing.assert_allclose(s.C, 0.05 * 10.0 * s.M + 0.05 / 10.0 * s.K_init, rtol=1e-12)
+    np.testing.assert_allclose(s.damping_ratios(), [0.05, 0.05], rtol=1e-12)
+    with pytest.raises(ConfigError, match=r"damping.modes: rayleigh damping cannot give modes 1 and 2 two ratios "
+                                          r"\(2 % and 5 %\): both are at 1.59155 Hz"):
+        two_equal_storeys(Damping((0.02, 0.05), "rayleigh"))
+    np.testing.assert_allclose(two_equal_storeys(Damping((0.02, 0.05), "modal")).damping_ratios(), [0.02, 0.05])
