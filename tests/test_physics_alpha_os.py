@@ -159,6 +159,26 @@ def test_start_takes_initial_velocity_damping_and_restoring_force():
     assert s1.i == 1 and integ.step(np.array([4.0]), lambda u: k * u).i == 2
 
 
+@pytest.mark.parametrize("alpha", [-0.1, -1 / 3])
+def test_a_start_away_from_rest_is_eq3_from_the_first_step(alpha):
+    """A linear SDOF released from u_0 = 1 mm (a_0 = -k u_0 / m, not zero), as a run with
+    ``start = "present"`` begins: with K_init = k operator splitting is exact, so every step must
+    satisfy eq. (3) with v_0 and R_0 = k u_0 as given, the first one included."""
+    m, c, k, dt = 0.01, 0.02, 4.0, 0.005
+    beta, gamma = (1 - alpha) ** 2 / 4, 0.5 - alpha
+    core = AlphaOS([[m]], [[c]], [[k]], dt, alpha)
+    core.start(np.zeros(1), u0=[1.0], v0=[0.0], R0=[k * 1.0])
+    u, v, a = 1.0, 0.0, -k / m
+    for _ in range(40):
+        s = core.step(np.zeros(1), lambda x: k * x)
+        u_p, v_p = u + dt * v + dt**2 * (0.5 - beta) * a, v + dt * (1 - gamma) * a
+        # m a1 + (1+alpha) c v1 - alpha c v + (1+alpha) k u1 - alpha k u = 0 with Newmark's u1, v1
+        a1 = (alpha * c * v + alpha * k * u - (1 + alpha) * (c * v_p + k * u_p)) / (
+            m + (1 + alpha) * (gamma * dt * c + beta * dt**2 * k))
+        u, v, a = u_p + beta * dt**2 * a1, v_p + gamma * dt * a1, a1
+        assert s.u[0] == pytest.approx(u, rel=1e-12, abs=1e-13) and s.v[0] == pytest.approx(v, rel=1e-12, abs=1e-11)
+
+
 def test_operator_splitting_arguments_are_checked():
     M, C, K = [[1.0]], [[0.0]], [[1.0]]
     with pytest.raises(ConfigError, match="alpha"):

@@ -99,8 +99,11 @@ class AlphaOS:
             + a * self.C @ s.v_pred
             - (1 + a) * R_tilde
             + a * s.R_tilde
-            + a * (g * h * self.C + b * h**2 * self.K_init) @ s.a
         )
+        # The last term of eq. (6) turns v~_i and R~_i into v_i and R_i through the correctors of
+        # step i. The start has neither: v_0 and R_0 are given (start() stores them as v~_0, R~_0).
+        if s.i > 0:
+            P_hat = P_hat + a * (g * h * self.C + b * h**2 * self.K_init) @ s.a
         acc = scipy.linalg.lu_solve(self._M_hat_lu, P_hat)
         u = u_pred + h**2 * b * acc
         v = v_pred + h * g * acc
