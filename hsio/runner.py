@@ -95,8 +95,8 @@ def load_run_structure(config: RunConfig) -> Structure:
 def check_run_method(config: RunConfig, structure: Structure) -> None:
     """The implicit methods iterate on the secant stiffness of elements driven by one actuator
     each: a structure with setups or multi-DOF elements runs with alpha_os (static preloads are held
-    on their own actuators while the others iterate).
-    Checked before anything is created or opened."""
+    on their own actuators while the others iterate); mixed control on the instruments rule needs
+    their resolution or noise. Checked before anything is created or opened."""
     method = config["integrator"]["method"]
     if method not in IMPLICIT_METHODS:
         return
@@ -106,6 +106,11 @@ def check_run_method(config: RunConfig, structure: Structure) -> None:
                           f"iterates on the secant stiffness of elements driven by one actuator each "
                           f"(elements with setups or several basic DOFs: {', '.join(coupled)}): "
                           f"use method = 'alpha_os'")
+    if method == "mixed" and config["integrator"]["switch_rule"] == "instruments":
+        try:
+            switch_instruments(config["integrator"], emulated_instruments(config))
+        except ConfigError as exc:
+            raise ConfigError(f"{config.source}: {exc}") from None
 
 
 def check_hardware(config: RunConfig) -> None:

@@ -348,6 +348,21 @@ def test_an_implicit_method_on_setups_is_refused_before_the_run_folder(tmp_path,
     assert checked.exit_code == 2 and "alpha_os" in checked.output
 
 
+def test_mixed_on_instruments_without_resolution_or_noise_is_refused_before_the_run_folder(tmp_path):
+    """The instruments rule cannot set K_f from a transducer and a load cell that read exactly:
+    refused naming the keys, before the dry run and before anything is created."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(_toml({"structure": {"name": "structure_II"}, "record": {"synthetic_duration_s": 0.2},
+                          "integrator": {"method": "mixed"},
+                          "emulator": {"resolution_mm": 0.0, "noise_mm": 0.0, "force_resolution_kN": 0.0,
+                                       "force_noise_kN": 0.0},
+                          "output": {"plots": False}}))
+    out = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert out.exit_code == 2, out.output
+    assert "switch_resolution_mm" in out.output and "dry run" not in out.output
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_server_that_never_integrates_is_not_refused_for_the_method():
     """hsio serve opensees reads the structure of a configuration whose [integrator] it ignores."""
     from hsio.config import from_dict
