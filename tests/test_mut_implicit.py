@@ -49,7 +49,7 @@ def _alpha(n=1, **kw):
 def test_refused_setups_name_what_is_wrong(kw, words):
     with pytest.raises(ConfigError) as e:
         _alpha(**kw)
-    assert str(e.value).startswith("force control: ") and words in str(e.value)
+    assert str(e.value).startswith("implicit alpha method: ") and words in str(e.value)
 
 
 def test_the_limits_of_each_range_are_accepted():

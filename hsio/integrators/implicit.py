@@ -137,43 +137,43 @@ class ImplicitAlpha:
                  max_stiffness_ratio: float = 20.0, fc_blend: float = 1.0, blend_dc: bool = False,
                  anchor_dc=True, reset_at_reversal: bool = False):
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
-            raise ConfigError(f"force control: alpha must be in [-1/3, 0], got {alpha!r}")
+            raise ConfigError(f"implicit alpha method: alpha must be in [-1/3, 0], got {alpha!r}")
         if not dt > 0:
-            raise ConfigError(f"force control: dt must be positive, got {dt!r}")
+            raise ConfigError(f"implicit alpha method: dt must be positive, got {dt!r}")
         if isinstance(j_max, bool) or not isinstance(j_max, numbers.Integral) or not 1 <= j_max <= J_MAX_LIMIT:
-            raise ConfigError(f"force control: j_max (commands per step) must be a whole number in 1..{J_MAX_LIMIT}, "
+            raise ConfigError(f"implicit alpha method: j_max (commands per step) must be a whole number in 1..{J_MAX_LIMIT}, "
                               f"got {j_max!r}")
         for name, tol in (("tol_displacement", tol_displacement), ("tol_force", tol_force)):
             if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not (math.isfinite(tol) and tol >= 0):
-                raise ConfigError(f"force control: {name} must be a number, zero or positive, got {tol!r}")
+                raise ConfigError(f"implicit alpha method: {name} must be a number, zero or positive, got {tol!r}")
         self.M = np.atleast_2d(np.asarray(M, dtype=float))
         n = self.M.shape[0]
         if self.M.ndim != 2 or self.M.shape != (n, n):
-            raise ConfigError(f"force control: M must be a square matrix, got shape {self.M.shape}")
+            raise ConfigError(f"implicit alpha method: M must be a square matrix, got shape {self.M.shape}")
         self.C = np.atleast_2d(np.asarray(C, dtype=float))
         self.K_N = np.zeros((n, n)) if K_N is None else np.atleast_2d(np.asarray(K_N, dtype=float))
         for name, mat in (("C", self.C), ("K_N", self.K_N)):
             if mat.shape != (n, n):
-                raise ConfigError(f"force control: {name} is {mat.shape}, M is {(n, n)}")
+                raise ConfigError(f"implicit alpha method: {name} is {mat.shape}, M is {(n, n)}")
         self.dofs = np.asarray(element_dofs, dtype=int)
         if len(set(self.dofs.tolist())) != len(self.dofs):
-            raise ConfigError("force control: two experimental elements act on the same DOF; the secant "
+            raise ConfigError("implicit alpha method: two experimental elements act on the same DOF; the secant "
                               "stiffness of eq. (11) is per DOF and cannot split a DOF's force between them")
         if self.dofs.size and (self.dofs.min() < 0 or self.dofs.max() >= n):
-            raise ConfigError(f"force control: element DOF {self.dofs.tolist()} not all in 0..{n - 1}")
+            raise ConfigError(f"implicit alpha method: element DOF {self.dofs.tolist()} not all in 0..{n - 1}")
         K_EI = np.asarray(K_EI, dtype=float)
         if K_EI.ndim == 2:
             off = K_EI - np.diag(np.diag(K_EI))
             if np.any(np.abs(off) > 1e-12 * max(np.max(np.abs(K_EI)), 1e-300)):
                 raise ConfigError(
-                    "force control: the experimental stiffness is not diagonal (DOF coupled by physical "
-                    "springs); implicit force control (docs/method.md section 3) needs DOF linked only by "
+                    "implicit alpha method: the experimental stiffness is not diagonal (DOF coupled by physical "
+                    "springs); the implicit methods (docs/method.md section 3) need DOF linked only by "
                     "numerical springs - run this setup in displacement control (alpha_os)")
             K_EI = np.diag(K_EI)
         if K_EI.shape != self.dofs.shape:
-            raise ConfigError(f"force control: {K_EI.size} initial stiffnesses for {self.dofs.size} elements")
+            raise ConfigError(f"implicit alpha method: {K_EI.size} initial stiffnesses for {self.dofs.size} elements")
         if np.any(~np.isfinite(K_EI)) or np.any(K_EI <= 0):
-            raise ConfigError(f"force control: every element's initial stiffness must be positive, got {K_EI.tolist()}")
+            raise ConfigError(f"implicit alpha method: every element's initial stiffness must be positive, got {K_EI.tolist()}")
         self.K_EI = K_EI
         self.dt = float(dt)
         self.alpha = float(alpha)
@@ -181,13 +181,13 @@ class ImplicitAlpha:
         self.gamma = 0.5 - alpha
         self.j_max = int(j_max)
         if not max_stiffness_ratio > 1:
-            raise ConfigError(f"force control: max_stiffness_ratio must exceed 1, got {max_stiffness_ratio!r}")
+            raise ConfigError(f"implicit alpha method: max_stiffness_ratio must exceed 1, got {max_stiffness_ratio!r}")
         self.max_stiffness_ratio = float(max_stiffness_ratio)  # secant estimates above ratio x K^EI are refused
         if isinstance(fc_blend, bool) or not isinstance(fc_blend, numbers.Real) or not 0 < fc_blend <= 1:
-            raise ConfigError(f"force control: fc_blend must be in (0, 1] (a number), got {fc_blend!r}")
+            raise ConfigError(f"implicit alpha method: fc_blend must be in (0, 1] (a number), got {fc_blend!r}")
         for name, flag in (("blend_dc", blend_dc), ("reset_at_reversal", reset_at_reversal)):
             if not isinstance(flag, (bool, np.bool_)):
-                raise ConfigError(f"force control: {name} must be True or False, got {flag!r}")
+                raise ConfigError(f"implicit alpha method: {name} must be True or False, got {flag!r}")
         self.fc_blend = float(fc_blend)
         self.blend_dc = bool(blend_dc)
         # per element (one bool for all): DC elements modelled through their last measurement
@@ -204,7 +204,7 @@ class ImplicitAlpha:
         if self.independent:
             diagonal = all(np.count_nonzero(m - np.diag(np.diag(m))) == 0 for m in (self.M, self.C, self.K_N))
             if not diagonal or self.dofs.tolist() != list(range(n)):
-                raise ConfigError("force control: independent=True needs diagonal M, C, K_N and element j at DOF j")
+                raise ConfigError("implicit alpha method: independent=True needs diagonal M, C, K_N and element j at DOF j")
         self._E = np.zeros((self.dofs.size, n))
         self._E[np.arange(self.dofs.size), self.dofs] = 1.0
         self.k = K_EI.copy()  # the last converged secant, per element
@@ -268,7 +268,7 @@ class ImplicitAlpha:
         s = self._require_state()
         a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
         if len(modes) != self.dofs.size:
-            raise ConfigError(f"force control: {len(modes)} modes for {self.dofs.size} elements")
+            raise ConfigError(f"implicit alpha method: {len(modes)} modes for {self.dofs.size} elements")
         fc = np.array([m is FC for m in modes], dtype=bool)
         tol = np.where(fc, self.tol_force, self.tol_displacement)
         P_next = np.asarray(P_next, dtype=float)
@@ -379,5 +379,5 @@ class ImplicitAlpha:
 
     def _require_state(self) -> ImplicitState:
         if self.state is None:
-            raise RuntimeError("force control: call start() before stepping")
+            raise RuntimeError("implicit alpha method: call start() before stepping")
         return self.state
