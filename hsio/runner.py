@@ -381,9 +381,9 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ground: Groun
     recorder.write_meta({"dry_run_present": present.as_dict()})
     if ledger:
         ledger.update(run_id, override=int(bool((report.exceeded or present.exceeded) and present.override)))
-    notify(text)
     if present.refused:
         raise DryRunRefused(text)
+    notify(text)
 
 
 
@@ -475,8 +475,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                     recorder.write_meta({"dry_run": report.as_dict()})
                     if ledger:
                         ledger.update(run_id, dry_run=report.as_dict(), override=int(bool(report.exceeded and report.override)))
+                    enforce(report)  # a refusal is told once, by whoever catches it
                     notify(report.text())
-                    enforce(report)
                 if not config["output"]["ns"]:
                     ns = None
             if ns is not None:

@@ -154,3 +154,16 @@ def test_present_start_within_the_limits_runs(tmp_path, monkeypatch):
     assert summary["exit_status"] == 0 and summary["steps"] > 0
     run = Run(tmp_path / "o" / "run.sqlite")
     assert not run.meta["dry_run_present"]["refused"]
+
+
+def test_hsio_run_tells_a_refusal_once(tmp_path):
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[record]\nduration_s = 2.0\n[test]\nrate = 1.0\n[emulator]\nvelocity_limit_mm_s = 100.0\n'
+                   '[output]\nplots = false\n[safety]\nkeys = false\n')
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2, result.output
+    assert result.output.count("dry run: REFUSED") == 1, result.output
