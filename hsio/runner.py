@@ -85,7 +85,13 @@ def load_run_structure(config: RunConfig) -> Structure:
     """The structure a run configuration names: ``[structure] file`` (a structure file,
     docs/structures.md) or else ``name`` (a shipped structure)."""
     table = config["structure"]
-    structure = load_structure(table["file"]) if table["file"] else get_structure(table["name"])
+    if table["file"]:
+        structure = load_structure(table["file"])
+    else:
+        try:
+            structure = get_structure(table["name"])
+        except ConfigError as exc:
+            raise ConfigError(f"{config.source}: [structure] name: {exc}") from None
     if not structure.experimental:
         raise ConfigError(f"{table['file'] or structure.name}: the structure has no [[experimental]] element: a "
                           f"hybrid run needs at least one (a purely numerical model runs with hsio.run_numerical)")
