@@ -413,6 +413,18 @@ def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, gro
         return _run(config, out_dir, progress, ground, control, specimen_dir, notify or (lambda line: None))
 
 
+def compensation_stage(config: RunConfig, structure: Structure) -> CompensationStage:
+    """The [compensation] stage of a run, checked against the structure's actuators and the step
+    duration t_d = TR dt (docs/compensation.md): one channel per actuator (through setups, the
+    setups' actuators, not the basic DOFs)."""
+    actuator_names = SetupMap.of(structure).actuator_names if structure.has_setups else channel_names(structure)
+    try:
+        return CompensationStage(list(actuator_names), config["test"]["rate"] * structure.dt,
+                                 CompensationSettings.from_table(config["compensation"]))
+    except ConfigError as exc:
+        raise ConfigError(f"{config.source}: {exc}") from None
+
+
 def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> dict:
     structure = load_run_structure(config)
     check_run_method(config, structure)
@@ -423,13 +435,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     test = config["test"]
     hardware = config["hardware"]
     safety = SafetySettings.from_table(config["safety"])
-    # one stage channel per actuator (through setups, the setups' actuators, not the basic DOFs)
-    actuator_names = SetupMap.of(structure).actuator_names if structure.has_setups else channel_names(structure)
-    try:
-        compensation = CompensationStage(list(actuator_names), test["rate"] * structure.dt,
-                                         CompensationSettings.from_table(config["compensation"]))
-    except ConfigError as exc:
-        raise ConfigError(f"{config.source}: {exc}") from None
+    compensation = compensation_stage(config, structure)
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     check_hardware(config)
