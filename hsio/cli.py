@@ -226,6 +226,7 @@ def check(config_file: str | None, as_json: bool) -> None:
         cfg = config_mod.load(config_file)
         structure = runner.load_run_structure(cfg)
         runner.check_run_method(cfg, structure)
+        runner.compensation_stage(cfg, structure)  # refused by check as by run (an unstable eq2, unknown actuators)
         ground = runner.build_record(cfg, structure)
         ns, report = runner.predict(cfg, structure, ground)
         switching = runner.describe_switching(cfg, structure, ns)

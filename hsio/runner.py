@@ -85,7 +85,13 @@ def load_run_structure(config: RunConfig) -> Structure:
     """The structure a run configuration names: ``[structure] file`` (a structure file,
     docs/structures.md) or else ``name`` (a shipped structure)."""
     table = config["structure"]
-    structure = load_structure(table["file"]) if table["file"] else get_structure(table["name"])
+    if table["file"]:
+        structure = load_structure(table["file"])
+    else:
+        try:
+            structure = get_structure(table["name"])
+        except ConfigError as exc:
+            raise ConfigError(f"{config.source}: [structure] name: {exc}") from None
     if not structure.experimental:
         raise ConfigError(f"{table['file'] or structure.name}: the structure has no [[experimental]] element: a "
                           f"hybrid run needs at least one (a purely numerical model runs with hsio.run_numerical)")
@@ -386,9 +392,9 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ground: Groun
     recorder.write_meta({"dry_run_present": present.as_dict()})
     if ledger:
         ledger.update(run_id, override=int(bool((report.exceeded or present.exceeded) and present.override)))
-    notify(text)
     if present.refused:
         raise DryRunRefused(text)
+    notify(text)
 
 
 
@@ -412,6 +418,18 @@ def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, gro
         return _run(config, out_dir, progress, ground, control, specimen_dir, notify or (lambda line: None))
 
 
+def compensation_stage(config: RunConfig, structure: Structure) -> CompensationStage:
+    """The [compensation] stage of a run, checked against the structure's actuators and the step
+    duration t_d = TR dt (docs/compensation.md): one channel per actuator (through setups, the
+    setups' actuators, not the basic DOFs)."""
+    actuator_names = SetupMap.of(structure).actuator_names if structure.has_setups else channel_names(structure)
+    try:
+        return CompensationStage(list(actuator_names), config["test"]["rate"] * structure.dt,
+                                 CompensationSettings.from_table(config["compensation"]))
+    except ConfigError as exc:
+        raise ConfigError(f"{config.source}: {exc}") from None
+
+
 def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> dict:
     structure = load_run_structure(config)
     check_run_method(config, structure)
@@ -422,13 +440,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     test = config["test"]
     hardware = config["hardware"]
     safety = SafetySettings.from_table(config["safety"])
-    # one stage channel per actuator (through setups, the setups' actuators, not the basic DOFs)
-    actuator_names = SetupMap.of(structure).actuator_names if structure.has_setups else channel_names(structure)
-    try:
-        compensation = CompensationStage(list(actuator_names), test["rate"] * structure.dt,
-                                         CompensationSettings.from_table(config["compensation"]))
-    except ConfigError as exc:
-        raise ConfigError(f"{config.source}: {exc}") from None
+    compensation = compensation_stage(config, structure)
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     check_hardware(config)
@@ -480,8 +492,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                     recorder.write_meta({"dry_run": report.as_dict()})
                     if ledger:
                         ledger.update(run_id, dry_run=report.as_dict(), override=int(bool(report.exceeded and report.override)))
+                    enforce(report)  # a refusal is told once, by whoever catches it
                     notify(report.text())
-                    enforce(report)
                 if not config["output"]["ns"]:
                     ns = None
             if ns is not None:

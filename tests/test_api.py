@@ -81,6 +81,14 @@ def test_the_readme_structure_example_loads(tmp_path):
     assert [e.name for e in structure.experimental] and structure.experimental[0].K_EI == 60.0
     ratios = structure.damping_ratios()
     assert ratios[0] == pytest.approx(0.05, rel=1e-9) and ratios[1] == pytest.approx(0.05, rel=1e-9)
+    # as the README says: the dry run refuses it on the default 250 kN actuator, not on a 1000 kN one
+    from hsio import config, runner
+
+    for emulator, refused in (({}, True), ({"force_limit_kN": 1000.0}, False)):
+        cfg = config.from_dict({"structure": {"file": str(path)}, "emulator": emulator})
+        _, report = runner.predict(cfg, structure, runner.build_record(cfg, structure))
+        assert report.refused == refused, report.text()
+    assert "force_limit_kN = 1000" in section[:section.index("## hsio from Python")]
 
 
 def test_force_control_on_a_site_without_a_secant_estimator_warns():

@@ -27,7 +27,7 @@ def test_unknown_structure_is_named(tmp_path):
     cfg.write_text('[structure]\nname = "tower"\n')
     proc = hsio("run", str(cfg), "--out", str(tmp_path / "o"))
     assert proc.returncode == 2
-    assert "unknown structure 'tower'" in proc.stderr
+    assert f"{cfg}: [structure] name: unknown structure 'tower'" in proc.stderr
 
 
 def test_malformed_toml_names_the_file_and_line(tmp_path):

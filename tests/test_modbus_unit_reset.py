@@ -152,5 +152,8 @@ def test_probe_resets_the_interlock(tmp_path):
         r = hsio("probe", emu.lines["url"], "--reset-interlock", "--json", "--axes", "2", "--requests", "5")
         assert r.returncode == 0, r.stderr
         assert '"interlock_reset": true' in r.stdout
+        r = hsio("probe", emu.lines["url"], "--reset-interlock", "--axes", "2", "--requests", "5")
+        assert r.returncode == 0, r.stderr
+        assert "reset      the latched interlocks are cleared" in r.stdout  # the text report says so too
     finally:
         emu.stop()

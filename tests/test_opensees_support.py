@@ -215,7 +215,7 @@ def test_config_without_opensees_table_or_with_unknown_element_is_refused(tmp_pa
         split_config(plain)
     bad = write_config(tmp_path, "validation", ["C3"])
     settings, run = split_config(bad)
-    with pytest.raises(ConfigError, match="'C3' is not an experimental element.*C1, C2"):
+    with pytest.raises(ConfigError, match=r"serve.toml: \[opensees\] elements: 'C3' is not an experimental element.*C1, C2"):
         Lab(settings, run, load_run_structure(run), log=lambda _: None)
 
 

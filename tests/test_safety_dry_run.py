@@ -154,3 +154,30 @@ def test_present_start_within_the_limits_runs(tmp_path, monkeypatch):
     assert summary["exit_status"] == 0 and summary["steps"] > 0
     run = Run(tmp_path / "o" / "run.sqlite")
     assert not run.meta["dry_run_present"]["refused"]
+
+
+def test_hsio_run_tells_a_refusal_once(tmp_path):
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[record]\nduration_s = 2.0\n[test]\nrate = 1.0\n[emulator]\nvelocity_limit_mm_s = 100.0\n'
+                   '[output]\nplots = false\n[safety]\nkeys = false\n')
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2, result.output
+    assert result.output.count("dry run: REFUSED") == 1, result.output
+
+
+def test_hsio_check_refuses_a_compensation_that_hsio_run_would_refuse(tmp_path):
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    cfg = tmp_path / "eq2.toml"
+    cfg.write_text('[structure]\nname = "structure_I"\n[record]\nduration_s = 1.0\n[test]\nrate = 6.25\n'
+                   'hold_fraction = 0.0\nn_avg = 1\n[compensation]\nmode = "offline"\na_mm_s = 5.18\n'
+                   'b_s_mm = 7.874e-5\nform = "eq2"\n')
+    result = CliRunner().invoke(main, ["check", str(cfg)])
+    assert result.exit_code == 2, result.output
+    assert "[compensation] form = 'eq2' is unstable here" in result.output

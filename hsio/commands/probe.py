@@ -463,6 +463,9 @@ def _print(r: dict) -> None:
     if "clock" in r:
         click.echo(f"connected  in {r['connect_s'] * 1e3:.1f} ms; clock {r['clock']}")
         click.echo(f"identity   {json.dumps(r['identity'], default=str)}")
+    if r.get("interlock_reset"):
+        click.echo("reset      the latched interlocks are cleared (the axes opened hold; none shows an interlock or "
+                   "watchdog bit)")
     for a in r.get("axes", []):
         click.echo(f"axis {a['axis']}     d = {a['displacement_mm']:.4f} mm, F = {a['force_kN']:.4f} kN, "
                    + (f"flags {', '.join(k for k, v in a['flags'].items() if v) or '-'}" if "flags" in a

@@ -61,7 +61,7 @@ from hsio.structures import Damping, ExperimentalElement, Structure, channel_nam
 MAX_SESSION_FILES = 100_000  # record names tried for one session
 
 
-def served_structure(structure: Structure, names) -> Structure:
+def served_structure(structure: Structure, names, source: str = "") -> Structure:
     """The experimental elements ``names`` of ``structure`` as a structure of their own: each
     keeps its basic DOFs (renumbered in the order served), actuators, setup, K^EI and external
     displacement instrument (``displacement_from``, with its outer loop); the static preloads and
@@ -70,7 +70,7 @@ def served_structure(structure: Structure, names) -> Structure:
     by_name = {e.name: e for e in structure.experimental}
     unknown = [n for n in names if n not in by_name]
     if unknown:
-        raise ConfigError(f"[opensees] elements: {unknown[0]!r} is not an experimental element of structure "
+        raise ConfigError(f"{source + ': ' if source else ''}[opensees] elements: {unknown[0]!r} is not an experimental element of structure "
                           f"{structure.name!r}; known: {', '.join(by_name)}")
     elements, dof_names = [], []
     for name in names:
@@ -106,7 +106,7 @@ class Lab:
     def __init__(self, settings: OpenSeesSettings, config: RunConfig, structure: Structure, log=print):
         self.settings = settings
         self.config = config
-        self.structure = served_structure(structure, settings.elements)
+        self.structure = served_structure(structure, settings.elements, config.source)
         self.names = list(settings.elements)
         self.n = len(self.names)
         elements = self.structure.experimental
