@@ -486,6 +486,21 @@ class Run:
         finally:
             db.close()
 
+    def stop_reason(self) -> str | None:
+        """Why the run stopped, as it recorded it: its summary's ``stopped``, else the last ``stop``
+        event since its last resumption; None for a run that recorded no stop (it finished, or its
+        process died)."""
+        stopped = self.summary.get("stopped")
+        if stopped:
+            return str(stopped)
+        why = None
+        for event in self.events():
+            if event["kind"] == "resume":
+                why = None
+            elif event["kind"] == "stop" and event["message"]:
+                why = event["message"]
+        return why
+
     def compensation(self) -> dict[str, np.ndarray]:
         """The compensation table (empty if the run had none)."""
         return self.table("compensation")

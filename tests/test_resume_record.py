@@ -112,8 +112,12 @@ def test_the_summary_and_the_ledger_describe_the_whole_resumed_record(tmp_path):
     whole = runner.run(config_mod.load(cfg), tmp_path / "whole")  # the same run, never stopped
     out = stopped_run(tmp_path, 20, config_path=cfg, out=tmp_path / "stopped")
     stopped = Run(out / "run.sqlite").summary
+    why = Run(out / "run.sqlite").stop_reason()
+    assert why and "stopped by" in why
     result = _resume(out)
     assert result.exit_code == 0
+    assert f"resuming {out / 'run.sqlite'} after step 20 (the run recorded its stop: {why})" in result.output
+    assert Run(out / "run.sqlite").stop_reason() is None  # finished in the resumed session
     last = Run(out / "run.sqlite").steps
     assert (f"the record's last step measured C1 {last['disp_C1'][19]:+.3f} mm; C2 {last['disp_C2'][19]:+.3f} mm"
             in result.output) and "the actuators stand at: C1 " in result.output

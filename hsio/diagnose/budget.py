@@ -64,15 +64,6 @@ class RunData:
     stop_reason: str | None = None  # why the run stopped, as it recorded it
 
 
-def stop_reason(run) -> str | None:
-    """Why a recorded run stopped: its summary's ``stopped``, else its last ``stop`` event."""
-    stopped = run.summary.get("stopped")
-    if stopped:
-        return str(stopped)
-    stops = [e["message"] for e in run.events() if e["kind"] == "stop" and e["message"]]
-    return stops[-1] if stops else None
-
-
 def load_run(run_dir: str | Path) -> RunData:
     """Read run.sqlite with the structure, record and integrator it was run with."""
     from hsio.config import from_dict
@@ -109,7 +100,7 @@ def load_run(run_dir: str | Path) -> RunData:
     steps = run.steps
     if steps.get("step") is None or steps["step"].size < 20:
         n = 0 if steps.get("step") is None else steps["step"].size
-        why = stop_reason(run)
+        why = run.stop_reason()
         raise RecordError(f"{path}: fewer than 20 recorded steps ({n} of {planned} planned"
                           f"{'; ' + why if why else ''})")
 
@@ -130,7 +121,7 @@ def load_run(run_dir: str | Path) -> RunData:
         ground = ground.truncated(min(t[-1] + 2 * max(ground.dt, structure.dt), ground.duration_s))
     data = RunData(str(path), structure, ground, config["integrator"]["alpha"],
                    bool(config["test"]["measured_displacement_correction"]), t, u_hs, u_ns, rows("target", acts),
-                   rows("disp", acts), rows("force", acts), planned, stop_reason(run))
+                   rows("disp", acts), rows("force", acts), planned, run.stop_reason())
     if data.u_ns is None or data.u_ns.shape != u_hs.shape:
         data.u_ns = replay(data, structure_models(structure))
     return data
