@@ -484,3 +484,52 @@ def test_a_record_without_controller_samples_says_why_it_shows_no_phase(tmp_path
     page = page_mod.MonitorPage(Document(), feed, Operator(tmp_path / "run"))
     assert "phase not recorded ([output] samples = false" in page.status.text
     feed.close()
+
+
+def force_controlled_record(folder: Path, modes: list[str], error_mm: float, error_kN: float) -> None:
+    """C1 (DOF C1) over len(modes) steps of 64 controller samples each, in the mode given per
+    step: the force follows a 3 kN sine (kN in FC) or the displacement a 5 mm one, with the end
+    of step error ``error_mm`` in DC and ``error_kN`` in FC; the samples track their command
+    exactly (a displacement 1/0.6 of the force)."""
+    meta = {"structure": "validation", "record": "sine", "dt": 0.01, "test_rate": 2.0,
+            "config": {"structure": {"name": "validation", "file": ""},
+                       "safety": {"following_error_mm": 10.0, "following_error_kN": 25.0, "warning_fraction": 0.9}},
+            "dry_run": {"limits": {"stroke_mm": 254.0, "force_kN": 250.0, "velocity_mm_s": 500.0}}}
+    rec = Recorder(folder / "run.sqlite", ["C1"], ["C1"], meta)
+    rec.db.execute("PRAGMA synchronous=OFF")
+    for k, mode in enumerate(modes, start=1):
+        t = (k - 1 + np.arange(64) / 64) * 0.02
+        force = 3.0 * np.sin(2 * np.pi * 2.0 * t)
+        disp = force / 0.6
+        cmd = force if mode == "force" else disp
+        samples = np.stack([cmd, disp, force], axis=-1)[:, None, :]
+        target = force[-1] + error_kN if mode == "force" else disp[-1] + error_mm
+        rec.write_step(k, 0.01 * k, [disp[-1]], [0], [0], [disp[-1]], [force[-1]], [mode], [target], [target],
+                       [disp[-1]], [force[-1]], samples)
+    rec.close()
+
+
+def test_the_spectrum_of_a_channel_in_force_control_is_of_its_force_error(tmp_path):
+    """In force control the controller's command is a force: its tracking error is against the
+    measured force (kN), not the displacement (mm). A force loop that tracks exactly shows no error."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    force_controlled_record(tmp_path, ["force"] * 80, 0.0, 0.0)
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), Operator(tmp_path))
+    page._spectrum()
+    assert len(page.spectrum.data["f"]) and np.max(page.spectrum.data["a_C1"]) < 1e-6
+
+
+def test_the_least_following_margin_of_a_mixed_channel_takes_each_step_against_its_own_mode(tmp_path):
+    """C1 ran 8 mm behind in DC (20 % of the 10 mm threshold left), then 1 kN behind in FC (96 %
+    of 25 kN): the least margin is 20 %, not the DC errors read against the FC threshold."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    force_controlled_record(tmp_path, ["displacement"] * 10 + ["force"] * 10, 8.0, 1.0)
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), Operator(tmp_path))
+    margins = dict(zip(page.margins.data["label"], page.margins.data["text"]))
+    assert margins["C1 following"] == "96 % (least 20 %)", margins

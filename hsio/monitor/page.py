@@ -216,7 +216,9 @@ class MonitorPage:
         out: dict = {}
         for c in f.channels:
             if s and col("cmd", c) in s and len(s[col("cmd", c)]) >= 64:
-                freq, amp = error_spectrum(s[col("cmd", c)] - s[col("disp", c)], CONTROLLER_RATE_HZ)
+                # in force control the command is a force: its error is against the measured force
+                measured = np.where(self._in_fc(c, s["step"]), s[col("force", c)], s[col("disp", c)])
+                freq, amp = error_spectrum(s[col("cmd", c)] - measured, CONTROLLER_RATE_HZ)
             else:  # no controller samples recorded: the end-of-step errors at the lab's step rate
                 step_s = float(f.meta.get("dt", 0.01)) * float(f.meta.get("test_rate", 1.0))
                 freq, amp = error_spectrum(f[col("error", c)][-1024:], 1.0 / step_s)
@@ -227,6 +229,16 @@ class MonitorPage:
         for key in out:  # single precision: half the bytes, more than a plot can show
             out[key] = out[key][: len(out["f"])].astype(np.float32)
         self.spectrum.data = out
+
+    def _in_fc(self, channel: str, steps: np.ndarray) -> np.ndarray:
+        """Whether ``channel`` was in force control at each of ``steps`` (a step not read yet:
+        as at the newest step read)."""
+        f = self.feed
+        dof = f.channel_dof.get(channel)
+        if dof is None or not f.n:
+            return np.zeros(len(steps), bool)
+        at = np.clip(np.searchsorted(f["step"], steps, side="right") - 1, 0, f.n - 1)
+        return f[col("fc", dof)][at] > 0
 
     def limits(self) -> dict:
         """Half stroke (mm), force capacity (kN), following-error thresholds (mm, kN)."""
@@ -246,17 +258,18 @@ class MonitorPage:
         labels, values, colors, texts = [], [], [], []
         for c in f.channels:
             dof = f.channel_dof.get(c)
-            in_fc = dof is not None and f[col("fc", dof)][n] > 0
+            in_fc = f[col("fc", dof)] > 0 if dof is not None else np.zeros(f.n, bool)
             actuator = "." not in c  # an element on a setup records its basic DOFs, not strokes
-            follow = lim["following_error_kN"] if in_fc else lim["following_error_mm"]
+            # each step's error against its own mode's threshold (kN in force control, else mm)
+            follow = np.where(in_fc, lim["following_error_kN"], lim["following_error_mm"])
             if f.channel_unit.get(c) == "rad":  # a rotation: its actuators' strokes carry the interlock's mm
                 follow = None
-            for what, value, limit in (("stroke", f[col("disp", c)][n], lim["half_stroke_mm"] if actuator else None),
-                                       ("force", f[col("force", c)][n], lim["force_kN"] if actuator else None),
-                                       ("following", f[col("error", c)][n], follow)):
-                m = margin(value, limit)
-                least = float(np.nanmin(margin(f[col({"stroke": "disp", "force": "force", "following": "error"}[what], c)],
-                                                limit))) if limit else float("nan")
+            for what, history, limit in (("stroke", f[col("disp", c)], lim["half_stroke_mm"] if actuator else None),
+                                         ("force", f[col("force", c)], lim["force_kN"] if actuator else None),
+                                         ("following", f[col("error", c)], follow)):
+                limits = np.broadcast_to(np.nan if limit is None else np.asarray(limit, dtype=float), history.shape)
+                m = float(margin(history[n], limits[n]))
+                least = float(np.nanmin(margin(history, limits))) if np.any(limits > 0) else float("nan")
                 labels.append(f"{c} {what}")
                 ok = math.isfinite(m)
                 values.append(100.0 * m if ok else 0.0)
