@@ -533,3 +533,20 @@ def test_the_least_following_margin_of_a_mixed_channel_takes_each_step_against_i
     page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), Operator(tmp_path))
     margins = dict(zip(page.margins.data["label"], page.margins.data["text"]))
     assert margins["C1 following"] == "96 % (least 20 %)", margins
+
+
+def test_a_second_pause_at_the_same_step_is_not_shown_with_the_first_pauses_hold(tmp_path):
+    """Paused and resumed during the ramp in of the preloads (events at step 0), then paused
+    again: until the second pause's read-back is in the record, the page does not show the first's."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 0)
+    rec.write_event(1.0, 0, "pause", "", "paused after step 0: the actuators hold (confirmed by read-back) "
+                                         "(in the ramp in of the static preloads)")
+    rec.write_event(2.0, 0, "resume", "", "resumed after 1.0 s of pause (in the ramp in of the static preloads)")
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), _RunAnswering("ok paused phase ramp-in step 0"))
+    state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+    assert "confirmed" not in state and "the hold's read-back is not in the record yet" in state, state
+    rec.close()

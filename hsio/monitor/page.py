@@ -367,9 +367,12 @@ class MonitorPage:
 
     def _pause_hold(self, step: str) -> str:
         """What the run read back of the actuators' hold when it paused after ``step`` (its
-        ``pause`` event), or that it is not in the record yet."""
+        ``pause`` event), or that it is not in the record yet: the newest pause or resume of the
+        record must be that pause (a ramp of the static preloads pauses at the same step again)."""
         for e in reversed(self.feed.events):
-            if e["kind"] == "pause":
+            if e["kind"] in ("pause", "resume"):
+                if e["kind"] == "resume":
+                    break
                 if str(e["step"]) == step:
                     return str(e["message"]).partition(": ")[2] or str(e["message"])
                 break
