@@ -122,6 +122,27 @@ def test_unknown_socket_command_is_answered_plainly(tmp_path):
         server.close()
 
 
+def test_a_stop_is_answered_at_once_beside_clients_that_connect_and_say_nothing(tmp_path):
+    """Local clients stalled on the socket (a hung script) do not hold up the operator's stop:
+    each connection is answered on its own, so the stop is obeyed and acknowledged at once."""
+    import socket
+
+    control = RunControl()
+    server = control_socket.ControlServer(tmp_path, control)
+    stalled = []
+    try:
+        for _ in range(3):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.connect(str(server.path))
+            stalled.append(s)
+        assert control_socket.send(server.path, "stop", timeout_s=1.0) == "ok stopping"
+        assert control.stop_requested
+    finally:
+        for s in stalled:
+            s.close()
+        server.close()
+
+
 def start_run(tmp_path, record: str):
     cfg = tmp_path / "run.toml"
     cfg.write_text(record + "[output]\nplots = false\n")
