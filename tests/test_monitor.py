@@ -550,3 +550,29 @@ def test_a_second_pause_at_the_same_step_is_not_shown_with_the_first_pauses_hold
     state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
     assert "confirmed" not in state and "the hold's read-back is not in the record yet" in state, state
     rec.close()
+
+
+def test_a_long_record_is_read_in_batches_not_held_whole_as_rows(tmp_path):
+    """A page opened on a long record (late in a run, or a replay) reads it READ_BATCH steps at a
+    time: what the first read holds beside the feed's columns stays a batch, not the whole record
+    as Python rows (several times the columns' memory)."""
+    import tracemalloc
+
+    write_record(tmp_path, 8_000, ns=False).close()
+    feed = RecordFeed(tmp_path)
+    feed.READ_BATCH = 500
+    assert feed._open()  # the record's names and structure, then the steps alone are measured
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        assert feed.poll(force=True) == 8_000
+        peak = tracemalloc.get_traced_memory()[1] - before
+    finally:
+        tracemalloc.stop()
+    columns = feed.columns._data.nbytes
+    print(f"first read of 8,000 steps: {peak / 1e6:.1f} MB at most, columns {columns / 1e6:.1f} MB")
+    assert peak < 2.5 * columns
+    run = Run(tmp_path / "run.sqlite")
+    np.testing.assert_array_equal(feed["u_C1"], run.steps["u_C1"])
+    np.testing.assert_allclose(feed["ti_C1"], tracking_indicator(run.steps["target_C1"], run.steps["disp_C1"]))
+    feed.close()

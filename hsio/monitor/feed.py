@@ -55,6 +55,7 @@ class RecordFeed:
     """Reads the record of the run in ``run_dir`` incrementally."""
 
     MIN_POLL_S = 0.1  # polls closer together than this return at once
+    READ_BATCH = 5000  # steps read from the record at a time
 
     def __init__(self, run_dir: str | Path):
         self.run_dir = Path(run_dir)
@@ -183,11 +184,20 @@ class RecordFeed:
         self._summary_version = version  # taken before the read: a commit in between is read next time
 
     def _read_steps(self, db) -> int:
-        cur = db.execute("SELECT * FROM steps WHERE step > ? ORDER BY step", (self._last_step,))
-        names = [c[0] for c in cur.description]
-        rows = cur.fetchall()
-        if not rows:
-            return 0
+        """The steps committed since the last read, taken READ_BATCH rows at a time: a long
+        record read at once (a page opened late, a replay) would hold every row as Python
+        objects, several times the memory its columns take."""
+        read = 0
+        while True:
+            cur = db.execute("SELECT * FROM steps WHERE step > ? ORDER BY step LIMIT ?", (self._last_step, self.READ_BATCH))
+            rows = cur.fetchall()
+            if rows:
+                self._append_steps([c[0] for c in cur.description], rows)
+                read += len(rows)
+            if len(rows) < self.READ_BATCH:
+                return read
+
+    def _append_steps(self, names: list[str], rows: list) -> None:
         raw = {name: [r[i] for r in rows] for i, name in enumerate(names)}
         block = np.full((len(self.columns.names), len(rows)), np.nan)
         for k, name in enumerate(self.columns.names):
@@ -220,7 +230,6 @@ class RecordFeed:
             self._tif_state[c] = (float(tif[-1]), (float(fc_command[-1]), float(force[-1])))
         self.columns.append(block)
         self._last_step = int(rows[-1][0])
-        return len(rows)
 
     def read_samples(self) -> dict[str, np.ndarray]:
         """The last SAMPLES_WINDOW controller samples (read again only if new ones were recorded)."""
