@@ -266,3 +266,34 @@ def test_live_run_paused_resumed_and_stopped_from_the_page_then_replayed(tmp_pat
         replay = {k: b.model("steps", f"Array.from(m.data[{k!r}])") for k in live}
         assert all(b.model(f"{a}_button", "m.disabled") is True for a in ("pause", "resume", "stop"))
         assert replay == live
+
+
+def test_a_page_that_loses_its_monitor_says_the_state_is_not_known(tmp_path):
+    """A run answering on its socket (the page: running, Stop enabled); then the page's server
+    goes (a run killed takes its monitor with it): the page must not go on showing its last
+    state, say a hold, as if it still followed the run."""
+    import selenium  # noqa: F401
+
+    from hsio.monitor.server import READY
+    from hsio.safety.control import RunControl
+    from hsio.safety.socket import ControlServer
+    from test_monitor import write_record
+
+    rec = write_record(tmp_path, 30)
+    with contextlib.ExitStack() as cleanup:
+        server = ControlServer(tmp_path, RunControl())
+        cleanup.callback(server.close)
+        rec.write_meta({"control_socket": str(server.path)})
+        rec.close()
+        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cleanup.callback(ended, mon)
+        b = cleanup.enter_context(browser.Browser())
+        b.driver.get(Lines(mon.stdout).wait_for(READY, 60).rpartition(" at ")[2].strip())
+        wait_page(b, lambda: state(b).startswith("running"), 30, "the run answering")
+        assert b.model("stop_button", "m.disabled") is False
+        mon.terminate()
+        mon.wait(timeout=20)
+        wait_page(b, lambda: "lost its connection" in state(b), 20, "the lost connection")
+        assert state(b).startswith("not known") and "(it showed: running" in state(b), state(b)
+        assert all(b.model(f"{a}_button", "m.disabled") is True for a in ("pause", "resume", "stop"))

@@ -38,6 +38,14 @@ COLORS = Category10[10]
 CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
            "resume": "Resume the test from where it holds?",
            "stop": "STOP the test? The actuators hold and the record is closed (hsio resume can continue it later)."}
+LOST = """
+const at = new Date().toLocaleTimeString();
+const shown = (status.text.match(/hsio-state'>([^<]*)</) || ['', ''])[1];
+status.text = status.text.replace(/hsio-state'>[^<]*</, "hsio-state'>not known: this page lost its " +
+    "connection to the monitor at " + at + " and no longer follows the run (it showed: " + shown + "); reload it, " +
+    "or see the run's terminal<");
+for (const b of buttons) { b.disabled = true; }
+"""
 # Fixed borders: when the tick labels change width the page is not laid out again (a relayout
 # redraws every plot, the costliest thing a browser does here).
 PLOT = dict(height=260, sizing_mode="stretch_width", tools="pan,box_zoom,wheel_zoom,reset,save",
@@ -85,6 +93,9 @@ class MonitorPage:
         self.head = row(self.status, controls, height=175)
         # Three roots, each laid out on its own: new status text never re-lays out the plots.
         self.root = column(self.head, self.request, name="root")
+        # A page that lost its server (the run ended and its monitor with it, killed, or the
+        # network) would go on showing its last state, a hold or "running": say it is not known.
+        doc.js_on_event("connection_lost", CustomJS(args=dict(status=self.status, buttons=self.buttons), code=LOST))
         doc.title = f"hsio monitor: {feed.run_dir}"
         doc.add_root(self.root)
         self.update()
