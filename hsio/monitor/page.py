@@ -39,11 +39,13 @@ CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actua
            "resume": "Resume the test from where it holds?",
            "stop": "STOP the test? The actuators hold and the record is closed (hsio resume can continue it later)."}
 LOST = """
-const at = new Date().toLocaleTimeString();
 const shown = (status.text.match(/hsio-state'>([^<]*)</) || ['', ''])[1];
-status.text = status.text.replace(/hsio-state'>[^<]*</, "hsio-state'>not known: this page lost its " +
-    "connection to the monitor at " + at + " and no longer follows the run (it showed: " + shown + "); reload it, " +
-    "or see the run's terminal<");
+if (!shown.startsWith('not known')) {  // said once, however often the connection is reported lost
+  const at = new Date().toLocaleTimeString();
+  status.text = status.text.replace(/hsio-state'>[^<]*</, "hsio-state'>not known: this page lost its connection " +
+      "to the monitor at " + at + " and no longer follows the run (it showed: " + shown + "); reload it, or see " +
+      "the run's terminal<");
+}
 for (const b of buttons) { b.disabled = true; }
 """
 # Fixed borders: when the tick labels change width the page is not laid out again (a relayout
