@@ -298,3 +298,48 @@ def test_a_page_that_loses_its_monitor_says_the_state_is_not_known(tmp_path):
         time.sleep(1.0)  # said once, not again over itself
         assert state(b).startswith("not known") and "(it showed: running" in state(b), state(b)
         assert all(b.model(f"{a}_button", "m.disabled") is True for a in ("pause", "resume", "stop"))
+
+
+# The element that holds the status (its shadow root shows the state), as the browser lays it out.
+STATUS_BOX = """
+const find = (root) => {
+  for (const el of root.querySelectorAll('*')) {
+    if (!el.shadowRoot) continue;
+    if (el.shadowRoot.innerHTML.includes("hsio-state")) return el;
+    const hit = find(el.shadowRoot);
+    if (hit) return hit;
+  }
+  return null;
+};
+const box = find(document);
+return box ? [box.scrollHeight, box.clientHeight, getComputedStyle(box).overflowY] : null;
+"""
+
+
+def test_the_status_of_many_dofs_scrolls_in_its_box_not_under_the_plots(tmp_path):
+    """Twelve DOFs and actuators: the status is longer than its fixed box; the rest is reached by
+    scrolling it, not drawn under the plots, where the last DOFs could not be read."""
+    import selenium  # noqa: F401
+
+    from hsio.monitor.server import READY
+    from hsio.recording import Recorder
+
+    names = [f"floor_{i:02d}_lateral_x" for i in range(1, 13)]
+    rec = Recorder(tmp_path / "run.sqlite", names, names, {"structure": "chain", "record": "sine", "dt": 0.01,
+                                                           "test_rate": 2.0, "config": {}})
+    for k in range(1, 21):
+        u = [np.sin(0.1 * k + j) for j in range(12)]
+        rec.write_step(k, 0.01 * k, u, u, u, u, u, ["displacement"] * 12, u, u, u, u)
+    rec.write_summary({"steps": 20, "outcome": "finished"})
+    rec.close()
+    with contextlib.ExitStack() as cleanup:
+        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cleanup.callback(ended, mon)
+        b = cleanup.enter_context(browser.Browser())
+        b.driver.get(Lines(mon.stdout).wait_for(READY, 60).rpartition(" at ")[2].strip())
+        wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
+        wait_page(b, lambda: "floor_12_lateral_x DC" in (b.model("status", "m.text") or ""), 10, "the last DOF")
+        scroll, client, overflow = b.driver.execute_script(STATUS_BOX)
+        assert scroll > client  # longer than its box (else this test shows nothing)
+        assert overflow in ("auto", "scroll"), overflow

@@ -38,6 +38,7 @@ COLORS = Category10[10]
 CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
            "resume": "Resume the test from where it holds?",
            "stop": "STOP the test? The actuators hold and the record is closed (hsio resume can continue it later)."}
+SCROLL = {"overflow-y": "auto"}
 LOST = """
 const shown = (status.text.match(/hsio-state'>([^<]*)</) || ['', ''])[1];
 if (!shown.startsWith('not known')) {  // said once, however often the connection is reported lost
@@ -78,11 +79,12 @@ class MonitorPage:
         self.built = False
         self._plotted = 0.0
         self._spectrum_at = 0.0
-        # Fixed sizes: new text never re-lays out the page (which would redraw every plot).
+        # Fixed sizes: new text never re-lays out the page (which would redraw every plot); text
+        # longer than its box (many DOFs, long events) scrolls in it instead of running under the plots.
         self.status = Div(text="<b>hsio monitor</b>: waiting for the record ...", name="status",
-                          width=1000, height=170)
-        self.actions = Div(text="", name="actions", width=380, height=130)
-        self.events = Div(text="", name="events", width=1500, height=190)
+                          width=1000, height=170, styles=SCROLL)
+        self.actions = Div(text="", name="actions", width=380, height=130, styles=SCROLL)
+        self.events = Div(text="", name="events", width=1500, height=190, styles=SCROLL)
         self.request = TextInput(value="", visible=False, name="request")
         self.request.on_change("value", self._on_request)
         self.buttons = []
