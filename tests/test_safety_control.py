@@ -253,3 +253,34 @@ def test_a_pause_feeds_the_watchdog_within_a_quarter_of_its_time(watchdog_s):
         assert np.median(gaps) < 0.06  # within the watchdog, with a margin
     else:
         assert gaps.min() >= 0.0049 and len(site.fed) <= paused / 0.005 + 1  # the 5 ms floor
+
+
+class _ResumingSite:
+    """A site whose resume (re-enabling the axes takes a while) meets a pause asked meanwhile."""
+
+    def __init__(self, control: RunControl):
+        self.control, self.replies, self.states = control, [], []
+
+    def pause(self):
+        return None
+
+    def resume(self):
+        self.replies.append(self.control.request_pause("socket"))
+        self.states.append(self.control.status())
+
+
+def test_a_pause_asked_while_the_run_resumes_is_not_answered_as_paused():
+    """The actuators are being set going again: a pause asked then takes effect after the next
+    step, so the run answers "pausing" and says so, never "paused" while they move."""
+    control = RunControl()
+    site = _ResumingSite(control)
+    control.request_pause()
+    threading.Timer(0.05, control.request_resume).start()
+    control.checkpoint(site, 3)
+    assert site.replies == ["ok pausing"] and site.states[0].startswith("ok pausing")
+    assert control.state == "pausing"  # and the next step boundary pauses again
+    threading.Timer(0.05, control.request_resume).start()
+    control.checkpoint(site, 4)
+    assert control.state == "pausing"
+    control.request_resume()
+    assert control.state == "running"
