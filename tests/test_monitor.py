@@ -576,3 +576,14 @@ def test_a_long_record_is_read_in_batches_not_held_whole_as_rows(tmp_path):
     np.testing.assert_array_equal(feed["u_C1"], run.steps["u_C1"])
     np.testing.assert_allclose(feed["ti_C1"], tracking_indicator(run.steps["target_C1"], run.steps["disp_C1"]))
     feed.close()
+
+
+def test_a_run_that_commits_nothing_for_a_while_has_no_measured_rate_or_time_to_finish(tmp_path):
+    """Paused (or held up) for longer than the window: the page shows no measured rate and no
+    time to finish, not the rate from before the pause; over the last seconds, steps per second."""
+    feed = RecordFeed(tmp_path)
+    now = time.monotonic()
+    feed.seen_at = [(now - 9.0, 100), (now - 8.0, 110)]  # ten steps a second, then nothing for 8 s
+    assert feed.steps_per_second() is None
+    feed.seen_at = [(now - 4.0, 100), (now - 2.0, 120)]  # twenty steps in the last 4 s, none in the last 2
+    assert feed.steps_per_second() == pytest.approx(5.0, rel=0.01)

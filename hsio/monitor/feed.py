@@ -257,14 +257,16 @@ class RecordFeed:
 
     # -- derived -----------------------------------------------------------------------------
     def steps_per_second(self, window_s: float = 5.0) -> float | None:
-        """Steps committed per second of wall time over the last ``window_s`` (live runs only)."""
-        if len(self.seen_at) < 2:
+        """Steps committed per second of wall time over the last ``window_s`` until now (live
+        runs only); None when no step came within it (a pause: no rate, no time to finish)."""
+        now = time.monotonic()
+        if len(self.seen_at) < 2 or self.seen_at[-1][0] < now - window_s:
             return None
-        t_end, n_end = self.seen_at[-1]
-        first = next(((t, n) for t, n in self.seen_at if t >= t_end - window_s), self.seen_at[0])
-        if t_end - first[0] <= 0:
+        before = [p for p in self.seen_at if p[0] <= now - window_s]
+        t0, n0 = before[-1] if before else self.seen_at[0]
+        if now - t0 <= 0:
             return None
-        return (n_end - first[1]) / (t_end - first[0])
+        return (self.seen_at[-1][1] - n0) / (now - t0)
 
     def close(self) -> None:
         if self.db is not None:
