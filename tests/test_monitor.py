@@ -587,3 +587,12 @@ def test_a_run_that_commits_nothing_for_a_while_has_no_measured_rate_or_time_to_
     assert feed.steps_per_second() is None
     feed.seen_at = [(now - 4.0, 100), (now - 2.0, 120)]  # twenty steps in the last 4 s, none in the last 2
     assert feed.steps_per_second() == pytest.approx(5.0, rel=0.01)
+
+
+@pytest.mark.parametrize("token", ["a;b c", "tökén", "x\"y"])
+def test_a_token_that_cannot_travel_in_a_url_and_a_cookie_is_refused(tmp_path, token):
+    write_record(tmp_path, 5).close()
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--host", "127.0.0.2",
+                           "--port", "0", "--token", token], env=ENV, capture_output=True, text=True, timeout=20)
+    assert proc.returncode == 2 and "may hold only letters, digits" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -31,7 +31,8 @@ def _refuse_foreign_record(path: Path) -> None:
               help="Address to listen on. Any address but the loopback requires the token printed at start-up.")
 @click.option("--port", default=8765, show_default=True, type=click.IntRange(0, 65535),
               help="Port to listen on (0: any free port).")
-@click.option("--token", default=None, help="The token asked of browsers when not on the loopback (default: a new random one).")
+@click.option("--token", default=None, help="The token asked of browsers when not on the loopback: letters, digits and - _ . ~ "
+                   "(default: a new random one).")
 def monitor(run_dir: str, host: str, port: int, token: str | None) -> None:
     """Serve the monitor page of the run in RUN_DIR (docs/monitor.md).
 

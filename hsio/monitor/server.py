@@ -18,6 +18,7 @@ import hmac
 import html
 import os
 import queue
+import re
 import secrets
 import signal
 import socket
@@ -139,6 +140,9 @@ def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT
     if not host.strip():  # an empty address would bind every interface (an unset variable, a typing error)
         raise ConfigError("the address to listen on is empty: give one (127.0.0.1, this machine; 0.0.0.0, every "
                           "interface, with a token)")
+    if token and not re.fullmatch(r"[A-Za-z0-9._~-]+", token):  # it travels in the URL and a cookie as it is
+        raise ConfigError(f"the token {token[:40]!r} may hold only letters, digits and - _ . ~ (it is sent in the "
+                          f"page's URL and kept in a cookie)")
     if needs_token(host) and not token:
         token = secrets.token_urlsafe(18)
     feed = RecordFeed(run_dir)
