@@ -15,7 +15,10 @@ from hsio.recording import RUN_FILE, connect_read_only
 
 def _refuse_foreign_record(path: Path) -> None:
     """A run.sqlite that SQLite cannot read is refused before the page is served (an empty one is
-    a run being created, and is followed)."""
+    a run being created, and is followed); nor is one that is not a regular file (a FIFO would
+    block the reader for ever)."""
+    if path.exists() and not path.is_file():
+        raise HsioError(f"{path}: not a regular file, so not an hsio recording")
     if not path.is_file() or path.stat().st_size == 0:
         return
     try:

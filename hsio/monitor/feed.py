@@ -127,7 +127,7 @@ class RecordFeed:
             return 0
 
     def _open(self) -> bool:
-        if not self.path.exists():
+        if not self.path.is_file():  # not yet there; never anything but a file (a FIFO blocks its reader)
             return False
         try:
             db = connect_read_only(self.path, check_same_thread=False)
