@@ -484,3 +484,131 @@ def test_a_record_without_controller_samples_says_why_it_shows_no_phase(tmp_path
     page = page_mod.MonitorPage(Document(), feed, Operator(tmp_path / "run"))
     assert "phase not recorded ([output] samples = false" in page.status.text
     feed.close()
+
+
+def force_controlled_record(folder: Path, modes: list[str], error_mm: float, error_kN: float) -> None:
+    """C1 (DOF C1) over len(modes) steps of 64 controller samples each, in the mode given per
+    step: the force follows a 3 kN sine (kN in FC) or the displacement a 5 mm one, with the end
+    of step error ``error_mm`` in DC and ``error_kN`` in FC; the samples track their command
+    exactly (a displacement 1/0.6 of the force)."""
+    meta = {"structure": "validation", "record": "sine", "dt": 0.01, "test_rate": 2.0,
+            "config": {"structure": {"name": "validation", "file": ""},
+                       "safety": {"following_error_mm": 10.0, "following_error_kN": 25.0, "warning_fraction": 0.9}},
+            "dry_run": {"limits": {"stroke_mm": 254.0, "force_kN": 250.0, "velocity_mm_s": 500.0}}}
+    rec = Recorder(folder / "run.sqlite", ["C1"], ["C1"], meta)
+    rec.db.execute("PRAGMA synchronous=OFF")
+    for k, mode in enumerate(modes, start=1):
+        t = (k - 1 + np.arange(64) / 64) * 0.02
+        force = 3.0 * np.sin(2 * np.pi * 2.0 * t)
+        disp = force / 0.6
+        cmd = force if mode == "force" else disp
+        samples = np.stack([cmd, disp, force], axis=-1)[:, None, :]
+        target = force[-1] + error_kN if mode == "force" else disp[-1] + error_mm
+        rec.write_step(k, 0.01 * k, [disp[-1]], [0], [0], [disp[-1]], [force[-1]], [mode], [target], [target],
+                       [disp[-1]], [force[-1]], samples)
+    rec.close()
+
+
+def test_the_spectrum_of_a_channel_in_force_control_is_of_its_force_error(tmp_path):
+    """In force control the controller's command is a force: its tracking error is against the
+    measured force (kN), not the displacement (mm). A force loop that tracks exactly shows no error."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    force_controlled_record(tmp_path, ["force"] * 80, 0.0, 0.0)
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), Operator(tmp_path))
+    page._spectrum()
+    assert len(page.spectrum.data["f"]) and np.max(page.spectrum.data["a_C1"]) < 1e-6
+
+
+def test_the_least_following_margin_of_a_mixed_channel_takes_each_step_against_its_own_mode(tmp_path):
+    """C1 ran 8 mm behind in DC (20 % of the 10 mm threshold left), then 1 kN behind in FC (96 %
+    of 25 kN): the least margin is 20 %, not the DC errors read against the FC threshold."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    force_controlled_record(tmp_path, ["displacement"] * 10 + ["force"] * 10, 8.0, 1.0)
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), Operator(tmp_path))
+    margins = dict(zip(page.margins.data["label"], page.margins.data["text"]))
+    assert margins["C1 following"] == "96 % (least 20 %)", margins
+
+
+def test_a_second_pause_at_the_same_step_is_not_shown_with_the_first_pauses_hold(tmp_path):
+    """Paused and resumed during the ramp in of the preloads (events at step 0), then paused
+    again: until the second pause's read-back is in the record, the page does not show the first's."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 0)
+    rec.write_event(1.0, 0, "pause", "", "paused after step 0: the actuators hold (confirmed by read-back) "
+                                         "(in the ramp in of the static preloads)")
+    rec.write_event(2.0, 0, "resume", "", "resumed after 1.0 s of pause (in the ramp in of the static preloads)")
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), _RunAnswering("ok paused phase ramp-in step 0"))
+    state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+    assert "confirmed" not in state and "the hold's read-back is not in the record yet" in state, state
+    rec.close()
+
+
+def test_a_long_record_is_read_in_batches_not_held_whole_as_rows(tmp_path):
+    """A page opened on a long record (late in a run, or a replay) reads it READ_BATCH steps at a
+    time: what the first read holds beside the feed's columns stays a batch, not the whole record
+    as Python rows (several times the columns' memory)."""
+    import tracemalloc
+
+    write_record(tmp_path, 8_000, ns=False).close()
+    feed = RecordFeed(tmp_path)
+    feed.READ_BATCH = 500
+    assert feed._open()  # the record's names and structure, then the steps alone are measured
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        assert feed.poll(force=True) == 8_000
+        peak = tracemalloc.get_traced_memory()[1] - before
+    finally:
+        tracemalloc.stop()
+    columns = feed.columns._data.nbytes
+    print(f"first read of 8,000 steps: {peak / 1e6:.1f} MB at most, columns {columns / 1e6:.1f} MB")
+    assert peak < 2.5 * columns
+    run = Run(tmp_path / "run.sqlite")
+    np.testing.assert_array_equal(feed["u_C1"], run.steps["u_C1"])
+    np.testing.assert_allclose(feed["ti_C1"], tracking_indicator(run.steps["target_C1"], run.steps["disp_C1"]))
+    feed.close()
+
+
+def test_a_run_that_commits_nothing_for_a_while_has_no_measured_rate_or_time_to_finish(tmp_path):
+    """Paused (or held up) for longer than the window: the page shows no measured rate and no
+    time to finish, not the rate from before the pause; over the last seconds, steps per second."""
+    feed = RecordFeed(tmp_path)
+    now = time.monotonic()
+    feed.seen_at = [(now - 9.0, 100), (now - 8.0, 110)]  # ten steps a second, then nothing for 8 s
+    assert feed.steps_per_second() is None
+    feed.seen_at = [(now - 4.0, 100), (now - 2.0, 120)]  # twenty steps in the last 4 s, none in the last 2
+    assert feed.steps_per_second() == pytest.approx(5.0, rel=0.01)
+
+
+@pytest.mark.parametrize("token", ["a;b c", "tökén", "x\"y"])
+def test_a_token_that_cannot_travel_in_a_url_and_a_cookie_is_refused(tmp_path, token):
+    write_record(tmp_path, 5).close()
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--host", "127.0.0.2",
+                           "--port", "0", "--token", token], env=ENV, capture_output=True, text=True, timeout=20)
+    assert proc.returncode == 2 and "may hold only letters, digits" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_a_record_that_is_not_a_regular_file_is_refused_not_read_for_ever(tmp_path):
+    """A FIFO in the place of run.sqlite would block its reader (and the page with it) for ever:
+    `hsio monitor` refuses it by name; the feed of a run starting waits for a file."""
+    import threading
+
+    os.mkfifo(tmp_path / "run.sqlite")
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                          capture_output=True, text=True, timeout=20)
+    assert proc.returncode == 2 and "run.sqlite: not a regular file" in proc.stderr, proc.stderr
+    feed = RecordFeed(tmp_path)
+    polled = threading.Thread(target=feed.poll, kwargs={"force": True}, daemon=True)
+    polled.start()
+    polled.join(timeout=5)
+    assert not polled.is_alive() and not feed.opened

@@ -266,3 +266,80 @@ def test_live_run_paused_resumed_and_stopped_from_the_page_then_replayed(tmp_pat
         replay = {k: b.model("steps", f"Array.from(m.data[{k!r}])") for k in live}
         assert all(b.model(f"{a}_button", "m.disabled") is True for a in ("pause", "resume", "stop"))
         assert replay == live
+
+
+def test_a_page_that_loses_its_monitor_says_the_state_is_not_known(tmp_path):
+    """A run answering on its socket (the page: running, Stop enabled); then the page's server
+    goes (a run killed takes its monitor with it): the page must not go on showing its last
+    state, say a hold, as if it still followed the run."""
+    import selenium  # noqa: F401
+
+    from hsio.monitor.server import READY
+    from hsio.safety.control import RunControl
+    from hsio.safety.socket import ControlServer
+    from test_monitor import write_record
+
+    rec = write_record(tmp_path, 30)
+    with contextlib.ExitStack() as cleanup:
+        server = ControlServer(tmp_path, RunControl())
+        cleanup.callback(server.close)
+        rec.write_meta({"control_socket": str(server.path)})
+        rec.close()
+        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cleanup.callback(ended, mon)
+        b = cleanup.enter_context(browser.Browser())
+        b.driver.get(Lines(mon.stdout).wait_for(READY, 60).rpartition(" at ")[2].strip())
+        wait_page(b, lambda: state(b).startswith("running"), 30, "the run answering")
+        assert b.model("stop_button", "m.disabled") is False
+        mon.terminate()
+        mon.wait(timeout=20)
+        wait_page(b, lambda: "lost its connection" in state(b), 20, "the lost connection")
+        time.sleep(1.0)  # said once, not again over itself
+        assert state(b).startswith("not known") and "(it showed: running" in state(b), state(b)
+        assert all(b.model(f"{a}_button", "m.disabled") is True for a in ("pause", "resume", "stop"))
+
+
+# The element that holds the status (its shadow root shows the state), as the browser lays it out.
+STATUS_BOX = """
+const find = (root) => {
+  for (const el of root.querySelectorAll('*')) {
+    if (!el.shadowRoot) continue;
+    if (el.shadowRoot.innerHTML.includes("hsio-state")) return el;
+    const hit = find(el.shadowRoot);
+    if (hit) return hit;
+  }
+  return null;
+};
+const box = find(document);
+return box ? [box.scrollHeight, box.clientHeight, getComputedStyle(box).overflowY] : null;
+"""
+
+
+def test_the_status_of_many_dofs_scrolls_in_its_box_not_under_the_plots(tmp_path):
+    """Twelve DOFs and actuators: the status is longer than its fixed box; the rest is reached by
+    scrolling it, not drawn under the plots, where the last DOFs could not be read."""
+    import selenium  # noqa: F401
+
+    from hsio.monitor.server import READY
+    from hsio.recording import Recorder
+
+    names = [f"floor_{i:02d}_lateral_x" for i in range(1, 13)]
+    rec = Recorder(tmp_path / "run.sqlite", names, names, {"structure": "chain", "record": "sine", "dt": 0.01,
+                                                           "test_rate": 2.0, "config": {}})
+    for k in range(1, 21):
+        u = [np.sin(0.1 * k + j) for j in range(12)]
+        rec.write_step(k, 0.01 * k, u, u, u, u, u, ["displacement"] * 12, u, u, u, u)
+    rec.write_summary({"steps": 20, "outcome": "finished"})
+    rec.close()
+    with contextlib.ExitStack() as cleanup:
+        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cleanup.callback(ended, mon)
+        b = cleanup.enter_context(browser.Browser())
+        b.driver.get(Lines(mon.stdout).wait_for(READY, 60).rpartition(" at ")[2].strip())
+        wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
+        wait_page(b, lambda: "floor_12_lateral_x DC" in (b.model("status", "m.text") or ""), 10, "the last DOF")
+        scroll, client, overflow = b.driver.execute_script(STATUS_BOX)
+        assert scroll > client  # longer than its box (else this test shows nothing)
+        assert overflow in ("auto", "scroll"), overflow

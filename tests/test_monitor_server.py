@@ -305,3 +305,41 @@ def test_a_run_that_does_not_answer_never_blocks_the_page_and_stop_stays_availab
             break
         time.sleep(0.01)
     assert "stop from the monitor page: error: the run does not answer" in op.log[0]
+
+
+def _raw(port: int, path: str, host: str, headers: tuple[str, ...] = ()) -> bytes:
+    """What the monitor on 127.0.0.1:``port`` sends to a request of ``path`` addressed to
+    ``host`` (its Host header), until it closes the connection or says "ACK" (Bokeh's greeting)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall(("\r\n".join([f"GET {path} HTTP/1.1", f"Host: {host}", *headers]) + "\r\n\r\n").encode())
+        data, deadline = b"", time.monotonic() + 10
+        while b"ACK" not in data and time.monotonic() < deadline:
+            chunk = s.recv(4096)
+            if not chunk:
+                break
+            data += chunk
+    return data
+
+
+def test_on_the_loopback_a_request_addressed_to_another_name_is_refused(tmp_path):
+    """A site whose name a browser resolves to 127.0.0.1 (DNS rebinding) reaches the loopback
+    monitor's port with its own Host and Origin: same origin, as the browser sees it. Neither its
+    page nor its websocket is served; the monitor's own names are."""
+    from bokeh.util.token import generate_jwt_token, generate_session_id
+
+    write_record(tmp_path, 20).close()
+    proc, url = start_monitor(tmp_path, "--port", "0")
+    try:
+        port = urllib.parse.urlsplit(url).port
+        for name in ("127.0.0.1", "localhost", "[::1]"):
+            assert _raw(port, "/", f"{name}:{port}", ("Connection: close",)).startswith(b"HTTP/1.1 200 "), name
+        assert _raw(port, "/", f"evil.example:{port}", ("Connection: close",)).startswith(b"HTTP/1.1 302 ")
+        assert _raw(port, "/denied", f"evil.example:{port}", ("Connection: close",)).startswith(b"HTTP/1.1 403 ")
+        for name, served in ((f"127.0.0.1:{port}", True), (f"evil.example:{port}", False)):
+            reply = _raw(port, "/ws", name, ("Upgrade: websocket", "Connection: Upgrade", f"Origin: http://{name}",
+                                             "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==", "Sec-WebSocket-Version: 13",
+                                             f"Sec-WebSocket-Protocol: bokeh, {generate_jwt_token(generate_session_id())}"))
+            assert (b'"msgtype": "ACK"' in reply) is served, (name, reply[-200:])
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)

@@ -122,6 +122,27 @@ def test_unknown_socket_command_is_answered_plainly(tmp_path):
         server.close()
 
 
+def test_a_stop_is_answered_at_once_beside_clients_that_connect_and_say_nothing(tmp_path):
+    """Local clients stalled on the socket (a hung script) do not hold up the operator's stop:
+    each connection is answered on its own, so the stop is obeyed and acknowledged at once."""
+    import socket
+
+    control = RunControl()
+    server = control_socket.ControlServer(tmp_path, control)
+    stalled = []
+    try:
+        for _ in range(3):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.connect(str(server.path))
+            stalled.append(s)
+        assert control_socket.send(server.path, "stop", timeout_s=1.0) == "ok stopping"
+        assert control.stop_requested
+    finally:
+        for s in stalled:
+            s.close()
+        server.close()
+
+
 def start_run(tmp_path, record: str):
     cfg = tmp_path / "run.toml"
     cfg.write_text(record + "[output]\nplots = false\n")
@@ -232,3 +253,34 @@ def test_a_pause_feeds_the_watchdog_within_a_quarter_of_its_time(watchdog_s):
         assert np.median(gaps) < 0.06  # within the watchdog, with a margin
     else:
         assert gaps.min() >= 0.0049 and len(site.fed) <= paused / 0.005 + 1  # the 5 ms floor
+
+
+class _ResumingSite:
+    """A site whose resume (re-enabling the axes takes a while) meets a pause asked meanwhile."""
+
+    def __init__(self, control: RunControl):
+        self.control, self.replies, self.states = control, [], []
+
+    def pause(self):
+        return None
+
+    def resume(self):
+        self.replies.append(self.control.request_pause("socket"))
+        self.states.append(self.control.status())
+
+
+def test_a_pause_asked_while_the_run_resumes_is_not_answered_as_paused():
+    """The actuators are being set going again: a pause asked then takes effect after the next
+    step, so the run answers "pausing" and says so, never "paused" while they move."""
+    control = RunControl()
+    site = _ResumingSite(control)
+    control.request_pause()
+    threading.Timer(0.05, control.request_resume).start()
+    control.checkpoint(site, 3)
+    assert site.replies == ["ok pausing"] and site.states[0].startswith("ok pausing")
+    assert control.state == "pausing"  # and the next step boundary pauses again
+    threading.Timer(0.05, control.request_resume).start()
+    control.checkpoint(site, 4)
+    assert control.state == "pausing"
+    control.request_resume()
+    assert control.state == "running"

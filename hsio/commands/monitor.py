@@ -15,7 +15,10 @@ from hsio.recording import RUN_FILE, connect_read_only
 
 def _refuse_foreign_record(path: Path) -> None:
     """A run.sqlite that SQLite cannot read is refused before the page is served (an empty one is
-    a run being created, and is followed)."""
+    a run being created, and is followed); nor is one that is not a regular file (a FIFO would
+    block the reader for ever)."""
+    if path.exists() and not path.is_file():
+        raise HsioError(f"{path}: not a regular file, so not an hsio recording")
     if not path.is_file() or path.stat().st_size == 0:
         return
     try:
@@ -31,7 +34,8 @@ def _refuse_foreign_record(path: Path) -> None:
               help="Address to listen on. Any address but the loopback requires the token printed at start-up.")
 @click.option("--port", default=8765, show_default=True, type=click.IntRange(0, 65535),
               help="Port to listen on (0: any free port).")
-@click.option("--token", default=None, help="The token asked of browsers when not on the loopback (default: a new random one).")
+@click.option("--token", default=None, help="The token asked of browsers when not on the loopback: letters, digits and - _ . ~ "
+                   "(default: a new random one).")
 def monitor(run_dir: str, host: str, port: int, token: str | None) -> None:
     """Serve the monitor page of the run in RUN_DIR (docs/monitor.md).
 

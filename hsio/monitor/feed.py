@@ -55,6 +55,7 @@ class RecordFeed:
     """Reads the record of the run in ``run_dir`` incrementally."""
 
     MIN_POLL_S = 0.1  # polls closer together than this return at once
+    READ_BATCH = 5000  # steps read from the record at a time
 
     def __init__(self, run_dir: str | Path):
         self.run_dir = Path(run_dir)
@@ -126,7 +127,7 @@ class RecordFeed:
             return 0
 
     def _open(self) -> bool:
-        if not self.path.exists():
+        if not self.path.is_file():  # not yet there; never anything but a file (a FIFO blocks its reader)
             return False
         try:
             db = connect_read_only(self.path, check_same_thread=False)
@@ -183,11 +184,20 @@ class RecordFeed:
         self._summary_version = version  # taken before the read: a commit in between is read next time
 
     def _read_steps(self, db) -> int:
-        cur = db.execute("SELECT * FROM steps WHERE step > ? ORDER BY step", (self._last_step,))
-        names = [c[0] for c in cur.description]
-        rows = cur.fetchall()
-        if not rows:
-            return 0
+        """The steps committed since the last read, taken READ_BATCH rows at a time: a long
+        record read at once (a page opened late, a replay) would hold every row as Python
+        objects, several times the memory its columns take."""
+        read = 0
+        while True:
+            cur = db.execute("SELECT * FROM steps WHERE step > ? ORDER BY step LIMIT ?", (self._last_step, self.READ_BATCH))
+            rows = cur.fetchall()
+            if rows:
+                self._append_steps([c[0] for c in cur.description], rows)
+                read += len(rows)
+            if len(rows) < self.READ_BATCH:
+                return read
+
+    def _append_steps(self, names: list[str], rows: list) -> None:
         raw = {name: [r[i] for r in rows] for i, name in enumerate(names)}
         block = np.full((len(self.columns.names), len(rows)), np.nan)
         for k, name in enumerate(self.columns.names):
@@ -220,7 +230,6 @@ class RecordFeed:
             self._tif_state[c] = (float(tif[-1]), (float(fc_command[-1]), float(force[-1])))
         self.columns.append(block)
         self._last_step = int(rows[-1][0])
-        return len(rows)
 
     def read_samples(self) -> dict[str, np.ndarray]:
         """The last SAMPLES_WINDOW controller samples (read again only if new ones were recorded)."""
@@ -248,14 +257,16 @@ class RecordFeed:
 
     # -- derived -----------------------------------------------------------------------------
     def steps_per_second(self, window_s: float = 5.0) -> float | None:
-        """Steps committed per second of wall time over the last ``window_s`` (live runs only)."""
-        if len(self.seen_at) < 2:
+        """Steps committed per second of wall time over the last ``window_s`` until now (live
+        runs only); None when no step came within it (a pause: no rate, no time to finish)."""
+        now = time.monotonic()
+        if len(self.seen_at) < 2 or self.seen_at[-1][0] < now - window_s:
             return None
-        t_end, n_end = self.seen_at[-1]
-        first = next(((t, n) for t, n in self.seen_at if t >= t_end - window_s), self.seen_at[0])
-        if t_end - first[0] <= 0:
+        before = [p for p in self.seen_at if p[0] <= now - window_s]
+        t0, n0 = before[-1] if before else self.seen_at[0]
+        if now - t0 <= 0:
             return None
-        return (n_end - first[1]) / (t_end - first[0])
+        return (self.seen_at[-1][1] - n0) / (now - t0)
 
     def close(self) -> None:
         if self.db is not None:

@@ -62,8 +62,12 @@ def error_spectrum(error: np.ndarray, rate_hz: float, f_max_hz: float = 100.0) -
     return f[keep], amplitude[keep]
 
 
-def margin(value: np.ndarray | float, limit: float | None) -> np.ndarray | float:
-    """1 - |value| / limit: 1 far from the limit, 0 at it, negative beyond (NaN: no limit known)."""
-    if limit is None or not limit > 0:
-        return np.full(np.shape(value), np.nan) if np.ndim(value) else float("nan")
-    return 1.0 - np.abs(value) / limit
+def margin(value: np.ndarray | float, limit: np.ndarray | float | None) -> np.ndarray | float:
+    """1 - |value| / limit: 1 far from the limit, 0 at it, negative beyond (NaN: no limit known);
+    ``limit`` may be given per value."""
+    if limit is None:
+        limit = np.nan
+    limit = np.asarray(limit, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(limit > 0, 1.0 - np.abs(value) / np.where(limit > 0, limit, 1.0), np.nan)
+    return out if np.ndim(out) else float(out)

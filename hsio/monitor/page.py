@@ -38,6 +38,17 @@ COLORS = Category10[10]
 CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
            "resume": "Resume the test from where it holds?",
            "stop": "STOP the test? The actuators hold and the record is closed (hsio resume can continue it later)."}
+SCROLL = {"overflow-y": "auto"}
+LOST = """
+const shown = (status.text.match(/hsio-state'>([^<]*)</) || ['', ''])[1];
+if (!shown.startsWith('not known')) {  // said once, however often the connection is reported lost
+  const at = new Date().toLocaleTimeString();
+  status.text = status.text.replace(/hsio-state'>[^<]*</, "hsio-state'>not known: this page lost its connection " +
+      "to the monitor at " + at + " and no longer follows the run (it showed: " + shown + "); reload it, or see " +
+      "the run's terminal<");
+}
+for (const b of buttons) { b.disabled = true; }
+"""
 # Fixed borders: when the tick labels change width the page is not laid out again (a relayout
 # redraws every plot, the costliest thing a browser does here).
 PLOT = dict(height=260, sizing_mode="stretch_width", tools="pan,box_zoom,wheel_zoom,reset,save",
@@ -68,11 +79,12 @@ class MonitorPage:
         self.built = False
         self._plotted = 0.0
         self._spectrum_at = 0.0
-        # Fixed sizes: new text never re-lays out the page (which would redraw every plot).
+        # Fixed sizes: new text never re-lays out the page (which would redraw every plot); text
+        # longer than its box (many DOFs, long events) scrolls in it instead of running under the plots.
         self.status = Div(text="<b>hsio monitor</b>: waiting for the record ...", name="status",
-                          width=1000, height=170)
-        self.actions = Div(text="", name="actions", width=380, height=130)
-        self.events = Div(text="", name="events", width=1500, height=190)
+                          width=1000, height=170, styles=SCROLL)
+        self.actions = Div(text="", name="actions", width=380, height=130, styles=SCROLL)
+        self.events = Div(text="", name="events", width=1500, height=190, styles=SCROLL)
         self.request = TextInput(value="", visible=False, name="request")
         self.request.on_change("value", self._on_request)
         self.buttons = []
@@ -85,6 +97,9 @@ class MonitorPage:
         self.head = row(self.status, controls, height=175)
         # Three roots, each laid out on its own: new status text never re-lays out the plots.
         self.root = column(self.head, self.request, name="root")
+        # A page that lost its server (the run ended and its monitor with it, killed, or the
+        # network) would go on showing its last state, a hold or "running": say it is not known.
+        doc.js_on_event("connection_lost", CustomJS(args=dict(status=self.status, buttons=self.buttons), code=LOST))
         doc.title = f"hsio monitor: {feed.run_dir}"
         doc.add_root(self.root)
         self.update()
@@ -216,7 +231,9 @@ class MonitorPage:
         out: dict = {}
         for c in f.channels:
             if s and col("cmd", c) in s and len(s[col("cmd", c)]) >= 64:
-                freq, amp = error_spectrum(s[col("cmd", c)] - s[col("disp", c)], CONTROLLER_RATE_HZ)
+                # in force control the command is a force: its error is against the measured force
+                measured = np.where(self._in_fc(c, s["step"]), s[col("force", c)], s[col("disp", c)])
+                freq, amp = error_spectrum(s[col("cmd", c)] - measured, CONTROLLER_RATE_HZ)
             else:  # no controller samples recorded: the end-of-step errors at the lab's step rate
                 step_s = float(f.meta.get("dt", 0.01)) * float(f.meta.get("test_rate", 1.0))
                 freq, amp = error_spectrum(f[col("error", c)][-1024:], 1.0 / step_s)
@@ -227,6 +244,16 @@ class MonitorPage:
         for key in out:  # single precision: half the bytes, more than a plot can show
             out[key] = out[key][: len(out["f"])].astype(np.float32)
         self.spectrum.data = out
+
+    def _in_fc(self, channel: str, steps: np.ndarray) -> np.ndarray:
+        """Whether ``channel`` was in force control at each of ``steps`` (a step not read yet:
+        as at the newest step read)."""
+        f = self.feed
+        dof = f.channel_dof.get(channel)
+        if dof is None or not f.n:
+            return np.zeros(len(steps), bool)
+        at = np.clip(np.searchsorted(f["step"], steps, side="right") - 1, 0, f.n - 1)
+        return f[col("fc", dof)][at] > 0
 
     def limits(self) -> dict:
         """Half stroke (mm), force capacity (kN), following-error thresholds (mm, kN)."""
@@ -246,17 +273,18 @@ class MonitorPage:
         labels, values, colors, texts = [], [], [], []
         for c in f.channels:
             dof = f.channel_dof.get(c)
-            in_fc = dof is not None and f[col("fc", dof)][n] > 0
+            in_fc = f[col("fc", dof)] > 0 if dof is not None else np.zeros(f.n, bool)
             actuator = "." not in c  # an element on a setup records its basic DOFs, not strokes
-            follow = lim["following_error_kN"] if in_fc else lim["following_error_mm"]
+            # each step's error against its own mode's threshold (kN in force control, else mm)
+            follow = np.where(in_fc, lim["following_error_kN"], lim["following_error_mm"])
             if f.channel_unit.get(c) == "rad":  # a rotation: its actuators' strokes carry the interlock's mm
                 follow = None
-            for what, value, limit in (("stroke", f[col("disp", c)][n], lim["half_stroke_mm"] if actuator else None),
-                                       ("force", f[col("force", c)][n], lim["force_kN"] if actuator else None),
-                                       ("following", f[col("error", c)][n], follow)):
-                m = margin(value, limit)
-                least = float(np.nanmin(margin(f[col({"stroke": "disp", "force": "force", "following": "error"}[what], c)],
-                                                limit))) if limit else float("nan")
+            for what, history, limit in (("stroke", f[col("disp", c)], lim["half_stroke_mm"] if actuator else None),
+                                         ("force", f[col("force", c)], lim["force_kN"] if actuator else None),
+                                         ("following", f[col("error", c)], follow)):
+                limits = np.broadcast_to(np.nan if limit is None else np.asarray(limit, dtype=float), history.shape)
+                m = float(margin(history[n], limits[n]))
+                least = float(np.nanmin(margin(history, limits))) if np.any(limits > 0) else float("nan")
                 labels.append(f"{c} {what}")
                 ok = math.isfinite(m)
                 values.append(100.0 * m if ok else 0.0)
@@ -354,9 +382,12 @@ class MonitorPage:
 
     def _pause_hold(self, step: str) -> str:
         """What the run read back of the actuators' hold when it paused after ``step`` (its
-        ``pause`` event), or that it is not in the record yet."""
+        ``pause`` event), or that it is not in the record yet: the newest pause or resume of the
+        record must be that pause (a ramp of the static preloads pauses at the same step again)."""
         for e in reversed(self.feed.events):
-            if e["kind"] == "pause":
+            if e["kind"] in ("pause", "resume"):
+                if e["kind"] == "resume":
+                    break
                 if str(e["step"]) == step:
                     return str(e["message"]).partition(": ")[2] or str(e["message"])
                 break

@@ -15,8 +15,10 @@ the parent dies).
 from __future__ import annotations
 
 import hmac
+import html
 import os
 import queue
+import re
 import secrets
 import signal
 import socket
@@ -64,8 +66,19 @@ def allowed_origins(host: str, port: int) -> list[str]:
     return [f"{host}:{port}"]
 
 
-def _token_auth(token: str, port: int):
-    """A Bokeh auth provider that admits a request carrying ``token`` (query or cookie)."""
+def loopback_hosts(port: int) -> set[str]:
+    """The ``Host`` headers a browser sends to a monitor on the loopback (``host:port``; the bare
+    name on port 80)."""
+    names = ("127.0.0.1", "localhost", "[::1]")
+    return {f"{h}:{port}" for h in names} | (set(names) if port == 80 else set())
+
+
+def _token_auth(token: str | None, port: int, hosts: set[str] | None = None):
+    """A Bokeh auth provider that admits a request carrying ``token`` (query or cookie), or with
+    no token any request, and only one addressed to one of ``hosts`` (None: any). On the loopback
+    (no token) the host is what keeps out another site's page that a browser reaches at the
+    monitor's port through a name of its own resolved to 127.0.0.1 (DNS rebinding): that page is
+    of its own origin, so its websocket would pass the origin check."""
     from bokeh.server.auth_provider import AuthProvider
     from tornado.web import RequestHandler
     from tornado.websocket import WebSocketHandler
@@ -73,6 +86,10 @@ def _token_auth(token: str, port: int):
     cookie = COOKIE.format(port=port)
 
     def get_user(handler):
+        if hosts is not None and handler.request.host.lower() not in hosts:
+            return None
+        if token is None:
+            return "operator"
         if same_token(handler.get_argument("token", None), token):
             if not isinstance(handler, WebSocketHandler):
                 handler.set_cookie(cookie, token, httponly=True, samesite="Strict")
@@ -82,7 +99,11 @@ def _token_auth(token: str, port: int):
     class Denied(RequestHandler):
         def get(self):
             self.set_status(403)
-            self.write("This hsio monitor needs the token printed when it started: open its URL with ?token=...\n")
+            if hosts is not None and self.request.host.lower() not in hosts:
+                self.write(f"This hsio monitor answers only at its own address (http://127.0.0.1:{port}/), "
+                           f"not at {html.escape(self.request.host)}\n")
+            else:
+                self.write("This hsio monitor needs the token printed when it started: open its URL with ?token=...\n")
 
     class TokenAuth(AuthProvider):
         @property
@@ -119,6 +140,9 @@ def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT
     if not host.strip():  # an empty address would bind every interface (an unset variable, a typing error)
         raise ConfigError("the address to listen on is empty: give one (127.0.0.1, this machine; 0.0.0.0, every "
                           "interface, with a token)")
+    if token and not re.fullmatch(r"[A-Za-z0-9._~-]+", token):  # it travels in the URL and a cookie as it is
+        raise ConfigError(f"the token {token[:40]!r} may hold only letters, digits and - _ . ~ (it is sent in the "
+                          f"page's URL and kept in a cookie)")
     if needs_token(host) and not token:
         token = secrets.token_urlsafe(18)
     feed = RecordFeed(run_dir)
@@ -130,10 +154,10 @@ def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT
     try:
         port = port or free_port(host)
         origins = allowed_origins(host, port)
-        kwargs = {"auth_provider": _token_auth(token, port)} if needs_token(host) else {}
+        auth = _token_auth(token, port) if needs_token(host) else _token_auth(None, port, loopback_hosts(port))
         server = Server({"/": Application(FunctionHandler(make_page))}, address=host, port=port,
                         allow_websocket_origin=origins, num_procs=1, check_unused_sessions_milliseconds=2000,
-                        unused_session_lifetime_milliseconds=5000, **kwargs)
+                        unused_session_lifetime_milliseconds=5000, auth_provider=auth)
     except OSError as exc:
         raise ConfigError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
     server.start()

@@ -125,12 +125,12 @@ class RunControl:
                 break
             if keep_alive is not None:  # the controllers' host watchdogs see a live host
                 keep_alive()
+        with self._lock:  # resuming: a pause asked from here on is for the next step boundary
+            if self.state != STOPPING:
+                self.state = PAUSING if self._pause_wanted else RUNNING
         resume = getattr(site, "resume", None)
         if resume is not None:
             resume()
-        with self._lock:
-            if self.state != STOPPING:
-                self.state = RUNNING
         message = f"resumed after {time.monotonic() - started:.1f} s of pause"
         if log:
             log("resume", message)

@@ -34,16 +34,19 @@ def socket_path(run_dir: str | Path) -> Path:
 
 
 class ControlServer:
-    """Serves :class:`RunControl` requests on a UNIX socket in a daemon thread."""
+    """Serves :class:`RunControl` requests on a UNIX socket in a daemon thread, each connection
+    answered in a thread of its own (at most MAX_CLIENTS at once)."""
 
     ACCEPT_SLICE_S = 0.2
     READ_TIMEOUT_S = 2.0
     MAX_LINE = 256
+    MAX_CLIENTS = 8  # connections answered at once, each in a thread of its own
 
     def __init__(self, run_dir: str | Path, control: RunControl):
         self.control = control
         self.path = socket_path(run_dir)
         self._stop = threading.Event()
+        self._clients = threading.BoundedSemaphore(self.MAX_CLIENTS)
         if self.path.exists():  # left by a run that was killed: nobody answers on it
             try:
                 send(self.path, "status", timeout_s=0.5)
@@ -81,19 +84,33 @@ class ControlServer:
                 continue
             except OSError:
                 break
+            # Each connection is answered on its own (a client that connects and says nothing
+            # waits out its READ_TIMEOUT_S without holding up the others, a stop among them).
+            if self._clients.acquire(blocking=False):
+                threading.Thread(target=self._answer, args=(conn,), name="hsio-control-client", daemon=True).start()
+            else:
+                with conn:
+                    try:
+                        conn.sendall(f"error busy: {self.MAX_CLIENTS} connections are open\n".encode())
+                    except OSError:
+                        pass
+
+    def _answer(self, conn: socket.socket) -> None:
+        try:
             with conn:
-                try:
-                    conn.settimeout(self.READ_TIMEOUT_S)
-                    data = b""
-                    while b"\n" not in data and len(data) < self.MAX_LINE:
-                        chunk = conn.recv(self.MAX_LINE)
-                        if not chunk:
-                            break
-                        data += chunk
-                    reply = self.handle(data.decode("utf-8", "replace").partition("\n")[0])
-                    conn.sendall((reply + "\n").encode())
-                except OSError:
-                    pass
+                conn.settimeout(self.READ_TIMEOUT_S)
+                data = b""
+                while b"\n" not in data and len(data) < self.MAX_LINE:
+                    chunk = conn.recv(self.MAX_LINE)
+                    if not chunk:
+                        break
+                    data += chunk
+                reply = self.handle(data.decode("utf-8", "replace").partition("\n")[0])
+                conn.sendall((reply + "\n").encode())
+        except OSError:
+            pass
+        finally:
+            self._clients.release()
 
     def close(self) -> None:
         self._stop.set()
