@@ -206,6 +206,8 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
                     recorder.write_row("implicit", k, _implicit_row(names, out))
                 meta = site.take_sample_meta() if hasattr(site, "take_sample_meta") else None
                 events = write_events(recorder, site, k)
+                if hasattr(site, "record_tables"):  # preload and instrument logs, committed with the step
+                    recorder.write_tables(site.record_tables())
                 recorder.write_step(k, float(t[k]), h.u[k], h.v[k], h.a[k], h.u_pred[k], h.R[k], h.modes[k],
                                     h.targets[k], h.commands[k], h.measured_displacement[k], h.measured_force[k],
                                     samples, sample_meta=meta, late_steps=site.late_steps,

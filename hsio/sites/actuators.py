@@ -54,6 +54,7 @@ class ActuatorSite:
         self._actuator_of = {j: setups.identity_actuator(j) if setups is not None else j
                              for j, x in enumerate(self.external) if x is not None}
         self.instrument_log: list[tuple] = []  # (trial, iterations, readings)
+        self._tables_taken = {"static": 0, "instruments": 0}  # log rows handed to the record so far
         self._trials = 0
         self.setups = setups
         self.static = list(static)
@@ -339,22 +340,29 @@ class ActuatorSite:
                     f"scale of the wrong sign); the run stops")
 
     def record_tables(self) -> dict[str, list[tuple[int, dict]]]:
-        """Extra tables for the record: ``static`` (the preloads' log) and ``instruments`` (every
-        trial's readings and outer-loop iterations)."""
+        """Extra tables for the record, the rows logged since the last call: ``static`` (the
+        preloads' log) and ``instruments`` (every trial's readings and outer-loop iterations). The
+        experiment loop takes them every step, so that they are committed with the step's row."""
         tables = {}
         if self.static:
             phases = {"ramp_in": 0, "test": 1, "ramp_off": 2}
+            first, self._tables_taken["static"] = self._tables_taken["static"], len(self.static_log)
             rows = []
-            for k, (phase, time_s, targets, forces, disps) in enumerate(self.static_log):
+            for k in range(first, len(self.static_log)):
+                phase, time_s, targets, forces, disps = self.static_log[k]
                 row = {"phase": phases[phase], "lab_time_s": time_s}
                 for j, load in enumerate(self.static):
                     name = load.actuator
                     row.update({f"target_{name}": targets[j], f"force_{name}": forces[j], f"disp_{name}": disps[j]})
                 rows.append((k, row))
-            tables["static"] = rows
+            if rows:
+                tables["static"] = rows
         if self.instruments is not None:
-            tables["instruments"] = [(trial, {"iterations": iterations, **readings})
-                                     for trial, iterations, readings in self.instrument_log]
+            first, self._tables_taken["instruments"] = self._tables_taken["instruments"], len(self.instrument_log)
+            rows = [(trial, {"iterations": iterations, **readings})
+                    for trial, iterations, readings in self.instrument_log[first:]]
+            if rows:
+                tables["instruments"] = rows
         return tables
 
     def get_daq(self) -> Daq:
