@@ -76,6 +76,36 @@ def test_strength_and_stiffness_drop_after_an_excursion():
     assert m.trial(8.0) / (8.0 - u_zero) < 0.5 * 20.0  # reloading far softer than k0
 
 
+def test_a_cycle_in_small_steps_in_closed_form():
+    """k0 = 8, F_y = 8 (u_y = 1), hardening 1/8 of k0, E_t = 50 x 8 x 1 = 400 kN mm; loaded to
+    3 mm in steps of 0.25 mm, unloaded in steps through its zero-force point (1.75 mm), reloaded
+    the other way: the excursion's energy is the area of the loop by the trapezoids of its
+    steps; the other way it has not yielded, so reloading runs on the line from the zero-force
+    point to the deteriorated yield point (where k0 a = s H(a)) and then on s H."""
+    m = make_specimen({**PARAMS, "k0": 8.0, "Fy": 8.0, "u_c": 5.0, "alpha_s": 0.125})
+    H = lambda a: 8.0 + 1.0 * (a - 1.0)  # noqa: E731  hardening line, alpha_s k0 = 1 kN/mm
+    for k in range(1, 13):  # 0.25 .. 3 mm on the backbone
+        u = 0.25 * k
+        assert m.force(u) == pytest.approx(8.0 * u if u <= 1.0 else H(u), abs=1e-12)
+    for u in (2.75, 2.5, 2.25, 2.0):  # unloading at k0 from (3, 10)
+        assert m.force(u) == pytest.approx(10.0 - 8.0 * (3.0 - u), abs=1e-12)
+    assert m.strength_factor == 1.0  # the excursion goes on while the force has not reached zero
+    assert m.force(1.75) == 0.0  # it ends at the zero-force point, the other one begins
+    # the loop: 4 (elastic) + 18 (hardening) - 6.25 (unloading) = 15.75 kN mm, all dissipated
+    s = 1.0 - 15.75 / 400.0
+    F = m.force(1.5)
+    assert m.strength_factor == pytest.approx(s, rel=1e-12)
+    assert m.unloading_stiffness == pytest.approx(8.0 * s, rel=1e-12)
+    a_y = s * 8.0 * (1.0 - 0.125) / (8.0 * (1.0 - 0.125 * s))  # 8 a = s H(a)
+    assert 8.0 * a_y == pytest.approx(s * H(a_y), rel=1e-12)
+    line = lambda u: -8.0 * a_y * (u - 1.75) / (-a_y - 1.75)  # noqa: E731
+    assert F == pytest.approx(line(1.5), rel=1e-12)
+    for u in (1.0, 0.0, -0.75):
+        assert m.force(u) == pytest.approx(line(u), rel=1e-12)
+    for u in (-1.0, -1.5, -2.0):  # beyond the deteriorated yield point: on s H
+        assert m.force(u) == pytest.approx(-s * H(-u), rel=1e-12)
+
+
 def test_deterioration_accumulates_until_the_energy_capacity_is_spent():
     m = make_specimen({**PARAMS, "gamma": 10.0})
     factors = []
