@@ -529,7 +529,7 @@ class _Reader:
         entry = self.table(where, entry, TABLES["instrument"])
         name = self.string(f"{where}.name", self.required(where, entry, "name"))
         kind = self.required(where, entry, "kind")
-        if kind not in INSTRUMENT_KINDS:
+        if not isinstance(kind, str) or kind not in INSTRUMENT_KINDS:
             raise self.error(f"{where}.kind", f"unknown instrument {kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
         element = self.string(f"{where}.element", entry["element"]) if "element" in entry else ""
         scale = self.number(f"{where}.scale", entry.get("scale", 1.0))
