@@ -140,3 +140,20 @@ def test_real_daq_file(shared_data):
     assert rec.n == 61500 and rec.dt == pytest.approx(0.001)
     assert 2.0 < np.max(np.abs(rec.command_mm)) < 2.5  # about +/-0.23 V x 10 mm/V
     assert rec.force_kN is not None
+
+
+def test_daq_header_size_without_a_colon_is_named(tmp_path):
+    path = _daq(tmp_path)
+    path.write_bytes(path.read_bytes().replace(b"Header Size:  7", b"Header Size  7", 1))
+    with pytest.raises(RecordError, match=r"rec.txt:1: expected 'Header Size: n', got 'Header Size  7' \(no colon\)"):
+        read_daq(path)
+
+
+def test_a_specimen_daq_export_with_header_size_written_as_7_0_is_read(tmp_path):
+    """'7.0' is a whole number of lines for the reader; the specimen's segments count the same lines."""
+    from hsio.diagnose.specimen_record import read_specimen
+
+    path = _daq(tmp_path, n=400)
+    path.write_bytes(path.read_bytes().replace(b"Header Size:  7", b"Header Size:  7.0", 1))
+    (record,) = read_specimen(path, "daq")
+    assert record.displacement_mm.size == 400

@@ -156,19 +156,28 @@ class DaqChannels:
     force_scale: float = 9.80665
 
 
+def daq_header_size(lines: list[str], path) -> int:
+    """The n of a DAQ export's first line ``Header Size: n``: the lines of its header, the row of
+    column names the last."""
+    if not lines or not lines[0].lower().startswith("header size"):
+        raise RecordError(f"{path}:1: not a DAQ export (expected 'Header Size: n', got {lines[0][:40] if lines else ''!r})")
+    _, colon, text = lines[0].partition(":")
+    if not colon:
+        raise RecordError(f"{path}:1: expected 'Header Size: n', got {lines[0][:40]!r} (no colon)")
+    size = _number(text, path, 1, "Header Size")
+    if size != int(size) or size < 2:
+        raise RecordError(f"{path}:1: Header Size must be a whole number of lines, at least 2 (the header and the "
+                          f"column names), got {text.strip()!r}")
+    return int(size)
+
+
 def read_daq(path: str | Path, channels: DaqChannels | None = None) -> ActuatorRecord:
     """A DAQ text export (SOURCES.md format): header, column names, sample rows with event text."""
     path = Path(path)
     ch = channels or DaqChannels()
     text = read_bytes(path).decode("latin-1")
     all_lines = text.splitlines()
-    if not all_lines or not all_lines[0].lower().startswith("header size"):
-        raise RecordError(f"{path}:1: not a DAQ export (expected 'Header Size: n', got {all_lines[0][:40] if all_lines else ''!r})")
-    size = _number(all_lines[0].split(":", 1)[1], path, 1, "Header Size")
-    if size != int(size) or size < 2:
-        raise RecordError(f"{path}:1: Header Size must be a whole number of lines, at least 2 (the header and the "
-                          f"column names), got {all_lines[0].split(':', 1)[1].strip()!r}")
-    header_size = int(size)
+    header_size = daq_header_size(all_lines, path)
     info = {}
     # The header lines include the row of column names (the last one).
     for lineno in range(2, header_size):
