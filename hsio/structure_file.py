@@ -107,7 +107,7 @@ def parse_structure(data: bytes | str, filename: str, default_name: str = "struc
     """Check and build a structure from the text of a structure file named ``filename``."""
     if isinstance(data, bytes):
         try:
-            data = data.decode("utf-8")
+            data = data.decode("utf-8-sig")  # a byte-order mark (Windows editors) is dropped
         except UnicodeDecodeError as exc:
             raise ConfigError(f"{filename}: not UTF-8 text (byte {exc.start} is 0x{data[exc.start]:02x})") from None
     try:

@@ -1,4 +1,4 @@
-"""Hostile ground-motion records and values quoted from files: each refused with a clear error
+"""Hostile ground-motion records, input files and values quoted from files: each read, or refused with a clear error
 that names the file and where, of bounded length, exit 2 from `hsio run` before anything opens
 (docs/faults.md)."""
 
@@ -76,3 +76,23 @@ def test_a_config_value_of_megabytes_is_quoted_in_part(tmp_path):
 def test_a_short_message_is_kept_whole():
     text = "f.toml: [test] rate: " + "x" * (MAX_MESSAGE_CHARS - 30)
     assert str(ConfigError(text)) == text
+
+
+def test_toml_files_saved_with_a_byte_order_mark_and_crlf_are_read(tmp_path):
+    """Windows editors save UTF-8 with a byte-order mark, which TOML does not allow: dropped, as
+    the CSV readers drop it, for run configurations, structure files and register maps alike."""
+    from importlib import resources
+
+    from hsio import config
+    from hsio.drivers import modbus_map
+    from hsio.structure_file import load_structure
+
+    bom = b"\xef\xbb\xbf"
+    structure = (resources.files("hsio") / "library" / "structure_I.toml").read_bytes().replace(b"\n", b"\r\n")
+    (tmp_path / "wall.toml").write_bytes(bom + structure)
+    cfg = tmp_path / "run.toml"
+    cfg.write_bytes(bom + b'[structure]\r\nfile = "wall.toml"\r\n[test]\r\nrate = 10.0\r\n')
+    assert config.load(cfg)["test"]["rate"] == 10.0
+    assert load_structure(tmp_path / "wall.toml").M.shape == (1, 1)
+    (tmp_path / "map.toml").write_bytes(bom + modbus_map.DEFAULT_MAP.read_bytes())
+    modbus_map.load(tmp_path / "map.toml")
