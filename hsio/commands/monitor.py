@@ -17,6 +17,8 @@ def _refuse_foreign_record(path: Path) -> None:
     """A run.sqlite that SQLite cannot read is refused before the page is served (an empty one is
     a run being created, and is followed); so is a finished record (one with a summary, to be
     replayed) that :class:`~hsio.recording.Run` does not read whole: damaged, or of another kind."""
+    if path.exists() and not path.is_file():  # a folder, or a FIFO the page would wait on for ever
+        raise HsioError(f"{path}: not a regular file, so not an hsio recording")
     if not path.is_file() or path.stat().st_size == 0:
         return
     try:
