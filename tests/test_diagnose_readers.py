@@ -157,3 +157,16 @@ def test_a_specimen_daq_export_with_header_size_written_as_7_0_is_read(tmp_path)
     path.write_bytes(path.read_bytes().replace(b"Header Size:  7", b"Header Size:  7.0", 1))
     (record,) = read_specimen(path, "daq")
     assert record.displacement_mm.size == 400
+
+
+@pytest.mark.parametrize("text, words", [
+    ("," * 2_000_000 + "\n", r"r.csv:1: header must be time_s,command_mm,measured_mm\[,force_kN\], got a line of 2000001 fields"),
+    ("time_s,command_mm,measured_mm\n" + "1," * 2_000_000 + "\n", r"r.csv:2: expected 3 fields \(time_s,command_mm,measured_mm\), got 2000001"),
+])
+def test_a_line_of_millions_of_fields_is_counted_before_it_is_split(tmp_path, text, words):
+    """A line is refused on its count of commas: a 100 MB line of commas split into fields would
+    take some 2 GB."""
+    path = tmp_path / "r.csv"
+    path.write_text(text)
+    with pytest.raises(RecordError, match=words):
+        read_csv(path)

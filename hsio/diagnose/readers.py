@@ -30,6 +30,7 @@ CSV_REQUIRED = ("time_s", "command_mm", "measured_mm")
 CSV_OPTIONAL = ("force_kN",)
 FORMATS = ("csv", "daq", "run")
 STEP_TOLERANCE = 0.05  # a time step may differ from the median by this fraction (rounding)
+MAX_COLUMNS = 64  # a record's header names a few columns; a line of more is not one
 MAX_FILE_BYTES = 100_000_000  # about 1.5 to 3 million samples: an hour at 1 kHz, within a few GB of memory
 
 
@@ -95,6 +96,11 @@ def read_csv_table(path: str | Path, header_error) -> tuple[Path, dict[str, np.n
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):
             continue
+        count = stripped.count(",") + 1  # counted before the split: a line of millions of commas stays bytes
+        if header is not None and count != len(header):
+            raise RecordError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {count}")
+        if header is None and count > MAX_COLUMNS:
+            raise RecordError(f"{path}:{lineno}: header must be {header_error([])}, got a line of {count} fields")
         fields = [f.strip() for f in stripped.split(",")]
         if header is None:
             wrong = header_error(fields)
@@ -102,8 +108,6 @@ def read_csv_table(path: str | Path, header_error) -> tuple[Path, dict[str, np.n
                 raise RecordError(f"{path}:{lineno}: header must be {wrong}, got {stripped!r}")
             header = fields
             continue
-        if len(fields) != len(header):
-            raise RecordError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {len(fields)}")
         rows.append([_number(f, path, lineno, name) for f, name in zip(fields, header)])
         lines.append(lineno)
     if header is None:
