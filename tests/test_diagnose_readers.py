@@ -170,3 +170,19 @@ def test_a_line_of_millions_of_fields_is_counted_before_it_is_split(tmp_path, te
     path.write_text(text)
     with pytest.raises(RecordError, match=words):
         read_csv(path)
+
+
+def test_an_event_text_of_millions_of_commas_is_not_split(tmp_path):
+    """The text after a row's channels is its event (DAQ Start, ...), kept whole: a row whose event
+    holds two million commas reads in memory of the order of the file, not a list of its fields."""
+    import tracemalloc
+
+    path = _daq(tmp_path, edit=lambda r: r[:5] + [r[5] + ", " + "," * 2_000_000] + r[6:])
+    tracemalloc.start()
+    try:
+        rec = read_daq(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert rec.n == 300
+    assert peak < 8 * path.stat().st_size, peak

@@ -216,7 +216,7 @@ def read_daq(path: str | Path, channels: DaqChannels | None = None) -> ActuatorR
         line = all_lines[lineno - 1].strip()
         if not line:
             continue
-        fields = [f.strip() for f in line.split(",")]
+        fields = [f.strip() for f in line.split(",", 2 + n_ch)]  # the event text after the channels stays one field
         if len(fields) < 2 + n_ch:
             raise RecordError(f"{path}:{lineno}: expected {2 + n_ch} fields (sample, date/time, {n_ch} channels), got {len(fields)}")
         numbers.append(_number(fields[0], path, lineno, "sample number"))
