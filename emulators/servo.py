@@ -50,6 +50,8 @@ from hsio.interfaces import ControlMode, shown_beyond
 from hsio.specimens import Specimen
 
 
+SERVO_FREQUENCY_MIN_HZ = 1e-3  # a servo-valve / oil-column mode below this is a typing error (0: none)
+
 # Hockey-stick actuators measured in the paper (docs/method.md section 4, eq. 1): velocity threshold a
 # (mm/s) and slope b (s/mm) of the execution error normalised by the stroke d_max = 254 mm.
 # Select one with ``preset = "structure_I"``; explicit settings override it.
@@ -134,7 +136,7 @@ class ServoConfig:
                   "velocity_limit_mm_s": (0.0, 10000.0, "mm/s"), "backlash_mm": (0.0, self.stroke_mm, "mm"),
                   "dead_band_mm": (0.0, self.stroke_mm, "mm"), "servo_frequency_hz": (0.0, self.rate_hz / 2, "Hz"),
                   "displacement_gain": (-10.0, 10.0, ""),
-                  "ki_per_s2": (0.0, self.rate_hz ** 2, "1/s^2"),  # ki dt^2 <= 1: the discrete PI loop stays stable
+                  "ki_per_s2": (0.0, self.rate_hz * self.rate_hz, "1/s^2"),  # ki dt^2 <= 1: the discrete PI loop stays stable
                   "compliance_mm_per_kN": (0.0, 1000.0, "mm/kN")}
         for name, (low, high, unit) in sanity.items():
             value = getattr(self, name)
@@ -143,13 +145,16 @@ class ServoConfig:
                                   f"{low:g}..{high:g}{' ' + unit if unit else ''}")
         if self.displacement_gain == 0:
             raise ConfigError("emulator: displacement_gain must not be 0 (the transducer would read nothing)")
+        if 0 < self.servo_frequency_hz < SERVO_FREQUENCY_MIN_HZ:
+            raise ConfigError(f"emulator: servo_frequency_hz = {self.servo_frequency_hz!r} is out of bounds: 0 (no "
+                              f"servo mode) or within {SERVO_FREQUENCY_MIN_HZ:g}..{self.rate_hz / 2:g} Hz")
 
     @classmethod
     def from_dict(cls, table: dict) -> "ServoConfig":
         table = dict(table)
         preset = table.pop("preset", None)
         if preset is not None:
-            if preset not in PRESETS:
+            if not isinstance(preset, str) or preset not in PRESETS:
                 raise ConfigError(f"emulator: unknown preset {preset!r}; known: {', '.join(PRESETS)}")
             table = {**hockey_stick_settings(**PRESETS[preset]), **table}
         known = {f.name for f in fields(cls)}
@@ -197,7 +202,10 @@ def servo_mode_filter(frequency_hz: float, damping: float, rate_hz: float) -> tu
 
 
 def quantise(value: float, resolution: float) -> float:
-    return round(value / resolution) * resolution if resolution > 0 else value
+    """``value`` to the nearest multiple of ``resolution`` (0: as it is; so is a resolution so fine
+    that ``value`` counts more steps of it than a float holds: finer than the number itself)."""
+    steps = value / resolution if resolution > 0 else math.inf
+    return round(steps) * resolution if math.isfinite(steps) else value
 
 
 class ServoController:

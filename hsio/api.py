@@ -93,7 +93,7 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     ``fc_force_limit``; docs/force_control.md).
     """
     _check_structure("make_integrator", structure)
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
     if not _is_number(alpha):
         raise ConfigError(f"alpha must be a number in [-1/3, 0], got {alpha!r}")
@@ -164,6 +164,8 @@ def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alp
     iterations): the converged solution that any of them approaches.
     """
     _check_structure("run_numerical", structure)
+    if not isinstance(method, str):
+        raise ConfigError(f"run_numerical: method must be one of {', '.join(METHODS)}, got {method!r}")
     if method in IMPLICIT_METHODS:
         if options:
             raise ConfigError(f"run_numerical: the reference of the implicit methods is implicit DC converged "

@@ -395,7 +395,7 @@ def read_toml(path: str | Path, what: str) -> dict:
     path = Path(path)
     try:
         data = read_bounded(path, MAX_TOML_BYTES, lambda reason: ConfigError(f"{path}: cannot read {what}: {reason}"))
-        return tomllib.loads(data.decode("utf-8"))
+        return tomllib.loads(data.decode("utf-8-sig"))  # a byte-order mark (Windows editors) is dropped
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read {what}: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:

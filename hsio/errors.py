@@ -1,8 +1,20 @@
 """Errors raised by hsio. Each names what is wrong and where."""
 
+MAX_MESSAGE_CHARS = 4000  # a message quoting a value from a file (a line of megabytes) is cut to this
+
 
 class HsioError(Exception):
-    """Base class of every error hsio raises on purpose."""
+    """Base class of every error hsio raises on purpose.
+
+    Its text is at most :data:`MAX_MESSAGE_CHARS` characters: a longer one (a value quoted whole
+    from a file) loses its middle, keeping where (file, line, key) and the end of the sentence."""
+
+    def __str__(self) -> str:
+        text = super().__str__()
+        if len(text) <= MAX_MESSAGE_CHARS:
+            return text
+        head, tail = 3 * MAX_MESSAGE_CHARS // 4, MAX_MESSAGE_CHARS // 8
+        return f"{text[:head]} ... ({len(text) - head - tail} characters left out) ... {text[-tail:]}"
 
 
 class ConfigError(HsioError):

@@ -123,7 +123,17 @@ class GroundMotion:
         return GroundMotion(self.name, dt, np.interp(t_new, t_old, self.accel_g))
 
     def acceleration_mm_s2(self) -> np.ndarray:
-        return self.accel_g * G_MM_S2
+        """The accelerations in mm/s^2; a sample whose value there is beyond the floating-point range
+        is refused, naming it (a finite value in g is not always finite in mm/s^2)."""
+        with np.errstate(over="ignore"):
+            accel = self.accel_g * G_MM_S2
+        over = np.flatnonzero(~np.isfinite(accel))
+        if over.size:
+            i = over[0]
+            raise RecordError(f"{self.name}: sample {i} (t = {i * self.dt:.3f} s) = {float(self.accel_g[i]):g} g "
+                              f"is {float(accel[i])} in mm/s^2 (x {G_MM_S2:g}): beyond the largest floating-point "
+                              f"number ({np.finfo(float).max:.4g})")
+        return accel
 
 
 # Line 3 of an AT2 file says what the values are, e.g. "ACCELERATION TIME SERIES IN UNITS OF G".
@@ -167,7 +177,8 @@ def read_at2(path: str | Path) -> GroundMotion:
             f"{path}:4: header line must give NPTS and DT ('NPTS= 2000, DT= .0200 SEC' or "
             f"'4000 0.0100 NPTS, DT'), got {lines[3].strip()!r}"
         )
-    npts = int(match.group(1))
+    digits = match.group(1).lstrip("0") or "0"
+    npts = int(digits) if len(digits) <= 18 else MAX_SAMPLES + 1  # past 18 digits it is out of bounds
     try:
         dt = float(match.group(2))
     except ValueError:
@@ -178,13 +189,16 @@ def read_at2(path: str | Path) -> GroundMotion:
         raise RecordError(f"{path}:4: DT = {dt:g} s is out of bounds: a record's time step must be within "
                           f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
     if not 2 <= npts <= MAX_SAMPLES:
-        raise RecordError(f"{path}:4: NPTS = {npts} is out of bounds: within 2..{MAX_SAMPLES}")
+        shown = npts if len(digits) <= 18 else f"{digits[:6]}... ({len(digits)} digits)"
+        raise RecordError(f"{path}:4: NPTS = {shown} is out of bounds: within 2..{MAX_SAMPLES}")
     if _WORD.search(data, pos) is None:
         raise RecordError(f"{path}: no values after the 4-line header (NPTS = {npts})")
     values: list[float] = []
     for found in _WORD.finditer(data, pos):
         word = found.group().decode("latin-1")
         try:
+            if "_" in word:  # float() reads '1_0' as 10: a typing error here, never a value
+                raise ValueError(word)
             value = float(word)
         except ValueError:
             raise RecordError(f"{path}:{_line_number(data, found.start())}: {word!r} is not a number") from None

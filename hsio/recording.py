@@ -398,6 +398,8 @@ class Run:
             raise RunFileMissingError(f"{self.path}: no such run file")
         if self.path.is_dir():
             raise NotARunError(f"{self.path} is a directory, not a run file (a run's folder holds {RUN_FILE})")
+        if not self.path.is_file():  # a FIFO or a device: SQLite would wait on it for ever
+            raise NotARunError(f"{self.path}: not a regular file, so not a run file")
         try:
             db = connect_read_only(self.path)
             try:

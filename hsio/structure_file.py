@@ -107,7 +107,7 @@ def parse_structure(data: bytes | str, filename: str, default_name: str = "struc
     """Check and build a structure from the text of a structure file named ``filename``."""
     if isinstance(data, bytes):
         try:
-            data = data.decode("utf-8")
+            data = data.decode("utf-8-sig")  # a byte-order mark (Windows editors) is dropped
         except UnicodeDecodeError as exc:
             raise ConfigError(f"{filename}: not UTF-8 text (byte {exc.start} is 0x{data[exc.start]:02x})") from None
     try:
@@ -529,7 +529,7 @@ class _Reader:
         entry = self.table(where, entry, TABLES["instrument"])
         name = self.string(f"{where}.name", self.required(where, entry, "name"))
         kind = self.required(where, entry, "kind")
-        if kind not in INSTRUMENT_KINDS:
+        if not isinstance(kind, str) or kind not in INSTRUMENT_KINDS:
             raise self.error(f"{where}.kind", f"unknown instrument {kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
         element = self.string(f"{where}.element", entry["element"]) if "element" in entry else ""
         scale = self.number(f"{where}.scale", entry.get("scale", 1.0))

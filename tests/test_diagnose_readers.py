@@ -140,3 +140,49 @@ def test_real_daq_file(shared_data):
     assert rec.n == 61500 and rec.dt == pytest.approx(0.001)
     assert 2.0 < np.max(np.abs(rec.command_mm)) < 2.5  # about +/-0.23 V x 10 mm/V
     assert rec.force_kN is not None
+
+
+def test_daq_header_size_without_a_colon_is_named(tmp_path):
+    path = _daq(tmp_path)
+    path.write_bytes(path.read_bytes().replace(b"Header Size:  7", b"Header Size  7", 1))
+    with pytest.raises(RecordError, match=r"rec.txt:1: expected 'Header Size: n', got 'Header Size  7' \(no colon\)"):
+        read_daq(path)
+
+
+def test_a_specimen_daq_export_with_header_size_written_as_7_0_is_read(tmp_path):
+    """'7.0' is a whole number of lines for the reader; the specimen's segments count the same lines."""
+    from hsio.diagnose.specimen_record import read_specimen
+
+    path = _daq(tmp_path, n=400)
+    path.write_bytes(path.read_bytes().replace(b"Header Size:  7", b"Header Size:  7.0", 1))
+    (record,) = read_specimen(path, "daq")
+    assert record.displacement_mm.size == 400
+
+
+@pytest.mark.parametrize("text, words", [
+    ("," * 2_000_000 + "\n", r"r.csv:1: header must be time_s,command_mm,measured_mm\[,force_kN\], got a line of 2000001 fields"),
+    ("time_s,command_mm,measured_mm\n" + "1," * 2_000_000 + "\n", r"r.csv:2: expected 3 fields \(time_s,command_mm,measured_mm\), got 2000001"),
+])
+def test_a_line_of_millions_of_fields_is_counted_before_it_is_split(tmp_path, text, words):
+    """A line is refused on its count of commas: a 100 MB line of commas split into fields would
+    take some 2 GB."""
+    path = tmp_path / "r.csv"
+    path.write_text(text)
+    with pytest.raises(RecordError, match=words):
+        read_csv(path)
+
+
+def test_an_event_text_of_millions_of_commas_is_not_split(tmp_path):
+    """The text after a row's channels is its event (DAQ Start, ...), kept whole: a row whose event
+    holds two million commas reads in memory of the order of the file, not a list of its fields."""
+    import tracemalloc
+
+    path = _daq(tmp_path, edit=lambda r: r[:5] + [r[5] + ", " + "," * 2_000_000] + r[6:])
+    tracemalloc.start()
+    try:
+        rec = read_daq(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert rec.n == 300
+    assert peak < 8 * path.stat().st_size, peak

@@ -24,6 +24,19 @@ class RegularFile(click.Path):
         return path
 
 
+class BindAddress(click.ParamType):
+    """The address a server binds: an empty one (an unset variable, a typing error) would bind every
+    interface and is refused; 0.0.0.0 says so on purpose."""
+
+    name = "address"
+
+    def convert(self, value, param, ctx):
+        if not str(value).strip():
+            self.fail("the address to bind is empty: give one (127.0.0.1, this machine; 0.0.0.0, every interface)",
+                      param, ctx)
+        return value
+
+
 class PlotFile(click.Path):
     """The file a figure is written to, its format named by its extension. A format matplotlib
     cannot write is refused before any work starts, naming those it can; a name without an

@@ -13,7 +13,7 @@ import sys
 
 import click
 
-from hsio.commands import RegularFile, stop_requested, wait_for_stop
+from hsio.commands import BindAddress, RegularFile, stop_requested, wait_for_stop
 from hsio.errors import HsioError
 
 
@@ -153,7 +153,7 @@ def emulate() -> None:
 
 
 @emulate.command("modbus")
-@click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind (127.0.0.1: this machine only).")
+@click.option("--host", default="127.0.0.1", show_default=True, type=BindAddress(), help="Address to bind (127.0.0.1: this machine only).")
 @click.option("--port", default=5020, show_default=True, type=int, help="TCP port (0: any free port; the banner shows the one bound).")
 @click.option("--map", "map_file", default=None, type=click.Path(dir_okay=False), help="Register map TOML (default: hsio's).")
 @_common

@@ -10,13 +10,14 @@ from pathlib import Path
 import click
 
 from hsio.errors import HsioError
-from hsio.recording import RUN_FILE, connect_read_only
+from hsio.recording import RUN_FILE, Run, connect_read_only
 
 
 def _refuse_foreign_record(path: Path) -> None:
     """A run.sqlite that SQLite cannot read is refused before the page is served (an empty one is
-    a run being created, and is followed); nor is one that is not a regular file (a FIFO would
-    block the reader for ever)."""
+    a run being created, and is followed); so is a finished record (one with a summary, to be
+    replayed) that :class:`~hsio.recording.Run` does not read whole: damaged, or of another kind.
+    Nor is one that is not a regular file (a FIFO would block the reader for ever)."""
     if path.exists() and not path.is_file():
         raise HsioError(f"{path}: not a regular file, so not an hsio recording")
     if not path.is_file() or path.stat().st_size == 0:
@@ -24,8 +25,12 @@ def _refuse_foreign_record(path: Path) -> None:
     try:
         with contextlib.closing(connect_read_only(path)) as db:
             db.execute("SELECT name FROM sqlite_master").fetchall()
+            finished = db.execute("SELECT name FROM sqlite_master WHERE type = 'table' AND name = 'summary'").fetchone() \
+                and db.execute("SELECT 1 FROM summary LIMIT 1").fetchone()
     except sqlite3.DatabaseError as exc:
         raise HsioError(f"{path}: not an hsio recording ({exc})") from None
+    if finished:
+        Run(path)  # a RecordError names what is wrong
 
 
 @click.command()

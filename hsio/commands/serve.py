@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from hsio.commands import RegularFile, stop_requested, wait_for_stop
+from hsio.commands import BindAddress, RegularFile, stop_requested, wait_for_stop
 from hsio.errors import HsioError
 
 
@@ -23,7 +23,7 @@ def serve() -> None:
 
 @serve.command("opensees")
 @click.argument("config_file", type=RegularFile())
-@click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind (127.0.0.1: this machine only).")
+@click.option("--host", default="127.0.0.1", show_default=True, type=BindAddress(), help="Address to bind (127.0.0.1: this machine only).")
 @click.option("--port", default=8090, show_default=True, type=click.IntRange(0, 65535),
               help="Port of the first element; the next elements take the next ports (0: any free ports).")
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),

@@ -134,6 +134,8 @@ def load(source: str | Path, t_d: float | None = None, test_rate: float | None =
         path = path / "run.sqlite"
     if not path.exists():
         raise RecordError(f"{path}: no such run folder, run.sqlite or CSV file")
+    if not path.is_file():  # a folder, or a FIFO or device that would be waited on for ever
+        raise RecordError(f"{path}: not a regular file (a run folder, run.sqlite or CSV file)")
     if path.suffix.lower() == ".csv":
         return read_csv(path, t_d, test_rate)
     with open(path, "rb") as fh:

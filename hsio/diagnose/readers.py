@@ -30,6 +30,7 @@ CSV_REQUIRED = ("time_s", "command_mm", "measured_mm")
 CSV_OPTIONAL = ("force_kN",)
 FORMATS = ("csv", "daq", "run")
 STEP_TOLERANCE = 0.05  # a time step may differ from the median by this fraction (rounding)
+MAX_COLUMNS = 64  # a record's header names a few columns; a line of more is not one
 MAX_FILE_BYTES = 100_000_000  # about 1.5 to 3 million samples: an hour at 1 kHz, within a few GB of memory
 
 
@@ -95,6 +96,11 @@ def read_csv_table(path: str | Path, header_error) -> tuple[Path, dict[str, np.n
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):
             continue
+        count = stripped.count(",") + 1  # counted before the split: a line of millions of commas stays bytes
+        if header is not None and count != len(header):
+            raise RecordError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {count}")
+        if header is None and count > MAX_COLUMNS:
+            raise RecordError(f"{path}:{lineno}: header must be {header_error([])}, got a line of {count} fields")
         fields = [f.strip() for f in stripped.split(",")]
         if header is None:
             wrong = header_error(fields)
@@ -102,8 +108,6 @@ def read_csv_table(path: str | Path, header_error) -> tuple[Path, dict[str, np.n
                 raise RecordError(f"{path}:{lineno}: header must be {wrong}, got {stripped!r}")
             header = fields
             continue
-        if len(fields) != len(header):
-            raise RecordError(f"{path}:{lineno}: expected {len(header)} fields ({','.join(header)}), got {len(fields)}")
         rows.append([_number(f, path, lineno, name) for f, name in zip(fields, header)])
         lines.append(lineno)
     if header is None:
@@ -156,19 +160,28 @@ class DaqChannels:
     force_scale: float = 9.80665
 
 
+def daq_header_size(lines: list[str], path) -> int:
+    """The n of a DAQ export's first line ``Header Size: n``: the lines of its header, the row of
+    column names the last."""
+    if not lines or not lines[0].lower().startswith("header size"):
+        raise RecordError(f"{path}:1: not a DAQ export (expected 'Header Size: n', got {lines[0][:40] if lines else ''!r})")
+    _, colon, text = lines[0].partition(":")
+    if not colon:
+        raise RecordError(f"{path}:1: expected 'Header Size: n', got {lines[0][:40]!r} (no colon)")
+    size = _number(text, path, 1, "Header Size")
+    if size != int(size) or size < 2:
+        raise RecordError(f"{path}:1: Header Size must be a whole number of lines, at least 2 (the header and the "
+                          f"column names), got {text.strip()!r}")
+    return int(size)
+
+
 def read_daq(path: str | Path, channels: DaqChannels | None = None) -> ActuatorRecord:
     """A DAQ text export (SOURCES.md format): header, column names, sample rows with event text."""
     path = Path(path)
     ch = channels or DaqChannels()
     text = read_bytes(path).decode("latin-1")
     all_lines = text.splitlines()
-    if not all_lines or not all_lines[0].lower().startswith("header size"):
-        raise RecordError(f"{path}:1: not a DAQ export (expected 'Header Size: n', got {all_lines[0][:40] if all_lines else ''!r})")
-    size = _number(all_lines[0].split(":", 1)[1], path, 1, "Header Size")
-    if size != int(size) or size < 2:
-        raise RecordError(f"{path}:1: Header Size must be a whole number of lines, at least 2 (the header and the "
-                          f"column names), got {all_lines[0].split(':', 1)[1].strip()!r}")
-    header_size = int(size)
+    header_size = daq_header_size(all_lines, path)
     info = {}
     # The header lines include the row of column names (the last one).
     for lineno in range(2, header_size):
@@ -203,7 +216,7 @@ def read_daq(path: str | Path, channels: DaqChannels | None = None) -> ActuatorR
         line = all_lines[lineno - 1].strip()
         if not line:
             continue
-        fields = [f.strip() for f in line.split(",")]
+        fields = [f.strip() for f in line.split(",", 2 + n_ch)]  # the event text after the channels stays one field
         if len(fields) < 2 + n_ch:
             raise RecordError(f"{path}:{lineno}: expected {2 + n_ch} fields (sample, date/time, {n_ch} channels), got {len(fields)}")
         numbers.append(_number(fields[0], path, lineno, "sample number"))

@@ -61,11 +61,11 @@ def write_csv(record: SpecimenRecord, path: str | Path) -> Path:
 
 def daq_segments(path: Path) -> list[int]:
     """Row indices (0-based, data rows) where the DAQ resumed after a pause."""
-    from hsio.diagnose.readers import read_bytes
+    from hsio.diagnose.readers import daq_header_size, read_bytes
 
     text = read_bytes(path).decode("latin-1")
     lines = text.splitlines()
-    header_size = int(lines[0].split(":", 1)[1])
+    header_size = daq_header_size(lines, path)
     starts, row = [], 0
     for line in lines[header_size:]:
         if not line.strip():

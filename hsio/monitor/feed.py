@@ -141,10 +141,8 @@ class RecordFeed:
         self.dofs, self.channels = list(meta["dof_names"]), list(meta["actuator_names"])
         self.channel_dof = channel_dofs(meta, self.channels)
         # displacement units ("mm", or "rad" for a rotation; records without them: mm)
-        units = meta.get("dof_units") or ["mm"] * len(self.dofs)
-        self.dof_unit = dict(zip(self.dofs, units))
-        units = meta.get("channel_units") or ["mm"] * len(self.channels)
-        self.channel_unit = dict(zip(self.channels, units))
+        self.dof_unit = dict(zip(self.dofs, _units(meta.get("dof_units"), self.dofs)))
+        self.channel_unit = dict(zip(self.channels, _units(meta.get("channel_units"), self.channels)))
         names = ["step", "time_s", "late_steps"]
         names += [column(p, d) for d in self.dofs for p in ("u", "v", "a", "u_pred", "r")]
         names += [column(p, c) for c in self.channels
@@ -285,6 +283,14 @@ def _table(db, sql: str, args=()) -> dict[str, np.ndarray]:
         return {}
     data = np.array([[np.nan if x is None else x for x in r] for r in rows], dtype=float)
     return {name: data[:, i] for i, name in enumerate(names)}
+
+
+def _units(units, names: list[str]) -> list[str]:
+    """The unit of each of ``names`` from a record's meta: its list of unit names, or mm for a record
+    without one (or with one that is not a list of as many names)."""
+    if isinstance(units, list) and len(units) == len(names) and all(isinstance(u, str) for u in units):
+        return units
+    return ["mm"] * len(names)
 
 
 def channel_dofs(meta: dict, channels: list[str]) -> dict[str, str | None]:

@@ -57,7 +57,7 @@ def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
         raise ConfigError(f"{where}: must be a table such as {{ kind = \"two_actuators\", length_mm = 1500, "
                           f"spacing_mm = 400 }}, got {table!r}")
     kind = table.get("kind", "none")
-    if kind not in SETUP_KINDS:
+    if not isinstance(kind, str) or kind not in SETUP_KINDS:
         raise ConfigError(f"{where}.kind: unknown setup {kind!r}; known: {', '.join(SETUP_KINDS)}")
     factory, keys, n = SETUP_KINDS[kind]
     if factory is not None and n != n_basic:

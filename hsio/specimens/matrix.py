@@ -41,11 +41,17 @@ def cantilever_top_stiffness(EI: float, L: float, EA: float = 0.0, basic=("ux", 
                           f"got {list(basic)}")
     if "uy" in basic and not EA > 0:
         raise ConfigError("cantilever: the vertical DOF uy needs a positive axial rigidity EA")
-    full = np.array([[12 * EI / L**3, 0.0, 6 * EI / L**2],
-                     [0.0, EA / L, 0.0],
-                     [6 * EI / L**2, 0.0, 4 * EI / L]])
+    EI, L, EA = np.float64(EI), np.float64(L), np.float64(EA)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        full = np.array([[12 * EI / L**3, 0.0, 6 * EI / L**2],
+                         [0.0, EA / L, 0.0],
+                         [6 * EI / L**2, 0.0, 4 * EI / L]])
     index = [CANTILEVER_DOFS.index(b) for b in basic]
-    return full[np.ix_(index, index)]
+    K = full[np.ix_(index, index)]
+    if not np.all(np.isfinite(K)):
+        raise ConfigError(f"cantilever: EI = {float(EI):g}, L = {float(L):g}, EA = {float(EA):g} give a stiffness "
+                          "beyond the floating-point range (check the units: kN mm^2, mm, kN)")
+    return K
 
 
 class LinearMatrix:
