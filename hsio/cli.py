@@ -130,8 +130,13 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                     runner.check_dwell(cfg, structure)
                     runner.check_instruments(cfg, structure)
                     runner.fingerprints(cfg)  # an input file that cannot be read: refused before the folder too
+                    numbered = out_dir is None
                     out_dir = runner.run_folder(cfg, structure, out_dir)
-                    page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
+                    try:
+                        page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
+                    except ConfigError:  # no page, no run: the folder keeps nothing (its number stays free)
+                        _discard_page_log(out_dir, numbered)
+                        raise
                     click.echo(f"hsio run: monitor at {page.url}", err=True)
                 if cfg["safety"]["keys"]:
                     cleanup.callback(KeyReader(control, notify).close)
@@ -201,6 +206,16 @@ def _summary_written(exc: BaseException, status: int) -> dict:
             return json.loads((Path(run_dir) / "summary.json").read_text())
     error = {"error": str(exc) or "interrupted (Ctrl-C)", "exit_status": status, "outcome": outcome_name(status)}
     return {**error, "run_dir": str(run_dir)} if run_dir is not None else error
+
+
+def _discard_page_log(out_dir: Path, created: bool) -> None:
+    """The monitor's log in a run folder where no run began; the folder too, where hsio made it."""
+    from hsio.monitor.server import LOG_FILE
+
+    with contextlib.suppress(OSError):
+        (Path(out_dir) / LOG_FILE).unlink()
+        if created:
+            Path(out_dir).rmdir()  # only if empty
 
 
 def _where(exc: BaseException) -> None:

@@ -343,3 +343,21 @@ def test_on_the_loopback_a_request_addressed_to_another_name_is_refused(tmp_path
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_hsio_run_whose_page_cannot_listen_leaves_no_run_folder(tmp_path, monkeypatch):
+    """`hsio run --monitor` on a port in use: exit 2 naming the address, and the numbered folder it
+    made for the page is gone (no run began in it; its number stays free)."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "c.toml").write_text("[record]\nsynthetic_duration_s = 0.2\n[output]\nplots = false\n")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        out = CliRunner().invoke(main, ["run", "c.toml", "--monitor", "--monitor-port", str(port)])
+    assert out.exit_code == 2 and f"127.0.0.1:{port}" in out.output, out.output
+    assert not any((tmp_path / "runs" / "validation").iterdir())
