@@ -59,6 +59,12 @@ def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
     if bad:
         raise ConfigError(f"{run.path}: the state of its last committed step {k} is not finite ({', '.join(bad)}): "
                           f"nothing to continue from; the record is unchanged and nothing moved")
+    for d in structure.dof_names:  # the summary compares every step's u with NS: a hole there is damage too
+        history = np.asarray(run.steps[column("u", d)], dtype=float)
+        bad_rows = np.flatnonzero(~np.isfinite(history))
+        if bad_rows.size:
+            raise ConfigError(f"{run.path}: its step {int(steps[bad_rows[0]])} holds u_{d} = {history[bad_rows[0]]} "
+                              f"(not a number): the record is damaged; the record is unchanged and nothing moved")
     v_pred = v - structure.dt * integrator.core.gamma * a
     return AlphaOSState(k, u, v, a, u_pred, v_pred, R, P[k].copy())
 
