@@ -77,8 +77,7 @@ def _last_step(column, value):
     (lambda db: db.execute("UPDATE summary SET value = ? WHERE key = 'exit_status'", (json.dumps("0"),)),
      'its summary\'s exit_status is "0", not a whole number'),
 ], ids=["config", "no-config", "inputs-text", "inputs-entry", "dof-names", "nan-force", "inf-acceleration", "step", "hole",
-                                  "events",
-        "exit-status-text"])
+                                  "events", "exit-status-text"])
 def test_a_damaged_record_is_refused_by_name(tmp_path, damage, says):
     out = stopped_run(tmp_path, 5)
     with sqlite3.connect(out / "run.sqlite") as db:
