@@ -26,13 +26,12 @@ from hsio.files import read_bounded
 from hsio.ground_motion import DT_MAX_S, DT_MIN_S
 from hsio.specimens import SPECIMEN_KINDS, make_specimen
 from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, ExperimentalElement, Instrument, NumericalElement,
-                             OuterLoop, Spring, StaticLoad, Structure)
+                             OuterLoop, Spring, StaticLoad, Structure, ramp_out_of_bounds)
 
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
 MAX_FILE_BYTES = 4_000_000
 FREQUENCY_BOUNDS_HZ = (1e-3, 1e7)
-MAX_RAMP_S = 3600.0  # a static preload's ramp (lab time), as a record lasts at most an hour
 GROUND = "ground"
 PAPER = ("validation", "structure_I", "structure_II")  # E&M 2007, Tables I-III
 
@@ -547,9 +546,8 @@ class _Reader:
         if force == 0:
             raise self.error(f"{where}.force_kN", "a preload of zero needs no static actuator")
         ramp = self.number(f"{where}.ramp_s", entry.get("ramp_s", 5.0), positive=True)
-        if ramp > MAX_RAMP_S:
-            raise self.error(f"{where}.ramp_s", f"{ramp:g} s is out of bounds: a preload's ramp lasts at most "
-                             f"{MAX_RAMP_S:g} s (lab time)")
+        if ramp_out_of_bounds(ramp):
+            raise self.error(f"{where}.ramp_s", ramp_out_of_bounds(ramp))
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
         return StaticLoad(name, force, spec, ramp, actuator)
 

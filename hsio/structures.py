@@ -168,6 +168,21 @@ class ExperimentalElement:
         return K
 
 
+# A static preload's ramp (lab time): at most an hour, as a record; at least 0.1 s, five times the
+# emulated force loop's 20 ms lag (a shorter ramp is a step of force on the specimen).
+MIN_RAMP_S, MAX_RAMP_S = 0.1, 3600.0
+
+
+def ramp_out_of_bounds(ramp_s: float) -> str:
+    """Why a preload's ``ramp_s`` is refused ("" when it is within the bounds)."""
+    if ramp_s > MAX_RAMP_S:
+        return f"{ramp_s:g} s is out of bounds: a preload's ramp lasts at most {MAX_RAMP_S:g} s (lab time)"
+    if ramp_s < MIN_RAMP_S:
+        return (f"{ramp_s:g} s is out of bounds: a preload's ramp lasts at least {MIN_RAMP_S:g} s (a shorter one "
+                f"puts the preload on the specimen as a step of force)")
+    return ""
+
+
 @dataclass(frozen=True)
 class StaticLoad:
     """An actuator tied to no dynamic DOF: it ramps a preload (an axial gravity load, say) in force
@@ -182,16 +197,15 @@ class StaticLoad:
     actuator: str = ""
 
     def __post_init__(self):
-        from hsio.structure_file import MAX_RAMP_S
 
         if not self.actuator:
             object.__setattr__(self, "actuator", self.name)
         check = _checker(f"static load {self.name!r}")
         if check.number("force_kN", self.force_kN) == 0:
             raise ConfigError(f"static load {self.name!r}: force_kN: a preload of zero needs no static actuator")
-        if check.number("ramp_s", self.ramp_s, positive=True) > MAX_RAMP_S:
-            raise ConfigError(f"static load {self.name!r}: ramp_s: {self.ramp_s:g} s is out of bounds: a preload's "
-                              f"ramp lasts at most {MAX_RAMP_S:g} s (lab time)")
+        wrong = ramp_out_of_bounds(check.number("ramp_s", self.ramp_s, positive=True))
+        if wrong:
+            raise ConfigError(f"static load {self.name!r}: ramp_s: {wrong}")
 
     has_setup = False
     is_multi_dof = False

@@ -219,6 +219,12 @@ BAD = [
     ('[[dof]]\nname = "a"\nmass = 1.0\n[[spring]]\nname = "x"\ndof = "a"\nk = 1.0\n[[numerical]]\nname = "x"\ndof = "a"\n'
      'model = { kind = "linear", k = 1.0 }\n', r"numerical\[0\]\.name: 'x' already names spring\[0\]"),
     ('[dof]\nname = "a"\nmass = 1.0\n', r"dof: must be an array of tables"),
+    ('[[dof]]\nname = "a"\nmass = 1.0\n[[experimental]]\ndof = "a"\nmodel = { kind = "linear", k = 1.0 }\n'
+     '[[static]]\nname = "axial"\nforce_kN = 10.0\nramp_s = 1e-300\nmodel = { kind = "linear", k = 5.0 }\n',
+     r"static\[0\]\.ramp_s: 1e-300 s is out of bounds: a preload's ramp lasts at least 0\.1 s"),
+    ('[[dof]]\nname = "a"\nmass = 1.0\n[[experimental]]\ndof = "a"\nmodel = { kind = "linear", k = 1.0 }\n'
+     '[[static]]\nname = "axial"\nforce_kN = 10.0\nramp_s = 7200.0\nmodel = { kind = "linear", k = 5.0 }\n',
+     r"static\[0\]\.ramp_s: 7200 s is out of bounds: a preload's ramp lasts at most 3600 s"),
 ]
 
 
