@@ -104,6 +104,22 @@ def test_a_cycle_in_small_steps_in_closed_form():
         assert m.force(u) == pytest.approx(line(u), rel=1e-12)
     for u in (-1.0, -1.5, -2.0):  # beyond the deteriorated yield point: on s H
         assert m.force(u) == pytest.approx(-s * H(-u), rel=1e-12)
+    for u in (-1.5, -1.0):  # unloading at 8 s towards the zero-force point -2 + 9 s / (8 s) = -0.875
+        assert m.force(u) == pytest.approx(-9.0 * s + 8.0 * s * (u + 2.0), rel=1e-12)
+    # the second excursion's energy: its loop by the trapezoids of its steps, less the elastic energy
+    # left at its last step (the model's eq.: E_i = W - F^2 / (2 k_u))
+    us = [1.75, 1.5, 1.0, 0.0, -0.75, -1.0, -1.5, -2.0, -1.5, -1.0]
+    Fs = [0.0] + [line(u) for u in us[1:5]] + [-s * H(-u) for u in us[5:8]] + [-9.0 * s + 8.0 * s * (u + 2.0) for u in us[8:]]
+    W = sum(0.5 * (F0 + F1) * (u1 - u0) for u0, u1, F0, F1 in zip(us, us[1:], Fs, Fs[1:]))
+    E_2 = W - Fs[-1] ** 2 / (2.0 * 8.0 * s)
+    s2 = s * (1.0 - E_2 / (400.0 - 15.75))
+    F = m.force(0.0)  # past -0.875: the third excursion, reloading towards the largest earlier one (3 mm)
+    assert m.strength_factor == pytest.approx(s2, rel=1e-12)
+    peak_line = lambda u: 10.0 * s2 * (u + 0.875) / (3.0 + 0.875)  # noqa: E731  to (3, s2 H(3))
+    assert F == pytest.approx(peak_line(0.0), rel=1e-12)
+    assert m.force(1.0) == pytest.approx(peak_line(1.0), rel=1e-12)
+    assert m.force(3.0) == pytest.approx(10.0 * s2, rel=1e-12)
+    assert m.force(3.25) == pytest.approx(s2 * H(3.25), rel=1e-12)  # on, and now beyond, the peak
 
 
 def test_deterioration_accumulates_until_the_energy_capacity_is_spent():
