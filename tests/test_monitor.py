@@ -471,6 +471,25 @@ def test_a_run_over_shows_its_final_hold(tmp_path):
     rec.close()
 
 
+def test_a_run_started_without_a_control_socket_is_said_so(tmp_path):
+    """[safety] control_socket = false: the page says the run cannot hear it, not that it may be dead."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_meta({"config": {"structure": {"name": "validation", "file": ""},
+                               "safety": {"following_error_mm": 10.0, "following_error_kN": 25.0,
+                                          "warning_fraction": 0.9, "control_socket": False}}})
+    rec.db.commit()
+    operator = _RunAnswering("")
+    operator.answers = False
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), operator)
+    state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+    assert "no control socket ([safety] control_socket = false)" in state and "killed" not in state, state
+    rec.close()
+
+
 def test_a_record_without_controller_samples_says_why_it_shows_no_phase(tmp_path):
     from bokeh.document import Document
 

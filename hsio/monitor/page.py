@@ -316,6 +316,9 @@ class MonitorPage:
                 state += f"; {f.summary['final_hold']}"
         elif answers is None:
             state = "waiting for the run's control socket to answer (the run busy, or hung)"
+        elif not _has_control_socket(meta):
+            state = ("the run has no control socket ([safety] control_socket = false): this page watches only; "
+                     "pause or stop it where it runs")
         else:
             state = "no answer from the run's control socket (a run killed, or started without one)"
         # Stop stays available unless no run can hear it: a run that answers, or may be there.
@@ -410,3 +413,10 @@ class MonitorPage:
                 pass
 
         self.operator.submit(action, who).add_done_callback(answered)
+
+
+def _has_control_socket(meta: dict) -> bool:
+    """Whether the run was started with a control socket ([safety] control_socket, on unless its
+    recorded configuration says otherwise)."""
+    safety = (meta.get("config") or {}).get("safety") if isinstance(meta.get("config"), dict) else None
+    return not (isinstance(safety, dict) and safety.get("control_socket") is False)
