@@ -147,3 +147,14 @@ def test_the_emulator_moves_a_diagnosed_specimen_in_lab_time():
     d = diagnose_specimen(SpecimenRecord("emulated", record.dt, u, f))
     assert d.cause == "friction"
     assert d.single.fit.params["friction_kN"] == pytest.approx(0.5, rel=0.2)
+
+
+def test_a_sixth_of_a_cycle_names_no_cause(sweep):
+    """100 samples of a linear spring and dashpot cut from a longer record (no reversal in any
+    block): no cause is named, and the diagnosis says the record is too short to tell."""
+    full = _record(sweep, {}, seed=0)
+    cut = SpecimenRecord("cut", full.dt, full.displacement_mm[200:300], full.force_kN[200:300])
+    d = diagnose_specimen(cut)
+    assert d.cause in (NONE, "unexplained"), [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    assert not any(c.named for c in d.candidates) and d.extended is d.baseline
+    assert "too short to tell" in d.to_json()["too_short"]

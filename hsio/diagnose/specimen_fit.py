@@ -34,6 +34,11 @@ from hsio.specimens.diagnosed import bouc_wen_step
 from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10
+# A cause is named only when the displacement reverses at least this often in the fitting, the
+# choosing and the scoring block: a hysteretic, pinched, degrading or gapped specimen shows itself
+# at reversals, and a block without one cannot tell a spring from any of them.
+MIN_REVERSALS = (2, 1, 1)
+REVERSAL_SHARE = 0.05  # a reversal: the displacement turns back by this share of its range (or 3 noise RMS)
 RATE_BOUNDS_HZ = (1.0, 1e6)  # below 1 Hz no velocity or acceleration is seen; above 1 MHz no DAQ samples
 
 
@@ -229,6 +234,7 @@ class SpecimenDiagnosis(Outcome):
     structure: residual_mod.Structure
     elapsed_s: float = 0.0
     extra: dict = field(default_factory=dict)
+    too_short: str | None = None  # why no cause could be named, when the motion is too short to tell
 
     @property
     def gain(self) -> float:
@@ -241,7 +247,7 @@ class SpecimenDiagnosis(Outcome):
             "source": self.record.source, "samples": self.record.n, "rate_hz": self.record.rate_hz,
             "n_train": self.n_train, "n_choose": self.n_choose, "margin": self.margin,
             "scoring": scoring_text(self.n_train, self.n_choose, self.record.n),
-            "baseline": self.baseline.summary(), "cause": self.cause,
+            "baseline": self.baseline.summary(), "cause": self.cause, "too_short": self.too_short,
             "single": single.summary() if single else None,
             "combination": list(self.extended.effects), "extended": self.extended.summary(), "gain": self.gain,
             "candidates": [c.summary() for c in self.candidates],
@@ -290,6 +296,35 @@ def moving_part(record: SpecimenRecord, margin_s: float = 0.1) -> SpecimenRecord
     return SpecimenRecord(record.source, record.dt, u[a:b], record.force_kN[a:b])
 
 
+def reversals(u: np.ndarray, noise: float) -> np.ndarray:
+    """Indices where the displacement turns back by more than REVERSAL_SHARE of its range (at
+    least three times its noise) from its furthest point since the last reversal."""
+    h = max(REVERSAL_SHARE * float(np.ptp(u)), 3.0 * noise, 1e-12)
+    out, direction, extreme, at = [], 0, float(u[0]), 0
+    for i, x in enumerate(u.tolist()):
+        if direction == 0:  # not yet moved by h from the start
+            if abs(x - extreme) > h:
+                direction, extreme, at = (1 if x > extreme else -1), x, i
+        elif (x - extreme) * direction > 0:
+            extreme, at = x, i
+        elif (extreme - x) * direction > h:
+            out.append(at)
+            direction, extreme, at = -direction, x, i
+    return np.array(out, dtype=int)
+
+
+def too_short(sig: Signals, n_train: int, n_choose: int) -> str | None:
+    """Why no cause can be named on this record (too few reversals in a block), or None."""
+    turns = reversals(sig.u, sig.u_noise)
+    counts = (int(np.sum(turns < n_train)), int(np.sum((turns >= n_train) & (turns < n_choose))),
+              int(np.sum(turns >= n_choose)))
+    if all(c >= m for c, m in zip(counts, MIN_REVERSALS)):
+        return None
+    return (f"too short to tell: the displacement reverses {counts[0]}, {counts[1]} and {counts[2]} times in the "
+            f"fitting, choosing and scoring blocks; naming a cause needs at least {MIN_REVERSALS[0]}, "
+            f"{MIN_REVERSALS[1]} and {MIN_REVERSALS[2]} (a longer record, or more cycles)")
+
+
 def thinned(sig: Signals, force: np.ndarray) -> tuple[Signals, int]:
     """Every q-th sample of the low-passed signals when the record is long (q keeps the cutoff
     below 0.8 of the new Nyquist frequency)."""
@@ -319,12 +354,14 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
         raise RecordError(f"{record.source}: the force does not change in the training part, while the displacement "
                           "moves: the load cell reads nothing (its channel or scale?)")
     baseline = fit(sig, (), n_train, n_choose)
+    short = too_short(sig, n_train, n_choose)
     names = list(effects or NAMES)
     candidates = []
     for name in names:
         f = fit(sig, (name,), n_train, n_choose, EFFECTS[name].starts(sig))
         cg = ratio(baseline.rms_choose_kN, f.rms_choose_kN)
-        candidates.append(SpecimenCandidate(name, f, ratio(baseline.rms_test_kN, f.rms_test_kN), cg, cg >= margin))
+        candidates.append(SpecimenCandidate(name, f, ratio(baseline.rms_test_kN, f.rms_test_kN), cg,
+                                            cg >= margin and short is None))
     named = [c for c in candidates if c.named]
     floor = residual_mod.sensor_floor(record.displacement_mm, record.force_kN, record.force_kN - baseline.prediction, record.dt)
     # The displacement transducer's noise reaches the force prediction through the stiffness.
@@ -349,4 +386,4 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
     if cause is None:
         cause = unnamed(s, floor)
     return SpecimenDiagnosis(record, sig, n_train, n_choose, margin, baseline, candidates, cause, current, floor, s,
-                             time.perf_counter() - t0)
+                             time.perf_counter() - t0, too_short=short)
