@@ -101,7 +101,7 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
     for c in d.candidates:
         click.echo(f"candidate   {c.cause:<20} scored {c.fit.rms_test_mm:.4f} mm  gain {c.gain:6.3f}  "
                    f"(choosing {c.choose_gain:6.3f}){'  *' if c.named else ''}")
-    click.echo(f"cause       {d.cause}")
+    click.echo(f"cause       {d.cause}" + (f" ({d.too_short})" if d.too_short else ""))
     if d.timing is not None:
         click.echo(f"timing      {d.timing.verdict}: {d.timing.reason}")
     click.echo(f"residual    {d.residual_json()['remains']}")
