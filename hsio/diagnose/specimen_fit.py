@@ -56,6 +56,19 @@ class Signals:
     u_noise: float  # RMS of the displacement above the cutoff: the transducer's noise, mm
 
 
+def extension(u: np.ndarray, dt: float, n: int, window: int) -> np.ndarray:
+    """``n`` samples continuing ``u`` past its end: the odd extension about the end,
+    2 x(0) - x(-t), with its curvature restored, + x2 t^2 (x2 the second derivative at the end), so
+    that it matches the signal's value, slope and curvature (its error is of order t^4, where the
+    odd extension alone errs by x2 t^2). x(0) and x2 come from a parabola fitted to the last
+    ``window`` samples (at least 5), which keeps the end sample's noise out of them."""
+    w = int(min(max(window, 5), u.size))
+    t = dt * np.arange(-w + 1, 1)
+    c2, _, c0 = np.polyfit(t, u[-w:], 2)
+    k = np.arange(1, n + 1)
+    return 2.0 * c0 - u[-1 - k] + 2.0 * c2 * (k * dt) ** 2
+
+
 def signals(record: SpecimenRecord) -> Signals:
     u = record.displacement_mm
     fs = record.rate_hz
@@ -64,9 +77,12 @@ def signals(record: SpecimenRecord) -> Signals:
     f995 = float(f[min(np.searchsorted(cum, 0.995), f.size - 1)])
     cutoff = min(max(4.0 * f995, 2.0), 0.3 * fs)
     b, a = signal.butter(4, cutoff, fs=fs)
-    # Padded (odd extension) over three periods of the cutoff: the filter's start-up transient,
-    # which lasts that long, then falls outside the record instead of on its first and last samples.
-    us = signal.filtfilt(b, a, u, padlen=min(u.size - 1, int(math.ceil(3.0 * fs / cutoff))))
+    # Padded over three periods of the cutoff: the filter's start-up transient, which lasts that
+    # long, then falls outside the record instead of on its first and last samples.
+    pad = min(u.size - 1, int(math.ceil(3.0 * fs / cutoff)))
+    window = int(math.ceil(0.5 * fs / cutoff))
+    padded = np.r_[extension(u[::-1], record.dt, pad, window)[::-1], u, extension(u, record.dt, pad, window)]
+    us = signal.filtfilt(b, a, padded, padtype=None)[pad: pad + u.size]
     v = np.r_[0.0, np.diff(us)] / record.dt
     acc = np.r_[0.0, np.diff(v)] / record.dt
     v_ref = max(float(np.percentile(np.abs(v), 95)), 1e-9)
