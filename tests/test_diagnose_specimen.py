@@ -147,3 +147,25 @@ def test_the_emulator_moves_a_diagnosed_specimen_in_lab_time():
     d = diagnose_specimen(SpecimenRecord("emulated", record.dt, u, f))
     assert d.cause == "friction"
     assert d.single.fit.params["friction_kN"] == pytest.approx(0.5, rel=0.2)
+
+
+def test_a_sixth_of_a_cycle_names_no_cause(sweep):
+    """100 samples of a linear spring and dashpot cut from a longer record (no reversal in any
+    block): no cause is named, and the diagnosis says the record is too short to tell."""
+    full = _record(sweep, {}, seed=0)
+    cut = SpecimenRecord("cut", full.dt, full.displacement_mm[200:300], full.force_kN[200:300])
+    d = diagnose_specimen(cut)
+    assert d.cause in (NONE, "unexplained"), [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    assert not any(c.named for c in d.candidates) and d.extended is d.baseline
+    assert "too short to tell" in d.to_json()["too_short"]
+
+
+@pytest.mark.parametrize("a", [200, 1000])
+def test_a_linear_specimen_cut_in_mid_motion_answers_none(sweep, a):
+    """1000 samples of a linear spring and dashpot that start and end in motion: the low-pass's
+    padding follows the motion's curvature past both ends, so the scoring block, which ends
+    there, reaches the sensor floor."""
+    full = _record(sweep, {}, seed=0)
+    d = diagnose_specimen(SpecimenRecord("cut", full.dt, full.displacement_mm[a:a + 1000], full.force_kN[a:a + 1000]))
+    assert d.cause == NONE, (d.structure.rms_test_mm, d.floor.sensor_floor_mm)
+    assert d.baseline.params["k"] == pytest.approx(1.0, rel=0.01)

@@ -101,7 +101,7 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
     for c in d.candidates:
         click.echo(f"candidate   {c.cause:<20} scored {c.fit.rms_test_mm:.4f} mm  gain {c.gain:6.3f}  "
                    f"(choosing {c.choose_gain:6.3f}){'  *' if c.named else ''}")
-    click.echo(f"cause       {d.cause}")
+    click.echo(f"cause       {d.cause}" + (f" ({d.too_short})" if d.too_short else ""))
     if d.timing is not None:
         click.echo(f"timing      {d.timing.verdict}: {d.timing.reason}")
     click.echo(f"residual    {d.residual_json()['remains']}")
@@ -171,7 +171,7 @@ def _specimen(path, fmt, displacement_channel, force_channel, displacement_scale
         for c in d.candidates:
             click.echo(f"candidate   {c.cause:<16} scored {c.fit.rms_test_kN:.4f} kN  gain {c.gain:6.3f}  "
                        f"(choosing {c.choose_gain:6.3f}){'  *' if c.named else ''}")
-        click.echo(f"cause       {d.cause}")
+        click.echo(f"cause       {d.cause}" + (f" ({d.too_short})" if d.too_short else ""))
         click.echo(f"extended    {e.name}: scored {e.rms_test_kN:.4f} kN, gain {d.gain:.2f}")
     for name, p in files.items():
         click.echo(f"{name:<11} {p}")

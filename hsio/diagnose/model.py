@@ -22,7 +22,12 @@ a command and the measurement that follows it, the hockey stick of E&M 2007, eq.
 b d_max = lag_s. Without asymmetric lag and flow limit the state equation is linear,
 x[k] = (1 - K_p dt) x[k-1] +
 K_p dt c_d[k] + dt v_ff[k], and runs as one scipy.signal.lfilter call; otherwise it runs as a
-tight loop. The state starts at rest on the first command sample.
+tight loop. The state starts at rest on the first command sample. A record that starts in
+motion (cut from a longer test: starting it at rest would put the model off by more than
+START_MOTION_SHARE of the command's range) starts on a lead-in instead: the command extended backwards as
+the ramp it starts on, long enough (LEAD_IN_TIMES the loop's time constants, at most
+LEAD_IN_MAX_S) for the start-up transient to die out, so the model enters the record already
+tracking it, as the actuator did.
 """
 
 from __future__ import annotations
@@ -128,6 +133,31 @@ def play(x: np.ndarray, gap: float) -> np.ndarray:
     return _play_kernel(np.ascontiguousarray(x, dtype=np.float64), 0.5 * gap)
 
 
+LEAD_IN_TIMES = 10.0  # the lead-in lasts this many time constants of the loop (lag, delay, mode)
+LEAD_IN_MAX_S = 2.0
+# A record starts in motion when starting it at rest would put the model off by more than this
+# share of the command's range (lag |v0| + lag^2 |a0|, the lag's error on the parabola it starts on).
+START_MOTION_SHARE = 1e-3
+
+
+def start_motion(command: np.ndarray, dt: float, window: int) -> tuple[float, float]:
+    """The command's velocity and acceleration at the record's first sample (a least-squares
+    parabola over ``window`` samples)."""
+    w = int(min(max(window, 3), command.size))
+    if w < 3:
+        return 0.0, 0.0
+    t = np.arange(w) * dt
+    a2, a1, _ = np.polyfit(t, command[:w], 2)
+    return float(a1), float(2.0 * a2)
+
+
+def lead_in_samples(p: dict, dt: float) -> int:
+    lags = p["lag_s"] + (p["lag_retract_s"] or 0.0) + p["transport_delay_s"] + p["channel_skew_s"]
+    if p["servo_frequency_hz"] > 0.0:
+        lags += 1.0 / (2.0 * math.pi * p["servo_frequency_hz"] * max(p["servo_damping"], 1e-3))
+    return int(math.ceil(min(LEAD_IN_TIMES * lags, LEAD_IN_MAX_S) / dt))
+
+
 def simulate(command: np.ndarray, dt: float, params: dict, force: np.ndarray | None = None,
              n: int | None = None) -> np.ndarray:
     """The measured displacement the model predicts for ``command`` (mm), first ``n`` samples."""
@@ -135,6 +165,21 @@ def simulate(command: np.ndarray, dt: float, params: dict, force: np.ndarray | N
     if n is not None:
         command = command[:n]
         force = force[:n] if force is not None else None
+    command = np.asarray(command, dtype=float)
+    lag = float(p["lag_s"])
+    v0, a0 = start_motion(command, dt, int(round(2.0 * lag / dt)))
+    if lag * abs(v0) + lag * lag * abs(a0) > START_MOTION_SHARE * float(np.ptp(command)):
+        lead = lead_in_samples(p, dt)
+        t = dt * np.arange(-lead, 0)
+        before = command[0] + v0 * t + 0.5 * a0 * t * t
+        held = None if force is None else np.r_[np.full(lead, force[0]), force]
+        m = _simulate(np.r_[before, command], dt, p, held)[lead:]
+        # The drift counts from the record's first sample.
+        return m - p["sensor_drift_mm_s"] * dt * lead
+    return _simulate(command, dt, p, force)
+
+
+def _simulate(command: np.ndarray, dt: float, p: dict, force: np.ndarray | None) -> np.ndarray:
     lag = float(p["lag_s"])
     cd = delayed(np.asarray(command, dtype=float), p["transport_delay_s"] / dt)
     a = p["velocity_threshold_mm_s"]

@@ -137,7 +137,7 @@ def text(d: Diagnosis, ev: dict) -> str:
     floor = d.floor.sensor_floor_mm
     if d.cause in (NONE, UNEXPLAINED):
         best = min(d.candidates, key=lambda c: c.fit.rms_choose_mm) if d.candidates else None
-        lines += [f"## Cause: {d.cause}", "",
+        lines += [f"## Cause: {d.cause}", ""] + ([f"No cause is named: {d.too_short}.", ""] if d.too_short else []) + [
                   f"No candidate improves the choosing block by the margin of {d.margin:g}x"
                   + (f" (best: {best.cause}, {best.choose_gain:.3f}x)." if best else ".")]
         if d.cause == NONE:

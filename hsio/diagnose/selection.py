@@ -36,6 +36,11 @@ MARGIN = 1.10  # held-out RMS must fall by at least this factor for a cause to b
 RATE_BOUNDS_HZ = (10.0, 1e6)  # an actuator record holds the controller-rate samples: at least 10 Hz
 HELPS = 1.01  # an effect whose single fit gains less than this on the choosing block joins no combination
 RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signature no delay mimics
+# A cause is named only when the choosing and the scoring block each last this many time constants
+# of the fitted lag (stretches of error the loop has forgotten) and hold this many samples: on
+# shorter blocks an RMS error is too uncertain for a margin of 10 % to mean anything.
+MIN_BLOCK_LAGS = 10.0
+MIN_BLOCK_SAMPLES = 50
 
 
 @dataclass
@@ -67,6 +72,7 @@ class Diagnosis(Outcome):
     floor: residual_mod.Floor | None = None
     structure: residual_mod.Structure | None = None
     timing: timing_mod.Timing | None = None  # a late channel against a delay in the loop, by the force
+    too_short: str | None = None  # why no cause could be named, when the blocks are too short to tell
 
     @property
     def equivalent(self) -> Candidate | None:
@@ -109,6 +115,7 @@ class Diagnosis(Outcome):
                          "rms_train_mm": self.baseline.rms_train_mm, "rms_choose_mm": self.baseline.rms_choose_mm,
                          "rms_test_mm": self.baseline.rms_test_mm},
             "cause": self.cause,
+            "too_short": self.too_short,
             "single": single.summary() if single else None,
             "equivalent": self.equivalent.summary() if self.equivalent else None,
             "timing": self.timing.to_json() if self.timing else None,
@@ -130,6 +137,17 @@ def estimate_lag(record: ActuatorRecord, n_train: int) -> float:
     mid = c.size - 1
     window = xc[mid: mid + max_shift + 1]
     return max(float(np.argmax(window)) * record.dt, 2.0 * record.dt)
+
+
+def too_short(record: ActuatorRecord, n_train: int, n_choose: int, lag_s: float) -> str | None:
+    """Why no cause can be named on this record (a block too short to tell), or None."""
+    shortest = min(n_choose - n_train, record.n - n_choose)
+    if shortest * record.dt >= MIN_BLOCK_LAGS * lag_s and shortest >= MIN_BLOCK_SAMPLES:
+        return None
+    return (f"too short to tell: the choosing and scoring blocks hold {n_choose - n_train} and {record.n - n_choose} "
+            f"samples ({1e3 * (n_choose - n_train) * record.dt:.4g} and {1e3 * (record.n - n_choose) * record.dt:.4g} ms); "
+            f"naming a cause needs at least {MIN_BLOCK_SAMPLES} samples and {MIN_BLOCK_LAGS:g} lags "
+            f"({1e3 * MIN_BLOCK_LAGS * lag_s:.4g} ms) in each (a longer record)")
 
 
 def fit_baseline(record: ActuatorRecord, n_train: int) -> Fit:
@@ -183,14 +201,14 @@ def settle_timing(best: Candidate, named: list[Candidate], record: ActuatorRecor
 
 def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, baseline: Fit, candidates: list,
             cause: str | None, extended: Fit, t0: float, ctx: Context, floor: residual_mod.Floor,
-            timing: timing_mod.Timing | None = None) -> Diagnosis:
+            timing: timing_mod.Timing | None = None, short: str | None = None) -> Diagnosis:
     """Measure the residual's structure, and settle none against unexplained."""
     r = record.measured_mm - extended.prediction
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
         cause = unnamed(s, floor)
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
-                     n_choose, floor, s, timing)
+                     n_choose, floor, s, timing, short)
 
 
 @one_blas_thread
@@ -217,15 +235,17 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     baseline = fit_baseline(record, n_train)
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
     names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
+    short = too_short(record, n_train, n_choose, baseline.params["lag_s"])
     candidates = []
     for name in names:
         f = fit(record, (name,), ctx, n_train, EFFECTS[name].starts(ctx))
         choose_gain = ratio(baseline.rms_choose_mm, f.rms_choose_mm)
-        candidates.append(Candidate(name, f, ratio(baseline.rms_test_mm, f.rms_test_mm), choose_gain >= margin, choose_gain))
+        candidates.append(Candidate(name, f, ratio(baseline.rms_test_mm, f.rms_test_mm),
+                                    choose_gain >= margin and short is None, choose_gain))
     named = [c for c in candidates if c.named]
     floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
     if not named:
-        return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx, floor)
+        return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx, floor, short=short)
     best, timing = settle_timing(choose_single(named, ctx, record), named, record, floor)
     singles = {c.cause: c.fit for c in candidates}
     gains = {c.cause: c.choose_gain for c in candidates}

@@ -34,6 +34,11 @@ from hsio.specimens.diagnosed import bouc_wen_step
 from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10
+# A cause is named only when the displacement reverses at least this often in the fitting, the
+# choosing and the scoring block: a hysteretic, pinched, degrading or gapped specimen shows itself
+# at reversals, and a block without one cannot tell a spring from any of them.
+MIN_REVERSALS = (2, 1, 1)
+REVERSAL_SHARE = 0.05  # a reversal: the displacement turns back by this share of its range (or 3 noise RMS)
 RATE_BOUNDS_HZ = (1.0, 1e6)  # below 1 Hz no velocity or acceleration is seen; above 1 MHz no DAQ samples
 
 
@@ -51,6 +56,19 @@ class Signals:
     u_noise: float  # RMS of the displacement above the cutoff: the transducer's noise, mm
 
 
+def extension(u: np.ndarray, dt: float, n: int, window: int) -> np.ndarray:
+    """``n`` samples continuing ``u`` past its end: the odd extension about the end,
+    2 x(0) - x(-t), with its curvature restored, + x2 t^2 (x2 the second derivative at the end), so
+    that it matches the signal's value, slope and curvature (its error is of order t^4, where the
+    odd extension alone errs by x2 t^2). x(0) and x2 come from a parabola fitted to the last
+    ``window`` samples (at least 5), which keeps the end sample's noise out of them."""
+    w = int(min(max(window, 5), u.size))
+    t = dt * np.arange(-w + 1, 1)
+    c2, _, c0 = np.polyfit(t, u[-w:], 2)
+    k = np.arange(1, n + 1)
+    return 2.0 * c0 - u[-1 - k] + 2.0 * c2 * (k * dt) ** 2
+
+
 def signals(record: SpecimenRecord) -> Signals:
     u = record.displacement_mm
     fs = record.rate_hz
@@ -59,9 +77,12 @@ def signals(record: SpecimenRecord) -> Signals:
     f995 = float(f[min(np.searchsorted(cum, 0.995), f.size - 1)])
     cutoff = min(max(4.0 * f995, 2.0), 0.3 * fs)
     b, a = signal.butter(4, cutoff, fs=fs)
-    # Padded (odd extension) over three periods of the cutoff: the filter's start-up transient,
-    # which lasts that long, then falls outside the record instead of on its first and last samples.
-    us = signal.filtfilt(b, a, u, padlen=min(u.size - 1, int(math.ceil(3.0 * fs / cutoff))))
+    # Padded over three periods of the cutoff: the filter's start-up transient, which lasts that
+    # long, then falls outside the record instead of on its first and last samples.
+    pad = min(u.size - 1, int(math.ceil(3.0 * fs / cutoff)))
+    window = int(math.ceil(0.5 * fs / cutoff))
+    padded = np.r_[extension(u[::-1], record.dt, pad, window)[::-1], u, extension(u, record.dt, pad, window)]
+    us = signal.filtfilt(b, a, padded, padtype=None)[pad: pad + u.size]
     v = np.r_[0.0, np.diff(us)] / record.dt
     acc = np.r_[0.0, np.diff(v)] / record.dt
     v_ref = max(float(np.percentile(np.abs(v), 95)), 1e-9)
@@ -229,6 +250,7 @@ class SpecimenDiagnosis(Outcome):
     structure: residual_mod.Structure
     elapsed_s: float = 0.0
     extra: dict = field(default_factory=dict)
+    too_short: str | None = None  # why no cause could be named, when the motion is too short to tell
 
     @property
     def gain(self) -> float:
@@ -241,7 +263,7 @@ class SpecimenDiagnosis(Outcome):
             "source": self.record.source, "samples": self.record.n, "rate_hz": self.record.rate_hz,
             "n_train": self.n_train, "n_choose": self.n_choose, "margin": self.margin,
             "scoring": scoring_text(self.n_train, self.n_choose, self.record.n),
-            "baseline": self.baseline.summary(), "cause": self.cause,
+            "baseline": self.baseline.summary(), "cause": self.cause, "too_short": self.too_short,
             "single": single.summary() if single else None,
             "combination": list(self.extended.effects), "extended": self.extended.summary(), "gain": self.gain,
             "candidates": [c.summary() for c in self.candidates],
@@ -290,6 +312,35 @@ def moving_part(record: SpecimenRecord, margin_s: float = 0.1) -> SpecimenRecord
     return SpecimenRecord(record.source, record.dt, u[a:b], record.force_kN[a:b])
 
 
+def reversals(u: np.ndarray, noise: float) -> np.ndarray:
+    """Indices where the displacement turns back by more than REVERSAL_SHARE of its range (at
+    least three times its noise) from its furthest point since the last reversal."""
+    h = max(REVERSAL_SHARE * float(np.ptp(u)), 3.0 * noise, 1e-12)
+    out, direction, extreme, at = [], 0, float(u[0]), 0
+    for i, x in enumerate(u.tolist()):
+        if direction == 0:  # not yet moved by h from the start
+            if abs(x - extreme) > h:
+                direction, extreme, at = (1 if x > extreme else -1), x, i
+        elif (x - extreme) * direction > 0:
+            extreme, at = x, i
+        elif (extreme - x) * direction > h:
+            out.append(at)
+            direction, extreme, at = -direction, x, i
+    return np.array(out, dtype=int)
+
+
+def too_short(sig: Signals, n_train: int, n_choose: int) -> str | None:
+    """Why no cause can be named on this record (too few reversals in a block), or None."""
+    turns = reversals(sig.u, sig.u_noise)
+    counts = (int(np.sum(turns < n_train)), int(np.sum((turns >= n_train) & (turns < n_choose))),
+              int(np.sum(turns >= n_choose)))
+    if all(c >= m for c, m in zip(counts, MIN_REVERSALS)):
+        return None
+    return (f"too short to tell: the displacement reverses {counts[0]}, {counts[1]} and {counts[2]} times in the "
+            f"fitting, choosing and scoring blocks; naming a cause needs at least {MIN_REVERSALS[0]}, "
+            f"{MIN_REVERSALS[1]} and {MIN_REVERSALS[2]} (a longer record, or more cycles)")
+
+
 def thinned(sig: Signals, force: np.ndarray) -> tuple[Signals, int]:
     """Every q-th sample of the low-passed signals when the record is long (q keeps the cutoff
     below 0.8 of the new Nyquist frequency)."""
@@ -319,12 +370,14 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
         raise RecordError(f"{record.source}: the force does not change in the training part, while the displacement "
                           "moves: the load cell reads nothing (its channel or scale?)")
     baseline = fit(sig, (), n_train, n_choose)
+    short = too_short(sig, n_train, n_choose)
     names = list(effects or NAMES)
     candidates = []
     for name in names:
         f = fit(sig, (name,), n_train, n_choose, EFFECTS[name].starts(sig))
         cg = ratio(baseline.rms_choose_kN, f.rms_choose_kN)
-        candidates.append(SpecimenCandidate(name, f, ratio(baseline.rms_test_kN, f.rms_test_kN), cg, cg >= margin))
+        candidates.append(SpecimenCandidate(name, f, ratio(baseline.rms_test_kN, f.rms_test_kN), cg,
+                                            cg >= margin and short is None))
     named = [c for c in candidates if c.named]
     floor = residual_mod.sensor_floor(record.displacement_mm, record.force_kN, record.force_kN - baseline.prediction, record.dt)
     # The displacement transducer's noise reaches the force prediction through the stiffness.
@@ -349,4 +402,4 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
     if cause is None:
         cause = unnamed(s, floor)
     return SpecimenDiagnosis(record, sig, n_train, n_choose, margin, baseline, candidates, cause, current, floor, s,
-                             time.perf_counter() - t0)
+                             time.perf_counter() - t0, too_short=short)

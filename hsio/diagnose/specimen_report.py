@@ -79,6 +79,8 @@ def section(d: SpecimenDiagnosis) -> list[str]:
              f"Baseline (linear spring and viscous dashpot): k = {b.params['k']:.4g} kN/mm, c = {b.params['c']:.4g} kN s/mm; "
              f"RMS error {b.rms_test_kN:.4f} kN on the scoring block, against a sensor floor of "
              f"{d.floor.sensor_floor_mm:.4f} kN (load-cell noise and quantisation, and the displacement noise through k).", ""]
+    if d.too_short:
+        lines += [f"No cause is named: {d.too_short}.", ""]
     if d.cause == NONE:
         lines += ["**Cause: none.** The spring and dashpot predict the force to within the sensor floor.", ""]
     elif d.cause == UNEXPLAINED:

@@ -1,0 +1,52 @@
+"""Records cut from a longer test: an actuator record that starts in motion is replayed from a
+lead-in (the model enters it already tracking), and a record whose blocks are too short to tell
+names no cause."""
+
+import numpy as np
+import pytest
+
+from hsio.diagnose.model import simulate
+from hsio.diagnose.record import ActuatorRecord
+from hsio.diagnose.selection import NONE, UNEXPLAINED, diagnose
+from hsio.diagnose.synth import emulate, seismic_command
+from hsio.emulators.servo import ServoConfig
+
+RATE_HZ = 1024.0
+LAG_S = 0.02
+
+
+@pytest.fixture(scope="module")
+def full():
+    command = seismic_command(8.0, RATE_HZ, peak_mm=20.0, seed=4)
+    return emulate(command, ServoConfig(rate_hz=RATE_HZ, lag_s=LAG_S, noise_mm=0.01, resolution_mm=0.025, seed=1))
+
+
+def _cut(full, a, n):
+    return ActuatorRecord("cut", full.dt, full.command_mm[a:a + n], full.measured_mm[a:a + n], full.force_kN[a:a + n])
+
+
+def test_the_model_enters_a_ramp_already_tracking_it():
+    """A first-order lag tracking c = v t lags by lag v: a record that starts on the ramp is
+    predicted from its first sample, with no start-up transient."""
+    dt, v = 1.0 / RATE_HZ, 100.0
+    c = 5.0 + v * dt * np.arange(500)
+    m = simulate(c, dt, {"lag_s": LAG_S})
+    # The loop sees the previous period's position: the lag between a command and the
+    # measurement that follows it is lag_s (docs/diagnose.md, "The model").
+    assert np.max(np.abs(m - (c - v * LAG_S))) < 1e-3  # 2 mm (lag v) from rest
+
+
+def test_a_lag_cut_from_the_middle_of_a_test_answers_none(full):
+    d = diagnose(_cut(full, 2000, 4000))
+    assert d.cause == NONE, [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    assert d.baseline.params["lag_s"] == pytest.approx(LAG_S, rel=0.05)
+    assert d.too_short is None
+
+
+
+def test_blocks_too_short_to_tell_name_no_cause(full):
+    """400 samples (0.4 s) from the middle of the test: 80 samples per block, 4 lags each."""
+    d = diagnose(_cut(full, 5000, 400))
+    assert d.cause in (NONE, UNEXPLAINED), [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    assert not any(c.named for c in d.candidates) and d.extended is d.baseline
+    assert "too short to tell" in d.to_json()["too_short"]
