@@ -254,8 +254,16 @@ def test_per_actuator_switch_structure_II(tmp_path):
     assert used["BF"]["enabled"] and not used["IF"]["enabled"] and used["IF"]["lag_s"] == 0.0
     assert np.all(np.isnan(table["er_cc_BF"])) and np.all(np.isfinite(table["er_cc_IF"]))
     assert np.allclose(run.actuator("command", "IF"), run.actuator("target", "IF"))
-    e_bf, e_if = execution_error(run, "BF"), execution_error(run, "IF")
-    assert rms(e_bf) < 0.5 * rms(e_if)
+    # the lag L = b d_max shows as the execution error's slope on the command velocity (eq. 1):
+    # the uncompensated IF keeps it, the compensated BF has it removed; what is left on both is
+    # the instruments' noise and resolution
+    lag = B_II * 254.0
+    t_d = 6.25 * 0.005
+    slopes = {}
+    for name in ("BF", "IF"):
+        e, v = execution_error(run, name), np.gradient(run.actuator("target", name), t_d)
+        slopes[name] = float(np.dot(e, v) / np.dot(v, v))
+    assert slopes["IF"] > 0.4 * lag and abs(slopes["BF"]) < 0.1 * lag, slopes
 
 
 def test_hs_vs_ns_error_of_structure_I_falls_with_compensation(tmp_path):
