@@ -122,6 +122,15 @@ def test_a_cycle_in_small_steps_in_closed_form():
     assert m.force(3.25) == pytest.approx(s2 * H(3.25), rel=1e-12)  # on, and now beyond, the peak
 
 
+def test_elastic_cycles_dissipate_nothing_and_deteriorate_nothing():
+    """Cycles within the yield displacement (2 mm) stay on k0 and end excursion after excursion
+    with no energy dissipated: the strength and the unloading stiffness stay as they were."""
+    m = model()
+    for u in 1.9 * np.sin(np.linspace(0.0, 20 * np.pi, 801)):
+        assert m.force(u) == pytest.approx(20.0 * u, abs=1e-9)
+    assert m.strength_factor == 1.0 and m.unloading_stiffness == 20.0
+
+
 def test_deterioration_accumulates_until_the_energy_capacity_is_spent():
     m = make_specimen({**PARAMS, "gamma": 10.0})
     factors = []
