@@ -78,14 +78,7 @@ class GroundMotion:
         if isinstance(factor, bool) or not isinstance(factor, (int, float, np.floating, np.integer)) \
                 or not math.isfinite(factor):
             raise RecordError(f"{self.name}: scale factor {factor!r} is not a finite number")
-        with np.errstate(over="ignore"):
-            accel = self.accel_g * float(factor)
-        over = np.flatnonzero(~np.isfinite(accel))
-        if over.size:
-            i = over[0]
-            raise RecordError(f"{self.name}: sample {i} (t = {i * self.dt:.3f} s) = {float(self.accel_g[i]):g} g "
-                              f"overflows to {float(accel[i])} when scaled by the factor {float(factor):g}: the product "
-                              f"is beyond the largest floating-point number ({np.finfo(float).max:.4g})")
+        accel = self._times(float(factor), f"when scaled by the factor {float(factor):g}")
         return GroundMotion(f"{self.name} x {factor:g}", self.dt, accel)
 
     def truncated(self, duration_s: float) -> "GroundMotion":
@@ -125,14 +118,19 @@ class GroundMotion:
     def acceleration_mm_s2(self) -> np.ndarray:
         """The accelerations in mm/s^2; a sample whose value there is beyond the floating-point range
         is refused, naming it (a finite value in g is not always finite in mm/s^2)."""
+        return self._times(G_MM_S2, f"in mm/s^2 (x {G_MM_S2:g})")
+
+    def _times(self, factor: float, what: str) -> np.ndarray:
+        """The accelerations times ``factor``; a sample the product takes beyond the floating-point
+        range is refused, naming it and ``what`` the product is."""
         with np.errstate(over="ignore"):
-            accel = self.accel_g * G_MM_S2
+            accel = self.accel_g * factor
         over = np.flatnonzero(~np.isfinite(accel))
         if over.size:
             i = over[0]
             raise RecordError(f"{self.name}: sample {i} (t = {i * self.dt:.3f} s) = {float(self.accel_g[i]):g} g "
-                              f"is {float(accel[i])} in mm/s^2 (x {G_MM_S2:g}): beyond the largest floating-point "
-                              f"number ({np.finfo(float).max:.4g})")
+                              f"is {float(accel[i])} {what}: beyond the largest floating-point number "
+                              f"({np.finfo(float).max:.4g})")
         return accel
 
 

@@ -99,13 +99,7 @@ class ControlServer:
         try:
             with conn:
                 conn.settimeout(self.READ_TIMEOUT_S)
-                data = b""
-                while b"\n" not in data and len(data) < self.MAX_LINE:
-                    chunk = conn.recv(self.MAX_LINE)
-                    if not chunk:
-                        break
-                    data += chunk
-                reply = self.handle(data.decode("utf-8", "replace").partition("\n")[0])
+                reply = self.handle(_read_line(conn).decode("utf-8", "replace").partition("\n")[0])
                 conn.sendall((reply + "\n").encode())
         except OSError:
             pass
@@ -130,10 +124,16 @@ def send(path: str | Path, command: str, timeout_s: float = 2.0) -> str:
         s.settimeout(timeout_s)
         s.connect(str(path))
         s.sendall((command.strip() + "\n").encode())
-        data = b""
-        while b"\n" not in data and len(data) < ControlServer.MAX_LINE:
-            chunk = s.recv(ControlServer.MAX_LINE)
-            if not chunk:
-                break
-            data += chunk
+        data = _read_line(s)
     return data.decode().strip()
+
+
+def _read_line(conn: socket.socket) -> bytes:
+    """What ``conn`` sends up to its first newline, its end, or MAX_LINE bytes."""
+    data = b""
+    while b"\n" not in data and len(data) < ControlServer.MAX_LINE:
+        chunk = conn.recv(ControlServer.MAX_LINE)
+        if not chunk:
+            break
+        data += chunk
+    return data
