@@ -31,3 +31,27 @@ def test_slow_work_is_counted_as_overruns_and_the_loop_is_bounded():
     assert timing.overruns == timing.periods or timing.overruns >= timing.periods - 1
     with pytest.raises(ValueError):
         run_periodic(lambda k: None, periods=0)
+
+
+def test_a_period_after_an_overrun_reports_the_time_it_lost():
+    """Work of 3 ms at 1024 Hz (0.98 ms): each period starts when the last one ends, at least
+    3 - 0.98 ms after its own deadline, and says so; the grid then moves, so no burst follows."""
+    period_us = 1e6 / 1024.0
+    timing = run_periodic(lambda k: time.sleep(0.003), rate_hz=1024.0, periods=20, max_seconds=2.0,
+                          dedicated_thread=False)
+    assert timing.periods == 20 and timing.overruns >= 19
+    assert timing.lateness_us[1:].min() >= 3000.0 - period_us
+    assert timing.stats()["p50_us"] >= 3000.0 - period_us
+
+    slow = {3}  # one long period among short ones
+    timing = run_periodic(lambda k: time.sleep(0.0025) if k in slow else None, rate_hz=1024.0, periods=8,
+                          max_seconds=2.0, dedicated_thread=False)
+    assert timing.overruns >= 1 and timing.lateness_us[4] >= 2500.0 - period_us
+    assert timing.stats()["max_us"] >= 2500.0 - period_us
+
+
+def test_a_run_cut_by_its_time_bound_says_how_many_periods_were_asked_for():
+    timing = run_periodic(lambda k: time.sleep(0.003), rate_hz=1024.0, periods=10_000, max_seconds=0.05,
+                          dedicated_thread=False)
+    s = timing.stats()
+    assert s["periods"] < s["periods_requested"] == 10_000

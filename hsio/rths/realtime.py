@@ -4,8 +4,9 @@ Each period the loop waits for its deadline in two stages, a sleep until ``spin_
 and then a busy-wait on ``time.perf_counter_ns`` (the sleep's own wake-up latency is hundreds
 of microseconds on a general-purpose kernel; the final busy-wait removes it), then calls
 ``work(k)``. Deadlines are fixed on a grid from the start, so lateness does not accumulate; a
-period whose work ends after the next deadline is an overrun, and the loop starts the next
-period at once rather than bursting to catch up. With ``dedicated_thread`` the loop runs in a
+period whose work ends after the next deadline is an overrun: the next period starts at once,
+its lateness counted from its own deadline, and the grid moves to that start rather than bursting
+to catch up. With ``dedicated_thread`` the loop runs in a
 thread of its own; the garbage collector is paused during the run and the interpreter's thread
 switch interval shortened (``switch_interval_s``: another Python thread holding the interpreter
 lock, such as an in-process emulator, then hands it over within that time, not the default 5 ms). ``pin_cpu`` asks the kernel
@@ -33,12 +34,14 @@ class Timing:
     overruns: int  # periods whose work ended after the next deadline
     work_us: np.ndarray
     granted: dict = field(default_factory=dict)
+    requested: int = 0  # periods asked for; more than ``periods`` when the time bound cut the run
 
     def stats(self) -> dict:
         late = self.lateness_us
         return {
             "rate_hz": self.rate_hz,
             "periods": int(self.periods),
+            "periods_requested": int(max(self.requested, self.periods)),
             "p50_us": float(np.percentile(late, 50)) if late.size else float("nan"),
             "p99_us": float(np.percentile(late, 99)) if late.size else float("nan"),
             "max_us": float(late.max()) if late.size else float("nan"),
@@ -93,6 +96,7 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
             t0 = time.perf_counter_ns() + period_ns
             limit = t0 + int(max_seconds * 1e9)
             deadline = t0
+            behind = False
             for k in range(periods):
                 now = time.perf_counter_ns()
                 if now > limit:
@@ -103,15 +107,18 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
                 while time.perf_counter_ns() < deadline:
                     pass
                 start = time.perf_counter_ns()
+                late[k] = (start - deadline) * 1e-3  # a period after an overrun is late by all it lost
+                if behind:  # the grid moves to this late start: no burst to catch up
+                    deadline = start
+                    behind = False
                 work(k)
                 end = time.perf_counter_ns()
-                late[k] = (start - deadline) * 1e-3
                 spent[k] = (end - start) * 1e-3
                 done = k + 1
                 deadline += period_ns
-                if end > deadline:  # overrun: start again from now, no burst
+                if end > deadline:  # overrun: the next period starts at once
                     overruns += 1
-                    deadline = end
+                    behind = True
         finally:
             sys.setswitchinterval(interval_was)
             if gc_was:
@@ -132,4 +139,4 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
     else:
         body()
     n = out["done"]
-    return Timing(rate_hz, n, late[:n], out["overruns"], spent[:n], out["granted"])
+    return Timing(rate_hz, n, late[:n], out["overruns"], spent[:n], out["granted"], periods)
