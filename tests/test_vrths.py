@@ -278,3 +278,28 @@ def test_the_ground_motion_starts_at_the_records_first_sample(bm, shift_s):
         a, b = benchmark.ground_motion(shifted, duration), benchmark.ground_motion(bm, duration)
         assert a.shape == b.shape
         assert np.max(np.abs(a - b)) < 1e-9 * np.max(np.abs(b))  # the same samples, to round-off in time
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed: nothing is compiled")
+def test_the_loops_clock_starts_after_numba_has_compiled(bm, monkeypatch):
+    """x real time is the loop's speed: the compilation of a new stage happens before the clock."""
+    from hsio.rths.jit import jit
+    from hsio.rths.stage import Stage
+
+    @jit
+    def hold(p, s, k, x_t, v_t, a_t, x_m):  # a step numba has not seen: the kernel compiles for it
+        return 0.0
+
+    monkeypatch.setattr(controllers, "make", lambda name, fs, model: Stage("hold", hold, np.zeros(1), np.zeros(1)))
+    before = len(loop.rths_kernel.signatures)
+    seen = []
+
+    class Clock:
+        @staticmethod
+        def perf_counter():
+            seen.append(len(loop.rths_kernel.signatures))
+            return 0.0
+
+    monkeypatch.setattr(evaluate, "time", Clock)
+    evaluate.run_one(bm, 1, "hold", plant.nominal(bm.data), use_numba=True, duration=0.5)
+    assert seen[0] == before + 1  # compiled before the clock started
