@@ -246,6 +246,11 @@ def _swap_lines_11_12(lines):
     (_json(lambda d: d["cases"]["1"].update(M=[[29.1, 0, 0], [0, 1000, 0], [0, 0, 1000]])),
      "cases.1.M must be symmetric, and positive definite less the specimen's me = 29.1 kg"),
     (_json(lambda d: d["experimental_substructure"].update(ke_N_m=-1.0)), "me, ke and the converters' scales positive"),
+    (_json(lambda d: d["cases"]["4"].update(K=(-np.array(d["cases"]["4"]["K"])).tolist())),
+     "cases.4: the reference model M x'' + C x' + K x = 0 is not stable"),
+    (_json(lambda d: d["cases"]["1"].update(C=(-np.array(d["cases"]["1"]["C"])).tolist())),
+     "cases.1: the reference model M x'' + C x' + K x = 0 is not stable"),
+    (_json(lambda d: d["plant"].update(b1=-425.0)), "the control plant (servo-valve, actuator, specimen"),
 ])
 def test_a_data_folder_it_cannot_run_on_is_refused_naming_the_file(shared_data, tmp_path, change, message):
     for name in ("benchmark.json", "elcentro_vrths.csv"):

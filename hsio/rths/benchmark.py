@@ -70,7 +70,8 @@ def check(bm: Benchmark, folder: Path) -> None:
     """The record: at least two finite rows, time increasing over at most MAX_RECORD_S, a ground
     that moves; benchmark.json: every number the cases, the plant and the constraints
     need (3 x 3 matrices for each case, finite, a mass that leaves the numerical substructure a
-    positive definite one, the substructure's me, ke and the converters' scales positive)."""
+    positive definite one, a stable reference model, the substructure's me, ke and the converters'
+    scales positive, a stable control plant)."""
     from hsio.rths import plant as plant_mod
 
     csv, js = folder / "elcentro_vrths.csv", folder / "benchmark.json"
@@ -103,10 +104,17 @@ def check(bm: Benchmark, folder: Path) -> None:
         if not np.allclose(cs.M, cs.M.T) or np.min(np.linalg.eigvalsh(cs.Mn)) <= 0.0:
             raise ValueError(f"{js}: cases.{cs.number}.M must be symmetric, and positive definite less the "
                              f"specimen's me = {cs.me:g} kg at the first floor (the numerical substructure's mass)")
+        A, _ = _second_order_ss(cs.M, cs.C, cs.K, np.zeros((3, 1)))
+        if np.max(np.linalg.eigvals(A).real) >= 0.0:
+            raise ValueError(f"{js}: cases.{cs.number}: the reference model M x'' + C x' + K x = 0 is not stable "
+                             "(K and C must make every mode decay)")
     values = [getattr(plant, f) for f in plant.__dataclass_fields__] + std
     if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
         raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
                          "me, ke and the converters' scales positive")
+    if np.max(np.linalg.eigvals(plant.continuous()[0]).real) >= 0.0:
+        raise ValueError(f"{js}: the control plant (servo-valve, actuator, specimen in the unity displacement "
+                         "loop, eqs. 21-22) is not stable with these parameters")
 
 
 def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) -> np.ndarray:
