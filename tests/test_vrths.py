@@ -308,3 +308,22 @@ def test_the_loops_clock_starts_after_numba_has_compiled(bm, monkeypatch):
     monkeypatch.setattr(evaluate, "time", Clock)
     evaluate.run_one(bm, 1, "hold", plant.nominal(bm.data), use_numba=True, duration=0.5)
     assert seen[0] == before + 1  # compiled before the clock started
+
+
+def test_a_run_that_reaches_the_benchmarks_limits_says_so(shared_data, tmp_path):
+    """El Centro x 1.2 (the record's values x 3, then the benchmark's 0.4): the force saturates at
+    8.9 kN and the stroke passes 7 mm; the table names both, and --json lists them."""
+    (tmp_path / "benchmark.json").write_bytes((shared_data / "vrths" / "benchmark.json").read_bytes())
+    path = tmp_path / "elcentro_vrths.csv"
+    lines = _lines((shared_data / "vrths" / "elcentro_vrths.csv").read_text())
+    path.write_text("\n".join([lines[0]] + [f"{t},{3.0 * float(a)!r}" for t, a in (ln.split(",") for ln in lines[1:])]) + "\n")
+    args = ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--duration", "3", "--data", str(tmp_path)]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    assert "case 1 pi-lead: the actuator force saturated at 8.9 kN; stroke" in res.output, res.output
+    rows = json.loads(CliRunner().invoke(main, [*args, "--json"]).output)
+    assert rows[0]["peak_force_N"] == 8900.0 and rows[0]["peak_stroke_mm"] > 7.0
+    assert len(rows[0]["limits_reached"]) == 3
+    # the benchmark's own record stays within them
+    res = CliRunner().invoke(main, [*args[:-2], "--data", str(shared_data / "vrths"), "--json"])
+    assert json.loads(res.output)[0]["limits_reached"] == []

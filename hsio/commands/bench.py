@@ -82,3 +82,6 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
                 and bm.table3(row["case"]) is not None:
             t3 = " ".join(f"{j:6.2f}" for j in bm.table3(row["case"]))
             click.echo(f"{'':>4} {'Table 3':<8} {'':<6} {t3}")
+    for row in rows:
+        if row["limits_reached"]:
+            click.echo(f"case {row['case']} {row['controller']}: " + "; ".join(row["limits_reached"]))
