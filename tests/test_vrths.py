@@ -12,7 +12,7 @@ from scipy import signal
 
 from hsio.cli import main
 from hsio.rths import benchmark, controllers, criteria, evaluate, loop, plant
-from hsio.rths.jit import HAVE_NUMBA
+from hsio.rths.jit import HAVE_NUMBA, jit
 
 FS = benchmark.FS
 needs_numba = pytest.mark.skipif(not HAVE_NUMBA, reason="full 41 s records need numba to stay short "
@@ -240,6 +240,8 @@ def _swap_lines_11_12(lines):
     (_record(_swap_lines_11_12), "elcentro_vrths.csv:12: time does not increase (0.2 s, then 0.18 s)"),
     (_record(lambda lines: [lines[0]] + [f"{line.split(',')[0]},0" for line in lines[1:]]), "the ground never moves"),
     (_record(lambda lines: [lines[0], "0,0", "1e9,1"]), "the record lasts 1e+09 s"),
+    (_record(lambda lines: [lines[0]] + [f"{t},{100.0 * float(a)!r}" for t, a in (ln.split(",") for ln in lines[1:])]),
+     "elcentro_vrths.csv:317: an acceleration of -126.979 m/s^2, beyond 100 m/s^2 (about 10 g; is the record in m/s^2, not cm/s^2?)"),
     (_json(lambda d: d.pop("experimental_substructure")), "KeyError 'experimental_substructure'"),
     (_json(lambda d: d["cases"]["2"].update(K=[[1.0, 2.0], [3.0, 4.0]])), "cases.2.K must be a 3 x 3 matrix"),
     (_json(lambda d: d["plant"].update(a3="fast")), "a case, the plant or a constraint is missing or not a number"),
@@ -327,3 +329,35 @@ def test_a_run_that_reaches_the_benchmarks_limits_says_so(shared_data, tmp_path)
     # the benchmark's own record stays within them
     res = CliRunner().invoke(main, [*args[:-2], "--data", str(shared_data / "vrths"), "--json"])
     assert json.loads(res.output)[0]["limits_reached"] == []
+
+
+@jit
+def _nan_at_100(p, s, k, x_t, v_t, a_t, x_m):
+    if k == 100:
+        return np.nan
+    return x_t
+
+
+@pytest.mark.parametrize("use_numba", [pytest.param(True, marks=pytest.mark.skipif(not HAVE_NUMBA, reason="no numba")),
+                                       False])
+def test_a_command_that_is_not_a_finite_number_stops_the_run_before_the_plant(bm, use_numba):
+    """A plugged-in stage that returns NaN: the same clear error with and without numba, the
+    samples before it kept, and nothing of it sent to the plant (no 1e12 m command)."""
+    from hsio.rths.stage import Stage
+
+    sub = benchmark.numerical_substructure(benchmark.case(bm, 1))
+    with pytest.raises(loop.NonFiniteCommandError, match=r"controller 'nan': the command at sample 100 \(0.024414 s\)") as err:
+        loop.run(Stage("nan", _nan_at_100, np.zeros(1), np.zeros(1)), plant.nominal(bm.data), sub,
+                 benchmark.ground_motion(bm, 0.5), FS, 0, use_numba)
+    kept = err.value.result
+    assert kept.u.size == 100 and np.all(np.isfinite(kept.u)) and np.abs(kept.x).max() < 1e-3
+
+
+def test_a_run_whose_command_is_not_finite_stops_with_exit_3(shared_data, monkeypatch):
+    from hsio.rths.stage import Stage
+
+    monkeypatch.setattr(controllers, "make", lambda name, fs, model: Stage(name, _nan_at_100, np.zeros(1), np.zeros(1)))
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "amb", "--duration", "0.5",
+                                    "--data", str(shared_data / "vrths")])
+    assert res.exit_code == 3, res.output
+    assert "controller 'amb': the command at sample 100" in res.output and "Traceback" not in res.output

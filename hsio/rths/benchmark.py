@@ -24,6 +24,7 @@ from scipy import signal
 FS = 4096.0  # controller rate, Hz (benchmark constraint)
 RECORD_SCALE = 0.4  # El Centro 1940 x 0.4
 MAX_RECORD_S = 1000.0  # longest record run (the benchmark's lasts 41.18 s)
+MAX_RECORD_ACCEL = 100.0  # m/s^2, about 10 g: a larger value is a record in other units (cm/s^2, mm/s^2)
 
 
 @dataclass(frozen=True)
@@ -67,8 +68,8 @@ def load(folder: str | Path) -> Benchmark:
 
 
 def check(bm: Benchmark, folder: Path) -> None:
-    """The record: at least two finite rows, time increasing over at most MAX_RECORD_S, a ground
-    that moves; benchmark.json: every number the cases, the plant and the constraints
+    """The record: at least two finite rows, time increasing over at most MAX_RECORD_S, accelerations
+    within MAX_RECORD_ACCEL, a ground that moves; benchmark.json: every number the cases, the plant and the constraints
     need (3 x 3 matrices for each case, finite, a mass that leaves the numerical substructure a
     positive definite one, a stable reference model, the substructure's me, ke and the converters'
     scales positive, a stable control plant)."""
@@ -85,6 +86,10 @@ def check(bm: Benchmark, folder: Path) -> None:
     if t[-1] - t[0] > MAX_RECORD_S:
         raise ValueError(f"{csv}: the record lasts {t[-1] - t[0]:g} s; the benchmark runs at most {MAX_RECORD_S:g} s "
                          f"at {FS:g} Hz (is the time column in seconds?)")
+    big = np.flatnonzero(np.abs(a) > MAX_RECORD_ACCEL)
+    if big.size:
+        raise ValueError(f"{csv}:{int(big[0]) + 2}: an acceleration of {a[big[0]]:g} m/s^2, beyond {MAX_RECORD_ACCEL:g} "
+                         "m/s^2 (about 10 g; is the record in m/s^2, not cm/s^2?)")
     if not np.any(a != 0.0):
         raise ValueError(f"{csv}: the ground never moves (every acceleration is 0)")
     if not isinstance(bm.data, dict) or not isinstance(bm.data.get("cases"), dict) or not bm.data["cases"]:
