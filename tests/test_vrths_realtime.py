@@ -55,3 +55,13 @@ def test_a_run_cut_by_its_time_bound_says_how_many_periods_were_asked_for():
                           dedicated_thread=False)
     s = timing.stats()
     assert s["periods"] < s["periods_requested"] == 10_000
+
+
+@pytest.mark.parametrize("dedicated_thread", [True, False])
+def test_an_error_in_the_work_reaches_the_caller_as_it_is(dedicated_thread):
+    def work(k):
+        if k == 5:
+            raise RuntimeError("axis 0 lost")
+
+    with pytest.raises(RuntimeError, match="axis 0 lost"):
+        run_periodic(work, rate_hz=1024.0, periods=20, dedicated_thread=dedicated_thread)

@@ -131,11 +131,19 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
         out["overruns"], out["done"] = overruns, done
 
     if dedicated_thread:
-        t = threading.Thread(target=body, name="hsio-rt-loop", daemon=True)
+        def guarded():
+            try:
+                body()
+            except BaseException as exc:  # handed to the caller, as without the thread
+                out["error"] = exc
+
+        t = threading.Thread(target=guarded, name="hsio-rt-loop", daemon=True)
         t.start()
         t.join(max_seconds + 5.0)
         if t.is_alive():
             raise RuntimeError("the real-time loop did not finish in time")
+        if "error" in out:
+            raise out["error"]
     else:
         body()
     n = out["done"]
