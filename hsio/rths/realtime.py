@@ -25,6 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+MAX_RATE_HZ = 100_000.0  # a period of 10 us: shorter than the loop's own overhead
+MAX_SECONDS = 86_400.0
+
 
 @dataclass
 class Timing:
@@ -74,13 +77,16 @@ def _request_os_help(pin_cpu: int | None, fifo_priority: int | None) -> dict:
 def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: float = 0.0003,
                  max_seconds: float = 60.0, dedicated_thread: bool = True, pin_cpu: int | None = None,
                  fifo_priority: int | None = None, switch_interval_s: float = 5e-5) -> Timing:
-    """Run ``work(k)`` at ``rate_hz`` for ``periods`` periods (at most ``max_seconds``)."""
-    if not rate_hz > 0 or periods < 1:
-        raise ValueError("rate_hz must be positive and periods at least 1")
+    """Run ``work(k)`` at ``rate_hz`` (at most MAX_RATE_HZ) for ``periods`` periods (at most
+    ``max_seconds``, which also bounds the periods recorded: no more than fit in that time)."""
+    if not 0 < rate_hz <= MAX_RATE_HZ or periods < 1 or not 0 < max_seconds <= MAX_SECONDS:
+        raise ValueError(f"rate_hz must be in (0, {MAX_RATE_HZ:g}] Hz, periods at least 1 and max_seconds in "
+                         f"(0, {MAX_SECONDS:g}] s; got {rate_hz!r}, {periods!r}, {max_seconds!r}")
     period_ns = int(round(1e9 / rate_hz))
     spin_ns = int(spin_s * 1e9)
-    late = np.zeros(periods)
-    spent = np.zeros(periods)
+    room = min(periods, int(max_seconds * rate_hz) + 2)  # deadlines are at least a period apart
+    late = np.zeros(room)
+    spent = np.zeros(room)
     out: dict = {}
 
     def body():
@@ -97,7 +103,7 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
             limit = t0 + int(max_seconds * 1e9)
             deadline = t0
             behind = False
-            for k in range(periods):
+            for k in range(room):
                 now = time.perf_counter_ns()
                 if now > limit:
                     break
