@@ -253,6 +253,7 @@ def _swap_lines_11_12(lines):
     (_json(lambda d: d["cases"]["1"].update(C=(-np.array(d["cases"]["1"]["C"])).tolist())),
      "cases.1: the reference model M x'' + C x' + K x = 0 is not stable"),
     (_json(lambda d: d["plant"].update(b1=-425.0)), "the control plant (servo-valve, actuator, specimen"),
+    (_json(lambda d: d["plant"]["std"].update(a3=-1.3)), "plant.std: the standard deviations of a3, b1, b2, ke must not"),
 ])
 def test_a_data_folder_it_cannot_run_on_is_refused_naming_the_file(shared_data, tmp_path, change, message):
     for name in ("benchmark.json", "elcentro_vrths.csv"):

@@ -117,6 +117,9 @@ def check(bm: Benchmark, folder: Path) -> None:
     if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
         raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
                          "me, ke and the converters' scales positive")
+    if min(std) < 0.0:
+        raise ValueError(f"{js}: plant.std: the standard deviations of {', '.join(plant_mod.UNCERTAIN)} must not be "
+                         f"negative (got {', '.join(f'{v:g}' for v in std)})")
     if np.max(np.linalg.eigvals(plant.continuous()[0]).real) >= 0.0:
         raise ValueError(f"{js}: the control plant (servo-valve, actuator, specimen in the unity displacement "
                          "loop, eqs. 21-22) is not stable with these parameters")
