@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 
 import pytest
@@ -79,3 +80,14 @@ def test_bounds_are_refused_or_kept_without_allocating_beyond_the_time_bound(kwa
         return
     with pytest.raises(ValueError, match="rate_hz must be in"):
         run_periodic(lambda k: None, **args)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="no scheduling policies on this OS")
+def test_the_callers_thread_gets_its_scheduling_back():
+    """Without a thread of its own the loop raises the caller's thread to SCHED_FIFO and pins it
+    (where permitted); both are given back when it ends."""
+    policy, affinity = os.sched_getscheduler(0), os.sched_getaffinity(0)
+    timing = run_periodic(lambda k: None, periods=10, dedicated_thread=False, fifo_priority=10, pin_cpu=0)
+    if not timing.granted["sched_fifo"]:
+        pytest.skip("SCHED_FIFO is not permitted here: nothing to give back")
+    assert os.sched_getscheduler(0) == policy and os.sched_getaffinity(0) == affinity

@@ -11,7 +11,8 @@ thread of its own; the garbage collector is paused during the run and the interp
 switch interval shortened (``switch_interval_s``: another Python thread holding the interpreter
 lock, such as an in-process emulator, then hands it over within that time, not the default 5 ms). ``pin_cpu`` asks the kernel
 for CPU affinity and ``fifo_priority`` for SCHED_FIFO; each is used only where the OS permits
-it, and the result says what was granted. Every loop is bounded in count and in time.
+it, the result says what was granted, and both are given back when the loop ends. Every loop is
+bounded in count and in time.
 """
 
 from __future__ import annotations
@@ -91,6 +92,7 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
 
     def body():
         affinity_before = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+        policy_before = (os.sched_getscheduler(0), os.sched_getparam(0)) if hasattr(os, "sched_getscheduler") else None
         out["granted"] = _request_os_help(pin_cpu, fifo_priority)
         gc_was = gc.isenabled()
         gc.disable()
@@ -132,6 +134,11 @@ def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: f
             if affinity_before is not None and out["granted"].get("affinity") is not None:
                 try:
                     os.sched_setaffinity(0, affinity_before)
+                except OSError:
+                    pass
+            if policy_before is not None and out["granted"].get("sched_fifo"):
+                try:  # the caller's thread is not left at real-time priority
+                    os.sched_setscheduler(0, *policy_before)
                 except OSError:
                     pass
         out["overruns"], out["done"] = overruns, done
