@@ -28,6 +28,7 @@ import numpy as np
 
 MAX_RATE_HZ = 100_000.0  # a period of 10 us: shorter than the loop's own overhead
 MAX_SECONDS = 86_400.0
+MAX_PERIODS = 10_000_000  # 2.7 h at 1024 Hz; two float64 arrays of this length are recorded
 
 
 @dataclass
@@ -78,14 +79,14 @@ def _request_os_help(pin_cpu: int | None, fifo_priority: int | None) -> dict:
 def run_periodic(work, rate_hz: float = 1024.0, periods: int = 10_000, spin_s: float = 0.0003,
                  max_seconds: float = 60.0, dedicated_thread: bool = True, pin_cpu: int | None = None,
                  fifo_priority: int | None = None, switch_interval_s: float = 5e-5) -> Timing:
-    """Run ``work(k)`` at ``rate_hz`` (at most MAX_RATE_HZ) for ``periods`` periods (at most
-    ``max_seconds``, which also bounds the periods recorded: no more than fit in that time)."""
-    if not 0 < rate_hz <= MAX_RATE_HZ or periods < 1 or not 0 < max_seconds <= MAX_SECONDS:
-        raise ValueError(f"rate_hz must be in (0, {MAX_RATE_HZ:g}] Hz, periods at least 1 and max_seconds in "
-                         f"(0, {MAX_SECONDS:g}] s; got {rate_hz!r}, {periods!r}, {max_seconds!r}")
+    """Run ``work(k)`` at ``rate_hz`` (at most MAX_RATE_HZ) for ``periods`` periods (1 to
+    MAX_PERIODS; no more are recorded than fit in ``max_seconds``)."""
+    if not 0 < rate_hz <= MAX_RATE_HZ or not 1 <= periods <= MAX_PERIODS or not 0 < max_seconds <= MAX_SECONDS:
+        raise ValueError(f"rate_hz must be in (0, {MAX_RATE_HZ:g}] Hz, periods in [1, {MAX_PERIODS:g}] and max_seconds "
+                         f"in (0, {MAX_SECONDS:g}] s; got {rate_hz!r}, {periods!r}, {max_seconds!r}")
     period_ns = int(round(1e9 / rate_hz))
     spin_ns = int(spin_s * 1e9)
-    room = min(periods, int(max_seconds * rate_hz) + 2)  # deadlines are at least a period apart
+    room = min(periods, int(max_seconds * 1e9) // period_ns + 2)  # deadlines are at least a period apart
     late = np.zeros(room)
     spent = np.zeros(room)
     out: dict = {}
