@@ -240,6 +240,7 @@ def _swap_lines_11_12(lines):
     (_record(_swap_lines_11_12), "elcentro_vrths.csv:12: time does not increase (0.2 s, then 0.18 s)"),
     (_record(lambda lines: [lines[0]] + [f"{line.split(',')[0]},0" for line in lines[1:]]), "the ground never moves"),
     (_record(lambda lines: [lines[0], "0,0", "1e9,1"]), "the record lasts 1e+09 s"),
+    (_record(lambda lines: [lines[0], "0,0", "0.0001,1"]), "the record lasts 0.0001 s; the benchmark needs at least 0.5 s"),
     (_record(lambda lines: [lines[0]] + [f"{t},{100.0 * float(a)!r}" for t, a in (ln.split(",") for ln in lines[1:])]),
      "elcentro_vrths.csv:317: an acceleration of -126.979 m/s^2, beyond 100 m/s^2 (about 10 g; is the record in m/s^2, not cm/s^2?)"),
     (_json(lambda d: d.pop("experimental_substructure")), "KeyError 'experimental_substructure'"),

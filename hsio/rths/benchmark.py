@@ -24,6 +24,7 @@ from scipy import signal
 FS = 4096.0  # controller rate, Hz (benchmark constraint)
 RECORD_SCALE = 0.4  # El Centro 1940 x 0.4
 MAX_RECORD_S = 1000.0  # longest record run (the benchmark's lasts 41.18 s)
+MIN_RECORD_S = 0.5  # shortest (as `--duration`): J1-J9 need samples to compare
 MAX_RECORD_ACCEL = 100.0  # m/s^2, about 10 g: a larger value is a record in other units (cm/s^2, mm/s^2)
 
 
@@ -68,7 +69,7 @@ def load(folder: str | Path) -> Benchmark:
 
 
 def check(bm: Benchmark, folder: Path) -> None:
-    """The record: at least two finite rows, time increasing over at most MAX_RECORD_S, accelerations
+    """The record: at least two finite rows, time increasing over MIN_RECORD_S to MAX_RECORD_S, accelerations
     within MAX_RECORD_ACCEL, a ground that moves; benchmark.json: every number the cases, the plant and the constraints
     need (3 x 3 matrices for each case, finite, a mass that leaves the numerical substructure a
     positive definite one, a stable reference model, the substructure's me, ke and the converters'
@@ -83,6 +84,8 @@ def check(bm: Benchmark, folder: Path) -> None:
     back = np.flatnonzero(np.diff(t) <= 0.0)
     if back.size:
         raise ValueError(f"{csv}:{int(back[0]) + 3}: time does not increase ({t[back[0]]:g} s, then {t[back[0] + 1]:g} s)")
+    if t[-1] - t[0] < MIN_RECORD_S:
+        raise ValueError(f"{csv}: the record lasts {t[-1] - t[0]:g} s; the benchmark needs at least {MIN_RECORD_S:g} s")
     if t[-1] - t[0] > MAX_RECORD_S:
         raise ValueError(f"{csv}: the record lasts {t[-1] - t[0]:g} s; the benchmark runs at most {MAX_RECORD_S:g} s "
                          f"at {FS:g} Hz (is the time column in seconds?)")
