@@ -114,6 +114,8 @@ def main() -> None:
         granted += ", SCHED_FIFO" if s["sched_fifo"] else ", no SCHED_FIFO"
         print(f"{name:<24} {s['p50_us']:8.1f} {s['p99_us']:8.1f} {s['max_us']:9.1f} {s['overruns_per_10k']:13.1f} "
               f"{s['work_p50_us']:12.1f} {s['work_p99_us']:12.1f}  {granted}")
+        if s["periods"] < s["periods_requested"]:
+            print(f"{'':<24} stopped by the time bound after {s['periods']} of {s['periods_requested']} periods")
 
 
 if __name__ == "__main__":

@@ -49,7 +49,11 @@ class VrthsPlant:
         return self._adc(self.w[3], p.m_per_V), self._adc(self.w[2], p.N_per_V)
 
     def step(self, command_m: float) -> tuple[float, float]:
-        """One period with ``command_m`` held; returns the measurements at its end."""
+        """One period with ``command_m`` held; returns the measurements at its end. A command that
+        is not a finite number is refused (ValueError) and the plant does not move."""
+        if not isinstance(command_m, (int, float, np.number)) or not math.isfinite(command_m):
+            raise ValueError(f"VrthsPlant.step: the command must be a finite displacement in m, got {command_m!r}; "
+                             "the plant holds its state")
         p = self.params
         u = math.floor(command_m / p.m_per_V / p.quantum_V + 0.5) * p.quantum_V * p.m_per_V
         w = self.Ad @ self.w + self.Bd * u

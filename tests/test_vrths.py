@@ -12,7 +12,7 @@ from scipy import signal
 
 from hsio.cli import main
 from hsio.rths import benchmark, controllers, criteria, evaluate, loop, plant
-from hsio.rths.jit import HAVE_NUMBA
+from hsio.rths.jit import HAVE_NUMBA, jit
 
 FS = benchmark.FS
 needs_numba = pytest.mark.skipif(not HAVE_NUMBA, reason="full 41 s records need numba to stay short "
@@ -154,7 +154,7 @@ def test_amb_beats_the_others_over_twenty_perturbed_plants(bm, case):
 @pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed: nothing to compare the Python loop with")
 @pytest.mark.parametrize("name", controllers.NAMES)
 def test_numba_and_python_agree(bm, name):
-    ag = benchmark.ground_motion(bm, 0.75)
+    ag = benchmark.ground_motion(bm, 1.25)  # past 1 s: the ATS window fills and its fits run
     nom = plant.nominal(bm.data)
     sub = benchmark.numerical_substructure(benchmark.case(bm, 3))
     pert = plant.perturbed(bm.data, 9, 1)[0]
@@ -240,12 +240,21 @@ def _swap_lines_11_12(lines):
     (_record(_swap_lines_11_12), "elcentro_vrths.csv:12: time does not increase (0.2 s, then 0.18 s)"),
     (_record(lambda lines: [lines[0]] + [f"{line.split(',')[0]},0" for line in lines[1:]]), "the ground never moves"),
     (_record(lambda lines: [lines[0], "0,0", "1e9,1"]), "the record lasts 1e+09 s"),
+    (_record(lambda lines: [lines[0], "0,0", "0.0001,1"]), "the record lasts 0.0001 s; the benchmark needs at least 0.5 s"),
+    (_record(lambda lines: [lines[0]] + [f"{t},{100.0 * float(a)!r}" for t, a in (ln.split(",") for ln in lines[1:])]),
+     "elcentro_vrths.csv:317: an acceleration of -126.979 m/s^2, beyond 100 m/s^2 (about 10 g; is the record in m/s^2, not cm/s^2?)"),
     (_json(lambda d: d.pop("experimental_substructure")), "KeyError 'experimental_substructure'"),
     (_json(lambda d: d["cases"]["2"].update(K=[[1.0, 2.0], [3.0, 4.0]])), "cases.2.K must be a 3 x 3 matrix"),
     (_json(lambda d: d["plant"].update(a3="fast")), "a case, the plant or a constraint is missing or not a number"),
     (_json(lambda d: d["cases"]["1"].update(M=[[29.1, 0, 0], [0, 1000, 0], [0, 0, 1000]])),
      "cases.1.M must be symmetric, and positive definite less the specimen's me = 29.1 kg"),
     (_json(lambda d: d["experimental_substructure"].update(ke_N_m=-1.0)), "me, ke and the converters' scales positive"),
+    (_json(lambda d: d["cases"]["4"].update(K=(-np.array(d["cases"]["4"]["K"])).tolist())),
+     "cases.4: the reference model M x'' + C x' + K x = 0 is not stable"),
+    (_json(lambda d: d["cases"]["1"].update(C=(-np.array(d["cases"]["1"]["C"])).tolist())),
+     "cases.1: the reference model M x'' + C x' + K x = 0 is not stable"),
+    (_json(lambda d: d["plant"].update(b1=-425.0)), "the control plant (servo-valve, actuator, specimen"),
+    (_json(lambda d: d["plant"]["std"].update(a3=-1.3)), "plant.std: the standard deviations of a3, b1, b2, ke must not"),
 ])
 def test_a_data_folder_it_cannot_run_on_is_refused_naming_the_file(shared_data, tmp_path, change, message):
     for name in ("benchmark.json", "elcentro_vrths.csv"):
@@ -278,3 +287,79 @@ def test_the_ground_motion_starts_at_the_records_first_sample(bm, shift_s):
         a, b = benchmark.ground_motion(shifted, duration), benchmark.ground_motion(bm, duration)
         assert a.shape == b.shape
         assert np.max(np.abs(a - b)) < 1e-9 * np.max(np.abs(b))  # the same samples, to round-off in time
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed: nothing is compiled")
+def test_the_loops_clock_starts_after_numba_has_compiled(bm, monkeypatch):
+    """x real time is the loop's speed: the compilation of a new stage happens before the clock."""
+    from hsio.rths.jit import jit
+    from hsio.rths.stage import Stage
+
+    @jit
+    def hold(p, s, k, x_t, v_t, a_t, x_m):  # a step numba has not seen: the kernel compiles for it
+        return 0.0
+
+    monkeypatch.setattr(controllers, "make", lambda name, fs, model: Stage("hold", hold, np.zeros(1), np.zeros(1)))
+    before = len(loop.rths_kernel.signatures)
+    seen = []
+
+    class Clock:
+        @staticmethod
+        def perf_counter():
+            seen.append(len(loop.rths_kernel.signatures))
+            return 0.0
+
+    monkeypatch.setattr(evaluate, "time", Clock)
+    evaluate.run_one(bm, 1, "hold", plant.nominal(bm.data), use_numba=True, duration=0.5)
+    assert seen[0] == before + 1  # compiled before the clock started
+
+
+def test_a_run_that_reaches_the_benchmarks_limits_says_so(shared_data, tmp_path):
+    """El Centro x 1.2 (the record's values x 3, then the benchmark's 0.4): the force saturates at
+    8.9 kN and the stroke passes 7 mm; the table names both, and --json lists them."""
+    (tmp_path / "benchmark.json").write_bytes((shared_data / "vrths" / "benchmark.json").read_bytes())
+    path = tmp_path / "elcentro_vrths.csv"
+    lines = _lines((shared_data / "vrths" / "elcentro_vrths.csv").read_text())
+    path.write_text("\n".join([lines[0]] + [f"{t},{3.0 * float(a)!r}" for t, a in (ln.split(",") for ln in lines[1:])]) + "\n")
+    args = ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--duration", "3", "--data", str(tmp_path)]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    assert "case 1 pi-lead: the actuator force saturated at 8.9 kN; stroke" in res.output, res.output
+    rows = json.loads(CliRunner().invoke(main, [*args, "--json"]).output)
+    assert rows[0]["peak_force_N"] == 8900.0 and rows[0]["peak_stroke_mm"] > 7.0
+    assert len(rows[0]["limits_reached"]) == 3
+    # the benchmark's own record stays within them
+    res = CliRunner().invoke(main, [*args[:-2], "--data", str(shared_data / "vrths"), "--json"])
+    assert json.loads(res.output)[0]["limits_reached"] == []
+
+
+@jit
+def _nan_at_100(p, s, k, x_t, v_t, a_t, x_m):
+    if k == 100:
+        return np.nan
+    return x_t
+
+
+@pytest.mark.parametrize("use_numba", [pytest.param(True, marks=pytest.mark.skipif(not HAVE_NUMBA, reason="no numba")),
+                                       False])
+def test_a_command_that_is_not_a_finite_number_stops_the_run_before_the_plant(bm, use_numba):
+    """A plugged-in stage that returns NaN: the same clear error with and without numba, the
+    samples before it kept, and nothing of it sent to the plant (no 1e12 m command)."""
+    from hsio.rths.stage import Stage
+
+    sub = benchmark.numerical_substructure(benchmark.case(bm, 1))
+    with pytest.raises(loop.NonFiniteCommandError, match=r"controller 'nan': the command at sample 100 \(0.024414 s\)") as err:
+        loop.run(Stage("nan", _nan_at_100, np.zeros(1), np.zeros(1)), plant.nominal(bm.data), sub,
+                 benchmark.ground_motion(bm, 0.5), FS, 0, use_numba)
+    kept = err.value.result
+    assert kept.u.size == 100 and np.all(np.isfinite(kept.u)) and np.abs(kept.x).max() < 1e-3
+
+
+def test_a_run_whose_command_is_not_finite_stops_with_exit_3(shared_data, monkeypatch):
+    from hsio.rths.stage import Stage
+
+    monkeypatch.setattr(controllers, "make", lambda name, fs, model: Stage(name, _nan_at_100, np.zeros(1), np.zeros(1)))
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "amb", "--duration", "0.5",
+                                    "--data", str(shared_data / "vrths")])
+    assert res.exit_code == 3, res.output
+    assert "controller 'amb': the command at sample 100" in res.output and "Traceback" not in res.output

@@ -70,3 +70,16 @@ class _Replay:
         if self.turn == 0:
             self.i += 1
         return v
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf"), "1e-3", None])
+def test_a_command_that_is_not_a_finite_number_is_refused_and_the_plant_holds(shared_data, bad):
+    p = plant.nominal(benchmark.load(str(shared_data / "vrths")).data)
+    dev = VrthsPlant(p)
+    for _ in range(50):
+        dev.step(1e-3)
+    before = dev.w.copy()
+    with pytest.raises(ValueError, match="VrthsPlant.step: the command must be a finite displacement in m"):
+        dev.step(bad)
+    np.testing.assert_array_equal(dev.w, before)
+    dev.step(np.float64(1e-3))  # numpy scalars are numbers too

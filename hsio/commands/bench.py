@@ -46,7 +46,7 @@ def bench() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON on stdout.")
 def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) -> None:
     """J1-J9 of the vRTHS benchmark (Silva et al. 2020) per case and controller."""
-    from hsio.rths import benchmark, controllers, evaluate
+    from hsio.rths import benchmark, controllers, evaluate, loop
 
     if seed is not None and perturbed == 0:
         raise click.UsageError("--seed chooses the perturbed plants: give --perturbed K too")
@@ -68,7 +68,11 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
     cases = [case] if case else bm.cases
     names = list(controllers.NAMES) if controller == "all" else [controller]
     use_numba = False if no_numba else None
-    rows = [evaluate.evaluate(bm, c, name, perturbed, seed or 0, use_numba, duration) for c in cases for name in names]
+    try:
+        rows = [evaluate.evaluate(bm, c, name, perturbed, seed or 0, use_numba, duration) for c in cases for name in names]
+    except loop.NonFiniteCommandError as exc:
+        click.echo(f"Error: {exc}", err=True)
+        raise SystemExit(3) from None
     if as_json:
         click.echo(json.dumps(rows, indent=1))
         return
@@ -82,3 +86,6 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
                 and bm.table3(row["case"]) is not None:
             t3 = " ".join(f"{j:6.2f}" for j in bm.table3(row["case"]))
             click.echo(f"{'':>4} {'Table 3':<8} {'':<6} {t3}")
+    for row in rows:
+        if row["limits_reached"]:
+            click.echo(f"case {row['case']} {row['controller']}: " + "; ".join(row["limits_reached"]))

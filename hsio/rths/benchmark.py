@@ -24,6 +24,8 @@ from scipy import signal
 FS = 4096.0  # controller rate, Hz (benchmark constraint)
 RECORD_SCALE = 0.4  # El Centro 1940 x 0.4
 MAX_RECORD_S = 1000.0  # longest record run (the benchmark's lasts 41.18 s)
+MIN_RECORD_S = 0.5  # shortest (as `--duration`): J1-J9 need samples to compare
+MAX_RECORD_ACCEL = 100.0  # m/s^2, about 10 g: a larger value is a record in other units (cm/s^2, mm/s^2)
 
 
 @dataclass(frozen=True)
@@ -67,10 +69,11 @@ def load(folder: str | Path) -> Benchmark:
 
 
 def check(bm: Benchmark, folder: Path) -> None:
-    """The record: at least two finite rows, time increasing over at most MAX_RECORD_S, a ground
-    that moves; benchmark.json: every number the cases, the plant and the constraints
+    """The record: at least two finite rows, time increasing over MIN_RECORD_S to MAX_RECORD_S, accelerations
+    within MAX_RECORD_ACCEL, a ground that moves; benchmark.json: every number the cases, the plant and the constraints
     need (3 x 3 matrices for each case, finite, a mass that leaves the numerical substructure a
-    positive definite one, the substructure's me, ke and the converters' scales positive)."""
+    positive definite one, a stable reference model, the substructure's me, ke and the converters'
+    scales positive, a stable control plant)."""
     from hsio.rths import plant as plant_mod
 
     csv, js = folder / "elcentro_vrths.csv", folder / "benchmark.json"
@@ -81,9 +84,15 @@ def check(bm: Benchmark, folder: Path) -> None:
     back = np.flatnonzero(np.diff(t) <= 0.0)
     if back.size:
         raise ValueError(f"{csv}:{int(back[0]) + 3}: time does not increase ({t[back[0]]:g} s, then {t[back[0] + 1]:g} s)")
+    if t[-1] - t[0] < MIN_RECORD_S:
+        raise ValueError(f"{csv}: the record lasts {t[-1] - t[0]:g} s; the benchmark needs at least {MIN_RECORD_S:g} s")
     if t[-1] - t[0] > MAX_RECORD_S:
         raise ValueError(f"{csv}: the record lasts {t[-1] - t[0]:g} s; the benchmark runs at most {MAX_RECORD_S:g} s "
                          f"at {FS:g} Hz (is the time column in seconds?)")
+    big = np.flatnonzero(np.abs(a) > MAX_RECORD_ACCEL)
+    if big.size:
+        raise ValueError(f"{csv}:{int(big[0]) + 2}: an acceleration of {a[big[0]]:g} m/s^2, beyond {MAX_RECORD_ACCEL:g} "
+                         "m/s^2 (about 10 g; is the record in m/s^2, not cm/s^2?)")
     if not np.any(a != 0.0):
         raise ValueError(f"{csv}: the ground never moves (every acceleration is 0)")
     if not isinstance(bm.data, dict) or not isinstance(bm.data.get("cases"), dict) or not bm.data["cases"]:
@@ -103,10 +112,20 @@ def check(bm: Benchmark, folder: Path) -> None:
         if not np.allclose(cs.M, cs.M.T) or np.min(np.linalg.eigvalsh(cs.Mn)) <= 0.0:
             raise ValueError(f"{js}: cases.{cs.number}.M must be symmetric, and positive definite less the "
                              f"specimen's me = {cs.me:g} kg at the first floor (the numerical substructure's mass)")
+        A, _ = _second_order_ss(cs.M, cs.C, cs.K, np.zeros((3, 1)))
+        if np.max(np.linalg.eigvals(A).real) >= 0.0:
+            raise ValueError(f"{js}: cases.{cs.number}: the reference model M x'' + C x' + K x = 0 is not stable "
+                             "(K and C must make every mode decay)")
     values = [getattr(plant, f) for f in plant.__dataclass_fields__] + std
     if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
         raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
                          "me, ke and the converters' scales positive")
+    if min(std) < 0.0:
+        raise ValueError(f"{js}: plant.std: the standard deviations of {', '.join(plant_mod.UNCERTAIN)} must not be "
+                         f"negative (got {', '.join(f'{v:g}' for v in std)})")
+    if np.max(np.linalg.eigvals(plant.continuous()[0]).real) >= 0.0:
+        raise ValueError(f"{js}: the control plant (servo-valve, actuator, specimen in the unity displacement "
+                         "loop, eqs. 21-22) is not stable with these parameters")
 
 
 def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) -> np.ndarray:

@@ -38,6 +38,8 @@ def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, nois
         out_floors[k][1] = z[1]
         out_floors[k][2] = z[2]
         u = step(p, s, k, x_t, v_t, a_t, x_m)
+        if not math.isfinite(u):  # nothing reaches the D/A converter: the run stops at this sample
+            return k
         u = math.floor(u / m_per_V / quantum + 0.5) * quantum * m_per_V
         out_u[k] = u
         # the control plant over one period, command held (rows written out: the same sums in
@@ -67,7 +69,16 @@ def rths_kernel(step, p, s, Ap, Bp, max_force, An, Bn, Ca, Da, ag, noise_x, nois
         if k + 1 < n:
             x_m = math.floor((w[3] / m_per_V + noise_x[k + 1]) / quantum + 0.5) * quantum * m_per_V
             f_m = math.floor((w[2] / N_per_V + noise_f[k + 1]) / quantum + 0.5) * quantum * N_per_V
-    return 0
+    return n
+
+
+class NonFiniteCommandError(ValueError):
+    """A controller stage gave a command that is not a finite number; ``result`` holds the samples
+    before it (the plant never received it)."""
+
+    def __init__(self, message: str, result: "Result"):
+        super().__init__(message)
+        self.result = result
 
 
 @dataclass
@@ -97,12 +108,17 @@ def run(stage, plant, sub, ag, fs: float, noise_seed: int = 0, use_numba: bool |
     outs = [out.x_t, out.x_m, out.floors, out.u, out.force, out.x]
     work = [np.zeros(5), np.zeros(5), np.zeros(6), np.zeros(6)]
     if compiled:
-        kernel(step, p, s, *args, *outs, *work)
-        return out
-    # the pure-Python loop on lists: the same operations in the same order, the same numbers
-    as_list = lambda a: a.tolist() if isinstance(a, np.ndarray) else a  # noqa: E731
-    outs_l = [a.tolist() for a in outs]
-    kernel(step, p.tolist(), s.tolist(), *[as_list(a) for a in args], *outs_l, *[a.tolist() for a in work])
-    for a, l in zip(outs, outs_l):
-        a[...] = np.asarray(l)
+        done = kernel(step, p, s, *args, *outs, *work)
+    else:
+        # the pure-Python loop on lists: the same operations in the same order, the same numbers
+        as_list = lambda a: a.tolist() if isinstance(a, np.ndarray) else a  # noqa: E731
+        outs_l = [a.tolist() for a in outs]
+        done = kernel(step, p.tolist(), s.tolist(), *[as_list(a) for a in args], *outs_l, *[a.tolist() for a in work])
+        for a, l in zip(outs, outs_l):
+            a[...] = np.asarray(l)
+    if done < n:
+        kept = Result(*(a[:done] for a in outs))
+        raise NonFiniteCommandError(f"controller {stage.name!r}: the command at sample {done} ({done / fs:.6f} s) is not "
+                                    "a finite number: it never reaches the plant, and the run stops there",
+                                    kept)
     return out
