@@ -168,6 +168,20 @@ def test_an_online_starting_guess_beyond_the_eq2_bound_is_refused_not_clamped():
     assert CompensationStage(["wall"], 0.08, settings).feedforward[0].lag == pytest.approx(1.3e-4 * 254.0)
 
 
+@pytest.mark.parametrize("settings, message", [
+    ({"mode": "online", "a_mm_s": 100.0}, r"starting a_mm_s = 100 is beyond a_max_mm_s = 50"),
+    ({"mode": "online", "b_s_mm": 1e-3}, r"starting lag .* = 0.254 s is beyond lag_max_s = 0.1"),
+    ({"mode": "offline"}, "needs the calibrated b_s_mm"),
+    ({"mode": "sometimes"}, "mode must be one of"),
+    ({"mode": "online", "estimator": EstimatorSettings(window=0)}, "window must be"),
+])
+def test_settings_built_in_code_are_refused_like_the_table(settings, message):
+    """CompensationSettings built in Python (docs/api.md) get the [compensation] table's checks
+    where the stage is built: an online starting guess beyond its bounds is refused, not clamped."""
+    with pytest.raises(ConfigError, match=message):
+        CompensationStage(["wall"], 0.03125, CompensationSettings(**settings))
+
+
 def test_offline_compensation_with_ramp_hold_is_refused():
     """a and b describe continuous ramps: with a ramp-hold the offline stage would overshoot."""
     table = {"mode": "offline", "a_mm_s": 5.0, "b_s_mm": 7.9e-5}

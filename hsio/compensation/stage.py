@@ -121,6 +121,7 @@ class CompensationStage:
         self.names = list(names)
         self.t_d = float(t_d)
         self.settings = s = settings or CompensationSettings()
+        s.check()  # settings built in code get the checks of the [compensation] table
         unknown = [n for n in s.actuators if n not in self.names]
         if unknown:
             raise ConfigError(f"[compensation] actuators: unknown actuator(s) {', '.join(unknown)}; "
