@@ -149,7 +149,8 @@ class CompensationStage:
         self.sink = sink
         self.step = 0
         self._sent: list[list[float]] = [[] for _ in self.names]  # last adjusted commands, per actuator
-        self._sq = np.zeros(len(self.names))
+        self._sq = np.zeros(len(self.names))  # sum of (d^c - d^m)^2 over the steps in displacement control
+        self._n = np.zeros(len(self.names), dtype=int)  # and their count
 
     @property
     def active(self) -> bool:
@@ -204,6 +205,7 @@ class CompensationStage:
             row[f"a_{name}"] = ff.a
             row[f"b_{name}"] = ff.lag / d_max
             self._sq[j] += (c - m) ** 2
+            self._n[j] += 1
         if self.sink is not None:
             self.sink(self.step, row)
         return row
@@ -215,7 +217,7 @@ class CompensationStage:
         for j, name in enumerate(self.names):
             ff, est = self.feedforward[j], self.estimators[j]
             entry = {"enabled": self.enabled[j], "a_mm_s": ff.a, "b_s_mm": ff.lag / s.d_max_mm, "lag_s": ff.lag,
-                     "rms_error_mm": float(math.sqrt(self._sq[j] / self.step)) if self.step else None}
+                     "rms_error_mm": float(math.sqrt(self._sq[j] / self._n[j])) if self._n[j] else None}
             if est is not None:
                 entry.update(updates=est.updates, rejected=est.rejected,
                              start={"a_mm_s": s.a_mm_s, "b_s_mm": s.b_s_mm})
