@@ -146,6 +146,7 @@ def test_online_estimator_is_bounded_and_rate_limited():
     ({"mode": "offline"}, "needs the calibrated b_s_mm"),
     ({"mode": "online", "a_mm_s": -1.0}, "a_mm_s must be"),
     ({"mode": "online", "window": 10, "min_samples": 40}, "min_samples"),
+    ({"mode": "online", "window": 100, "min_beyond": 101}, r"min_beyond \(101\) must not exceed window \(100\)"),
     ({"mode": "online", "actuators": "wall"}, "list of actuator names"),
     ({"mode": "online", "forgetting": 0.99}, "unknown key"),
     ({"mode": "online", "a_mm_s": 100.0}, r"starting a_mm_s = 100 is beyond a_max_mm_s = 50"),

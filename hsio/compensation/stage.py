@@ -83,8 +83,9 @@ class CompensationSettings:
             value = getattr(e, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ConfigError(f"{where}: {name} must be a whole number of steps, at least 1, got {value!r}")
-        if e.min_samples > e.window:
-            raise ConfigError(f"{where}: min_samples ({e.min_samples}) must not exceed window ({e.window})")
+        for name in ("min_samples", "min_beyond"):  # beyond the window no fit could ever be accepted
+            if getattr(e, name) > e.window:
+                raise ConfigError(f"{where}: {name} ({getattr(e, name)}) must not exceed window ({e.window})")
         for name in ("max_rel_std", "lag_max_s", "a_max_mm_s", "lag_step_s", "a_step_mm_s"):
             value = getattr(e, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
