@@ -318,6 +318,18 @@ def test_a_test_rate_for_a_run_is_refused_rather_than_ignored(tmp_path):
         calibration.load(tmp_path, test_rate=8.0)
 
 
+def test_a_calibration_too_short_for_the_fit_names_the_steps_it_needs(tmp_path):
+    """The fit takes five points after the first two steps, which give no velocity: a file of
+    six steps is refused for its length, naming the seven a calibration needs."""
+    from hsio.compensation import calibration
+    from hsio.errors import RecordError
+
+    csv = tmp_path / "six.csv"
+    csv.write_text("time_s,command_mm,measured_mm\n" + "".join(f"{0.05 * i},{i * i},{i * i - 0.1 * i}\n" for i in range(6)))
+    with pytest.raises(RecordError, match=r"six.csv: 6 data rows; a calibration needs at least 7 steps"):
+        calibration.calibrate(csv)
+
+
 def test_calibration_through_setups_fits_the_actuators_strokes(tmp_path):
     """A column on two actuators through a setup records its basic DOFs (x and a rotation); the
     calibration is of each actuator's stroke, from the compensation table, by the actuator's
