@@ -330,6 +330,23 @@ def test_a_calibration_too_short_for_the_fit_names_the_steps_it_needs(tmp_path):
         calibration.calibrate(csv)
 
 
+def test_calibrating_an_implicit_run_warns_of_the_secant_average(tmp_path):
+    """An implicit method records the secant estimator's average of the last secant_n_avg samples
+    as each step's measurement (eq. 11), so the fitted lag is longer than the actuator's by
+    (secant_n_avg - 1)/2 controller periods: the calibration says so, as it does for n_avg."""
+    from hsio.compensation import calibration
+
+    cfg = config_mod.from_dict({"structure": {"name": "structure_I"}, "record": {"pga_g": 1.0, "duration_s": 2.0},
+                                "integrator": {"method": "implicit_dc", "secant_n_avg": 16},
+                                "test": {"rate": 6.25, "hold_fraction": 0.0, "n_avg": 1},
+                                "emulator": {"preset": "structure_I", "noise_mm": 0.0},
+                                "output": {"plots": False, "samples": True, "ns": False}})
+    runner.run(cfg, tmp_path / "dc")
+    (cal,) = calibration.calibrate(tmp_path / "dc")
+    assert any("average of the last 16 samples" in w and "7.5 controller periods" in w for w in cal.warnings), cal.warnings
+    assert cal.fit.lag_s == pytest.approx(B_I * 254.0 + 7.5 / 1024, rel=0.05)
+
+
 def test_calibration_through_setups_fits_the_actuators_strokes(tmp_path):
     """A column on two actuators through a setup records its basic DOFs (x and a rotation); the
     calibration is of each actuator's stroke, from the compensation table, by the actuator's

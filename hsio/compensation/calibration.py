@@ -94,6 +94,11 @@ def read_run(path: Path, t_d: float | None = None) -> StepData:
     if test.get("n_avg", 1) > 1:
         warnings.append(f"the run averaged the last {test['n_avg']} samples of each step: the fitted lag includes "
                         f"{(test['n_avg'] - 1) / 2:g} controller periods of averaging")
+    secant_n_avg = run.meta.get("secant_n_avg", 1)
+    if config.get("integrator", {}).get("secant", "average") != "raw" and secant_n_avg > 1:
+        warnings.append(f"the run's measured displacements are the secant estimator's average of the last "
+                        f"{secant_n_avg} samples of each step ([integrator] secant_n_avg): the fitted lag includes "
+                        f"{(secant_n_avg - 1) / 2:g} controller periods of averaging")
     in_force = [c[len("mode_"):] for c, modes in run.steps.items() if c.startswith("mode_") and "force" in set(modes)]
     if in_force:
         raise RecordError(f"{path}: DOF {', '.join(in_force)} ran steps in force control, whose commands are kN; "
