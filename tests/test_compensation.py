@@ -362,3 +362,29 @@ def test_calibration_through_setups_fits_the_actuators_strokes(tmp_path):
     assert set(cals) == {"lower", "upper"}
     for cal in cals.values():
         assert cal.fit.b_s_mm * 254.0 == pytest.approx(0.03, rel=0.05)
+
+
+def test_an_opensees_lab_compensates_through_setups_by_the_actuators_names(tmp_path):
+    """`hsio serve opensees` builds the stage as `hsio run` does: through a setup, per actuator
+    (lower, upper), so [compensation] actuators names an actuator (not a basic DOF)."""
+    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for, write_config
+    from hsio.opensees import protocol as p
+
+    extra = ('[test]\nrate = 5\nhold_fraction = 0.0\nn_avg = 1\n[compensation]\nmode = "offline"\n'
+             'a_mm_s = 0.0\nb_s_mm = 7.874e-5\nactuators = ["upper"]\n')
+    config = write_config(tmp_path, "column_two_actuators", ["column"], extra=extra + QUIET)
+    with serving(config) as server:
+        c = RawClient(server.ports[0])
+        try:
+            c.setup(n=2)
+            for k in range(3):
+                c.send(p.SET_TRIAL, [0.001 * (k + 1), 0.0], t=0.01 * (k + 1))
+                c.ask(p.GET_FORCE)
+                c.send(p.COMMIT)
+            used = server.lab._call(lambda: server.lab.site.compensation.summary())["actuators"]
+            c.send(p.DIE)
+        finally:
+            c.close()
+        assert wait_for(lambda: session_over(server)), server.lines
+    assert not used["lower"]["enabled"] and used["upper"]["enabled"]
+    assert used["upper"]["lag_s"] == pytest.approx(7.874e-5 * 254.0)

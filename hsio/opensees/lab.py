@@ -45,7 +45,6 @@ import numpy as np
 
 from hsio import api
 from hsio.experiment import write_events
-from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.errors import ConfigError, HsioError, LimitError
@@ -53,6 +52,7 @@ from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder, RecordExistsError
+from hsio.runner import compensation_stage
 from hsio.safety.settings import SafetySettings
 from hsio.sites.actuators import RampStopped
 from hsio.structures import Damping, ExperimentalElement, Structure, channel_names
@@ -203,8 +203,7 @@ class Lab:
         self.sessions += 1
         cfg, test, hardware = self.config, self.config["test"], self.config["hardware"]
         emulator = merged_emulator_table(hardware["actuator_model"], cfg["emulator"])
-        compensation = CompensationStage(self.channels, test["rate"] * self.structure.dt,
-                                         CompensationSettings.from_table(cfg["compensation"]))
+        compensation = compensation_stage(cfg, self.structure)  # per actuator, as `hsio run` (through setups, their actuators)
         try:
             self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
                                       hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
