@@ -45,6 +45,7 @@ import numpy as np
 
 from hsio import api
 from hsio.experiment import write_events
+from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.errors import ConfigError, HsioError, LimitError
@@ -52,9 +53,9 @@ from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder, RecordExistsError
-from hsio.runner import compensation_stage
 from hsio.safety.settings import SafetySettings
 from hsio.sites.actuators import RampStopped
+from hsio.sites.setup_map import SetupMap
 from hsio.structures import Damping, ExperimentalElement, Structure, channel_names
 
 
@@ -203,7 +204,10 @@ class Lab:
         self.sessions += 1
         cfg, test, hardware = self.config, self.config["test"], self.config["hardware"]
         emulator = merged_emulator_table(hardware["actuator_model"], cfg["emulator"])
-        compensation = compensation_stage(cfg, self.structure)  # per actuator, as `hsio run` (through setups, their actuators)
+        # per actuator, as `hsio run` (through setups, the setups' actuators, not the basic DOFs)
+        actuators = SetupMap.of(self.structure).actuator_names if self.structure.has_setups else self.channels
+        compensation = CompensationStage(list(actuators), test["rate"] * self.structure.dt,
+                                         CompensationSettings.from_table(cfg["compensation"]))
         try:
             self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
                                       hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
