@@ -52,6 +52,19 @@ def test_a_compensation_stage_for_another_step_duration_is_refused():
         pass
 
 
+def test_a_compensation_stage_naming_other_actuators_is_refused():
+    """The stage's names say which actuator each column compensates: names in another order (or
+    of another structure) would compensate the wrong actuator, so they are refused."""
+    s = hsio.load_structure("structure_II")
+    settings = CompensationSettings(mode="offline", a_mm_s=0.0, b_s_mm=0.02 / 254.0, actuators=["BF"])
+    swapped = CompensationStage(["IF", "BF"], 6.25 * s.dt, settings)
+    with pytest.raises(ConfigError, match=r"stage names the actuators IF, BF; the loop drives BF, IF"):
+        hsio.open_site(s, "emulator://", test_rate=6.25, hold_fraction=0.0, compensation=swapped)
+    with hsio.open_site(s, "emulator://", test_rate=6.25, hold_fraction=0.0,
+                        compensation=CompensationStage(["BF", "IF"], 6.25 * s.dt, settings)):
+        pass
+
+
 def test_options_beside_a_ready_integrator_are_refused():
     s = hsio.load_structure("validation")
     ground = hsio.synthetic_record(duration_s=0.2, dt=s.dt)

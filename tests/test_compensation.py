@@ -146,6 +146,7 @@ def test_online_estimator_is_bounded_and_rate_limited():
     ({"mode": "offline"}, "needs the calibrated b_s_mm"),
     ({"mode": "online", "a_mm_s": -1.0}, "a_mm_s must be"),
     ({"mode": "online", "window": 10, "min_samples": 40}, "min_samples"),
+    ({"mode": "online", "window": 100, "min_beyond": 101}, r"min_beyond \(101\) must not exceed window \(100\)"),
     ({"mode": "online", "actuators": "wall"}, "list of actuator names"),
     ({"mode": "online", "forgetting": 0.99}, "unknown key"),
     ({"mode": "online", "a_mm_s": 100.0}, r"starting a_mm_s = 100 is beyond a_max_mm_s = 50"),
@@ -166,6 +167,20 @@ def test_an_online_starting_guess_beyond_the_eq2_bound_is_refused_not_clamped():
     with pytest.raises(ConfigError, match=r"starting lag b d_max = 0.03302 s is beyond 0.45 t_d = 0.018 s"):
         CompensationStage(["wall"], 0.04, settings)
     assert CompensationStage(["wall"], 0.08, settings).feedforward[0].lag == pytest.approx(1.3e-4 * 254.0)
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"mode": "online", "a_mm_s": 100.0}, r"starting a_mm_s = 100 is beyond a_max_mm_s = 50"),
+    ({"mode": "online", "b_s_mm": 1e-3}, r"starting lag .* = 0.254 s is beyond lag_max_s = 0.1"),
+    ({"mode": "offline"}, "needs the calibrated b_s_mm"),
+    ({"mode": "sometimes"}, "mode must be one of"),
+    ({"mode": "online", "estimator": EstimatorSettings(window=0)}, "window must be"),
+])
+def test_settings_built_in_code_are_refused_like_the_table(settings, message):
+    """CompensationSettings built in Python (docs/api.md) get the [compensation] table's checks
+    where the stage is built: an online starting guess beyond its bounds is refused, not clamped."""
+    with pytest.raises(ConfigError, match=message):
+        CompensationStage(["wall"], 0.03125, CompensationSettings(**settings))
 
 
 def test_offline_compensation_with_ramp_hold_is_refused():
@@ -241,8 +256,11 @@ def test_compensation_removes_the_execution_error(tmp_path, rate):
 
 
 def test_per_actuator_switch_structure_II(tmp_path):
+    """BF compensated, IF not. 3 s of the record move the frames about 1.5 mm, so that IF's lag
+    error stands well above the sensor floor (in the first 2 s they move 0.4 mm, and the
+    uncompensated error is only twice the floor)."""
     cfg = config_mod.from_dict({
-        "structure": {"name": "structure_II"}, "record": {"pga_g": 0.3, "duration_s": 2.0},
+        "structure": {"name": "structure_II"}, "record": {"pga_g": 0.3, "duration_s": 3.0},
         "test": {"rate": 6.25, "hold_fraction": 0.0, "n_avg": 1}, "emulator": {"preset": "structure_II"},
         "output": {"plots": False, "samples": False, "ns": False},
         "compensation": {"mode": "offline", "a_mm_s": A_II, "b_s_mm": B_II, "actuators": ["BF"]},
@@ -308,6 +326,35 @@ def test_a_test_rate_for_a_run_is_refused_rather_than_ignored(tmp_path):
         calibration.load(tmp_path, test_rate=8.0)
 
 
+def test_a_calibration_too_short_for_the_fit_names_the_steps_it_needs(tmp_path):
+    """The fit takes five points after the first two steps, which give no velocity: a file of
+    six steps is refused for its length, naming the seven a calibration needs."""
+    from hsio.compensation import calibration
+    from hsio.errors import RecordError
+
+    csv = tmp_path / "six.csv"
+    csv.write_text("time_s,command_mm,measured_mm\n" + "".join(f"{0.05 * i},{i * i},{i * i - 0.1 * i}\n" for i in range(6)))
+    with pytest.raises(RecordError, match=r"six.csv: 6 data rows; a calibration needs at least 7 steps"):
+        calibration.calibrate(csv)
+
+
+def test_calibrating_an_implicit_run_warns_of_the_secant_average(tmp_path):
+    """An implicit method records the secant estimator's average of the last secant_n_avg samples
+    as each step's measurement (eq. 11), so the fitted lag is longer than the actuator's by
+    (secant_n_avg - 1)/2 controller periods: the calibration says so, as it does for n_avg."""
+    from hsio.compensation import calibration
+
+    cfg = config_mod.from_dict({"structure": {"name": "structure_I"}, "record": {"pga_g": 1.0, "duration_s": 2.0},
+                                "integrator": {"method": "implicit_dc", "secant_n_avg": 16},
+                                "test": {"rate": 6.25, "hold_fraction": 0.0, "n_avg": 1},
+                                "emulator": {"preset": "structure_I", "noise_mm": 0.0},
+                                "output": {"plots": False, "samples": True, "ns": False}})
+    runner.run(cfg, tmp_path / "dc")
+    (cal,) = calibration.calibrate(tmp_path / "dc")
+    assert any("average of the last 16 samples" in w and "7.5 controller periods" in w for w in cal.warnings), cal.warnings
+    assert cal.fit.lag_s == pytest.approx(B_I * 254.0 + 7.5 / 1024, rel=0.05)
+
+
 def test_calibration_through_setups_fits_the_actuators_strokes(tmp_path):
     """A column on two actuators through a setup records its basic DOFs (x and a rotation); the
     calibration is of each actuator's stroke, from the compensation table, by the actuator's
@@ -323,3 +370,29 @@ def test_calibration_through_setups_fits_the_actuators_strokes(tmp_path):
     assert set(cals) == {"lower", "upper"}
     for cal in cals.values():
         assert cal.fit.b_s_mm * 254.0 == pytest.approx(0.03, rel=0.05)
+
+
+def test_an_opensees_lab_compensates_through_setups_by_the_actuators_names(tmp_path):
+    """`hsio serve opensees` builds the stage as `hsio run` does: through a setup, per actuator
+    (lower, upper), so [compensation] actuators names an actuator (not a basic DOF)."""
+    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for, write_config
+    from hsio.opensees import protocol as p
+
+    extra = ('[test]\nrate = 5\nhold_fraction = 0.0\nn_avg = 1\n[compensation]\nmode = "offline"\n'
+             'a_mm_s = 0.0\nb_s_mm = 7.874e-5\nactuators = ["upper"]\n')
+    config = write_config(tmp_path, "column_two_actuators", ["column"], extra=extra + QUIET)
+    with serving(config) as server:
+        c = RawClient(server.ports[0])
+        try:
+            c.setup(n=2)
+            for k in range(3):
+                c.send(p.SET_TRIAL, [0.001 * (k + 1), 0.0], t=0.01 * (k + 1))
+                c.ask(p.GET_FORCE)
+                c.send(p.COMMIT)
+            used = server.lab._call(lambda: server.lab.site.compensation.summary())["actuators"]
+            c.send(p.DIE)
+        finally:
+            c.close()
+        assert wait_for(lambda: session_over(server)), server.lines
+    assert not used["lower"]["enabled"] and used["upper"]["enabled"]
+    assert used["upper"]["lag_s"] == pytest.approx(7.874e-5 * 254.0)

@@ -55,6 +55,23 @@ def test_online_estimator_takes_no_sample_in_force_control():
     assert len(stage.estimators[0]._v) > 0
 
 
+def test_summary_rms_error_is_over_the_steps_in_displacement_control():
+    """The summary's RMS execution error of an actuator is taken over its steps in DC only: its
+    steps in force control record no error and do not dilute it."""
+    stage = _stage()
+    for k in range(4):  # BF in DC, 0.2 mm short each step; IF in DC for two steps, then in FC
+        dc = [True, k < 2]
+        d_c = [0.1 * k, 0.3 if k < 2 else 40.0]
+        d_a = stage.adjust(d_c, dc)
+        stage.observe(d_c, d_a, [0.1 * k - 0.2, 0.3 - 0.1 * (k < 2)], dc)
+    used = stage.summary()["actuators"]
+    assert used["BF"]["rms_error_mm"] == pytest.approx(0.2)
+    assert used["IF"]["rms_error_mm"] == pytest.approx(0.1)
+    never = _stage()
+    never.observe([0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [True, False])
+    assert never.summary()["actuators"]["IF"]["rms_error_mm"] is None
+
+
 def test_mixed_site_compensates_the_displacement_controlled_actuator():
     """On the emulator (20 ms lag), BF in DC ramping while IF holds a force in FC: with offline
     compensation BF lands on its command; without it BF trails by about the lag times the

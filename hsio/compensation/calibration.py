@@ -25,6 +25,8 @@ from hsio.compensation.hockey_stick import D_MAX_MM, HockeyStick
 from hsio.errors import HsioError, RecordError
 
 CSV_COLUMNS = ("time_s", "command_mm", "measured_mm")
+SKIP = 2  # the first steps, which have no (or only a one-sided) velocity
+MIN_STEPS = 5 + SKIP  # the fit's five points after them
 T_D_BOUNDS_S = (1e-5, 1e4)  # the lab duration of one step: from a 100 kHz loop to a pseudo-dynamic test's hours
 
 
@@ -65,8 +67,9 @@ def read_csv(path: Path, t_d: float | None = None, test_rate: float | None = Non
         if huge.size:
             raise RecordError(f"{path}: {name} of data row {huge[0] + 1} is {col[name][huge[0]]:g}, beyond "
                               f"{MAX_MAGNITUDE:g} mm: no actuator moves that far; check the column")
-    if col["command_mm"].size < 5:
-        raise RecordError(f"{path}: {col['command_mm'].size} data rows; a calibration needs at least 5 steps")
+    if col["command_mm"].size < MIN_STEPS:
+        raise RecordError(f"{path}: {col['command_mm'].size} data rows; a calibration needs at least {MIN_STEPS} steps "
+                          f"(the first {SKIP} give no velocity)")
     if t_d is None:
         t_d = dt * (test_rate if test_rate else 1.0)
     return StepData({"actuator": col["command_mm"]}, {"actuator": col["measured_mm"]}, float(t_d), [])
@@ -91,6 +94,11 @@ def read_run(path: Path, t_d: float | None = None) -> StepData:
     if test.get("n_avg", 1) > 1:
         warnings.append(f"the run averaged the last {test['n_avg']} samples of each step: the fitted lag includes "
                         f"{(test['n_avg'] - 1) / 2:g} controller periods of averaging")
+    secant_n_avg = run.meta.get("secant_n_avg", 1)
+    if config.get("integrator", {}).get("secant", "average") != "raw" and secant_n_avg > 1:
+        warnings.append(f"the run's measured displacements are the secant estimator's average of the last "
+                        f"{secant_n_avg} samples of each step ([integrator] secant_n_avg): the fitted lag includes "
+                        f"{(secant_n_avg - 1) / 2:g} controller periods of averaging")
     in_force = [c[len("mode_"):] for c, modes in run.steps.items() if c.startswith("mode_") and "force" in set(modes)]
     if in_force:
         raise RecordError(f"{path}: DOF {', '.join(in_force)} ran steps in force control, whose commands are kN; "
@@ -163,7 +171,11 @@ def calibrate(source: str | Path, actuators: list[str] | None = None, t_d: float
         names = list(actuators)
     out = []
     for name in names:
-        v, er = hockey_stick.from_steps(data.commands[name], data.measured[name], data.t_d, d_max_mm, order)
+        steps = len(data.commands[name])
+        if steps < MIN_STEPS:
+            raise RecordError(f"{source}: actuator {name!r} has {steps} steps; a calibration needs at least {MIN_STEPS} "
+                              f"(the first {SKIP} give no velocity)")
+        v, er = hockey_stick.from_steps(data.commands[name], data.measured[name], data.t_d, d_max_mm, order, SKIP)
         try:
             fit = hockey_stick.fit(v, er, d_max_mm)
         except hockey_stick.FitError as exc:

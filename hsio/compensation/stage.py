@@ -83,8 +83,9 @@ class CompensationSettings:
             value = getattr(e, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ConfigError(f"{where}: {name} must be a whole number of steps, at least 1, got {value!r}")
-        if e.min_samples > e.window:
-            raise ConfigError(f"{where}: min_samples ({e.min_samples}) must not exceed window ({e.window})")
+        for name in ("min_samples", "min_beyond"):  # beyond the window no fit could ever be accepted
+            if getattr(e, name) > e.window:
+                raise ConfigError(f"{where}: {name} ({getattr(e, name)}) must not exceed window ({e.window})")
         for name in ("max_rel_std", "lag_max_s", "a_max_mm_s", "lag_step_s", "a_step_mm_s"):
             value = getattr(e, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
@@ -121,6 +122,7 @@ class CompensationStage:
         self.names = list(names)
         self.t_d = float(t_d)
         self.settings = s = settings or CompensationSettings()
+        s.check()  # settings built in code get the checks of the [compensation] table
         unknown = [n for n in s.actuators if n not in self.names]
         if unknown:
             raise ConfigError(f"[compensation] actuators: unknown actuator(s) {', '.join(unknown)}; "
@@ -148,7 +150,8 @@ class CompensationStage:
         self.sink = sink
         self.step = 0
         self._sent: list[list[float]] = [[] for _ in self.names]  # last adjusted commands, per actuator
-        self._sq = np.zeros(len(self.names))
+        self._sq = np.zeros(len(self.names))  # sum of (d^c - d^m)^2 over the steps in displacement control
+        self._n = np.zeros(len(self.names), dtype=int)  # and their count
 
     @property
     def active(self) -> bool:
@@ -203,6 +206,7 @@ class CompensationStage:
             row[f"a_{name}"] = ff.a
             row[f"b_{name}"] = ff.lag / d_max
             self._sq[j] += (c - m) ** 2
+            self._n[j] += 1
         if self.sink is not None:
             self.sink(self.step, row)
         return row
@@ -214,7 +218,7 @@ class CompensationStage:
         for j, name in enumerate(self.names):
             ff, est = self.feedforward[j], self.estimators[j]
             entry = {"enabled": self.enabled[j], "a_mm_s": ff.a, "b_s_mm": ff.lag / s.d_max_mm, "lag_s": ff.lag,
-                     "rms_error_mm": float(math.sqrt(self._sq[j] / self.step)) if self.step else None}
+                     "rms_error_mm": float(math.sqrt(self._sq[j] / self._n[j])) if self._n[j] else None}
             if est is not None:
                 entry.update(updates=est.updates, rejected=est.rejected,
                              start={"a_mm_s": s.a_mm_s, "b_s_mm": s.b_s_mm})

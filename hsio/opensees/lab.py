@@ -55,6 +55,7 @@ from hsio.opensees.settings import OpenSeesSettings
 from hsio.recording import Recorder, RecordExistsError
 from hsio.safety.settings import SafetySettings
 from hsio.sites.actuators import RampStopped
+from hsio.sites.setup_map import SetupMap
 from hsio.structures import Damping, ExperimentalElement, Structure, channel_names
 
 
@@ -203,7 +204,9 @@ class Lab:
         self.sessions += 1
         cfg, test, hardware = self.config, self.config["test"], self.config["hardware"]
         emulator = merged_emulator_table(hardware["actuator_model"], cfg["emulator"])
-        compensation = CompensationStage(self.channels, test["rate"] * self.structure.dt,
+        # per actuator, as `hsio run` (through setups, the setups' actuators, not the basic DOFs)
+        actuators = SetupMap.of(self.structure).actuator_names if self.structure.has_setups else self.channels
+        compensation = CompensationStage(list(actuators), test["rate"] * self.structure.dt,
                                          CompensationSettings.from_table(cfg["compensation"]))
         try:
             self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],

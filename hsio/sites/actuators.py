@@ -72,9 +72,10 @@ class ActuatorSite:
                               "open the site with keep_samples=True ([output] samples = true in a run "
                               "configuration)")
         self.compensation = compensation  # hsio.compensation.stage.CompensationStage or None
-        if compensation is not None and len(compensation.names) != self.n_dynamic:
-            raise ConfigError(f"the compensation stage names {len(compensation.names)} actuators "
-                              f"({', '.join(compensation.names)}); the loop drives {self.n_dynamic}")
+        driven = [a.name for a in loop.actuators[: self.n_dynamic]]
+        if compensation is not None and list(compensation.names) != driven:
+            raise ConfigError(f"the compensation stage names the actuators {', '.join(compensation.names)}; the loop "
+                              f"drives {', '.join(driven)} (build the stage with these names, in this order)")
         try:
             self.readback = self.read_back()  # every channel, before the first command
             feedback = loop.feedback()[: self.n_dynamic]
