@@ -243,6 +243,9 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             notify(line + (" (the first step goes on from where they stand)" if all(
                 abs(g) <= max_gap_mm for g in gap.values()) else ""))
             check_gaps(gap, max_gap_mm, hardware["url"])
+            trials = run.table("instruments").get("step")
+            if trials is not None and trials.size:
+                site.continue_trials(int(np.nanmax(trials)))
             control.check_stop()
             control.enter("HS")
             try:
