@@ -226,3 +226,15 @@ def test_a_run_with_an_external_instrument_resumes_and_its_instruments_log_goes_
     assert np.array_equal(trials, np.arange(1, trials.size + 1))
     assert np.array_equal(run.table("instruments")["iterations"][: before["step"].size], before["iterations"])
 
+
+def test_a_stop_recorded_only_as_an_event_is_told_at_the_resume(tmp_path):
+    """A record whose summary lost its ``stopped`` (a process killed while writing it) still tells
+    why it stopped, from its stop event."""
+    out = stopped_run(tmp_path, 5)
+    with sqlite3.connect(out / "run.sqlite") as db:
+        db.execute("DELETE FROM summary WHERE key = 'stopped'")
+    why = Run(out / "run.sqlite").stop_reason()
+    assert why and "stopped by the test" in why
+    result = _resume(out)
+    assert result.exit_code == 0, result.output
+    assert f"(the run recorded its stop: {why})" in result.output

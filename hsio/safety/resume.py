@@ -215,8 +215,8 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             server = ControlServer(run_dir, control)
             cleanup.callback(server.close)
             recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
+        why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
         recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
-        why = run.stop_reason()
         notify(f"resuming {path} after step {state.i}" + (f" (the run recorded its stop: {why})" if why else ""))
         # a row of its own for this session (the earlier rows are left as they are)
         ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
