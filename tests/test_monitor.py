@@ -605,7 +605,9 @@ def test_a_run_that_commits_nothing_for_a_while_has_no_measured_rate_or_time_to_
     feed.seen_at = [(now - 9.0, 100), (now - 8.0, 110)]  # ten steps a second, then nothing for 8 s
     assert feed.steps_per_second() is None
     feed.seen_at = [(now - 4.0, 100), (now - 2.0, 120)]  # twenty steps in the last 4 s, none in the last 2
-    assert feed.steps_per_second() == pytest.approx(5.0, rel=0.01)
+    # 20 steps over the 4 s until the call (a loaded machine may take a while to make it), not 10 a
+    # second over the 2 s up to the last commit
+    assert 20 / 4.5 < feed.steps_per_second() <= 5.0
 
 
 @pytest.mark.parametrize("token", ["a;b c", "tökén", "x\"y"])
