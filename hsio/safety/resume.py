@@ -64,7 +64,7 @@ def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
         bad_rows = np.flatnonzero(~np.isfinite(history))
         if bad_rows.size:
             raise ConfigError(f"{run.path}: its step {int(steps[bad_rows[0]])} holds u_{d} = {history[bad_rows[0]]} "
-                              f"(not a number): the record is damaged; the record is unchanged and nothing moved")
+                              f"(not finite): the record is damaged; the record is unchanged and nothing moved")
     v_pred = v - structure.dt * integrator.core.gamma * a
     return AlphaOSState(k, u, v, a, u_pred, v_pred, R, P[k].copy())
 
