@@ -147,6 +147,9 @@ def _names(path: Path, what: str, names) -> list[str]:
     return names
 
 
+CORE_TABLES = ("meta", "summary", "steps", "samples", "events", "ns")  # every record has these; the others are extra
+
+
 class Recorder:
     """Writes a run, step by step, to ``path`` (an SQLite database): a new file, never one that
     exists (:class:`RecordExistsError`)."""
@@ -242,7 +245,7 @@ class Recorder:
     def _reopen(self) -> None:
         self.db = sqlite3.connect(self.path, check_same_thread=False)
         tables = {name for (name,) in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-        missing = sorted({"meta", "summary", "steps", "samples", "events", "ns"} - tables)
+        missing = sorted(set(CORE_TABLES) - tables)
         if missing:
             raise NotARunError(f"{self.path}: not an hsio run record that can be continued (no {', '.join(missing)} "
                                f"table); the record is unchanged")
@@ -256,10 +259,9 @@ class Recorder:
         self._insert_sample = f"INSERT INTO samples VALUES ({', '.join('?' * len(self._sample_cols))})"
         self._insert_ns = f"INSERT INTO ns VALUES ({', '.join('?' * len(self._ns_cols))})"
         self.steps_written = self.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
-        self._extra_tables = {}
-        for (name,) in self.db.execute("SELECT name FROM sqlite_master WHERE type='table'").fetchall():
-            if name in ("compensation", "implicit"):
-                self._extra_tables[name] = cols(name)[1:]
+        # every extra table the record holds (compensation, implicit, static, instruments) is continued
+        self._extra_tables = {name: cols(name)[1:] for name in sorted(tables - set(CORE_TABLES))
+                             if not name.startswith("sqlite_")}
 
     def write_step(self, step: int, time_s: float, u, v, a, u_pred, r, modes, targets, commands, disp, force, samples=None,
                    sample_meta=None, late_steps: int = 0, flags=()) -> None:

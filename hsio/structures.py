@@ -197,7 +197,6 @@ class StaticLoad:
     actuator: str = ""
 
     def __post_init__(self):
-
         if not self.actuator:
             object.__setattr__(self, "actuator", self.name)
         check = _checker(f"static load {self.name!r}")

@@ -43,7 +43,6 @@ def test_a_lag_cut_from_the_middle_of_a_test_answers_none(full):
     assert d.too_short is None
 
 
-
 def test_blocks_too_short_to_tell_name_no_cause(full):
     """400 samples (0.4 s) from the middle of the test: 80 samples per block, 4 lags each."""
     d = diagnose(_cut(full, 5000, 400))

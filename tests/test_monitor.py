@@ -605,7 +605,9 @@ def test_a_run_that_commits_nothing_for_a_while_has_no_measured_rate_or_time_to_
     feed.seen_at = [(now - 9.0, 100), (now - 8.0, 110)]  # ten steps a second, then nothing for 8 s
     assert feed.steps_per_second() is None
     feed.seen_at = [(now - 4.0, 100), (now - 2.0, 120)]  # twenty steps in the last 4 s, none in the last 2
-    assert feed.steps_per_second() == pytest.approx(5.0, rel=0.01)
+    # 20 steps over the 4 s until the call (a loaded machine may take a while to make it), not 10 a
+    # second over the 2 s up to the last commit
+    assert 20 / 4.5 < feed.steps_per_second() <= 5.0
 
 
 @pytest.mark.parametrize("token", ["a;b c", "tökén", "x\"y"])
@@ -617,15 +619,13 @@ def test_a_token_that_cannot_travel_in_a_url_and_a_cookie_is_refused(tmp_path, t
     assert "Traceback" not in proc.stderr
 
 
-def test_a_record_that_is_not_a_regular_file_is_refused_not_read_for_ever(tmp_path):
+def test_the_feed_waits_for_a_regular_file_not_on_a_fifo_for_ever(tmp_path):
     """A FIFO in the place of run.sqlite would block its reader (and the page with it) for ever:
-    `hsio monitor` refuses it by name; the feed of a run starting waits for a file."""
+    the feed of a run starting waits for a file (`hsio monitor` refuses the FIFO by name:
+    tests/test_record_not_regular.py)."""
     import threading
 
     os.mkfifo(tmp_path / "run.sqlite")
-    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
-                          capture_output=True, text=True, timeout=20)
-    assert proc.returncode == 2 and "run.sqlite: not a regular file" in proc.stderr, proc.stderr
     feed = RecordFeed(tmp_path)
     polled = threading.Thread(target=feed.poll, kwargs={"force": True}, daemon=True)
     polled.start()

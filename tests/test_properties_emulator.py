@@ -1,7 +1,7 @@
 """Property-based tests (hypothesis) of the emulated controller's settings: an [emulator] table
 (of a run configuration or of an actuator-model file written by `hsio diagnose`) with any value
 for any setting either builds a controller that steps, or is refused with a ConfigError naming
-the setting (docs/faults.md). Bounded: a few seconds. The cases it found are kept as plain tests."""
+the setting (docs/faults.md). Bounded: a few seconds. Values at the edges are plain tests too."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def test_emulator_settings_build_a_controller_that_steps_or_are_named(table):
     ({"preset": []}, "emulator: unknown preset []"),
     ({"preset": {"a": 1}}, "emulator: unknown preset {'a': 1}"),
 ])
-def test_settings_that_once_escaped_as_python_errors_are_named(table, words):
+def test_settings_at_the_edges_of_their_range_are_named(table, words):
     with pytest.raises(ConfigError) as exc:
         ServoConfig.from_dict(table)
     assert str(exc.value).startswith(words)

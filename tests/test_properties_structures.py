@@ -1,7 +1,7 @@
 """Property-based tests (hypothesis) of structure files: every shipped structure, and one with an
 instrument and an outer loop, with one to three of its values replaced or removed. Each either
 loads or is refused with a ConfigError naming the file; nothing else escapes (docs/structures.md,
-docs/setups.md). Bounded: a few seconds. The cases it found are kept as plain tests below."""
+docs/setups.md). Bounded: a few seconds. Values at the edges are plain tests below."""
 
 from __future__ import annotations
 

@@ -203,3 +203,38 @@ def test_a_channel_that_records_an_instruments_reading_is_not_compared_with_its_
                 "C2": {"displacement_mm": last["C2"] + 0.1, "force_kN": 0.0}}
     assert gaps(standing, run) == pytest.approx({"C1": 2.0, "C2": 0.1})
     assert gaps(standing, run, external=["C1"]) == pytest.approx({"C2": 0.1})
+
+
+def test_a_run_with_an_external_instrument_resumes_and_its_instruments_log_goes_on(tmp_path):
+    """The record's instruments table (one row per trial) is continued by the resumed session: its
+    trials are numbered after the record's last one, and none of the earlier rows is lost."""
+    from importlib import resources
+
+    wall = (resources.files("hsio") / "library" / "structure_I.toml").read_text()
+    text = wall.replace('[[experimental]]\nname = "wall"', '[[experimental]]\nname = "wall"\n'
+                        'displacement_from = "wall_lvdt"\nouter_loop = { tolerance_mm = 0.05, max_iterations = 4 }')
+    text += '\n[[instrument]]\nname = "wall_lvdt"\nkind = "lvdt"\nelement = "wall"\nresolution = 0.005\n'
+    (tmp_path / "wall.toml").write_text(text)
+    cfg = write_config(tmp_path, duration=0.5, rate=5.0, extra=f'[structure]\nfile = "{tmp_path / "wall.toml"}"\n')
+    out = stopped_run(tmp_path, 5, config_path=cfg)
+    before = Run(out / "run.sqlite").table("instruments")
+    result = _resume(out)
+    assert result.exit_code == 0, result.output
+    run = Run(out / "run.sqlite")
+    trials = run.table("instruments")["step"]
+    assert trials.size == len(run.steps["step"]) > before["step"].size
+    assert np.array_equal(trials, np.arange(1, trials.size + 1))
+    assert np.array_equal(run.table("instruments")["iterations"][: before["step"].size], before["iterations"])
+
+
+def test_a_stop_recorded_only_as_an_event_is_told_at_the_resume(tmp_path):
+    """A record whose summary lost its ``stopped`` (a process killed while writing it) still tells
+    why it stopped, from its stop event."""
+    out = stopped_run(tmp_path, 5)
+    with sqlite3.connect(out / "run.sqlite") as db:
+        db.execute("DELETE FROM summary WHERE key = 'stopped'")
+    why = Run(out / "run.sqlite").stop_reason()
+    assert why and "stopped by the test" in why
+    result = _resume(out)
+    assert result.exit_code == 0, result.output
+    assert f"(the run recorded its stop: {why})" in result.output

@@ -292,7 +292,6 @@ def test_the_ground_motion_starts_at_the_records_first_sample(bm, shift_s):
 @pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed: nothing is compiled")
 def test_the_loops_clock_starts_after_numba_has_compiled(bm, monkeypatch):
     """x real time is the loop's speed: the compilation of a new stage happens before the clock."""
-    from hsio.rths.jit import jit
     from hsio.rths.stage import Stage
 
     @jit

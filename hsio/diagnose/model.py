@@ -152,6 +152,8 @@ def start_motion(command: np.ndarray, dt: float, window: int) -> tuple[float, fl
 
 
 def lead_in_samples(p: dict, dt: float) -> int:
+    """The lead-in's length: LEAD_IN_TIMES the loop's time constants (lags, transport delay,
+    channel skew, a servo mode's decay 1 / (zeta w)), at most LEAD_IN_MAX_S."""
     lags = p["lag_s"] + (p["lag_retract_s"] or 0.0) + p["transport_delay_s"] + p["channel_skew_s"]
     if p["servo_frequency_hz"] > 0.0:
         lags += 1.0 / (2.0 * math.pi * p["servo_frequency_hz"] * max(p["servo_damping"], 1e-3))

@@ -64,7 +64,7 @@ def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
         bad_rows = np.flatnonzero(~np.isfinite(history))
         if bad_rows.size:
             raise ConfigError(f"{run.path}: its step {int(steps[bad_rows[0]])} holds u_{d} = {history[bad_rows[0]]} "
-                              f"(not a number): the record is damaged; the record is unchanged and nothing moved")
+                              f"(not finite): the record is damaged; the record is unchanged and nothing moved")
     v_pred = v - structure.dt * integrator.core.gamma * a
     return AlphaOSState(k, u, v, a, u_pred, v_pred, R, P[k].copy())
 
@@ -215,8 +215,8 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             server = ControlServer(run_dir, control)
             cleanup.callback(server.close)
             recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
+        why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
         recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
-        why = run.stop_reason()
         notify(f"resuming {path} after step {state.i}" + (f" (the run recorded its stop: {why})" if why else ""))
         # a row of its own for this session (the earlier rows are left as they are)
         ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
@@ -243,6 +243,9 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             notify(line + (" (the first step goes on from where they stand)" if all(
                 abs(g) <= max_gap_mm for g in gap.values()) else ""))
             check_gaps(gap, max_gap_mm, hardware["url"])
+            trials = run.table("instruments").get("step")
+            if trials is not None and trials.size:
+                site.continue_trials(int(np.nanmax(trials)))
             control.check_stop()
             control.enter("HS")
             try:

@@ -340,6 +340,11 @@ class ActuatorSite:
                     f"{last[j]:+.3f} mm off the target: it does not follow the actuator (detached, stuck, or its "
                     f"scale of the wrong sign); the run stops")
 
+    def continue_trials(self, last_trial: int) -> None:
+        """Number the trials from ``last_trial`` + 1: a resumed run's instruments log goes on after
+        the one its record holds."""
+        self._trials = int(last_trial)
+
     def record_tables(self) -> dict[str, list[tuple[int, dict]]]:
         """Extra tables for the record, the rows logged since the last call: ``static`` (the
         preloads' log) and ``instruments`` (every trial's readings and outer-loop iterations). The
