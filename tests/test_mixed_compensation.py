@@ -130,7 +130,8 @@ def test_hsio_run_compensates_implicit_and_mixed_runs(tmp_path):
             table = {"mode": mode} if mode == "off" else {"mode": mode, "a_mm_s": a, "b_s_mm": b}
             cfg = config_mod.from_dict({
                 "structure": {"name": "structure_I"}, "record": {"pga_g": 1.0, "duration_s": 2.0},
-                "integrator": {"method": method}, "test": {"rate": 6.25, "hold_fraction": 0.0, "n_avg": 1},
+                "integrator": {"method": method, **({"switch_rule": "initial_stiffness"} if method == "mixed" else {})},
+                "test": {"rate": 6.25, "hold_fraction": 0.0, "n_avg": 1},
                 "emulator": {"preset": "structure_I"}, "compensation": table,
                 "output": {"plots": False, "samples": True, "ns": False}})
             out = tmp_path / f"{method}-{mode}"
@@ -138,6 +139,8 @@ def test_hsio_run_compensates_implicit_and_mixed_runs(tmp_path):
             assert summary["exit_status"] == 0 and summary["compensation"]["mode"] == mode
             steps = Run(next(out.glob("*.sqlite"))).steps
             dc = np.asarray(steps["mode_wall"]) == "displacement"
+            if method == "mixed":  # K^EI thresholds: the stiff unloading branches in FC, returns to DC
+                assert 0.05 < 1.0 - dc.mean() < 0.95, dc.mean()
             settled = dc.copy()
             settled[0] = False
             for i in np.flatnonzero(dc[1:] & ~dc[:-1]) + 1:  # the first steps after a return from FC
