@@ -62,3 +62,11 @@ def test_json_of_a_delay_without_force_is_strict_json(tmp_path):
     assert out["timing"]["verdict"] == "undecided" and out["timing"]["reason"] == "the record has no force"
     assert out["timing"]["ratio"] is None and out["timing"]["violations_at_zero"] is None
     assert _strict((tmp_path / "r" / "diagnosis.json").read_text())["timing"]["ratio"] is None
+
+
+@pytest.mark.parametrize("option, value", [("--train-fraction", "0.99"), ("--choose-fraction", "0.5")])
+def test_a_fraction_out_of_bounds_names_its_option(tmp_path, option, value):
+    record = emulate(chirp_command(2.0, 500.0, amplitude_mm=4.0, f1_hz=3.0), ServoConfig(rate_hz=500.0, lag_s=0.02))
+    path = write_csv(record, tmp_path / "r.csv")
+    result = CliRunner().invoke(diagnose, [str(path), option, value])
+    assert result.exit_code == 2 and f"({option}) must be in" in result.output, result.output

@@ -218,9 +218,10 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     """Fit the baseline and every candidate effect; name the cause; grow the best combination."""
     t0 = time.perf_counter()
     if not 0.1 <= train_fraction <= 0.8:
-        raise RecordError(f"train fraction must be in [0.1, 0.8], got {train_fraction}")
+        raise RecordError(f"train_fraction (--train-fraction) must be in [0.1, 0.8], got {train_fraction}")
     if not 0.05 <= choose_fraction <= 0.95 - train_fraction:
-        raise RecordError(f"choose fraction must be in [0.05, {0.95 - train_fraction:.2f}] (the rest scores), got {choose_fraction}")
+        raise RecordError(f"choose_fraction (--choose-fraction) must be in [0.05, {0.95 - train_fraction:.2f}] (the rest "
+                          f"scores), got {choose_fraction}")
     if not RATE_BOUNDS_HZ[0] <= record.rate_hz <= RATE_BOUNDS_HZ[1]:
         raise RecordError(f"{record.source}: sampled at {record.rate_hz:.6g} Hz; an actuator record holds the "
                           f"controller-rate samples, within {RATE_BOUNDS_HZ[0]:g}..{RATE_BOUNDS_HZ[1]:g} Hz "
