@@ -361,6 +361,7 @@ COMMAND_LINE = [
     (["run", "{c}", "--out", "{d}/a", "--out", "{d}/b"], "option --out is given twice"),
     (["emulate", "modbus", "--port", "0", "--port", "1"], "option --port is given twice"),
     (["calibrate", "{d}/x.csv", "--d-max", "inf"], "inf is not a finite number"),
+    (["calibrate", "{d}/cal.csv", "--d-max", "1e-320"], "--d-max is the actuator's stroke in mm, 0.1 to 100000"),
     (["bench", "vrths", "--duration", "nan"], "nan is not a finite number"),
     (["run", "{c}", "--out", "{d}/f/sub"], "cannot create the run folder"),
     (["calibrate", "{d}/cal.csv", "--plot", "{d}/f/fig.png"], "cannot write the plot"),

@@ -29,8 +29,8 @@ def calibrate(source: str, as_json: bool, plot_path: str | None, actuators: tupl
     from hsio.compensation import calibration
 
     try:
-        if not d_max > 0:
-            raise HsioError(f"--d-max must be positive, got {d_max}")
+        if not 0.1 <= d_max <= 1e5:
+            raise HsioError(f"--d-max is the actuator's stroke in mm, 0.1 to 100000, got {d_max}")
         if t_d is not None and not t_d > 0:
             raise HsioError(f"--t-d must be positive, got {t_d}")
         if test_rate is not None and not test_rate > 0:
