@@ -36,6 +36,9 @@ class Ledger:
 
     def __init__(self, folder: str | Path, specimen_id: str = ""):
         self.folder = Path(folder)
+        if self.folder.exists() and not self.folder.is_dir():
+            raise ConfigError(f"specimen folder {self.folder}: this is a file, not a folder; name a folder for the "
+                              f"specimen's ledger")
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:

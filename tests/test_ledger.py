@@ -62,3 +62,12 @@ def test_a_ledger_hsio_cannot_keep_is_refused_before_the_run_folder(tmp_path, sp
     with pytest.raises(ConfigError, match=f"specimen ledger .*ledger.sqlite: not a ledger hsio can keep \\({says}"):
         runner.run(cfg, tmp_path / "out")
     assert not (tmp_path / "out").exists()  # no run folder, no record begun
+
+
+def test_a_specimen_folder_that_is_a_file_is_named_so_before_the_run_folder(tmp_path):
+    (tmp_path / "s").write_text("notes\n")
+    cfg = config.from_dict({"record": {"duration_s": 0.1}, "output": {"plots": False},
+                            "specimen": {"folder": str(tmp_path / "s")}})
+    with pytest.raises(ConfigError, match="specimen folder .*s: this is a file, not a folder"):
+        runner.run(cfg, tmp_path / "out")
+    assert not (tmp_path / "out").exists() and (tmp_path / "s").read_text() == "notes\n"
