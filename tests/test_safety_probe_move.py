@@ -236,7 +236,7 @@ def test_probe_move_with_several_axes_in_real_time_commands_every_axis(tmp_path)
     is commanded where it stood, every period, so axis 0's step and sine go out (and the host
     watchdog is fed); both axes hold at the end."""
     cfg = write_config(tmp_path, extra=QUIET_SENSORS, clock="realtime")
-    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0.2), modbus_map.load()).start()
+    emu = ModbusEmulator(bank_from_config(cfg, lockstep=False, watchdog_s=0.5), modbus_map.load()).start()
     try:
         result = CliRunner().invoke(probe, [emu.url, "--move", "--json", "--axes", "2", "--requests", "5",
                                             "--sine-hz", "10", "--step-mm", "0.5"])
