@@ -235,3 +235,21 @@ def test_a_force_asked_after_the_commit_moves_nothing(tmp_path):
         srv.__exit__(None, None, None)
     assert run.summary["uncommitted_trials"] == 0 and run.summary["steps"] == 3
     assert not any("never committed" in line for line in server.lines)
+
+
+def test_stopping_the_server_after_a_session_ended_does_not_report_that_session_again(tmp_path):
+    """A session that ended with a trial never committed says so once; the server stopped later
+    (no session open) reports nothing more about it."""
+    srv, server = serve(tmp_path)
+    try:
+        c = RawClient(server.ports[0])
+        c.setup()
+        c.step(1.0, 0.01)
+        c.send(p.SET_TRIAL, [2.0], t=0.02)
+        c.ask(p.GET_FORCE)
+        c.close()  # gone without DIE, its last motion uncommitted
+        assert wait_for(lambda: session_over(server))
+    finally:
+        srv.__exit__(None, None, None)
+    assert sum("never committed" in line for line in server.lines) == 1
+    assert sum("ended (" in line for line in server.lines) == 1

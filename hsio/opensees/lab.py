@@ -287,7 +287,12 @@ class Lab:
 
     def _close(self, reason: str, clean: bool = False) -> None:
         """End the session (``clean``: its last element ended with DIE and nothing failed, else it
-        stopped: the record gets the hold and the stop as events)."""
+        stopped: the record gets the hold and the stop as events). With no session open (it
+        ended earlier), nothing is left to close or to report."""
+        if self.site is None and self.recorder is None:
+            with self._stepped:
+                self._stepped.notify_all()
+            return
         self._release_preloads(reason)
         if self.site is not None and self.recorder is not None:
             self.recorder.write_tables(self.site.record_tables())
