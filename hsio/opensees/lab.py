@@ -62,6 +62,10 @@ from hsio.structures import Damping, ExperimentalElement, Structure, channel_nam
 MAX_SESSION_FILES = 100_000  # record names tried for one session
 
 
+class SessionBusy(HsioError):
+    """A client of an element that left the open session: it joins the next one, which did not start."""
+
+
 def served_structure(structure: Structure, names, source: str = "") -> Structure:
     """The experimental elements ``names`` of ``structure`` as a structure of their own: each
     keeps its basic DOFs (renumbered in the order served), actuators, setup, K^EI and external
@@ -167,22 +171,29 @@ class Lab:
         self.last_time: float | None = None  # the time of the last recorded step
         self.failed = ""
         self.clean_end = True  # every element that left said DIE (the preloads may ramp off)
+        self.left: set[int] = set()  # elements that left this session: a new client joins the next one
         self.site_s = 0.0
         self.record_s = 0.0
         self.started = time.perf_counter()
 
-    def _attach(self, j: int) -> None:
-        """Element ``j`` joins the session (the first one opens the actuators)."""
+    def _attach(self, j: int) -> bool:
+        """Element ``j`` joins the session (the first one opens the actuators); False, and nothing
+        done, when ``j`` has left the session that is still open: its new client is a new run of
+        the model, which belongs to the next session."""
         if self.stopping:
             raise HsioError("the server is stopping")
+        if j in self.left and self.active:
+            return False
         if not self.active:
             self._open()
         self.active.add(j)
+        return True
 
     def _detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: with DIE); the last one ends the session: actuators
         hold, record closed. One that leaves otherwise while others go on is an event (``left``)."""
         self.active.discard(j)
+        self.left.add(j)
         if not clean:
             self.clean_end = False
         self.committed_flags[j] = False  # its snapshot, if it committed this step, stays in the step's row
@@ -577,9 +588,27 @@ class Lab:
             raise HsioError("the server is stopping") from None
         return future.result()
 
-    def attach(self, j: int) -> None:
-        """Element ``j`` joins the session (the first one opens the actuators)."""
-        self._call(self._attach, j)
+    def attach(self, j: int, timeout_s: float | None = None, log=None) -> None:
+        """Element ``j`` joins the session (the first one opens the actuators). An element that
+        has left the open session (OpenSees' wipe() says DIE to one element after the other, and
+        a model built again at once connects its first element before the others' DIE) joins the
+        next one: its client waits, up to ``timeout_s``, for the session's other elements to leave.
+        Raises :class:`SessionBusy` when they have not (``timeout_s`` None: [opensees] timeout_s)."""
+        timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + timeout_s
+        for attempt in range(1_000_000):  # each pass waits for a change of the session, or ends
+            if self._call(self._attach, j):
+                return
+            if attempt == 0 and log is not None:
+                log(f"session {self.sessions} goes on with {', '.join(self.names[k] for k in sorted(self.active))}"
+                    f" after element {self.names[j]} left it: this client joins the next session")
+            with self._stepped:
+                self._stepped.wait_for(lambda: not self.active or self.stopping, deadline - time.monotonic())
+            if time.monotonic() >= deadline and self.active and not self.stopping:
+                break
+        others = ", ".join(self.names[k] for k in sorted(self.active)) or "other elements"
+        raise SessionBusy(f"element {self.names[j]} left session {self.sessions}, which {others} did not leave "
+                          f"within {timeout_s:g} s; a new client of {self.names[j]} joins the next session")
 
     def detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: it ended with DIE); the last one ends the session:

@@ -17,7 +17,7 @@ import threading
 from hsio.errors import HsioError
 from hsio.opensees import protocol as p
 from hsio.opensees.element import ElementHandler
-from hsio.opensees.lab import Lab
+from hsio.opensees.lab import Lab, SessionBusy
 
 SETUP_TIMEOUT_S = 10.0  # for the setup message (the element sends it right after connecting)
 MAX_PENDING = 8  # connections waiting for their setup message, at most
@@ -124,7 +124,10 @@ class OpenSeesServer:
             claimed = True
             conn.settimeout(self.lab.settings.timeout_s)
             try:
-                self.lab.attach(j)
+                self.lab.attach(j, self.lab.settings.timeout_s, log=lambda line: self.log(f"{who}: {line}"))
+            except SessionBusy as exc:
+                self._refuse(conn, f"{who}: refused: {exc}")
+                return
             except Exception as exc:
                 self.log(f"{who}: cannot open the actuators: {_describe(exc)}")
                 return
