@@ -253,3 +253,27 @@ def test_stopping_the_server_after_a_session_ended_does_not_report_that_session_
         srv.__exit__(None, None, None)
     assert sum("never committed" in line for line in server.lines) == 1
     assert sum("ended (" in line for line in server.lines) == 1
+
+
+def test_a_records_folder_that_cannot_be_written_is_named_and_the_server_goes_on(tmp_path):
+    """The records folder became a file while the server ran: the client is closed with a line
+    naming the folder (not the actuators), and the server serves again once it is a folder."""
+    srv, server = serve(tmp_path)
+    try:
+        (tmp_path / "records").write_text("not a folder")  # no session has made it yet
+        c = RawClient(server.ports[0])
+        c.setup()
+        assert c.closed_by_server()
+        c.close()
+        refusal = [line for line in server.lines if "record" in line and "element C1" in line]
+        assert refusal and str(tmp_path / "records") in refusal[0] and "actuators" not in refusal[0], server.lines
+        assert server.lab.hold_message.startswith("the hold could not be read back: the record of session")
+        (tmp_path / "records").unlink()
+        (tmp_path / "records").mkdir()
+        c = RawClient(server.ports[0])
+        c.setup()
+        c.step(1.0, 0.01)
+        run = finish(server, c)
+    finally:
+        srv.__exit__(None, None, None)
+    assert run.summary["steps"] == 1

@@ -35,6 +35,7 @@ safety layer's warnings and trips go to the ``events`` table with their step, as
 from __future__ import annotations
 
 import math
+import sqlite3
 import threading
 import time
 from dataclasses import replace
@@ -48,7 +49,7 @@ from hsio.experiment import write_events
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
-from hsio.errors import ConfigError, HsioError, LimitError
+from hsio.errors import ConfigError, HsioError, LimitError, RecordError
 from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
@@ -236,7 +237,9 @@ class Lab:
                 "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         try:
             self.recorder = self._new_record(Path(self.settings.out), meta)
-        except BaseException:
+        except BaseException as exc:
+            self.hold_message = (f"the hold could not be read back: the record of session {self.sessions} could not "
+                                 f"be written ({exc}); its actuators were opened and closed again")
             self.site.close()
             self.site = None
             raise
@@ -265,6 +268,9 @@ class Lab:
                     recorder = Recorder(path, self.channels, self.channels, meta)
                 except RecordExistsError:  # taken meanwhile by another process
                     pass
+                except (OSError, sqlite3.Error) as exc:  # the folder went away, became a file, the disk is full
+                    raise RecordError(f"{out}: the session's record {path.name} cannot be written there: "
+                                      f"{getattr(exc, 'strerror', None) or exc}") from None
                 else:
                     self.sessions = k
                     return recorder

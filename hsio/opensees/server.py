@@ -14,7 +14,7 @@ from __future__ import annotations
 import socket
 import threading
 
-from hsio.errors import HsioError
+from hsio.errors import HsioError, RecordError
 from hsio.opensees import protocol as p
 from hsio.opensees.element import ElementHandler
 from hsio.opensees.lab import Lab, SessionBusy
@@ -127,6 +127,9 @@ class OpenSeesServer:
                 self.lab.attach(j, self.lab.settings.timeout_s, log=lambda line: self.log(f"{who}: {line}"))
             except SessionBusy as exc:
                 self._refuse(conn, f"{who}: refused: {exc}")
+                return
+            except RecordError as exc:  # the actuators were opened, held and released again
+                self.log(f"{who}: no session: {exc}")
                 return
             except Exception as exc:
                 self.log(f"{who}: cannot open the actuators: {_describe(exc)}")
