@@ -177,18 +177,18 @@ class Lab:
         self.record_s = 0.0
         self.started = time.perf_counter()
 
-    def _attach(self, j: int) -> bool:
-        """Element ``j`` joins the session (the first one opens the actuators); False, and nothing
-        done, when ``j`` has left the session that is still open: its new client is a new run of
-        the model, which belongs to the next session."""
+    def _attach(self, j: int) -> int | None:
+        """Element ``j`` joins the session (the first one opens the actuators): None. When ``j``
+        has left the session that is still open, nothing is done and that session's number is
+        returned: its new client is a new run of the model, which belongs to the next session."""
         if self.stopping:
             raise HsioError("the server is stopping")
         if j in self.left and self.active:
-            return False
+            return self.sessions
         if not self.active:
             self._open()
         self.active.add(j)
-        return True
+        return None
 
     def _detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: with DIE); the last one ends the session: actuators
@@ -602,19 +602,23 @@ class Lab:
         Raises :class:`SessionBusy` when they have not (``timeout_s`` None: [opensees] timeout_s)."""
         timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
         deadline = time.monotonic() + timeout_s
-        for attempt in range(1_000_000):  # each pass waits for a change of the session, or ends
-            if self._call(self._attach, j):
+        for attempt in range(1_000_000):  # each pass waits for the session to end, or ends
+            session = self._call(self._attach, j)
+            if session is None:
                 return
+            others = ", ".join(self.names[k] for k in sorted(self.active))
             if attempt == 0 and log is not None:
-                log(f"session {self.sessions} goes on with {', '.join(self.names[k] for k in sorted(self.active))}"
-                    f" after element {self.names[j]} left it: this client joins the next session")
-            with self._stepped:
-                self._stepped.wait_for(lambda: not self.active or self.stopping, deadline - time.monotonic())
-            if time.monotonic() >= deadline and self.active and not self.stopping:
+                log(f"session {session} goes on with {others} after element {self.names[j]} left it: this "
+                    f"client joins the next session")
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
                 break
-        others = ", ".join(self.names[k] for k in sorted(self.active)) or "other elements"
-        raise SessionBusy(f"element {self.names[j]} left session {self.sessions}, which {others} did not leave "
-                          f"within {timeout_s:g} s; a new client of {self.names[j]} joins the next session")
+            with self._stepped:  # the session ends (another may open at once), or the server stops
+                self._stepped.wait_for(lambda: not self.active or self.sessions != session or self.stopping,
+                                       remaining)
+        raise SessionBusy(f"element {self.names[j]} left session {session}, which {others or 'other elements'} "
+                          f"did not leave within {timeout_s:g} s; a new client of {self.names[j]} joins the next "
+                          f"session")
 
     def detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: it ended with DIE); the last one ends the session:
