@@ -277,3 +277,41 @@ def test_a_records_folder_that_cannot_be_written_is_named_and_the_server_goes_on
     finally:
         srv.__exit__(None, None, None)
     assert run.summary["steps"] == 1
+
+
+def test_a_session_stopped_by_the_server_is_recorded_as_stopped_not_as_a_client_that_left(tmp_path):
+    """The server is stopped (Ctrl-C) while its element waits for the model's next message: the
+    record says the server stopped the session, not that the element closed its connection."""
+    srv, server = serve(tmp_path)
+    try:
+        c = RawClient(server.ports[0])
+        c.setup()
+        c.step(1.0, 0.01)
+        assert wait_for(lambda: server.lab.steps == 1)
+    finally:
+        srv.__exit__(None, None, None)
+    c.close()
+    run = Run(tmp_path / "records" / "run.sqlite")
+    assert "server" in run.summary["stopped"] and "server" in run.summary["end"]
+    stop = [e for e in run.events() if e["kind"] == "stop"]
+    assert len(stop) == 1 and "server" in stop[0]["message"] and "closed" not in stop[0]["message"]
+
+
+def test_elements_of_a_session_the_server_stopped_are_not_recorded_as_leaving_it(tmp_path):
+    """Two elements when the server is stopped: one stop, and no 'left' event saying that the
+    other elements go on."""
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 5.0\n" + QUIET)
+    with serving(config) as server:
+        a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
+        a.setup()
+        b.setup()
+        for c in (a, b):
+            c.send(p.SET_TRIAL, [0.5], t=0.01)
+            c.ask(p.GET_FORCE)
+        for c in (a, b):
+            c.send(p.COMMIT)
+        assert wait_for(lambda: server.lab.steps == 1)
+    a.close()
+    b.close()
+    run = Run(tmp_path / "records" / "run.sqlite")
+    assert [e["kind"] for e in run.events()] == ["hold", "stop"] and "server" in run.summary["stopped"]

@@ -192,7 +192,8 @@ class Lab:
 
     def _detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: with DIE); the last one ends the session: actuators
-        hold, record closed. One that leaves otherwise while others go on is an event (``left``)."""
+        hold, record closed. One that leaves otherwise while others go on is an event (``left``),
+        unless the session has stopped (its ``stop`` event says why)."""
         self.active.discard(j)
         self.left.add(j)
         if not clean:
@@ -202,7 +203,7 @@ class Lab:
         if not self.active:
             self._close(reason, clean)
         elif self.site is not None:
-            if not clean and self.recorder is not None:
+            if not clean and not self.failed and self.recorder is not None:  # a stopped session: its stop says it
                 self.recorder.write_event(self._lab_time(self.site), self.steps + 1, "left", self.names[j],
                                           f"element {self.names[j]} left the session ({reason}); its actuators "
                                           f"keep their last target while the other elements go on")

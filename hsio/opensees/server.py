@@ -141,6 +141,9 @@ class OpenSeesServer:
                 reason = handler.serve()
             except p.PeerClosed as exc:
                 reason = str(exc)
+                if self._stop.is_set():  # the server shut the connection down: it stopped the session
+                    reason = "stopped: the server is stopping"
+                    self.lab.hold(reason)
             except (TimeoutError, socket.timeout):
                 reason = f"silent for {self.lab.settings.timeout_s:g} s: disconnected"
                 self.lab.hold(reason)
@@ -151,7 +154,8 @@ class OpenSeesServer:
                 reason = f"stopped: {exc}"
                 self.lab.hold(reason)
             except OSError as exc:
-                reason = f"connection lost: {exc.strerror or exc}"
+                reason = ("stopped: the server is stopping" if self._stop.is_set()
+                          else f"connection lost: {exc.strerror or exc}")
                 self.lab.hold(reason)
             except Exception as exc:  # a fault of the server itself: hold, report, keep serving
                 reason = f"unexpected error: {exc!r}"
