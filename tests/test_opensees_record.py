@@ -235,3 +235,83 @@ def test_a_force_asked_after_the_commit_moves_nothing(tmp_path):
         srv.__exit__(None, None, None)
     assert run.summary["uncommitted_trials"] == 0 and run.summary["steps"] == 3
     assert not any("never committed" in line for line in server.lines)
+
+
+def test_stopping_the_server_after_a_session_ended_does_not_report_that_session_again(tmp_path):
+    """A session that ended with a trial never committed says so once; the server stopped later
+    (no session open) reports nothing more about it."""
+    srv, server = serve(tmp_path)
+    try:
+        c = RawClient(server.ports[0])
+        c.setup()
+        c.step(1.0, 0.01)
+        c.send(p.SET_TRIAL, [2.0], t=0.02)
+        c.ask(p.GET_FORCE)
+        c.close()  # gone without DIE, its last motion uncommitted
+        assert wait_for(lambda: session_over(server))
+    finally:
+        srv.__exit__(None, None, None)
+    assert sum("never committed" in line for line in server.lines) == 1
+    assert sum("ended (" in line for line in server.lines) == 1
+
+
+def test_a_records_folder_that_cannot_be_written_is_named_and_the_server_goes_on(tmp_path):
+    """The records folder became a file while the server ran: the client is closed with a line
+    naming the folder (not the actuators), and the server serves again once it is a folder."""
+    srv, server = serve(tmp_path)
+    try:
+        (tmp_path / "records").write_text("not a folder")  # no session has made it yet
+        c = RawClient(server.ports[0])
+        c.setup()
+        assert c.closed_by_server()
+        c.close()
+        refusal = [line for line in server.lines if "record" in line and "element C1" in line]
+        assert refusal and str(tmp_path / "records") in refusal[0] and "actuators" not in refusal[0], server.lines
+        assert server.lab.hold_message.startswith("the hold could not be read back: the record of session")
+        (tmp_path / "records").unlink()
+        (tmp_path / "records").mkdir()
+        c = RawClient(server.ports[0])
+        c.setup()
+        c.step(1.0, 0.01)
+        run = finish(server, c)
+    finally:
+        srv.__exit__(None, None, None)
+    assert run.summary["steps"] == 1
+
+
+def test_a_session_stopped_by_the_server_is_recorded_as_stopped_not_as_a_client_that_left(tmp_path):
+    """The server is stopped (Ctrl-C) while its element waits for the model's next message: the
+    record says the server stopped the session, not that the element closed its connection."""
+    srv, server = serve(tmp_path)
+    try:
+        c = RawClient(server.ports[0])
+        c.setup()
+        c.step(1.0, 0.01)
+        assert wait_for(lambda: server.lab.steps == 1)
+    finally:
+        srv.__exit__(None, None, None)
+    c.close()
+    run = Run(tmp_path / "records" / "run.sqlite")
+    assert "server" in run.summary["stopped"] and "server" in run.summary["end"]
+    stop = [e for e in run.events() if e["kind"] == "stop"]
+    assert len(stop) == 1 and "server" in stop[0]["message"] and "closed" not in stop[0]["message"]
+
+
+def test_elements_of_a_session_the_server_stopped_are_not_recorded_as_leaving_it(tmp_path):
+    """Two elements when the server is stopped: one stop, and no 'left' event saying that the
+    other elements go on."""
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 5.0\n" + QUIET)
+    with serving(config) as server:
+        a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
+        a.setup()
+        b.setup()
+        for c in (a, b):
+            c.send(p.SET_TRIAL, [0.5], t=0.01)
+            c.ask(p.GET_FORCE)
+        for c in (a, b):
+            c.send(p.COMMIT)
+        assert wait_for(lambda: server.lab.steps == 1)
+    a.close()
+    b.close()
+    run = Run(tmp_path / "records" / "run.sqlite")
+    assert [e["kind"] for e in run.events()] == ["hold", "stop"] and "server" in run.summary["stopped"]

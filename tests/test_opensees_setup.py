@@ -377,3 +377,46 @@ def test_an_element_read_by_an_external_lvdt_is_served_through_its_outer_loop(tm
     table = record.table("instruments")
     assert len(table["iterations"]) == len(d) and np.all(np.asarray(table["iterations"]) >= 1)
     np.testing.assert_allclose(table["spring_lvdt"], d, atol=0.02 + 1e-9)
+
+
+def test_a_model_started_again_while_its_last_run_leaves_opens_a_session_of_its_own(tmp_path):
+    """OpenSees' wipe() says DIE to one element after the other, and a model built again at once
+    may connect the first element before the server has seen the others' DIE: that client starts
+    the next session (its own record), never the rest of the previous one."""
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 10.0\n" + QUIET)
+    with serving(config) as server:
+        a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
+        a.setup()
+        b.setup()
+        for k in (1, 2):
+            for c in (a, b):
+                c.send(p.SET_TRIAL, [0.5 * k], t=0.01 * k)
+                c.ask(p.GET_FORCE)
+            for c in (a, b):
+                c.send(p.COMMIT)
+        a.send(p.DIE)
+        a.close()
+        assert wait_for(lambda: server.lab._call(lambda: server.lab.active == {1}))
+        again = RawClient(server.ports[0])  # the next run of the model; b has not said DIE yet
+        again.setup()
+        assert wait_for(lambda: 0 in server.lab.active or any("joins the next session" in line
+                                                              for line in server.lines))
+        b.send(p.DIE)
+        b.close()
+        b_again = RawClient(server.ports[1])
+        b_again.setup()
+        for k in (1, 2, 3):
+            for c in (again, b_again):
+                c.send(p.SET_TRIAL, [-0.5 * k], t=0.01 * k)
+                c.ask(p.GET_FORCE)
+            for c in (again, b_again):
+                c.send(p.COMMIT)
+        for c in (again, b_again):
+            c.send(p.DIE)
+            c.close()
+        assert wait_for(lambda: session_over(server))
+    first, second = Run(tmp_path / "records" / "run.sqlite"), Run(tmp_path / "records" / "run-2.sqlite")
+    assert first.steps["time_s"].tolist() == [0.01, 0.02] and first.summary["steps"] == 2
+    assert second.steps["time_s"].tolist() == [0.01, 0.02, 0.03] and set(second.steps["flags"]) == {""}
+    for name in ("C1", "C2"):
+        assert second.actuator("target", name).tolist() == [-0.5, -1.0, -1.5]

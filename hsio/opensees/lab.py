@@ -35,6 +35,7 @@ safety layer's warnings and trips go to the ``events`` table with their step, as
 from __future__ import annotations
 
 import math
+import sqlite3
 import threading
 import time
 from dataclasses import replace
@@ -48,7 +49,7 @@ from hsio.experiment import write_events
 from hsio.compensation.stage import CompensationSettings, CompensationStage
 from hsio.config import RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
-from hsio.errors import ConfigError, HsioError, LimitError
+from hsio.errors import ConfigError, HsioError, LimitError, RecordError
 from hsio.interfaces import ControlMode
 from hsio.opensees.protocol import Trial
 from hsio.opensees.settings import OpenSeesSettings
@@ -60,6 +61,10 @@ from hsio.structures import Damping, ExperimentalElement, Structure, channel_nam
 
 
 MAX_SESSION_FILES = 100_000  # record names tried for one session
+
+
+class SessionBusy(HsioError):
+    """A client of an element that left the open session: it joins the next one, which did not start."""
 
 
 def served_structure(structure: Structure, names, source: str = "") -> Structure:
@@ -167,22 +172,30 @@ class Lab:
         self.last_time: float | None = None  # the time of the last recorded step
         self.failed = ""
         self.clean_end = True  # every element that left said DIE (the preloads may ramp off)
+        self.left: set[int] = set()  # elements that left this session: a new client joins the next one
         self.site_s = 0.0
         self.record_s = 0.0
         self.started = time.perf_counter()
 
-    def _attach(self, j: int) -> None:
-        """Element ``j`` joins the session (the first one opens the actuators)."""
+    def _attach(self, j: int) -> int | None:
+        """Element ``j`` joins the session (the first one opens the actuators): None. When ``j``
+        has left the session that is still open, nothing is done and that session's number is
+        returned: its new client is a new run of the model, which belongs to the next session."""
         if self.stopping:
             raise HsioError("the server is stopping")
+        if j in self.left and self.active:
+            return self.sessions
         if not self.active:
             self._open()
         self.active.add(j)
+        return None
 
     def _detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: with DIE); the last one ends the session: actuators
-        hold, record closed. One that leaves otherwise while others go on is an event (``left``)."""
+        hold, record closed. One that leaves otherwise while others go on is an event (``left``),
+        unless the session has stopped (its ``stop`` event says why)."""
         self.active.discard(j)
+        self.left.add(j)
         if not clean:
             self.clean_end = False
         self.committed_flags[j] = False  # its snapshot, if it committed this step, stays in the step's row
@@ -190,7 +203,7 @@ class Lab:
         if not self.active:
             self._close(reason, clean)
         elif self.site is not None:
-            if not clean and self.recorder is not None:
+            if not clean and not self.failed and self.recorder is not None:  # a stopped session: its stop says it
                 self.recorder.write_event(self._lab_time(self.site), self.steps + 1, "left", self.names[j],
                                           f"element {self.names[j]} left the session ({reason}); its actuators "
                                           f"keep their last target while the other elements go on")
@@ -225,7 +238,9 @@ class Lab:
                 "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         try:
             self.recorder = self._new_record(Path(self.settings.out), meta)
-        except BaseException:
+        except BaseException as exc:
+            self.hold_message = (f"the hold could not be read back: the record of session {self.sessions} could not "
+                                 f"be written ({exc}); its actuators were opened and closed again")
             self.site.close()
             self.site = None
             raise
@@ -254,6 +269,9 @@ class Lab:
                     recorder = Recorder(path, self.channels, self.channels, meta)
                 except RecordExistsError:  # taken meanwhile by another process
                     pass
+                except (OSError, sqlite3.Error) as exc:  # the folder went away, became a file, the disk is full
+                    raise RecordError(f"{out}: the session's record {path.name} cannot be written there: "
+                                      f"{getattr(exc, 'strerror', None) or exc}") from None
                 else:
                     self.sessions = k
                     return recorder
@@ -287,7 +305,12 @@ class Lab:
 
     def _close(self, reason: str, clean: bool = False) -> None:
         """End the session (``clean``: its last element ended with DIE and nothing failed, else it
-        stopped: the record gets the hold and the stop as events)."""
+        stopped: the record gets the hold and the stop as events). With no session open (it
+        ended earlier), nothing is left to close or to report."""
+        if self.site is None and self.recorder is None:
+            with self._stepped:
+                self._stepped.notify_all()
+            return
         self._release_preloads(reason)
         if self.site is not None and self.recorder is not None:
             self.recorder.write_tables(self.site.record_tables())
@@ -572,9 +595,31 @@ class Lab:
             raise HsioError("the server is stopping") from None
         return future.result()
 
-    def attach(self, j: int) -> None:
-        """Element ``j`` joins the session (the first one opens the actuators)."""
-        self._call(self._attach, j)
+    def attach(self, j: int, timeout_s: float | None = None, log=None) -> None:
+        """Element ``j`` joins the session (the first one opens the actuators). An element that
+        has left the open session (OpenSees' wipe() says DIE to one element after the other, and
+        a model built again at once connects its first element before the others' DIE) joins the
+        next one: its client waits, up to ``timeout_s``, for the session's other elements to leave.
+        Raises :class:`SessionBusy` when they have not (``timeout_s`` None: [opensees] timeout_s)."""
+        timeout_s = self.settings.timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + timeout_s
+        for attempt in range(1_000_000):  # each pass waits for the session to end, or ends
+            session = self._call(self._attach, j)
+            if session is None:
+                return
+            others = ", ".join(self.names[k] for k in sorted(self.active))
+            if attempt == 0 and log is not None:
+                log(f"session {session} goes on with {others} after element {self.names[j]} left it: this "
+                    f"client joins the next session")
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            with self._stepped:  # the session ends (another may open at once), or the server stops
+                self._stepped.wait_for(lambda: not self.active or self.sessions != session or self.stopping,
+                                       remaining)
+        raise SessionBusy(f"element {self.names[j]} left session {session}, which {others or 'other elements'} "
+                          f"did not leave within {timeout_s:g} s; a new client of {self.names[j]} joins the next "
+                          f"session")
 
     def detach(self, j: int, reason: str, clean: bool = False) -> None:
         """Element ``j`` leaves (``clean``: it ended with DIE); the last one ends the session:

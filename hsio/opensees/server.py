@@ -14,10 +14,10 @@ from __future__ import annotations
 import socket
 import threading
 
-from hsio.errors import HsioError
+from hsio.errors import HsioError, RecordError
 from hsio.opensees import protocol as p
 from hsio.opensees.element import ElementHandler
-from hsio.opensees.lab import Lab
+from hsio.opensees.lab import Lab, SessionBusy
 
 SETUP_TIMEOUT_S = 10.0  # for the setup message (the element sends it right after connecting)
 MAX_PENDING = 8  # connections waiting for their setup message, at most
@@ -124,7 +124,13 @@ class OpenSeesServer:
             claimed = True
             conn.settimeout(self.lab.settings.timeout_s)
             try:
-                self.lab.attach(j)
+                self.lab.attach(j, self.lab.settings.timeout_s, log=lambda line: self.log(f"{who}: {line}"))
+            except SessionBusy as exc:
+                self._refuse(conn, f"{who}: refused: {exc}")
+                return
+            except RecordError as exc:  # the actuators were opened, held and released again
+                self.log(f"{who}: no session: {exc}")
+                return
             except Exception as exc:
                 self.log(f"{who}: cannot open the actuators: {_describe(exc)}")
                 return
@@ -135,6 +141,9 @@ class OpenSeesServer:
                 reason = handler.serve()
             except p.PeerClosed as exc:
                 reason = str(exc)
+                if self._stop.is_set():  # the server shut the connection down: it stopped the session
+                    reason = "stopped: the server is stopping"
+                    self.lab.hold(reason)
             except (TimeoutError, socket.timeout):
                 reason = f"silent for {self.lab.settings.timeout_s:g} s: disconnected"
                 self.lab.hold(reason)
@@ -145,7 +154,8 @@ class OpenSeesServer:
                 reason = f"stopped: {exc}"
                 self.lab.hold(reason)
             except OSError as exc:
-                reason = f"connection lost: {exc.strerror or exc}"
+                reason = ("stopped: the server is stopping" if self._stop.is_set()
+                          else f"connection lost: {exc.strerror or exc}")
                 self.lab.hold(reason)
             except Exception as exc:  # a fault of the server itself: hold, report, keep serving
                 reason = f"unexpected error: {exc!r}"
