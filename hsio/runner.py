@@ -361,7 +361,21 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     return ns, report
 
 
-def _dry_run_from_present(config: RunConfig, structure: Structure, ground: GroundMotion, report,
+def ns_from_present(config: RunConfig, structure: Structure, ground: GroundMotion, start_state: dict | None):
+    """NS of a run that starts where the specimen stands (``[test] start = "present"``): each
+    specimen model about the measured displacement and force of its actuator, the numerical DOFs
+    in static equilibrium, v = 0. None through setups or where the present state could not be
+    read (the prediction from rest is all there is then)."""
+    if structure.has_setups or not start_state or "error" in start_state:
+        return None
+    standing = list(start_state.values())[:len(structure.experimental)]  # element actuators first, in order
+    u0 = [v["displacement_mm"] for v in standing]
+    R0 = [v["force_kN"] for v in standing]
+    site = StandingSite([e.model() for e in structure.experimental], u0, R0)
+    return api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present")
+
+
+def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, report,
                           start_state: dict | None, safety: SafetySettings, recorder, notify, ledger, run_id) -> None:
     """Check the test again from where the specimen stands, read when the hardware opened and
     before the first command (docs/safety.md section 2); refuse as the dry run does.
@@ -377,14 +391,8 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ground: Groun
         prediction = from_present(report.prediction, start_state)
         how = "NS from rest plus where each actuator stands"
     else:
-        n = len(structure.experimental)
-        standing = list(start_state.values())[:n]  # the element actuators, in order (static preloads after)
-        u0 = [v["displacement_mm"] for v in standing]
-        R0 = [v["force_kN"] for v in standing]
-        site = StandingSite([e.model() for e in structure.experimental], u0, R0)
-        ns = api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present")
         test = config["test"]
-        prediction = predict_peaks(ns, test["rate"] * structure.dt, test["hold_fraction"])
+        prediction = predict_peaks(ns_present, test["rate"] * structure.dt, test["hold_fraction"])
         how = "NS from where the specimen stands"
     present = check(prediction, report.limits, report.source, safety)
     text = f"from the present state ({how}):\n" + present.text()
@@ -496,7 +504,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                     notify(report.text())
                 if not config["output"]["ns"]:
                     ns = None
-            if ns is not None:
+            present = test["start"] == "present"
+            if ns is not None and not present:  # a present start: NS from where the specimen stands, below
                 recorder.write_ns(ns.t, ns.u)
             integrator = api.make_integrator(structure, method, alpha, **integrator_options(config, structure, predicted))
             control.enter("start-up")
@@ -523,9 +532,15 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             if not hardware["url"].startswith("emulator") and (config["emulator"] or hardware["actuator_model"]):
                 notify(f"[emulator] and [hardware] actuator_model are not read by a run on {hardware['url']}: they "
                        f"set the emulated controller (`hsio emulate ... CONFIG`), not the real one")
-            if test["start"] == "present" and report is not None:
-                _dry_run_from_present(config, structure, ground, report, start_state, safety, recorder, notify,
-                                      ledger, run_id)
+            if present:  # what HS is compared with: NS from the same start, not from rest
+                ns_present = ns_from_present(config, structure, ground, start_state) \
+                    if ns is not None or report is not None else None
+                if report is not None:
+                    _dry_run_from_present(config, structure, ns_present, report, start_state, safety, recorder,
+                                          notify, ledger, run_id)
+                if ns is not None:
+                    ns = ns_present if ns_present is not None else ns
+                    recorder.write_ns(ns.t, ns.u)
             compensation.sink = recorder.write_compensation
             control.check_stop()
             control.enter("HS")
