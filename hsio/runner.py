@@ -375,7 +375,7 @@ def ns_from_present(config: RunConfig, structure: Structure, ground: GroundMotio
     return api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present")
 
 
-def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, report,
+def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, report, site,
                           start_state: dict | None, safety: SafetySettings, recorder, notify, ledger, run_id) -> None:
     """Check the test again from where the specimen stands, read when the hardware opened and
     before the first command (docs/safety.md section 2); refuse as the dry run does.
@@ -383,7 +383,9 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, r
     Elements loaded by one actuator each: NS from the present state (each specimen model about
     the measured displacement and force, the numerical DOFs in static equilibrium, v = 0: the
     free vibration the offset starts is in the prediction). Through setups: the prediction from
-    rest shifted by each actuator's present stroke and force."""
+    rest shifted by each actuator's present stroke and force. A limit that [driver] does not give
+    is checked against the one the controller reported when the hardware opened (the smallest of
+    the actuators')."""
     if not start_state or "error" in start_state:
         raise DryRunRefused("dry run from the present state: the actuators' present state could not be read "
                             f"({(start_state or {}).get('error', 'no feedback')}); no command was sent")
@@ -394,7 +396,13 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, r
         test = config["test"]
         prediction = predict_peaks(ns_present, test["rate"] * structure.dt, test["hold_fraction"])
         how = "NS from where the specimen stands"
-    present = check(prediction, report.limits, report.source, safety)
+    limits, source = dict(report.limits), report.source
+    unknown = [key for key, value in limits.items() if value is None]
+    if unknown:  # not in [driver]: the controller has reported them now that the hardware is open
+        reported = [actuator.limits for actuator in site.loop.actuators]
+        limits.update({key: min(float(getattr(lim, key)) for lim in reported) for key in unknown})
+        source += f"; {', '.join(unknown)} as the controller reports them"
+    present = check(prediction, limits, source, safety)
     text = f"from the present state ({how}):\n" + present.text()
     recorder.write_event(None, 0, "dry_run", "", text)
     recorder.write_meta({"dry_run_present": present.as_dict()})
@@ -536,8 +544,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                 ns_present = ns_from_present(config, structure, ground, start_state) \
                     if ns is not None or report is not None else None
                 if report is not None:
-                    _dry_run_from_present(config, structure, ns_present, report, start_state, safety, recorder,
-                                          notify, ledger, run_id)
+                    _dry_run_from_present(config, structure, ns_present, report, site, start_state, safety,
+                                          recorder, notify, ledger, run_id)
                 if ns is not None:
                     ns = ns_present if ns_present is not None else ns
                     recorder.write_ns(ns.t, ns.u)
