@@ -154,7 +154,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run has held and closed: report it whole
         status = exit_status(exc)
         if isinstance(exc, ExperimentStopped) or status != 2:
-            click.echo(f"hsio run: {str(exc) or 'interrupted (Ctrl-C)'}",
+            click.echo(f"hsio run: {getattr(exc, 'stop_message', None) or str(exc) or 'interrupted (Ctrl-C)'}",
                        err=True)
         else:
             click.echo(f"hsio run: error: {exc}", err=True)

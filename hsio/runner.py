@@ -24,7 +24,7 @@ from hsio.config import BOUNDS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.emulators.servo import ServoConfig
 from hsio.errors import ConfigError, HsioError, RecordError
-from hsio.experiment import ExperimentStopped
+from hsio.experiment import ExperimentStopped, write_events
 from hsio.hardware import check_options
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
@@ -579,6 +579,10 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                       if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
             if hold is not None:
                 reason += f"; {hold.message}"
+                write_events(recorder, site, 0)  # a trip before the steps (in the ramp in of static preloads)
+                recorder.write_event(site.lab_time_s, 0, "hold", "", hold.message, commit=False)
+                if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
+                    exc.stop_message = reason
             recorder.write_event(None, 0, "stop", "", reason)
             summary = {"structure": structure.name, "record": ground.name, "steps": 0, "stopped": reason,
                        "run_file": str(out / RUN_FILE), "end_state": _state(site)}
