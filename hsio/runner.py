@@ -601,6 +601,10 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                     summary["plots"].append(str(plots.control_modes(out / "modes.png", hs)))
             except OSError as exc:
                 notify(f"WARNING: the plots could not be written to {out} ({exc.strerror or exc})")
+            except KeyboardInterrupt:  # the run is over, held and recorded: a second Ctrl-C ends the plots only
+                summary.pop("plots", None)
+                notify(f"WARNING: the plots were not written to {out} (interrupted by Ctrl-C); the run ended as "
+                       f"recorded ({summary['outcome']})")
             write_summary(out, recorder, summary, notify)
     if error is not None:
         error.run_dir = out
