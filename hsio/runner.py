@@ -361,18 +361,37 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     return ns, report
 
 
-def ns_from_present(config: RunConfig, structure: Structure, ground: GroundMotion, start_state: dict | None):
+class _StopOnly:
+    """A run's control as the NS from the present state sees it: a stop (key, socket, signal) ends
+    that NS at once; a pause waits for the first step of the test (the actuators hold meanwhile)."""
+
+    def __init__(self, control: RunControl):
+        self.control = control
+
+    def checkpoint(self, site, step: int, log=None) -> None:
+        self.control.check_stop()
+
+
+def ns_from_present(config: RunConfig, structure: Structure, ground: GroundMotion, start_state: dict | None,
+                    control: RunControl | None = None):
     """NS of a run that starts where the specimen stands (``[test] start = "present"``): each
     specimen model about the measured displacement and force of its actuator, the numerical DOFs
     in static equilibrium, v = 0. None through setups or where the present state could not be
-    read (the prediction from rest is all there is then)."""
+    read (the prediction from rest is all there is then). A stop asked of ``control`` meanwhile is
+    raised (OperatorStop) at the next step of that NS."""
     if structure.has_setups or not start_state or "error" in start_state:
         return None
     standing = list(start_state.values())[:len(structure.experimental)]  # element actuators first, in order
     u0 = [v["displacement_mm"] for v in standing]
     R0 = [v["force_kN"] for v in standing]
     site = StandingSite([e.model() for e in structure.experimental], u0, R0)
-    return api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present")
+    try:
+        return api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present",
+                            control=_StopOnly(control) if control is not None else None)
+    except ExperimentStopped as exc:
+        if isinstance(exc.cause, (OperatorStop, KeyboardInterrupt)):
+            raise exc.cause from None  # the run's stop, not a step of this prediction
+        raise
 
 
 def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, report, site,
@@ -541,7 +560,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                 notify(f"[emulator] and [hardware] actuator_model are not read by a run on {hardware['url']}: they "
                        f"set the emulated controller (`hsio emulate ... CONFIG`), not the real one")
             if present:  # what HS is compared with: NS from the same start, not from rest
-                ns_present = ns_from_present(config, structure, ground, start_state) \
+                ns_present = ns_from_present(config, structure, ground, start_state, control) \
                     if ns is not None or report is not None else None
                 if report is not None:
                     _dry_run_from_present(config, structure, ns_present, report, site, start_state, safety,

@@ -215,3 +215,34 @@ def test_the_dry_run_checks_the_limits_a_driver_will_use():
     assert limits == {"stroke_mm": 100.0, "force_kN": None, "velocity_mm_s": 50.0}
     limits, _ = known_limits("canopen+slcan://127.0.0.1:5020", {}, {})
     assert limits == {"stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0}
+
+
+def test_a_stop_during_the_prediction_from_the_present_state_ends_it_at_once(tmp_path, monkeypatch):
+    """The hardware is open while NS runs from the present state (a long record takes a while):
+    a stop asked then ends that NS at its next step, holds and closes, before any command."""
+    from hsio.safety.control import RunControl
+    from hsio.safety.status import OperatorStop
+    from hsio.sites.numerical import StandingSite
+
+    control = RunControl()
+    real_ns, steps = runner.ns_from_present, []
+    real_trial = StandingSite.set_trial
+
+    def counted(self, commands, modes):
+        steps.append(1)
+        return real_trial(self, commands, modes)
+
+    def stop_first(*args, **kwargs):
+        control.request_stop("stopped by SIGTERM during start-up")
+        return real_ns(*args, **kwargs)
+
+    monkeypatch.setattr(StandingSite, "set_trial", counted)
+    monkeypatch.setattr(runner, "ns_from_present", stop_first)
+    cfg = config.from_dict({"record": {"synthetic_duration_s": 2.0}, "test": {"start": "present"},
+                            "output": {"plots": False, "samples": False}})
+    with pytest.raises(OperatorStop, match="stopped by SIGTERM during start-up"):
+        runner.run(cfg, tmp_path / "o", control=control)
+    assert len(steps) <= 1  # not the 200 steps of the record
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert run.summary["exit_status"] == 5 and run.summary["steps"] == 0
+    assert "the actuators hold (confirmed by read-back)" in run.summary["stopped"]
