@@ -144,8 +144,8 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                 cleanup.callback(progress.close)
                 summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
                                      notify=notify if not as_json else (lambda line: None))
-    except DryRunRefused as exc:
-        click.echo(f"hsio run: {exc}", err=True)
+    except DryRunRefused as exc:  # from the present state, the hardware is open: its hold is told too
+        click.echo(f"hsio run: {getattr(exc, 'stop_message', None) or exc}", err=True)
         _where(exc)
         if as_json:
             click.echo(json.dumps(_summary_written(exc, 2), indent=2))

@@ -246,3 +246,22 @@ def test_a_stop_during_the_prediction_from_the_present_state_ends_it_at_once(tmp
     run = Run(tmp_path / "o" / "run.sqlite")
     assert run.summary["exit_status"] == 5 and run.summary["steps"] == 0
     assert "the actuators hold (confirmed by read-back)" in run.summary["stopped"]
+
+
+def test_hsio_run_tells_the_hold_of_a_refusal_from_the_present_state(tmp_path, monkeypatch):
+    """Refused from the present state, the hardware is open and the axes hold: the operator is
+    told so, as the record has it."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    real_state = runner._state
+    monkeypatch.setattr(runner, "_state", lambda site: {name: {"displacement_mm": 120.0, "force_kN": 0.0}
+                                                         for name in (real_state(site) or {})})
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[record]\nsynthetic_duration_s = 1.0\npga_g = 0.6\n[test]\nstart = "present"\n'
+                   '[output]\nplots = false\n[safety]\nkeys = false\n')
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2, result.output
+    assert "from the present state" in result.output
+    assert "EXCEEDS" in result.output and "the actuators hold (confirmed by read-back)" in result.output
