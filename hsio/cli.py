@@ -189,7 +189,8 @@ def resume(run_dir: str, max_gap_mm: float) -> None:
     except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         status = exit_status(exc)
-        click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{str(exc) or 'interrupted'}", err=True)
+        told = getattr(exc, "stop_message", None) or str(exc) or "interrupted"
+        click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{told}", err=True)
         sys.exit(status)
     click.echo(f"resumed from step {summary['resumed_from']}: {summary['steps']} steps in {run_dir}/run.sqlite")
 

@@ -183,6 +183,7 @@ def test_actuators_far_from_where_the_record_stops_are_not_resumed(tmp_path):
     assert result.exit_code == 2, result.output
     assert "C1 stands -1.046 mm from the record's last step" in result.stderr
     assert "more than 1 mm: not resumed, nothing moved" in result.stderr and "in-process emulator" in result.stderr
+    assert "the actuators hold (confirmed by read-back)" in result.stderr  # opened, held, told
     run = Run(out / "run.sqlite")
     assert len(run.steps["step"]) == steps and [e["kind"] for e in run.events()][-2:] == ["resume", "stop"]
     assert run.summary["exit_status"] == 2

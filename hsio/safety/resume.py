@@ -264,6 +264,8 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
                       if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
             if held is not None:
                 reason += f"; {held.message}"
+                if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
+                    exc.stop_message = reason
             recorder.write_event(None, state.i, "stop", "", reason)
             end_state = _state(site)
         status = exit_status(error)
