@@ -180,12 +180,14 @@ def resume(run_dir: str, max_gap_mm: float) -> None:
     from hsio.safety.control import RunControl
     from hsio.safety.resume import resume as resume_run
     from hsio.safety.status import exit_status
+    from hsio.safety.terminal import KeyReader
 
     control = RunControl()
     notify = lambda line: click.echo(f"hsio resume: {line}", err=True)  # noqa: E731
     control.listeners.append(notify)
     try:
-        summary = resume_run(run_dir, control=control, notify=notify, max_gap_mm=max_gap_mm)
+        summary = resume_run(run_dir, control=control, notify=notify, max_gap_mm=max_gap_mm,
+                             keys=lambda control: KeyReader(control, notify))
     except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         status = exit_status(exc)
