@@ -426,7 +426,8 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, r
     recorder.write_event(None, 0, "dry_run", "", text)
     recorder.write_meta({"dry_run_present": present.as_dict()})
     if ledger:
-        ledger.update(run_id, override=int(bool((report.exceeded or present.exceeded) and present.override)))
+        ledger.update(run_id, dry_run={**report.as_dict(), "present": present.as_dict()},  # the check that decides
+                      override=int(bool((report.exceeded or present.exceeded) and present.override)))
     if present.refused:
         raise DryRunRefused(text)
     notify(text)

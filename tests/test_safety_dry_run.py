@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hsio import api, config, runner
+from hsio import api, config, ledger, runner
 from hsio.command import PredictorCorrector
 from hsio.recording import Run
 from hsio.safety.dry_run import check, known_limits, peak_command_velocity, predict
@@ -197,7 +197,8 @@ def test_a_present_start_checks_the_limits_the_controller_reports(tmp_path):
     try:
         cfg = config.from_dict({"record": {"synthetic_duration_s": 1.0, "pga_g": 0.6}, "test": {"start": "present"},
                                 "hardware": {"url": emulator.url, "clock": "lockstep"},
-                                "output": {"plots": False, "samples": False}})
+                                "output": {"plots": False, "samples": False},
+                                "specimen": {"folder": str(tmp_path / "spec")}})
         with pytest.raises(DryRunRefused, match="stroke_mm, force_kN as the controller reports them") as info:
             runner.run(cfg, tmp_path / "o")
     finally:
@@ -206,6 +207,9 @@ def test_a_present_start_checks_the_limits_the_controller_reports(tmp_path):
     run = Run(tmp_path / "o" / "run.sqlite")
     assert run.summary["exit_status"] == 2 and run.summary["steps"] == 0
     assert run.meta["dry_run"]["unchecked"] and not run.meta["dry_run_present"]["unchecked"]
+    (row,) = ledger.read(tmp_path / "spec")
+    assert row["outcome"] == "refused" and row["dry_run"]["present"]["refused"]  # the check that refused
+    assert not row["dry_run"]["refused"]  # from rest it was not
 
 
 def test_the_dry_run_checks_the_limits_a_driver_will_use():
