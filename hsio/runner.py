@@ -484,6 +484,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     check_instruments(config, structure)  # before the folder: an instrument that cannot be read leaves none
     inputs = fingerprints(config)  # before the folder: a file that cannot be read leaves none
     ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
+    if ledger:
+        ledger.warn = notify
     try:
         out = run_folder(config, structure, out_dir)
     except BaseException:

@@ -114,7 +114,7 @@ def open_ledger(run: Run, notify) -> Ledger | None:
         notify(f"WARNING: the specimen ledger {Path(folder) / LEDGER_FILE} the run was listed in is gone: "
                f"this resumed session is not listed")
         return None
-    return Ledger(folder, run.meta.get("specimen_id") or "")
+    return Ledger(folder, run.meta.get("specimen_id") or "", warn=notify)
 
 
 # How far an actuator may stand from the record's last measurement for a resume to go on (mm).
