@@ -144,8 +144,8 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                 cleanup.callback(progress.close)
                 summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
                                      notify=notify if not as_json else (lambda line: None))
-    except DryRunRefused as exc:
-        click.echo(f"hsio run: {exc}", err=True)
+    except DryRunRefused as exc:  # from the present state, the hardware is open: its hold is told too
+        click.echo(f"hsio run: {getattr(exc, 'stop_message', None) or exc}", err=True)
         _where(exc)
         if as_json:
             click.echo(json.dumps(_summary_written(exc, 2), indent=2))
@@ -154,7 +154,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run has held and closed: report it whole
         status = exit_status(exc)
         if isinstance(exc, ExperimentStopped) or status != 2:
-            click.echo(f"hsio run: {str(exc) or 'interrupted (Ctrl-C)'}",
+            click.echo(f"hsio run: {getattr(exc, 'stop_message', None) or str(exc) or 'interrupted (Ctrl-C)'}",
                        err=True)
         else:
             click.echo(f"hsio run: error: {exc}", err=True)
@@ -180,16 +180,19 @@ def resume(run_dir: str, max_gap_mm: float) -> None:
     from hsio.safety.control import RunControl
     from hsio.safety.resume import resume as resume_run
     from hsio.safety.status import exit_status
+    from hsio.safety.terminal import KeyReader
 
     control = RunControl()
     notify = lambda line: click.echo(f"hsio resume: {line}", err=True)  # noqa: E731
     control.listeners.append(notify)
     try:
-        summary = resume_run(run_dir, control=control, notify=notify, max_gap_mm=max_gap_mm)
+        summary = resume_run(run_dir, control=control, notify=notify, max_gap_mm=max_gap_mm,
+                             keys=lambda control: KeyReader(control, notify))
     except (ExperimentStopped, KeyboardInterrupt, HsioError) as exc:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         status = exit_status(exc)
-        click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{str(exc) or 'interrupted'}", err=True)
+        told = getattr(exc, "stop_message", None) or str(exc) or "interrupted"
+        click.echo(f"hsio resume: {'error: ' if status == 2 else ''}{told}", err=True)
         sys.exit(status)
     click.echo(f"resumed from step {summary['resumed_from']}: {summary['steps']} steps in {run_dir}/run.sqlite")
 

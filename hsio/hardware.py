@@ -70,6 +70,19 @@ def check_options(url: str, options: dict | None = None) -> None:
         check(url, controller_options(options))
 
 
+def driver_options(url: str, options: dict | None = None) -> dict | None:
+    """The options the backend of ``url`` will read, checked: its defaults, the [driver] table and
+    the URL's query (the query wins), where its module names ``DEFAULT_OPTIONS`` and ``RULES``
+    (hsio's drivers); None for a backend that does not."""
+    module, _ = _backend(url)
+    defaults, rules = getattr(module, "DEFAULT_OPTIONS", None), getattr(module, "RULES", None)
+    if defaults is None or rules is None:
+        return None
+    from hsio.drivers.common import parse_options
+
+    return parse_options(url, controller_options(options), defaults, rules)
+
+
 def input_files(url: str, options: dict | None = None) -> list[tuple[str, Path]]:
     """``(what, path)`` of each file that the backend of ``url`` reads when it opens (its module's
     ``input_files(url, options)``, where it defines one: a register map, an EDS), and the external

@@ -34,8 +34,11 @@ def _now() -> str:
 class Ledger:
     """The ledger of the specimen kept in ``folder`` (created if needed)."""
 
-    def __init__(self, folder: str | Path, specimen_id: str = ""):
+    WAIT_S = 10.0  # how long a write waits for another program that holds the ledger
+
+    def __init__(self, folder: str | Path, specimen_id: str = "", warn=None):
         self.folder = Path(folder)
+        self.warn = warn or (lambda line: None)  # hears a row that could not be updated
         if self.folder.exists() and not self.folder.is_dir():
             raise ConfigError(f"specimen folder {self.folder}: this is a file, not a folder; name a folder for the "
                               f"specimen's ledger")
@@ -53,7 +56,7 @@ class Ledger:
                               f"name another specimen folder") from None
 
     def _open(self, specimen_id: str) -> None:
-        self.db = sqlite3.connect(self.path, timeout=10.0)
+        self.db = sqlite3.connect(self.path, timeout=self.WAIT_S)
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")
         self.db.execute("CREATE TABLE IF NOT EXISTS specimen (key TEXT PRIMARY KEY, value TEXT)")
@@ -81,24 +84,43 @@ class Ledger:
         self.db.commit()
 
     def begin(self, run_dir: str | Path, config: dict, structure: str, record: str, version: str) -> int:
-        """A new row for a run that starts now; returns its id."""
-        cur = self.db.execute(
-            "INSERT INTO runs (specimen, run_dir, started, version, structure, record, config, override, outcome) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?, 0, 'running')",
-            (self.specimen_id, str(Path(run_dir).resolve()), _now(), version, structure, record,
-             json.dumps(config, default=str)))
-        self.db.commit()
+        """A new row for a run that starts now; returns its id. A ledger that cannot take it (locked
+        by another program beyond the wait, a full disk) is a ConfigError: the run does not start
+        unlisted."""
+        try:
+            cur = self.db.execute(
+                "INSERT INTO runs (specimen, run_dir, started, version, structure, record, config, override, "
+                "outcome) VALUES (?, ?, ?, ?, ?, ?, ?, 0, 'running')",
+                (self.specimen_id, str(Path(run_dir).resolve()), _now(), version, structure, record,
+                 json.dumps(config, default=str)))
+            self.db.commit()
+        except sqlite3.Error as exc:
+            self._rollback()
+            raise ConfigError(f"specimen ledger {self.path}: cannot list the run in it ({exc}); nothing was sent to "
+                              f"the actuators (another program holding the ledger open for writing must let go)") from None
         return int(cur.lastrowid)
 
+    def _rollback(self) -> None:
+        try:
+            self.db.rollback()
+        except sqlite3.Error:
+            pass
+
     def update(self, run_id: int, **values) -> None:
-        """Set columns of a run's row (start_state, end_state, dry_run, override, ...)."""
+        """Set columns of a run's row (start_state, end_state, dry_run, override, ...). A ledger that
+        cannot take it (locked by another program beyond the wait) is told to ``warn``, not raised."""
         bad = set(values) - set(_COLUMNS)
         if bad:
             raise ValueError(f"ledger: unknown columns {sorted(bad)}")
         cols = ", ".join(f"{k} = ?" for k in values)
         args = [json.dumps(v, default=str) if k in _JSON else v for k, v in values.items()]
-        self.db.execute(f"UPDATE runs SET {cols} WHERE id = ?", (*args, run_id))
-        self.db.commit()
+        try:
+            self.db.execute(f"UPDATE runs SET {cols} WHERE id = ?", (*args, run_id))
+            self.db.commit()
+        except sqlite3.Error as exc:  # the run goes on or ends as it would: its record has what is missed here
+            self._rollback()
+            self.warn(f"WARNING: the specimen ledger {self.path} could not be updated ({exc}): its row {run_id} "
+                      f"lacks {', '.join(values)} of this run; the run's record (run.sqlite, summary.json) has them")
 
     def finish(self, run_id: int, outcome: str, exit_status: int, message: str = "", end_state=None) -> None:
         self.update(run_id, ended=_now(), outcome=outcome, exit_status=int(exit_status), message=message,

@@ -24,7 +24,7 @@ from hsio.config import BOUNDS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.emulators.servo import ServoConfig
 from hsio.errors import ConfigError, HsioError, RecordError
-from hsio.experiment import ExperimentStopped
+from hsio.experiment import ExperimentStopped, write_events
 from hsio.hardware import check_options
 from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
@@ -361,7 +361,40 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     return ns, report
 
 
-def _dry_run_from_present(config: RunConfig, structure: Structure, ground: GroundMotion, report,
+class _StopOnly:
+    """A run's control as the NS from the present state sees it: a stop (key, socket, signal) ends
+    that NS at once; a pause waits for the first step of the test (the actuators hold meanwhile)."""
+
+    def __init__(self, control: RunControl):
+        self.control = control
+
+    def checkpoint(self, site, step: int, log=None) -> None:
+        self.control.check_stop()
+
+
+def ns_from_present(config: RunConfig, structure: Structure, ground: GroundMotion, start_state: dict | None,
+                    control: RunControl | None = None):
+    """NS of a run that starts where the specimen stands (``[test] start = "present"``): each
+    specimen model about the measured displacement and force of its actuator, the numerical DOFs
+    in static equilibrium, v = 0. None through setups or where the present state could not be
+    read (the prediction from rest is all there is then). A stop asked of ``control`` meanwhile is
+    raised (OperatorStop) at the next step of that NS."""
+    if structure.has_setups or not start_state or "error" in start_state:
+        return None
+    standing = list(start_state.values())[:len(structure.experimental)]  # element actuators first, in order
+    u0 = [v["displacement_mm"] for v in standing]
+    R0 = [v["force_kN"] for v in standing]
+    site = StandingSite([e.model() for e in structure.experimental], u0, R0)
+    try:
+        return api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present",
+                            control=_StopOnly(control) if control is not None else None)
+    except ExperimentStopped as exc:
+        if isinstance(exc.cause, (OperatorStop, KeyboardInterrupt)):
+            raise exc.cause from None  # the run's stop, not a step of this prediction
+        raise
+
+
+def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, report, site,
                           start_state: dict | None, safety: SafetySettings, recorder, notify, ledger, run_id) -> None:
     """Check the test again from where the specimen stands, read when the hardware opened and
     before the first command (docs/safety.md section 2); refuse as the dry run does.
@@ -369,7 +402,9 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ground: Groun
     Elements loaded by one actuator each: NS from the present state (each specimen model about
     the measured displacement and force, the numerical DOFs in static equilibrium, v = 0: the
     free vibration the offset starts is in the prediction). Through setups: the prediction from
-    rest shifted by each actuator's present stroke and force."""
+    rest shifted by each actuator's present stroke and force. A limit that [driver] does not give
+    is checked against the one the controller reported when the hardware opened (the smallest of
+    the actuators')."""
     if not start_state or "error" in start_state:
         raise DryRunRefused("dry run from the present state: the actuators' present state could not be read "
                             f"({(start_state or {}).get('error', 'no feedback')}); no command was sent")
@@ -377,21 +412,22 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ground: Groun
         prediction = from_present(report.prediction, start_state)
         how = "NS from rest plus where each actuator stands"
     else:
-        n = len(structure.experimental)
-        standing = list(start_state.values())[:n]  # the element actuators, in order (static preloads after)
-        u0 = [v["displacement_mm"] for v in standing]
-        R0 = [v["force_kN"] for v in standing]
-        site = StandingSite([e.model() for e in structure.experimental], u0, R0)
-        ns = api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present")
         test = config["test"]
-        prediction = predict_peaks(ns, test["rate"] * structure.dt, test["hold_fraction"])
+        prediction = predict_peaks(ns_present, test["rate"] * structure.dt, test["hold_fraction"])
         how = "NS from where the specimen stands"
-    present = check(prediction, report.limits, report.source, safety)
+    limits, source = dict(report.limits), report.source
+    unknown = [key for key, value in limits.items() if value is None]
+    if unknown:  # not in [driver]: the controller has reported them now that the hardware is open
+        reported = [actuator.limits for actuator in site.loop.actuators]
+        limits.update({key: min(float(getattr(lim, key)) for lim in reported) for key in unknown})
+        source += f"; {', '.join(unknown)} as the controller reports them"
+    present = check(prediction, limits, source, safety)
     text = f"from the present state ({how}):\n" + present.text()
     recorder.write_event(None, 0, "dry_run", "", text)
     recorder.write_meta({"dry_run_present": present.as_dict()})
     if ledger:
-        ledger.update(run_id, override=int(bool((report.exceeded or present.exceeded) and present.override)))
+        ledger.update(run_id, dry_run={**report.as_dict(), "present": present.as_dict()},  # the check that decides
+                      override=int(bool((report.exceeded or present.exceeded) and present.override)))
     if present.refused:
         raise DryRunRefused(text)
     notify(text)
@@ -448,6 +484,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     check_instruments(config, structure)  # before the folder: an instrument that cannot be read leaves none
     inputs = fingerprints(config)  # before the folder: a file that cannot be read leaves none
     ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
+    if ledger:
+        ledger.warn = notify
     try:
         out = run_folder(config, structure, out_dir)
     except BaseException:
@@ -496,7 +534,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                     notify(report.text())
                 if not config["output"]["ns"]:
                     ns = None
-            if ns is not None:
+            present = test["start"] == "present"
+            if ns is not None and not present:  # a present start: NS from where the specimen stands, below
                 recorder.write_ns(ns.t, ns.u)
             integrator = api.make_integrator(structure, method, alpha, **integrator_options(config, structure, predicted))
             control.enter("start-up")
@@ -523,9 +562,15 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             if not hardware["url"].startswith("emulator") and (config["emulator"] or hardware["actuator_model"]):
                 notify(f"[emulator] and [hardware] actuator_model are not read by a run on {hardware['url']}: they "
                        f"set the emulated controller (`hsio emulate ... CONFIG`), not the real one")
-            if test["start"] == "present" and report is not None:
-                _dry_run_from_present(config, structure, ground, report, start_state, safety, recorder, notify,
-                                      ledger, run_id)
+            if present:  # what HS is compared with: NS from the same start, not from rest
+                ns_present = ns_from_present(config, structure, ground, start_state, control) \
+                    if ns is not None or report is not None else None
+                if report is not None:
+                    _dry_run_from_present(config, structure, ns_present, report, site, start_state, safety,
+                                          recorder, notify, ledger, run_id)
+                if ns is not None:
+                    ns = ns_present if ns_present is not None else ns
+                    recorder.write_ns(ns.t, ns.u)
             compensation.sink = recorder.write_compensation
             control.check_stop()
             control.enter("HS")
@@ -556,6 +601,10 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                       if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
             if hold is not None:
                 reason += f"; {hold.message}"
+                write_events(recorder, site, 0)  # a trip before the steps (in the ramp in of static preloads)
+                recorder.write_event(site.lab_time_s, 0, "hold", "", hold.message, commit=False)
+                if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
+                    exc.stop_message = reason
             recorder.write_event(None, 0, "stop", "", reason)
             summary = {"structure": structure.name, "record": ground.name, "steps": 0, "stopped": reason,
                        "run_file": str(out / RUN_FILE), "end_state": _state(site)}
@@ -574,6 +623,10 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
                     summary["plots"].append(str(plots.control_modes(out / "modes.png", hs)))
             except OSError as exc:
                 notify(f"WARNING: the plots could not be written to {out} ({exc.strerror or exc})")
+            except KeyboardInterrupt:  # the run is over, held and recorded: a second Ctrl-C ends the plots only
+                summary.pop("plots", None)
+                notify(f"WARNING: the plots were not written to {out} (interrupted by Ctrl-C); the run ended as "
+                       f"recorded ({summary['outcome']})")
             write_summary(out, recorder, summary, notify)
     if error is not None:
         error.run_dir = out

@@ -455,7 +455,7 @@ def test_the_dry_run_checks_a_driver_limit_it_reads():
     with pytest.raises(ConfigError, match="velocity_mm_s must be positive"):
         known_limits("modbus+tcp://127.0.0.1:5020", {}, {"velocity_mm_s": -5.0})
     limits, source = known_limits("modbus+tcp://127.0.0.1:5020", {}, {"stroke_mm": 200})
-    assert limits == {"stroke_mm": 200.0, "force_kN": None, "velocity_mm_s": None} and source == "[driver]"
+    assert limits == {"stroke_mm": 200.0, "force_kN": None, "velocity_mm_s": 500.0} and source == "[driver]"
 
 
 @pytest.mark.parametrize("key, value", [("following_time_s", 1e12), ("following_error_mm", 1e9), ("jump_kN", 1e9),

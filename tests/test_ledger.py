@@ -71,3 +71,30 @@ def test_a_specimen_folder_that_is_a_file_is_named_so_before_the_run_folder(tmp_
     with pytest.raises(ConfigError, match="specimen folder .*s: this is a file, not a folder"):
         runner.run(cfg, tmp_path / "out")
     assert not (tmp_path / "out").exists() and (tmp_path / "s").read_text() == "notes\n"
+
+
+def test_a_ledger_held_by_another_program_is_told_not_raised_once_the_run_began(tmp_path, monkeypatch):
+    """Another program holding the ledger open for writing (a database browser): a run cannot
+    begin unlisted (a clear error), and one under way is not ended by it: the row that could not
+    be completed is a warning, and the run keeps its outcome and its record."""
+    monkeypatch.setattr(ledger.Ledger, "WAIT_S", 0.05)
+    spec = {"id": "wall-09", "folder": str(tmp_path / "wall-09")}
+    base = {"record": {"duration_s": 0.2}, "output": {"plots": False}, "specimen": spec}
+    runner.run(config.from_dict(base), tmp_path / "a")
+    other = sqlite3.connect(tmp_path / "wall-09" / ledger.LEDGER_FILE, isolation_level=None)
+    real_finish, heard = ledger.Ledger.finish, []
+
+    def held_meanwhile(self, *args, **kwargs):  # the other program takes the ledger as the run ends
+        other.execute("BEGIN EXCLUSIVE")
+        return real_finish(self, *args, **kwargs)
+
+    monkeypatch.setattr(ledger.Ledger, "finish", held_meanwhile)
+    summary = runner.run(config.from_dict(base), tmp_path / "b", notify=heard.append)
+    assert summary["exit_status"] == 0
+    assert any("could not be updated (database is locked)" in line and "lacks ended, outcome" in line
+               for line in heard)
+    with pytest.raises(ConfigError, match="cannot list the run in it .database is locked."):
+        runner.run(config.from_dict(base), tmp_path / "c")
+    other.execute("COMMIT")
+    other.close()
+    assert [r["outcome"] for r in ledger.read(tmp_path / "wall-09")] == ["finished", "running"]

@@ -191,3 +191,25 @@ def test_a_pause_asked_before_the_first_step_holds_before_it():
         result = hsio.simulate(structure, ground, site, control=control)
     assert steps_at_pause == [0.0]  # not a controller period had run: no step taken
     np.testing.assert_allclose(result.u, reference.u, atol=1e-9)
+
+
+def test_an_interlock_in_the_ramp_in_is_recorded_and_told_with_the_hold(tmp_path):
+    """An axial actuator that does not follow its force ramp trips before the first step: the
+    record has the trip, the hold and the stop, and `hsio run` says the actuators hold."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+    from hsio.recording import Run
+
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[structure]\nname = "preloaded_column"\n[record]\nduration_s = 1.0\n[test]\nrate = 10.0\n'
+                   '[emulator]\nforce_lag_s = 5.0\n[output]\nplots = false\n'
+                   '[safety]\nkeys = false\nfollowing_error_kN = 2.0\nfollowing_time_s = 0.05\n')
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 4, result.output
+    assert "interlock (following) on actuator 'axial'" in result.output
+    assert "the actuators hold (confirmed by read-back)" in result.output
+    run = Run(tmp_path / "o" / "run.sqlite")
+    events = run.events()
+    assert [e["kind"] for e in events][-3:] == ["trip", "hold", "stop"]
+    assert events[-3]["actuator"] == "axial" and run.summary["steps"] == 0

@@ -183,6 +183,7 @@ def test_actuators_far_from_where_the_record_stops_are_not_resumed(tmp_path):
     assert result.exit_code == 2, result.output
     assert "C1 stands -1.046 mm from the record's last step" in result.stderr
     assert "more than 1 mm: not resumed, nothing moved" in result.stderr and "in-process emulator" in result.stderr
+    assert "the actuators hold (confirmed by read-back)" in result.stderr  # opened, held, told
     run = Run(out / "run.sqlite")
     assert len(run.steps["step"]) == steps and [e["kind"] for e in run.events()][-2:] == ["resume", "stop"]
     assert run.summary["exit_status"] == 2
@@ -238,3 +239,31 @@ def test_a_stop_recorded_only_as_an_event_is_told_at_the_resume(tmp_path):
     result = _resume(out)
     assert result.exit_code == 0, result.output
     assert f"(the run recorded its stop: {why})" in result.output
+
+
+@pytest.mark.parametrize("keys", [True, False])
+def test_a_resumed_session_takes_the_terminals_keys_as_the_run_says(tmp_path, keys):
+    """The operator's keys (p, r, s) work in a resumed session as in the run ([safety] keys): here
+    the operator presses s as the session begins, and it stops before its first step, holding."""
+    from hsio.experiment import ExperimentStopped
+    from hsio.safety.resume import resume
+    from hsio.safety.status import OperatorStop, exit_status
+
+    out = stopped_run(tmp_path, 5, extra="" if keys else "[safety]\nkeys = false\n")
+    started = []
+
+    class PressS:
+        def __init__(self, control):
+            started.append(control)
+            control.request_stop("stopped by the operator (key s)")
+
+        def close(self):
+            started.append("closed")
+
+    try:
+        summary = resume(out, keys=PressS)
+    except (ExperimentStopped, OperatorStop) as exc:
+        summary = None
+        assert exit_status(exc) == 5 and "key s" in str(exc)
+    assert (summary is None) == keys and (started[-1] == "closed" if keys else not started)
+    assert Run(out / "run.sqlite").summary["exit_status"] == (5 if keys else 0)

@@ -284,3 +284,25 @@ def test_a_pause_asked_while_the_run_resumes_is_not_answered_as_paused():
     assert control.state == "pausing"
     control.request_resume()
     assert control.state == "running"
+
+
+def test_a_ctrl_c_while_the_plots_are_drawn_ends_the_plots_not_the_finished_run(tmp_path, monkeypatch):
+    """The run is over, held and recorded when the plots are drawn: a second Ctrl-C then ends the
+    plots only, and the outcome, the exit status, summary.json and the ledger agree (finished, 0)."""
+    import json
+
+    from hsio import ledger
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "make_plots", interrupted)
+    heard = []
+    cfg = config.from_dict({"record": {"duration_s": 0.2}, "output": {"plots": True, "samples": False},
+                            "specimen": {"id": "w1", "folder": str(tmp_path / "w1")}})
+    summary = runner.run(cfg, tmp_path / "o", notify=heard.append)
+    assert summary["exit_status"] == 0 and "plots" not in summary
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["exit_status"] == 0
+    (row,) = ledger.read(tmp_path / "w1")
+    assert row["outcome"] == "finished" and row["exit_status"] == 0
+    assert any("plots were not written" in line for line in heard)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hsio import api, config, runner
+from hsio import api, config, ledger, runner
 from hsio.command import PredictorCorrector
 from hsio.recording import Run
 from hsio.safety.dry_run import check, known_limits, peak_command_velocity, predict
@@ -76,13 +76,13 @@ def test_velocity_beyond_the_margin_is_refused():
 
 def test_unknown_limits_are_named_not_guessed():
     limits, source = known_limits("modbus+tcp://127.0.0.1:5020", {}, {"stroke_mm": 200.0})
-    assert limits == {"stroke_mm": 200.0, "force_kN": None, "velocity_mm_s": None} and source == "[driver]"
+    assert limits == {"stroke_mm": 200.0, "force_kN": None, "velocity_mm_s": 500.0} and source == "[driver]"
     cfg = config.from_dict({"record": {"duration_s": 1.0}})
     s = runner.load_run_structure(cfg)
     ns = api.run_numerical(s, runner.build_record(cfg, s))
     report = check(predict(ns, 0.2, 0.5), limits, source, SafetySettings())
     text = report.text()
-    assert "not checked: force" in text and "velocity (no [driver] velocity_mm_s" in text
+    assert "not checked: force" in text and "velocity (no" not in text
     assert not report.refused
 
 
@@ -181,3 +181,91 @@ def test_hsio_check_refuses_a_compensation_that_hsio_run_would_refuse(tmp_path):
     result = CliRunner().invoke(main, ["check", str(cfg)])
     assert result.exit_code == 2, result.output
     assert "[compensation] form = 'eq2' is unstable here" in result.output
+
+
+def test_a_present_start_checks_the_limits_the_controller_reports(tmp_path):
+    """Over a driver without [driver] stroke_mm the dry run from rest cannot check the stroke; once
+    the hardware is open the controller has reported it, and the check from the present state
+    uses it: a test beyond it is refused before the first command."""
+    from hsio.commands.emulate import bank_from_config
+    from hsio.drivers import modbus_map
+    from hsio.emulators.modbus import ModbusEmulator
+
+    emu_cfg = tmp_path / "emu.toml"
+    emu_cfg.write_text("[emulator]\nstroke_mm = 25.0\n")  # +/-12.5 mm; NS predicts about 14.7 mm
+    emulator = ModbusEmulator(bank_from_config(emu_cfg, lockstep=True), modbus_map.load()).start()
+    try:
+        cfg = config.from_dict({"record": {"synthetic_duration_s": 1.0, "pga_g": 0.6}, "test": {"start": "present"},
+                                "hardware": {"url": emulator.url, "clock": "lockstep"},
+                                "output": {"plots": False, "samples": False},
+                                "specimen": {"folder": str(tmp_path / "spec")}})
+        with pytest.raises(DryRunRefused, match="stroke_mm, force_kN as the controller reports them") as info:
+            runner.run(cfg, tmp_path / "o")
+    finally:
+        emulator.stop()
+    assert "limit +/-12.5 mm" in str(info.value) and "EXCEEDS" in str(info.value)
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert run.summary["exit_status"] == 2 and run.summary["steps"] == 0
+    assert run.meta["dry_run"]["unchecked"] and not run.meta["dry_run_present"]["unchecked"]
+    (row,) = ledger.read(tmp_path / "spec")
+    assert row["outcome"] == "refused" and row["dry_run"]["present"]["refused"]  # the check that refused
+    assert not row["dry_run"]["refused"]  # from rest it was not
+
+
+def test_the_dry_run_checks_the_limits_a_driver_will_use():
+    """The URL's query wins over [driver] in the driver, and so in the dry run; the velocity
+    limit is the driver's own default where neither sets it (not the controller's)."""
+    limits, _ = known_limits("modbus+tcp://127.0.0.1:5020?stroke_mm=100&velocity_mm_s=50", {}, {"stroke_mm": 200.0})
+    assert limits == {"stroke_mm": 100.0, "force_kN": None, "velocity_mm_s": 50.0}
+    limits, _ = known_limits("canopen+slcan://127.0.0.1:5020", {}, {})
+    assert limits == {"stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0}
+
+
+def test_a_stop_during_the_prediction_from_the_present_state_ends_it_at_once(tmp_path, monkeypatch):
+    """The hardware is open while NS runs from the present state (a long record takes a while):
+    a stop asked then ends that NS at its next step, holds and closes, before any command."""
+    from hsio.safety.control import RunControl
+    from hsio.safety.status import OperatorStop
+    from hsio.sites.numerical import StandingSite
+
+    control = RunControl()
+    real_ns, steps = runner.ns_from_present, []
+    real_trial = StandingSite.set_trial
+
+    def counted(self, commands, modes):
+        steps.append(1)
+        return real_trial(self, commands, modes)
+
+    def stop_first(*args, **kwargs):
+        control.request_stop("stopped by SIGTERM during start-up")
+        return real_ns(*args, **kwargs)
+
+    monkeypatch.setattr(StandingSite, "set_trial", counted)
+    monkeypatch.setattr(runner, "ns_from_present", stop_first)
+    cfg = config.from_dict({"record": {"synthetic_duration_s": 2.0}, "test": {"start": "present"},
+                            "output": {"plots": False, "samples": False}})
+    with pytest.raises(OperatorStop, match="stopped by SIGTERM during start-up"):
+        runner.run(cfg, tmp_path / "o", control=control)
+    assert len(steps) <= 1  # not the 200 steps of the record
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert run.summary["exit_status"] == 5 and run.summary["steps"] == 0
+    assert "the actuators hold (confirmed by read-back)" in run.summary["stopped"]
+
+
+def test_hsio_run_tells_the_hold_of_a_refusal_from_the_present_state(tmp_path, monkeypatch):
+    """Refused from the present state, the hardware is open and the axes hold: the operator is
+    told so, as the record has it."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    real_state = runner._state
+    monkeypatch.setattr(runner, "_state", lambda site: {name: {"displacement_mm": 120.0, "force_kN": 0.0}
+                                                         for name in (real_state(site) or {})})
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[record]\nsynthetic_duration_s = 1.0\npga_g = 0.6\n[test]\nstart = "present"\n'
+                   '[output]\nplots = false\n[safety]\nkeys = false\n')
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2, result.output
+    assert "from the present state" in result.output
+    assert "EXCEEDS" in result.output and "the actuators hold (confirmed by read-back)" in result.output

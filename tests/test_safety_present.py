@@ -110,3 +110,35 @@ def test_the_standing_site_refuses_force_control_and_multi_dof_elements():
         StandingSite([LinearMatrix(np.eye(2))], [0.0, 0.0], [0.0, 0.0])
     with pytest.raises(HsioError, match="2 elements, got 1 displacements"):
         StandingSite([Linear(1.0), Linear(2.0)], [0.0], [0.0, 0.0])
+
+
+def test_a_present_start_is_compared_with_ns_from_where_the_specimen_stands(tmp_path):
+    """A record started where an earlier one left the specimen displaced (a constant ground
+    acceleration holds it about 5 mm out) is compared with NS from that state: the free vibration
+    back to rest is in both, so HS and NS agree; NS from rest (nothing moves) would not."""
+    from hsio import config as config_mod
+    from hsio import runner
+    from hsio.commands.emulate import bank_from_config
+    from hsio.drivers import modbus_map
+    from hsio.emulators.modbus import ModbusEmulator
+    from hsio.ground_motion import GroundMotion
+    from wire import QUIET_SENSORS, write_config
+
+    dt = get_structure("validation").dt
+    push = GroundMotion("push", dt, np.minimum(np.arange(400) / 10.0, 1.0) * 0.2)  # 0.2 g, held until it settles
+    still = GroundMotion("still", dt, np.zeros(40))
+    emu_cfg = write_config(tmp_path, duration=0.0, rate=2.0, extra=QUIET_SENSORS, name="emu.toml")
+    emulator = ModbusEmulator(bank_from_config(emu_cfg, lockstep=True), modbus_map.load()).start()
+    try:
+        cfg = config_mod.load(emu_cfg)
+        cfg["hardware"]["url"] = emulator.url
+        runner.run(cfg, tmp_path / "first", ground=push)
+        cfg["test"]["start"] = "present"
+        summary = runner.run(cfg, tmp_path / "second", ground=still)
+    finally:
+        emulator.stop()
+    run = Run(tmp_path / "second" / "run.sqlite")
+    standing = run.meta["start_state"]["C1"]["displacement_mm"]
+    assert abs(standing) > 2.0  # the first record left the specimen displaced
+    assert run.ns["u_C1"][0] == pytest.approx(standing, abs=0.05)  # NS starts where HS starts
+    assert summary["max_error_pct"] < 2.0, summary["max_error_pct"]

@@ -154,7 +154,9 @@ def from_present(prediction: Prediction, state: dict) -> Prediction:
 
 def known_limits(url: str, emulator: dict, driver: dict) -> tuple[dict, str]:
     """The limits known before the hardware opens: {stroke_mm, force_kN, velocity_mm_s} (None:
-    unknown) and where they come from."""
+    unknown) and where they come from. A driver's are those it will use: [driver], the URL's query
+    where it sets one (the query wins), the driver's default (velocity_mm_s); stroke and force
+    capacity not set there are the controller's, known only once the hardware opens."""
     if url.startswith("emulator"):
         from hsio.emulators.local import _settings
         from hsio.emulators.servo import ServoConfig
@@ -163,8 +165,13 @@ def known_limits(url: str, emulator: dict, driver: dict) -> tuple[dict, str]:
         return ({"stroke_mm": cfg.stroke_mm, "force_kN": cfg.force_limit_kN, "velocity_mm_s": cfg.velocity_limit_mm_s},
                 "[emulator]")
     from hsio.drivers.common import COMMON_RULES
+    from hsio.hardware import driver_options
 
-    return {k: (float(COMMON_RULES[k].check(url, k, driver[k])) if driver.get(k) is not None else None)
+    table = driver_options(url, driver)  # as the driver reads them: its defaults, [driver], the URL's query
+    if table is None:  # a backend that does not say: [driver] as given
+        table = {k: (COMMON_RULES[k].check(url, k, driver[k]) if driver.get(k) is not None else None)
+                 for k in ("stroke_mm", "force_kN", "velocity_mm_s")}
+    return {k: (float(table[k]) if table.get(k) is not None else None)
             for k in ("stroke_mm", "force_kN", "velocity_mm_s")}, "[driver]"
 
 

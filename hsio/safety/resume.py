@@ -114,7 +114,7 @@ def open_ledger(run: Run, notify) -> Ledger | None:
         notify(f"WARNING: the specimen ledger {Path(folder) / LEDGER_FILE} the run was listed in is gone: "
                f"this resumed session is not listed")
         return None
-    return Ledger(folder, run.meta.get("specimen_id") or "")
+    return Ledger(folder, run.meta.get("specimen_id") or "", warn=notify)
 
 
 # How far an actuator may stand from the record's last measurement for a resume to go on (mm).
@@ -152,10 +152,12 @@ def check_gaps(gap: dict[str, float], max_gap_mm: float, url: str) -> None:
 
 
 def resume(run_dir: str | Path, progress=None, control: RunControl | None = None, notify=None,
-           max_gap_mm: float = MAX_GAP_MM) -> dict:
+           max_gap_mm: float = MAX_GAP_MM, keys=None) -> dict:
     """Continue the run recorded in ``run_dir`` from its last committed step; returns the summary.
     Refused (nothing moves) where an actuator stands more than ``max_gap_mm`` from the record's
-    last measured displacement (:func:`check_gaps`)."""
+    last measured displacement (:func:`check_gaps`). ``keys`` (a callable taking ``control``,
+    returning an object with ``close()``: the terminal's keys, :class:`hsio.safety.terminal.KeyReader`)
+    is started as the run's ``[safety] keys`` says, for the session."""
     from hsio.runner import (_state, build_record, check_dwell, format_state, integrator_options,
                              load_run_structure, write_summary)
 
@@ -215,6 +217,8 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             server = ControlServer(run_dir, control)
             cleanup.callback(server.close)
             recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
+        if keys is not None and safety.keys:
+            cleanup.callback(keys(control).close)
         why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
         recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
         notify(f"resuming {path} after step {state.i}" + (f" (the run recorded its stop: {why})" if why else ""))
@@ -264,6 +268,8 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
                       if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
             if held is not None:
                 reason += f"; {held.message}"
+                if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
+                    exc.stop_message = reason
             recorder.write_event(None, state.i, "stop", "", reason)
             end_state = _state(site)
         status = exit_status(error)
