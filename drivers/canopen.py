@@ -184,6 +184,7 @@ class DriveNode:
         self.limits_counts = (0, 0)
         self.watchdog_s = 0.0  # host watchdog time (0x2103, where the drive has it; 0: off or unknown)
         self.enabling = False  # set once the drive may be enabled: a failure must disable it
+        self.operating = False  # taken to OPERATION ENABLED by the driver: it must stay there
 
     def sdo_read(self, index: int, sub: int = 0, what: str = ""):
         """An SDO upload; an object missing from the local dictionary is read as an unsigned
@@ -268,6 +269,10 @@ class DriveNode:
             text = cod.EMCY_TEXT.get(e.code, e.get_desc())
             error = InterlockError if e.code in (0x7320, 0x2310, 0x5000, 0x8130, 0x8612) else CommunicationError
             raise error(f"CANopen node {self.id}: EMCY 0x{e.code:04X} ({text}), error register 0x{e.register:02X}")
+        word = self.node.tpdo_values.get(0x6041)
+        if self.operating and word is not None and word & 0x6F != 0x27:
+            raise InterlockError(f"CANopen node {self.id} left OPERATION ENABLED (statusword 0x{word:04X}, "
+                                 f"{self.node.state}) without an EMCY: it no longer follows its targets")
 
     def displacement_mm(self) -> float:
         return self.actual[0] / self.counts_per_mm
@@ -493,6 +498,7 @@ class CanopenLink(common.AxisLink):
         mode = d.sdo_read(0x6061, what="modes of operation display")
         if mode != cod.CSP:
             raise CommunicationError(f"CANopen node {d.id}: mode {mode} after asking for cyclic synchronous position (8)")
+        d.operating = True
         d.check_events()
 
     def disable(self) -> None:
@@ -504,6 +510,7 @@ class CanopenLink(common.AxisLink):
                 continue
             d.halt = True
             d.mode = ControlMode.DISPLACEMENT
+            d.operating = False
             try:
                 d.sdo_write(0x6040, 0x0107, "controlword (halt, disable operation)")
             except CommunicationError as exc:

@@ -303,3 +303,36 @@ def test_a_drive_opened_where_it_stands_reads_there_before_the_first_sync(drive)
         assert np.abs(first.commands - stands).max() < POSITION_RESOLUTION_MM
     finally:
         site.close()
+
+
+def test_a_drive_that_leaves_operation_enabled_without_emcy_stops_the_exchange(cfg):
+    """A drive quick-stopped by its own input (or switched off by another master) reports the
+    new state in its TPDO1 and sends no EMCY: it no longer follows its targets, so the next
+    period stops with an InterlockError naming the node, not half a second of a held actuator
+    read as the specimen's response. The quick-stopped drive reads back as holding."""
+    from hsio.emulators.canopen import QSA
+    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), channel(), node_id=3).start()
+    clock = LockstepClock()
+    acts = open_link(emu.url, ["C1", "C2"], clock)
+    try:
+        for _ in range(5):
+            for a in acts:
+                a.command(0.01)
+            clock.tick()
+            [a.feedback() for a in acts]
+        drive = emu.axes[1]
+        with emu.bank.lock:
+            drive.state = QSA
+            drive.apply_targets()
+        drive.send_tpdo1()
+        time.sleep(0.05)
+        with pytest.raises(InterlockError, match=r"node 4 left OPERATION ENABLED \(statusword 0x.*QUICK STOP ACTIVE"):
+            for _ in range(20):
+                for a in acts:
+                    a.command(0.02)
+                clock.tick()
+                [a.feedback() for a in acts]
+        assert acts[1].holding() is True
+    finally:
+        acts[0].link.close()
+        emu.stop()
