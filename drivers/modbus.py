@@ -48,6 +48,7 @@ EXCEPTION_NAMES = {
     5: "acknowledge", 6: "device busy", 8: "memory parity error", 10: "gateway path unavailable",
     11: "gateway target failed to respond",
 }
+ILLEGAL_ADDRESS = 2  # the answer of a controller that lacks an optional register
 SEQ_MOD = 1 << 24
 FROZEN_S = 0.5  # real time: a sequence register unchanged this long means the controller's loop stopped
 PARITIES = ("N", "E", "O")  # Modbus RTU: 8 data bits, parity none, even (the standard's default) or odd
@@ -172,8 +173,10 @@ class ModbusLink(common.AxisLink):
             try:
                 flag = self.map.decode(reg, self.request("read_holding_registers", reg.address, count=reg.words,
                                                          what="read of the lockstep flag").registers)
-            except ModbusExceptionError:
-                pass  # a real controller has no lockstep register
+            except ModbusExceptionError as exc:
+                if exc.code != ILLEGAL_ADDRESS:
+                    raise
+                # a real controller has no lockstep register
         self.lockstep = flag == 1.0
         if self.options["lockstep"] == "on" and not self.lockstep:
             raise CommunicationError(f"{self.url}: lockstep requested but the controller runs on its own clock")
@@ -277,7 +280,9 @@ class ModbusLink(common.AxisLink):
         for name, reg in self.map.info.items():
             try:
                 rr = self.request("read_holding_registers", reg.address, count=reg.words, what=f"read of {name}")
-            except ModbusExceptionError:
+            except ModbusExceptionError as exc:
+                if exc.code != ILLEGAL_ADDRESS:
+                    raise
                 continue  # the controller lacks this info register
             self.info[name] = self.map.decode(reg, rr.registers)
         boot = self.info.get("boot_id")
