@@ -140,6 +140,11 @@ class ModbusLink(common.AxisLink):
         rate = self.info.get("rate_hz", 1024.0)
         return rate if math.isfinite(rate) and 1.0 <= rate <= 1e6 else 1024.0
 
+    @property
+    def reported_rate_hz(self) -> float | None:
+        """The loop rate the controller reports (its rate_hz info register), or None."""
+        return common.reported(self.info.get("rate_hz"))
+
     # -- connection ------------------------------------------------------------------------------
     def _make_client(self, url: str):
         parts = common.split_url(url)
