@@ -458,6 +458,7 @@ class ModbusActuator(Actuator, ActuatorChannels):
         self.limits = limits
         self._mode = ControlMode.DISPLACEMENT
         self._closed = False
+        self._seen_enabled = False  # the status showed the axis following since the host enabled it
         self.plausibility = common.Plausibility(f"actuator {name!r} at {link.url}", limits,
                                                 1.0 / link.rate_hz, link.options)
 
@@ -512,6 +513,16 @@ class ModbusActuator(Actuator, ActuatorChannels):
             raise InterlockError(
                 f"actuator {self.name!r} at {self.link.url}: the controller's host watchdog expired "
                 f"(no command for more than {self.link.info.get('watchdog_s', 0):g} s); it holds")
+        # Enabled by the host and seen following, then no longer following with neither latch
+        # bit set (a stop at the controller's panel, hydraulics off): the measurements would be
+        # those of an axis that does not follow its commands.
+        if not self.link.commands[self.axis]["enable"]:
+            self._seen_enabled = False
+        elif bit(word, "enabled"):
+            self._seen_enabled = True
+        elif self._seen_enabled:
+            raise InterlockError(f"actuator {self.name!r} at {self.link.url}: the controller no longer follows the "
+                                 f"commands (its enabled bit cleared, status word {int(word)}); the run stops")
 
     def hold(self) -> None:
         """Hold the present position: enable off, one write (no retries beyond the link's)."""
