@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 from urllib.parse import urlsplit
 
+import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.pdu import ExceptionResponse
@@ -279,7 +280,21 @@ class ModbusLink(common.AxisLink):
             if parts.scheme.endswith("tcp"):  # name the port tried, the default one when the URL gives none
                 where = f" to {parts.hostname}:{parts.port or 502}"
                 default = "" if parts.port else " (the Modbus TCP default port; the URL gives none)"
+            elif ok is False and why.startswith("connection refused"):
+                why = self._serial_refusal()
             raise CommunicationError(f"{self.url}: cannot connect{where}{default} ({why})")
+
+    def _serial_refusal(self) -> str:
+        """Why the serial port did not open (pymodbus only logs it): pyserial's own error, from
+        one more opening with the same settings."""
+        params = self.client.comm_params
+        try:
+            serial.serial_for_url(params.host, baudrate=params.baudrate, parity=params.parity, stopbits=params.stopbits,
+                                  bytesize=params.bytesize, exclusive=True).close()
+        except Exception as exc:  # pyserial raises SerialException, termios.error, ValueError
+            return (f"serial port {params.host!r} with baudrate {params.baudrate}, parity {params.parity}, stop bits "
+                    f"{params.stopbits}: {type(exc).__name__}: {exc}")
+        return f"serial port {params.host!r} unavailable"
 
     def _read_info(self) -> None:
         for name, reg in self.map.info.items():
