@@ -345,6 +345,10 @@ class CanopenLink(common.AxisLink):
     def __init__(self, url: str, n_axes: int, options: dict | None = None):
         self.url = url
         self.interface, self.channel, self.node_id, self.options = parse_url(url, options)
+        if self.node_id + n_axes - 1 > 127:
+            raise ConfigError(f"{url!r}: {n_axes} axes are nodes {self.node_id}..{self.node_id + n_axes - 1}, beyond "
+                              "the CANopen node ids 1..127 (axis k is node NODE + k); start at node "
+                              f"{128 - n_axes} or lower")
         self.n = n_axes
         self.network = canopen.Network()
         self.lockstep = False

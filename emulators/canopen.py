@@ -262,6 +262,10 @@ class CanopenEmulator:
             raise ConfigError(f"emulated CANopen drive: rate_hz = {bank.rate_hz:g} in lockstep, where each SYNC is "
                               f"one period of the experiment's {CONTROLLER_RATE_HZ:g} Hz clock; leave rate_hz at "
                               f"{CONTROLLER_RATE_HZ:g} or run in real time")
+        last = node_id + len(bank.controllers) - 1
+        if not 1 <= node_id <= last <= 127:
+            raise ConfigError(f"emulated CANopen drive: {len(bank.controllers)} axes from node {node_id} are nodes "
+                              f"{node_id}..{last}, outside the CANopen node ids 1..127")
         self.bank = bank
         if faults is not None:
             bank.faults = faults
@@ -495,10 +499,10 @@ class SlcanPort:
 def slcan_emulator(bank: ControllerBank, kind: str = "pty", node_id: int = 1, port: int = 0, **kwargs) -> "CanopenEmulator":
     """A :class:`CanopenEmulator` on an SLCAN port (started); ``emulator.url`` is the driver's URL."""
     slcan = SlcanPort(kind, port=port)
-    emulator = CanopenEmulator(bank, slcan.server_path, node_id, "slcan",
-                               bus_options={"sleep_after_open": 0.0, "bitrate": 1000000}, **kwargs)
-    emulator.slcan = slcan
     try:
+        emulator = CanopenEmulator(bank, slcan.server_path, node_id, "slcan",
+                                   bus_options={"sleep_after_open": 0.0, "bitrate": 1000000}, **kwargs)
+        emulator.slcan = slcan
         return emulator.start()
     except BaseException:
         slcan.close()

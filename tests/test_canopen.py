@@ -336,3 +336,13 @@ def test_a_drive_that_leaves_operation_enabled_without_emcy_stops_the_exchange(c
     finally:
         acts[0].link.close()
         emu.stop()
+
+
+def test_axes_beyond_node_127_are_refused(cfg):
+    """Axis k is node NODE + k; node ids end at 127 (node 128's EMCY would be 0x100, the TIME
+    object's COB-ID). Both the driver and the emulator refuse before anything opens."""
+    with pytest.raises(ConfigError, match=r"2 axes are nodes 127\.\.128, beyond the CANopen node ids 1\.\.127.*node 126"):
+        CanopenLink("canopen+virtual://nobody/127", 2)
+    CanopenLink("canopen+virtual://nobody/126", 2)
+    with pytest.raises(ConfigError, match=r"nodes 127\.\.128, outside the CANopen node ids 1\.\.127"):
+        CanopenEmulator(bank_from_config(cfg, lockstep=True), channel(), node_id=127)
