@@ -437,8 +437,10 @@ class CanopenLink(common.AxisLink):
     def _scaling(self, d: DriveNode) -> float:
         """Position counts per mm: [driver] counts_per_mm where set, else the drive's position
         factor 0x6093 (numerator / divisor: counts per mm, the drive's user unit being the mm),
-        else its feed constant 0x6092 (feed per revolution in mm) with one revolution being
-        0x608F (encoder increments per revolution). Never guessed (docs/canopen.md)."""
+        else its feed constant 0x6092 (feed in mm per driving-shaft revolution) with the encoder
+        resolution 0x608F (increments per motor revolution) and the gear ratio 0x6091 (motor
+        revolutions per shaft revolution, 1:1 where the drive has none). Never guessed
+        (docs/canopen.md)."""
         if self.options["counts_per_mm"] is not None:
             return float(self.options["counts_per_mm"])
         num = self._read_optional(d, 0x6093, 1, "position factor numerator")
@@ -450,8 +452,14 @@ class CanopenLink(common.AxisLink):
         incs = self._read_optional(d, 0x608F, 1, "position encoder increments")
         turns = self._read_optional(d, 0x608F, 2, "position encoder motor revolutions")
         if feed and revs and incs and turns:
-            return self._checked_scale(d, (incs / turns) * revs / feed,
-                                       f"feed constant 0x6092 ({feed}/{revs}) and encoder resolution 0x608F ({incs}/{turns})")
+            # A gearbox turns the motor (where the encoder sits) gear_motor times per gear_shaft
+            # turns of the driving shaft (0x6091; a drive without one is 1:1, the standard's default).
+            gear_motor = self._read_optional(d, 0x6091, 1, "gear ratio motor revolutions")
+            gear_shaft = self._read_optional(d, 0x6091, 2, "gear ratio shaft revolutions")
+            gear = gear_motor / gear_shaft if gear_motor and gear_shaft else 1.0
+            return self._checked_scale(d, (incs / turns) * gear * revs / feed,
+                                       f"feed constant 0x6092 ({feed}/{revs}), encoder resolution 0x608F ({incs}/{turns}) "
+                                       f"and gear ratio 0x6091 ({gear:g})")
         raise ConfigError(f"{self.url} node {d.id}: the drive reports no position scaling (neither the position factor "
                           "0x6093 nor the feed constant 0x6092 with 0x608F); set [driver] counts_per_mm")
 
