@@ -631,7 +631,10 @@ class CanopenActuator(Actuator, ActuatorChannels):
         d.check_events()
         if d.halt:
             d.halt = False
-            d.send_control()
+            if not d.send_control():  # unconfirmed, the drive may still be halted: no command into the void
+                d.halt = True
+                raise CommunicationError(f"CANopen node {d.id}: no confirmation of the release of the halt within "
+                                         f"{self.link.options['timeout_s']:g} s; the drive may still hold")
         if d.mode is ControlMode.DISPLACEMENT:
             d.target_counts = int(round(value * d.counts_per_mm))
         else:

@@ -346,3 +346,22 @@ def test_axes_beyond_node_127_are_refused(cfg):
     CanopenLink("canopen+virtual://nobody/126", 2)
     with pytest.raises(ConfigError, match=r"nodes 127\.\.128, outside the CANopen node ids 1\.\.127"):
         CanopenEmulator(bank_from_config(cfg, lockstep=True), channel(), node_id=127)
+
+
+def test_a_halt_release_the_drive_does_not_confirm_is_an_error(drive):
+    """After a hold, the next command releases the halt (RPDO1); a drive that does not answer
+    with its TPDO1 may still be halted, so the command stops with an error naming the node
+    rather than going on as if the drive followed."""
+    clock = LockstepClock()
+    acts = open_link(drive.url, ["C1", "C2"], clock)
+    try:
+        acts[0].command(0.01)
+        acts[1].command(0.01)
+        clock.tick()
+        acts[0].hold()
+        drive.axes[0].send_tpdo1 = lambda: None  # the confirmation is lost
+        with pytest.raises(CommunicationError, match=r"node 1: no confirmation of the release of the halt"):
+            acts[0].command(0.02)
+        assert acts[0].drive.halt
+    finally:
+        acts[0].link.close()
