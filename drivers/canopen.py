@@ -218,6 +218,9 @@ class DriveNode:
                 raise CommunicationError(f"CANopen node {self.id}: {name} does not map {', '.join(missing)} "
                                          "(docs/canopen.md)")
         self.cycle_mapped = cod.CYCLE in {v.index for v in self.tpdo2.map}
+        if self.link.lockstep and not self.cycle_mapped:
+            raise CommunicationError(f"CANopen node {self.id}: TPDO2 does not map the cycle counter 0x{cod.CYCLE:04X}, "
+                                     "which a lockstep drive's reply must carry (docs/canopen.md)")
         self.tpdo2.add_callback(self.on_tpdo2)
 
     def on_tpdo2(self, pdo) -> None:

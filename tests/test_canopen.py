@@ -365,3 +365,15 @@ def test_a_halt_release_the_drive_does_not_confirm_is_an_error(drive):
         assert acts[0].drive.halt
     finally:
         acts[0].link.close()
+
+
+def test_a_lockstep_drive_whose_tpdo2_lacks_the_cycle_counter_is_refused_when_enabled(drive):
+    """In lockstep the reply to each SYNC is told by its cycle counter 0x2102; a TPDO2 mapping
+    without it is refused by name when the drive is enabled, not read as "lockstep lost" at the
+    first period."""
+    for axis in drive.axes:
+        axis.node.object_dictionary[0x1A01][0].default = 2  # position and torque only
+    with pytest.raises(CommunicationError, match=r"node 1: TPDO2 does not map the cycle counter 0x2102") as exc:
+        open_link(drive.url, ["C1", "C2"], LockstepClock())
+    from hsio.emulators.canopen import OE
+    assert "disabled" not in str(exc.value) and not any(axis.state == OE for axis in drive.axes)  # none enabled
