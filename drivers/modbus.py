@@ -126,6 +126,7 @@ class ModbusLink(common.AxisLink):
         self.submitted: set[int] = set()
         self.last_sequence: float | None = None
         self._sequence_seen: float | None = None  # wall-clock time the sequence last changed (real time)
+        self._last_read: float | None = None  # wall-clock time of the last status read (real time)
         self.requests = 0
         self.reconnects = 0
         self.actuators: list = []
@@ -443,6 +444,16 @@ class ModbusLink(common.AxisLink):
         not run (a stopped PLC still answering, a lockstep emulator driven with [driver]
         lockstep = "off"): its measurements are stale, and the run stops."""
         now = time.monotonic()
+        last, read_at, self._last_read = self.last_sequence, self._last_read, now
+        if last is not None and read_at is not None:
+            # A counter only wraps forwards: one that went back by less than half its range, too
+            # soon after the last read to have gone round, started again: the controller restarted
+            # (this also covers a map without a boot_id register).
+            back = (last - seq) % self.sequence_mod
+            if 0 < back < self.sequence_mod / 2 and (now - read_at) * self.rate_hz < self.sequence_mod / 4:
+                raise ControllerRestartedError(
+                    f"{self.url}: the controller's sequence register went back from {last:.0f} to {seq:.0f}: it "
+                    "restarted; its state is lost, the run stops")
         if seq != self.last_sequence or self._sequence_seen is None:
             self._sequence_seen = now
         elif now - self._sequence_seen > FROZEN_S:

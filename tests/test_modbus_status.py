@@ -74,3 +74,33 @@ def test_an_axis_that_stops_following_without_a_latch_bit_stops_the_run(tmp_path
                 period(0.1)
     finally:
         emu.stop()
+
+
+def test_a_restart_is_seen_in_the_sequence_register_without_a_boot_id(tmp_path):
+    """A lab map without the boot_id register: a controller that restarts in real time is told by
+    its sequence register going back (a counter wraps only forwards), and the run stops with
+    ControllerRestartedError instead of re-enabling a controller whose state was lost."""
+    from hsio.clock import RealTimeClock
+    from hsio.emulators.faults import parse
+    from hsio.errors import ControllerRestartedError
+    from wire import QUIET_SENSORS
+
+    text = "\n".join(line for line in modbus_map.DEFAULT_MAP.read_text().splitlines() if not line.startswith("boot_id"))
+    path = tmp_path / "no_boot_id.toml"
+    path.write_text(text)
+    regmap = modbus_map.load(path)
+    assert "boot_id" not in regmap.info
+    bank = bank_from_config(write_config(tmp_path, extra=QUIET_SENSORS), lockstep=False)
+    emu = ModbusEmulator(bank, regmap, faults=parse("restart@300")).start()
+    try:
+        clock = RealTimeClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path), "timeout_s": 0.1})
+        with pytest.raises(ControllerRestartedError, match="sequence register went back"):
+            for _ in range(3000):
+                for a in acts:
+                    a.command(0.5)
+                clock.tick()
+                [a.feedback() for a in acts]
+        assert bank.restarts == 1
+    finally:
+        emu.stop()
