@@ -184,6 +184,7 @@ class DriveNode:
         self.limits_counts = (0, 0)
         self.watchdog_s = 0.0  # host watchdog time (0x2103, where the drive has it; 0: off or unknown)
         self.enabling = False  # set once the drive may be enabled: a failure must disable it
+        self.operating = False  # taken to OPERATION ENABLED by the driver: it must stay there
 
     def sdo_read(self, index: int, sub: int = 0, what: str = ""):
         """An SDO upload; an object missing from the local dictionary is read as an unsigned
@@ -217,6 +218,9 @@ class DriveNode:
                 raise CommunicationError(f"CANopen node {self.id}: {name} does not map {', '.join(missing)} "
                                          "(docs/canopen.md)")
         self.cycle_mapped = cod.CYCLE in {v.index for v in self.tpdo2.map}
+        if self.link.lockstep and not self.cycle_mapped:
+            raise CommunicationError(f"CANopen node {self.id}: TPDO2 does not map the cycle counter 0x{cod.CYCLE:04X}, "
+                                     "which a lockstep drive's reply must carry (docs/canopen.md)")
         self.tpdo2.add_callback(self.on_tpdo2)
 
     def on_tpdo2(self, pdo) -> None:
@@ -268,6 +272,10 @@ class DriveNode:
             text = cod.EMCY_TEXT.get(e.code, e.get_desc())
             error = InterlockError if e.code in (0x7320, 0x2310, 0x5000, 0x8130, 0x8612) else CommunicationError
             raise error(f"CANopen node {self.id}: EMCY 0x{e.code:04X} ({text}), error register 0x{e.register:02X}")
+        word = self.node.tpdo_values.get(0x6041)
+        if self.operating and word is not None and word & 0x6F != 0x27:
+            raise InterlockError(f"CANopen node {self.id} left OPERATION ENABLED (statusword 0x{word:04X}, "
+                                 f"{self.node.state}) without an EMCY: it no longer follows its targets")
 
     def displacement_mm(self) -> float:
         return self.actual[0] / self.counts_per_mm
@@ -340,6 +348,10 @@ class CanopenLink(common.AxisLink):
     def __init__(self, url: str, n_axes: int, options: dict | None = None):
         self.url = url
         self.interface, self.channel, self.node_id, self.options = parse_url(url, options)
+        if self.node_id + n_axes - 1 > 127:
+            raise ConfigError(f"{url!r}: {n_axes} axes are nodes {self.node_id}..{self.node_id + n_axes - 1}, beyond "
+                              "the CANopen node ids 1..127 (axis k is node NODE + k); start at node "
+                              f"{128 - n_axes} or lower")
         self.n = n_axes
         self.network = canopen.Network()
         self.lockstep = False
@@ -428,8 +440,10 @@ class CanopenLink(common.AxisLink):
     def _scaling(self, d: DriveNode) -> float:
         """Position counts per mm: [driver] counts_per_mm where set, else the drive's position
         factor 0x6093 (numerator / divisor: counts per mm, the drive's user unit being the mm),
-        else its feed constant 0x6092 (feed per revolution in mm) with one revolution being
-        0x608F (encoder increments per revolution). Never guessed (docs/canopen.md)."""
+        else its feed constant 0x6092 (feed in mm per driving-shaft revolution) with the encoder
+        resolution 0x608F (increments per motor revolution) and the gear ratio 0x6091 (motor
+        revolutions per shaft revolution, 1:1 where the drive has none). Never guessed
+        (docs/canopen.md)."""
         if self.options["counts_per_mm"] is not None:
             return float(self.options["counts_per_mm"])
         num = self._read_optional(d, 0x6093, 1, "position factor numerator")
@@ -441,8 +455,14 @@ class CanopenLink(common.AxisLink):
         incs = self._read_optional(d, 0x608F, 1, "position encoder increments")
         turns = self._read_optional(d, 0x608F, 2, "position encoder motor revolutions")
         if feed and revs and incs and turns:
-            return self._checked_scale(d, (incs / turns) * revs / feed,
-                                       f"feed constant 0x6092 ({feed}/{revs}) and encoder resolution 0x608F ({incs}/{turns})")
+            # A gearbox turns the motor (where the encoder sits) gear_motor times per gear_shaft
+            # turns of the driving shaft (0x6091; a drive without one is 1:1, the standard's default).
+            gear_motor = self._read_optional(d, 0x6091, 1, "gear ratio motor revolutions")
+            gear_shaft = self._read_optional(d, 0x6091, 2, "gear ratio shaft revolutions")
+            gear = gear_motor / gear_shaft if gear_motor and gear_shaft else 1.0
+            return self._checked_scale(d, (incs / turns) * gear * revs / feed,
+                                       f"feed constant 0x6092 ({feed}/{revs}), encoder resolution 0x608F ({incs}/{turns}) "
+                                       f"and gear ratio 0x6091 ({gear:g})")
         raise ConfigError(f"{self.url} node {d.id}: the drive reports no position scaling (neither the position factor "
                           "0x6093 nor the feed constant 0x6092 with 0x608F); set [driver] counts_per_mm")
 
@@ -493,6 +513,7 @@ class CanopenLink(common.AxisLink):
         mode = d.sdo_read(0x6061, what="modes of operation display")
         if mode != cod.CSP:
             raise CommunicationError(f"CANopen node {d.id}: mode {mode} after asking for cyclic synchronous position (8)")
+        d.operating = True
         d.check_events()
 
     def disable(self) -> None:
@@ -504,6 +525,7 @@ class CanopenLink(common.AxisLink):
                 continue
             d.halt = True
             d.mode = ControlMode.DISPLACEMENT
+            d.operating = False
             try:
                 d.sdo_write(0x6040, 0x0107, "controlword (halt, disable operation)")
             except CommunicationError as exc:
@@ -612,7 +634,10 @@ class CanopenActuator(Actuator, ActuatorChannels):
         d.check_events()
         if d.halt:
             d.halt = False
-            d.send_control()
+            if not d.send_control():  # unconfirmed, the drive may still be halted: no command into the void
+                d.halt = True
+                raise CommunicationError(f"CANopen node {d.id}: no confirmation of the release of the halt within "
+                                         f"{self.link.options['timeout_s']:g} s; the drive may still hold")
         if d.mode is ControlMode.DISPLACEMENT:
             d.target_counts = int(round(value * d.counts_per_mm))
         else:

@@ -111,9 +111,15 @@ def resolve_limits(url: str, options: dict, stroke_mm: float | None, force_kN: f
     return Limits(float(stroke), float(force), float(options["velocity_mm_s"]))
 
 
-def check_clock(url: str, lockstep: bool, clock) -> None:
-    """The controller's clock and the experiment's must agree (lockstep or real time)."""
+def check_clock(url: str, lockstep: bool, clock, rate_hz: float | None = None) -> None:
+    """The controller's clock and the experiment's must agree (lockstep or real time); in
+    lockstep each tick is one period of both, so the controller's loop rate (``rate_hz``, where
+    it reports one) must be the experiment's."""
     lockstep_clock = bool(getattr(clock, "lockstep", False))
+    if lockstep and lockstep_clock and rate_hz is not None and abs(rate_hz - clock.rate_hz) > 1e-9 * clock.rate_hz:
+        raise ConfigError(f"{url}: the controller runs in lockstep at {rate_hz:g} Hz (its loop rate), the experiment "
+                          f"at {clock.rate_hz:g} Hz: each tick is one period of both, so the controller's time would "
+                          "not be the experiment's; run the controller at the experiment's rate")
     if lockstep and not lockstep_clock:
         raise ConfigError(f"{url}: the controller runs in lockstep (emulator) but the experiment's clock is real "
                           "time; set [hardware] clock = \"lockstep\" or start the emulator with --realtime")
@@ -182,7 +188,7 @@ def open_axes(link: AxisLink, names: list[str], clock, make_actuator, enable: bo
         link.open(enable=False)
         limits = link.axis_limits()
         if clock is not None:
-            check_clock(link.url, link.lockstep, clock)
+            check_clock(link.url, link.lockstep, clock, getattr(link, "reported_rate_hz", None))
         if enable:
             link.enable()
         actuators = [make_actuator(name, link, k, limits[k]) for k, name in enumerate(names)]

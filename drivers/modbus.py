@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 from urllib.parse import urlsplit
 
+import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.pdu import ExceptionResponse
@@ -48,6 +49,7 @@ EXCEPTION_NAMES = {
     5: "acknowledge", 6: "device busy", 8: "memory parity error", 10: "gateway path unavailable",
     11: "gateway target failed to respond",
 }
+ILLEGAL_ADDRESS = 2  # the answer of a controller that lacks an optional register
 SEQ_MOD = 1 << 24
 FROZEN_S = 0.5  # real time: a sequence register unchanged this long means the controller's loop stopped
 PARITIES = ("N", "E", "O")  # Modbus RTU: 8 data bits, parity none, even (the standard's default) or odd
@@ -124,6 +126,7 @@ class ModbusLink(common.AxisLink):
         self.submitted: set[int] = set()
         self.last_sequence: float | None = None
         self._sequence_seen: float | None = None  # wall-clock time the sequence last changed (real time)
+        self._last_read: float | None = None  # wall-clock time of the last status read (real time)
         self.requests = 0
         self.reconnects = 0
         self.actuators: list = []
@@ -138,6 +141,11 @@ class ModbusLink(common.AxisLink):
         """The controller's loop rate (its info register; 1024 Hz when it reports none or nonsense)."""
         rate = self.info.get("rate_hz", 1024.0)
         return rate if math.isfinite(rate) and 1.0 <= rate <= 1e6 else 1024.0
+
+    @property
+    def reported_rate_hz(self) -> float | None:
+        """The loop rate the controller reports (its rate_hz info register), or None."""
+        return common.reported(self.info.get("rate_hz"))
 
     # -- connection ------------------------------------------------------------------------------
     def _make_client(self, url: str):
@@ -172,8 +180,10 @@ class ModbusLink(common.AxisLink):
             try:
                 flag = self.map.decode(reg, self.request("read_holding_registers", reg.address, count=reg.words,
                                                          what="read of the lockstep flag").registers)
-            except ModbusExceptionError:
-                pass  # a real controller has no lockstep register
+            except ModbusExceptionError as exc:
+                if exc.code != ILLEGAL_ADDRESS:
+                    raise
+                # a real controller has no lockstep register
         self.lockstep = flag == 1.0
         if self.options["lockstep"] == "on" and not self.lockstep:
             raise CommunicationError(f"{self.url}: lockstep requested but the controller runs on its own clock")
@@ -271,13 +281,29 @@ class ModbusLink(common.AxisLink):
             if parts.scheme.endswith("tcp"):  # name the port tried, the default one when the URL gives none
                 where = f" to {parts.hostname}:{parts.port or 502}"
                 default = "" if parts.port else " (the Modbus TCP default port; the URL gives none)"
+            elif ok is False and why.startswith("connection refused"):
+                why = self._serial_refusal()
             raise CommunicationError(f"{self.url}: cannot connect{where}{default} ({why})")
+
+    def _serial_refusal(self) -> str:
+        """Why the serial port did not open (pymodbus only logs it): pyserial's own error, from
+        one more opening with the same settings."""
+        params = self.client.comm_params
+        try:
+            serial.serial_for_url(params.host, baudrate=params.baudrate, parity=params.parity, stopbits=params.stopbits,
+                                  bytesize=params.bytesize, exclusive=True).close()
+        except Exception as exc:  # pyserial raises SerialException, termios.error, ValueError
+            return (f"serial port {params.host!r} with baudrate {params.baudrate}, parity {params.parity}, stop bits "
+                    f"{params.stopbits}: {type(exc).__name__}: {exc}")
+        return f"serial port {params.host!r} unavailable"
 
     def _read_info(self) -> None:
         for name, reg in self.map.info.items():
             try:
                 rr = self.request("read_holding_registers", reg.address, count=reg.words, what=f"read of {name}")
-            except ModbusExceptionError:
+            except ModbusExceptionError as exc:
+                if exc.code != ILLEGAL_ADDRESS:
+                    raise
                 continue  # the controller lacks this info register
             self.info[name] = self.map.decode(reg, rr.registers)
         boot = self.info.get("boot_id")
@@ -418,6 +444,16 @@ class ModbusLink(common.AxisLink):
         not run (a stopped PLC still answering, a lockstep emulator driven with [driver]
         lockstep = "off"): its measurements are stale, and the run stops."""
         now = time.monotonic()
+        last, read_at, self._last_read = self.last_sequence, self._last_read, now
+        if last is not None and read_at is not None:
+            # A counter only wraps forwards: one that went back by less than half its range, too
+            # soon after the last read to have gone round, started again: the controller restarted
+            # (this also covers a map without a boot_id register).
+            back = (last - seq) % self.sequence_mod
+            if 0 < back < self.sequence_mod / 2 and (now - read_at) * self.rate_hz < self.sequence_mod / 4:
+                raise ControllerRestartedError(
+                    f"{self.url}: the controller's sequence register went back from {last:.0f} to {seq:.0f}: it "
+                    "restarted; its state is lost, the run stops")
         if seq != self.last_sequence or self._sequence_seen is None:
             self._sequence_seen = now
         elif now - self._sequence_seen > FROZEN_S:
@@ -448,6 +484,7 @@ class ModbusActuator(Actuator, ActuatorChannels):
         self.limits = limits
         self._mode = ControlMode.DISPLACEMENT
         self._closed = False
+        self._seen_enabled = False  # the status showed the axis following since the host enabled it
         self.plausibility = common.Plausibility(f"actuator {name!r} at {link.url}", limits,
                                                 1.0 / link.rate_hz, link.options)
 
@@ -502,6 +539,16 @@ class ModbusActuator(Actuator, ActuatorChannels):
             raise InterlockError(
                 f"actuator {self.name!r} at {self.link.url}: the controller's host watchdog expired "
                 f"(no command for more than {self.link.info.get('watchdog_s', 0):g} s); it holds")
+        # Enabled by the host and seen following, then no longer following with neither latch
+        # bit set (a stop at the controller's panel, hydraulics off): the measurements would be
+        # those of an axis that does not follow its commands.
+        if not self.link.commands[self.axis]["enable"]:
+            self._seen_enabled = False
+        elif bit(word, "enabled"):
+            self._seen_enabled = True
+        elif self._seen_enabled:
+            raise InterlockError(f"actuator {self.name!r} at {self.link.url}: the controller no longer follows the "
+                                 f"commands (its enabled bit cleared, status word {int(word)}); the run stops")
 
     def hold(self) -> None:
         """Hold the present position: enable off, one write (no retries beyond the link's)."""

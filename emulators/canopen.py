@@ -27,8 +27,10 @@ import threading
 import canopen
 from canopen.sdo import SdoAbortedError
 
+from hsio.clock import CONTROLLER_RATE_HZ
 from hsio.drivers import canopen_od as cod
 from hsio.emulators.bank import CommandRefused, ControllerBank
+from hsio.errors import ConfigError
 from hsio.interfaces import ControlMode
 
 log = logging.getLogger(__name__)
@@ -254,6 +256,16 @@ class CanopenEmulator:
         """``rated_force_N`` is the drive's rated torque 0x6076 (read as newtons);
         ``position_limits_mm`` its software position limits 0x607D (default: the controller's
         stroke, centred on zero; (0, 0): none)."""
+        if bank.lockstep and abs(bank.rate_hz - CONTROLLER_RATE_HZ) > 1e-9 * CONTROLLER_RATE_HZ:
+            # Each SYNC is one period of the drive and of the experiment (1024 Hz), and no
+            # object tells the driver the drive's rate.
+            raise ConfigError(f"emulated CANopen drive: rate_hz = {bank.rate_hz:g} in lockstep, where each SYNC is "
+                              f"one period of the experiment's {CONTROLLER_RATE_HZ:g} Hz clock; leave rate_hz at "
+                              f"{CONTROLLER_RATE_HZ:g} or run in real time")
+        last = node_id + len(bank.controllers) - 1
+        if not 1 <= node_id <= last <= 127:
+            raise ConfigError(f"emulated CANopen drive: {len(bank.controllers)} axes from node {node_id} are nodes "
+                              f"{node_id}..{last}, outside the CANopen node ids 1..127")
         self.bank = bank
         if faults is not None:
             bank.faults = faults
@@ -487,10 +499,10 @@ class SlcanPort:
 def slcan_emulator(bank: ControllerBank, kind: str = "pty", node_id: int = 1, port: int = 0, **kwargs) -> "CanopenEmulator":
     """A :class:`CanopenEmulator` on an SLCAN port (started); ``emulator.url`` is the driver's URL."""
     slcan = SlcanPort(kind, port=port)
-    emulator = CanopenEmulator(bank, slcan.server_path, node_id, "slcan",
-                               bus_options={"sleep_after_open": 0.0, "bitrate": 1000000}, **kwargs)
-    emulator.slcan = slcan
     try:
+        emulator = CanopenEmulator(bank, slcan.server_path, node_id, "slcan",
+                                   bus_options={"sleep_after_open": 0.0, "bitrate": 1000000}, **kwargs)
+        emulator.slcan = slcan
         return emulator.start()
     except BaseException:
         slcan.close()

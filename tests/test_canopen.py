@@ -303,3 +303,77 @@ def test_a_drive_opened_where_it_stands_reads_there_before_the_first_sync(drive)
         assert np.abs(first.commands - stands).max() < POSITION_RESOLUTION_MM
     finally:
         site.close()
+
+
+def test_a_drive_that_leaves_operation_enabled_without_emcy_stops_the_exchange(cfg):
+    """A drive quick-stopped by its own input (or switched off by another master) reports the
+    new state in its TPDO1 and sends no EMCY: it no longer follows its targets, so the next
+    period stops with an InterlockError naming the node, not half a second of a held actuator
+    read as the specimen's response. The quick-stopped drive reads back as holding."""
+    from hsio.emulators.canopen import QSA
+    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), channel(), node_id=3).start()
+    clock = LockstepClock()
+    acts = open_link(emu.url, ["C1", "C2"], clock)
+    try:
+        for _ in range(5):
+            for a in acts:
+                a.command(0.01)
+            clock.tick()
+            [a.feedback() for a in acts]
+        drive = emu.axes[1]
+        with emu.bank.lock:
+            drive.state = QSA
+            drive.apply_targets()
+        drive.send_tpdo1()
+        time.sleep(0.05)
+        with pytest.raises(InterlockError, match=r"node 4 left OPERATION ENABLED \(statusword 0x.*QUICK STOP ACTIVE"):
+            for _ in range(20):
+                for a in acts:
+                    a.command(0.02)
+                clock.tick()
+                [a.feedback() for a in acts]
+        assert acts[1].holding() is True
+    finally:
+        acts[0].link.close()
+        emu.stop()
+
+
+def test_axes_beyond_node_127_are_refused(cfg):
+    """Axis k is node NODE + k; node ids end at 127 (node 128's EMCY would be 0x100, the TIME
+    object's COB-ID). Both the driver and the emulator refuse before anything opens."""
+    with pytest.raises(ConfigError, match=r"2 axes are nodes 127\.\.128, beyond the CANopen node ids 1\.\.127.*node 126"):
+        CanopenLink("canopen+virtual://nobody/127", 2)
+    CanopenLink("canopen+virtual://nobody/126", 2)
+    with pytest.raises(ConfigError, match=r"nodes 127\.\.128, outside the CANopen node ids 1\.\.127"):
+        CanopenEmulator(bank_from_config(cfg, lockstep=True), channel(), node_id=127)
+
+
+def test_a_halt_release_the_drive_does_not_confirm_is_an_error(drive):
+    """After a hold, the next command releases the halt (RPDO1); a drive that does not answer
+    with its TPDO1 may still be halted, so the command stops with an error naming the node
+    rather than going on as if the drive followed."""
+    clock = LockstepClock()
+    acts = open_link(drive.url, ["C1", "C2"], clock)
+    try:
+        acts[0].command(0.01)
+        acts[1].command(0.01)
+        clock.tick()
+        acts[0].hold()
+        drive.axes[0].send_tpdo1 = lambda: None  # the confirmation is lost
+        with pytest.raises(CommunicationError, match=r"node 1: no confirmation of the release of the halt"):
+            acts[0].command(0.02)
+        assert acts[0].drive.halt
+    finally:
+        acts[0].link.close()
+
+
+def test_a_lockstep_drive_whose_tpdo2_lacks_the_cycle_counter_is_refused_when_enabled(drive):
+    """In lockstep the reply to each SYNC is told by its cycle counter 0x2102; a TPDO2 mapping
+    without it is refused by name when the drive is enabled, not read as "lockstep lost" at the
+    first period."""
+    for axis in drive.axes:
+        axis.node.object_dictionary[0x1A01][0].default = 2  # position and torque only
+    with pytest.raises(CommunicationError, match=r"node 1: TPDO2 does not map the cycle counter 0x2102") as exc:
+        open_link(drive.url, ["C1", "C2"], LockstepClock())
+    from hsio.emulators.canopen import OE
+    assert "disabled" not in str(exc.value) and not any(axis.state == OE for axis in drive.axes)  # none enabled

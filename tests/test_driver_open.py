@@ -87,6 +87,20 @@ def test_modbus_clock_mismatch_enables_nothing(cfg):
         assert emu.context.commands[0]["enable"] == 0.0 and emu.context.commands[1]["enable"] == 0.0
 
 
+def test_lockstep_controller_at_another_loop_rate_is_refused_before_enabling(tmp_path):
+    """In lockstep each tick is one period of the controller and of the experiment (1024 Hz): a
+    controller whose rate_hz register says 2048 Hz would run its time at half the experiment's.
+    Modbus reads the rate and refuses at open, enabling nothing; the CANopen drive has no rate
+    object, so its emulator refuses such a lockstep clock itself."""
+    cfg = write_config(tmp_path, extra="[emulator]\nrate_hz = 2048\n")
+    with ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0), modbus_map.load()) as emu:
+        with pytest.raises(ConfigError, match=r"lockstep at 2048 Hz .*experiment at 1024 Hz"):
+            modbus_open(emu.url, NAMES, LockstepClock())
+        assert none_enabled(emu.bank)
+    with pytest.raises(ConfigError, match=r"rate_hz = 2048 in lockstep"):
+        CanopenEmulator(bank_from_config(cfg, lockstep=True), f"hsio-open-rate-{next(_channels)}")
+
+
 # -- CANopen -----------------------------------------------------------------------------------------
 
 def test_canopen_limits_are_the_drives_own(cfg):

@@ -386,6 +386,16 @@ def test_connect_to_nothing_is_a_clear_error():
         open_link(f"modbus+tcp://127.0.0.1:{port}", ["a"], LockstepClock(), {"timeout_s": 0.2})
 
 
+def test_a_serial_port_that_does_not_open_is_named_with_the_reason(tmp_path):
+    """pymodbus only logs why a serial port did not open; the error names the port, its settings
+    and pyserial's reason (here: no such device), not a TCP "connection refused"."""
+    missing = tmp_path / "ttyUSB9"
+    with pytest.raises(CommunicationError, match=rf"serial port '{missing}' with baudrate 9600, parity E, stop bits "
+                                                 r"1: .*No such file or directory") as exc:
+        open_link(f"modbus+rtu://{missing}?baudrate=9600&parity=E", ["a"], LockstepClock())
+    assert "refused" not in str(exc.value)
+
+
 def test_bad_driver_options_are_refused():
     with pytest.raises(ConfigError, match="unknown key 'timeout'"):
         ModbusLink("modbus+tcp://127.0.0.1:1", 1, {"timeout": 1})

@@ -37,3 +37,70 @@ def test_a_look_at_the_status_decodes_what_the_exchange_takes_and_leaves_it(tmp_
         assert link.peek_status() == taken  # the look makes no check of the sequence
     finally:
         emu.stop()
+
+
+def test_an_axis_that_stops_following_without_a_latch_bit_stops_the_run(tmp_path):
+    """A controller that clears an axis' enabled bit on its own (a stop at its panel, hydraulics
+    off) with neither the interlock nor the watchdog bit set: the next command stops with an
+    InterlockError naming the actuator. An axis the host held and enables again (a pause) is
+    not taken for one: its enabled bit is awaited afresh."""
+    from hsio.errors import InterlockError
+
+    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load()).start()
+    flags, dropped = emu.bank.flags, {"on": False}
+    emu.bank.flags = lambda k: {**flags(k), "enabled": False} if k == 1 and dropped["on"] else flags(k)
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock)
+
+        def period(value):
+            for a in acts:
+                a.command(value)
+            clock.tick()
+            return [a.feedback() for a in acts]
+
+        for _ in range(10):
+            period(0.1)
+        for a in acts:  # a pause: held, then enabled again, the bit shown one exchange later
+            a.hold()
+        dropped["on"] = True
+        period(0.1)
+        dropped["on"] = False
+        for _ in range(10):
+            period(0.1)
+        dropped["on"] = True
+        with pytest.raises(InterlockError, match=r"actuator 'C2' .*no longer follows the commands"):
+            for _ in range(10):
+                period(0.1)
+    finally:
+        emu.stop()
+
+
+def test_a_restart_is_seen_in_the_sequence_register_without_a_boot_id(tmp_path):
+    """A lab map without the boot_id register: a controller that restarts in real time is told by
+    its sequence register going back (a counter wraps only forwards), and the run stops with
+    ControllerRestartedError instead of re-enabling a controller whose state was lost."""
+    from hsio.clock import RealTimeClock
+    from hsio.emulators.faults import parse
+    from hsio.errors import ControllerRestartedError
+    from wire import QUIET_SENSORS
+
+    text = "\n".join(line for line in modbus_map.DEFAULT_MAP.read_text().splitlines() if not line.startswith("boot_id"))
+    path = tmp_path / "no_boot_id.toml"
+    path.write_text(text)
+    regmap = modbus_map.load(path)
+    assert "boot_id" not in regmap.info
+    bank = bank_from_config(write_config(tmp_path, extra=QUIET_SENSORS), lockstep=False)
+    emu = ModbusEmulator(bank, regmap, faults=parse("restart@300")).start()
+    try:
+        clock = RealTimeClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock, {"map": str(path), "timeout_s": 0.1})
+        with pytest.raises(ControllerRestartedError, match="sequence register went back"):
+            for _ in range(3000):
+                for a in acts:
+                    a.command(0.5)
+                clock.tick()
+                [a.feedback() for a in acts]
+        assert bank.restarts == 1
+    finally:
+        emu.stop()

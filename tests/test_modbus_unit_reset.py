@@ -157,3 +157,32 @@ def test_probe_resets_the_interlock(tmp_path):
         assert "reset      the latched interlocks are cleared" in r.stdout  # the text report says so too
     finally:
         emu.stop()
+
+
+def test_an_info_register_that_answers_device_failure_is_not_taken_as_absent(tmp_path):
+    """Only exception 2 (illegal data address) means "no such register". A controller that
+    answers the boot id with exception 4 (device failure) stops the opening, named, before any
+    axis is enabled: taken as absent, the run would go on without restart detection."""
+    from pymodbus.constants import ExcCodes
+
+    from hsio.clock import LockstepClock
+    from hsio.drivers.modbus import open_link
+
+    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load())
+    boot = emu.map.info["boot_id"].address
+    served = emu.context.async_getValues
+
+    async def failing(device_id, func_code, address, count=1):
+        if address == boot:
+            return ExcCodes.DEVICE_FAILURE
+        return await served(device_id, func_code, address, count)
+
+    emu.context.async_getValues = failing
+    emu.start()
+    try:
+        with pytest.raises(ModbusExceptionError, match=r"read of boot_id answered with Modbus exception 4") as exc:
+            open_link(emu.url, ["C1"], LockstepClock())
+        assert exc.value.code == 4
+        assert not any(a.enabled for a in emu.bank.axes)
+    finally:
+        emu.stop()

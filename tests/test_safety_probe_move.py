@@ -272,3 +272,17 @@ def test_probe_move_over_a_link_slower_than_the_period_warns(tmp_path):
     move = report["move"]
     assert move["clock_overruns"] > 100 and "ran slower than commanded" in move["warning"]
     assert report["hold"]["confirmed"]
+
+
+def test_probe_move_step_figures_do_not_depend_on_the_steps_sign(tmp_path):
+    """The emulated actuator is symmetric, so a step of -2 mm has the rise time and overshoot of
+    a step of +2 mm (10 % and 90 % of the step reached in its own direction)."""
+    figures = []
+    for step in ("2", "-2"):
+        (tmp_path / step).mkdir()
+        result, report, holding, _ = probe_move(tmp_path / step, "--step-mm", step, "--sine-hz", "2")
+        assert result.exit_code == 0, report.get("error")
+        figures.append((report["move"]["rise_time_s"], report["move"]["overshoot_pct"]))
+    (rise_up, over_up), (rise_down, over_down) = figures
+    assert rise_up > 0.005 and rise_down == pytest.approx(rise_up, abs=2 / 1024)
+    assert over_up >= 0 and over_down == pytest.approx(over_up, abs=0.5)

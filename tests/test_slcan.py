@@ -80,3 +80,37 @@ def test_scaling_is_never_guessed(tmp_path):
             a.close()
     finally:
         emu.stop()
+
+
+def test_scaling_from_the_feed_constant_counts_the_gear_ratio(tmp_path):
+    """Without 0x6093, counts per mm = encoder increments per motor revolution (0x608F) x motor
+    revolutions per shaft revolution (gear ratio 0x6091) / feed per shaft revolution (0x6092):
+    4000 x 5 / 20 mm = 1000 counts per mm, the emulated drive's 1 um count. Without the gear
+    ratio the driver would read every position 5 times too large."""
+    from canopen.objectdictionary import datatypes as dt
+
+    from hsio.clock import LockstepClock
+    from hsio.drivers import canopen_od as cod
+    from hsio.drivers.canopen import open_link
+
+    emu = CanopenEmulator(bank_from_config(write_config(tmp_path), lockstep=True), f"slcan-gear-{next(_channels)}", 1).start()
+    try:
+        for axis in emu.axes:
+            dictionary = axis.node.object_dictionary
+            del dictionary[0x6093]
+            for index, members in ((0x608F, [4000, 1]), (0x6091, [5, 1]), (0x6092, [20, 1])):
+                dictionary.add_object(cod._record(f"0x{index:04X}", index, [(f"sub {k}", dt.UNSIGNED32, "ro", v)
+                                                                           for k, v in enumerate(members, 1)]))
+        clock = LockstepClock()
+        actuators = open_link(emu.url, ["C1", "C2"], clock, {})
+        assert actuators[0].drive.counts_per_mm == pytest.approx(1000.0)
+        for _ in range(200):
+            for a in actuators:
+                a.command(0.5)
+            clock.tick()
+        fb = actuators[0].feedback()
+        assert fb.displacement_mm == pytest.approx(emu.bank.controllers[0].measured_displacement, abs=1e-3)
+        for a in actuators:
+            a.close()
+    finally:
+        emu.stop()

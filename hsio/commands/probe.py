@@ -237,12 +237,12 @@ def _move(guard: _Guard, step_mm: float, sine_mm: float, sine_hz: float, control
     _drive(guard, np.full(int(0.05 * rate), x0))
     rise_cmd = _ramp(x0, x0 + step_mm, speed, rate)
     step = np.concatenate([rise_cmd, np.full(max(int(0.5 * rate) - len(rise_cmd), 1), x0 + step_mm)])
-    y = _drive(guard, step) - x0
+    y = (_drive(guard, step) - x0) / step_mm  # the response as a fraction of the step, either sign
     t = np.arange(len(y)) / rate
-    i10 = np.argmax(y >= 0.1 * step_mm) if np.any(y >= 0.1 * step_mm) else None
-    i90 = np.argmax(y >= 0.9 * step_mm) if np.any(y >= 0.9 * step_mm) else None
+    i10 = np.argmax(y >= 0.1) if np.any(y >= 0.1) else None
+    i90 = np.argmax(y >= 0.9) if np.any(y >= 0.9) else None
     rise = float(t[i90] - t[i10]) if i10 is not None and i90 is not None else math.nan
-    overshoot = float(max(y.max() - step_mm, 0.0) / step_mm * 100.0)
+    overshoot = float(max(y.max() - 1.0, 0.0) * 100.0)
     back = _ramp(x0 + step_mm, x0, speed, rate)
     _drive(guard, np.concatenate([back, np.full(max(int(0.25 * rate) - len(back), 1), x0)]))
     phase("the sine")
