@@ -389,9 +389,17 @@ def ns_from_present(config: RunConfig, structure: Structure, ground: GroundMotio
         return api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present",
                             control=_StopOnly(control) if control is not None else None)
     except ExperimentStopped as exc:
-        if isinstance(exc.cause, (OperatorStop, KeyboardInterrupt)):
-            raise exc.cause from None  # the run's stop, not a step of this prediction
-        raise
+        cause = exc.cause
+        if isinstance(cause, (OperatorStop, KeyboardInterrupt)):
+            raise cause from None  # the run's stop, not a step of this prediction
+        if cause is None:
+            raise
+        steps = len(exc.result.t) if exc.result is not None else 0
+        what = str(cause) if isinstance(cause, HsioError) else f"{type(cause).__name__}: {cause}"
+        raise ConfigError(f"{config.source}: the prediction from the present state (NS: the specimen models about "
+                          f"where the actuators stand) could not go past step {steps} (t = {steps * structure.dt:.3f} "
+                          f"s): {what}. No command was sent to the actuators; check the models' parameters and the "
+                          f"record's scale") from None
 
 
 def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, report, site,

@@ -269,3 +269,27 @@ def test_hsio_run_tells_the_hold_of_a_refusal_from_the_present_state(tmp_path, m
     assert result.exit_code == 2, result.output
     assert "from the present state" in result.output
     assert "EXCEEDS" in result.output and "the actuators hold (confirmed by read-back)" in result.output
+
+
+def test_a_prediction_from_the_present_state_that_fails_is_bad_input_named_so(tmp_path, monkeypatch):
+    """NS from where the specimen stands that cannot go on (a model that overflows) is bad input
+    (exit 2) named as that prediction, as the prediction from rest is; the axes hold, no command."""
+    from hsio.sites.numerical import StandingSite
+
+    real_trial, calls = StandingSite.set_trial, []
+
+    def overflows(self, commands, modes):
+        calls.append(1)
+        if len(calls) > 3:
+            raise OverflowError("math range error")
+        return real_trial(self, commands, modes)
+
+    monkeypatch.setattr(StandingSite, "set_trial", overflows)
+    cfg = config.from_dict({"record": {"synthetic_duration_s": 1.0}, "test": {"start": "present"},
+                            "output": {"plots": False, "samples": False}, "safety": {"keys": False}})
+    with pytest.raises(Exception) as info:
+        runner.run(cfg, tmp_path / "o")
+    assert "the prediction from the present state" in str(info.value) and "OverflowError" in str(info.value)
+    run = Run(tmp_path / "o" / "run.sqlite")
+    assert run.summary["exit_status"] == 2 and run.summary["steps"] == 0
+    assert "the actuators hold (confirmed by read-back)" in run.summary["stopped"]
