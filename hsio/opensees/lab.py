@@ -607,7 +607,7 @@ class Lab:
             session = self._call(self._attach, j)
             if session is None:
                 return
-            others = ", ".join(self.names[k] for k in sorted(self.active))
+            others = self._call(lambda: ", ".join(self.names[k] for k in sorted(self.active)))  # the worker's set
             if attempt == 0 and log is not None:
                 log(f"session {session} goes on with {others} after element {self.names[j]} left it: this "
                     f"client joins the next session")
