@@ -344,16 +344,11 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
     try:
         ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
     except ExperimentStopped as exc:  # the models cannot be evaluated along the record: bad input, not a fault
-        cause = exc.cause
-        if cause is None or isinstance(cause, (KeyboardInterrupt, OperatorStop)):
+        if exc.cause is None or isinstance(exc.cause, (KeyboardInterrupt, OperatorStop)):
             raise
-        steps = len(exc.result.t) if exc.result is not None else 0
-        what = str(cause) if isinstance(cause, HsioError) else f"{type(cause).__name__}: {cause}"
-        raise ConfigError(f"{config.source}: the prediction (NS: the structure with its specimen models in place of "
-                          f"the actuators) could not go past step {steps} (t = {steps * structure.dt:.3f} s): "
-                          f"{what}. Nothing was sent to the actuators; check the models' parameters "
-                          f"({config['structure']['file'] or config['structure']['name']}) and the record's "
-                          f"scale") from None
+        raise _prediction_failed(config, structure, exc, "the prediction (NS: the structure with its specimen models "
+                                 "in place of the actuators)", "Nothing was sent to the actuators; check the models' "
+                                 f"parameters ({config['structure']['file'] or config['structure']['name']})") from None
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     setups = SetupMap.of(structure) if structure.has_setups else None
     report = dry_run(ns, test["rate"] * structure.dt, test["hold_fraction"], hardware["url"], emulator,
@@ -389,17 +384,24 @@ def ns_from_present(config: RunConfig, structure: Structure, ground: GroundMotio
         return api.simulate(structure, ground, site, "alpha_os", config["integrator"]["alpha"], start="present",
                             control=_StopOnly(control) if control is not None else None)
     except ExperimentStopped as exc:
-        cause = exc.cause
-        if isinstance(cause, (OperatorStop, KeyboardInterrupt)):
-            raise cause from None  # the run's stop, not a step of this prediction
-        if cause is None:
+        if isinstance(exc.cause, (OperatorStop, KeyboardInterrupt)):
+            raise exc.cause from None  # the run's stop, not a step of this prediction
+        if exc.cause is None:
             raise
-        steps = len(exc.result.t) if exc.result is not None else 0
-        what = str(cause) if isinstance(cause, HsioError) else f"{type(cause).__name__}: {cause}"
-        raise ConfigError(f"{config.source}: the prediction from the present state (NS: the specimen models about "
-                          f"where the actuators stand) could not go past step {steps} (t = {steps * structure.dt:.3f} "
-                          f"s): {what}. No command was sent to the actuators; check the models' parameters and the "
-                          f"record's scale") from None
+        raise _prediction_failed(config, structure, exc, "the prediction from the present state (NS: the specimen "
+                                 "models about where the actuators stand)", "No command was sent to the actuators; "
+                                 "check the models' parameters") from None
+
+
+def _prediction_failed(config: RunConfig, structure: Structure, exc: ExperimentStopped, which: str,
+                       advice: str) -> ConfigError:
+    """A prediction whose models could not be evaluated along the record (``exc``): bad input,
+    named with the step it could not pass and why."""
+    steps = len(exc.result.t) if exc.result is not None else 0
+    cause = exc.cause
+    what = str(cause) if isinstance(cause, HsioError) else f"{type(cause).__name__}: {cause}"
+    return ConfigError(f"{config.source}: {which} could not go past step {steps} (t = {steps * structure.dt:.3f} s): "
+                       f"{what}. {advice} and the record's scale")
 
 
 def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, report, site,

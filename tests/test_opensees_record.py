@@ -15,7 +15,8 @@ import pytest
 
 from hsio.opensees import protocol as p
 from hsio.recording import Run
-from test_opensees_support import QUIET, RawClient, need_openseespy, serving, session_over, wait_for, write_config
+from test_opensees_support import (QUIET, RawClient, need_openseespy, serving, session_over, step_together, wait_for,
+                                  write_config)
 
 
 def finish(server, c: RawClient) -> Run:
@@ -193,12 +194,7 @@ def test_an_element_that_left_is_recorded_as_its_actuator_stands(tmp_path):
         a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
         a.setup()
         b.setup()
-        for k in (1, 2):
-            for c in (a, b):
-                c.send(p.SET_TRIAL, [1.0 * k], t=0.01 * k)
-                c.ask(p.GET_FORCE)
-            for c in (a, b):
-                c.send(p.COMMIT)
+        step_together((a, b), [1.0, 2.0])
         b.close()
         assert wait_for(lambda: server.lab._call(lambda: server.lab.active == {0}))
         for k in (3, 4):

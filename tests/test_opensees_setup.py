@@ -19,7 +19,8 @@ from hsio import runner
 from hsio.opensees import protocol as p
 from hsio.recording import Run
 from hsio.result import max_error_pct
-from test_opensees_support import QUIET, ROOT, RawClient, need_openseespy, serving, session_over, wait_for, write_config
+from test_opensees_support import (QUIET, ROOT, RawClient, need_openseespy, serving, session_over, step_together,
+                                  wait_for, write_config)
 
 SETUP_EXAMPLE = ROOT / "examples" / "opensees_setup.py"
 COLUMN = "column_two_actuators"
@@ -388,12 +389,7 @@ def test_a_model_started_again_while_its_last_run_leaves_opens_a_session_of_its_
         a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
         a.setup()
         b.setup()
-        for k in (1, 2):
-            for c in (a, b):
-                c.send(p.SET_TRIAL, [0.5 * k], t=0.01 * k)
-                c.ask(p.GET_FORCE)
-            for c in (a, b):
-                c.send(p.COMMIT)
+        step_together((a, b), [0.5, 1.0])
         a.send(p.DIE)
         a.close()
         assert wait_for(lambda: server.lab._call(lambda: server.lab.active == {1}))

@@ -171,6 +171,19 @@ def session_over(server) -> bool:
     return server.lab._call(lambda: server.lab.site is None and not server.lab.active)
 
 
+def step_together(clients, displacements, dt: float = 0.01) -> None:
+    """The elements of one model make their steps k = 1, 2, ... together, as OpenSees does: every
+    trial (displacement ``displacements[k - 1]``, time k dt) and its force, then every commit."""
+    from hsio.opensees import protocol as p
+
+    for k, d in enumerate(displacements, start=1):
+        for c in clients:
+            c.send(p.SET_TRIAL, [d], t=dt * k)
+            c.ask(p.GET_FORCE)
+        for c in clients:
+            c.send(p.COMMIT)
+
+
 def one_step_session(server, port_index: int = 0) -> None:
     """A client of the validation structure's element connects, makes one step of 1 mm (its
     force that of the cantilever, 0.3 to 0.9 kN), says DIE and leaves; returns once the session
