@@ -22,7 +22,7 @@ _EXPORTS = {
     "make_integrator": "hsio.api", "open_site": "hsio.api", "run_numerical": "hsio.api", "simulate": "hsio.api",
     "ConfigError": "hsio.errors", "HsioError": "hsio.errors", "InterlockError": "hsio.errors",
     "LimitError": "hsio.errors", "ExperimentStopped": "hsio.experiment", "GroundMotion": "hsio.ground_motion",
-    "read_at2": "hsio.ground_motion", "synthetic_record": "hsio.ground_motion", "Result": "hsio.result",
+    "read_at2": "hsio.ground_motion", "read_record": "hsio.ground_motion", "synthetic_record": "hsio.ground_motion", "Result": "hsio.result",
     "max_error_pct": "hsio.result", "ActuatorSite": "hsio.sites", "NumericalSite": "hsio.sites",
     "Structure": "hsio.structures", "load_structure": "hsio.structures",
 }
@@ -58,6 +58,6 @@ def __dir__():
     return sorted([*globals(), *_EXPORTS])
 
 
-__all__ = ["load_structure", "Structure", "GroundMotion", "read_at2", "synthetic_record", "run_numerical",
+__all__ = ["load_structure", "Structure", "GroundMotion", "read_at2", "read_record", "synthetic_record", "run_numerical",
            "open_site", "simulate", "make_integrator", "Result", "max_error_pct", "ExperimentStopped",
            "ActuatorSite", "NumericalSite", "HsioError", "ConfigError", "LimitError", "InterlockError"]

@@ -19,7 +19,8 @@ from hsio.safety.settings import check_table as check_safety_table
 
 DEFAULTS: dict[str, dict] = {
     "structure": {"name": "validation", "file": ""},
-    "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.6, "seed": 1994, "synthetic_duration_s": 20.0},
+    "record": {"file": "", "scale": 1.0, "duration_s": 0.0, "pga_g": 0.6, "seed": 1994, "synthetic_duration_s": 20.0,
+               "dt_s": 0.0, "units": ""},
     "integrator": {"alpha": -0.05, "method": "alpha_os", "j_max": 3, "tol_displacement_mm": 0.02, "tol_force_kN": 0.05,
                    "secant": "average", "secant_n_avg": 16, "secant_min_increment_mm": 0.1,
                    "switch_on": "stiffness", "K_f": 0.0, "K_d": 0.0, "R_f": 0.0, "R_d": 0.0,
@@ -112,6 +113,7 @@ def from_dict(data: dict, source: str = "<dict>", replay: bool = False) -> RunCo
 # Keys that only some settings read: given (away from their defaults) where nothing reads them,
 # they are refused rather than silently ignored (docs/config.md).
 SYNTHETIC_ONLY = ("pga_g", "seed", "synthetic_duration_s")
+COLUMN_FILE_ONLY = ("dt_s", "units")  # a column file's; a PEER .AT2 header gives both
 INTERLOCK_KEYS = ("following_error_mm", "following_error_kN", "following_time_s", "jump_mm", "jump_kN",
                   "warning_fraction", "force_drop_fraction", "force_drop_min_kN", "force_drop_window_s")
 DRY_RUN_KEYS = ("override", "stroke_margin", "force_margin", "velocity_margin")
@@ -128,6 +130,16 @@ def _check_unread(t: dict, source: str) -> None:
             raise ConfigError(f"{source}: [record] {', '.join(unread)}: not read with a record file "
                               f"({t['record']['file']}), only for the synthetic record; scale the file with "
                               f"[record] scale (a factor) and cut it with duration_s")
+        if t["record"]["file"].lower().endswith(".at2"):
+            unread = changed("record", COLUMN_FILE_ONLY)
+            if unread:
+                raise ConfigError(f"{source}: [record] {', '.join(unread)}: not read with a PEER .AT2 file "
+                                  f"({t['record']['file']}): its header gives the time step and the units")
+    else:
+        unread = changed("record", COLUMN_FILE_ONLY)
+        if unread:
+            raise ConfigError(f"{source}: [record] {', '.join(unread)}: only read with a column record file "
+                              f"([record] file); the synthetic record is in g at the structure's time step")
     if t["compensation"]["mode"] == "off":
         unread = changed("compensation", [k for k in DEFAULTS["compensation"] if k != "mode"])
         if unread:
@@ -194,6 +206,7 @@ BOUNDS: dict[tuple[str, str], tuple[float, float, str]] = {
     ("record", "scale"): (-100.0, 100.0, ""),
     ("record", "pga_g"): (0.0, 10.0, "g"),
     ("record", "seed"): (0, 2**32 - 1, ""),
+    ("record", "dt_s"): (0.0, 1.0, "s"),
     ("integrator", "j_max"): (1, 100, "iterations"),
     ("integrator", "secant_n_avg"): (1, 10000, "samples"),
     ("integrator", "tol_displacement_mm"): (0.0, 1000.0, "mm"),
@@ -256,6 +269,12 @@ def _check_ranges(t: dict, source: str) -> None:
             raise ConfigError(f"{source}: [record] {key} must be positive, got {record[key]}")
     if record["seed"] < 0:
         raise ConfigError(f"{source}: [record] seed must not be negative, got {record['seed']}")
+    if record["units"]:
+        from hsio.ground_motion import UNITS_IN_G, unit_in_g
+
+        if unit_in_g(record["units"]) is None:
+            raise ConfigError(f"{source}: [record] units = {record['units']!r} is not an acceleration unit hsio "
+                              f"knows: one of {', '.join(UNITS_IN_G)} (m/s^2, CM/S/S and the like are read too)")
     from hsio.hardware import check_options, check_url  # each backend checks its own table
 
     try:

@@ -1,6 +1,8 @@
-"""Ground-motion records: a reader for PEER .AT2 files and a synthetic default record.
+"""Ground-motion records: readers for PEER .AT2 files and for plain column files (time and
+acceleration, or acceleration at a given time step), and a synthetic default record.
 
-Accelerations are kept in g; :meth:`GroundMotion.acceleration_mm_s2` converts to mm/s^2 for the
+Accelerations are kept in g (a file in m/s^2, cm/s^2 (gal), mm/s^2 or in/s^2 is converted on
+reading, by standard gravity 9.80665 m/s^2); :meth:`GroundMotion.acceleration_mm_s2` converts to mm/s^2 for the
 equations of motion (kN, mm, s), and :meth:`GroundMotion.resampled` interpolates to the
 integration time step.
 """
@@ -135,21 +137,42 @@ class GroundMotion:
 
 
 # Line 3 of an AT2 file says what the values are, e.g. "ACCELERATION TIME SERIES IN UNITS OF G".
-_UNITS = re.compile(r"UNITS\s+OF\s+(\S+)", re.IGNORECASE)
+_UNITS = re.compile(r"UNITS\s+OF\s+(\S+(?:\s*/\s*\S+)*)", re.IGNORECASE)
 _NOT_ACCELERATION = re.compile(r"\b(VELOCITY|DISPLACEMENT)\b", re.IGNORECASE)
-_NPTS_DT_NAMED = re.compile(r"NPTS\s*=\s*(\d+)\s*,\s*DT\s*=\s*([0-9.Ee+-]+)", re.IGNORECASE)
+_NPTS = re.compile(r"\bNPTS\s*[=:]\s*(\d+)", re.IGNORECASE)
+_DT = re.compile(r"\bDT\s*[=:]\s*([0-9.Ee+-]+)", re.IGNORECASE)
 _WORD = re.compile(rb"\S+")
 _LINE = re.compile(rb"([^\r\n]*)(?:\r\n|\r|\n|$)")  # one line, any line ending (LF, CRLF, CR)
 _NPTS_DT_PLAIN = re.compile(r"^\s*(\d+)\s+([0-9.Ee+-]+)\s+NPTS\s*,\s*DT", re.IGNORECASE)
+
+# Acceleration units a record may be in, and their size in g. A unit is written as the file or the
+# configuration spells it; case, spaces, "sec" for "s" and "s/s", "s2", "s^2", "s**2" all mean the same.
+UNITS_IN_G = {"g": 1.0, "m/s2": 1000.0 / G_MM_S2, "cm/s2": 10.0 / G_MM_S2, "gal": 10.0 / G_MM_S2,
+              "mm/s2": 1.0 / G_MM_S2, "in/s2": 25.4 / G_MM_S2}
+
+
+def unit_in_g(unit: str) -> float | None:
+    """The size in g of the acceleration unit ``unit`` ("g", "m/s^2", "CM/S/S", "gal", ...), or None
+    for a unit hsio does not know (:data:`UNITS_IN_G`)."""
+    u = re.sub(r"\s+", "", str(unit)).lower().strip(".,;()[]")
+    u = u.replace("sec", "s").replace("**", "^")
+    u = re.sub(r"/s/s$|/s\^2$|/s2$|/s\*s$", "/s2", u)
+    u = {"m/s2": "m/s2", "cm/s2": "cm/s2", "mm/s2": "mm/s2", "in/s2": "in/s2", "gals": "gal"}.get(u, u)
+    return UNITS_IN_G.get(u)
+
+
+def _known_units() -> str:
+    return "g, m/s^2, cm/s^2 (gal), mm/s^2, in/s^2"
 
 
 def read_at2(path: str | Path) -> GroundMotion:
     """Read a PEER .AT2 file (NGA-West2 and older PEER headers), accelerations in g.
 
-    Header: 4 lines; the 4th gives NPTS and DT as ``NPTS= 2000, DT= .0200 SEC`` or as
-    ``4000  0.0100  NPTS, DT``. Then the values, several to a line. A broken header, a value that
-    is not a number, a NaN, or a count that differs from NPTS raises :class:`RecordError` naming
-    the file and line.
+    Header: 4 lines; the 3rd names the units ("... IN UNITS OF G"; cm/s^2 and the other units of
+    :data:`UNITS_IN_G` are converted to g), the 4th gives NPTS and DT as ``NPTS= 2000, DT= .0200 SEC``
+    (in either order, commas optional) or as ``4000  0.0100  NPTS, DT``. Then the values, several
+    to a line. A broken header, a value that is not a number, a NaN, or a count that differs from
+    NPTS raises :class:`RecordError` naming the file and line.
     """
     if not isinstance(path, (str, os.PathLike)):
         raise RecordError(f"read_at2: path must be a file path, got {path!r}")
@@ -168,19 +191,24 @@ def read_at2(path: str | Path) -> GroundMotion:
         pos = line.end()
     if len(lines) < 4:
         raise RecordError(f"{path}: too short for an AT2 file ({len(lines)} lines; the header alone has 4)")
-    _check_units(path, lines[2])
-    match = _NPTS_DT_NAMED.search(lines[3]) or _NPTS_DT_PLAIN.search(lines[3])
-    if match is None:
+    factor = _check_units(path, lines[2])
+    named_npts, named_dt = _NPTS.search(lines[3]), _DT.search(lines[3])
+    plain = _NPTS_DT_PLAIN.search(lines[3])
+    if named_npts and named_dt:
+        npts_text, dt_text = named_npts.group(1), named_dt.group(1)
+    elif plain:
+        npts_text, dt_text = plain.group(1), plain.group(2)
+    else:
         raise RecordError(
             f"{path}:4: header line must give NPTS and DT ('NPTS= 2000, DT= .0200 SEC' or "
             f"'4000 0.0100 NPTS, DT'), got {lines[3].strip()!r}"
         )
-    digits = match.group(1).lstrip("0") or "0"
+    digits = npts_text.lstrip("0") or "0"
     npts = int(digits) if len(digits) <= 18 else MAX_SAMPLES + 1  # past 18 digits it is out of bounds
     try:
-        dt = float(match.group(2))
+        dt = float(dt_text)
     except ValueError:
-        raise RecordError(f"{path}:4: DT {match.group(2)!r} is not a number") from None
+        raise RecordError(f"{path}:4: DT {dt_text!r} is not a number") from None
     if not (dt > 0 and math.isfinite(dt)):
         raise RecordError(f"{path}:4: DT must be positive, got {dt!r}")
     if not DT_MIN_S <= dt <= DT_MAX_S:
@@ -208,7 +236,125 @@ def read_at2(path: str | Path) -> GroundMotion:
         values.append(value)
     if len(values) != npts:
         raise RecordError(f"{path}: header says NPTS = {npts}, file holds {len(values)} values")
-    return GroundMotion(name=path.name, dt=dt, accel_g=np.array(values))
+    return GroundMotion(name=path.name, dt=dt, accel_g=np.array(values) * factor)
+
+
+def read_record(path: str | Path, dt_s: float | None = None, units: str | None = None) -> GroundMotion:
+    """Read a ground-motion file: a PEER .AT2 file (:func:`read_at2`; its header gives the time step
+    and the units, so neither ``dt_s`` nor ``units`` is taken) when the name ends in .AT2, else a
+    column file (:func:`read_columns`)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise RecordError(f"read_record: path must be a file path, got {path!r}")
+    if Path(path).suffix.lower() == ".at2":
+        given = [name for name, value in (("dt_s", dt_s), ("units", units)) if value not in (None, "", 0, 0.0)]
+        if given:
+            raise RecordError(f"{path}: {', '.join(given)} not read for a PEER .AT2 file: its header gives the time "
+                              "step and the units")
+        return read_at2(path)
+    return read_columns(path, dt_s=dt_s, units=units or "g")
+
+
+_SEPARATOR = re.compile(r"[\s,;]+")
+_COMMENT = ("#", "%", "//", "!")
+
+
+def read_columns(path: str | Path, dt_s: float | None = None, units: str = "g") -> GroundMotion:
+    """Read a plain text record: one acceleration per line at the time step ``dt_s``, or two
+    columns, time (s) and acceleration, whose times must be evenly spaced (the step is read from
+    them; a ``dt_s`` given as well must agree). Columns are separated by spaces, tabs, commas or
+    semicolons; lines starting with #, %, // or ! are comments, and a first line of words (a CSV
+    header such as ``time,acc``) is skipped. ``units``: the accelerations' unit (:data:`UNITS_IN_G`),
+    converted to g. Every refusal names the file and the line."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise RecordError(f"read_columns: path must be a file path, got {path!r}")
+    path = Path(path)
+    factor = unit_in_g(units) if isinstance(units, str) else None
+    if factor is None:
+        raise RecordError(f"{path}: units {units!r} is not an acceleration unit hsio knows ({_known_units()})")
+    if dt_s is not None and dt_s != 0:
+        dt_s = _real(str(path), "dt_s", dt_s)
+        if not DT_MIN_S <= dt_s <= DT_MAX_S:
+            raise RecordError(f"{path}: dt_s = {dt_s:g} s is out of bounds: a record's time step must be within "
+                              f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
+    else:
+        dt_s = None
+    try:
+        data = read_bounded(path, MAX_FILE_BYTES, lambda reason: RecordError(
+            f"{path}: {reason} (a ground-motion file is a text file of at most {MAX_FILE_BYTES} bytes)"))
+    except OSError as exc:
+        raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
+    rows: list[tuple[float, ...]] = []
+    line_of: list[int] = []  # the file's line of each row, for the messages
+    columns = 0
+    pos, number, seen_data = 0, 0, False
+    while pos < len(data):
+        match = _LINE.match(data, pos)
+        pos, number = match.end(), number + 1
+        if match.end() == match.start():
+            break
+        text = match.group(1).decode("latin-1").strip().lstrip("\ufeff")
+        if not text or text.startswith(_COMMENT):
+            continue
+        words = [w for w in _SEPARATOR.split(text) if w]
+        if not words:
+            continue
+        try:
+            if any("_" in w for w in words):  # float() reads '1_0' as 10: a typing error here, never a value
+                raise ValueError
+            row = tuple(float(w) for w in words)
+        except ValueError:
+            if not seen_data and not any(_is_number(w) for w in words):
+                seen_data = True  # a header of column names, once, before the first value
+                continue
+            raise RecordError(f"{path}:{number}: {text[:60]!r} is not a row of numbers") from None
+        seen_data = True
+        if not all(math.isfinite(v) for v in row):
+            raise RecordError(f"{path}:{number}: {text[:60]!r} holds a value that is not finite")
+        if columns == 0:
+            columns = len(row)
+            if columns > 2:
+                raise RecordError(f"{path}:{number}: {columns} columns; a record file has one (acceleration) or two "
+                                  "(time, acceleration)")
+        elif len(row) != columns:
+            raise RecordError(f"{path}:{number}: {len(row)} columns where the lines above have {columns}")
+        if len(rows) == MAX_SAMPLES:
+            raise RecordError(f"{path}:{number}: more than {MAX_SAMPLES} samples")
+        rows.append(row)
+        line_of.append(number)
+    if len(rows) < 2:
+        raise RecordError(f"{path}: {len(rows)} samples; a record needs at least 2")
+    values = np.array(rows, dtype=float)
+    if columns == 1:
+        if dt_s is None:
+            raise RecordError(f"{path}: one column of accelerations and no time step: give dt_s ([record] dt_s in a "
+                              "run configuration), or a first column of times")
+        return GroundMotion(name=path.name, dt=dt_s, accel_g=values[:, 0] * factor)
+    t, accel = values[:, 0], values[:, 1]
+    steps = np.diff(t)
+    if not np.all(steps > 0):
+        i = int(np.flatnonzero(steps <= 0)[0])
+        raise RecordError(f"{path}:{line_of[i + 1]}: the times of the first column do not increase "
+                          f"({t[i]:g} s, then {t[i + 1]:g} s)")
+    step = float(np.median(steps))
+    uneven = np.flatnonzero(np.abs(steps - step) > 1e-3 * step)
+    if uneven.size:
+        i = int(uneven[0])
+        raise RecordError(f"{path}:{line_of[i + 1]}: the times are not evenly spaced: {t[i]:g} to {t[i + 1]:g} s is a "
+                          f"step of {steps[i]:g} s where the record's step is {step:g} s; resample it")
+    dt = float(t[-1] - t[0]) / (len(t) - 1)
+    if not DT_MIN_S <= dt <= DT_MAX_S:
+        raise RecordError(f"{path}: time step {dt:g} s is out of bounds: within {DT_MIN_S:g}..{DT_MAX_S:g} s")
+    if dt_s is not None and not math.isclose(dt_s, dt, rel_tol=1e-3):
+        raise RecordError(f"{path}: dt_s = {dt_s:g} s but the times of the first column are {dt:g} s apart")
+    return GroundMotion(name=path.name, dt=dt, accel_g=accel * factor)
+
+
+def _is_number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
 
 
 def _line_number(data: bytes, offset: int) -> int:
@@ -217,17 +363,22 @@ def _line_number(data: bytes, offset: int) -> int:
     return head.count(b"\n") + head.count(b"\r") - head.count(b"\r\n") + 1
 
 
-def _check_units(path: Path, line: str) -> None:
-    """Line 3 names the quantity and its units; hsio reads accelerations in g and refuses anything
-    else rather than reading, say, cm/s^2 as g."""
+def _check_units(path: Path, line: str) -> float:
+    """Line 3 names the quantity and its units: the size of that unit in g (1 when it names none).
+    Velocities, displacements and units hsio does not know are refused rather than read, say,
+    cm/s^2 as g."""
     other = _NOT_ACCELERATION.search(line)
     if other:
         raise RecordError(f"{path}:3: the record holds {other.group(1).lower()}, not acceleration "
-                          f"({line.strip()!r}); hsio reads ground accelerations in g")
+                          f"({line.strip()!r}); hsio reads ground accelerations")
     units = _UNITS.search(line)
-    if units and units.group(1).strip(".,;()[]").upper() != "G":
-        raise RecordError(f"{path}:3: the accelerations are in units of {units.group(1)!r}; hsio reads them in g "
-                          f"(convert the file, e.g. divide cm/s^2 by 980.665)")
+    if not units:
+        return 1.0
+    factor = unit_in_g(units.group(1))
+    if factor is None:
+        raise RecordError(f"{path}:3: the accelerations are in units of {units.group(1)!r}, which hsio does not "
+                          f"know; it reads {_known_units()}")
+    return factor
 
 
 def synthetic_record(

@@ -26,7 +26,7 @@ from hsio.emulators.servo import ServoConfig
 from hsio.errors import ConfigError, HsioError, RecordError
 from hsio.experiment import ExperimentStopped, write_events
 from hsio.hardware import check_options
-from hsio.ground_motion import GroundMotion, read_at2, synthetic_record
+from hsio.ground_motion import GroundMotion, read_record, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
 from hsio.integrators.mixed import RATIO_D, RATIO_F, initial_stiffness_thresholds, predicted_elastic
 from hsio.ledger import Ledger
@@ -53,7 +53,7 @@ def build_record(config: RunConfig, structure: Structure, replay: bool = False) 
     new run, runs the whole record, as runs recorded before that refusal did."""
     rec = config["record"]
     if rec["file"]:
-        ground = read_at2(rec["file"])
+        ground = read_record(rec["file"], dt_s=rec["dt_s"] or None, units=rec["units"] or None)
     else:
         try:
             ground = synthetic_record(duration_s=rec["synthetic_duration_s"], dt=structure.dt, pga_g=rec["pga_g"],

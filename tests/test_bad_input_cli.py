@@ -88,13 +88,13 @@ def write_at2(path, line3, values=("0.01", "0.02", "-0.01", "0.0", "0.01")):
 
 
 @pytest.mark.parametrize("line3, words", [
-    ("ACCELERATION TIME SERIES IN UNITS OF CM/S/S", "units of 'CM/S/S'"),
-    ("ACCELERATION TIME SERIES IN UNITS OF M/S2", "units of 'M/S2'"),
+    ("ACCELERATION TIME SERIES IN UNITS OF FT/S/S", "units of 'FT/S/S', which hsio does not know"),
+    ("ACCELERATION TIME SERIES IN UNITS OF KN", "units of 'KN'"),
     ("VELOCITY TIME SERIES IN UNITS OF CM/S", "holds velocity"),
     ("DISPLACEMENT TIME SERIES IN UNITS OF CM", "holds displacement"),
 ])
-def test_an_at2_record_not_in_g_is_refused_naming_line_3(tmp_path, line3, words):
-    """A record in cm/s^2 read as g would run 980 times too strong."""
+def test_an_at2_record_in_a_unit_hsio_does_not_know_is_refused_naming_line_3(tmp_path, line3, words):
+    """A record in an unknown unit read as g could run hundreds of times too strong."""
     path = write_at2(tmp_path / "r.AT2", line3)
     with pytest.raises(RecordError, match=r"r.AT2:3: ") as info:
         read_at2(path)
