@@ -2,6 +2,7 @@
 estimation, and the whole loop on the emulated hockey-stick actuators of structures I and II."""
 
 import json
+import math
 import subprocess
 import sys
 
@@ -396,3 +397,34 @@ def test_an_opensees_lab_compensates_through_setups_by_the_actuators_names(tmp_p
         assert wait_for(lambda: session_over(server)), server.lines
     assert not used["lower"]["enabled"] and used["upper"]["enabled"]
     assert used["upper"]["lag_s"] == pytest.approx(7.874e-5 * 254.0)
+
+
+def test_a_record_of_an_opensees_lab_through_setups_calibrates_the_actuators(tmp_path):
+    """`hsio serve opensees` records the compensation table as `hsio run` does: a record made
+    through a setup (basic DOFs x and a rotation on two actuators) calibrates each actuator's
+    stroke by its name, and b d_max is the emulator's lag on both."""
+    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for, write_config
+    from hsio.compensation import calibration
+    from hsio.opensees import protocol as p
+
+    extra = "[test]\nrate = 10\nhold_fraction = 0.0\nn_avg = 1\n"
+    config = write_config(tmp_path, "column_two_actuators", ["column"], extra=extra + QUIET + "lag_s = 0.03\n")
+    with serving(config) as server:
+        c = RawClient(server.ports[0])
+        try:
+            c.setup(n=2)
+            for k in range(1, 81):  # a sine of growing amplitude: motion at many speeds
+                x = 0.25 * k * math.sin(2 * math.pi * k / 16)
+                c.send(p.SET_TRIAL, [x, 2e-4 * x], t=0.01 * k)
+                c.ask(p.GET_FORCE)
+                c.send(p.COMMIT)
+            c.send(p.DIE)
+        finally:
+            c.close()
+        assert wait_for(lambda: session_over(server)), server.lines
+    record = tmp_path / "records" / "run.sqlite"
+    assert Run(record).summary["compensation"]["mode"] == "off"
+    cals = {cal.actuator: cal for cal in calibration.calibrate(record)}
+    assert set(cals) == {"lower", "upper"}
+    for cal in cals.values():
+        assert cal.fit.b_s_mm * 254.0 == pytest.approx(0.03, rel=0.05)
