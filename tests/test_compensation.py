@@ -135,9 +135,39 @@ def test_online_estimator_is_bounded_and_rate_limited():
     steps = np.diff([0.0, *lags])
     assert max(lags) <= 0.05 + 1e-12 and np.all(np.abs(steps) <= 0.004 + 1e-12)
     quiet = OnlineEstimator(settings)
-    for _ in range(400):  # noise only: nothing is learnt
+    for _ in range(400):  # noise only: the lag stays zero
         quiet.observe(rng.uniform(-50, 50), rng.normal(0, 0.01))
-    assert quiet.updates == 0 and quiet.lag == 0.0 and quiet.rejected > 0
+    assert quiet.lag == 0.0 and quiet.a == 0.0 and quiet.updates == quiet.zero_updates
+    still = OnlineEstimator(settings, a_mm_s=2.0, lag_s=0.01)
+    for _ in range(400):  # no motion beyond the threshold: nothing is learnt, not even zero lag
+        still.observe(rng.uniform(-2, 2), rng.normal(0, 0.01))
+    assert still.updates == 0 and still.lag == 0.01 and still.rejected > 0
+
+
+def lag_then_none(est: OnlineEstimator, lags, a_mm_s: float = 3.0, noise_mm: float = 0.005, seed: int = 2):
+    """Feeds ``est`` one sample per step of an actuator whose lag is ``lags[i]`` (s) at step i
+    (eq. 1, threshold ``a_mm_s``), under a sine of varying amplitude; the lag in use per step."""
+    rng = np.random.default_rng(seed)
+    used = []
+    for i, lag in enumerate(lags):
+        v = (20.0 + 20.0 * math.sin(2 * math.pi * i / 211)) * math.sin(2 * math.pi * i / 37)
+        est.observe(v, lag * hockey_stick.excess_velocity(v, a_mm_s) + rng.normal(0.0, noise_mm))
+        used.append(est.lag)
+    return np.array(used)
+
+
+def test_online_estimate_returns_to_zero_lag_when_the_lag_goes_away():
+    """The actuator's lag is 20 ms, then 0: the estimate follows it there and back to exactly 0
+    (a fit whose b is within two standard deviations of zero is zero lag), not staying at the
+    last positive b the relative test accepted."""
+    est = OnlineEstimator(EstimatorSettings())
+    used = lag_then_none(est, [0.02] * 600 + [0.0] * 800)
+    assert used[599] == pytest.approx(0.02, rel=0.1)
+    assert used[-1] == 0.0 and est.zero_updates > 0
+    assert np.all(np.abs(np.diff(used)) <= EstimatorSettings().lag_step_s + 1e-12)  # still rate-limited
+    stays = OnlineEstimator(EstimatorSettings())  # a lag that stays is not taken for zero
+    assert lag_then_none(stays, [0.02] * 1400)[600:] == pytest.approx(0.02, rel=0.1)
+    assert stays.zero_updates == 0
 
 
 # -- configuration -----------------------------------------------------------------------------------

@@ -220,7 +220,7 @@ class CompensationStage:
             entry = {"enabled": self.enabled[j], "a_mm_s": ff.a, "b_s_mm": ff.lag / s.d_max_mm, "lag_s": ff.lag,
                      "rms_error_mm": float(math.sqrt(self._sq[j] / self._n[j])) if self._n[j] else None}
             if est is not None:
-                entry.update(updates=est.updates, rejected=est.rejected,
+                entry.update(updates=est.updates, zero_lag_updates=est.zero_updates, rejected=est.rejected,
                              start={"a_mm_s": s.a_mm_s, "b_s_mm": s.b_s_mm})
             out["actuators"][name] = entry
         return out
