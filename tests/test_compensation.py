@@ -458,3 +458,61 @@ def test_a_record_of_an_opensees_lab_through_setups_calibrates_the_actuators(tmp
     assert set(cals) == {"lower", "upper"}
     for cal in cals.values():
         assert cal.fit.b_s_mm * 254.0 == pytest.approx(0.03, rel=0.05)
+
+
+# -- per-actuator parameters --------------------------------------------------------------------------
+
+def test_offline_parameters_per_actuator_default_to_the_shared_ones():
+    """by_actuator gives an actuator its own a and b; the others (and a key it does not give)
+    keep the shared values: each actuator's eq. 2 uses its own lag."""
+    cfg = config_mod.from_dict({"structure": {"name": "column_two_actuators"},
+                                "test": {"hold_fraction": 0.0},
+                                "compensation": {"mode": "offline", "a_mm_s": 1.0, "b_s_mm": 5e-5,
+                                                 "by_actuator": {"upper": {"b_s_mm": 1e-4}}}}, "lab.toml")
+    stage = runner.compensation_stage(cfg, runner.load_run_structure(cfg))
+    assert stage.names == ["lower", "upper"]
+    assert [ff.a for ff in stage.feedforward] == [1.0, 1.0]
+    assert [ff.lag for ff in stage.feedforward] == pytest.approx([5e-5 * 254.0, 1e-4 * 254.0])
+    used = stage.summary()["actuators"]
+    assert used["upper"]["b_s_mm"] == pytest.approx(1e-4) and used["lower"]["b_s_mm"] == pytest.approx(5e-5)
+    # a command of 1 mm after one at rest (lead form, v = 1 mm / t_d): each moved ahead by its own lag
+    stage.adjust([0.0, 0.0])
+    d_a = stage.adjust([1.0, 1.0])
+    v = 1.0 / stage.t_d
+    assert d_a == pytest.approx([1.0 + 5e-5 * 254.0 * (v - 1.0), 1.0 + 1e-4 * 254.0 * (v - 1.0)])
+
+
+@pytest.mark.parametrize("by_actuator, message", [
+    ({"middle": {"b_s_mm": 1e-4}}, r"by_actuator.middle: unknown actuator 'middle'; known: lower, upper"),
+    ({"upper": {"lag": 0.02}}, r"by_actuator.upper: unknown key 'lag'; known: a_mm_s, b_s_mm"),
+    ({"upper": {"b_s_mm": -1e-4}}, r"by_actuator.upper.b_s_mm must be a number, zero or positive"),
+    ({"upper": {"b_s_mm": 0.1}}, r"by_actuator.upper.b_s_mm x d_max_mm \(the lag\) = 25.4\d* is out of bounds: at most 10 s"),
+    ({"upper": 1e-4}, r"by_actuator.upper must be a table"),
+])
+def test_a_bad_per_actuator_parameter_is_named(tmp_path, by_actuator, message):
+    cfg = config_mod.from_dict({"structure": {"name": "column_two_actuators"}, "test": {"hold_fraction": 0.0},
+                                "compensation": {"mode": "offline", "b_s_mm": 5e-5, "by_actuator": by_actuator}}, "lab.toml") \
+        if "middle" in by_actuator else None
+    if cfg is None:
+        with pytest.raises(ConfigError, match=message) as info:
+            config_mod.from_dict({"compensation": {"mode": "offline", "b_s_mm": 5e-5, "by_actuator": by_actuator}},
+                                 "lab.toml")
+    else:
+        with pytest.raises(ConfigError, match=message) as info:
+            runner.run(cfg, tmp_path / "x")  # refused before anything opens: no folder
+        assert not (tmp_path / "x").exists()
+    assert "lab.toml" in str(info.value) and "[compensation]" in str(info.value)
+
+
+def test_offline_needs_a_b_for_every_compensated_actuator():
+    """Without a shared b, an actuator that by_actuator gives no b is named; one left out of the
+    compensation may not be given values (they would not be read)."""
+    s = CompensationSettings(mode="offline", by_actuator={"upper": {"b_s_mm": 1e-4}})
+    with pytest.raises(ConfigError, match=r"actuator 'lower': mode = 'offline' needs the calibrated b_s_mm"):
+        CompensationStage(["lower", "upper"], 0.1, s)
+    stage = CompensationStage(["lower", "upper"], 0.1, CompensationSettings(
+        mode="offline", actuators=["upper"], by_actuator={"upper": {"b_s_mm": 1e-4}}))
+    assert [ff.lag for ff in stage.feedforward] == pytest.approx([0.0, 1e-4 * 254.0])
+    with pytest.raises(ConfigError, match=r"by_actuator.lower: actuator 'lower' is not compensated"):
+        CompensationStage(["lower", "upper"], 0.1, CompensationSettings(
+            mode="offline", b_s_mm=5e-5, actuators=["upper"], by_actuator={"lower": {"b_s_mm": 1e-4}}))

@@ -42,6 +42,27 @@ def test_an_element_waiting_while_another_moves_is_not_dropped(tmp_path):
     assert run.summary["steps"] == 2 and run.summary["stopped"] == "" and run.events() == []
 
 
+def test_an_element_that_committed_waits_out_another_elements_motion(tmp_path):
+    """C1 moves and commits first; C2 then moves (0.6 s) and commits: C1's wait for the step
+    is not cut short by the timeout while C2's motion runs."""
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra=SLOW)
+    with serving(config) as server:
+        a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
+        a.setup()
+        b.setup()
+        for k in (1, 2):
+            a.step(0.5 * k, 0.01 * k)
+            b.step(0.5 * k, 0.01 * k)
+        assert a.ask(p.GET_TIME)[0] == pytest.approx(0.02)  # C1 is still served after step 2
+        a.send(p.DIE)
+        b.send(p.DIE)
+        a.close()
+        b.close()
+        assert wait_for(lambda: session_over(server))
+    run = Run(tmp_path / "records" / "run.sqlite")
+    assert run.summary["steps"] == 2 and run.summary["stopped"] == "" and run.events() == []
+
+
 def test_silence_after_the_motion_still_drops_the_element(tmp_path):
     """Once the motion is over, a client silent for timeout_s is dropped as before."""
     config = write_config(tmp_path, "validation", ["C1"], extra=SLOW)

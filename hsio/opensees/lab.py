@@ -723,7 +723,8 @@ class Lab:
         same step (the step is recorded), so that no element's next trial runs into a step the
         others have not finished: the served elements step together, as the elements of one
         OpenSees model do. commitState has no reply, so the model is never held up by the wait.
-        Raises HsioError after ``timeout_s``, or at once when the server stops (:meth:`release`)."""
+        Raises HsioError after ``timeout_s`` of waiting that no motion explains (:meth:`silent_since`),
+        or at once when the server stops (:meth:`release`)."""
         start = time.monotonic()
         with self._stepped:
             def over():
