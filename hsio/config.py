@@ -36,7 +36,8 @@ DEFAULTS: dict[str, dict] = {
     "output": {"samples": True, "plots": True, "ns": True},
     # Feed-forward error compensation (docs/compensation.md); estimator keys as in
     # hsio.compensation.online.EstimatorSettings.
-    "compensation": {"mode": "off", "a_mm_s": 0.0, "b_s_mm": 0.0, "actuators": [], "form": "lead", "d_max_mm": 254.0,
+    "compensation": {"mode": "off", "a_mm_s": 0.0, "b_s_mm": 0.0, "by_actuator": {}, "actuators": [], "form": "lead",
+                     "d_max_mm": 254.0,
                      "window": 400, "update_every": 10, "min_samples": 40, "min_beyond": 20, "max_rel_std": 0.25,
                      "lag_max_s": 0.1, "a_max_mm_s": 50.0, "lag_step_s": 0.005, "a_step_mm_s": 2.0},
     # Safe lab sessions (docs/safety.md): the dry run, the interlocks, operator control; the

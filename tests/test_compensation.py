@@ -2,6 +2,7 @@
 estimation, and the whole loop on the emulated hockey-stick actuators of structures I and II."""
 
 import json
+import math
 import subprocess
 import sys
 
@@ -134,9 +135,39 @@ def test_online_estimator_is_bounded_and_rate_limited():
     steps = np.diff([0.0, *lags])
     assert max(lags) <= 0.05 + 1e-12 and np.all(np.abs(steps) <= 0.004 + 1e-12)
     quiet = OnlineEstimator(settings)
-    for _ in range(400):  # noise only: nothing is learnt
+    for _ in range(400):  # noise only: the lag stays zero
         quiet.observe(rng.uniform(-50, 50), rng.normal(0, 0.01))
-    assert quiet.updates == 0 and quiet.lag == 0.0 and quiet.rejected > 0
+    assert quiet.lag == 0.0 and quiet.a == 0.0 and quiet.updates == quiet.zero_updates
+    still = OnlineEstimator(settings, a_mm_s=2.0, lag_s=0.01)
+    for _ in range(400):  # no motion beyond the threshold: nothing is learnt, not even zero lag
+        still.observe(rng.uniform(-2, 2), rng.normal(0, 0.01))
+    assert still.updates == 0 and still.lag == 0.01 and still.rejected > 0
+
+
+def lag_then_none(est: OnlineEstimator, lags, a_mm_s: float = 3.0, noise_mm: float = 0.005, seed: int = 2):
+    """Feeds ``est`` one sample per step of an actuator whose lag is ``lags[i]`` (s) at step i
+    (eq. 1, threshold ``a_mm_s``), under a sine of varying amplitude; the lag in use per step."""
+    rng = np.random.default_rng(seed)
+    used = []
+    for i, lag in enumerate(lags):
+        v = (20.0 + 20.0 * math.sin(2 * math.pi * i / 211)) * math.sin(2 * math.pi * i / 37)
+        est.observe(v, lag * hockey_stick.excess_velocity(v, a_mm_s) + rng.normal(0.0, noise_mm))
+        used.append(est.lag)
+    return np.array(used)
+
+
+def test_online_estimate_returns_to_zero_lag_when_the_lag_goes_away():
+    """The actuator's lag is 20 ms, then 0: the estimate follows it there and back to exactly 0
+    (a fit whose b is within two standard deviations of zero is zero lag), not staying at the
+    last positive b the relative test accepted."""
+    est = OnlineEstimator(EstimatorSettings())
+    used = lag_then_none(est, [0.02] * 600 + [0.0] * 800)
+    assert used[599] == pytest.approx(0.02, rel=0.1)
+    assert used[-1] == 0.0 and est.zero_updates > 0
+    assert np.all(np.abs(np.diff(used)) <= EstimatorSettings().lag_step_s + 1e-12)  # still rate-limited
+    stays = OnlineEstimator(EstimatorSettings())  # a lag that stays is not taken for zero
+    assert lag_then_none(stays, [0.02] * 1400)[600:] == pytest.approx(0.02, rel=0.1)
+    assert stays.zero_updates == 0
 
 
 # -- configuration -----------------------------------------------------------------------------------
@@ -396,3 +427,92 @@ def test_an_opensees_lab_compensates_through_setups_by_the_actuators_names(tmp_p
         assert wait_for(lambda: session_over(server)), server.lines
     assert not used["lower"]["enabled"] and used["upper"]["enabled"]
     assert used["upper"]["lag_s"] == pytest.approx(7.874e-5 * 254.0)
+
+
+def test_a_record_of_an_opensees_lab_through_setups_calibrates_the_actuators(tmp_path):
+    """`hsio serve opensees` records the compensation table as `hsio run` does: a record made
+    through a setup (basic DOFs x and a rotation on two actuators) calibrates each actuator's
+    stroke by its name, and b d_max is the emulator's lag on both."""
+    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for, write_config
+    from hsio.compensation import calibration
+    from hsio.opensees import protocol as p
+
+    extra = "[test]\nrate = 10\nhold_fraction = 0.0\nn_avg = 1\n"
+    config = write_config(tmp_path, "column_two_actuators", ["column"], extra=extra + QUIET + "lag_s = 0.03\n")
+    with serving(config) as server:
+        c = RawClient(server.ports[0])
+        try:
+            c.setup(n=2)
+            for k in range(1, 81):  # a sine of growing amplitude: motion at many speeds
+                x = 0.25 * k * math.sin(2 * math.pi * k / 16)
+                c.send(p.SET_TRIAL, [x, 2e-4 * x], t=0.01 * k)
+                c.ask(p.GET_FORCE)
+                c.send(p.COMMIT)
+            c.send(p.DIE)
+        finally:
+            c.close()
+        assert wait_for(lambda: session_over(server)), server.lines
+    record = tmp_path / "records" / "run.sqlite"
+    assert Run(record).summary["compensation"]["mode"] == "off"
+    cals = {cal.actuator: cal for cal in calibration.calibrate(record)}
+    assert set(cals) == {"lower", "upper"}
+    for cal in cals.values():
+        assert cal.fit.b_s_mm * 254.0 == pytest.approx(0.03, rel=0.05)
+
+
+# -- per-actuator parameters --------------------------------------------------------------------------
+
+def test_offline_parameters_per_actuator_default_to_the_shared_ones():
+    """by_actuator gives an actuator its own a and b; the others (and a key it does not give)
+    keep the shared values: each actuator's eq. 2 uses its own lag."""
+    cfg = config_mod.from_dict({"structure": {"name": "column_two_actuators"},
+                                "test": {"hold_fraction": 0.0},
+                                "compensation": {"mode": "offline", "a_mm_s": 1.0, "b_s_mm": 5e-5,
+                                                 "by_actuator": {"upper": {"b_s_mm": 1e-4}}}}, "lab.toml")
+    stage = runner.compensation_stage(cfg, runner.load_run_structure(cfg))
+    assert stage.names == ["lower", "upper"]
+    assert [ff.a for ff in stage.feedforward] == [1.0, 1.0]
+    assert [ff.lag for ff in stage.feedforward] == pytest.approx([5e-5 * 254.0, 1e-4 * 254.0])
+    used = stage.summary()["actuators"]
+    assert used["upper"]["b_s_mm"] == pytest.approx(1e-4) and used["lower"]["b_s_mm"] == pytest.approx(5e-5)
+    # a command of 1 mm after one at rest (lead form, v = 1 mm / t_d): each moved ahead by its own lag
+    stage.adjust([0.0, 0.0])
+    d_a = stage.adjust([1.0, 1.0])
+    v = 1.0 / stage.t_d
+    assert d_a == pytest.approx([1.0 + 5e-5 * 254.0 * (v - 1.0), 1.0 + 1e-4 * 254.0 * (v - 1.0)])
+
+
+@pytest.mark.parametrize("by_actuator, message", [
+    ({"middle": {"b_s_mm": 1e-4}}, r"by_actuator.middle: unknown actuator 'middle'; known: lower, upper"),
+    ({"upper": {"lag": 0.02}}, r"by_actuator.upper: unknown key 'lag'; known: a_mm_s, b_s_mm"),
+    ({"upper": {"b_s_mm": -1e-4}}, r"by_actuator.upper.b_s_mm must be a number, zero or positive"),
+    ({"upper": {"b_s_mm": 0.1}}, r"by_actuator.upper.b_s_mm x d_max_mm \(the lag\) = 25.4\d* is out of bounds: at most 10 s"),
+    ({"upper": 1e-4}, r"by_actuator.upper must be a table"),
+])
+def test_a_bad_per_actuator_parameter_is_named(tmp_path, by_actuator, message):
+    cfg = config_mod.from_dict({"structure": {"name": "column_two_actuators"}, "test": {"hold_fraction": 0.0},
+                                "compensation": {"mode": "offline", "b_s_mm": 5e-5, "by_actuator": by_actuator}}, "lab.toml") \
+        if "middle" in by_actuator else None
+    if cfg is None:
+        with pytest.raises(ConfigError, match=message) as info:
+            config_mod.from_dict({"compensation": {"mode": "offline", "b_s_mm": 5e-5, "by_actuator": by_actuator}},
+                                 "lab.toml")
+    else:
+        with pytest.raises(ConfigError, match=message) as info:
+            runner.run(cfg, tmp_path / "x")  # refused before anything opens: no folder
+        assert not (tmp_path / "x").exists()
+    assert "lab.toml" in str(info.value) and "[compensation]" in str(info.value)
+
+
+def test_offline_needs_a_b_for_every_compensated_actuator():
+    """Without a shared b, an actuator that by_actuator gives no b is named; one left out of the
+    compensation may not be given values (they would not be read)."""
+    s = CompensationSettings(mode="offline", by_actuator={"upper": {"b_s_mm": 1e-4}})
+    with pytest.raises(ConfigError, match=r"actuator 'lower': mode = 'offline' needs the calibrated b_s_mm"):
+        CompensationStage(["lower", "upper"], 0.1, s)
+    stage = CompensationStage(["lower", "upper"], 0.1, CompensationSettings(
+        mode="offline", actuators=["upper"], by_actuator={"upper": {"b_s_mm": 1e-4}}))
+    assert [ff.lag for ff in stage.feedforward] == pytest.approx([0.0, 1e-4 * 254.0])
+    with pytest.raises(ConfigError, match=r"by_actuator.lower: actuator 'lower' is not compensated"):
+        CompensationStage(["lower", "upper"], 0.1, CompensationSettings(
+            mode="offline", b_s_mm=5e-5, actuators=["upper"], by_actuator={"lower": {"b_s_mm": 1e-4}}))

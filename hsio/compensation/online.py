@@ -11,7 +11,14 @@ destabilise the test:
 * bounds: 0 <= a <= a_max, 0 <= L <= lag_max (L = b d_max);
 * rate limits: |change of L| <= lag_step_s and |change of a| <= a_step_mm_s per update;
 * acceptance: at least ``min_samples`` samples, b > 0, relative standard deviation of b at most
-  ``max_rel_std``, and enough motion beyond the threshold (``min_beyond`` samples with |v| > a).
+  ``max_rel_std``, and enough motion beyond the threshold (``min_beyond`` samples with |v| > a);
+* zero lag: a window that fails that test is taken as b = 0 (the parameters move towards L = 0,
+  a kept) when its slope on the excess velocity beyond the threshold in use, sign(v) (|v| - a)
+  of eq. 1 fitted through the origin, is within ``ZERO_SIGMAS`` standard deviations of zero, the
+  data bound it that tightly (``ZERO_SIGMAS`` sigma at most ``lag_step_s``) and at least
+  ``min_beyond`` samples move beyond the threshold. An actuator whose lag falls to zero gives no
+  positive b that passes the relative test, and without this the estimate would stay at the last
+  lag; a window without motion beyond the threshold still changes nothing.
 
 It starts from a configured guess (a, L) or from nothing (L = 0: no compensation until the
 first accepted estimate).
@@ -26,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from hsio.compensation import hockey_stick
+
+ZERO_SIGMAS = 2.0  # a slope within this many standard deviations of zero is zero lag
 
 
 @dataclass
@@ -53,7 +62,8 @@ class OnlineEstimator:
         self._v: collections.deque = collections.deque(maxlen=s.window)
         self._e: collections.deque = collections.deque(maxlen=s.window)
         self._since = 0
-        self.updates = 0  # accepted estimates
+        self.updates = 0  # accepted estimates (zero-lag ones among them)
+        self.zero_updates = 0  # accepted estimates of zero lag
         self.rejected = 0
         self.last_fit: hockey_stick.HockeyStick | None = None
 
@@ -76,16 +86,42 @@ class OnlineEstimator:
         try:
             fit = hockey_stick.fit(v, e, d_max_mm=1.0, a_max=s.a_max_mm_s)  # errors in mm: b is the lag
         except hockey_stick.FitError:
-            self.rejected += 1
-            return False
-        beyond = int(np.count_nonzero(np.abs(v) > fit.a_mm_s))
-        rel = fit.b_std / fit.b_s_mm if fit.b_s_mm > 0 else math.inf
-        if not (fit.b_s_mm > 0 and math.isfinite(rel) and rel <= s.max_rel_std and beyond >= s.min_beyond):
-            self.rejected += 1
-            return False
+            fit = None
+        if fit is not None:
+            beyond = int(np.count_nonzero(np.abs(v) > fit.a_mm_s))
+            rel = fit.b_std / fit.b_s_mm if fit.b_s_mm > 0 else math.inf
+            if fit.b_s_mm > 0 and math.isfinite(rel) and rel <= s.max_rel_std and beyond >= s.min_beyond:
+                return self._move(fit, min(fit.b_s_mm, self.lag_limit), min(max(fit.a_mm_s, 0.0), s.a_max_mm_s))
+        zero = self.zero_fit(v, e)
+        if zero is not None:
+            self.zero_updates += 1
+            return self._move(zero, 0.0, self.a)
+        self.rejected += 1
+        return False
+
+    def zero_fit(self, v: np.ndarray, e: np.ndarray) -> hockey_stick.HockeyStick | None:
+        """The window as zero lag, or None: the slope b of e on x = sign(v) (|v| - a) (eq. 1 at
+        the threshold a in use) through the origin, b = x.e / x.x with sigma_b^2 = s^2 / x.x and
+        s^2 = |e - b x|^2 / (n - 1), is accepted as zero when |b| <= ZERO_SIGMAS sigma_b <=
+        lag_step_s and at least ``min_beyond`` samples move beyond a."""
+        s = self.settings
+        x = hockey_stick.excess_velocity(v, self.a)
+        beyond = int(np.count_nonzero(x))
+        xx = float(x @ x)
+        if beyond < s.min_beyond or not xx > 0 or v.size < 2:
+            return None
+        b = float(x @ e) / xx
+        r = e - b * x
+        b_std = math.sqrt(float(r @ r) / (v.size - 1) / xx)
+        if not (math.isfinite(b_std) and abs(b) <= ZERO_SIGMAS * b_std <= s.lag_step_s):
+            return None
+        return hockey_stick.HockeyStick(self.a, 0.0, float("nan"), b_std, int(v.size),
+                                        float(math.sqrt(float(e @ e) / v.size)), 1.0)
+
+    def _move(self, fit: hockey_stick.HockeyStick, target_lag: float, target_a: float) -> bool:
+        """The parameters in use move towards an accepted estimate, bounded and rate-limited."""
+        s = self.settings
         self.last_fit = fit
-        target_lag = min(max(fit.b_s_mm, 0.0), self.lag_limit)
-        target_a = min(max(fit.a_mm_s, 0.0), s.a_max_mm_s)
         self.lag += float(np.clip(target_lag - self.lag, -s.lag_step_s, s.lag_step_s))
         self.a += float(np.clip(target_a - self.a, -s.a_step_mm_s, s.a_step_mm_s))
         self.updates += 1

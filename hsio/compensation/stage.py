@@ -11,7 +11,9 @@ measurement d^m comes back. The stage records, normalised by the stroke d_max,
 
 Modes: ``off`` (record Er^cc only), ``offline`` (fixed a and b from a calibration), ``online``
 (a and b re-estimated during the test, :mod:`~hsio.compensation.online`). Each actuator can be
-left out of the compensation.
+left out of the compensation. a and b (offline: the values used; online: the starting guess) are
+shared by the actuators unless ``by_actuator`` gives an actuator its own (each actuator has its
+own hockey stick, as ``hsio calibrate`` fits one per actuator).
 
 With mixed control (docs/method.md section 5) only the actuators in displacement control are
 compensated: eq. 2 describes a displacement loop, and an actuator in force control is sent a
@@ -35,6 +37,7 @@ from hsio.errors import ConfigError
 from hsio.ground_motion import MAX_STEPS
 
 MODES = ("off", "offline", "online")
+PARAMETERS = ("a_mm_s", "b_s_mm")  # what by_actuator may give an actuator
 
 
 @dataclass
@@ -44,6 +47,7 @@ class CompensationSettings:
     mode: str = "off"
     a_mm_s: float = 0.0  # threshold a of eq. 1 (offline; the starting guess online)
     b_s_mm: float = 0.0  # slope b of eq. 1 (offline; the starting guess online, 0 = from nothing)
+    by_actuator: dict = field(default_factory=dict)  # actuator -> {a_mm_s, b_s_mm}: its own (default: the above)
     actuators: list = field(default_factory=list)  # names of the compensated actuators; empty = all
     form: str = "lead"
     d_max_mm: float = D_MAX_MM
@@ -67,13 +71,24 @@ class CompensationSettings:
             raise ConfigError(f"{where}: mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.form not in FORMS:
             raise ConfigError(f"{where}: form must be one of {', '.join(FORMS)}, got {self.form!r}")
-        for name in ("a_mm_s", "b_s_mm"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
-                raise ConfigError(f"{where}: {name} must be a number, zero or positive, got {value!r}")
+        for name in PARAMETERS:
+            _parameter(where, name, getattr(self, name))
+        if not isinstance(self.by_actuator, dict):
+            raise ConfigError(f"{where}: by_actuator must be a table of actuator = {{a_mm_s, b_s_mm}}, "
+                              f"got {self.by_actuator!r}")
+        for actuator, own in self.by_actuator.items():
+            if not isinstance(own, dict) or not own:
+                raise ConfigError(f"{where}: by_actuator.{actuator} must be a table with a_mm_s and/or b_s_mm, "
+                                  f"got {own!r}")
+            unknown = sorted(set(own) - set(PARAMETERS))
+            if unknown:
+                raise ConfigError(f"{where}: by_actuator.{actuator}: unknown key {unknown[0]!r}; known: "
+                                  f"{', '.join(PARAMETERS)}")
+            for name, value in own.items():
+                _parameter(where, f"by_actuator.{actuator}.{name}", value)
         if not (isinstance(self.d_max_mm, (int, float)) and self.d_max_mm > 0):
             raise ConfigError(f"{where}: d_max_mm must be positive, got {self.d_max_mm!r}")
-        if self.mode == "offline" and not self.b_s_mm > 0:
+        if self.mode == "offline" and not self.b_s_mm > 0 and not self.by_actuator:
             raise ConfigError(f"{where}: mode = 'offline' needs the calibrated b_s_mm (and a_mm_s); "
                               "run `hsio calibrate` on an uncompensated continuous run")
         if not isinstance(self.actuators, list) or not all(isinstance(n, str) for n in self.actuators):
@@ -100,18 +115,42 @@ class CompensationSettings:
             if value > high:
                 what = "b_s_mm x d_max_mm (the lag)" if name == "lag_s" else name
                 raise ConfigError(f"{where}: {what} = {value!r} is out of bounds: at most {high:g}{unit}")
+        for actuator in self.by_actuator:  # an actuator's own values: the same bounds
+            a, b = self.parameters(actuator)
+            of = f"by_actuator.{actuator}."
+            if a > bounds["a_mm_s"][0]:
+                raise ConfigError(f"{where}: {of}a_mm_s = {a!r} is out of bounds: at most {bounds['a_mm_s'][0]:g} mm/s")
+            if b * self.d_max_mm > bounds["lag_s"][0]:
+                raise ConfigError(f"{where}: {of}b_s_mm x d_max_mm (the lag) = {b * self.d_max_mm!r} is out of "
+                                  f"bounds: at most {bounds['lag_s'][0]:g} s")
         # Online, the estimates stay within 0..a_max_mm_s and 0..lag_max_s: a starting guess beyond
         # them is refused, not clamped.
-        if self.mode == "online" and self.a_mm_s > e.a_max_mm_s:
-            raise ConfigError(f"{where}: the starting a_mm_s = {self.a_mm_s:g} is beyond a_max_mm_s = "
-                              f"{e.a_max_mm_s:g}, the bound on the online estimate; raise a_max_mm_s or lower a_mm_s")
-        if self.mode == "online" and self.lag_s > e.lag_max_s:
-            raise ConfigError(f"{where}: the starting lag b_s_mm x d_max_mm = {self.lag_s:g} s is beyond lag_max_s = "
-                              f"{e.lag_max_s:g} s, the bound on the online estimate; raise lag_max_s or lower b_s_mm")
+        if self.mode == "online":
+            for actuator in (None, *self.by_actuator):
+                a, b = self.parameters(actuator)
+                of = "" if actuator is None else f"by_actuator.{actuator}."
+                if a > e.a_max_mm_s:
+                    raise ConfigError(f"{where}: the starting {of}a_mm_s = {a:g} is beyond a_max_mm_s = "
+                                      f"{e.a_max_mm_s:g}, the bound on the online estimate; raise a_max_mm_s or lower "
+                                      f"{of}a_mm_s")
+                if b * self.d_max_mm > e.lag_max_s:
+                    raise ConfigError(f"{where}: the starting lag {of}b_s_mm x d_max_mm = {b * self.d_max_mm:g} s is "
+                                      f"beyond lag_max_s = {e.lag_max_s:g} s, the bound on the online estimate; raise "
+                                      f"lag_max_s or lower {of}b_s_mm")
+
+    def parameters(self, actuator: str | None = None) -> tuple[float, float]:
+        """(a_mm_s, b_s_mm) of ``actuator``: its own from ``by_actuator``, else the shared ones."""
+        own = self.by_actuator.get(actuator, {}) if actuator is not None else {}
+        return float(own.get("a_mm_s", self.a_mm_s)), float(own.get("b_s_mm", self.b_s_mm))
 
     @property
     def lag_s(self) -> float:
         return self.b_s_mm * self.d_max_mm
+
+
+def _parameter(where: str, name: str, value) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        raise ConfigError(f"{where}: {name} must be a number, zero or positive, got {value!r}")
 
 
 class CompensationStage:
@@ -129,19 +168,36 @@ class CompensationStage:
                               f"known: {', '.join(self.names)}")
         chosen = set(s.actuators) if s.actuators else set(self.names)
         self.enabled = [s.mode != "off" and n in chosen for n in self.names]
+        for name in s.by_actuator:
+            if name not in self.names:
+                raise ConfigError(f"[compensation] by_actuator.{name}: unknown actuator {name!r}; known: "
+                                  f"{', '.join(self.names)}")
+            if name not in chosen:
+                raise ConfigError(f"[compensation] by_actuator.{name}: actuator {name!r} is not compensated "
+                                  f"(actuators = {s.actuators}); give it in actuators or remove its values")
         lag_limit = 0.45 * self.t_d if s.form == "eq2" else math.inf
-        if s.mode == "offline" and s.form == "eq2" and s.lag_s >= 0.5 * self.t_d:
-            raise ConfigError(f"[compensation] form = 'eq2' is unstable here: b d_max = {s.lag_s:.4g} s >= "
-                              f"t_d / 2 = {0.5 * self.t_d:.4g} s (raise the test rate or use form = 'lead')")
-        if s.mode == "online" and s.lag_s > lag_limit:
-            raise ConfigError(f"[compensation] form = 'eq2': the starting lag b d_max = {s.lag_s:.4g} s is beyond "
-                              f"0.45 t_d = {lag_limit:.4g} s, the bound on the online estimate that keeps eq. 2 "
-                              "stable (raise the test rate, lower b_s_mm or use form = 'lead')")
+        for name, on in zip(self.names, self.enabled):
+            if not on:
+                continue
+            a, b = s.parameters(name)
+            lag, which = b * s.d_max_mm, f"actuator {name!r}: " if len(self.names) > 1 else ""
+            if s.mode == "offline" and not b > 0:
+                raise ConfigError(f"[compensation] {which}mode = 'offline' needs the calibrated b_s_mm (and a_mm_s), "
+                                  f"shared or in by_actuator.{name}; run `hsio calibrate` on an uncompensated "
+                                  "continuous run")
+            if s.mode == "offline" and s.form == "eq2" and lag >= 0.5 * self.t_d:
+                raise ConfigError(f"[compensation] {which}form = 'eq2' is unstable here: b d_max = {lag:.4g} s >= "
+                                  f"t_d / 2 = {0.5 * self.t_d:.4g} s (raise the test rate or use form = 'lead')")
+            if s.mode == "online" and lag > lag_limit:
+                raise ConfigError(f"[compensation] {which}form = 'eq2': the starting lag b d_max = {lag:.4g} s is "
+                                  f"beyond 0.45 t_d = {lag_limit:.4g} s, the bound on the online estimate that keeps "
+                                  "eq. 2 stable (raise the test rate, lower b_s_mm or use form = 'lead')")
         self.feedforward: list[FeedForward] = []
         self.estimators: list[OnlineEstimator | None] = []
-        for on in self.enabled:
+        for name, on in zip(self.names, self.enabled):
             est = None
-            a, lag = (s.a_mm_s, s.lag_s) if on else (0.0, 0.0)
+            a, b = s.parameters(name)
+            a, lag = (a, b * s.d_max_mm) if on else (0.0, 0.0)
             if on and s.mode == "online":
                 est = OnlineEstimator(s.estimator, a, lag, lag_limit)
                 a, lag = est.a, est.lag
@@ -220,7 +276,8 @@ class CompensationStage:
             entry = {"enabled": self.enabled[j], "a_mm_s": ff.a, "b_s_mm": ff.lag / s.d_max_mm, "lag_s": ff.lag,
                      "rms_error_mm": float(math.sqrt(self._sq[j] / self._n[j])) if self._n[j] else None}
             if est is not None:
-                entry.update(updates=est.updates, rejected=est.rejected,
-                             start={"a_mm_s": s.a_mm_s, "b_s_mm": s.b_s_mm})
+                a, b = s.parameters(name)
+                entry.update(updates=est.updates, zero_lag_updates=est.zero_updates, rejected=est.rejected,
+                             start={"a_mm_s": a, "b_s_mm": b})
             out["actuators"][name] = entry
         return out

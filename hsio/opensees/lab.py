@@ -10,7 +10,9 @@ is closed; a trial that was never committed is not written (docs/opensees.md).
 The structure's static preloads (``[[static]]``, docs/setups.md) are ramped in when a session
 opens, before any trial moves, and held through it; they ramp off when every element ended with
 DIE, and stay held when the session ended any other way (as when `hsio run` stops early). The
-record has their ``static`` table and the summary their ``static_hold_error``.
+record has their ``static`` table and the summary their ``static_hold_error``. The compensation
+stage records its table (per actuator, one row per motion) and its summary as in `hsio run`, so
+`hsio calibrate` reads a session's record as it reads a run's.
 
 A served element has as many basic DOFs as in its structure: one, on one actuator, or several,
 on the actuators of its setup (docs/setups.md). Its basic displacements go through the setup's
@@ -34,6 +36,7 @@ safety layer's warnings and trips go to the ``events`` table with their step, as
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sqlite3
 import threading
@@ -145,7 +148,11 @@ class Lab:
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hsio-opensees-lab")
         self._stepped = threading.Condition()  # notified when a step is recorded or an element leaves
         self.stopping = False  # the server is closing: no element waits for a step any more
+        self._work = threading.Lock()
+        self._working = 0  # motions of the actuators in progress (a trial, a preload ramp)
+        self._worked_at = -math.inf  # time.monotonic() when the last one ended
         self.site = None
+        self.compensation: CompensationStage | None = None  # the session's, recorded in its summary
         self.recorder: Recorder | None = None
         self.hold_message = "no session was open: no actuators to hold"  # the last session's hold, read back
         self.sessions = 0
@@ -219,8 +226,8 @@ class Lab:
         emulator = merged_emulator_table(hardware["actuator_model"], cfg["emulator"])
         # per actuator, as `hsio run` (through setups, the setups' actuators, not the basic DOFs)
         actuators = SetupMap.of(self.structure).actuator_names if self.structure.has_setups else self.channels
-        compensation = CompensationStage(list(actuators), test["rate"] * self.structure.dt,
-                                         CompensationSettings.from_table(cfg["compensation"]))
+        self.compensation = compensation = CompensationStage(list(actuators), test["rate"] * self.structure.dt,
+                                                             CompensationSettings.from_table(cfg["compensation"]))
         try:
             self.site = api.open_site(self.structure, hardware["url"], clock=hardware["clock"], test_rate=test["rate"],
                                       hold_fraction=test["hold_fraction"], n_avg=test["n_avg"],
@@ -235,7 +242,7 @@ class Lab:
                 "source": "opensees genericClient", "elements": self.names, "channels": self.channels, "dt": self.structure.dt,
                 "test_rate": test["rate"], "length_factor": self.settings.length_factor,
                 "force_factor": self.settings.force_factor, "force_correction": self.correct,
-                "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+                "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "start_state": self._state()}
         try:
             self.recorder = self._new_record(Path(self.settings.out), meta)
         except BaseException as exc:
@@ -244,11 +251,14 @@ class Lab:
             self.site.close()
             self.site = None
             raise
+        # per motion of the actuators, as `hsio run` records it: what `hsio calibrate` reads (docs/compensation.md)
+        compensation.sink = self.recorder.write_compensation
         self.log(f"session {self.sessions}: actuators of {', '.join(self.names)} open; record {self.recorder.path}")
         if self.structure.static:
             loads = ", ".join(f"{s.name} {s.force_kN:g} kN" for s in self.structure.static)
             try:
-                self.site.preload(stop=lambda: self.stopping)
+                with self._moving():
+                    self.site.preload(stop=lambda: self.stopping)
             except BaseException as exc:
                 self.failed = f"the static preloads could not be ramped in: {exc}"
                 self._close(self.failed)
@@ -280,6 +290,16 @@ class Lab:
         raise HsioError(f"{out}: no free record name among {first} .. run-{k - 1}.sqlite; "
                         "give the server another records folder (--out)")
 
+    def _state(self) -> dict:
+        """Measured displacement and force per actuator where they stand, as `hsio run` records
+        its ``start_state`` (by the actuators' names)."""
+        try:
+            feedback = self.site.loop.feedback()
+        except Exception as exc:  # a lost link: say so rather than guess
+            return {"error": str(exc)}
+        return {a.name: {"displacement_mm": f.displacement_mm, "force_kN": f.force_kN}
+                for a, f in zip(self.site.loop.actuators, feedback)}
+
     def _release_preloads(self, reason: str) -> None:
         """At the end of a session: the static preloads ramp off when every element ended with
         DIE and nothing failed; otherwise they stay held with the actuators, as when `hsio run`
@@ -294,7 +314,8 @@ class Lab:
         self.log(f"session {self.sessions}: ramping the static preloads off ({ramp_s:g} s of lab time; a client "
                  f"that connects meanwhile starts the next session after it)")
         try:
-            site.release(stop=lambda: self.stopping)
+            with self._moving():
+                site.release(stop=lambda: self.stopping)
             self.log(f"session {self.sessions}: static preloads ramped off")
         except RampStopped as exc:
             self.failed = f"the server stopped: {exc}"
@@ -352,6 +373,8 @@ class Lab:
                                          "retried_steps": self.retried_steps,
                                          "abandoned_trials": self.abandoned_total,
                                          "final_hold": self.hold_message,
+                                         **({"compensation": self.compensation.summary()}
+                                            if self.compensation is not None else {}),
                                          "wall_time_s": round(wall, 3),
                                          "site_time_s": round(self.site_s, 3),
                                          "record_time_s": round(self.record_s, 3),
@@ -442,7 +465,8 @@ class Lab:
             actuator.limits.check(ControlMode.DISPLACEMENT, float(value), f"actuator {actuator.name!r} trial")
         t0 = time.perf_counter()
         try:
-            site.set_trial(targets, [ControlMode.DISPLACEMENT] * self.n_channels)
+            with self._moving():
+                site.set_trial(targets, [ControlMode.DISPLACEMENT] * self.n_channels)
         except LimitError:  # refused before it was sent: nothing moved
             raise
         except BaseException:  # stopped on the way (an interlock): the specimen went part of it
@@ -587,6 +611,31 @@ class Lab:
         self.active.clear()
         self._close("server stopped")
 
+    # --- work in progress -----------------------------------------------------------------
+    @contextlib.contextmanager
+    def _moving(self):
+        """A motion of the actuators (a trial, a preload ramp): while it lasts, and until it ends,
+        the silence of every element's client is explained (:meth:`silent_since`)."""
+        with self._work:
+            self._working += 1
+        try:
+            yield
+        finally:
+            with self._work:
+                self._working -= 1
+                self._worked_at = time.monotonic()
+
+    def silent_since(self, start: float) -> float:
+        """The time (``time.monotonic()``) from which the silence of a client that has said
+        nothing since ``start`` counts against ``timeout_s``: now while the actuators execute a
+        motion for any element, else the later of ``start`` and the end of the last motion. An
+        element of a model waits, silent, while another element's motion runs (OpenSees asks its
+        elements one after the other): with a real-time clock a motion may outlast the timeout."""
+        with self._work:
+            if self._working:
+                return time.monotonic()
+            return max(start, self._worked_at)
+
     # --- the worker -----------------------------------------------------------------------
     def _call(self, fn, *args):
         try:
@@ -674,10 +723,19 @@ class Lab:
         same step (the step is recorded), so that no element's next trial runs into a step the
         others have not finished: the served elements step together, as the elements of one
         OpenSees model do. commitState has no reply, so the model is never held up by the wait.
-        Raises HsioError after ``timeout_s``, or at once when the server stops (:meth:`release`)."""
+        Raises HsioError after ``timeout_s`` of waiting that no motion explains (:meth:`silent_since`),
+        or at once when the server stops (:meth:`release`)."""
+        start = time.monotonic()
         with self._stepped:
-            done = self._stepped.wait_for(lambda: not self.committed_flags[j] or self.site is None or self.failed
-                                          or self.stopping, timeout_s)
+            def over():
+                return not self.committed_flags[j] or self.site is None or self.failed or self.stopping
+            done = over()
+            # each pass waits until the deadline, which moves only while the actuators move
+            for _ in range(1_000_000):
+                left = self.silent_since(start) + timeout_s - time.monotonic()
+                if done or left <= 0:
+                    break
+                done = self._stepped.wait_for(over, left)
             if self.stopping:
                 raise HsioError("the server is stopping")
         if not done:

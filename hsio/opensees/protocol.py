@@ -148,28 +148,39 @@ def action_of(frame: np.ndarray, where: str) -> int:
     return code
 
 
-def recv_exact(sock: socket.socket, n_bytes: int, buffer: bytearray | None = None) -> bytes | bytearray:
+def recv_exact(sock: socket.socket, n_bytes: int, buffer: bytearray | None = None,
+               silent_since=None) -> bytes | bytearray:
     """Exactly ``n_bytes`` from ``sock``, all of them within the socket's timeout (a peer that
     trickles a message byte by byte does not stretch it: :class:`TimeoutError` once it is spent);
-    :class:`PeerClosed` if the peer closes first, at most ``n_bytes`` ever buffered."""
+    :class:`PeerClosed` if the peer closes first, at most ``n_bytes`` ever buffered.
+
+    ``silent_since``, when given, maps the time the read began (``time.monotonic()``) to the time
+    from which the peer's silence counts: silence that work in progress explains is not counted
+    (:meth:`hsio.opensees.lab.Lab.silent_since`), so the timeout restarts while it lasts."""
     out = buffer if buffer is not None and len(buffer) == n_bytes else bytearray(n_bytes)
     view = memoryview(out)
     timeout = sock.gettimeout()
-    deadline = None if timeout is None else time.monotonic() + timeout
+    start = time.monotonic()
     got = 0
     try:
-        while got < n_bytes:  # each pass reads at least one byte or ends
-            if deadline is not None:
-                left = deadline - time.monotonic()
+        while got < n_bytes:  # each pass reads at least one byte, waits out a deadline or ends
+            if timeout is not None:
+                since = start if silent_since is None else max(start, silent_since(start))
+                left = since + timeout - time.monotonic()
                 if left <= 0:
                     raise TimeoutError(f"{got} of {n_bytes} bytes within {timeout:g} s")
                 sock.settimeout(left)
-            k = sock.recv_into(view[got:], n_bytes - got)
+            try:
+                k = sock.recv_into(view[got:], n_bytes - got)
+            except (TimeoutError, socket.timeout):
+                if silent_since is None:
+                    raise TimeoutError(f"{got} of {n_bytes} bytes within {timeout:g} s") from None
+                continue  # the deadline may have moved with work in progress: checked above
             if k == 0:
                 raise PeerClosed("the element closed the connection" + (f" after {got} of {n_bytes} bytes" if got else ""))
             got += k
     finally:
-        if deadline is not None:
+        if timeout is not None:
             sock.settimeout(timeout)
     return out
 
@@ -177,14 +188,15 @@ def recv_exact(sock: socket.socket, n_bytes: int, buffer: bytearray | None = Non
 class Framer:
     """Fixed-size frames of ``data_size`` float64 over one connection."""
 
-    def __init__(self, sock: socket.socket, data_size: int):
+    def __init__(self, sock: socket.socket, data_size: int, silent_since=None):
         self.sock = sock
         self.data_size = data_size
+        self.silent_since = silent_since  # see recv_exact
         self._buffer = bytearray(8 * data_size)
 
     def receive(self) -> np.ndarray:
         quick_ack(self.sock)
-        raw = recv_exact(self.sock, 8 * self.data_size, self._buffer)
+        raw = recv_exact(self.sock, 8 * self.data_size, self._buffer, self.silent_since)
         quick_ack(self.sock)
         return np.frombuffer(raw, dtype="<f8").astype(float)
 

@@ -4,7 +4,9 @@ A genericClient says nothing about which element it is, so each served element l
 own port (``--port`` for the first, the next ports for the others; port 0: any free port, each
 printed). A connection must send a valid setup message within the timeout; a second client for
 an element already served is refused (logged, then closed). Each connection runs in its own
-thread with a socket timeout: a silent element is dropped after ``timeout_s``. Whatever a client
+thread with a socket timeout: an element silent for ``timeout_s`` is dropped, its silence counted
+only while the actuators are not executing a motion (for any element: the elements of one model
+wait for each other, :meth:`hsio.opensees.lab.Lab.silent_since`). Whatever a client
 sends, the server answers it, refuses it and closes that connection, or times out; the actuators
 hold and the session's record is closed when the last element leaves (docs/opensees.md).
 """
@@ -135,7 +137,8 @@ class OpenSeesServer:
                 self.log(f"{who}: cannot open the actuators: {_describe(exc)}")
                 return
             self.log(f"{who}: connected (dataSize {setup.data_size})")
-            handler = ElementHandler(self.lab, j, p.Framer(conn, setup.data_size), ctrl=setup.ctrl)
+            handler = ElementHandler(self.lab, j, p.Framer(conn, setup.data_size, self.lab.silent_since),
+                                     ctrl=setup.ctrl)
             reason = "left"
             try:
                 reason = handler.serve()

@@ -6,7 +6,8 @@
     force_factor = 1.0         # kN per force unit of the OpenSees model (1 for kN, 0.001 for N), idem
     stiffness = "initial"      # getTangentStiff: "initial" (K^EI) or "secant" (estimated per step)
     force_correction = true    # getForce: measured force + K^EI (target - measured displacement)
-    timeout_s = 60.0           # a silent element is disconnected after this long (at most 86400 s)
+    timeout_s = 60.0           # a silent element is disconnected after this long (at most 86400 s),
+                               # not counting the time the actuators spend executing a motion
     mass = {}                  # per element, kN s^2/mm, answered to getMass (default 0): a number
                                # (times the identity) or a matrix over its basic DOFs
     damping = {}               # per element, kN s/mm, answered to getDamp (default 0): idem
