@@ -111,3 +111,35 @@ def test_a_ledger_held_by_another_program_is_told_not_raised_once_the_run_began(
     other.execute("COMMIT")
     other.close()
     assert [r["outcome"] for r in ledger.read(tmp_path / "wall-09")] == ["finished", "running"]
+
+
+def test_a_resume_that_cannot_list_itself_leaves_the_record_as_it_was(tmp_path, monkeypatch):
+    from hsio.experiment import ExperimentStopped
+    from hsio.recording import Run
+    from hsio.safety import resume
+    from hsio.safety.control import RunControl
+
+    monkeypatch.setattr(ledger.Ledger, "WAIT_S", 0.05)
+    spec = {"id": "wall-10", "folder": str(tmp_path / "wall-10")}
+    cfg = config.from_dict({"record": {"duration_s": 0.5}, "output": {"plots": False}, "specimen": spec})
+    control = RunControl()
+    real_checkpoint = control.checkpoint
+
+    def stop_at_10(site, step, log=None):
+        if control.phase == "HS" and step >= 10:
+            control.request_stop("stopped by the test")
+        return real_checkpoint(site, step, log)
+
+    control.checkpoint = stop_at_10
+    with pytest.raises(ExperimentStopped):
+        runner.run(cfg, tmp_path / "o", control=control)
+    before = Run(tmp_path / "o" / "run.sqlite").events()
+    other = sqlite3.connect(tmp_path / "wall-10" / ledger.LEDGER_FILE, isolation_level=None)
+    other.execute("BEGIN EXCLUSIVE")
+    try:
+        with pytest.raises(ConfigError, match="cannot list the run in it .database is locked"):
+            resume.resume(tmp_path / "o", max_gap_mm=1000.0)
+    finally:
+        other.execute("COMMIT")
+        other.close()
+    assert Run(tmp_path / "o" / "run.sqlite").events() == before  # no resume event for a session that never began
