@@ -679,6 +679,15 @@ class CanopenActuator(Actuator, ActuatorChannels):
         mode = int(d.sdo_read(0x6061, what="modes of operation display")) if word & 0x6F == 0x27 else None
         return statusword_holds(word, mode)
 
+    def tripped(self) -> str | None:
+        """Read the statusword 0x6041 by SDO: a drive in FAULT (an EMCY it sent is named), else None."""
+        d = self.drive
+        word = int(d.sdo_read(0x6041, what="statusword"))
+        if word & 0x4F != 0x08:
+            return None
+        emcy = f", EMCY 0x{d.emcy[-1].code:04X}" if d.emcy else ""
+        return f"CANopen node {d.id} in FAULT (statusword 0x{word:04X}{emcy})"
+
     def close(self) -> None:
         common.close_axis(self)
 

@@ -247,7 +247,10 @@ class Plausibility:
       ``jump_floor_mm`` for noise and quantisation), a force that changed by more than half the
       capacity between two samples;
     * a stuck transducer: the same displacement reading, bit for bit, for ``stuck_samples``
-      samples in a row while the command moved by more than ``stuck_mm`` (0 samples: off).
+      samples in a row while the command's range over those samples (its highest less its
+      lowest value since the reading froze) exceeds ``stuck_mm`` (0 samples: off). A command
+      that moves less than ``stuck_mm`` in all is not judged here: a still reading is then what
+      a quantised transducer shows of a small or slow motion.
     """
 
     def __init__(self, where: str, limits: Limits, period_s: float, options: dict | None = None):
@@ -263,7 +266,7 @@ class Plausibility:
         self.stuck_mm = float(o["stuck_mm"])
         self.last: tuple[float, float, float] | None = None
         self.same = 0
-        self.command_at_change: float | None = None
+        self.command_range: tuple[float, float] | None = None  # the command's (lowest, highest) since the reading froze
         self.rejected = 0
 
     def _refuse(self, what: str):
@@ -293,11 +296,13 @@ class Plausibility:
             if self.stuck_samples and command is not None:
                 if displacement == d0:
                     self.same += 1
-                    if self.command_at_change is None:
-                        self.command_at_change = command
-                    if self.same >= self.stuck_samples and abs(command - self.command_at_change) > self.stuck_mm:
+                    low, high = self.command_range or (command, command)
+                    self.command_range = (min(low, command), max(high, command))
+                    moved = self.command_range[1] - self.command_range[0]
+                    if self.same >= self.stuck_samples and moved > self.stuck_mm:
                         self._refuse(f"displacement stuck at {displacement:.6g} mm for {self.same} samples while the "
-                                     f"command moved {command - self.command_at_change:+.4g} mm (a stuck transducer)")
+                                     f"command moved over {moved:.4g} mm ({self.command_range[0]:+.4g} to "
+                                     f"{self.command_range[1]:+.4g} mm; a stuck transducer)")
                 else:
-                    self.same, self.command_at_change = 0, None
+                    self.same, self.command_range = 0, None
         self.last = (displacement, force, t)

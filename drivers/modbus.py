@@ -577,6 +577,17 @@ class ModbusActuator(Actuator, ActuatorChannels):
         word = link.peek_status()[self.axis]["status_word"]
         return link.map.bit(word, "holding") and not link.map.bit(word, "enabled")
 
+    def tripped(self) -> str | None:
+        """Read the status word (a read of its own, as :meth:`holding`): the controller's latched
+        interlock or host watchdog, else None."""
+        link = self.link
+        word = link.peek_status()[self.axis]["status_word"]
+        if link.map.bit(word, "interlock"):
+            return f"the controller's interlock tripped (status word {int(word)})"
+        if link.map.bit(word, "watchdog"):
+            return f"the controller's host watchdog expired (status word {int(word)})"
+        return None
+
     def close(self) -> None:
         common.close_axis(self)
 

@@ -91,6 +91,11 @@ class EmulatedActuator(Actuator, ActuatorChannels):
         with self._lock:
             return bool(self.controller.holding)
 
+    def tripped(self) -> str | None:
+        """The emulated controller's latched trip (None: none)."""
+        with self._lock:
+            return f"interlock tripped: {self.controller.tripped}" if self.controller.tripped else None
+
     def close(self) -> None:
         self.hold()
         if self._loop is not None:

@@ -287,6 +287,26 @@ class ControlLoop:
                 if keep is not None:
                     keep()
 
+    def watch_controllers(self) -> list[str]:
+        """While paused: each controller's latched trip, as "<actuator>: <what>" (the actuators'
+        ``tripped``; an actuator without it cannot tell and is not listed; one whose controller
+        cannot be read is listed as such). Called by the pause's wait (hsio.safety.control)."""
+        out = []
+        with self._lock:
+            if not self._paused:
+                return out
+            for actuator in self.actuators:
+                ask = getattr(actuator, "tripped", None)
+                if ask is None:
+                    continue
+                try:
+                    what = ask()
+                except Exception as exc:
+                    what = f"its controller could not be read ({exc})"
+                if what:
+                    out.append(f"{actuator.name}: {what}")
+        return out
+
     def keep_alive_period_s(self) -> float | None:
         """How often :meth:`keep_alive` must run (:func:`keep_alive_period_s`)."""
         return keep_alive_period_s(self.actuators)

@@ -147,6 +147,22 @@ def write_events(recorder, site, step: int) -> list[dict]:
     return events
 
 
+INTERLOCK_TABLE = "interlocks"
+
+
+def _interlock_row(site, recorder, step: int, last: dict | None) -> dict | None:
+    """The interlock monitor's running state (:meth:`hsio.safety.interlocks.InterlockMonitor.state`),
+    written into the record's ``interlocks`` table (``peak_force_kN_<actuator>``) with step
+    ``step`` when it changed since ``last`` (committed with the step's row); returns the state now."""
+    monitor = getattr(getattr(site, "loop", None), "monitor", None)
+    if monitor is None:
+        return last
+    state = monitor.state()
+    if state != last:
+        recorder.write_row(INTERLOCK_TABLE, step, {f"peak_force_kN_{name}": peak for name, peak in state.items()})
+    return state
+
+
 def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator, site,
               recorder: Recorder | None = None, progress: Callable[[int], None] | None = None,
               control=None, start: str = "rest", resume_state=None) -> Result:
@@ -172,6 +188,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
     stopped = ""
     cause: BaseException | None = None
     hold_report = None
+    interlock_row = None
 
     def log(kind: str, message: str) -> None:
         if recorder is not None:
@@ -208,6 +225,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
                 events = write_events(recorder, site, k)
                 if hasattr(site, "record_tables"):  # preload and instrument logs, committed with the step
                     recorder.write_tables(site.record_tables())
+                interlock_row = _interlock_row(site, recorder, k, interlock_row)
                 recorder.write_step(k, float(t[k]), h.u[k], h.v[k], h.a[k], h.u_pred[k], h.R[k], h.modes[k],
                                     h.targets[k], h.commands[k], h.measured_displacement[k], h.measured_force[k],
                                     samples, sample_meta=meta, late_steps=site.late_steps,

@@ -96,8 +96,14 @@ class Ledger:
             self.db.commit()
         except sqlite3.Error as exc:
             self._rollback()
-            raise ConfigError(f"specimen ledger {self.path}: cannot list the run in it ({exc}); nothing was sent to "
-                              f"the actuators (another program holding the ledger open for writing must let go)") from None
+            if "locked" in str(exc) or "busy" in str(exc):
+                detail = (f"database is locked: another program has held it open for writing for more than "
+                          f"{self.WAIT_S:g} s, a database browser or another run listing itself; let it go and "
+                          f"start the run again")
+            else:
+                detail = f"{exc}; check the disk and the ledger file"
+            raise ConfigError(f"specimen ledger {self.path}: cannot list the run in it ({detail}); the run did not "
+                              f"begin, nothing was sent to the actuators") from None
         return int(cur.lastrowid)
 
     def _rollback(self) -> None:

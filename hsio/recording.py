@@ -121,6 +121,19 @@ def new_run_folder(root: str | Path) -> Path:
             n += 1
     raise RecordExistsError(f"{root}: no free run number up to run-{MAX_RUN_NUMBER:04d}; use --out")
 
+def discard_new_record(folder: str | Path, remove_folder: bool) -> None:
+    """Remove the record a run created in ``folder`` before anything was recorded in it (its
+    metadata only: the run could not begin), and the folder when ``remove_folder`` and it is then
+    empty. Used before the first command, never on a record that holds a step."""
+    folder = Path(folder)
+    for suffix in ("", "-wal", "-shm", "-journal"):
+        Path(f"{folder / RUN_FILE}{suffix}").unlink(missing_ok=True)
+    if remove_folder:
+        try:
+            folder.rmdir()
+        except OSError:
+            pass  # not empty (or gone): left as it is
+
 _NAME = re.compile(r"[^0-9A-Za-z_]")
 PHASE_CODES = {"interpolate": 0, "dwell": 1, "extrapolate": 2, "slow": 3, "hold": 4}
 

@@ -30,7 +30,7 @@ from hsio.ground_motion import GroundMotion, read_record, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
 from hsio.integrators.mixed import RATIO_D, RATIO_F, initial_stiffness_thresholds, predicted_elastic
 from hsio.ledger import Ledger
-from hsio.recording import RUN_FILE, Recorder, new_run_folder, refuse_recorded_folder
+from hsio.recording import RUN_FILE, Recorder, discard_new_record, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
 from hsio.safety.dry_run import check, dry_run, enforce, from_present
 from hsio.safety.dry_run import predict as predict_peaks
@@ -496,6 +496,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
     if ledger:
         ledger.warn = notify
+    existed = out_dir is not None and Path(out_dir).is_dir()
     try:
         out = run_folder(config, structure, out_dir)
     except BaseException:
@@ -518,7 +519,14 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
         # Whatever fails from here on, what was opened is closed (the actuators left holding).
         recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
         cleanup.callback(recorder.close)
-        run_id = ledger.begin(out, config.tables, structure.name, ground.name, hsio.__version__) if ledger else None
+        try:
+            run_id = ledger.begin(out, config.tables, structure.name, ground.name, hsio.__version__) if ledger else None
+        except ConfigError as exc:  # not listed, so not begun: no folder left holding only meta
+            recorder.close()
+            ledger.close()
+            discard_new_record(out, remove_folder=not existed)
+            left = "no run folder was left" if not out.exists() else "no record was left in it"
+            raise ConfigError(f"{exc} ({out}: {left})") from None
         if ledger:
             cleanup.callback(ledger.close)
             recorder.write_meta({"ledger": str(ledger.folder.resolve())})  # where a resume lists itself

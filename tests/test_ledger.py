@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import sqlite3
+from pathlib import Path
 
 import pytest
 
 import hsio
 from hsio import config, ledger, runner
 from hsio.errors import ConfigError
-from hsio.safety.status import DryRunRefused
+from hsio.safety.status import BAD_INPUT, DryRunRefused, exit_status
 
 
 def test_the_ledger_lists_every_run_with_its_state_and_outcome(tmp_path):
@@ -75,8 +76,10 @@ def test_a_specimen_folder_that_is_a_file_is_named_so_before_the_run_folder(tmp_
 
 def test_a_ledger_held_by_another_program_is_told_not_raised_once_the_run_began(tmp_path, monkeypatch):
     """Another program holding the ledger open for writing (a database browser): a run cannot
-    begin unlisted (a clear error), and one under way is not ended by it: the row that could not
-    be completed is a warning, and the run keeps its outcome and its record."""
+    begin unlisted (a clear error naming the ledger, no folder left holding only the record's
+    meta), and one under way is not ended by it: the row that could not be completed is a
+    warning, and the run keeps its outcome and its record."""
+    monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(ledger.Ledger, "WAIT_S", 0.05)
     spec = {"id": "wall-09", "folder": str(tmp_path / "wall-09")}
     base = {"record": {"duration_s": 0.2}, "output": {"plots": False}, "specimen": spec}
@@ -93,8 +96,50 @@ def test_a_ledger_held_by_another_program_is_told_not_raised_once_the_run_began(
     assert summary["exit_status"] == 0
     assert any("could not be updated (database is locked)" in line and "lacks ended, outcome" in line
                for line in heard)
-    with pytest.raises(ConfigError, match="cannot list the run in it .database is locked."):
+    with pytest.raises(ConfigError, match="cannot list the run in it .database is locked.") as info:
         runner.run(config.from_dict(base), tmp_path / "c")
+    assert str(tmp_path / "wall-09" / ledger.LEDGER_FILE) in str(info.value)  # names the ledger
+    assert exit_status(info.value) == BAD_INPUT
+    assert not (tmp_path / "c").exists()  # not begun: no folder holding only the record's meta
+    (tmp_path / "d").mkdir()  # a folder the operator made is kept, empty
+    with pytest.raises(ConfigError, match=r"database is locked.*no record was left in it"):
+        runner.run(config.from_dict(base), tmp_path / "d")
+    assert list((tmp_path / "d").iterdir()) == []
+    with pytest.raises(ConfigError, match="no run folder was left"):  # a new numbered folder likewise
+        runner.run(config.from_dict(base))
+    assert not list(Path("runs").glob("*/run-*"))
     other.execute("COMMIT")
     other.close()
     assert [r["outcome"] for r in ledger.read(tmp_path / "wall-09")] == ["finished", "running"]
+
+
+def test_a_resume_that_cannot_list_itself_leaves_the_record_as_it_was(tmp_path, monkeypatch):
+    from hsio.experiment import ExperimentStopped
+    from hsio.recording import Run
+    from hsio.safety import resume
+    from hsio.safety.control import RunControl
+
+    monkeypatch.setattr(ledger.Ledger, "WAIT_S", 0.05)
+    spec = {"id": "wall-10", "folder": str(tmp_path / "wall-10")}
+    cfg = config.from_dict({"record": {"duration_s": 0.5}, "output": {"plots": False}, "specimen": spec})
+    control = RunControl()
+    real_checkpoint = control.checkpoint
+
+    def stop_at_10(site, step, log=None):
+        if control.phase == "HS" and step >= 10:
+            control.request_stop("stopped by the test")
+        return real_checkpoint(site, step, log)
+
+    control.checkpoint = stop_at_10
+    with pytest.raises(ExperimentStopped):
+        runner.run(cfg, tmp_path / "o", control=control)
+    before = Run(tmp_path / "o" / "run.sqlite").events()
+    other = sqlite3.connect(tmp_path / "wall-10" / ledger.LEDGER_FILE, isolation_level=None)
+    other.execute("BEGIN EXCLUSIVE")
+    try:
+        with pytest.raises(ConfigError, match="cannot list the run in it .database is locked"):
+            resume.resume(tmp_path / "o", max_gap_mm=1000.0)
+    finally:
+        other.execute("COMMIT")
+        other.close()
+    assert Run(tmp_path / "o" / "run.sqlite").events() == before  # no resume event for a session that never began

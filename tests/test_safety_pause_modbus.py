@@ -164,8 +164,11 @@ def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path, protocol):
             time.sleep(0.05)
         assert not any(a.watchdog_expired for a in emu.bank.axes)
         assert all(c.holding for c in emu.bank.controllers)
+        assert [a.tripped() for a in actuators] == [None, None]  # what a paused run watches
         time.sleep(2 * watchdog_s)  # the host falls silent
         assert all(a.watchdog_expired for a in emu.bank.axes)
+        said = "host watchdog expired" if protocol == "modbus" else "in FAULT (statusword 0x"
+        assert all(said in a.tripped() for a in actuators)  # read from the controller, as a pause does
         if protocol == "modbus":
             actuators[0].link.read_status()
             assert all(actuators[0].link.map.bit(st["status_word"], "watchdog") for st in actuators[0].link.status)

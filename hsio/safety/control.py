@@ -11,6 +11,13 @@ or every quarter of the shortest watchdog time the controllers report where that
 down to :attr:`RunControl.MIN_SLICE_S` (the site's ``keep_alive`` and ``keep_alive_period_s``: the
 axes keep holding), so a pause may last any time; a host that dies stops feeding them, and the
 controllers' watchdogs trip as they should.
+
+While paused, the wait also watches the controllers every :attr:`RunControl.WATCH_S` (the site's
+``watch_controllers``: each controller's latched trip, its interlock, its host watchdog, a drive
+in FAULT). A trip seen there is told at once (the listeners), recorded as a ``controller_trip``
+event with its UTC time, and a resume is refused until the operator acknowledges it
+(:meth:`RunControl.request_ack`, recorded as ``acknowledge``): the operator knows of the trip
+before resuming, not from the stop of the first command after it.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import contextlib
 import signal
 import threading
 import time
+from datetime import datetime, timezone
 from typing import Callable
 
 from hsio.safety.status import OperatorStop
@@ -31,6 +39,7 @@ class RunControl:
 
     WAIT_SLICE_S = 0.1  # a paused run wakes this often to look for a stop and feed the watchdogs
     MIN_SLICE_S = 0.005  # however short a controller's watchdog, the wait wakes no more often than this
+    WATCH_S = 0.5  # a paused run asks the controllers this often whether they tripped
 
     def __init__(self):
         self._lock = threading.Lock()
@@ -40,6 +49,9 @@ class RunControl:
         self.step = 0
         self.stop_reason = ""
         self._pause_wanted = False
+        self.trips: list[str] = []  # controller trips seen during the pauses of this run, as told
+        self._unacknowledged: list[str] = []  # trips seen during this pause, not yet acknowledged
+        self._acknowledged: list[str] = []  # acknowledgements to record (by the loop's thread)
         self.listeners: list[Callable[[str], None]] = []  # told of each pause, resume and stop
 
     # -- requests (any thread) ------------------------------------------------------------
@@ -57,11 +69,25 @@ class RunControl:
         with self._lock:
             if self.state == STOPPING:
                 return f"error: the run is stopping ({self.stop_reason})"
+            if self._unacknowledged:
+                return (f"error: not resumed: a controller tripped during the pause ({'; '.join(self._unacknowledged)}); "
+                        f"acknowledge it first (ack), or stop the run")
             self._pause_wanted = False
             if self.state == PAUSING:
                 self.state = RUNNING
         self._wake.set()
         return f"ok {self.state if self.state != PAUSED else 'resuming'}"
+
+    def request_ack(self, source: str = "operator") -> str:
+        """The operator has seen the controller trips reported during the pause: a resume may go on
+        (a controller still tripped then stops the run at its first command, as any trip does)."""
+        with self._lock:
+            if not self._unacknowledged:
+                return "error: no controller trip to acknowledge"
+            seen, self._unacknowledged = self._unacknowledged, []
+            self._acknowledged.append(f"controller trip acknowledged by {source}: {'; '.join(seen)}")
+        self._wake.set()
+        return "ok acknowledged"
 
     def request_stop(self, reason: str = "stopped by the operator") -> str:
         with self._lock:
@@ -112,6 +138,9 @@ class RunControl:
             log("pause", message)
         self._tell(message)
         started = time.monotonic()
+        watch = getattr(site, "watch_controllers", None)
+        seen: set[str] = set()
+        watched = started
         keep_alive = getattr(site, "keep_alive", None)
         period = getattr(site, "keep_alive_period_s", None)
         period = period() if period is not None else None
@@ -121,7 +150,13 @@ class RunControl:
             self._wake.clear()
             if self.state == STOPPING:
                 raise OperatorStop(self.stop_reason)
-            if not self._pause_wanted:
+            self._record_acknowledgements(log)
+            leaving = not self._pause_wanted
+            if watch is not None and (leaving or time.monotonic() - watched >= self.WATCH_S):
+                watched = time.monotonic()
+                if self._watch(watch, seen, log) and leaving:  # a trip seen as the resume came: refused
+                    continue
+            if leaving:
                 break
             if keep_alive is not None:  # the controllers' host watchdogs see a live host
                 keep_alive()
@@ -135,6 +170,35 @@ class RunControl:
         if log:
             log("resume", message)
         self._tell(message)
+
+
+    def _watch(self, watch, seen: set[str], log) -> bool:
+        """Ask the controllers whether they tripped; tell and record each trip not seen before in
+        this pause. True when one was new (the resume waits for its acknowledgement)."""
+        new = [line for line in watch() if line not in seen]
+        if not new:
+            return False
+        seen.update(new)
+        when = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-4] + "Z"
+        with self._lock:
+            self._unacknowledged.extend(new)
+            self._pause_wanted = True  # a resume asked meanwhile waits for the acknowledgement
+        for line in new:
+            message = (f"controller trip during the pause after step {self.step} (at {when}): {line}; "
+                       f"resume refused until acknowledged (ack), or stop the run")
+            self.trips.append(message)
+            if log:
+                log("controller_trip", message)
+            self._tell(message)
+        return True
+
+    def _record_acknowledgements(self, log) -> None:
+        with self._lock:
+            done, self._acknowledged = self._acknowledged, []
+        for message in done:
+            if log:
+                log("acknowledge", message)
+            self._tell(message)
 
 
 @contextlib.contextmanager

@@ -17,6 +17,13 @@ Per actuator, on each period's command and measurement:
 The lab time of a pause does not count (:meth:`InterlockMonitor.skip`): a window or a timer that
 spanned it would judge the run by what it did before the pause alone.
 
+What a resumed run must not forget goes into the record with each step (:meth:`InterlockMonitor.state`,
+table ``interlocks``) and is restored by ``hsio resume`` (:meth:`InterlockMonitor.restore`): the
+peak force per actuator, so a specimen that lost strength before the interruption is judged
+against the peak it reached, not against a peak that starts again from zero. The windows and
+timers (the force envelope, the following-error time) start again with the resumed session: a
+drop is judged once a whole window of resumed samples lies below the fraction of that peak.
+
 A trip raises :class:`~hsio.safety.status.InterlockTrip`; the loop then holds every actuator.
 """
 
@@ -42,6 +49,7 @@ class _Channel:
         self.peak_force = 0.0
         self.window: collections.deque = collections.deque()  # (t, |F|), decreasing |F| (sliding maximum)
         self.window_start: float | None = None
+        self.restored = False  # a peak taken over from the run being resumed: its window starts at the next sample
 
 
 class InterlockMonitor:
@@ -73,6 +81,21 @@ class InterlockMonitor:
             if ch.window_start is not None:
                 ch.window_start += seconds
             ch.window = collections.deque((t + seconds, f) for t, f in ch.window)
+
+    def state(self) -> dict[str, float]:
+        """The running state a resumed run takes over: ``peak_force_kN`` per actuator, keyed by
+        actuator name (docs/safety.md section 8)."""
+        return {ch.name: ch.peak_force for ch in self.channels}
+
+    def restore(self, peaks: dict[str, float]) -> None:
+        """Take over the peak force per actuator (:meth:`state`) of the run being resumed; the
+        force-drop window starts with the first resumed sample."""
+        for ch in self.channels:
+            peak = peaks.get(ch.name)
+            if peak is not None and math.isfinite(peak) and peak > ch.peak_force:
+                ch.peak_force = float(peak)
+                ch.window_start = None  # set by the first resumed sample
+                ch.restored = True
 
     def _event(self, t: float, kind: str, name: str, message: str) -> None:
         self.events.append({"time_s": t, "kind": kind, "actuator": name, "message": message})
@@ -138,6 +161,9 @@ class InterlockMonitor:
         if f > ch.peak_force:
             ch.peak_force = f
             ch.window_start = t
+            ch.restored = False
+        elif ch.restored:
+            ch.window_start, ch.restored = t, False
         if ch.peak_force < s.force_drop_min_kN or ch.window_start is None:
             return
         if t - ch.window_start >= s.force_drop_window_s and w[0][1] < s.force_drop_fraction * ch.peak_force:

@@ -21,7 +21,7 @@ import numpy as np
 import hsio
 from hsio import api, config as config_mod
 from hsio.errors import ConfigError, HsioError, RecordError
-from hsio.experiment import ExperimentStopped, excitation
+from hsio.experiment import INTERLOCK_TABLE, ExperimentStopped, excitation
 from hsio.integrators.alpha_os import AlphaOSState
 from hsio.ledger import LEDGER_FILE, Ledger
 from hsio.recording import RUN_FILE, Recorder, Run, column
@@ -115,6 +115,26 @@ def open_ledger(run: Run, notify) -> Ledger | None:
                f"this resumed session is not listed")
         return None
     return Ledger(folder, run.meta.get("specimen_id") or "", warn=notify)
+
+
+def restore_interlocks(site, run: Run, step: int, notify) -> None:
+    """The interlocks go on with the running state the record holds at ``step`` (table
+    ``interlocks``: the peak force per actuator), so the force-drop interlock judges the resumed
+    steps against the peak the specimen reached before the interruption (docs/safety.md section 8)."""
+    monitor = getattr(getattr(site, "loop", None), "monitor", None)
+    table = run.table(INTERLOCK_TABLE)
+    if monitor is None or not len(table.get("step", ())):
+        return
+    rows = np.flatnonzero(table["step"] <= step)
+    if not rows.size:
+        return
+    last = int(rows[-1])
+    peaks = {ch.name: float(table[column("peak_force_kN", ch.name)][last]) for ch in monitor.channels
+             if column("peak_force_kN", ch.name) in table}
+    monitor.restore(peaks)
+    if peaks and monitor.settings.force_drop_fraction > 0:
+        notify("the force-drop interlock goes on from the peaks the run reached: "
+               + "; ".join(f"{name} {peak:.3f} kN" for name, peak in peaks.items()))
 
 
 # How far an actuator may stand from the record's last measurement for a resume to go on (mm).
@@ -219,12 +239,13 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
         if keys is not None and safety.keys:
             cleanup.callback(keys(control).close)
+        # a row of its own for this session (the earlier rows are left as they are), before the
+        # record hears of the session: a ledger that cannot take it leaves the record as it was
+        ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
+                                 hsio.__version__) if ledger is not None else None
         why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
         recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
         notify(f"resuming {path} after step {state.i}" + (f" (the run recorded its stop: {why})" if why else ""))
-        # a row of its own for this session (the earlier rows are left as they are)
-        ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
-                                 hsio.__version__) if ledger is not None else None
         site = end_state = None
         hold = {}
         try:
@@ -247,6 +268,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             notify(line + (" (the first step goes on from where they stand)" if all(
                 abs(g) <= max_gap_mm for g in gap.values()) else ""))
             check_gaps(gap, max_gap_mm, hardware["url"])
+            restore_interlocks(site, run, state.i, notify)
             trials = run.table("instruments").get("step")
             if trials is not None and trials.size:
                 site.continue_trials(int(np.nanmax(trials)))

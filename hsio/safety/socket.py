@@ -70,11 +70,13 @@ class ControlServer:
             return self.control.request_pause("socket")
         if word == "resume":
             return self.control.request_resume("socket")
+        if word == "ack":
+            return self.control.request_ack("socket")
         if word == "stop":
             return self.control.request_stop("stopped by the operator (control socket)")
         if word == "status":
             return self.control.status()
-        return f"error unknown command {line.strip()[:40]!r}; known: pause, resume, stop, status"
+        return f"error unknown command {line.strip()[:40]!r}; known: pause, resume, ack, stop, status"
 
     def _serve(self) -> None:
         while not self._stop.is_set():

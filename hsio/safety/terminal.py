@@ -13,7 +13,7 @@ import threading
 
 from hsio.safety.control import RunControl
 
-KEYS = "p pause, r resume, s stop"
+KEYS = "p pause, r resume, a acknowledge a controller trip, s stop"
 
 
 class KeyReader:
@@ -54,6 +54,8 @@ class KeyReader:
                 self.notify(f"pause requested: {self.control.request_pause('keys')}")
             elif key == "r":
                 self.notify(f"resume requested: {self.control.request_resume('keys')}")
+            elif key == "a":
+                self.notify(f"acknowledge requested: {self.control.request_ack('keys')}")
             elif key == "s":
                 self.notify(f"stop requested: {self.control.request_stop('stopped by the operator (key s)')}")
 

@@ -413,6 +413,10 @@ class ActuatorSite:
         """While paused: keep the controllers' host watchdogs fed (the actuators keep holding)."""
         self.loop.keep_alive()
 
+    def watch_controllers(self) -> list[str]:
+        """While paused: the controllers' latched trips, one line each (docs/safety.md section 4)."""
+        return self.loop.watch_controllers()
+
     def keep_alive_period_s(self) -> float | None:
         """A quarter of the shortest host watchdog the controllers report (None: none does)."""
         return self.loop.keep_alive_period_s()

@@ -1,0 +1,37 @@
+"""The stuck-transducer check of the drivers' plausibility (docs/faults.md): the same displacement
+reading, bit for bit, for stuck_samples samples in a row while the command's range since the
+reading froze exceeds stuck_mm."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from drivers import common
+from hsio.errors import ImplausibleMeasurementError
+from hsio.interfaces import Limits
+
+
+def frozen(amplitude_mm: float, centre_mm: float = 0.0, samples: int = 4096, stuck_mm: float = 5.0):
+    """A reading frozen at 0 mm while the command oscillates about ``centre_mm`` (1 Hz at 1024 Hz)."""
+    check = common.Plausibility("C1", Limits(254.0, 250.0, 500.0), 1 / 1024,
+                                {"stuck_samples": 512, "stuck_mm": stuck_mm})
+    for k in range(samples):
+        check.check(0.0, 0.0, k / 1024, centre_mm + amplitude_mm * math.sin(2 * math.pi * k / 1024))
+
+
+def test_a_command_swinging_more_than_stuck_mm_about_the_frozen_reading_trips():
+    """+/-4 mm about where the reading froze: the command never stands 5 mm from where it stood
+    when the reading froze, but it moved over 8 mm."""
+    with pytest.raises(ImplausibleMeasurementError, match="stuck transducer"):
+        frozen(4.0)
+
+
+def test_a_command_moving_away_trips():
+    with pytest.raises(ImplausibleMeasurementError, match="stuck transducer"):
+        frozen(8.0, centre_mm=0.0)
+
+
+def test_a_command_moving_less_than_stuck_mm_is_left_to_the_other_interlocks():
+    frozen(2.4)  # a 4.8 mm range: a still reading may be a quantised transducer; not judged here

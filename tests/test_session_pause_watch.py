@@ -1,0 +1,72 @@
+"""A controller that trips while the run is paused (docs/safety.md section 4): the pause watches
+the controllers, tells and records the trip with its time, and a resume waits for the operator's
+acknowledgement."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from hsio import config, runner
+from hsio.experiment import ExperimentStopped
+from hsio.recording import Run
+from hsio.safety.control import PAUSED, RunControl
+from hsio.safety.status import LIMIT_OR_FAULT, exit_status
+
+
+def test_a_controller_trip_while_paused_is_told_recorded_and_holds_the_resume(tmp_path, monkeypatch):
+    monkeypatch.setattr(RunControl, "WATCH_S", 0.05)
+    cfg = config.from_dict({"record": {"duration_s": 1.0}, "output": {"plots": False}})
+    control, heard, replies = RunControl(), [], {}
+    control.listeners.append(heard.append)
+
+    def operator():
+        deadline = time.monotonic() + 60
+        while not (control.phase == "HS" and control.step >= 5) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        control.request_pause("test")
+        while control.state != PAUSED and time.monotonic() < deadline:
+            time.sleep(0.005)
+        site_actuator = operator.site.loop.actuators[0]
+        site_actuator.controller.tripped = "oil pressure low"  # the controller trips at its panel
+        site_actuator.controller.hold()
+        while not control.trips and time.monotonic() < deadline:
+            time.sleep(0.005)
+        replies["told"] = list(heard)
+        replies["resume"] = control.request_resume("test")
+        time.sleep(0.2)
+        replies["state"] = control.state  # still paused: nothing moved
+        replies["ack"] = control.request_ack("test")
+        replies["resume2"] = control.request_resume("test")
+
+    real_open = runner.api.open_site
+
+    def open_site(*args, **kwargs):
+        operator.site = real_open(*args, **kwargs)
+        return operator.site
+
+    monkeypatch.setattr(runner.api, "open_site", open_site)
+    thread = threading.Thread(target=operator, daemon=True)
+    thread.start()
+    with pytest.raises(ExperimentStopped) as info:
+        runner.run(cfg, tmp_path / "o", control=control)
+    thread.join(timeout=10)
+    told = [line for line in replies["told"] if "controller trip during the pause" in line]
+    assert told and "C1: interlock tripped: oil pressure low" in told[0] and "Z)" in told[0]  # UTC time
+    assert replies["resume"].startswith("error: not resumed: a controller tripped during the pause")
+    assert replies["state"] == PAUSED
+    assert replies["ack"] == "ok acknowledged" and replies["resume2"].startswith("ok")
+    # resumed on the operator's word against a controller still tripped: its first command stops the run
+    assert exit_status(info.value) == LIMIT_OR_FAULT
+    events = Run(tmp_path / "o" / "run.sqlite").events()
+    kinds = [e["kind"] for e in events]
+    assert kinds.index("pause") < kinds.index("controller_trip") < kinds.index("acknowledge") < kinds.index("resume")
+    trip = events[kinds.index("controller_trip")]
+    assert "oil pressure low" in trip["message"] and trip["step"] == events[kinds.index("pause")]["step"] >= 5
+
+
+def test_a_resume_is_not_held_without_a_trip():
+    control = RunControl()
+    assert control.request_ack("test") == "error: no controller trip to acknowledge"
