@@ -104,3 +104,31 @@ def test_a_restart_is_seen_in_the_sequence_register_without_a_boot_id(tmp_path):
         assert bank.restarts == 1
     finally:
         emu.stop()
+
+
+def test_a_command_the_controller_refuses_by_its_status_bit_stops_the_run(tmp_path):
+    """A controller that refuses a command by setting its refused bit (no exception response):
+    the axis goes on with an older command, so the next command stops with an InterlockError
+    naming the actuator, instead of the run going on until the following error is caught."""
+    from hsio.errors import InterlockError
+
+    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load()).start()
+    flags, refusing = emu.bank.flags, {"on": False}
+    emu.bank.flags = lambda k: {**flags(k), "refused": True} if k == 0 and refusing["on"] else flags(k)
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock)
+
+        def period(value):
+            for a in acts:
+                a.command(value)
+            clock.tick()
+
+        for _ in range(10):
+            period(0.1)
+        refusing["on"] = True
+        period(0.1)  # the status of this exchange shows the refusal
+        with pytest.raises(InterlockError, match=r"actuator 'C1' .*refused the last command"):
+            period(0.1)
+    finally:
+        emu.stop()
