@@ -438,7 +438,14 @@ class ModbusLink(common.AxisLink):
     def _unpack_status(self, registers) -> list[dict]:
         if len(registers) < self._status_span[1]:
             raise CommunicationError(f"{self.url}: status reply too short ({len(registers)} registers)")
-        return self.map.unpack_status(registers, self.n)
+        status = self.map.unpack_status(registers, self.n)
+        for k, st in enumerate(status):
+            word = st["status_word"]
+            if not (math.isfinite(word) and word >= 0 and word == int(word)):
+                raise CommunicationError(f"{self.url}: axis {k}: status word {word!r} is not a bit field (a whole number "
+                                         f"0 or more): the controller's status cannot be read (register map "
+                                         f"{self.map.name!r})")
+        return status
 
     def _take_status(self, status: list[dict]) -> None:
         self.status = status

@@ -132,3 +132,27 @@ def test_a_command_the_controller_refuses_by_its_status_bit_stops_the_run(tmp_pa
             period(0.1)
     finally:
         emu.stop()
+
+
+@pytest.mark.parametrize("garbled", [float("nan"), float("inf"), -1.0, 2.5])
+def test_a_status_word_that_is_not_a_bit_field_is_a_named_communication_error(tmp_path, garbled):
+    """A float32 status word that reads NaN, infinite, negative or fractional (a garbled reply, a
+    map with the wrong type) names the axis and the value, on the cyclic read and on the hold
+    read-back alike, rather than failing inside the bit test."""
+    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load()).start()
+    value, bad = emu.context._value, {"on": False}
+    emu.context._value = lambda kind, axis, reg: garbled if bad["on"] and axis == 1 and reg.name == "status_word" \
+        and kind == "status" else value(kind, axis, reg)
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock)
+        bad["on"] = True
+        with pytest.raises(CommunicationError, match=r"axis 1: status word .* is not a bit field"):
+            for _ in range(3):
+                for a in acts:
+                    a.command(0.1)
+                clock.tick()
+        with pytest.raises(CommunicationError, match=r"axis 1: status word .* is not a bit field"):
+            acts[0].holding()
+    finally:
+        emu.stop()
