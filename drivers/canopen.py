@@ -24,6 +24,17 @@ Errors: SDO aborts, EMCY messages, a silent node (no TPDO, no heartbeat) and a r
 (boot-up message) become :class:`~hsio.errors.CommunicationError` or
 :class:`~hsio.errors.InterlockError` naming the node, the object and the code. A failure while
 opening disables (halt, disable operation) every drive that may have been enabled.
+
+EMCY policy (docs/canopen.md, "EMCY"): an EMCY stops the run, unless it is a warning: its code
+is of the temperature class (0x4xxx) or listed in [driver] ``emcy_warnings``, and the drive's
+statusword, read by SDO when the EMCY is handled, shows OPERATION ENABLED with no fault. A
+warning is printed once per node and code (and counted in :attr:`DriveNode.warnings`); the run
+goes on, and the statusword check of every period still stops it if the drive then faults.
+
+Mode confirmation: after a switch of the mode of operation 0x6060 the mode display 0x6061 must
+show it (canopen's setter waits ``timeout_s`` for it, then an SDO read decides), and in
+OPERATION ENABLED every TPDO1 mode display must be the commanded mode; otherwise the run stops
+with an :class:`~hsio.errors.InterlockError` naming the actuator, the requested and the shown mode.
 """
 
 from __future__ import annotations
@@ -54,11 +65,13 @@ log = logging.getLogger(__name__)
 # those reports stay out of a terminal unless logging is configured.
 logging.getLogger("canopen").addHandler(logging.NullHandler())
 
-DEFAULT_OPTIONS = {"eds": "", "timeout_s": 0.5, "retries": 2, "heartbeat_ms": 100, "bitrate": 1000000,
+DEFAULT_OPTIONS = {"eds": "", "emcy_warnings": "", "timeout_s": 0.5, "retries": 2, "heartbeat_ms": 100, "bitrate": 1000000,
                    "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "counts_per_mm": None,
                    **common.PLAUSIBILITY_DEFAULTS}
 MODE_NAMES = {ControlMode.DISPLACEMENT: "CYCLIC SYNCHRONOUS POSITION", ControlMode.FORCE: "CYCLIC SYNCHRONOUS TORQUE"}
 MODE_CODES = {ControlMode.DISPLACEMENT: cod.CSP, ControlMode.FORCE: cod.CST}
+CODE_MODES = {code: mode for mode, code in MODE_CODES.items()}
+WARNING_CLASSES = (0x4000,)  # EMCY code classes (code & 0xF000) that may be warnings: temperature
 RULES = {
     **common.COMMON_RULES,
     "heartbeat_ms": common.whole(0, 65535),
@@ -99,7 +112,27 @@ def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
     table = common.parse_options(url, options, DEFAULT_OPTIONS, RULES)
     if table["eds"] and not Path(table["eds"]).is_file():
         raise ConfigError(f"[driver] for {url!r}: eds = {table['eds']!r} is not a readable file (the drive's EDS)")
+    table["emcy_warnings"] = parse_emcy_codes(url, table["emcy_warnings"])
     return interface, channel, node_id, table
+
+
+def parse_emcy_codes(url: str, text) -> frozenset[int]:
+    """[driver] emcy_warnings: the EMCY codes the lab's drive sends as warnings, a string of codes
+    separated by commas or spaces ("0x4310, 0xFF01"); each in 0x0100..0xFFFF."""
+    if isinstance(text, frozenset):
+        return text
+    codes = set()
+    for item in str(text).replace(",", " ").split():
+        try:
+            code = int(item, 0)
+        except ValueError:
+            raise ConfigError(f"[driver] for {url!r}: emcy_warnings: {item!r} is not an EMCY code; give the codes as a "
+                              "string such as \"0x4310, 0xFF01\"") from None
+        if not 0x0100 <= code <= 0xFFFF:
+            raise ConfigError(f"[driver] for {url!r}: emcy_warnings: {item} is not an EMCY error code (0x0100..0xFFFF; "
+                              "0x00xx is the error reset)")
+        codes.add(code)
+    return frozenset(codes)
 
 
 def check_options(url: str, options: dict | None = None) -> None:
@@ -163,6 +196,7 @@ class DriveNode:
         link.network.add_node(self.node)
         self.node.sdo.RESPONSE_TIMEOUT = link.options["timeout_s"]
         self.node.sdo.MAX_RETRIES = max(int(link.options["retries"]), 0)
+        self.node.TIMEOUT_SWITCH_OP_MODE = link.options["timeout_s"]  # canopen's wait for the mode display
         self.counts_per_mm = float(cod.COUNTS_PER_MM)
         self.rated_N = float(cod.RATED_FORCE_N)
         self.mode = ControlMode.DISPLACEMENT
@@ -178,6 +212,7 @@ class DriveNode:
         self.cycle_lock = threading.Lock()
         self.status_received = threading.Event()
         self.emcy: list = []
+        self.warnings: dict[int, int] = {}  # EMCY code -> how many were taken as warnings
         self.booted = False
         self.identity: dict = {}
         self.max_torque_permille: int | None = None
@@ -267,15 +302,41 @@ class DriveNode:
     def check_events(self) -> None:
         if self.booted:
             raise ControllerRestartedError(f"CANopen node {self.id} restarted (boot-up message); its state is lost, the run stops")
-        if self.emcy:
+        while self.emcy:
             e = self.emcy.pop(0)
             text = cod.EMCY_TEXT.get(e.code, e.get_desc())
-            error = InterlockError if e.code in (0x7320, 0x2310, 0x5000, 0x8130, 0x8612) else CommunicationError
-            raise error(f"CANopen node {self.id}: EMCY 0x{e.code:04X} ({text}), error register 0x{e.register:02X}")
+            what = f"CANopen node {self.id}: EMCY 0x{e.code:04X} ({text}), error register 0x{e.register:02X}"
+            word = self._warning_statusword(e.code)
+            if word is None:
+                raise (InterlockError if is_drive_fault(e.code) else CommunicationError)(what)
+            self.warnings[e.code] = self.warnings.get(e.code, 0) + 1
+            if self.warnings[e.code] == 1:
+                log.warning("%s: a warning: the drive stays OPERATION ENABLED with no fault (statusword 0x%04X); the run "
+                            "goes on (further EMCY 0x%04X from node %d are counted, not printed)",
+                            what, word, e.code, self.id)
         word = self.node.tpdo_values.get(0x6041)
         if self.operating and word is not None and word & 0x6F != 0x27:
             raise InterlockError(f"CANopen node {self.id} left OPERATION ENABLED (statusword 0x{word:04X}, "
                                  f"{self.node.state}) without an EMCY: it no longer follows its targets")
+        shown = self.node.tpdo_values.get(0x6061)
+        if self.operating and shown is not None and shown != MODE_CODES[self.mode]:
+            raise InterlockError(f"CANopen node {self.id}: mode display 0x6061 shows {mode_name(shown)} while the driver "
+                                 f"commands {mode_name(MODE_CODES[self.mode])}: the drive changed its mode of operation "
+                                 "on its own; the run stops")
+
+    def _warning_statusword(self, code: int) -> int | None:
+        """The statusword that makes an EMCY of ``code`` a warning, or None (the EMCY stops the
+        run): its class is a warning class or the lab lists it ([driver] emcy_warnings), and the
+        drive, asked by SDO now, is in OPERATION ENABLED with the fault bit clear."""
+        if code & 0xF000 not in WARNING_CLASSES and code not in self.link.options["emcy_warnings"]:
+            return None
+        if not self.operating:
+            return None
+        try:
+            word = int(self.sdo_read(0x6041, what="statusword (after an EMCY)"))
+        except CommunicationError:
+            return None  # its state unknown: a fault until shown otherwise
+        return word if word & 0x6F == 0x27 and not word & 0x08 else None
 
     def displacement_mm(self) -> float:
         return self.actual[0] / self.counts_per_mm
@@ -624,10 +685,15 @@ class CanopenActuator(Actuator, ActuatorChannels):
         d.send_targets()
         d.mode = mode
         with self.link.bus(f"the mode change of node {d.id}"):
-            d.node.op_mode = MODE_NAMES[mode]  # logs rather than raises on failure: check 0x6061
+            # canopen's setter waits up to timeout_s for the mode display and logs rather than
+            # raises on failure: the SDO read of 0x6061 decides.
+            d.node.op_mode = MODE_NAMES[mode]
         shown = d.sdo_read(0x6061, what="modes of operation display")
         if shown != MODE_CODES[mode]:
-            raise CommunicationError(f"CANopen node {d.id}: mode display {shown} after asking for {MODE_CODES[mode]}")
+            raise InterlockError(f"actuator {self.name!r} at {self.link.url} node {d.id}: {mode.value} control "
+                                 f"({mode_name(MODE_CODES[mode])}) asked for, but the mode display 0x6061 shows "
+                                 f"{mode_name(shown)} after {self.link.options['timeout_s']:g} s: the drive did not take "
+                                 "the mode switch; the run stops")
 
     def _send(self, value: float) -> None:
         d = self.drive
@@ -690,6 +756,20 @@ class CanopenActuator(Actuator, ActuatorChannels):
 
     def close(self) -> None:
         common.close_axis(self)
+
+
+def is_drive_fault(code: int) -> bool:
+    """An EMCY code that tells of the drive itself (an interlock, a fault, a safety event): hsio's
+    drive's limit, valve, watchdog and refusal codes, and the CiA 301 classes current (0x2xxx),
+    voltage (0x3xxx), temperature (0x4xxx), device hardware (0x5xxx), additional modules (0x7xxx)
+    and external error (0x9xxx). Others (generic, software, monitoring and communication, device
+    specific) stop the run as a link or protocol fault."""
+    return code in (0x7320, 0x2310, 0x5000, 0x8130, 0x8612) or code >> 12 in (2, 3, 4, 5, 7, 9)
+
+
+def mode_name(code: int) -> str:
+    """A mode of operation code as 'N (NAME)'."""
+    return f"{code} ({MODE_NAMES[CODE_MODES[code]] if code in CODE_MODES else 'not a mode hsio commands'})"
 
 
 def statusword_holds(word: int, mode: int | None = None) -> bool | None:

@@ -42,6 +42,7 @@ EMCY_TEXT = {
     0x5000: "device hardware: servo-valve failure (interlock, the axis holds)",
     0x8130: "host watchdog expired: no command in time (the axis holds)",
     0x6320: "unsupported mode of operation (refused)",
+    0x4210: "device temperature high (a warning: the drive goes on while it stays enabled)",
     0x8210: "PDO not processed: length error (a malformed frame reached the drive)",
 }
 

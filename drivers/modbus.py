@@ -18,6 +18,12 @@ Otherwise the controller runs on its own clock and the link writes and reads onc
 Robustness: every request has a timeout; a failed request is retried (bounded) after closing
 and reopening the link; a changed boot id (the controller restarted) or a latched watchdog or
 interlock stops the run with a clear error; Modbus exception responses are named.
+
+Mode confirmation: while an axis is enabled, its status must show the control mode the host
+commands (the map's force_mode bit); a mode switch the controller has not taken within
+:data:`MODE_READS` status reads (and, in real time, ``timeout_s``) stops the run with an
+:class:`~hsio.errors.InterlockError`. A map without a force_mode bit cannot be checked: the link
+says so once, when it is made (docs/modbus.md, "Mode confirmation").
 """
 
 from __future__ import annotations
@@ -52,6 +58,7 @@ EXCEPTION_NAMES = {
 ILLEGAL_ADDRESS = 2  # the answer of a controller that lacks an optional register
 SEQ_MOD = 1 << 24
 FROZEN_S = 0.5  # real time: a sequence register unchanged this long means the controller's loop stopped
+MODE_READS = 8  # status reads a mode switch may take to show in the status word (lockstep: controller periods)
 PARITIES = ("N", "E", "O")  # Modbus RTU: 8 data bits, parity none, even (the standard's default) or odd
 
 DEFAULT_OPTIONS = {
@@ -129,7 +136,13 @@ class ModbusLink(common.AxisLink):
         self._last_read: float | None = None  # wall-clock time of the last status read (real time)
         self.requests = 0
         self.reconnects = 0
+        self.status_reads = 0  # status blocks taken (the cyclic exchange's and read_status')
         self.actuators: list = []
+        self.confirms_mode = "force_mode" in self.map.bits
+        if not self.confirms_mode:
+            log.warning("%s: register map %r has no force_mode status bit: the control mode the controller runs in "
+                        "is not confirmed after a mode switch (docs/modbus.md, \"Mode confirmation\")",
+                        url, self.map.name)
         self.enabling = False
         self._status_span = self.map.status_span(n_axes)
         # The host watchdog counter and the controller's sequence wrap where their registers do.
@@ -425,10 +438,18 @@ class ModbusLink(common.AxisLink):
     def _unpack_status(self, registers) -> list[dict]:
         if len(registers) < self._status_span[1]:
             raise CommunicationError(f"{self.url}: status reply too short ({len(registers)} registers)")
-        return self.map.unpack_status(registers, self.n)
+        status = self.map.unpack_status(registers, self.n)
+        for k, st in enumerate(status):
+            word = st["status_word"]
+            if not (math.isfinite(word) and word >= 0 and word == int(word)):
+                raise CommunicationError(f"{self.url}: axis {k}: status word {word!r} is not a bit field (a whole number "
+                                         f"0 or more): the controller's status cannot be read (register map "
+                                         f"{self.map.name!r})")
+        return status
 
     def _take_status(self, status: list[dict]) -> None:
         self.status = status
+        self.status_reads += 1
         seq = self.status[0]["sequence"]
         if self.lockstep and seq != self.ticks % self.sequence_mod:
             raise CommunicationError(
@@ -485,6 +506,7 @@ class ModbusActuator(Actuator, ActuatorChannels):
         self._mode = ControlMode.DISPLACEMENT
         self._closed = False
         self._seen_enabled = False  # the status showed the axis following since the host enabled it
+        self._mode_unconfirmed: tuple[int, float] | None = None  # (status reads, time) when the status first showed another mode
         self.plausibility = common.Plausibility(f"actuator {name!r} at {link.url}", limits,
                                                 1.0 / link.rate_hz, link.options)
 
@@ -539,6 +561,11 @@ class ModbusActuator(Actuator, ActuatorChannels):
             raise InterlockError(
                 f"actuator {self.name!r} at {self.link.url}: the controller's host watchdog expired "
                 f"(no command for more than {self.link.info.get('watchdog_s', 0):g} s); it holds")
+        if bit(word, "refused"):
+            # A controller may refuse a command by its status rather than by an exception
+            # response: the axis did not take it, and goes on with an older one.
+            raise InterlockError(f"actuator {self.name!r} at {self.link.url}: the controller refused the last command "
+                                 f"(its refused bit, status word {int(word)}); the run stops")
         # Enabled by the host and seen following, then no longer following with neither latch
         # bit set (a stop at the controller's panel, hydraulics off): the measurements would be
         # those of an axis that does not follow its commands.
@@ -549,6 +576,34 @@ class ModbusActuator(Actuator, ActuatorChannels):
         elif self._seen_enabled:
             raise InterlockError(f"actuator {self.name!r} at {self.link.url}: the controller no longer follows the "
                                  f"commands (its enabled bit cleared, status word {int(word)}); the run stops")
+        self._check_mode(word)
+
+    def _check_mode(self, word: float) -> None:
+        """An enabled axis' status word must show the control mode the host commands (the
+        force_mode bit). A switch takes effect with the write that carries it, so the status of
+        an honest controller shows it at the next read; one that still shows the other mode after
+        :data:`MODE_READS` status reads (in real time also after ``timeout_s``) did not take the
+        switch, and the run stops. Without a force_mode bit in the map nothing is checked."""
+        link = self.link
+        if not link.confirms_mode or not link.commands[self.axis]["enable"]:
+            self._mode_unconfirmed = None
+            return
+        shown = ControlMode.FORCE if link.map.bit(word, "force_mode") else ControlMode.DISPLACEMENT
+        if shown is self._mode:
+            self._mode_unconfirmed = None
+            return
+        now = time.monotonic()
+        if self._mode_unconfirmed is None:
+            self._mode_unconfirmed = (link.status_reads, now)
+            return
+        reads = link.status_reads - self._mode_unconfirmed[0]
+        waited = now - self._mode_unconfirmed[1]
+        if reads >= MODE_READS and (link.lockstep or waited >= link.timeout_s):
+            raise InterlockError(
+                f"actuator {self.name!r} (axis {self.axis}) at {link.url}: {self._mode.value} control asked for, but the "
+                f"controller reports {shown.value} control (status word {int(word)}, force_mode bit "
+                f"{link.map.bits['force_mode']}) after {reads} status reads in {waited:.3g} s: it did not take the mode "
+                "switch; the run stops")
 
     def hold(self) -> None:
         """Hold the present position: enable off, one write (no retries beyond the link's)."""

@@ -33,6 +33,9 @@ STATUS_NAMES = ("status_word", "displacement", "force", "sequence")
 MAP_KEYS = {"name", "version", "word_order", "device_id", "max_axes", "readwrite"}
 MAX_AXES = 64  # more axes than one controller has; bounds the map checks
 STATUS_BITS = ("enabled", "force_mode", "holding", "interlock", "watchdog", "refused", "lockstep")
+# A controller that does not report its control mode leaves force_mode out; the driver then
+# cannot confirm a mode switch (docs/modbus.md, "Mode confirmation").
+OPTIONAL_BITS = ("force_mode",)
 
 
 @dataclass(frozen=True)
@@ -202,7 +205,8 @@ class RegisterMap:
         return bool((int(word) >> self.bits[name]) & 1)
 
     def make_word(self, flags: dict[str, bool]) -> int:
-        return sum(1 << self.bits[name] for name, on in flags.items() if on)
+        """The status word of ``flags``; a flag the map has no bit for is not reported."""
+        return sum(1 << self.bits[name] for name, on in flags.items() if on and name in self.bits)
 
 
 def _register(where: str, name: str, table, key: str) -> Register:
@@ -292,7 +296,7 @@ def from_dict(data: dict, source: str = "<dict>") -> RegisterMap:
     command = _block(f"{source}: [command]", data.get("command"), COMMAND_NAMES, only=True)
     status = _block(f"{source}: [status]", data.get("status"), STATUS_NAMES)
     bits = dict(data.get("status_bits", {}))
-    missing = [b for b in STATUS_BITS if b not in bits]
+    missing = [b for b in STATUS_BITS if b not in bits and b not in OPTIONAL_BITS]
     if missing:
         raise ConfigError(f"{source}: [status_bits] missing {', '.join(missing)}")
     extra_bits = set(bits) - set(STATUS_BITS)

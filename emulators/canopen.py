@@ -173,6 +173,8 @@ class DriveAxis:
                 raise SdoAbortedError(0x06090030)
             self.node.emcy.send(0x6320, 0x01, struct.pack("<b", mode) + b"\0" * 4)
             return
+        if self.axis in self.emu.ignore_mode:
+            mode = self.mode  # a drive that ignores the switch (a fault for tests); 0x6061 says so
         if mode != self.mode:
             self.mode = mode
             c = self.bank.controllers[self.axis]
@@ -180,6 +182,14 @@ class DriveAxis:
             self.target_counts = self.to_counts(c.measured_displacement)
             self.target_torque = self.to_permille(c.measured_force)
         self.apply_targets()
+
+    def warn(self, code: int, register: int = 0x01) -> None:
+        """A warning EMCY (e.g. 0x4210, temperature): the warning bit 7 of the statusword set,
+        the drive stays in its state and goes on following its targets."""
+        with self.bank.lock:
+            self.warning = True
+        self.node.emcy.send(code, register, b"\0" * 5)
+        self.send_tpdo1()
 
     def following(self) -> bool:
         return self.state == OE and not self.controlword & 0x0100
@@ -277,6 +287,9 @@ class CanopenEmulator:
         self.heartbeat_ms = heartbeat_ms
         self.network: canopen.Network | None = None
         self.axes: list[DriveAxis] = []
+        # Axes whose drive ignores the host's switch of the mode of operation 0x6060 (a fault for
+        # tests, docs/canopen.md "Mode confirmation"): the mode display 0x6061 keeps its mode.
+        self.ignore_mode: set[int] = set()
         self._fault_thread: threading.Thread | None = None
         self._stop = threading.Event()
 

@@ -3,7 +3,8 @@
 :class:`RegisterContext` is the server's data model: it answers reads from the controller's live
 state and turns writes into commands, as the register map (:mod:`hsio.drivers.modbus_map`) says.
 A write that touches an unmapped or read-only register gets exception 2 (illegal data address),
-a value out of range exception 3 (illegal data value); neither changes anything.
+a value out of range exception 3 (illegal data value); neither changes anything. The status
+word reports the mode each axis runs in (force_mode bit), as the controller has it.
 
 :class:`ModbusEmulator` runs the server in a thread with its own event loop, so tests and the
 ``hsio emulate`` command start and stop it the same way.
@@ -85,6 +86,10 @@ class RegisterContext(ModbusServerContext):
         self.exceptions = 0
         self.ignored = 0  # requests for another unit id or broadcast (device id 0): not answered
         self._pending = None  # the fault of a write-then-read, applied to its read
+        # Axes whose controller ignores the host's mode switch (a fault for tests,
+        # docs/modbus.md "Mode confirmation"): the axis keeps the mode it runs in, and its
+        # status word says so.
+        self.ignore_mode: set[int] = set()
 
     def _accept(self, device_id) -> None:
         """Only this controller's unit id is served; another id, or a broadcast (0), is ignored
@@ -245,6 +250,8 @@ class RegisterContext(ModbusServerContext):
                     self.bank.refuse(axis)
                     return self._exception(ExcCodes.ILLEGAL_VALUE, f"axis {axis}: unknown mode value {cmd['mode']!r}")
                 mode = ControlMode(modes[cmd["mode"]])
+                if axis in self.ignore_mode:
+                    mode = self.bank.controllers[axis].mode
                 value = cmd["displacement"] if mode is ControlMode.DISPLACEMENT else cmd["force"]
                 try:
                     self.bank.check_command(axis, ControlMode.DISPLACEMENT, cmd["displacement"])

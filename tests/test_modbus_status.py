@@ -104,3 +104,55 @@ def test_a_restart_is_seen_in_the_sequence_register_without_a_boot_id(tmp_path):
         assert bank.restarts == 1
     finally:
         emu.stop()
+
+
+def test_a_command_the_controller_refuses_by_its_status_bit_stops_the_run(tmp_path):
+    """A controller that refuses a command by setting its refused bit (no exception response):
+    the axis goes on with an older command, so the next command stops with an InterlockError
+    naming the actuator, instead of the run going on until the following error is caught."""
+    from hsio.errors import InterlockError
+
+    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load()).start()
+    flags, refusing = emu.bank.flags, {"on": False}
+    emu.bank.flags = lambda k: {**flags(k), "refused": True} if k == 0 and refusing["on"] else flags(k)
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock)
+
+        def period(value):
+            for a in acts:
+                a.command(value)
+            clock.tick()
+
+        for _ in range(10):
+            period(0.1)
+        refusing["on"] = True
+        period(0.1)  # the status of this exchange shows the refusal
+        with pytest.raises(InterlockError, match=r"actuator 'C1' .*refused the last command"):
+            period(0.1)
+    finally:
+        emu.stop()
+
+
+@pytest.mark.parametrize("garbled", [float("nan"), float("inf"), -1.0, 2.5])
+def test_a_status_word_that_is_not_a_bit_field_is_a_named_communication_error(tmp_path, garbled):
+    """A float32 status word that reads NaN, infinite, negative or fractional (a garbled reply, a
+    map with the wrong type) names the axis and the value, on the cyclic read and on the hold
+    read-back alike, rather than failing inside the bit test."""
+    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load()).start()
+    value, bad = emu.context._value, {"on": False}
+    emu.context._value = lambda kind, axis, reg: garbled if bad["on"] and axis == 1 and reg.name == "status_word" \
+        and kind == "status" else value(kind, axis, reg)
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock)
+        bad["on"] = True
+        with pytest.raises(CommunicationError, match=r"axis 1: status word .* is not a bit field"):
+            for _ in range(3):
+                for a in acts:
+                    a.command(0.1)
+                clock.tick()
+        with pytest.raises(CommunicationError, match=r"axis 1: status word .* is not a bit field"):
+            acts[0].holding()
+    finally:
+        emu.stop()
