@@ -347,6 +347,7 @@ def test_from_the_present_state_each_actuator_is_checked_against_its_own_stroke(
     assert present["limits_per_actuator"]["C2"]["stroke_mm"] == 100.0
     assert "C1 displacement predicted    12.289 mm   limit +/-13.5 mm" in told[0]
     assert "C2 displacement predicted    13.220 mm   limit +/-50 mm" in told[0]
+    assert "lag: a driver does not report its actuators' lag" in told[0]
 
 
 def test_from_the_present_state_a_refusal_names_the_actuator_its_limit_the_prediction_and_the_step():

@@ -29,6 +29,7 @@ from hsio.compensation.hockey_stick import step_velocity
 from hsio.safety.settings import SafetySettings
 from hsio.safety.status import DryRunRefused
 
+DRIVER_LAG = "a driver's actuators: not known"
 QUANTITIES = (("displacement", "stroke_mm", "mm", "stroke_margin"), ("force", "force_kN", "kN", "force_margin"),
               ("velocity", "velocity_mm_s", "mm/s", "velocity_margin"))
 
@@ -335,6 +336,8 @@ def check(prediction: Prediction, limits: dict, source: str, settings: SafetySet
             if not ok:
                 report.exceeded.append(f"{name} {what} {value:.3f} {unit} > {allowed:.3f} {unit} (limit +/-{full:g} "
                                        f"{unit}){when}")
+    if prediction.lag is not None and prediction.lag.source.startswith(DRIVER_LAG):
+        report.lines.append("  lag: a driver does not report its actuators' lag; the margins are what is left for it")
     return report
 
 
@@ -370,7 +373,7 @@ def actuator_lag(url: str, emulator: dict, compensation=None, names=(), steps: i
     moved by ``lag_step_s`` every ``update_every`` steps, at most ``lag_max_s``) and a = 0. The
     lag left is the actuator's less the lead, not below 0."""
     n = len(names)
-    lag, source = np.zeros(n), "a driver's actuators: not known"
+    lag, source = np.zeros(n), DRIVER_LAG
     if url.startswith("emulator"):
         from hsio.emulators.local import _settings
         from hsio.emulators.servo import ServoConfig
