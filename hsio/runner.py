@@ -32,7 +32,7 @@ from hsio.integrators.mixed import RATIO_D, RATIO_F, initial_stiffness_threshold
 from hsio.ledger import Ledger
 from hsio.recording import RUN_FILE, Recorder, discard_new_record, new_run_folder, refuse_recorded_folder
 from hsio.safety.control import RunControl, stop_on_signals
-from hsio.safety.dry_run import check, dry_run, enforce, from_present
+from hsio.safety.dry_run import actuator_lag, actuator_limits, check, dry_run, enforce, from_present, with_static
 from hsio.safety.dry_run import predict as predict_peaks
 from hsio.safety.inputs import fingerprints, ground_fingerprint
 from hsio.sites.numerical import StandingSite
@@ -351,8 +351,10 @@ def predict(config: RunConfig, structure: Structure, ground: GroundMotion, contr
                                  f"parameters ({config['structure']['file'] or config['structure']['name']})") from None
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
     setups = SetupMap.of(structure) if structure.has_setups else None
+    stage = compensation_stage(config, structure)  # whose lead adds to the commands sent
+    lag = actuator_lag(hardware["url"], emulator, stage.settings, stage.names, ns.steps)
     report = dry_run(ns, test["rate"] * structure.dt, test["hold_fraction"], hardware["url"], emulator,
-                     config["driver"], SafetySettings.from_table(config["safety"]), setups, structure.static)
+                     config["driver"], SafetySettings.from_table(config["safety"]), setups, structure.static, lag)
     return ns, report
 
 
@@ -412,9 +414,9 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, r
     Elements loaded by one actuator each: NS from the present state (each specimen model about
     the measured displacement and force, the numerical DOFs in static equilibrium, v = 0: the
     free vibration the offset starts is in the prediction). Through setups: the prediction from
-    rest shifted by each actuator's present stroke and force. A limit that [driver] does not give
-    is checked against the one the controller reported when the hardware opened (the smallest of
-    the actuators')."""
+    rest shifted by each actuator's present stroke and force. Each actuator is checked against its
+    own limits: those [driver] gives, else the ones its controller reported when the hardware
+    opened; the lag allowance is that of the dry run from rest."""
     if not start_state or "error" in start_state:
         raise DryRunRefused("dry run from the present state: the actuators' present state could not be read "
                             f"({(start_state or {}).get('error', 'no feedback')}); no command was sent")
@@ -423,15 +425,17 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, r
         how = "NS from rest plus where each actuator stands"
     else:
         test = config["test"]
-        prediction = predict_peaks(ns_present, test["rate"] * structure.dt, test["hold_fraction"])
+        rest = report.prediction
+        lag = None if rest.lag is None else rest.lag.first(len(rest.actuators) - rest.static)
+        prediction = with_static(predict_peaks(ns_present, test["rate"] * structure.dt, test["hold_fraction"],
+                                               lag=lag), structure.static)
         how = "NS from where the specimen stands"
-    limits, source = dict(report.limits), report.source
-    unknown = [key for key, value in limits.items() if value is None]
-    if unknown:  # not in [driver]: the controller has reported them now that the hardware is open
-        reported = [actuator.limits for actuator in site.loop.actuators]
-        limits.update({key: min(float(getattr(lim, key)) for lim in reported) for key in unknown})
-        source += f"; {', '.join(unknown)} as the controller reports them"
-    present = check(prediction, limits, source, safety)
+    source = report.source
+    unknown = [key for key, value in report.limits.items() if value is None]
+    if unknown:  # not in [driver]: each controller has reported its own now that the hardware is open
+        source += f"; {', '.join(unknown)} as the controller reports them, each actuator's own"
+    present = check(prediction, report.limits, source, safety,
+                    actuator_limits(prediction, report.limits, site.loop.actuators))
     text = f"from the present state ({how}):\n" + present.text()
     recorder.write_event(None, 0, "dry_run", "", text)
     recorder.write_meta({"dry_run_present": present.as_dict()})

@@ -33,7 +33,9 @@ def test_hsio_check_refuses_el_centro_x35_on_structure_I(shared_data, tmp_path):
                           capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "dry run: REFUSED, nothing moved" in proc.stdout
-    assert "wall displacement predicted   165.3" in proc.stdout and "limit +/-127 mm" in proc.stdout
+    assert "wall displacement predicted   166.7" in proc.stdout and "limit +/-127 mm" in proc.stdout
+    assert "NS peak 165.334 mm + lag allowance 0.02 s x 68.630 mm/s" in proc.stdout  # the emulated lag
+    assert "EXCEEDS at step 599 (t = 2.995 s)" in proc.stdout
     assert "--override-dry-run" in proc.stdout
 
 
@@ -293,3 +295,166 @@ def test_a_prediction_from_the_present_state_that_fails_is_bad_input_named_so(tm
     run = Run(tmp_path / "o" / "run.sqlite")
     assert run.summary["exit_status"] == 2 and run.summary["steps"] == 0
     assert "the actuators hold (confirmed by read-back)" in run.summary["stopped"]
+
+
+# -- each actuator against its own limits, from the present state ----------------------------------
+
+class _Recorder:
+    def __init__(self):
+        self.meta, self.events = {}, []
+
+    def write_event(self, *args, **kwargs):
+        self.events.append(args)
+
+    def write_meta(self, items):
+        self.meta.update(items)
+
+
+def check_from_present(strokes: dict, standing: dict) -> tuple[_Recorder, list[str]]:
+    """The check from the present state of a 1 s validation run over a driver that sets no stroke
+    (so each actuator's comes from its controller once open), the actuators with ``strokes`` and
+    standing at ``standing`` (mm)."""
+    from types import SimpleNamespace
+
+    from hsio.interfaces import Limits
+
+    cfg = config.from_dict({"record": {"synthetic_duration_s": 1.0, "pga_g": 0.6}, "test": {"start": "present"},
+                            "hardware": {"url": "modbus+tcp://127.0.0.1:5020"},
+                            "output": {"plots": False, "samples": False}})
+    s = runner.load_run_structure(cfg)
+    ground = runner.build_record(cfg, s)
+    _, report = runner.predict(cfg, s, ground)
+    assert report.limits["stroke_mm"] is None  # from rest the stroke is not known
+    state = {name: {"displacement_mm": d, "force_kN": 0.0} for name, d in standing.items()}
+    site = SimpleNamespace(loop=SimpleNamespace(actuators=[SimpleNamespace(name=name, limits=Limits(stroke, 250.0))
+                                                           for name, stroke in strokes.items()]))
+    recorder, told = _Recorder(), []
+    runner._dry_run_from_present(cfg, s, runner.ns_from_present(cfg, s, ground, state), report, site, state,
+                                 SafetySettings(), recorder, told.append, None, None)
+    return recorder, told
+
+
+def test_from_the_present_state_each_actuator_is_checked_against_its_own_stroke():
+    """C2 standing at 5 mm drives NS to about 12.3 mm on C1 and 13.2 mm on C2. C1's stroke is
+    +/-13.5 mm (allowed 12.825 mm at 5 %), C2's +/-50 mm: each within its own. The smaller stroke
+    applied to both would refuse C2 (13.2 > 12.825), a run that fits."""
+    recorder, told = check_from_present({"C1": 27.0, "C2": 100.0}, {"C1": 0.0, "C2": 5.0})
+    present = recorder.meta["dry_run_present"]
+    assert not present["refused"], told
+    d1, d2 = present["peak_displacement_mm"]
+    assert d1 < 12.825 < d2 < 47.5  # the case the smallest stroke would refuse
+    assert present["limits_per_actuator"]["C1"]["stroke_mm"] == 27.0
+    assert present["limits_per_actuator"]["C2"]["stroke_mm"] == 100.0
+    assert "C1 displacement predicted    12.289 mm   limit +/-13.5 mm" in told[0]
+    assert "C2 displacement predicted    13.220 mm   limit +/-50 mm" in told[0]
+    assert "lag: a driver does not report its actuators' lag" in told[0]
+
+
+def test_from_the_present_state_a_refusal_names_the_actuator_its_limit_the_prediction_and_the_step():
+    with pytest.raises(DryRunRefused) as info:
+        check_from_present({"C1": 25.0, "C2": 100.0}, {"C1": 0.0, "C2": 5.0})
+    text = str(info.value)
+    assert "C1 displacement predicted    12.289 mm   limit +/-12.5 mm, margin 5%: allowed 11.875 mm  EXCEEDS " \
+           "at step 17 (t = 0.170 s)" in text, text
+    assert "C2 displacement predicted    13.220 mm   limit +/-50 mm, margin 5%: allowed 47.500 mm  ok" in text
+    assert "stroke_mm, force_kN as the controller reports them, each actuator's own" in text
+
+
+def test_actuators_are_found_by_name_else_by_place():
+    """An element's actuator may be named apart from the element: then its place tells it."""
+    from types import SimpleNamespace
+
+    from hsio.interfaces import Limits
+    from hsio.safety.dry_run import Prediction, actuator_limits
+
+    p = Prediction(("wall", "B"), np.array([1.0, 1.0]), np.array([1.0, 1.0]), np.array([1.0, 1.0]), 10)
+    opened = [SimpleNamespace(name="A1", limits=Limits(10.0, 20.0, 30.0)),
+              SimpleNamespace(name="B", limits=Limits(40.0, 50.0, 60.0))]
+    tables = actuator_limits(p, {"stroke_mm": None, "force_kN": None, "velocity_mm_s": 5.0}, opened)
+    assert tables == [{"stroke_mm": 10.0, "force_kN": 20.0, "velocity_mm_s": 5.0},
+                      {"stroke_mm": 40.0, "force_kN": 50.0, "velocity_mm_s": 5.0}]
+
+
+# -- the actuator's lag and the compensation's lead ------------------------------------------------
+
+def lagging(stroke_mm: float, compensation: bool) -> config.RunConfig:
+    """4 s of validation in continuous motion (TR 6.25) on an emulated actuator lagging by 30 ms,
+    noise free, margins 0 (the stroke itself is the allowance), compensated or not."""
+    tables = {"record": {"synthetic_duration_s": 4.0, "pga_g": 0.6}, "test": {"rate": 6.25, "hold_fraction": 0.0},
+              "emulator": {"lag_s": 0.03, "noise_mm": 0.0, "resolution_mm": 0.0, "force_noise_kN": 0.0,
+                           "force_resolution_kN": 0.0, "stroke_mm": stroke_mm},
+              "safety": {"stroke_margin": 0.0}, "output": {"plots": False, "samples": False}}
+    if compensation:
+        tables["compensation"] = {"mode": "offline", "b_s_mm": 0.03 / 254.0, "a_mm_s": 0.0}
+    return config.from_dict(tables)
+
+
+def peak_sent(cfg) -> tuple[float, str]:
+    """The run on the emulator: its largest |command sent| and how it stopped ("" if it did not)."""
+    from hsio.experiment import ExperimentStopped
+
+    s = runner.load_run_structure(cfg)
+    stage = runner.compensation_stage(cfg, s) if cfg["compensation"]["mode"] != "off" else None
+    with api.open_site(s, "emulator://", test_rate=6.25, hold_fraction=0.0, options=cfg["emulator"],
+                       compensation=stage) as site:
+        try:
+            hs, stopped = api.simulate(s, runner.build_record(cfg, s), site), ""
+        except ExperimentStopped as exc:
+            hs, stopped = exc.result, str(exc)
+    return float(np.max(np.abs(hs.commands))), stopped
+
+
+def test_the_compensated_commands_are_predicted_not_the_targets():
+    """The lead form sends d^a = d^c + L (|v| - a) sign(v), beyond the NS targets. On a stroke of
+    +/-20.64 mm NS's targets fit (20.59 mm) and the commands sent do not: the dry run refuses,
+    and the run let through is stopped by the command limit."""
+    cfg = lagging(41.28, compensation=True)
+    s = runner.load_run_structure(cfg)
+    ns, report = runner.predict(cfg, s, runner.build_record(cfg, s))
+    assert float(np.max(np.abs(ns.targets))) < 20.64  # NS alone fits
+    assert report.refused and report.exceeded[0].startswith("C1 displacement"), report.text()
+    assert "commands compensated with lead 0.03 s" in report.text()
+    sent, stopped = peak_sent(lagging(100.0, compensation=True))
+    assert sent > 20.64 and sent == pytest.approx(report.prediction.displacement[0], rel=2e-3)
+    _, stopped = peak_sent(cfg)
+    assert "beyond the stroke" in stopped
+
+
+def test_an_uncompensated_lag_is_allowed_for():
+    """Not compensated, the 30 ms lag makes the hybrid response outgrow NS (about 3 % here): on a
+    stroke of +/-21 mm NS fits (20.59 mm) and the run is stopped at the stroke; the allowance
+    L |v|_max (0.03 s x 63.5 mm/s) refuses it first."""
+    cfg = lagging(42.0, compensation=False)
+    s = runner.load_run_structure(cfg)
+    ns, report = runner.predict(cfg, s, runner.build_record(cfg, s))
+    assert float(np.max(np.abs(ns.targets))) < 21.0
+    assert report.refused, report.text()
+    assert "lag allowance 0.03 s x 63.5" in report.text()
+    sent, _ = peak_sent(lagging(100.0, compensation=False))
+    assert 21.0 < sent <= report.prediction.displacement[0] + report.prediction.lag_allowance()[0]
+    _, stopped = peak_sent(cfg)
+    assert "beyond the stroke" in stopped
+
+
+def test_the_lead_form_on_a_ramp():
+    """A ramp at v beyond a: every command leads by L (v - a); below a, none."""
+    from hsio.safety.dry_run import compensated
+
+    t_d, v = 0.1, 50.0
+    ramp = v * t_d * np.arange(10)
+    np.testing.assert_allclose(compensated(ramp, t_d, 0.02, 5.0)[2:], ramp[2:] + 0.02 * (v - 5.0))
+    np.testing.assert_allclose(compensated(ramp, t_d, 0.02, 60.0), ramp)
+
+
+def test_the_online_lead_is_bounded_by_what_it_can_reach():
+    from hsio.compensation.stage import CompensationSettings
+    from hsio.safety.dry_run import actuator_lag
+
+    online = CompensationSettings.from_table({"mode": "online", "actuators": ["C2"]})
+    lag = actuator_lag("emulator://", {"lag_s": 0.02}, online, ["C1", "C2"], steps=25)
+    np.testing.assert_allclose(lag.lead_s, [0.0, 0.015])  # 3 updates of 5 ms
+    np.testing.assert_allclose(lag.lag_s, [0.02, 0.005])  # what the lead leaves
+    lag = actuator_lag("emulator://", {"lag_s": 0.02}, online, ["C1", "C2"], steps=100000)
+    np.testing.assert_allclose(lag.lead_s, [0.0, 0.1])  # lag_max_s
+    lag = actuator_lag("modbus+tcp://127.0.0.1:5020", {}, None, ["C1", "C2"])
+    np.testing.assert_allclose(lag.lag_s, [0.0, 0.0])  # a driver's lag is not known
