@@ -15,6 +15,7 @@ from hsio.diagnose.modelfile import write_model
 from hsio.diagnose.plotting import figure, label, mark_blocks, save
 from hsio.diagnose.outcome import ratio
 from hsio.diagnose.selection import NONE, UNEXPLAINED, Diagnosis
+from hsio.diagnose.gain_tie import OPEN as GAIN_OPEN, SETTLING as GAIN_SETTLING
 from hsio.diagnose.timing import EXTRA_CHANNEL as TIMING_CHANNEL, OPEN
 
 MAX_POINTS = 20000  # scatter plots thin the record to this many points
@@ -156,6 +157,8 @@ def text(d: Diagnosis, ev: dict) -> str:
                   f"{single.gain:.2f} times better than the baseline (a cause is named only above {d.margin:g}x).", ""]
         if d.timing is not None:
             lines += _timing_text(d)
+        if d.gain_tie is not None:
+            lines += _gain_text(d)
         if len(d.extended.effects) > 1:
             lines += [f"## Best combination: {d.extended.name}", "",
                       "; ".join(EFFECTS[e].describe(d.extended.params) for e in d.extended.effects) + ".",
@@ -198,6 +201,16 @@ def _timing_text(d: Diagnosis) -> list[str]:
                      "displacement as well.")
     lines += [f"The channel that would tell them apart: {TIMING_CHANNEL}.", ""]
     return lines
+
+
+def _gain_text(d: Diagnosis) -> list[str]:
+    """A transducer gain error against a compliant load train (hsio/diagnose/gain_tie.py)."""
+    t = d.gain_tie
+    if t.verdict != GAIN_OPEN:
+        return [f"A transducer gain and a load-train compliance tie on this record: {t.reason}.", ""]
+    return [f"Equally likely: {t.reason}. The cause is named {d.cause} by the library's order only; "
+            f"{d.equivalent.cause if d.equivalent else 'the other'} is as likely.",
+            f"What would tell them apart: {GAIN_SETTLING}.", ""]
 
 
 def provenance(d: Diagnosis) -> dict:
