@@ -14,7 +14,7 @@ from hsio.diagnose.effects import EFFECTS
 from hsio.diagnose.modelfile import write_model
 from hsio.diagnose.plotting import figure, label, mark_blocks, save
 from hsio.diagnose.outcome import ratio
-from hsio.diagnose.selection import NONE, UNEXPLAINED, Diagnosis
+from hsio.diagnose.selection import NONE, TOO_FEW, UNEXPLAINED, Diagnosis
 from hsio.diagnose.gain_tie import OPEN as GAIN_OPEN, SETTLING as GAIN_SETTLING
 from hsio.diagnose.timing import EXTRA_CHANNEL as TIMING_CHANNEL, OPEN
 
@@ -136,12 +136,15 @@ def text(d: Diagnosis, ev: dict) -> str:
              f"{ev['corr_displacement']:+.2f}" + (f", with the force {ev['corr_force']:+.2f}." if "corr_force" in ev else "."),
              ""]
     floor = d.floor.sensor_floor_mm
-    if d.cause in (NONE, UNEXPLAINED):
+    if d.cause in (NONE, UNEXPLAINED, TOO_FEW):
         best = min(d.candidates, key=lambda c: c.fit.rms_choose_mm) if d.candidates else None
         lines += [f"## Cause: {d.cause}", ""] + ([f"No cause is named: {d.too_short}.", ""] if d.too_short else []) + [
                   f"No candidate improves the choosing block by the margin of {d.margin:g}x"
                   + (f" (best: {best.cause}, {best.choose_gain:.3f}x)." if best else ".")]
-        if d.cause == NONE:
+        if d.cause == TOO_FEW:
+            lines += ["Neither none nor unexplained: blocks this short cannot tell the lag's residual from the sensor "
+                      f"floor ({floor:.4f} mm) either. The baseline above is fitted; a longer record would judge it.", ""]
+        elif d.cause == NONE:
             lines += [f"The lag alone reaches the sensor floor ({floor:.4f} mm: noise and quantisation, estimated from "
                       "the data); nothing is named.", ""]
         else:
@@ -166,7 +169,7 @@ def text(d: Diagnosis, ev: dict) -> str:
                       "each added effect had to clear the margin over the combination before it.", ""]
         else:
             lines += ["No further effect improves on it by the margin: the extended model is the single cause.", ""]
-    if d.cause not in (NONE, UNEXPLAINED):
+    if d.cause not in (NONE, UNEXPLAINED, TOO_FEW):
         lines += ["## What remains", "",
                   ("The extended model reaches the sensor floor: " if d.explained else "The extended model stays above the sensor floor: ")
                   + d.residual_json()["remains"] + ".", ""]

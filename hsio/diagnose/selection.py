@@ -8,7 +8,9 @@ adds the effect that lowers the choosing error most, while it still clears the m
 combination so far. Every gain reported is measured on the scoring block, which neither the fit
 nor the choice saw.
 
-When no candidate clears the margin, the answer depends on the sensor floor
+A record whose choosing or scoring block is too short to name a cause (:func:`too_short`)
+answers ``too_few_samples``: such a block is also too short to judge the floor. Otherwise,
+when no candidate clears the margin, the answer depends on the sensor floor
 (:mod:`~hsio.diagnose.residual`): ``none`` when the baseline's held-out error is within
 ``FLOOR_FACTOR`` floors and holds no line or trend (the lag explains the record as well as
 the sensors allow), otherwise
@@ -17,6 +19,7 @@ the sensors allow), otherwise
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -27,7 +30,7 @@ from hsio.diagnose.effects import EFFECTS, NAMES, Context, context
 from hsio.diagnose import residual as residual_mod
 from hsio.diagnose import gain_tie as gain_mod
 from hsio.diagnose import timing as timing_mod
-from hsio.diagnose.outcome import NONE, PARSIMONY, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401
+from hsio.diagnose.outcome import NONE, PARSIMONY, TOO_FEW, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, Fit, blocks, fit
 from hsio.diagnose.record import ActuatorRecord
 from hsio.errors import RecordError
@@ -65,7 +68,7 @@ class Diagnosis(Outcome):
     margin: float
     baseline: Fit
     candidates: list[Candidate]
-    cause: str  # the best single cause, "none" or "unexplained"
+    cause: str  # the best single cause, "none", "unexplained" or "too_few_samples"
     extended: Fit  # the best combination (the baseline when no cause is named)
     elapsed_s: float = 0.0
     context: Context | None = field(default=None, repr=False)
@@ -145,11 +148,15 @@ def estimate_lag(record: ActuatorRecord, n_train: int) -> float:
 
 
 def too_short(record: ActuatorRecord, n_train: int, n_choose: int, lag_s: float) -> str | None:
-    """Why no cause can be named on this record (a block too short to tell), or None."""
+    """Why no cause can be named on this record (a block too short to tell), or None. The least
+    number of samples M is the one whose shorter block would hold what a block needs."""
     shortest = min(n_choose - n_train, record.n - n_choose)
     if shortest * record.dt >= MIN_BLOCK_LAGS * lag_s and shortest >= MIN_BLOCK_SAMPLES:
         return None
-    return (f"too short to tell: the choosing and scoring blocks hold {n_choose - n_train} and {record.n - n_choose} "
+    need = max(MIN_BLOCK_SAMPLES, math.ceil(MIN_BLOCK_LAGS * lag_s / record.dt))
+    least = math.ceil(need * record.n / max(shortest, 1))
+    return (f"too few samples to judge ({record.n} < {least}), too short to tell: the choosing and scoring blocks "
+            f"hold {n_choose - n_train} and {record.n - n_choose} "
             f"samples ({1e3 * (n_choose - n_train) * record.dt:.4g} and {1e3 * (record.n - n_choose) * record.dt:.4g} ms); "
             f"naming a cause needs at least {MIN_BLOCK_SAMPLES} samples and {MIN_BLOCK_LAGS:g} lags "
             f"({1e3 * MIN_BLOCK_LAGS * lag_s:.4g} ms) in each (a longer record)")
@@ -226,7 +233,7 @@ def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, 
     r = record.measured_mm - extended.prediction
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
-        cause = unnamed(s, floor)
+        cause = TOO_FEW if short else unnamed(s, floor)
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
                      n_choose, floor, s, timing, short, tie)
 
