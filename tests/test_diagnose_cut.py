@@ -44,8 +44,27 @@ def test_a_lag_cut_from_the_middle_of_a_test_answers_none(full):
 
 
 def test_blocks_too_short_to_tell_name_no_cause(full):
-    """400 samples (0.4 s) from the middle of the test: 80 samples per block, 4 lags each."""
+    """400 samples (0.4 s) from the middle of the test: 80 samples per block, 4 lags each; a
+    block needs 10 lags (205 samples), so 1025 samples would do."""
     d = diagnose(_cut(full, 5000, 400))
-    assert d.cause in (NONE, UNEXPLAINED), [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    assert d.cause == "too_few_samples", [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
     assert not any(c.named for c in d.candidates) and d.extended is d.baseline
     assert "too short to tell" in d.to_json()["too_short"]
+    assert "too few samples to judge (400 < 10" in d.to_json()["too_short"]
+
+
+@pytest.mark.parametrize("n", [100, 150, 200])
+def test_a_few_samples_on_a_linear_spring_are_too_few_to_judge(n, tmp_path):
+    """100 to 200 samples of an actuator on a linear spring, cut at several places: neither none
+    nor unexplained (their blocks are too short to judge the floor) but too_few_samples, said
+    as such in --json and report.md."""
+    from hsio.diagnose.report import evidence, text
+    from hsio.specimens.elastic import Linear
+
+    record = emulate(seismic_command(8.0, RATE_HZ, peak_mm=20.0, seed=4),
+                     ServoConfig(rate_hz=RATE_HZ, lag_s=LAG_S, noise_mm=0.01, resolution_mm=0.025, seed=1), Linear(k=2.0))
+    for a in range(1000, 8000, 1500):
+        d = diagnose(_cut(record, a, n))
+        assert d.cause == "too_few_samples", (a, d.cause)
+        assert f"too few samples to judge ({n} < " in d.to_json()["too_short"]
+    assert "Cause: too_few_samples" in text(d, evidence(d))

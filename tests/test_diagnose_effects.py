@@ -77,3 +77,40 @@ def test_nothing_hidden_answers_none(commands, kind):
     assert d.baseline.params["lag_s"] == pytest.approx(LAG_S, rel=0.05)
     # The baseline is then as good as the sensors: noise 0.01 mm and 0.025 mm steps.
     assert d.baseline.rms_test_mm < 0.02
+
+
+# -- a transducer gain error against a compliant load train on a linear spring --------------------
+# On a spring F = k m a gain g and a compliance c = (1 - g) / (g k) predict the same record
+# (hsio/diagnose/gain_tie.py): only the sign of c tells, where it does.
+
+def _on_a_spring(command, **settings):
+    from hsio.specimens.elastic import Linear
+
+    config = ServoConfig(rate_hz=RATE_HZ, lag_s=LAG_S, noise_mm=0.01, resolution_mm=0.025, seed=3, **settings)
+    return emulate(command, config, Linear(k=2.0))
+
+
+def test_a_gain_above_one_on_a_linear_spring_is_a_gain_error(commands):
+    """A 3 % high transducer on a spring would be a compliance of -0.015 mm/kN: a load train does
+    not lengthen under its force, so the gain error is named, with no equivalent."""
+    d = diagnose(_on_a_spring(commands["seismic"], displacement_gain=1.03))
+    assert d.cause == "scale_error" and d.single.fit.params["displacement_gain"] == pytest.approx(1.03, rel=0.002)
+    assert d.gain_tie.verdict == "scale_error" and d.equivalent is None
+    assert d.gain_tie.compliance_mm_per_kN == pytest.approx((1 - 1.03) / (1.03 * d.gain_tie.stiffness_kN_per_mm), rel=0.05)
+    assert d.to_json()["gain_tie"]["settling_channel"] is None
+
+
+@pytest.mark.parametrize("setting, value", [("displacement_gain", 0.97), ("compliance_mm_per_kN", 0.01)])
+def test_a_gain_below_one_and_a_compliance_on_a_linear_spring_are_equally_likely(commands, setting, value):
+    from hsio.diagnose.report import evidence, text
+
+    d = diagnose(_on_a_spring(commands["seismic"], **{setting: value}))
+    both = {"scale_error", "force_coupling"}
+    assert {d.cause, d.equivalent.cause} == both
+    tie = d.to_json()["gain_tie"]
+    assert tie["verdict"] == "undecided" and "equally likely" in tie["reason"] and tie["settling_channel"]
+    g, c, k = tie["displacement_gain"], tie["compliance_mm_per_kN"], tie["stiffness_kN_per_mm"]
+    assert c == pytest.approx((1 - g) / (g * k), rel=0.05)  # the one model, both ways
+    assert (g if setting == "displacement_gain" else c) == pytest.approx(value, rel=0.05)
+    report = text(d, evidence(d))
+    assert "Equally likely" in report and "second transducer on the specimen" in report

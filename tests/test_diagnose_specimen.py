@@ -155,9 +155,27 @@ def test_a_sixth_of_a_cycle_names_no_cause(sweep):
     full = _record(sweep, {}, seed=0)
     cut = SpecimenRecord("cut", full.dt, full.displacement_mm[200:300], full.force_kN[200:300])
     d = diagnose_specimen(cut)
-    assert d.cause in (NONE, "unexplained"), [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    assert d.cause == "too_few_samples", [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
     assert not any(c.named for c in d.candidates) and d.extended is d.baseline
-    assert "too short to tell" in d.to_json()["too_short"]
+    assert "too few samples to judge (100 < 250)" in d.to_json()["too_short"]
+
+
+@pytest.mark.parametrize("n", [100, 150, 200, 300])
+def test_a_short_linear_record_is_too_few_samples_to_judge(sweep, n, tmp_path):
+    """100 to 300 samples of a linear spring and dashpot, cut at several places in the sweep:
+    their scoring blocks (20 to 60 samples) cannot tell a spring from a cause (under 250
+    samples) or from the floor (under 500), so the answer is neither a cause nor unexplained
+    but too few samples to judge, said as such."""
+    from hsio.diagnose.specimen_report import write_specimen_report
+
+    full = _record(sweep, {}, seed=0)
+    for a in (200, 700, 1300, 2000):
+        d = diagnose_specimen(SpecimenRecord("cut", full.dt, full.displacement_mm[a:a + n], full.force_kN[a:a + n]))
+        assert d.cause == "too_few_samples", (a, d.cause)
+        assert f"too few samples to judge ({d.record.n} < {250 if n < 250 else 500})" in d.to_json()["too_short"]
+        assert not any(c.named for c in d.candidates) and d.extended is d.baseline
+    report = write_specimen_report([d], tmp_path)
+    assert "too few samples to judge" in open(report["text"]).read()
 
 
 @pytest.mark.parametrize("a", [200, 1000])

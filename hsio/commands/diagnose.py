@@ -104,6 +104,8 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
     click.echo(f"cause       {d.cause}" + (f" ({d.too_short})" if d.too_short else ""))
     if d.timing is not None:
         click.echo(f"timing      {d.timing.verdict}: {d.timing.reason}")
+    if d.gain_tie is not None:
+        click.echo(f"gain tie    {d.gain_tie.verdict}: {d.gain_tie.reason}")
     click.echo(f"residual    {d.residual_json()['remains']}")
     click.echo(f"extended    {e.name}: scored {e.rms_test_mm:.4f} mm, gain {d.gain:.2f}")
     click.echo(f"            {', '.join(f'{k} = {v:.5g}' for k, v in e.params.items())}")

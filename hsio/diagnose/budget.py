@@ -4,8 +4,10 @@ The difference D(t) = u_HS - u_NS is attributed by replaying NS with one source 
 
 * actuator tracking: each step's measured tracking error (target - measured displacement) is
   imposed on the specimen model, and the force corrected as in HS (R = F + K^EI (d - d_m));
-* force measurement noise: the part of each measured force above the response's band (the
-  residual of the specimen model on the measured path, high-passed) is added to the model's force;
+* force measurement noise: the noise of each measured force, over the whole band (the residual
+  of the specimen model on the measured path, its white level read above the response's band
+  and its Wiener estimate taken in every bin: :func:`noise_estimate`), is added to the model's
+  force;
 * specimen-model mismatch: the specimen model is replaced by the one the specimen diagnosis
   fits to the measured displacement and force (hsio.diagnose.specimen_fit), or by the
   structure's own model scaled to the measured force, whichever predicts the last 20 % of the
@@ -310,16 +312,53 @@ def _scaled(specimen, scale: float):
     return _Scaled(specimen, scale)
 
 
-def force_noise(data: RunData, models) -> np.ndarray:
-    """The measured force's noise: the model's residual on the measured path minus its running
-    mean over 5 steps (what varies faster than the response)."""
+NOISE_HIGH_BAND = 0.5  # the noise's level is read above this fraction of the Nyquist frequency
+NOISE_SMOOTHING_BINS = 9  # the residual's spectrum is averaged over this many neighbouring bins
+
+
+def noise_level(r: np.ndarray) -> float:
+    """The white level S_0 of a residual's periodogram |R_k|^2, read in its high band (above
+    NOISE_HIGH_BAND of the Nyquist frequency, where the response has no power): the median of
+    |R_k|^2 there over ln 2 (a white noise's |R_k|^2 is S_0 times an exponential variable, whose
+    median is ln 2). The noise's standard deviation per sample is sqrt(S_0 / N)."""
+    P = np.abs(np.fft.rfft(r)) ** 2
+    high = P[int(NOISE_HIGH_BAND * (P.size - 1)):]
+    return float(np.median(high) / np.log(2.0)) if high.size else 0.0
+
+
+def noise_estimate(r: np.ndarray) -> tuple[np.ndarray, float]:
+    """The noise in a force residual r = s + n, over the whole band, and its standard deviation.
+
+    The noise is taken as white at the level S_0 of :func:`noise_level`, the rest s as what the
+    specimen model misses. Per frequency bin the noise's estimate is the Wiener one,
+    N_k = H_k R_k with H_k = min(1, S_0 / S_r,k), S_r,k the periodogram averaged over
+    NOISE_SMOOTHING_BINS bins: where the residual is at the white level (noise alone, also
+    within the structure's band) all of it is noise; where it rises above (a model mismatch)
+    only the white level's part is."""
+    r = np.asarray(r, dtype=float)
+    if r.size < 4:
+        return np.zeros_like(r), 0.0
+    R = np.fft.rfft(r)
+    P = np.abs(R) ** 2
+    S0 = noise_level(r)
+    w = min(NOISE_SMOOTHING_BINS, 2 * ((P.size - 1) // 2) + 1)
+    smooth = np.convolve(np.pad(P, w // 2, mode="reflect"), np.ones(w) / w, mode="valid") if w > 1 else P
+    H = np.minimum(1.0, S0 / np.maximum(smooth, 1e-300))
+    return np.fft.irfft(H * R, r.size), float(np.sqrt(S0 / r.size))
+
+
+def force_noise(data: RunData, models) -> tuple[np.ndarray, list[dict]]:
+    """The measured force's noise per actuator (:func:`noise_estimate` of the model's residual on
+    the measured path), and per actuator its standard deviation and the estimate's RMS."""
     dt = data.structure.dt
     noise = np.zeros_like(data.force)
+    notes = []
     for j, model in enumerate(models):
         r = data.force[:, j] - _path_force(model, data.displacement[:, j], dt)
-        smooth = np.convolve(np.pad(r, 2, mode="edge"), np.ones(5) / 5, mode="valid")
-        noise[:, j] = r - smooth
-    return noise
+        noise[:, j], sigma = noise_estimate(r)
+        notes.append({"element": data.structure.experimental[j].name, "sigma_kN": sigma,
+                      "rms_estimate_kN": _rms(noise[:, j]), "rms_residual_kN": _rms(r)})
+    return noise, notes
 
 
 @dataclass
@@ -333,6 +372,7 @@ class Budget:
     specimen_notes: list = field(default_factory=list)
     steps_planned: int = 0  # 0: not known (taken as the steps recorded)
     stop_reason: str | None = None
+    noise_notes: list = field(default_factory=list)
 
     @property
     def difference(self) -> np.ndarray:
@@ -439,7 +479,7 @@ class Budget:
                 "accounted": self.accounted, "main_source": self.main_source, "verdict": self.verdict,
                 "conclusion": self.conclusion(), "unexplained": self.unexplained(),
                 "rule": {"accounted_min": ACCOUNTED_MIN, "dominance": DOMINANCE}, "run": self.run_json(),
-                "specimen_models": self.specimen_notes,
+                "specimen_models": self.specimen_notes, "force_noise": self.noise_notes,
                 "method": "NS replayed with one measured source at a time; share = 1 - RMS(HS - replay) / RMS(HS - NS)"}
 
     def table(self) -> str:
@@ -458,14 +498,14 @@ def error_budget(run_dir: str | Path) -> Budget:
     n = data.u_hs.shape[0]
     models, notes = specimen_models(data)
     error = data.targets - data.displacement
-    noise = force_noise(data, models)
+    noise, noise_notes = force_noise(data, models)
     replays = {"tracking": replay(data, structure_models(data.structure), tracking_error=error),
                "force_noise": replay(data, structure_models(data.structure), force_noise=noise),
                "specimen": replay(data, models)}
     u_all = replay(data, models, tracking_error=error, force_noise=noise)
     m = min(n, data.u_ns.shape[0], u_all.shape[0], *(u.shape[0] for u in replays.values()))
     return Budget(data.source, data.t[:m], data.u_hs[:m], data.u_ns[:m], {k: u[:m] for k, u in replays.items()}, u_all[:m], notes,
-                  data.steps_planned, data.stop_reason)
+                  data.steps_planned, data.stop_reason, noise_notes)
 
 
 def write_budget(b: Budget, out_dir: str | Path) -> dict:

@@ -11,6 +11,7 @@ from hsio.diagnose import residual as residual_mod
 
 NONE = "none"
 UNEXPLAINED = "unexplained"
+TOO_FEW = "too_few_samples"  # a record too short to judge: neither a cause nor none nor unexplained
 PARSIMONY = 1.02  # a candidate within this factor of the best, with fewer parameters or earlier in the library, wins
 
 
@@ -68,7 +69,7 @@ class Outcome:
 
     @property
     def single(self):
-        """The named cause's candidate (None for none and unexplained)."""
+        """The named cause's candidate (None for none, unexplained and too_few_samples)."""
         return next((c for c in self.candidates if c.cause == self.cause), None)
 
     @property

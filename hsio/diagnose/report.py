@@ -14,7 +14,8 @@ from hsio.diagnose.effects import EFFECTS
 from hsio.diagnose.modelfile import write_model
 from hsio.diagnose.plotting import figure, label, mark_blocks, save
 from hsio.diagnose.outcome import ratio
-from hsio.diagnose.selection import NONE, UNEXPLAINED, Diagnosis
+from hsio.diagnose.selection import NONE, TOO_FEW, UNEXPLAINED, Diagnosis
+from hsio.diagnose.gain_tie import OPEN as GAIN_OPEN, SETTLING as GAIN_SETTLING
 from hsio.diagnose.timing import EXTRA_CHANNEL as TIMING_CHANNEL, OPEN
 
 MAX_POINTS = 20000  # scatter plots thin the record to this many points
@@ -135,12 +136,15 @@ def text(d: Diagnosis, ev: dict) -> str:
              f"{ev['corr_displacement']:+.2f}" + (f", with the force {ev['corr_force']:+.2f}." if "corr_force" in ev else "."),
              ""]
     floor = d.floor.sensor_floor_mm
-    if d.cause in (NONE, UNEXPLAINED):
+    if d.cause in (NONE, UNEXPLAINED, TOO_FEW):
         best = min(d.candidates, key=lambda c: c.fit.rms_choose_mm) if d.candidates else None
         lines += [f"## Cause: {d.cause}", ""] + ([f"No cause is named: {d.too_short}.", ""] if d.too_short else []) + [
                   f"No candidate improves the choosing block by the margin of {d.margin:g}x"
                   + (f" (best: {best.cause}, {best.choose_gain:.3f}x)." if best else ".")]
-        if d.cause == NONE:
+        if d.cause == TOO_FEW:
+            lines += ["Neither none nor unexplained: blocks this short cannot tell the lag's residual from the sensor "
+                      f"floor ({floor:.4f} mm) either. The baseline above is fitted; a longer record would judge it.", ""]
+        elif d.cause == NONE:
             lines += [f"The lag alone reaches the sensor floor ({floor:.4f} mm: noise and quantisation, estimated from "
                       "the data); nothing is named.", ""]
         else:
@@ -156,6 +160,8 @@ def text(d: Diagnosis, ev: dict) -> str:
                   f"{single.gain:.2f} times better than the baseline (a cause is named only above {d.margin:g}x).", ""]
         if d.timing is not None:
             lines += _timing_text(d)
+        if d.gain_tie is not None:
+            lines += _gain_text(d)
         if len(d.extended.effects) > 1:
             lines += [f"## Best combination: {d.extended.name}", "",
                       "; ".join(EFFECTS[e].describe(d.extended.params) for e in d.extended.effects) + ".",
@@ -163,7 +169,7 @@ def text(d: Diagnosis, ev: dict) -> str:
                       "each added effect had to clear the margin over the combination before it.", ""]
         else:
             lines += ["No further effect improves on it by the margin: the extended model is the single cause.", ""]
-    if d.cause not in (NONE, UNEXPLAINED):
+    if d.cause not in (NONE, UNEXPLAINED, TOO_FEW):
         lines += ["## What remains", "",
                   ("The extended model reaches the sensor floor: " if d.explained else "The extended model stays above the sensor floor: ")
                   + d.residual_json()["remains"] + ".", ""]
@@ -198,6 +204,16 @@ def _timing_text(d: Diagnosis) -> list[str]:
                      "displacement as well.")
     lines += [f"The channel that would tell them apart: {TIMING_CHANNEL}.", ""]
     return lines
+
+
+def _gain_text(d: Diagnosis) -> list[str]:
+    """A transducer gain error against a compliant load train (hsio/diagnose/gain_tie.py)."""
+    t = d.gain_tie
+    if t.verdict != GAIN_OPEN:
+        return [f"A transducer gain and a load-train compliance tie on this record: {t.reason}.", ""]
+    return [f"Equally likely: {t.reason}. The cause is named {d.cause} by the library's order only; "
+            f"{d.equivalent.cause if d.equivalent else 'the other'} is as likely.",
+            f"What would tell them apart: {GAIN_SETTLING}.", ""]
 
 
 def provenance(d: Diagnosis) -> dict:

@@ -8,7 +8,9 @@ adds the effect that lowers the choosing error most, while it still clears the m
 combination so far. Every gain reported is measured on the scoring block, which neither the fit
 nor the choice saw.
 
-When no candidate clears the margin, the answer depends on the sensor floor
+A record whose choosing or scoring block is too short to name a cause (:func:`too_short`)
+answers ``too_few_samples``: such a block is also too short to judge the floor. Otherwise,
+when no candidate clears the margin, the answer depends on the sensor floor
 (:mod:`~hsio.diagnose.residual`): ``none`` when the baseline's held-out error is within
 ``FLOOR_FACTOR`` floors and holds no line or trend (the lag explains the record as well as
 the sensors allow), otherwise
@@ -17,6 +19,7 @@ the sensors allow), otherwise
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -25,8 +28,9 @@ from scipy import signal
 
 from hsio.diagnose.effects import EFFECTS, NAMES, Context, context
 from hsio.diagnose import residual as residual_mod
+from hsio.diagnose import gain_tie as gain_mod
 from hsio.diagnose import timing as timing_mod
-from hsio.diagnose.outcome import NONE, PARSIMONY, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401
+from hsio.diagnose.outcome import NONE, PARSIMONY, TOO_FEW, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, Fit, blocks, fit
 from hsio.diagnose.record import ActuatorRecord
 from hsio.errors import RecordError
@@ -64,7 +68,7 @@ class Diagnosis(Outcome):
     margin: float
     baseline: Fit
     candidates: list[Candidate]
-    cause: str  # the best single cause, "none" or "unexplained"
+    cause: str  # the best single cause, "none", "unexplained" or "too_few_samples"
     extended: Fit  # the best combination (the baseline when no cause is named)
     elapsed_s: float = 0.0
     context: Context | None = field(default=None, repr=False)
@@ -73,6 +77,7 @@ class Diagnosis(Outcome):
     structure: residual_mod.Structure | None = None
     timing: timing_mod.Timing | None = None  # a late channel against a delay in the loop, by the force
     too_short: str | None = None  # why no cause could be named, when the blocks are too short to tell
+    gain_tie: gain_mod.GainTie | None = None  # a transducer gain against a compliant load train, when they tie
 
     @property
     def equivalent(self) -> Candidate | None:
@@ -80,7 +85,9 @@ class Diagnosis(Outcome):
         that the force's timing could not tell from it (a delay in the loop or in the channel)."""
         if self.timing is not None and self.timing.verdict != timing_mod.OPEN:
             return None
-        other = EQUIVALENT.get(self.cause)
+        if self.gain_tie is not None and self.gain_tie.verdict != gain_mod.OPEN:
+            return None
+        other = EQUIVALENT.get(self.cause) or (gain_mod.PAIR.get(self.cause) if self.gain_tie is not None else None)
         c = next((c for c in self.candidates if c.cause == other), None)
         single = self.single
         if c is None or single is None or not c.named:
@@ -119,6 +126,7 @@ class Diagnosis(Outcome):
             "single": single.summary() if single else None,
             "equivalent": self.equivalent.summary() if self.equivalent else None,
             "timing": self.timing.to_json() if self.timing else None,
+            "gain_tie": self.gain_tie.to_json() if self.gain_tie else None,
             "combination": list(self.extended.effects),
             "extended": self.extended.summary(),
             "gain": self.gain,
@@ -140,11 +148,15 @@ def estimate_lag(record: ActuatorRecord, n_train: int) -> float:
 
 
 def too_short(record: ActuatorRecord, n_train: int, n_choose: int, lag_s: float) -> str | None:
-    """Why no cause can be named on this record (a block too short to tell), or None."""
+    """Why no cause can be named on this record (a block too short to tell), or None. The least
+    number of samples M is the one whose shorter block would hold what a block needs."""
     shortest = min(n_choose - n_train, record.n - n_choose)
     if shortest * record.dt >= MIN_BLOCK_LAGS * lag_s and shortest >= MIN_BLOCK_SAMPLES:
         return None
-    return (f"too short to tell: the choosing and scoring blocks hold {n_choose - n_train} and {record.n - n_choose} "
+    need = max(MIN_BLOCK_SAMPLES, math.ceil(MIN_BLOCK_LAGS * lag_s / record.dt))
+    least = math.ceil(need * record.n / max(shortest, 1))
+    return (f"too few samples to judge ({record.n} < {least}), too short to tell: the choosing and scoring blocks "
+            f"hold {n_choose - n_train} and {record.n - n_choose} "
             f"samples ({1e3 * (n_choose - n_train) * record.dt:.4g} and {1e3 * (record.n - n_choose) * record.dt:.4g} ms); "
             f"naming a cause needs at least {MIN_BLOCK_SAMPLES} samples and {MIN_BLOCK_LAGS:g} lags "
             f"({1e3 * MIN_BLOCK_LAGS * lag_s:.4g} ms) in each (a longer record)")
@@ -199,16 +211,31 @@ def settle_timing(best: Candidate, named: list[Candidate], record: ActuatorRecor
     return (best if best.cause == t.verdict else other), t
 
 
+def settle_gain(best: Candidate, named: list[Candidate], record: ActuatorRecord) -> tuple[Candidate, gain_mod.GainTie | None]:
+    """When a transducer gain error and a load-train compliance tie on the displacement (a linear
+    spring: hsio/diagnose/gain_tie.py), the sign of the compliance names the gain error where it
+    is negative; otherwise both stay, equally likely, and ``best`` is named with the other as its
+    equivalent."""
+    other = next((c for c in named if c.cause == gain_mod.PAIR.get(best.cause)), None)
+    if other is None or record.force_kN is None or other.fit.rms_choose_mm > PARSIMONY * best.fit.rms_choose_mm:
+        return best, None
+    gain, coupling = (best, other) if best.cause == gain_mod.GAIN else (other, best)
+    t = gain_mod.tell(gain.fit.params["displacement_gain"], coupling.fit.params["compliance_mm_per_kN"],
+                      record.measured_mm, record.force_kN)
+    return (gain if t.verdict == gain_mod.GAIN else best), t
+
+
 def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, baseline: Fit, candidates: list,
             cause: str | None, extended: Fit, t0: float, ctx: Context, floor: residual_mod.Floor,
-            timing: timing_mod.Timing | None = None, short: str | None = None) -> Diagnosis:
+            timing: timing_mod.Timing | None = None, short: str | None = None,
+            tie: gain_mod.GainTie | None = None) -> Diagnosis:
     """Measure the residual's structure, and settle none against unexplained."""
     r = record.measured_mm - extended.prediction
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
-        cause = unnamed(s, floor)
+        cause = TOO_FEW if short else unnamed(s, floor)
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
-                     n_choose, floor, s, timing, short)
+                     n_choose, floor, s, timing, short, tie)
 
 
 @one_blas_thread
@@ -248,6 +275,7 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     if not named:
         return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx, floor, short=short)
     best, timing = settle_timing(choose_single(named, ctx, record), named, record, floor)
+    best, tie = settle_gain(best, named, record)
     singles = {c.cause: c.fit for c in candidates}
     gains = {c.cause: c.choose_gain for c in candidates}
 
@@ -259,4 +287,5 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     current = grow(best.fit, names, may_join,
                    lambda current, name: fit(record, (*current.effects, name), ctx, n_train, _merged_starts(current, singles[name])),
                    lambda f: f.rms_choose_mm, margin, max_combination)
-    return _finish(record, n_train, n_choose, margin, baseline, candidates, best.cause, current, t0, ctx, floor, timing)
+    return _finish(record, n_train, n_choose, margin, baseline, candidates, best.cause, current, t0, ctx, floor, timing,
+                   tie=tie)

@@ -24,7 +24,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from hsio.diagnose import residual as residual_mod
-from hsio.diagnose.outcome import NONE, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401 (re-exported)
+from hsio.diagnose.outcome import NONE, TOO_FEW, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401 (re-exported)
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, blocks, rms
 from hsio.diagnose.specimen_effects import EFFECTS, NAMES, Effect  # noqa: F401 (the library, re-exported)
 from hsio.diagnose.specimen_record import SpecimenRecord
@@ -38,6 +38,13 @@ MARGIN = 1.10
 # choosing and the scoring block: a hysteretic, pinched, degrading or gapped specimen shows itself
 # at reversals, and a block without one cannot tell a spring from any of them.
 MIN_REVERSALS = (2, 1, 1)
+# Samples after the rests are cut and long records thinned. Below MIN_SAMPLES no cause is named
+# (the choosing and scoring blocks, 20 % each, would hold under 50 samples, as for the actuator);
+# below MIN_JUDGED, when no cause is named, neither none nor unexplained is answered but
+# too_few_samples: a scoring block of under 100 samples is too few for its RMS error and its
+# trend to tell a spring's residual from the sensor floor (docs/diagnose.md).
+MIN_SAMPLES = 250
+MIN_JUDGED = 500
 REVERSAL_SHARE = 0.05  # a reversal: the displacement turns back by this share of its range (or 3 noise RMS)
 RATE_BOUNDS_HZ = (1.0, 1e6)  # below 1 Hz no velocity or acceleration is seen; above 1 MHz no DAQ samples
 
@@ -341,6 +348,14 @@ def too_short(sig: Signals, n_train: int, n_choose: int) -> str | None:
             f"{MIN_REVERSALS[1]} and {MIN_REVERSALS[2]} (a longer record, or more cycles)")
 
 
+def too_few(n: int, least: int, scoring: int) -> str | None:
+    """Why a record of ``n`` samples is too short to judge (fewer than ``least``), or None."""
+    if n >= least:
+        return None
+    return (f"too few samples to judge ({n} < {least}): the scoring block holds {scoring}, too few for its error to "
+            "tell a spring from a cause or from the sensor floor (a longer record)")
+
+
 def thinned(sig: Signals, force: np.ndarray) -> tuple[Signals, int]:
     """Every q-th sample of the low-passed signals when the record is long (q keeps the cutoff
     below 0.8 of the new Nyquist frequency)."""
@@ -370,7 +385,7 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
         raise RecordError(f"{record.source}: the force does not change in the training part, while the displacement "
                           "moves: the load cell reads nothing (its channel or scale?)")
     baseline = fit(sig, (), n_train, n_choose)
-    short = too_short(sig, n_train, n_choose)
+    short = too_few(record.n, MIN_SAMPLES, record.n - n_choose) or too_short(sig, n_train, n_choose)
     names = list(effects or NAMES)
     candidates = []
     for name in names:
@@ -399,7 +414,10 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
         current = grow(current, names, may_join, fit_with, lambda f: f.rms_choose_kN, margin, max_combination)
     r = record.force_kN - current.prediction
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, sig.v, None)
-    if cause is None:
+    if cause is None and record.n < MIN_JUDGED:
+        cause = TOO_FEW
+        short = short if record.n < MIN_SAMPLES else "; ".join(filter(None, (too_few(record.n, MIN_JUDGED, record.n - n_choose), short)))
+    elif cause is None:
         cause = unnamed(s, floor)
     return SpecimenDiagnosis(record, sig, n_train, n_choose, margin, baseline, candidates, cause, current, floor, s,
                              time.perf_counter() - t0, too_short=short)

@@ -9,7 +9,7 @@ import math
 from pathlib import Path
 
 from hsio.diagnose.outcome import ratio
-from hsio.diagnose.specimen_fit import EFFECTS, NONE, UNEXPLAINED, SpecimenDiagnosis, specimen_table
+from hsio.diagnose.specimen_fit import EFFECTS, NONE, TOO_FEW, UNEXPLAINED, SpecimenDiagnosis, specimen_table
 
 
 def _toml(value) -> str:
@@ -81,7 +81,10 @@ def section(d: SpecimenDiagnosis) -> list[str]:
              f"{d.floor.sensor_floor_mm:.4f} kN (load-cell noise and quantisation, and the displacement noise through k).", ""]
     if d.too_short:
         lines += [f"No cause is named: {d.too_short}.", ""]
-    if d.cause == NONE:
+    if d.cause == TOO_FEW:
+        lines += ["**Cause: too few samples to judge.** Neither a cause, nor none, nor unexplained: the baseline "
+                  "above is fitted, but the record cannot say whether it is right.", ""]
+    elif d.cause == NONE:
         lines += ["**Cause: none.** The spring and dashpot predict the force to within the sensor floor.", ""]
     elif d.cause == UNEXPLAINED:
         lines += [f"**Cause: unexplained.** No candidate improves the choosing block by {d.margin:g}x, yet the error "
