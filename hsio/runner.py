@@ -606,6 +606,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             site.close()
             summary = summarise(structure, config, ground, hs, ns, out)
             summary["clock_overruns"] = overruns = getattr(site.loop.clock, "overruns", 0)
+            if hasattr(site.loop.clock, "lateness"):  # a real-time clock: how late its periods started
+                summary["clock_lateness"] = site.loop.clock.lateness()
             periods = getattr(site.loop.clock, "ticks", 0)
             if periods and overruns > OVERRUN_WARNING * periods:
                 notify(f"WARNING: the host did not keep the controller's rate: {overruns} of {periods} periods started "

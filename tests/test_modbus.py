@@ -421,6 +421,9 @@ def test_a_real_time_run_over_a_link_slower_than_the_period_warns(tmp_path):
     finally:
         emu.stop()
     assert summary["steps"] == 3 and summary["clock_overruns"] > 0.5 * 3 * 0.02 * 1024
+    lateness = summary["clock_lateness"]  # every overrun is also a late period, past half of one
+    assert lateness["overruns"] == summary["clock_overruns"] and lateness["late"] >= lateness["overruns"]
+    assert lateness["max_late_s"] > 1 / 1024
     warning = [line for line in lines if "did not keep the controller's rate" in line]
     assert warning and f"{summary['clock_overruns']} of" in warning[0] and "TR 2" in warning[0]
 
