@@ -24,6 +24,7 @@ from bokeh.palettes import Category10
 from bokeh.plotting import figure
 
 from hsio.clock import CONTROLLER_RATE_HZ
+from hsio.monitor.backlog import BACKLOG_BYTES, backlog_bytes
 from hsio.monitor.decimate import Decimation
 from hsio.monitor.feed import RecordFeed
 from hsio.monitor.indicators import error_spectrum, margin
@@ -79,6 +80,9 @@ class MonitorPage:
         self.built = False
         self._plotted = 0.0
         self._spectrum_at = 0.0
+        self.plot_every_s = PLOT_EVERY_S
+        self.held_back = 0  # plot updates not sent: the tab had not read the ones before
+        self._sent_state = ""
         # Fixed sizes: new text never re-lays out the page (which would redraw every plot); text
         # longer than its box (many DOFs, long events) scrolls in it instead of running under the plots.
         self.status = Div(text="<b>hsio monitor</b>: waiting for the record ...", name="status",
@@ -197,9 +201,14 @@ class MonitorPage:
             self.ns.data = {"t": f.ns["time_s"][idx], **{col("u", d): f.ns[col("u", d)][idx] for d in f.dofs}}
         n = f.n
         now = time.monotonic()
-        if n and now - self._plotted >= PLOT_EVERY_S and (
+        lagging = backlog_bytes(self.doc) > BACKLOG_BYTES
+        if n and now - self._plotted >= self.plot_every_s and (
                 len(self.last.data["step"]) == 0 or self.last.data["step"][0] != f["step"][n - 1]):
             self._plotted = now
+            if lagging:  # the tab has not read what it was sent: the plots wait, their points kept
+                self.held_back += 1
+                self._status(notices_only=True)
+                return
             how, idx = self.decimation.update(n)
             if how == "replace":
                 self.steps.data = self._rows(idx)
@@ -210,7 +219,7 @@ class MonitorPage:
                 self._spectrum_at = now
                 self._spectrum()
             self._margins()
-        self._status()
+        self._status(notices_only=lagging)
 
     def _rows(self, idx: np.ndarray) -> dict:
         f = self.feed
@@ -292,7 +301,10 @@ class MonitorPage:
                 texts.append(f"{100 * m:.0f} % (least {100 * least:.0f} %)" if ok else "limit not known")
         self.margins.data = dict(label=labels, value=values, color=colors, text=texts)
 
-    def _status(self) -> None:
+    def _status(self, notices_only: bool = False) -> None:
+        """The status, events and operator's requests. ``notices_only`` (a tab that lags): the
+        status only if the run's state changed since the tab was last sent it; the events and
+        the requests' replies whenever they change, as always."""
         f = self.feed
         n = f.n
         total = f.total_steps
@@ -362,12 +374,16 @@ class MonitorPage:
                              f"peak |u| {shown(peak)} {unit}{ns_peak}")
             items.append(("DOFs", "; ".join(modes)))
         every = "every step" if self.decimation.stride == 1 else f"every {self.decimation.stride}th step"
+        held = (f"; <span id='hsio-held'>{self.held_back}</span> updates held back while this page did not "
+                "keep up (its plots then got the latest points at once)") if self.held_back else ""
         items.append(("plots", f"{every} "
-                               f"({len(self.steps.data['t']) if self.built else 0} points); red dot: the newest step"))
+                               f"({len(self.steps.data['t']) if self.built else 0} points); red dot: the newest step"
+                               + held))
         text = "<table style='font-size:10pt'>" + "".join(
             f"<tr><td><b>{k}</b></td><td>{v}</td></tr>" for k, v in items) + "</table>"
-        if self.status.text != text:
+        if self.status.text != text and (not notices_only or state != self._sent_state):
             self.status.text = text
+            self._sent_state = state
         if f.events:
             rows = "".join(f"<tr><td>{'' if e['time_s'] is None else format(e['time_s'], '.2f')}</td>"
                            f"<td>{e['step'] if e['step'] is not None else ''}</td><td>{html.escape(str(e['kind']))}</td>"
