@@ -198,7 +198,7 @@ class MonitorPage:
                     for k, c in enumerate(f.channels)])
         figs.append(p)
         p = _fig("Tracking indicator (falling: toward instability)", "time (s)", "TI, displacement control (mm^2)")
-        lines = [p.line("t", col("ti", c), source=self.steps, color=color[k]) for k, c in enumerate(f.channels)]
+        ti_lines = [p.line("t", col("ti", c), source=self.steps, color=color[k]) for k, c in enumerate(f.channels)]
         # force control's own TI (kN^2) on the right axis, dashed: it moves only over FC steps
         force_lines = [p.line("t", col("tif", c), source=self.steps, color=color[k], line_dash="dashed",
                               y_range_name="force") for k, c in enumerate(f.channels)]
@@ -206,7 +206,7 @@ class MonitorPage:
         p.add_layout(LinearAxis(y_range_name="force", axis_label="TI, force control (kN^2), dashed"), "right")
         # one entry per channel, for both of its lines (a click hides both)
         _legend(p, [(f"{c} (rad^2)" if f.channel_unit.get(c) == "rad" else c, [a, b])
-                    for c, a, b in zip(f.channels, lines, force_lines)])
+                    for c, a, b in zip(f.channels, ti_lines, force_lines)])
         figs.append(p)
         p = _fig("Control mode (1 force, 0 displacement)", "time (s)", "mode", y_range=(-0.1, 1.1))
         _legend(p, [(d, [p.step("t", col("fc", d), source=self.steps, color=dof_color[k], mode="after")])
