@@ -35,7 +35,7 @@ def _queued(handler) -> int:
     stream = getattr(getattr(handler, "ws_connection", None), "stream", None)
     if stream is None or stream.closed():
         return 0
-    queued = max(0, int(stream._total_write_index) - int(stream._total_write_done_index))
+    queued = max(0, int(getattr(stream, "_total_write_index", 0)) - int(getattr(stream, "_total_write_done_index", 0)))
     if fcntl is None:
         return queued
     try:
