@@ -631,3 +631,43 @@ def test_the_feed_waits_for_a_regular_file_not_on_a_fifo_for_ever(tmp_path):
     polled.start()
     polled.join(timeout=5)
     assert not polled.is_alive() and not feed.opened
+
+
+# -- many channels ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("n", [1, 10, 12, 16, 20, 21, 40])
+def test_colours_are_distinct_for_any_number_of_lines(n):
+    from hsio.monitor.page import colors
+
+    assert len(colors(n)) == n and len(set(c.lower() for c in colors(n))) == n
+
+
+def test_many_channels_draw_fewer_points_less_often_with_every_legend_entry(tmp_path):
+    """Twelve channels: fewer points per history and fewer redraws than two (each plot holds six
+    times the lines); every channel in each plot's legend, in columns below the plot when they
+    are more than its corner holds."""
+    from bokeh.document import Document
+    from bokeh.models import Legend
+
+    from hsio.monitor import page as page_mod
+
+    names = [f"floor_{i:02d}_x" for i in range(1, 13)]
+    rec = Recorder(tmp_path / "run.sqlite", names, names, {"structure": "chain", "record": "sine", "dt": 0.01,
+                                                           "test_rate": 2.0, "config": {}})
+    for k in range(1, 11):
+        u = [np.sin(0.1 * k + j) for j in range(12)]
+        rec.write_step(k, 0.01 * k, u, u, u, u, u, ["displacement"] * 12, u, u, u, u)
+    rec.close()
+    doc = Document()
+    page = page_mod.MonitorPage(doc, RecordFeed(tmp_path), Operator(tmp_path))
+    assert page.built
+    assert page.decimation.cap < page_mod.DEFAULT_CAP and page.plot_every_s > page_mod.PLOT_EVERY_S
+    legends = [m for m in doc.models if isinstance(m, Legend)]
+    assert len(legends) == 7
+    for legend in legends:
+        assert len(legend.items) == 12
+        plot = next(p for p in doc.models if hasattr(p, "below") and legend in p.below)
+        assert legend.ncols * -(-12 // legend.ncols) >= 12 and plot.height > page_mod.PLOT["height"]
+    (tmp_path / "two").mkdir()
+    write_record(tmp_path / "two", 10).close()
+    two = page_mod.MonitorPage(Document(), RecordFeed(tmp_path / "two"), Operator(tmp_path / "two"))
+    assert two.decimation.cap == page_mod.DEFAULT_CAP and two.plot_every_s == page_mod.PLOT_EVERY_S

@@ -344,3 +344,59 @@ def test_the_status_of_many_dofs_scrolls_in_its_box_not_under_the_plots(tmp_path
         scroll, client, overflow = b.driver.execute_script(STATUS_BOX)
         assert scroll > client  # longer than its box (else this test shows nothing)
         assert overflow in ("auto", "scroll"), overflow
+
+
+# Every legend of the page as the browser lays it out: its entries, its box and its plot's canvas
+# (both in the canvas's pixels), and the colour of each entry's first line.
+LEGENDS = """
+const seen = new Set(), found = [];
+const walk = (v) => {
+  if (!v || seen.has(v)) return;
+  seen.add(v);
+  if (v.model && v.model.type === 'Legend') found.push(v);
+  let kids = [];
+  try { kids = [...(v.children ? v.children() : [])]; } catch (e) {}
+  for (const k of kids) walk(k);
+  for (const k of (v.child_views || [])) walk(k);
+  if (v.renderer_views) for (const k of v.renderer_views.values()) walk(k);
+};
+for (const r of Bokeh.index.roots) walk(r);
+return found.map(v => {
+  const b = v.bbox, c = v.parent.canvas_view.bbox;
+  return {entries: v.model.items.length, box: [b.left, b.top, b.right, b.bottom],
+          canvas: [c.left, c.top, c.right, c.bottom],
+          colors: v.model.items.map(i => JSON.stringify(i.renderers[0].glyph.line_color))};
+});
+"""
+
+
+def test_sixteen_channels_have_distinct_colours_and_legends_that_show_every_entry(tmp_path):
+    """Sixteen channels: each plot's legend holds all sixteen, inside its plot's canvas (none cut
+    off at the plot's edge), and the sixteen lines of a plot are of sixteen colours."""
+    import selenium  # noqa: F401
+
+    from hsio.monitor.server import READY
+    from hsio.recording import Recorder
+
+    names = [f"floor_{i:02d}_x" for i in range(1, 17)]
+    rec = Recorder(tmp_path / "run.sqlite", names, names, {"structure": "chain", "record": "sine", "dt": 0.01,
+                                                           "test_rate": 2.0, "config": {}})
+    for k in range(1, 21):
+        u = [np.sin(0.1 * k + j) for j in range(16)]
+        rec.write_step(k, 0.01 * k, u, u, u, u, u, ["displacement"] * 16, u, u, u, u)
+    rec.write_summary({"steps": 20, "outcome": "finished"})
+    rec.close()
+    with contextlib.ExitStack() as cleanup:
+        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cleanup.callback(ended, mon)
+        b = cleanup.enter_context(browser.Browser())
+        b.driver.get(Lines(mon.stdout).wait_for(READY, 60).rpartition(" at ")[2].strip())
+        wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
+        legends = wait_page(b, lambda: (lambda got: got if len(got) == 7 else None)(b.driver.execute_script(LEGENDS)),
+                            10, "the plots' legends")
+        for legend in legends:  # seven plots: one per DOF or per channel (the margins have none)
+            assert legend["entries"] == 16, legend
+            assert len(set(legend["colors"])) == 16, legend["colors"]
+            (left, top, right, bottom), (c_left, c_top, c_right, c_bottom) = legend["box"], legend["canvas"]
+            assert c_left <= left and c_top <= top and right <= c_right and bottom <= c_bottom, legend

@@ -20,11 +20,12 @@ import time
 import numpy as np
 from bokeh.layouts import column, gridplot, row
 from bokeh.models import Button, ColumnDataSource, CustomJS, DataRange1d, Div, Legend, LinearAxis, Slope, TextInput
-from bokeh.palettes import Category10
+from bokeh.palettes import Category10, Category20, turbo
 from bokeh.plotting import figure
 
 from hsio.clock import CONTROLLER_RATE_HZ
-from hsio.monitor.decimate import Decimation
+from hsio.monitor.backlog import BACKLOG_BYTES, backlog_bytes
+from hsio.monitor.decimate import DEFAULT_CAP, Decimation
 from hsio.monitor.feed import RecordFeed
 from hsio.monitor.indicators import error_spectrum, margin
 from hsio.monitor.operator import ACTIONS, Operator
@@ -34,7 +35,10 @@ UPDATE_MS = 200  # the status: step, state, rate
 PLOT_EVERY_S = 0.4  # the plots (each redraw costs the browser far more than the status)
 SPECTRUM_EVERY_S = 2.0  # the spectrum of the last seconds changes slowly
 PHASES = {v: k for k, v in PHASE_CODES.items()}
-COLORS = Category10[10]
+LEGEND_INSIDE = 6  # entries a legend may show inside its plot; more go below it, in columns
+LEGEND_ROW_PX = 17
+LINES_AT_FULL_RATE = 4  # channels whose plots are redrawn every PLOT_EVERY_S; more, less often
+PLOT_EVERY_MAX_S = 1.0
 CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
            "resume": "Resume the test from where it holds?",
            "stop": "STOP the test? The actuators hold and the record is closed (hsio resume can continue it later)."}
@@ -63,11 +67,45 @@ def _fig(title: str, x: str, y: str, **kw) -> figure:
     return p
 
 
+def cap_for(lines: int) -> int:
+    """The points per history for plots of ``lines`` lines each: DEFAULT_CAP up to four, then
+    fewer in proportion, never under 1000 (about three per pixel of a plot 300 px wide)."""
+    return max(1000, DEFAULT_CAP * LINES_AT_FULL_RATE // max(lines, LINES_AT_FULL_RATE))
+
+
+def plot_every_for(lines: int) -> float:
+    """Seconds between redraws of plots of ``lines`` lines each: PLOT_EVERY_S up to four, then
+    longer in proportion, at most PLOT_EVERY_MAX_S."""
+    return min(PLOT_EVERY_MAX_S, PLOT_EVERY_S * max(lines, LINES_AT_FULL_RATE) / LINES_AT_FULL_RATE)
+
+
+def colors(n: int) -> list[str]:
+    """Distinct colours for ``n`` lines: Category10 up to 10; up to 20, the ten of Category10 and
+    then, for lines 11 to 20, the light tone of the same ten hues (Category20's); past 20, the
+    turbo map sampled at ``n`` points."""
+    if n <= 10:
+        return list(Category10[10][:n])
+    if n <= 20:
+        return (list(Category20[20][0::2]) + list(Category20[20][1::2]))[:n]
+    return list(turbo(n))
+
+
 def _legend(p, items) -> None:
-    if items:
+    """A legend that shows every entry: inside the plot's corner when there are few, else below
+    the plot in as many columns as its width allows, the plot made taller by its rows."""
+    if not items:
+        return
+    if len(items) <= LEGEND_INSIDE:
         p.add_layout(Legend(items=items, location="top_left", label_text_font_size="8pt", spacing=0, padding=2))
-        p.legend.click_policy = "hide"
         p.legend.background_fill_alpha = 0.6
+    else:
+        longest = max(len(label) for label, _ in items)
+        ncols = max(1, min(4, 280 // (6 * longest + 30)))  # a plot about 300 px wide (four to a row)
+        rows = -(-len(items) // ncols)
+        p.add_layout(Legend(items=items, ncols=ncols, label_text_font_size="8pt", spacing=0, padding=2,
+                            label_height=LEGEND_ROW_PX - 2, glyph_height=LEGEND_ROW_PX - 2, margin=4), "below")
+        p.height += rows * LEGEND_ROW_PX + 12
+    p.legend.click_policy = "hide"
 
 
 class MonitorPage:
@@ -75,10 +113,14 @@ class MonitorPage:
 
     def __init__(self, doc, feed: RecordFeed, operator: Operator, cap: int | None = None):
         self.doc, self.feed, self.operator = doc, feed, operator
+        self._cap_given = bool(cap)
         self.decimation = Decimation(cap) if cap else Decimation()
         self.built = False
         self._plotted = 0.0
         self._spectrum_at = 0.0
+        self.plot_every_s = PLOT_EVERY_S
+        self.held_back = 0  # plot updates not sent: the tab had not read the ones before
+        self._sent_state = ""
         # Fixed sizes: new text never re-lays out the page (which would redraw every plot); text
         # longer than its box (many DOFs, long events) scrolls in it instead of running under the plots.
         self.status = Div(text="<b>hsio monitor</b>: waiting for the record ...", name="status",
@@ -108,6 +150,12 @@ class MonitorPage:
     # -- building the plots once the record names its DOFs and channels ------------------------
     def _build(self) -> None:
         f = self.feed
+        # Many channels, many lines: fewer points per line and fewer redraws (section 4).
+        lines = max(len(f.channels), len(f.dofs))
+        if not self._cap_given:
+            self.decimation = Decimation(cap_for(lines))
+        self.plot_every_s = plot_every_for(lines)
+        color, dof_color = colors(len(f.channels)), colors(len(f.dofs))
         names = ["step", "t", "late"] + [col(p, d) for d in f.dofs for p in ("u", "fc")] + \
                 [col(p, c) for c in f.channels for p in ("target", "disp", "force", "error", "ti", "tif")]
         empty = {k: np.zeros(0) for k in names}
@@ -121,8 +169,8 @@ class MonitorPage:
         p = _fig("Displacement: HS (solid), NS (dashed)", "time (s)", "mm (rad for a rotation)" if self._rotations() else "mm")
         items = []
         for k, d in enumerate(f.dofs):
-            a = p.line("t", col("u", d), source=self.steps, color=COLORS[k % 10], line_width=1.5)
-            b = p.line("t", col("u", d), source=self.ns, color=COLORS[k % 10], line_dash="dashed", line_alpha=0.8)
+            a = p.line("t", col("u", d), source=self.steps, color=dof_color[k], line_width=1.5)
+            b = p.line("t", col("u", d), source=self.ns, color=dof_color[k], line_dash="dashed", line_alpha=0.8)
             p.scatter("t", col("u", d), source=self.last, color="red", size=7)
             items.append((self._named(d, f.dof_unit), [a, b]))
         _legend(p, items)
@@ -131,36 +179,37 @@ class MonitorPage:
         items = []
         for k, c in enumerate(f.channels):
             named = f"{c} (rad, kN mm)" if f.channel_unit.get(c) == "rad" else c
-            items.append((named, [p.line(col("disp", c), col("force", c), source=self.steps, color=COLORS[k % 10])]))
+            items.append((named, [p.line(col("disp", c), col("force", c), source=self.steps, color=color[k])]))
             p.scatter(col("disp", c), col("force", c), source=self.last, color="red", size=7)
         _legend(p, items)
         figs.append(p)
         p = _fig("Tracking error (target - measured)", "time (s)", "mm (kN in force control)")
-        _legend(p, [(self._named(c, f.channel_unit), [p.line("t", col("error", c), source=self.steps, color=COLORS[k % 10])])
+        _legend(p, [(self._named(c, f.channel_unit), [p.line("t", col("error", c), source=self.steps, color=color[k])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
         p = _fig("Tracking error spectrum", "frequency (Hz)", "amplitude", y_axis_type="log")
-        _legend(p, [(c, [p.line("f", col("a", c), source=self.spectrum, color=COLORS[k % 10])])
+        _legend(p, [(c, [p.line("f", col("a", c), source=self.spectrum, color=color[k])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
         p = _fig("Measured vs target displacement", "target: the integrator's command (mm)", "measured (mm)")
         p.add_layout(Slope(gradient=1, y_intercept=0, line_color="gray", line_dash="dotted"))
         _legend(p, [(self._named(c, f.channel_unit), [p.line(col("target", c), col("disp", c), source=self.steps,
-                                                             color=COLORS[k % 10])])
+                                                             color=color[k])])
                     for k, c in enumerate(f.channels)])
         figs.append(p)
         p = _fig("Tracking indicator (falling: toward instability)", "time (s)", "TI, displacement control (mm^2)")
-        items = [(f"{c} (rad^2)" if f.channel_unit.get(c) == "rad" else c,
-                  [p.line("t", col("ti", c), source=self.steps, color=COLORS[k % 10])]) for k, c in enumerate(f.channels)]
+        ti_lines = [p.line("t", col("ti", c), source=self.steps, color=color[k]) for k, c in enumerate(f.channels)]
         # force control's own TI (kN^2) on the right axis, dashed: it moves only over FC steps
-        force_lines = [p.line("t", col("tif", c), source=self.steps, color=COLORS[k % 10], line_dash="dashed",
+        force_lines = [p.line("t", col("tif", c), source=self.steps, color=color[k], line_dash="dashed",
                               y_range_name="force") for k, c in enumerate(f.channels)]
         p.extra_y_ranges = {"force": DataRange1d(renderers=force_lines)}
         p.add_layout(LinearAxis(y_range_name="force", axis_label="TI, force control (kN^2), dashed"), "right")
-        _legend(p, items + [(f"{c} (force control)", [line]) for c, line in zip(f.channels, force_lines)])
+        # one entry per channel, for both of its lines (a click hides both)
+        _legend(p, [(f"{c} (rad^2)" if f.channel_unit.get(c) == "rad" else c, [a, b])
+                    for c, a, b in zip(f.channels, ti_lines, force_lines)])
         figs.append(p)
         p = _fig("Control mode (1 force, 0 displacement)", "time (s)", "mode", y_range=(-0.1, 1.1))
-        _legend(p, [(d, [p.step("t", col("fc", d), source=self.steps, color=COLORS[k % 10], mode="after")])
+        _legend(p, [(d, [p.step("t", col("fc", d), source=self.steps, color=dof_color[k], mode="after")])
                     for k, d in enumerate(f.dofs)])
         figs.append(p)
         labels = [f"{c} {what}" for c in reversed(f.channels) for what in ("following", "force", "stroke")]
@@ -197,9 +246,14 @@ class MonitorPage:
             self.ns.data = {"t": f.ns["time_s"][idx], **{col("u", d): f.ns[col("u", d)][idx] for d in f.dofs}}
         n = f.n
         now = time.monotonic()
-        if n and now - self._plotted >= PLOT_EVERY_S and (
+        lagging = backlog_bytes(self.doc) > BACKLOG_BYTES
+        if n and now - self._plotted >= self.plot_every_s and (
                 len(self.last.data["step"]) == 0 or self.last.data["step"][0] != f["step"][n - 1]):
             self._plotted = now
+            if lagging:  # the tab has not read what it was sent: the plots wait, their points kept
+                self.held_back += 1
+                self._status(notices_only=True)
+                return
             how, idx = self.decimation.update(n)
             if how == "replace":
                 self.steps.data = self._rows(idx)
@@ -210,7 +264,7 @@ class MonitorPage:
                 self._spectrum_at = now
                 self._spectrum()
             self._margins()
-        self._status()
+        self._status(notices_only=lagging)
 
     def _rows(self, idx: np.ndarray) -> dict:
         f = self.feed
@@ -292,7 +346,10 @@ class MonitorPage:
                 texts.append(f"{100 * m:.0f} % (least {100 * least:.0f} %)" if ok else "limit not known")
         self.margins.data = dict(label=labels, value=values, color=colors, text=texts)
 
-    def _status(self) -> None:
+    def _status(self, notices_only: bool = False) -> None:
+        """The status, events and operator's requests. ``notices_only`` (a tab that lags): the
+        status only if the run's state changed since the tab was last sent it; the events and
+        the requests' replies whenever they change, as always."""
         f = self.feed
         n = f.n
         total = f.total_steps
@@ -362,12 +419,16 @@ class MonitorPage:
                              f"peak |u| {shown(peak)} {unit}{ns_peak}")
             items.append(("DOFs", "; ".join(modes)))
         every = "every step" if self.decimation.stride == 1 else f"every {self.decimation.stride}th step"
+        held = (f"; <span id='hsio-held'>{self.held_back}</span> updates held back while this page did not "
+                "keep up (its plots then got the latest points at once)") if self.held_back else ""
         items.append(("plots", f"{every} "
-                               f"({len(self.steps.data['t']) if self.built else 0} points); red dot: the newest step"))
+                               f"({len(self.steps.data['t']) if self.built else 0} points); red dot: the newest step"
+                               + held))
         text = "<table style='font-size:10pt'>" + "".join(
             f"<tr><td><b>{k}</b></td><td>{v}</td></tr>" for k, v in items) + "</table>"
-        if self.status.text != text:
+        if self.status.text != text and (not notices_only or state != self._sent_state):
             self.status.text = text
+            self._sent_state = state
         if f.events:
             rows = "".join(f"<tr><td>{'' if e['time_s'] is None else format(e['time_s'], '.2f')}</td>"
                            f"<td>{e['step'] if e['step'] is not None else ''}</td><td>{html.escape(str(e['kind']))}</td>"

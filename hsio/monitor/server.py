@@ -126,11 +126,24 @@ def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT
     """Serve the monitor of the run in ``run_dir`` until interrupted (SIGINT, SIGTERM).
 
     The record may not exist yet (a run starting): the page says so and waits for it."""
+    from tornado.ioloop import IOLoop
+
+    server, url, close = make_server(run_dir, host, port, token, cap)
+    announce(f"{READY} {run_dir} at {url}")
+    try:
+        IOLoop.current().start()
+    finally:
+        close()
+
+
+def make_server(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str | None = None,
+                cap: int | None = None, io_loop=None):
+    """The monitor's server of ``run_dir``, started on ``io_loop`` (None: the current one):
+    (the Bokeh server, the page's URL, a function that releases the record and the socket)."""
     os.environ["BOKEH_RESOURCES"] = "server"  # BokehJS from the installed package, never a CDN
     from bokeh.application import Application
     from bokeh.application.handlers.function import FunctionHandler
     from bokeh.server.server import Server
-    from tornado.ioloop import IOLoop
 
     from hsio.monitor.feed import RecordFeed
     from hsio.monitor.operator import Operator
@@ -157,18 +170,21 @@ def serve(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT
         auth = _token_auth(token, port) if needs_token(host) else _token_auth(None, port, loopback_hosts(port))
         server = Server({"/": Application(FunctionHandler(make_page))}, address=host, port=port,
                         allow_websocket_origin=origins, num_procs=1, check_unused_sessions_milliseconds=2000,
-                        unused_session_lifetime_milliseconds=5000, auth_provider=auth)
+                        unused_session_lifetime_milliseconds=5000, auth_provider=auth,
+                        **({"io_loop": io_loop} if io_loop is not None else {}))
     except OSError as exc:
+        operator.close()
+        feed.close()
         raise ConfigError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
     server.start()
     shown = f"[{host}]" if ":" in host else host
     url = f"http://{shown}:{server.port}/" + (f"?token={token}" if needs_token(host) else "")
-    announce(f"{READY} {run_dir} at {url}")
-    try:
-        IOLoop.current().start()
-    finally:
+
+    def close() -> None:
         operator.close()
         feed.close()
+
+    return server, url, close
 
 
 def end_with_parent() -> None:
