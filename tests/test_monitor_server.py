@@ -296,7 +296,7 @@ def test_a_run_that_does_not_answer_never_blocks_the_page_and_stop_stays_availab
         assert all(t is not threading.main_thread() for _, t in callers)  # ... in worker threads
         assert op.answers is None and "busy, or hung" in page.status.text
         assert {b.name: b.disabled for b in page.buttons} == {"pause_button": True, "resume_button": True,
-                                                               "stop_button": False}
+                                                               "ack_button": True, "stop_button": False}
     finally:
         release.set()
         op.close()
@@ -361,3 +361,49 @@ def test_hsio_run_whose_page_cannot_listen_leaves_no_run_folder(tmp_path, monkey
         out = CliRunner().invoke(main, ["run", "c.toml", "--monitor", "--monitor-port", str(port)])
     assert out.exit_code == 2 and f"127.0.0.1:{port}" in out.output, out.output
     assert not any((tmp_path / "runs" / "validation").iterdir())
+
+
+# -- a controller trip during a pause ------------------------------------------------------------
+def test_a_trip_during_the_pause_is_shown_and_acknowledged_from_the_page(tmp_path):
+    """A controller that tripped while the run was paused: the page says so, Acknowledge is the
+    button that lets the resume go on (the run refuses a resume before it), and once the record
+    holds the acknowledgement the button is greyed out again."""
+    from bokeh.document import Document
+
+    from hsio.monitor.page import MonitorPage
+    from hsio.safety import control as control_mod
+
+    rec = write_record(tmp_path, 30)
+    control = RunControl()
+    control.state, control._pause_wanted = control_mod.PAUSED, True
+    control._unacknowledged.append("C1: interlock latched")
+    rec.write_event(None, 30, "controller_trip", "C1", "C1: interlock latched")
+    server = ControlServer(tmp_path, control)
+    op = Operator(tmp_path, socket_path=lambda: str(server.path))
+
+    def settle(page):
+        op._asked_at = float("-inf")
+        for _ in range(200):
+            page.update()
+            if op.answers is not None and not (op._asking and not op._asking.done()):
+                break
+            time.sleep(0.02)
+        page.feed.poll(force=True)
+        page._status()
+        return {b.name: b.disabled for b in page.buttons}
+
+    try:
+        page = MonitorPage(Document(), RecordFeed(tmp_path), op)
+        buttons = settle(page)
+        assert buttons["ack_button"] is False and buttons["resume_button"] is False
+        assert "a controller tripped during the pause (C1: interlock latched)" in page.status.text
+        assert op.request("resume").startswith("error: not resumed")
+        assert op.request("ack") == "ok acknowledged"
+        rec.write_event(None, 30, "acknowledge", "", "controller trip acknowledged by socket: C1: interlock latched")
+        buttons = settle(page)
+        assert buttons["ack_button"] is True and "tripped during the pause" not in page.status.text
+        assert op.request("resume").startswith("ok")
+    finally:
+        server.close()
+        rec.close()
+        op.close()

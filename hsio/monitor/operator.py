@@ -1,4 +1,4 @@
-"""The operator's pause, resume and stop from the page, through the run's control socket
+"""The operator's pause, resume, acknowledgement of a controller trip and stop from the page, through the run's control socket
 (:mod:`hsio.safety.socket`, docs/safety.md section 4): the same requests as the terminal keys and
 `hsio` scripts, obeyed by the run between two steps. Each request is written, with its UTC time
 and the run's reply, to ``operator.log`` in the run folder; the run itself records the pause,
@@ -14,7 +14,7 @@ from pathlib import Path
 
 from hsio.safety import socket as control_socket
 
-ACTIONS = ("pause", "resume", "stop")
+ACTIONS = ("pause", "resume", "ack", "stop")
 LOG_FILE = "operator.log"
 
 
@@ -71,7 +71,7 @@ class Operator:
         return self._workers.submit(self.request, action, who)
 
     def request(self, action: str, who: str = "the monitor page") -> str:
-        """Send ``action`` (pause, resume, stop) to the run; the reply, also logged. Blocks until
+        """Send ``action`` (pause, resume, ack, stop) to the run; the reply, also logged. Blocks until
         the run answers (or the socket's timeout): call it from :meth:`submit`."""
         if action not in ACTIONS:
             reply = f"error unknown action {action!r}; known: {', '.join(ACTIONS)}"

@@ -41,6 +41,8 @@ LINES_AT_FULL_RATE = 4  # channels whose plots are redrawn every PLOT_EVERY_S; m
 PLOT_EVERY_MAX_S = 1.0
 CONFIRM = {"pause": "Pause the test? The step under way finishes, then the actuators hold.",
            "resume": "Resume the test from where it holds?",
+           "ack": "Acknowledge the controller trip reported during the pause? (A controller still tripped stops "
+                  "the test at its first command after the resume.)",
            "stop": "STOP the test? The actuators hold and the record is closed (hsio resume can continue it later)."}
 SCROLL = {"overflow-y": "auto"}
 LOST = """
@@ -130,8 +132,10 @@ class MonitorPage:
         self.request = TextInput(value="", visible=False, name="request")
         self.request.on_change("value", self._on_request)
         self.buttons = []
-        for action, kind in zip(ACTIONS, ("warning", "success", "danger")):
-            b = Button(label=action.capitalize(), button_type=kind, width=110, name=f"{action}_button")
+        labels = {"ack": "Acknowledge trip"}
+        for action, kind in zip(ACTIONS, ("warning", "success", "default", "danger")):
+            b = Button(label=labels.get(action, action.capitalize()), button_type=kind, width=130 if action == "ack" else 90,
+                       name=f"{action}_button")
             b.js_on_click(CustomJS(args=dict(req=self.request, action=action, text=CONFIRM[action]), code="""
                 if (window.confirm(text)) { req.value = action + ' ' + Date.now(); }"""))
             self.buttons.append(b)
@@ -379,7 +383,11 @@ class MonitorPage:
         else:
             state = "no answer from the run's control socket (a run killed, or started without one)"
         # Stop stays available unless no run can hear it: a run that answers, or may be there.
-        disabled = {"pause": not running, "resume": not running, "stop": over or answers is False}
+        trip = self._trip_to_acknowledge()
+        if running and trip:
+            state += f"; a controller tripped during the pause ({trip[:200]}): acknowledge it before resuming"
+        disabled = {"pause": not running, "resume": not running, "ack": not (running and trip),
+                    "stop": over or answers is False}
         for action, b in zip(ACTIONS, self.buttons):
             if b.disabled != disabled[action]:
                 b.disabled = disabled[action]
@@ -443,6 +451,16 @@ class MonitorPage:
         text = f"<span style='font-size:9pt' id='hsio-actions'>{text}</span>"
         if self.actions.text != text:
             self.actions.text = text
+
+    def _trip_to_acknowledge(self) -> str:
+        """The newest controller trip of the record not yet acknowledged nor followed by a resume
+        (its message), or ''."""
+        for e in reversed(self.feed.events):
+            if e["kind"] in ("acknowledge", "resume"):
+                return ""
+            if e["kind"] == "controller_trip":
+                return str(e["message"])
+        return ""
 
     def _pause_hold(self, step: str) -> str:
         """What the run read back of the actuators' hold when it paused after ``step`` (its
