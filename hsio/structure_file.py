@@ -228,7 +228,6 @@ class _Reader:
         experimental = tuple(self.experimental(k, e) for k, e in enumerate(doc.get("experimental", [])))
         static = tuple(self.static(k, e) for k, e in enumerate(doc.get("static", [])))
         instruments = tuple(self.instrument(k, e) for k, e in enumerate(doc.get("instrument", [])))
-        self.check_instruments(experimental, instruments)
         named = [(f"spring[{k}]", s.name) for k, s in enumerate(springs) if s.name]
         named += [(f"numerical[{k}]", e.name) for k, e in enumerate(numerical)]
         named += [(f"experimental[{k}]", e.name) for k, e in enumerate(experimental)]
@@ -258,7 +257,7 @@ class _Reader:
                               springs=springs, numerical=numerical, damping=damping, dt=dt, description=description,
                               mass_matrix=matrix, influence=None if all(v == 1.0 for v in iota) else tuple(iota),
                               source=self.file, static=static, instruments=instruments)
-        return structure  # Structure checks its stability and damping itself (check_stable, check_damping)
+        return structure  # Structure checks its instruments, stability and damping itself (check_instruments, ...)
 
     def mass_matrix(self, table: dict, n: int) -> np.ndarray:
         rows = self.required("mass", table, "matrix")
