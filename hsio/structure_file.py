@@ -484,7 +484,7 @@ class _Reader:
         by_name = {}
         for k, inst in enumerate(instruments):
             self.string(f"instrument[{k}].name", inst.name)
-            if inst.kind not in INSTRUMENT_KINDS:
+            if not isinstance(inst.kind, str) or inst.kind not in INSTRUMENT_KINDS:
                 raise self.error(f"instrument[{k}].kind",
                                  f"unknown instrument {inst.kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
             if self.number(f"instrument[{k}].scale", inst.scale) == 0:
@@ -525,15 +525,11 @@ class _Reader:
         """An external instrument (docs/setups.md)."""
         where = f"instrument[{k}]"
         entry = self.table(where, entry, TABLES["instrument"])
-        name = self.string(f"{where}.name", self.required(where, entry, "name"))
-        kind = self.required(where, entry, "kind")
-        if not isinstance(kind, str) or kind not in INSTRUMENT_KINDS:
-            raise self.error(f"{where}.kind", f"unknown instrument {kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
+        name, kind = self.required(where, entry, "name"), self.required(where, entry, "kind")
         element = self.string(f"{where}.element", entry["element"]) if "element" in entry else ""
-        scale = self.number(f"{where}.scale", entry.get("scale", 1.0))
-        noise = self.number(f"{where}.noise", entry.get("noise", 0.0), non_negative=True)
-        resolution = self.number(f"{where}.resolution", entry.get("resolution", 0.0), non_negative=True)
-        return Instrument(name, kind, element, scale, noise, resolution)
+        scale, noise, resolution = (self.number(f"{where}.{key}", entry.get(key, default))
+                                    for key, default in (("scale", 1.0), ("noise", 0.0), ("resolution", 0.0)))
+        return Instrument(name, kind, element, scale, noise, resolution)  # checked by Structure (check_instruments)
 
     def static(self, k: int, entry) -> StaticLoad:
         """An actuator that holds a preload in force control (docs/setups.md)."""
