@@ -23,10 +23,9 @@ import scipy.linalg
 
 from hsio.errors import ConfigError
 from hsio.files import read_bounded
-from hsio.ground_motion import DT_MAX_S, DT_MIN_S
 from hsio.specimens import SPECIMEN_KINDS, make_specimen
 from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, ExperimentalElement, Instrument, NumericalElement,
-                             OuterLoop, Spring, StaticLoad, Structure, ramp_out_of_bounds)
+                             OuterLoop, Spring, StaticLoad, Structure, dt_out_of_bounds, ramp_out_of_bounds)
 
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
@@ -188,9 +187,8 @@ class _Reader:
         if not isinstance(description, str):
             raise self.error("structure.description", f"must be a string, got {description!r}")
         dt = self.number("structure.dt", self.required("structure", head, "dt"), positive=True)
-        if not DT_MIN_S <= dt <= DT_MAX_S:
-            raise self.error("structure.dt", f"{dt:g} s is out of bounds: the integration time step must be within "
-                             f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
+        if dt_out_of_bounds(dt):
+            raise self.error("structure.dt", dt_out_of_bounds(dt))
 
         dofs = doc.get("dof", [])
         if not dofs:
