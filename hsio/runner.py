@@ -470,7 +470,8 @@ def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, gro
     ``ground`` replaces the configured [record] (a record built in code, e.g. a harmonic test);
     ``control`` takes pause / resume / stop requests (a new one if None); SIGTERM and SIGINT stop
     the run; ``notify`` (a callable taking a line of text) hears the dry run, pauses and stops;
-    ``checked``: the caller has checked the site of this configuration (:func:`check_site`).
+    ``checked``: the caller has checked this configuration's method and site (:func:`check_run_method`,
+    :func:`check_site`).
 
     Returns the summary. Raises (after writing what was recorded, the actuators holding):
     ExperimentStopped if the run stopped early, DryRunRefused if the dry run refused the test,
@@ -496,8 +497,8 @@ def compensation_stage(config: RunConfig, structure: Structure) -> CompensationS
 
 def _run(config, out_dir, progress, ground, control, specimen_dir, notify, checked) -> dict:
     structure = load_run_structure(config)
-    check_run_method(config, structure)
     if not checked:  # before the folder: a typing error or an instrument that cannot be read leaves none
+        check_run_method(config, structure)
         check_site(config, structure)
     ground = ground if ground is not None else build_record(config, structure)
     integ = config["integrator"]
