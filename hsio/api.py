@@ -33,6 +33,9 @@ from hsio.clock import CONTROLLER_RATE_HZ, LockstepClock, RealTimeClock
 from hsio.command import step_samples
 from hsio.config import BOUNDS as config_bounds
 from hsio.config import DEFAULTS as config_defaults
+from hsio.config import IMPLICIT_OPTIONS as config_implicit_options
+from hsio.config import KEYWORDS as config_keywords
+from hsio.config import MIXED_GUARDS as config_guards
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
 from hsio.experiment import ExperimentStopped, excitation, run_steps
@@ -57,14 +60,12 @@ __all__ = ["make_integrator", "run_numerical", "open_site", "simulate", "format_
 # The options of ImplicitMethod and the value that leaves each off. A method that does not take an
 # option accepts it only at that value (None: not given): a switched-on option is refused, never
 # dropped. The comparison minds the type, as True == 1 == 1.0 in Python.
-# The off values are the [integrator] defaults of a run configuration (hsio.config.DEFAULTS), under
-# the configuration's key names where they differ.
-_CONFIG_KEY = {"fallback_after": "fc_fallback_after", "fc_force_limit": "fc_force_limit_kN"}
+# The options and their off values are those of [integrator] in a run configuration
+# (hsio.config.IMPLICIT_OPTIONS, MIXED_GUARDS, DEFAULTS), under the keywords of ImplicitMethod.
 ALPHA = config_defaults["integrator"]["alpha"]  # the default of the alpha method (-0.05)
 _OFF = config_defaults["integrator"]  # anchor_dc, on by default, is the exception: is_off reads only False as off
-IMPLICIT_OPTIONS = {k: _OFF[_CONFIG_KEY.get(k, k)] for k in ("fc_blend", "anchor_dc", "blend_dc")}
-GUARDS = {k: _OFF[_CONFIG_KEY.get(k, k)] for k in ("fallback_after", "refractory_steps", "no_fc_at_reversal",
-                                                    "explored_fraction", "fc_force_limit")}
+IMPLICIT_OPTIONS = {k: _OFF[k] for k in config_implicit_options}
+GUARDS = {config_keywords.get(k, k): _OFF[k] for k in config_guards}
 OPTIONS_OFF = {**IMPLICIT_OPTIONS, **GUARDS}
 
 

@@ -119,6 +119,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                 cfg["safety"]["override"] = True
             structure = runner.load_run_structure(cfg)
             runner.check_run_method(cfg, structure)
+            runner.check_site(cfg, structure)  # before any folder: a typing error leaves none
             ground = runner.build_record(cfg, structure)
             steps = len(excitation(structure, ground)[0]) - 1
             with contextlib.ExitStack() as cleanup:  # closed in reverse: the bar, the keys, then the page
@@ -126,9 +127,6 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                 if with_monitor:  # the page reads the record of the run's folder from its own process
                     from hsio.monitor.server import MonitorProcess
 
-                    runner.check_hardware(cfg)  # before the page's folder: a typing error leaves no folder
-                    runner.check_dwell(cfg, structure)
-                    runner.check_instruments(cfg, structure)
                     runner.fingerprints(cfg)  # an input file that cannot be read: refused before the folder too
                     numbered = out_dir is None
                     out_dir = runner.run_folder(cfg, structure, out_dir)
@@ -143,7 +141,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                 progress = _Progress(steps, f"HS {structure.name}")
                 cleanup.callback(progress.close)
                 summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
-                                     notify=notify if not as_json else (lambda line: None))
+                                     notify=notify if not as_json else (lambda line: None), checked=True)
     except DryRunRefused as exc:  # from the present state, the hardware is open: its hold is told too
         click.echo(f"hsio run: {getattr(exc, 'stop_message', None) or exc}", err=True)
         _where(exc)

@@ -303,6 +303,7 @@ def _check_ranges(t: dict, source: str) -> None:
 # default in DEFAULTS["integrator"], which leaves it off; a switched-on option is refused, never dropped.
 IMPLICIT_OPTIONS = ("fc_blend", "anchor_dc", "blend_dc")
 MIXED_GUARDS = ("fc_fallback_after", "refractory_steps", "no_fc_at_reversal", "explored_fraction", "fc_force_limit_kN")
+KEYWORDS = {"fc_fallback_after": "fallback_after", "fc_force_limit_kN": "fc_force_limit"}  # of make_integrator, where they differ
 
 
 # Keys of the implicit iteration that a method does not read: refused away from their defaults.

@@ -335,12 +335,24 @@ def check_dwell(config: RunConfig, structure: Structure) -> None:
             raise ConfigError(f"{config.source}: {key}{exc}") from None
 
 
-def predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):
-    """NS and the dry run of the configured test (docs/safety.md section 2): (NS result, report)."""
-    integ, test, hardware = config["integrator"], config["test"], config["hardware"]
-    check_hardware(config)  # `hsio check` and library callers: the URL and its options, as a run checks them
+def check_site(config: RunConfig, structure: Structure) -> None:
+    """The hardware, the dwell and the instruments (:func:`check_hardware`, :func:`check_dwell`,
+    :func:`check_instruments`): once per run, before anything is created or opened."""
+    check_hardware(config)
     check_dwell(config, structure)
     check_instruments(config, structure)
+
+
+def predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):
+    """NS and the dry run of the configured test (docs/safety.md section 2): (NS result, report).
+    The site is checked first (:func:`check_site`), as a run checks it."""
+    check_site(config, structure)
+    return _predict(config, structure, ground, control)
+
+
+def _predict(config: RunConfig, structure: Structure, ground: GroundMotion, control: RunControl | None = None):
+    """:func:`predict` of a site checked already."""
+    integ, test, hardware = config["integrator"], config["test"], config["hardware"]
     try:
         ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
     except ExperimentStopped as exc:  # the models cannot be evaluated along the record: bad input, not a fault
@@ -450,13 +462,16 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, r
 
 
 def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, ground: GroundMotion | None = None,
-        control: RunControl | None = None, specimen_dir: str | Path | None = None, notify=None) -> dict:
+        control: RunControl | None = None, specimen_dir: str | Path | None = None, notify=None,
+        checked: bool = False) -> dict:
     """Run a hybrid simulation as configured; write run.sqlite, plots and summary.json in a new
     run folder (``out_dir``, refused if it holds a record; None: runs/<structure>/run-NNNN).
 
     ``ground`` replaces the configured [record] (a record built in code, e.g. a harmonic test);
     ``control`` takes pause / resume / stop requests (a new one if None); SIGTERM and SIGINT stop
-    the run; ``notify`` (a callable taking a line of text) hears the dry run, pauses and stops.
+    the run; ``notify`` (a callable taking a line of text) hears the dry run, pauses and stops;
+    ``checked``: the caller has checked this configuration's method and site (:func:`check_run_method`,
+    :func:`check_site`).
 
     Returns the summary. Raises (after writing what was recorded, the actuators holding):
     ExperimentStopped if the run stopped early, DryRunRefused if the dry run refused the test,
@@ -465,7 +480,7 @@ def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, gro
     control = control or RunControl()
     with stop_on_signals(control):
         control.check_stop()  # a stop asked before the run began (a Ctrl-C while hsio started): no folder
-        return _run(config, out_dir, progress, ground, control, specimen_dir, notify or (lambda line: None))
+        return _run(config, out_dir, progress, ground, control, specimen_dir, notify or (lambda line: None), checked)
 
 
 def compensation_stage(config: RunConfig, structure: Structure) -> CompensationStage:
@@ -480,9 +495,11 @@ def compensation_stage(config: RunConfig, structure: Structure) -> CompensationS
         raise ConfigError(f"{config.source}: {exc}") from None
 
 
-def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> dict:
+def _run(config, out_dir, progress, ground, control, specimen_dir, notify, checked) -> dict:
     structure = load_run_structure(config)
-    check_run_method(config, structure)
+    if not checked:  # before the folder: a typing error or an instrument that cannot be read leaves none
+        check_run_method(config, structure)
+        check_site(config, structure)
     ground = ground if ground is not None else build_record(config, structure)
     integ = config["integrator"]
     method, alpha = integ["method"], integ["alpha"]
@@ -493,9 +510,6 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
     compensation = compensation_stage(config, structure)
     # An actuator model from `hsio diagnose` goes under the run's own [emulator] table.
     emulator = merged_emulator_table(hardware["actuator_model"], config["emulator"])
-    check_hardware(config)
-    check_dwell(config, structure)
-    check_instruments(config, structure)  # before the folder: an instrument that cannot be read leaves none
     inputs = fingerprints(config)  # before the folder: a file that cannot be read leaves none
     ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
     if ledger:
@@ -543,7 +557,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify) -> di
             ns = report = predicted = None
             if config["output"]["ns"] or safety.dry_run or needs_prediction(integ):
                 control.enter("NS")
-                ns, report = predict(config, structure, ground, control)
+                ns, report = _predict(config, structure, ground, control)
                 predicted = ns
                 if not safety.dry_run:
                     report = None

@@ -23,10 +23,9 @@ import scipy.linalg
 
 from hsio.errors import ConfigError
 from hsio.files import read_bounded
-from hsio.ground_motion import DT_MAX_S, DT_MIN_S
 from hsio.specimens import SPECIMEN_KINDS, make_specimen
 from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, ExperimentalElement, Instrument, NumericalElement,
-                             OuterLoop, Spring, StaticLoad, Structure, ramp_out_of_bounds)
+                             OuterLoop, Spring, StaticLoad, Structure, dt_out_of_bounds, ramp_out_of_bounds)
 
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
@@ -188,9 +187,8 @@ class _Reader:
         if not isinstance(description, str):
             raise self.error("structure.description", f"must be a string, got {description!r}")
         dt = self.number("structure.dt", self.required("structure", head, "dt"), positive=True)
-        if not DT_MIN_S <= dt <= DT_MAX_S:
-            raise self.error("structure.dt", f"{dt:g} s is out of bounds: the integration time step must be within "
-                             f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
+        if dt_out_of_bounds(dt):
+            raise self.error("structure.dt", dt_out_of_bounds(dt))
 
         dofs = doc.get("dof", [])
         if not dofs:
@@ -228,7 +226,6 @@ class _Reader:
         experimental = tuple(self.experimental(k, e) for k, e in enumerate(doc.get("experimental", [])))
         static = tuple(self.static(k, e) for k, e in enumerate(doc.get("static", [])))
         instruments = tuple(self.instrument(k, e) for k, e in enumerate(doc.get("instrument", [])))
-        self.check_instruments(experimental, instruments)
         named = [(f"spring[{k}]", s.name) for k, s in enumerate(springs) if s.name]
         named += [(f"numerical[{k}]", e.name) for k, e in enumerate(numerical)]
         named += [(f"experimental[{k}]", e.name) for k, e in enumerate(experimental)]
@@ -258,7 +255,7 @@ class _Reader:
                               springs=springs, numerical=numerical, damping=damping, dt=dt, description=description,
                               mass_matrix=matrix, influence=None if all(v == 1.0 for v in iota) else tuple(iota),
                               source=self.file, static=static, instruments=instruments)
-        return structure  # Structure checks its stability and damping itself (check_stable, check_damping)
+        return structure  # Structure checks its instruments, stability and damping itself (check_instruments, ...)
 
     def mass_matrix(self, table: dict, n: int) -> np.ndarray:
         rows = self.required("mass", table, "matrix")
@@ -485,7 +482,7 @@ class _Reader:
         by_name = {}
         for k, inst in enumerate(instruments):
             self.string(f"instrument[{k}].name", inst.name)
-            if inst.kind not in INSTRUMENT_KINDS:
+            if not isinstance(inst.kind, str) or inst.kind not in INSTRUMENT_KINDS:
                 raise self.error(f"instrument[{k}].kind",
                                  f"unknown instrument {inst.kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
             if self.number(f"instrument[{k}].scale", inst.scale) == 0:
@@ -526,15 +523,11 @@ class _Reader:
         """An external instrument (docs/setups.md)."""
         where = f"instrument[{k}]"
         entry = self.table(where, entry, TABLES["instrument"])
-        name = self.string(f"{where}.name", self.required(where, entry, "name"))
-        kind = self.required(where, entry, "kind")
-        if not isinstance(kind, str) or kind not in INSTRUMENT_KINDS:
-            raise self.error(f"{where}.kind", f"unknown instrument {kind!r}; known: {', '.join(INSTRUMENT_KINDS)}")
+        name, kind = self.required(where, entry, "name"), self.required(where, entry, "kind")
         element = self.string(f"{where}.element", entry["element"]) if "element" in entry else ""
-        scale = self.number(f"{where}.scale", entry.get("scale", 1.0))
-        noise = self.number(f"{where}.noise", entry.get("noise", 0.0), non_negative=True)
-        resolution = self.number(f"{where}.resolution", entry.get("resolution", 0.0), non_negative=True)
-        return Instrument(name, kind, element, scale, noise, resolution)
+        scale, noise, resolution = (self.number(f"{where}.{key}", entry.get(key, default))
+                                    for key, default in (("scale", 1.0), ("noise", 0.0), ("resolution", 0.0)))
+        return Instrument(name, kind, element, scale, noise, resolution)  # checked by Structure (check_instruments)
 
     def static(self, k: int, entry) -> StaticLoad:
         """An actuator that holds a preload in force control (docs/setups.md)."""

@@ -183,6 +183,15 @@ def ramp_out_of_bounds(ramp_s: float) -> str:
     return ""
 
 
+def dt_out_of_bounds(dt: float) -> str:
+    """Why a structure's time step ``dt`` is refused ("" when it is within the bounds)."""
+    from hsio.ground_motion import DT_MAX_S, DT_MIN_S
+
+    if DT_MIN_S <= dt <= DT_MAX_S:
+        return ""
+    return f"{dt:g} s is out of bounds: the integration time step must be within {DT_MIN_S:g}..{DT_MAX_S:g} s"
+
+
 @dataclass(frozen=True)
 class StaticLoad:
     """An actuator tied to no dynamic DOF: it ramps a preload (an axial gravity load, say) in force
@@ -409,10 +418,6 @@ class Structure:
         n = len(self.dof_names)
         if n == 0 or len(self.masses) != n:
             raise ConfigError(f"structure {self.name!r}: {len(self.masses)} masses for {n} DOF")
-        if self.mass_matrix is None and any(not m > 0 for m in self.masses):
-            raise ConfigError(f"structure {self.name!r}: every mass must be positive, got {self.masses}")
-        if self.mass_matrix is not None and np.shape(self.mass_matrix) != (n, n):
-            raise ConfigError(f"structure {self.name!r}: the mass matrix must be {n} x {n}")
         if self.influence is not None and len(self.influence) != n:
             raise ConfigError(f"structure {self.name!r}: {len(self.influence)} influence coefficients for {n} DOF")
         for element in self.experimental:
@@ -428,8 +433,6 @@ class Structure:
         actuators = [a for e in (*self.experimental, *self.static) for a in e.actuator_names]
         if len(set(actuators)) != len(actuators):
             raise ConfigError(f"structure {self.name!r}: two experimental elements share an actuator")
-        if not self.dt > 0:
-            raise ConfigError(f"structure {self.name!r}: dt must be positive")
         try:
             self.damping.check(n)
         except ConfigError as exc:
@@ -466,12 +469,9 @@ class Structure:
         if not isinstance(self.damping, Damping):
             raise ConfigError(f"{what}: damping: must be a Damping, got {self.damping!r}")
         check.check_instruments(self.experimental, self.instruments)
-        dt = check.number("dt", self.dt, positive=True)
-        from hsio.ground_motion import DT_MAX_S, DT_MIN_S
-
-        if not DT_MIN_S <= dt <= DT_MAX_S:
-            raise ConfigError(f"{what}: dt: {dt:g} s is out of bounds: the integration time step must be within "
-                              f"{DT_MIN_S:g}..{DT_MAX_S:g} s")
+        wrong = dt_out_of_bounds(check.number("dt", self.dt, positive=True))
+        if wrong:
+            raise ConfigError(f"{what}: dt: {wrong}")
         if self.mass_matrix is not None:
             rows = self.mass_matrix
             if isinstance(rows, np.ndarray):

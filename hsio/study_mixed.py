@@ -30,6 +30,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from hsio.config import BOUNDS, DEFAULTS
 from hsio.errors import ConfigError
 from hsio.integrators import ImplicitMethod, SwitchingRule
 from hsio.integrators.mixed import check_ns
@@ -56,24 +57,28 @@ class Recipe:
     alpha: float = -0.05
 
     def __post_init__(self):
-        real = {"margin": (0.0, math.inf, False), "hysteresis": (1.0, math.inf, False),
-                "max_hysteretic_ratio": (0.0, math.inf, True), "fc_blend": (0.0, 1.0, False),
-                "tol_displacement": (0.0, math.inf, True), "tol_force": (0.0, math.inf, True),
-                "alpha": (-1.0 / 3.0, 0.0, True)}
-        for key, (low, high, closed) in real.items():
+        for key, config_key in CONFIG_KEYS.items():
+            low, high, _ = BOUNDS[("integrator", config_key)]
+            low = 1 if key == "fallback_after" else low  # the recipe falls back; 0 (off in a configuration) is not one
+            whole = isinstance(DEFAULTS["integrator"][config_key], int)
             value = getattr(self, key)
-            number = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
-            if not number or not (low <= value if closed else low < value) or value > high:
-                bound = f"{'[' if closed else '('}{low:g}, {high:g}]" if math.isfinite(high) else \
-                    f"{'at least' if closed else 'above'} {low:g}"
-                raise ConfigError(f"Recipe: {key} must be a number {'in ' if math.isfinite(high) else ''}{bound}, "
-                                  f"got {value!r}")
-        for key, low in (("fallback_after", 1), ("refractory_steps", 0), ("j_max", 1)):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"Recipe: {key} must be a whole number from {low}, got {value!r}")
+            kind = int if whole else (int, float)
+            if isinstance(value, bool) or not isinstance(value, kind) or not (math.isfinite(value) and low <= value <= high):
+                what = f"a whole number in {low}..{high}" if whole else f"a number in [{low:g}, {high:g}]"
+                raise ConfigError(f"Recipe: {key} must be {what}, got {value!r}")
+        alpha = self.alpha
+        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not -1.0 / 3.0 <= alpha <= 0.0:
+            raise ConfigError(f"Recipe: alpha must be a number in [-0.333333, 0], got {alpha!r}")
         if not isinstance(self.no_fc_at_reversal, bool):
             raise ConfigError(f"Recipe: no_fc_at_reversal must be True or False, got {self.no_fc_at_reversal!r}")
+
+
+# Each bounded field of Recipe and the [integrator] key of a run configuration whose bounds it takes
+# (hsio.config.BOUNDS).
+CONFIG_KEYS = {"margin": "switch_margin", "hysteresis": "switch_hysteresis",
+               "max_hysteretic_ratio": "switch_max_hysteretic_ratio", "fc_blend": "fc_blend",
+               "fallback_after": "fc_fallback_after", "refractory_steps": "refractory_steps", "j_max": "j_max",
+               "tol_displacement": "tol_displacement_mm", "tol_force": "tol_force_kN"}
 
 
 def make_method(structure: Structure, method: str, resolution_mm: float, force_resolution_kN: float,

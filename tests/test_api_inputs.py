@@ -141,10 +141,12 @@ def test_make_method_checks_recipe_ns_and_its_structure():
     from hsio.study_mixed import Recipe, infill_sdof, make_method
 
     structure = infill_sdof(7.2)
-    with pytest.raises(ConfigError, match=r"Recipe: max_hysteretic_ratio must be a number at least 0, got -1"):
+    with pytest.raises(ConfigError, match=r"Recipe: max_hysteretic_ratio must be a number in \[0, 100\], got -1"):
         Recipe(max_hysteretic_ratio=-1)
-    with pytest.raises(ConfigError, match=r"Recipe: hysteresis must be a number above 1, got 1.0"):
+    with pytest.raises(ConfigError, match=r"Recipe: hysteresis must be a number in \[1.0001, 100\], got 1.0"):
         Recipe(hysteresis=1.0)
+    with pytest.raises(ConfigError, match=r"Recipe: margin must be a number in \[0.01, 1000\], got 2000"):
+        Recipe(margin=2000.0)  # the bounds of [integrator] switch_margin (hsio.config.BOUNDS)
     with pytest.raises(ConfigError, match=r"ns must be the Result .*got str 'x'"):
         make_method(structure, "mixed", 0.0025, 0.002, ns="x")
     with pytest.raises(ConfigError, match=r"recipe must be a Recipe .*\{'margin': 5.0\}"):

@@ -194,10 +194,11 @@ def test_an_instrument_that_cannot_be_the_elements_displacement_is_refused(field
 
 @pytest.mark.parametrize("arguments, message", [
     (dict(instruments=(Instrument("l", "laser", "x"),)), r"instrument\[0\]\.kind: unknown instrument 'laser'"),
+    (dict(instruments=(Instrument("l", ["lvdt"], "x"),)), r"instrument\[0\]\.kind: unknown instrument \['lvdt'\]"),
     (dict(instruments=(Instrument("l", "lvdt", "y"),)), r"instrument\[0\]\.element: no experimental element 'y'"),
     (dict(instruments=(Instrument("l", "lvdt", "x", scale=float("nan")),)), r"instrument\[0\]\.scale: must be finite"),
     (dict(displacement_from="l"), r"experimental\[0\]\.displacement_from: no instrument 'l'; instruments: none"),
-], ids=["kind", "element", "scale", "displacement_from"])
+], ids=["kind", "kind not a string", "element", "scale", "displacement_from"])
 def test_a_structure_built_in_code_gets_the_instrument_checks(arguments, message):
     """As a file would be refused: not a KeyError later, nor an element left silently on its
     actuator's transducer."""
