@@ -14,8 +14,6 @@ import re
 import numpy as np
 import pytest
 
-from hsio import config as config_mod
-from hsio import runner
 from hsio.commands.emulate import bank_from_config
 from hsio.drivers import modbus_map
 from hsio.emulators.faults import KINDS, RECOVERABLE, check_transport, parse
