@@ -167,18 +167,35 @@ class ControllerBank:
 
     # -- faults and resets (docs/faults.md, docs/modbus.md) -------------------------------------------
     def fault_due(self):
-        """The request fault due now (drop, delay, corrupt, duplicate, restart) or None."""
+        """The request fault due now (drop, delay, corrupt, duplicate, restart) or None; the
+        other kinds that fall due are armed (docs/faults.md)."""
         return self.faults.due(self.ticks) if self.faults else None
 
     def measured(self, axis: int) -> tuple[float, float]:
         """What axis ``axis``'s transducers report (displacement mm, force kN), faults applied."""
+        return self.displacement(axis), self.force(axis)
+
+    def displacement(self, axis: int) -> float:
+        """What axis ``axis``'s displacement transducer reports, faults applied (a valve failure
+        that fell due trips the axis at this read)."""
         c = self.controllers[axis]
         if not self.faults:
-            return c.measured_displacement, c.measured_force
+            return c.measured_displacement
         if axis == 0 and self.faults.take_valve():
             c.tripped = "servo-valve failure (the axis does not follow its command)"
             c.hold()
-        return self.faults.measured(axis, self.ticks, c.measured_displacement), c.measured_force
+        return self.faults.measured(axis, self.ticks, c.measured_displacement)
+
+    def force(self, axis: int) -> float:
+        """What axis ``axis``'s load cell reports, faults applied."""
+        c = self.controllers[axis]
+        if not self.faults:
+            return c.measured_force
+        return self.faults.measured_force(axis, self.ticks, c.measured_force)
+
+    def ignores_mode(self, axis: int) -> bool:
+        """Whether axis ``axis`` ignores the host's mode switches (the ``mode`` fault, axis 0)."""
+        return axis == 0 and bool(self.faults) and self.faults.mode_ignored
 
     def restart(self) -> None:
         """The controller restarts: a new boot id, the clock at zero, every axis at rest, holding."""

@@ -77,11 +77,12 @@ class DriveAxis:
         return int(round(mm * cod.COUNTS_PER_MM))
 
     def to_permille(self, kN: float) -> int:
+        if not math.isfinite(kN):
+            return -32768  # a NaN reading: the int16 "no value"
         return max(-32768, min(32767, int(round(kN * 1e6 / self.rated_N))))
 
     # -- SDO ---------------------------------------------------------------------------------------
     def on_read(self, index, subindex, od):
-        c = self.bank.controllers[self.axis]
         if index == 0x6041:
             return self.statusword()
         if index == 0x6061:
@@ -89,9 +90,9 @@ class DriveAxis:
         if index == 0x6060:
             return self.mode
         if index == 0x6064:
-            return self.to_counts(self.bank.measured(self.axis)[0])
+            return self.to_counts(self.bank.displacement(self.axis))
         if index == 0x6077:
-            return self.to_permille(c.measured_force)
+            return self.to_permille(self.bank.force(self.axis))
         if index == 0x607A:
             return self.target_counts
         if index == 0x6071:
@@ -173,7 +174,7 @@ class DriveAxis:
                 raise SdoAbortedError(0x06090030)
             self.node.emcy.send(0x6320, 0x01, struct.pack("<b", mode) + b"\0" * 4)
             return
-        if self.axis in self.emu.ignore_mode:
+        if self.axis in self.emu.ignore_mode or self.bank.ignores_mode(self.axis):
             mode = self.mode  # a drive that ignores the switch (a fault for tests); 0x6061 says so
         if mode != self.mode:
             self.mode = mode
@@ -352,6 +353,9 @@ class CanopenEmulator:
             log.exception("SYNC handling failed")
 
     def _send_tpdos(self, fault=None) -> None:
+        code = self.bank.faults.take_warn() if self.bank.faults else None
+        if code is not None and self.axes and self.axes[0].node.nmt.state == "OPERATIONAL":
+            self.axes[0].warn(code)  # the warn fault (docs/faults.md): axis 0 stays operation enabled
         for axis in self.axes:
             if axis.node.nmt.state == "OPERATIONAL":
                 axis.check_faults()

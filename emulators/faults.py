@@ -15,7 +15,7 @@ SPEC: items separated by commas.
 
 Kinds (what happens, and the outcome the driver gives; docs/faults.md):
 
-=========== ============================================================== ================
+=========== ============================================================== ==================================
 drop        the request is lost: nothing applied, no reply                  retried, completes
 delay:S     the reply is held S seconds (default 0.05)                      completes
 corrupt     the reply is cut short (a reply the driver cannot use)          retried, completes
@@ -25,7 +25,20 @@ spike:MM    one displacement reading of axis 0 off by MM (default 50)       inte
 stuck:N     axis 0's displacement reading frozen for N ticks (0: for good)  interlock (stuck transducer)
 nan         one displacement reading of axis 0 is NaN                       interlock (implausible)
 valve       axis 0's servo-valve fails: the controller trips and holds      interlock
-=========== ============================================================== ================
+mode        from TICK on, axis 0 ignores the host's mode switches           interlock at the first switch (none
+                                                                            in a run that never switches)
+fspike:KN   one force reading of axis 0 off by KN (default 50)              interlock above half the capacity,
+                                                                            else passes (not told from a real
+                                                                            change of force)
+fstuck:N    axis 0's force reading frozen for N ticks (0: for good)         not detected: completes, its steps'
+                                                                            forces frozen
+fnan        one force reading of axis 0 is NaN (CANopen: int16 -32768)      interlock (implausible)
+warn:CODE   CANopen only: a warning EMCY of axis 0 (default 0x4210), the    warning printed once, completes
+            drive staying operation enabled
+=========== ============================================================== ==================================
+
+``warn`` has no Modbus counterpart: a Modbus emulator given a schedule with it refuses to start
+(:func:`check_transport`).
 """
 
 from __future__ import annotations
@@ -40,9 +53,12 @@ from hsio.errors import ConfigError
 KINDS = {  # kind -> default argument
     "drop": 0.0, "delay": 0.05, "corrupt": 0.0, "duplicate": 0.0, "restart": 0.0,
     "spike": 50.0, "stuck": 0.0, "nan": 0.0, "valve": 0.0,
+    "mode": 0.0, "fspike": 50.0, "fstuck": 0.0, "fnan": 0.0, "warn": 0x4210,
 }
 REQUEST_KINDS = ("drop", "delay", "corrupt", "duplicate", "restart")
 RECOVERABLE = ("drop", "delay", "corrupt", "duplicate")
+TRANSPORT_ONLY = {"warn": "canopen"}  # kind -> the only transport that has it
+TICK_ARGS = ("stuck", "fstuck")  # kinds whose ARG counts ticks (a whole number)
 MAX_FAULTS = 100_000
 MAX_TICK = 10**9
 MAX_DELAY_S = 10.0
@@ -72,6 +88,12 @@ class FaultSchedule:
         self.spike_mm = 0.0
         self.nan = False
         self.valve = False
+        self.fstuck_until: int | None = None
+        self.fstuck_value: float | None = None
+        self.fspike_kN = 0.0
+        self.fnan = False
+        self.mode_ignored = False  # axis 0 ignores the host's mode switches (for good)
+        self.warn_code: int | None = None  # a warning EMCY to send (CANopen)
 
     def __bool__(self) -> bool:
         return bool(self.faults)
@@ -103,6 +125,17 @@ class FaultSchedule:
             self.stuck_value = None
         elif f.kind == "valve":
             self.valve = True
+        elif f.kind == "fspike":
+            self.fspike_kN = f.arg
+        elif f.kind == "fnan":
+            self.fnan = True
+        elif f.kind == "fstuck":
+            self.fstuck_until = tick + int(f.arg) if f.arg > 0 else MAX_TICK * 10
+            self.fstuck_value = None
+        elif f.kind == "mode":
+            self.mode_ignored = True
+        elif f.kind == "warn":
+            self.warn_code = int(f.arg)
 
     def measured(self, axis: int, tick: int, displacement: float) -> float:
         """What axis ``axis``'s displacement transducer reports (faults apply to axis 0)."""
@@ -122,6 +155,31 @@ class FaultSchedule:
                     return self.stuck_value
                 self.stuck_until = self.stuck_value = None
         return displacement
+
+    def measured_force(self, axis: int, tick: int, force: float) -> float:
+        """What axis ``axis``'s load cell reports (faults apply to axis 0)."""
+        if axis != 0:
+            return force
+        with self._lock:
+            if self.fnan:
+                self.fnan = False
+                return math.nan
+            if self.fspike_kN:
+                spike, self.fspike_kN = self.fspike_kN, 0.0
+                return force + spike
+            if self.fstuck_until is not None:
+                if tick < self.fstuck_until:
+                    if self.fstuck_value is None:
+                        self.fstuck_value = force
+                    return self.fstuck_value
+                self.fstuck_until = self.fstuck_value = None
+        return force
+
+    def take_warn(self) -> int | None:
+        """The code of a warning EMCY that fell due (once), or None."""
+        with self._lock:
+            code, self.warn_code = self.warn_code, None
+            return code
 
     def take_valve(self) -> bool:
         with self._lock:
@@ -174,8 +232,11 @@ def parse(spec: str) -> FaultSchedule:
             raise ConfigError(f"--faults {item!r}: expected KIND@TICK or KIND@TICK:ARG")
         tick_text, _, arg_text = rest.partition(":")
         tick = _number(item, tick_text.strip(), int, 0, MAX_TICK)
-        arg_kind = int if kind == "stuck" else float  # stuck:N counts ticks
-        arg = KINDS[kind] if not arg_text else float(_number(item, arg_text.strip(), arg_kind, 0, _arg_max(kind)))
+        if kind == "warn":
+            arg = KINDS[kind] if not arg_text else float(_emcy_code(item, arg_text.strip()))
+        else:
+            arg_kind = int if kind in TICK_ARGS else float  # stuck:N, fstuck:N count ticks
+            arg = KINDS[kind] if not arg_text else float(_number(item, arg_text.strip(), arg_kind, 0, _arg_max(kind)))
         faults.append(Fault(kind, tick, arg))
         if len(faults) > MAX_FAULTS:
             raise ConfigError(f"--faults: more than {MAX_FAULTS} faults")
@@ -195,7 +256,18 @@ def parse(spec: str) -> FaultSchedule:
 
 
 def _arg_max(kind: str) -> float:
-    return {"delay": MAX_DELAY_S, "spike": 1e30, "stuck": MAX_TICK}.get(kind, 0.0)
+    return {"delay": MAX_DELAY_S, "spike": 1e30, "stuck": MAX_TICK, "fspike": 1e30, "fstuck": MAX_TICK}.get(kind, 0.0)
+
+
+def _emcy_code(item: str, text: str) -> int:
+    """warn's ARG: an EMCY error code, 0x0100..0xFFFF (hexadecimal with 0x, or decimal)."""
+    try:
+        code = int(text, 0)
+    except ValueError:
+        raise ConfigError(f"--faults {item!r}: {text!r} is not an EMCY code (e.g. 0x4210)") from None
+    if not 0x0100 <= code <= 0xFFFF:
+        raise ConfigError(f"--faults {item!r}: {text} is not an EMCY error code (0x0100..0xFFFF)")
+    return code
 
 
 def _kinds(item: str, text: str) -> tuple[str, ...]:
@@ -209,6 +281,21 @@ def _kinds(item: str, text: str) -> tuple[str, ...]:
     if bad:
         raise ConfigError(f"--faults {item!r}: unknown fault(s) {', '.join(map(repr, bad))}; known: {', '.join(KINDS)}")
     return kinds
+
+
+def check_transport(schedule: "FaultSchedule | None", transport: str) -> None:
+    """Refuse, before the emulator serves, a kind its transport does not have (``warn`` is
+    CANopen's): a ConfigError naming the kind, its tick and both transports."""
+    if not schedule:
+        return
+    names = {"canopen": "CANopen", "modbus": "Modbus"}
+    for f in schedule.faults:
+        only = TRANSPORT_ONLY.get(f.kind)
+        if only is not None and only != transport:
+            here = names.get(transport, transport)
+            raise ConfigError(f"--faults: {f.kind!r} (at tick {f.tick}) is a {names[only]} fault (a warning EMCY), "
+                              f"which a {here} controller cannot send; refused over {here} (its kinds: "
+                              f"{', '.join(k for k in KINDS if TRANSPORT_ONLY.get(k, transport) == transport)})")
 
 
 def random_faults(seed: int, every: int, kinds=RECOVERABLE, until: int = 10**7, start: int = 0) -> list[Fault]:

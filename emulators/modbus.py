@@ -27,6 +27,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from hsio.drivers.modbus_map import Register, RegisterMap
 from hsio.emulators.bank import CommandRefused, ControllerBank
+from hsio.emulators.faults import check_transport
 from hsio.interfaces import ControlMode
 
 log = logging.getLogger(__name__)
@@ -154,9 +155,9 @@ class RegisterContext(ModbusServerContext):
         if reg.name == "status_word":
             return float(self.map.make_word(bank.flags(axis)))
         if reg.name == "displacement":
-            return bank.measured(axis)[0]
+            return bank.displacement(axis)
         if reg.name == "force":
-            return c.measured_force
+            return bank.force(axis)
         if reg.name == "sequence":
             return float(bank.ticks % reg.counter_modulus())
         return 0.0
@@ -250,7 +251,7 @@ class RegisterContext(ModbusServerContext):
                     self.bank.refuse(axis)
                     return self._exception(ExcCodes.ILLEGAL_VALUE, f"axis {axis}: unknown mode value {cmd['mode']!r}")
                 mode = ControlMode(modes[cmd["mode"]])
-                if axis in self.ignore_mode:
+                if axis in self.ignore_mode or self.bank.ignores_mode(axis):
                     mode = self.bank.controllers[axis].mode
                 value = cmd["displacement"] if mode is ControlMode.DISPLACEMENT else cmd["force"]
                 try:
@@ -343,6 +344,7 @@ class ModbusEmulator:
         self.bank = bank
         if faults is not None:
             bank.faults = faults
+        check_transport(bank.faults, "modbus")  # warn is CANopen's (docs/faults.md)
         self.map = regmap
         self.context = RegisterContext(bank, regmap)
         self.transport = transport
