@@ -227,10 +227,13 @@ def url_port(url: str, default: int) -> int:
 
 
 # [driver] options of the plausibility check (docs/faults.md), shared by both drivers.
-PLAUSIBILITY_DEFAULTS = {"jump_floor_mm": 2.0, "stuck_samples": 512, "stuck_mm": 5.0}
+PLAUSIBILITY_DEFAULTS = {"jump_floor_mm": 2.0, "stuck_samples": 512, "stuck_mm": 5.0, "force_stuck_samples": 512,
+                         "force_stuck_mm": 1.0}
 PLAUSIBILITY_RULES = {
     "jump_floor_mm": positive(1000.0, "mm"),
     "stuck_samples": whole(0, 1_000_000),
+    "force_stuck_samples": whole(0, 1_000_000),
+    "force_stuck_mm": positive(1000.0, "mm"),
     "stuck_mm": positive(1000.0, "mm"),
 }
 
@@ -251,6 +254,11 @@ class Plausibility:
       lowest value since the reading froze) exceeds ``stuck_mm`` (0 samples: off). A command
       that moves less than ``stuck_mm`` in all is not judged here: a still reading is then what
       a quantised transducer shows of a small or slow motion.
+    * a stuck load cell (a broken cable, an amplifier saturated at its full scale): the same force
+      reading, bit for bit, for ``force_stuck_samples`` samples in a row while the measured
+      displacement's range over those samples exceeds ``force_stuck_mm`` (0 samples: off). A specimen
+      on a flat plateau read by a noise-free load cell shows the same; a real load cell's noise
+      moves its last digit every few samples.
     """
 
     def __init__(self, where: str, limits: Limits, period_s: float, options: dict | None = None):
@@ -264,6 +272,10 @@ class Plausibility:
         self.jump_floor = float(o["jump_floor_mm"])
         self.stuck_samples = int(o["stuck_samples"])
         self.stuck_mm = float(o["stuck_mm"])
+        self.force_stuck_samples = int(o["force_stuck_samples"])
+        self.force_stuck_mm = float(o["force_stuck_mm"])
+        self.force_same = 0
+        self.displacement_range: tuple[float, float] | None = None  # measured, since the force reading froze
         self.last: tuple[float, float, float] | None = None
         self.same = 0
         self.command_range: tuple[float, float] | None = None  # the command's (lowest, highest) since the reading froze
@@ -305,4 +317,18 @@ class Plausibility:
                                      f"{self.command_range[1]:+.4g} mm; a stuck transducer)")
                 else:
                     self.same, self.command_range = 0, None
+            if self.force_stuck_samples:
+                if force == f0:
+                    self.force_same += 1
+                    low, high = self.displacement_range or (d0, d0)
+                    self.displacement_range = (min(low, displacement), max(high, displacement))
+                    moved = self.displacement_range[1] - self.displacement_range[0]
+                    if self.force_same >= self.force_stuck_samples and moved > self.force_stuck_mm:
+                        self._refuse(f"force stuck at {force:.6g} kN for {self.force_same} samples while the "
+                                     f"displacement moved over {moved:.4g} mm ({self.displacement_range[0]:+.4g} to "
+                                     f"{self.displacement_range[1]:+.4g} mm; a stuck or saturated load cell; a specimen "
+                                     "on a flat plateau read by a noise-free load cell reads the same: [driver] "
+                                     "force_stuck_samples = 0 turns this check off)")
+                else:
+                    self.force_same, self.displacement_range = 0, None
         self.last = (displacement, force, t)

@@ -209,14 +209,31 @@ def test_a_force_spike_within_the_jump_bound_passes_into_its_step(reference, tmp
     assert np.max(np.abs(steps["u_C1"] - reference["u_C1"])) > 0.1  # the integrator took it
 
 
-def test_a_frozen_load_cell_is_not_detected(reference, tmp_path):
-    """`fstuck@700` (for good): the run completes with axis 0's force frozen from step 36 on, a
-    wrong response the plausibility check does not judge (docs/faults.md)."""
+def test_a_frozen_load_cell_stops_the_run_once_the_displacement_has_moved(reference, tmp_path):
+    """`fstuck@700` (for good): axis 0's force reads the same from step 36 on while the specimen
+    moves; once it has read the same for force_stuck_samples (512) samples and the displacement
+    has moved over force_stuck_mm (1 mm) meanwhile, the run stops as on a stuck load cell, the
+    steps before kept, the actuators holding. With the check off the run completes, its response
+    wrong (docs/faults.md)."""
     result, steps = inprocess_run(tmp_path, f"fstuck@{FAULT_TICK}", "fstuck")
-    assert result["exit_status"] == 0 and result["steps"] == len(reference["step"])
+    assert isinstance(result, ExperimentStopped), result
+    for words in ("actuator 'C1'", "force stuck at", "for 512 samples while the displacement moved over",
+                  "a stuck or saturated load cell", "the actuators hold (confirmed by read-back)"):
+        assert words in str(result), result
+    n = len(steps["step"])
+    assert FAULT_TICK // 20 + 512 // 20 <= n < len(reference["step"])  # 20 ticks a step
     frozen = steps["force_C1"][36:]
-    assert np.all(frozen == frozen[0]) and np.ptp(reference["force_C1"][36:]) > 0.5
-    assert np.array_equal(steps["force_C2"][:35], reference["force_C2"][:35])
+    assert np.all(frozen == frozen[0])
+    config = emulator_config(tmp_path)
+    emu = ModbusEmulator(bank_from_config(config, lockstep=True, watchdog_s=5.0), modbus_map.load(),
+                         faults=parse(f"fstuck@{FAULT_TICK}")).start()
+    try:
+        result, recorded = run(config, tmp_path / "off", url=emu.url,
+                               driver={"stuck_samples": 8, "stuck_mm": 0.02, "force_stuck_samples": 0})
+    finally:
+        emu.stop()
+    steps = recorded.steps
+    assert result["exit_status"] == 0 and result["steps"] == len(reference["step"])
     assert np.max(np.abs(steps["u_C1"] - reference["u_C1"])) > 1.0
 
 

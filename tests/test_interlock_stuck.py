@@ -35,3 +35,35 @@ def test_a_command_moving_away_trips():
 
 def test_a_command_moving_less_than_stuck_mm_is_left_to_the_other_interlocks():
     frozen(2.4)  # a 4.8 mm range: a still reading may be a quantised transducer; not judged here
+
+
+def frozen_force(amplitude_mm: float, samples: int = 2048, options: dict | None = None):
+    """A force reading frozen at 3 kN while the measured displacement oscillates (1 Hz at 1024 Hz)."""
+    check = common.Plausibility("C1", Limits(254.0, 250.0, 500.0), 1 / 1024, options)
+    for k in range(samples):
+        d = amplitude_mm * math.sin(2 * math.pi * k / 1024)
+        check.check(d, 3.0, k / 1024, d)
+
+
+def test_a_force_frozen_while_the_specimen_moves_trips_as_a_stuck_load_cell():
+    with pytest.raises(ImplausibleMeasurementError, match=r"force stuck at 3 kN for 512 samples while the displacement "
+                                                          r"moved over .* a stuck or saturated load cell"):
+        frozen_force(0.6)  # a 1.2 mm range, past force_stuck_mm (1 mm)
+
+
+def test_a_force_frozen_while_the_displacement_stays_within_force_stuck_mm_is_not_judged():
+    frozen_force(0.45)  # 0.9 mm: a plateau, or a specimen at rest, cannot be told from a dead load cell
+    frozen_force(0.6, options={"force_stuck_samples": 0})  # off
+    with pytest.raises(ImplausibleMeasurementError, match="force stuck"):
+        frozen_force(0.3, options={"force_stuck_mm": 0.5})  # a stiff specimen's test: lowered
+
+
+def test_a_noisy_load_cell_on_a_moving_specimen_never_trips():
+    """The last digit of a real load cell moves: a plateau with 0.002 kN of noise, read to 0.001 kN."""
+    import numpy as np
+
+    rng = np.random.default_rng(5)
+    check = common.Plausibility("C1", Limits(254.0, 250.0, 500.0), 1 / 1024)
+    for k in range(8192):
+        d = 10.0 * math.sin(2 * math.pi * k / 1024)
+        check.check(d, round(50.0 + rng.normal(0, 0.002), 3), k / 1024, d)
