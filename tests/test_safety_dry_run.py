@@ -458,3 +458,14 @@ def test_the_online_lead_is_bounded_by_what_it_can_reach():
     np.testing.assert_allclose(lag.lead_s, [0.0, 0.1])  # lag_max_s
     lag = actuator_lag("modbus+tcp://127.0.0.1:5020", {}, None, ["C1", "C2"])
     np.testing.assert_allclose(lag.lag_s, [0.0, 0.0])  # a driver's lag is not known
+
+
+def test_the_lag_allowance_is_at_most_the_peak():
+    """A lag far longer than the motion (an actuator that does not follow, stopped by the tracking
+    interlock) allows at most the peak itself, not L |v|_max (1000 s x 19 mm/s = 19 m)."""
+    from hsio.safety.dry_run import ActuatorLag, Prediction
+
+    zero = np.zeros(2)
+    p = Prediction(["C1", "C2"], np.array([11.7, 4.0]), zero, zero, 100, dt=0.01, step_velocity=np.array([18.9, 0.1]),
+                   lag=ActuatorLag(np.array([1000.0, 0.02]), zero, zero, "test"))
+    np.testing.assert_allclose(p.lag_allowance(), [11.7, 0.002])

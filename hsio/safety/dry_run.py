@@ -88,10 +88,13 @@ class Prediction:
     lag: "ActuatorLag | None" = None
 
     def lag_allowance(self) -> np.ndarray:
-        """L |v|_max per actuator (mm), L the lag not compensated: what it may add to the peak."""
+        """L |v|_max per actuator (mm), L the lag not compensated: what it may add to the peak; at
+        most the peak itself (a lag as long as the motion's period leaves the actuator behind its
+        commands, which the tracking interlock stops, rather than doubling them)."""
         if self.lag is None or self.step_velocity is None:
             return np.zeros(len(self.actuators))
-        return self.lag.lag_s * np.asarray(self.step_velocity, dtype=float)
+        allowance = self.lag.lag_s * np.asarray(self.step_velocity, dtype=float)
+        return np.minimum(allowance, np.abs(np.asarray(self.displacement, dtype=float)))
 
     def when(self, what: str, k: int) -> str:
         """Where actuator ``k``'s peak of ``what`` is: " at step N (t = T s)", "" if not known."""
@@ -323,8 +326,9 @@ def check(prediction: Prediction, limits: dict, source: str, settings: SafetySet
             value = float(getattr(prediction, what)[k])
             lag = ""
             if what == "displacement" and allowance[k] > 0:
+                capped = allowance[k] < prediction.lag.lag_s[k] * prediction.step_velocity[k]
                 lag = (f"; NS peak {value:.3f} mm + lag allowance {prediction.lag.lag_s[k]:g} s x "
-                       f"{prediction.step_velocity[k]:.3f} mm/s")
+                       f"{prediction.step_velocity[k]:.3f} mm/s" + (" (at most the peak)" if capped else ""))
                 value += float(allowance[k])
             if what != "force" and prediction.lag is not None and prediction.lag.lead_s[k] > 0:
                 lag += f"; commands compensated with lead {prediction.lag.lead_s[k]:g} s"
