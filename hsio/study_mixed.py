@@ -6,8 +6,9 @@ Two parts:
 * a grid over the specimen's stiffness k0 x the transducer's resolution delta_u x the load cell's
   resolution delta_F: a single-DOF frame with a cracking infill (:class:`hsio.specimens.CrackingInfill`
   scaled to k0: cracking at 0.49 mm, the peak at 2.5 mm, the same force ratios), its mass set for a
-  natural frequency of 8 Hz, 5 % damping, on the emulated controller; the synthetic record is
-  scaled so that the NS peak is about the cracking displacement (the infill just cracks);
+  natural frequency of 8 Hz, 5 % damping, on the emulated controller; the synthetic record (seed
+  :data:`SEED` unless given) is scaled so that the NS peak is about the cracking displacement
+  (the infill just cracks);
 * the shipped structures (``structure_I``, ``structure_II``, ``structure_II_infill``,
   ``three_storey``) with every method.
 
@@ -37,6 +38,7 @@ from hsio.integrators.mixed import check_ns
 from hsio.structures import Structure, get_structure, sdof
 
 METHODS = ("implicit_dc", "force_control", "mixed")
+SEED = 1994  # the study's synthetic record
 STRUCTURES = ("structure_I", "structure_II", "structure_II_infill", "three_storey")
 
 
@@ -215,12 +217,13 @@ def _not_converged(result) -> int:
 
 def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolutions=(0.002, 0.02),
          duration_s: float = 2.0, methods=METHODS, recipe: Recipe = Recipe(), progress=None,
-         noise_mm=None) -> list[Row]:
-    """The grid study: every combination, every method (the record scaled to just crack the infill;
-    the actuator's capacity :func:`capacity_kN`)."""
+         noise_mm=None, seed: int = SEED) -> list[Row]:
+    """The grid study: every combination, every method (the synthetic record of ``seed`` scaled to
+    just crack the infill; the actuator's capacity :func:`capacity_kN`)."""
     from hsio.api import run_numerical
     from hsio.ground_motion import synthetic_record
 
+    _check_seed(seed)
     for name, values in (("stiffnesses", stiffnesses), ("resolutions", resolutions),
                          ("force_resolutions", force_resolutions)):
         _check_axis(name, values)
@@ -229,10 +232,10 @@ def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolution
     rows = []
     for k0 in stiffnesses:
         structure = infill_sdof(float(k0))
-        base = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=0.1, seed=1994)
+        base = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=0.1, seed=seed)
         ns = run_numerical(structure, base, "mixed", recipe.alpha)
         scale = 0.49 / max(float(np.max(np.abs(ns.u))), 1e-9)
-        ground = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=0.1 * scale, seed=1994)
+        ground = synthetic_record(duration_s=duration_s, dt=structure.dt, pga_g=0.1 * scale, seed=seed)
         ns = run_numerical(structure, ground, "mixed", recipe.alpha)
         emulator = {"force_limit_kN": capacity_kN(float(k0))}
         for du in resolutions:
@@ -242,6 +245,12 @@ def grid(stiffnesses=(7.2, 122.6), resolutions=(0.0025, 0.025), force_resolution
                 if progress:
                     progress(rows[-len(methods):])
     return rows
+
+
+def _check_seed(seed) -> None:
+    """A seed of the synthetic record: a whole number from 0 (checked before any run)."""
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"grid: seed must be a whole number from 0, got {seed!r:.80}")
 
 
 def _check_axis(name: str, values) -> None:

@@ -89,3 +89,28 @@ def test_a_value_given_twice_is_run_once():
     rows = sm.grid(stiffnesses=(50.0, 50), resolutions=(0.025,), force_resolutions=(0.01, 0.01),
                    duration_s=0.1, methods=("implicit_dc",))
     assert len(rows) == 1
+
+
+def test_the_seed_reaches_every_synthetic_record_of_the_grid(monkeypatch):
+    """`--seed` (the study's 1994 unless given) is the seed of the grid's synthetic records; a
+    negative one is refused with exit 2 naming the option, and so is a seed that is not a whole
+    number in Python."""
+    import hsio.ground_motion as gm
+    from hsio.commands.study import study
+    from hsio.errors import ConfigError
+
+    seeds = []
+    real = gm.synthetic_record
+    monkeypatch.setattr(gm, "synthetic_record", lambda **kw: seeds.append(kw["seed"]) or real(**kw))
+    args = ["mixed", "--json", "--stiffness", "122.6", "--resolution", "0.025", "--force-resolution", "0.01",
+            "--duration", "0.1"]
+    assert CliRunner().invoke(study, args).exit_code == 0 and set(seeds) == {1994}
+    seeds.clear()
+    out = CliRunner().invoke(study, args + ["--seed", "7"])
+    assert out.exit_code == 0, out.output
+    assert seeds and set(seeds) == {7}
+    bad = CliRunner().invoke(study, args + ["--seed", "-1"])
+    assert bad.exit_code == 2 and "--seed" in bad.output
+    for seed in (-1, 1.5, True):
+        with pytest.raises(ConfigError, match="grid: seed must be a whole number from 0"):
+            sm.grid(duration_s=0.1, seed=seed)

@@ -72,9 +72,11 @@ GRID_BOUNDS = {"stiffness": (0.0, 10000.0, "kN/mm"), "resolution": (0.0, 10.0, "
               help="Load-cell resolution (kN); repeat.")
 @click.option("--duration", default=2.0, show_default=True, type=click.FloatRange(0.1, 60.0),
               help="Record length of the grid runs (s).")
+@click.option("--seed", default=None, type=click.IntRange(0, None),
+              help="Seed of the grid's synthetic record [default: the study's, 1994].")
 @click.option("--structures/--no-structures", default=False, show_default=True,
               help="Also run the shipped structures with every method (4 s records).")
-def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, duration, structures) -> None:
+def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, duration, seed, structures) -> None:
     """HS-vs-NS error of DC, FC and mixed over stiffness x transducer x load-cell resolution."""
     from hsio import study_mixed as sm
 
@@ -87,7 +89,8 @@ def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, durat
                                          f"{high:g} {unit}", param_hint=option)
     try:
         rows = sm.grid(stiffnesses or (7.2, 122.6), resolutions or (0.0025, 0.025),
-                       force_resolutions or (0.002, 0.02), duration_s=duration)
+                       force_resolutions or (0.002, 0.02), duration_s=duration,
+                       seed=sm.SEED if seed is None else seed)
         if structures:
             rows += sm.structures()
     except HsioError as exc:
