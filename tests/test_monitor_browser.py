@@ -317,29 +317,36 @@ return box ? [box.scrollHeight, box.clientHeight, getComputedStyle(box).overflow
 """
 
 
+def replayed_page(cleanup: contextlib.ExitStack, tmp_path, names: list[str]):
+    """A finished record of 20 steps with one DOF and one actuator per name, replayed by `hsio
+    monitor` in a headless browser (closed by ``cleanup``): the browser, once the page shows the
+    record closed."""
+    from hsio.monitor.server import READY
+    from hsio.recording import Recorder
+
+    rec = Recorder(tmp_path / "run.sqlite", names, names, {"structure": "chain", "record": "sine", "dt": 0.01,
+                                                           "test_rate": 2.0, "config": {}})
+    for k in range(1, 21):
+        u = [np.sin(0.1 * k + j) for j in range(len(names))]
+        rec.write_step(k, 0.01 * k, u, u, u, u, u, ["displacement"] * len(names), u, u, u, u)
+    rec.write_summary({"steps": 20, "outcome": "finished"})
+    rec.close()
+    mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    cleanup.callback(ended, mon)
+    b = cleanup.enter_context(browser.Browser())
+    b.driver.get(Lines(mon.stdout).wait_for(READY, 60).rpartition(" at ")[2].strip())
+    wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
+    return b
+
+
 def test_the_status_of_many_dofs_scrolls_in_its_box_not_under_the_plots(tmp_path):
     """Twelve DOFs and actuators: the status is longer than its fixed box; the rest is reached by
     scrolling it, not drawn under the plots, where the last DOFs could not be read."""
     import selenium  # noqa: F401
 
-    from hsio.monitor.server import READY
-    from hsio.recording import Recorder
-
-    names = [f"floor_{i:02d}_lateral_x" for i in range(1, 13)]
-    rec = Recorder(tmp_path / "run.sqlite", names, names, {"structure": "chain", "record": "sine", "dt": 0.01,
-                                                           "test_rate": 2.0, "config": {}})
-    for k in range(1, 21):
-        u = [np.sin(0.1 * k + j) for j in range(12)]
-        rec.write_step(k, 0.01 * k, u, u, u, u, u, ["displacement"] * 12, u, u, u, u)
-    rec.write_summary({"steps": 20, "outcome": "finished"})
-    rec.close()
     with contextlib.ExitStack() as cleanup:
-        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        cleanup.callback(ended, mon)
-        b = cleanup.enter_context(browser.Browser())
-        b.driver.get(Lines(mon.stdout).wait_for(READY, 60).rpartition(" at ")[2].strip())
-        wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
+        b = replayed_page(cleanup, tmp_path, [f"floor_{i:02d}_lateral_x" for i in range(1, 13)])
         wait_page(b, lambda: "floor_12_lateral_x DC" in (b.model("status", "m.text") or ""), 10, "the last DOF")
         scroll, client, overflow = b.driver.execute_script(STATUS_BOX)
         assert scroll > client  # longer than its box (else this test shows nothing)
@@ -375,24 +382,8 @@ def test_sixteen_channels_have_distinct_colours_and_legends_that_show_every_entr
     off at the plot's edge), and the sixteen lines of a plot are of sixteen colours."""
     import selenium  # noqa: F401
 
-    from hsio.monitor.server import READY
-    from hsio.recording import Recorder
-
-    names = [f"floor_{i:02d}_x" for i in range(1, 17)]
-    rec = Recorder(tmp_path / "run.sqlite", names, names, {"structure": "chain", "record": "sine", "dt": 0.01,
-                                                           "test_rate": 2.0, "config": {}})
-    for k in range(1, 21):
-        u = [np.sin(0.1 * k + j) for j in range(16)]
-        rec.write_step(k, 0.01 * k, u, u, u, u, u, ["displacement"] * 16, u, u, u, u)
-    rec.write_summary({"steps": 20, "outcome": "finished"})
-    rec.close()
     with contextlib.ExitStack() as cleanup:
-        mon = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        cleanup.callback(ended, mon)
-        b = cleanup.enter_context(browser.Browser())
-        b.driver.get(Lines(mon.stdout).wait_for(READY, 60).rpartition(" at ")[2].strip())
-        wait_page(b, lambda: "the record is closed" in state(b), 30, "the replay")
+        b = replayed_page(cleanup, tmp_path, [f"floor_{i:02d}_x" for i in range(1, 17)])
         legends = wait_page(b, lambda: (lambda got: got if len(got) == 7 else None)(b.driver.execute_script(LEGENDS)),
                             10, "the plots' legends")
         for legend in legends:  # seven plots: one per DOF or per channel (the margins have none)
