@@ -469,3 +469,17 @@ def test_the_lag_allowance_is_at_most_the_peak():
     p = Prediction(["C1", "C2"], np.array([11.7, 4.0]), zero, zero, 100, dt=0.01, step_velocity=np.array([18.9, 0.1]),
                    lag=ActuatorLag(np.array([1000.0, 0.02]), zero, zero, "test"))
     np.testing.assert_allclose(p.lag_allowance(), [11.7, 0.002])
+
+
+def test_each_actuator_s_own_compensation_is_predicted():
+    """[compensation.by_actuator]: each actuator's own a and b give its lead (b d_max) and
+    threshold; the lag left is its own less that lead."""
+    from hsio.compensation.stage import CompensationSettings
+    from hsio.safety.dry_run import actuator_lag
+
+    settings = CompensationSettings.from_table({"mode": "offline", "by_actuator": {
+        "C1": {"a_mm_s": 1.0, "b_s_mm": 0.02 / 254.0}, "C2": {"a_mm_s": 2.0, "b_s_mm": 0.01 / 254.0}}})
+    lag = actuator_lag("emulator://", {"lag_s": 0.03}, settings, ["C1", "C2"], 100)
+    np.testing.assert_allclose(lag.lead_s, [0.02, 0.01])
+    np.testing.assert_allclose(lag.a_mm_s, [1.0, 2.0])
+    np.testing.assert_allclose(lag.lag_s, [0.01, 0.02])

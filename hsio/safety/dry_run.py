@@ -373,9 +373,10 @@ def actuator_lag(url: str, emulator: dict, compensation=None, names=(), steps: i
     emulated actuator's lag (``emulator://``: the larger of ``lag_s`` and ``lag_retract_s``, plus
     ``transport_delay_s``; a driver's is not known: 0) and the lead of ``compensation`` (a
     :class:`hsio.compensation.stage.CompensationSettings`) on the actuators it compensates:
-    offline b d_max and a; online the most the lead can reach over ``steps`` steps (the start
-    moved by ``lag_step_s`` every ``update_every`` steps, at most ``lag_max_s``) and a = 0. The
-    lag left is the actuator's less the lead, not below 0."""
+    offline b d_max and a, each actuator's own (``by_actuator``) or the shared ones; online the
+    most the lead can reach over ``steps`` steps (each actuator's start moved by ``lag_step_s``
+    every ``update_every`` steps, at most ``lag_max_s``) and a = 0. The lag left is the
+    actuator's less the lead, not below 0."""
     n = len(names)
     lag, source = np.zeros(n), DRIVER_LAG
     if url.startswith("emulator"):
@@ -387,15 +388,19 @@ def actuator_lag(url: str, emulator: dict, compensation=None, names=(), steps: i
         source = "[emulator] lag_s"
     lead, a = np.zeros(n), np.zeros(n)
     if compensation is not None and compensation.mode != "off":
-        value, threshold = compensation.lag_s, compensation.a_mm_s
-        if compensation.mode == "online":
-            e = compensation.estimator
-            value = min(e.lag_max_s, value + e.lag_step_s * -(-max(int(steps), 0) // e.update_every))
-            threshold = 0.0
         chosen = set(compensation.actuators) if compensation.actuators else set(names)
-        on = np.array([name in chosen for name in names], dtype=bool)
-        lead[on], a[on] = value, threshold
-        source += f"; [compensation] {compensation.mode} lead {value:g} s"
+        for k, name in enumerate(names):
+            if name not in chosen:
+                continue
+            threshold, b = compensation.parameters(name)
+            value = b * compensation.d_max_mm
+            if compensation.mode == "online":
+                e = compensation.estimator
+                value = min(e.lag_max_s, value + e.lag_step_s * -(-max(int(steps), 0) // e.update_every))
+                threshold = 0.0
+            lead[k], a[k] = value, threshold
+        shown = ", ".join(f"{v:g}" for v in sorted(set(lead[[n in chosen for n in names]].tolist()))) or "0"
+        source += f"; [compensation] {compensation.mode} lead {shown} s"
     return ActuatorLag(np.clip(lag - lead, 0.0, None), lead, a, source)
 
 
