@@ -256,7 +256,8 @@ class Plausibility:
       a quantised transducer shows of a small or slow motion.
     * a stuck load cell (a broken cable, an amplifier saturated at its full scale): the same force
       reading, bit for bit, for ``force_stuck_samples`` samples in a row while the measured
-      displacement's range over those samples exceeds ``force_stuck_mm`` (0 samples: off). A specimen
+      displacement's range over those samples exceeds ``force_stuck_mm``, in displacement control
+      (in force control the loop holds the force reading still; 0 samples: off). A specimen
       on a flat plateau read by a noise-free load cell shows the same; a real load cell's noise
       moves its last digit every few samples.
     """
@@ -306,29 +307,30 @@ class Plausibility:
             if abs(force - f0) > self.max_df:
                 self._refuse(f"force jumped {force - f0:+.6g} kN between two samples (at most {self.max_df:g} kN)")
             if self.stuck_samples and command is not None:
-                if displacement == d0:
-                    self.same += 1
-                    low, high = self.command_range or (command, command)
-                    self.command_range = (min(low, command), max(high, command))
-                    moved = self.command_range[1] - self.command_range[0]
-                    if self.same >= self.stuck_samples and moved > self.stuck_mm:
-                        self._refuse(f"displacement stuck at {displacement:.6g} mm for {self.same} samples while the "
-                                     f"command moved over {moved:.4g} mm ({self.command_range[0]:+.4g} to "
-                                     f"{self.command_range[1]:+.4g} mm; a stuck transducer)")
-                else:
-                    self.same, self.command_range = 0, None
-            if self.force_stuck_samples:
-                if force == f0:
-                    self.force_same += 1
-                    low, high = self.displacement_range or (d0, d0)
-                    self.displacement_range = (min(low, displacement), max(high, displacement))
-                    moved = self.displacement_range[1] - self.displacement_range[0]
-                    if self.force_same >= self.force_stuck_samples and moved > self.force_stuck_mm:
-                        self._refuse(f"force stuck at {force:.6g} kN for {self.force_same} samples while the "
-                                     f"displacement moved over {moved:.4g} mm ({self.displacement_range[0]:+.4g} to "
-                                     f"{self.displacement_range[1]:+.4g} mm; a stuck or saturated load cell; a specimen "
-                                     "on a flat plateau read by a noise-free load cell reads the same: [driver] "
-                                     "force_stuck_samples = 0 turns this check off)")
-                else:
-                    self.force_same, self.displacement_range = 0, None
+                self.same, self.command_range, moved = _frozen(displacement == d0, self.same, self.command_range,
+                                                               command, command)
+                if self.same >= self.stuck_samples and moved > self.stuck_mm:
+                    self._refuse(f"displacement stuck at {displacement:.6g} mm for {self.same} samples while the "
+                                 f"command moved over {moved:.4g} mm ({self.command_range[0]:+.4g} to "
+                                 f"{self.command_range[1]:+.4g} mm; a stuck transducer)")
+            if self.force_stuck_samples and command is not None:  # in force control the loop holds the force
+                self.force_same, self.displacement_range, moved = _frozen(
+                    force == f0, self.force_same, self.displacement_range, d0, displacement)
+                if self.force_same >= self.force_stuck_samples and moved > self.force_stuck_mm:
+                    self._refuse(f"force stuck at {force:.6g} kN for {self.force_same} samples while the "
+                                 f"displacement moved over {moved:.4g} mm ({self.displacement_range[0]:+.4g} to "
+                                 f"{self.displacement_range[1]:+.4g} mm; a stuck or saturated load cell; a specimen "
+                                 "on a flat plateau read by a noise-free load cell reads the same: [driver] "
+                                 "force_stuck_samples = 0 turns this check off)")
         self.last = (displacement, force, t)
+
+
+def _frozen(same: bool, count: int, span: tuple[float, float] | None, start: float, value: float):
+    """One sample of a frozen-reading check: the count of samples the reading has stayed the same,
+    and the (lowest, highest) of the other signal since it froze (``start``: its value then) with
+    that range; a reading that moved starts both again."""
+    if not same:
+        return 0, None, 0.0
+    low, high = span or (start, start)
+    span = (min(low, value), max(high, value))
+    return count + 1, span, span[1] - span[0]

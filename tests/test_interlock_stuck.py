@@ -67,3 +67,11 @@ def test_a_noisy_load_cell_on_a_moving_specimen_never_trips():
     for k in range(8192):
         d = 10.0 * math.sin(2 * math.pi * k / 1024)
         check.check(d, round(50.0 + rng.normal(0, 0.002), 3), k / 1024, d)
+
+
+def test_a_force_held_in_force_control_is_never_a_stuck_load_cell():
+    """In force control (no displacement command) the loop holds the force reading still while the
+    stroke drifts, as a preload actuator's does with the structure: not judged."""
+    check = common.Plausibility("preload", Limits(254.0, 500.0, 500.0), 1 / 1024)
+    for k in range(4096):
+        check.check(2.0 * math.sin(2 * math.pi * k / 1024), 200.0, k / 1024, None)
