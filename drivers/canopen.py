@@ -327,11 +327,16 @@ class DriveNode:
     def _warning_statusword(self, code: int) -> int | None:
         """The statusword that makes an EMCY of ``code`` a warning, or None (the EMCY stops the
         run): its class is a warning class or the lab lists it ([driver] emcy_warnings), and the
-        drive, asked by SDO now, is in OPERATION ENABLED with the fault bit clear."""
+        drive is in OPERATION ENABLED with the fault bit clear: asked by SDO at the code's first
+        EMCY, read from the cyclic statusword (TPDO) at the next ones of the same code, so that a
+        drive repeating a warning costs no SDO round trip in the loop's periods."""
         if code & 0xF000 not in WARNING_CLASSES and code not in self.link.options["emcy_warnings"]:
             return None
         if not self.operating:
             return None
+        cyclic = self.node.tpdo_values.get(0x6041)
+        if code in self.warnings and cyclic is not None:
+            return cyclic if cyclic & 0x6F == 0x27 and not cyclic & 0x08 else None
         try:
             word = int(self.sdo_read(0x6041, what="statusword (after an EMCY)"))
         except CommunicationError:
@@ -689,6 +694,8 @@ class CanopenActuator(Actuator, ActuatorChannels):
             # raises on failure: the SDO read of 0x6061 decides.
             d.node.op_mode = MODE_NAMES[mode]
         shown = d.sdo_read(0x6061, what="modes of operation display")
+        if shown == MODE_CODES[mode]:  # the TPDO's copy may still be the old mode: the drive's answer is newer
+            d.node.tpdo_values[0x6061] = shown
         if shown != MODE_CODES[mode]:
             raise InterlockError(f"actuator {self.name!r} at {self.link.url} node {d.id}: {mode.value} control "
                                  f"({mode_name(MODE_CODES[mode])}) asked for, but the mode display 0x6061 shows "

@@ -30,6 +30,14 @@ def drive(tmp_path):
     emu.stop()
 
 
+def until(condition, what: str, timeout_s: float = 10.0) -> None:
+    """Wait, bounded, for a frame on the virtual bus to have been taken in (``condition``)."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, f"{what}: not received within {timeout_s} s"
+        time.sleep(0.002)
+
+
 def periods(clock, acts, n):
     for _ in range(n):
         for a in acts:
@@ -43,13 +51,16 @@ def test_a_warning_emcy_from_a_drive_that_stays_enabled_is_printed_once_and_the_
     acts = open_link(drive.url, ["C1", "C2"], clock)
     try:
         periods(clock, acts, 5)
+        node = acts[1].link.drives[1]
+        asked, sdo_read = [], node.sdo_read
+        node.sdo_read = lambda index, *args, **kw: asked.append(index) or sdo_read(index, *args, **kw)
         with caplog.at_level(logging.WARNING, logger="hsio.drivers.canopen"):
             for _ in range(3):
                 drive.axes[1].warn(0x4210)
-                time.sleep(0.02)
+                until(lambda: node.emcy, "the warning EMCY")
                 periods(clock, acts, 5)
-        node = acts[1].link.drives[1]
         assert node.warnings == {0x4210: 3}
+        assert asked.count(0x6041) == 1  # the statusword by SDO at the first EMCY only; then the cyclic one
         said = [r.getMessage() for r in caplog.records if "EMCY 0x4210" in r.getMessage()]
         assert len(said) == 1 and "node 2" in said[0] and "temperature" in said[0] and "the run goes on" in said[0]
         assert drive.axes[1].statusword() & 0x6F == 0x27  # it did stay enabled
@@ -68,7 +79,7 @@ def test_a_warning_class_emcy_from_a_drive_in_fault_stops_the_run(drive):
             axis.state = FAULT  # an over-temperature trip: the drive faults, then tells why
             axis.apply_targets()
         axis.node.emcy.send(0x4310, 0x09, b"\0" * 5)
-        time.sleep(0.02)
+        until(lambda: acts[0].link.drives[0].emcy, "the EMCY")
         with pytest.raises(InterlockError, match=r"node 1: EMCY 0x4310 \(Temperature\)"):
             periods(clock, acts, 5)
     finally:
@@ -81,7 +92,7 @@ def test_an_emcy_outside_the_warning_classes_stops_the_run_even_with_the_drive_e
     try:
         periods(clock, acts, 5)
         drive.axes[0].warn(0x3210)  # over-voltage, the drive still enabled: not a warning class
-        time.sleep(0.02)
+        until(lambda: acts[0].link.drives[0].emcy, "the EMCY")
         with pytest.raises(InterlockError, match=r"node 1: EMCY 0x3210 \(Voltage\)"):
             periods(clock, acts, 5)
     finally:
@@ -94,7 +105,7 @@ def test_a_lab_lists_its_drive_s_own_warning_codes(drive):
     try:
         drive.axes[0].warn(0xFF01)
         drive.axes[0].warn(0x3210)
-        time.sleep(0.02)
+        until(lambda: len(acts[0].link.drives[0].emcy) == 2, "both EMCYs")
         periods(clock, acts, 5)
         assert acts[0].link.drives[0].warnings == {0xFF01: 1, 0x3210: 1}
     finally:
@@ -131,7 +142,7 @@ def test_a_drive_that_changes_its_mode_on_its_own_stops_the_next_period(drive):
         with drive.bank.lock:
             axis.mode = cod.CST  # switched by its panel or another master
         axis.send_tpdo1()
-        time.sleep(0.02)
+        until(lambda: acts[0].link.drives[0].node.tpdo_values.get(0x6061) == cod.CST, "the TPDO1")
         with pytest.raises(InterlockError, match=r"node 1: mode display 0x6061 shows 10 .* while the driver commands 8"):
             periods(clock, acts, 5)
     finally:
