@@ -128,20 +128,29 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                     from hsio.monitor.server import MonitorProcess
 
                     runner.fingerprints(cfg)  # an input file that cannot be read: refused before the folder too
-                    numbered = out_dir is None
+                    created = out_dir is None or not Path(out_dir).exists()
                     out_dir = runner.run_folder(cfg, structure, out_dir)
                     try:
                         page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))
                     except ConfigError:  # no page, no run: the folder keeps nothing (its number stays free)
-                        _discard_page_log(out_dir, numbered)
+                        _discard_page_log(out_dir, created)
                         raise
                     click.echo(f"hsio run: monitor at {page.url}", err=True)
                 if cfg["safety"]["keys"]:
                     cleanup.callback(KeyReader(control, notify).close)
                 progress = _Progress(steps, f"HS {structure.name}")
                 cleanup.callback(progress.close)
-                summary = runner.run(cfg, out_dir, progress, ground=ground, control=control, specimen_dir=specimen_dir,
-                                     notify=notify if not as_json else (lambda line: None), checked=True)
+                try:
+                    summary = runner.run(cfg, out_dir, progress, ground=ground, control=control,
+                                         specimen_dir=specimen_dir, checked=True,
+                                         notify=notify if not as_json else (lambda line: None))
+                except ConfigError as exc:
+                    if not (with_monitor and hasattr(exc, "not_begun")):
+                        raise
+                    cleanup.close()  # the page first: it writes its log in the folder
+                    _discard_page_log(out_dir, created)
+                    left = "no run folder was left" if not Path(out_dir).exists() else "no record was left in it"
+                    raise ConfigError(f"{exc.not_begun} ({out_dir}: {left})") from None
     except DryRunRefused as exc:  # from the present state, the hardware is open: its hold is told too
         click.echo(f"hsio run: {getattr(exc, 'stop_message', None) or exc}", err=True)
         _where(exc)

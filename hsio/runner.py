@@ -544,7 +544,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
             ledger.close()
             discard_new_record(out, remove_folder=not existed)
             left = "no run folder was left" if not out.exists() else "no record was left in it"
-            raise ConfigError(f"{exc} ({out}: {left})") from None
+            refused = ConfigError(f"{exc} ({out}: {left})")
+            refused.not_begun = str(exc)  # no run began: a caller that made the folder may remove it
+            raise refused from None
         if ledger:
             cleanup.callback(ledger.close)
             recorder.write_meta({"ledger": str(ledger.folder.resolve())})  # where a resume lists itself

@@ -134,6 +134,7 @@ def test_a_resume_that_cannot_list_itself_leaves_the_record_as_it_was(tmp_path, 
     with pytest.raises(ExperimentStopped):
         runner.run(cfg, tmp_path / "o", control=control)
     before = Run(tmp_path / "o" / "run.sqlite").events()
+    meta_before = Run(tmp_path / "o" / "run.sqlite").meta
     other = sqlite3.connect(tmp_path / "wall-10" / ledger.LEDGER_FILE, isolation_level=None)
     other.execute("BEGIN EXCLUSIVE")
     try:
@@ -143,3 +144,33 @@ def test_a_resume_that_cannot_list_itself_leaves_the_record_as_it_was(tmp_path, 
         other.execute("COMMIT")
         other.close()
     assert Run(tmp_path / "o" / "run.sqlite").events() == before  # no resume event for a session that never began
+    assert Run(tmp_path / "o" / "run.sqlite").meta == meta_before  # nor this session's control socket
+
+
+def test_a_locked_ledger_under_the_monitor_leaves_no_folder(tmp_path, monkeypatch):
+    """`hsio run --monitor` makes the run folder for its page before the run lists itself: a
+    ledger held by another program still leaves no folder (numbered or named by --out) holding the
+    page's log only."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(ledger.Ledger, "WAIT_S", 0.05)
+    spec = {"id": "wall-11", "folder": str(tmp_path / "wall-11")}
+    runner.run(config.from_dict({"record": {"duration_s": 0.1}, "output": {"plots": False}, "specimen": spec}),
+               tmp_path / "first")
+    (tmp_path / "run.toml").write_text('[record]\nduration_s = 0.1\n[output]\nplots = false\n'
+                                       f'[specimen]\nid = "wall-11"\nfolder = "{tmp_path / "wall-11"}"\n'
+                                       '[safety]\nkeys = false\n')
+    other = sqlite3.connect(tmp_path / "wall-11" / ledger.LEDGER_FILE, isolation_level=None)
+    other.execute("BEGIN EXCLUSIVE")
+    try:
+        for out in (["--out", str(tmp_path / "named")], []):
+            got = CliRunner().invoke(main, ["run", "run.toml", "--monitor", "--monitor-port", "0", *out])
+            assert got.exit_code == 2, got.output
+            assert "cannot list the run in it" in got.output and "no run folder was left" in got.output, got.output
+    finally:
+        other.execute("COMMIT")
+        other.close()
+    assert not (tmp_path / "named").exists() and not list(Path("runs").glob("*/run-*"))

@@ -233,16 +233,16 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             cleanup.callback(ledger.close)
         recorder = Recorder.append(path)
         cleanup.callback(recorder.close)
+        # a row of its own for this session (the earlier rows are left as they are), before the
+        # record hears of the session: a ledger that cannot take it leaves the record as it was
+        ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
+                                 hsio.__version__) if ledger is not None else None
         if safety.control_socket:
             server = ControlServer(run_dir, control)
             cleanup.callback(server.close)
             recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
         if keys is not None and safety.keys:
             cleanup.callback(keys(control).close)
-        # a row of its own for this session (the earlier rows are left as they are), before the
-        # record hears of the session: a ledger that cannot take it leaves the record as it was
-        ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
-                                 hsio.__version__) if ledger is not None else None
         why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
         recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
         notify(f"resuming {path} after step {state.i}" + (f" (the run recorded its stop: {why})" if why else ""))
