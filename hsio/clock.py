@@ -125,7 +125,7 @@ class RealTimeClock(Clock):
         """Lateness of the period starts so far: the periods, how many started more than
         ``late_fraction`` of a period late (``late``) and more than one whole period behind their
         work (``overruns``), the largest lateness and the 99th percentile (s; the upper edge of
-        its 1/64-period bin, ``inf`` beyond 4 periods)."""
+        its 1/64-period bin, None beyond 4 periods: JSON has no infinity)."""
         total = sum(self._bins)
         p99 = 0.0
         if total:
@@ -133,7 +133,7 @@ class RealTimeClock(Clock):
             for k, count in enumerate(self._bins):
                 seen += count
                 if seen >= need:
-                    p99 = (k + 1) / LATENESS_BINS_PER_PERIOD * self.period_s if k < len(self._bins) - 1 else float("inf")
+                    p99 = (k + 1) / LATENESS_BINS_PER_PERIOD * self.period_s if k < len(self._bins) - 1 else None
                     break
         return {"periods": total, "late": self.late, "late_fraction": LATE_FRACTION, "overruns": self.overruns,
                 "max_late_s": self.max_late_s, "p99_late_s": p99}

@@ -72,3 +72,18 @@ def test_the_99th_percentile_is_of_the_periods_not_of_the_worst():
     report = clock.lateness()
     assert report["periods"] == 1000 and report["late"] == 10 and report["overruns"] == 0
     assert report["p99_late_s"] <= P / 64 and report["max_late_s"] == pytest.approx(0.9 * P)
+
+
+def test_a_99th_percentile_beyond_the_histogram_is_none_in_valid_json():
+    """Every period 5 periods late: beyond the histogram's 4 periods, p99 is None (null in
+    summary.json; JSON has no infinity)."""
+    import json
+
+    fake = FakeTime()
+    clock = RealTimeClock(RATE, now=fake.now, sleep=fake.sleep)
+    for _ in range(200):
+        fake.oversleep = 5 * P
+        clock.tick()
+    report = clock.lateness()
+    assert report["p99_late_s"] is None
+    json.loads(json.dumps(report, allow_nan=False))
