@@ -301,8 +301,8 @@ class ControlLoop:
                     continue
                 try:
                     what = ask()
-                except Exception as exc:
-                    what = f"its controller could not be read ({exc})"
+                except Exception as exc:  # the same words at every watch, however the error's text varies
+                    what = f"its controller could not be read ({type(exc).__name__})"
                 if what:
                     out.append(f"{actuator.name}: {what}")
         return out

@@ -70,3 +70,27 @@ def test_a_controller_trip_while_paused_is_told_recorded_and_holds_the_resume(tm
 def test_a_resume_is_not_held_without_a_trip():
     control = RunControl()
     assert control.request_ack("test") == "error: no controller trip to acknowledge"
+
+
+def test_a_controller_that_cannot_be_read_is_one_trip_however_its_error_reads():
+    """The error's text varies from one watch to the next (a timeout in ms, a retry count): the
+    line is the same, so the pause tells and records it once and one acknowledgement does."""
+    from types import SimpleNamespace
+
+    from hsio.control_loop import ControlLoop
+    from hsio.errors import CommunicationError
+
+    class Unreadable:
+        name, asked = "C1", 0
+
+        def tripped(self):
+            self.asked += 1
+            raise CommunicationError(f"no reply within {self.asked * 37} ms after {self.asked} retries")
+
+    loop = SimpleNamespace(_lock=threading.Lock(), _paused=True, actuators=[Unreadable()])
+    lines = [ControlLoop.watch_controllers(loop) for _ in range(3)]
+    assert lines[0] == lines[1] == lines[2] == ["C1: its controller could not be read (CommunicationError)"]
+    control, seen = RunControl(), set()
+    assert control._watch(lambda: ControlLoop.watch_controllers(loop), seen, None) is True
+    assert control._watch(lambda: ControlLoop.watch_controllers(loop), seen, None) is False
+    assert len(control.trips) == 1
