@@ -30,8 +30,8 @@ mode        from TICK on, axis 0 ignores the host's mode switches           inte
 fspike:KN   one force reading of axis 0 off by KN (default 50)              interlock above half the capacity,
                                                                             else passes (not told from a real
                                                                             change of force)
-fstuck:N    axis 0's force reading frozen for N ticks (0: for good)         not detected: completes, its steps'
-                                                                            forces frozen
+fstuck:N    axis 0's force reading frozen for N ticks (0: for good)         interlock (stuck load cell) once the
+                                                                            displacement moved force_stuck_mm
 fnan        one force reading of axis 0 is NaN (CANopen: int16 -32768)      interlock (implausible)
 warn:CODE   CANopen only: a warning EMCY of axis 0 (default 0x4210), the    warning printed once, completes
             drive staying operation enabled
