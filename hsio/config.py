@@ -136,6 +136,10 @@ def _check_unread(t: dict, source: str) -> None:
             if unread:
                 raise ConfigError(f"{source}: [record] {', '.join(unread)}: not read with a PEER .AT2 file "
                                   f"({t['record']['file']}): its header gives the time step and the units")
+        elif not t["record"]["units"]:
+            raise ConfigError(f"{source}: [record] units: a column record file ({t['record']['file']}) does not say "
+                              f"its units; give them (g, m/s^2, cm/s^2, mm/s^2 or in/s^2): a file in cm/s^2 read "
+                              f"as g would run 980 times too strong")
     else:
         unread = changed("record", COLUMN_FILE_ONLY)
         if unread:

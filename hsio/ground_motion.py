@@ -251,23 +251,27 @@ def read_record(path: str | Path, dt_s: float | None = None, units: str | None =
             raise RecordError(f"{path}: {', '.join(given)} not read for a PEER .AT2 file: its header gives the time "
                               "step and the units")
         return read_at2(path)
-    return read_columns(path, dt_s=dt_s, units=units or "g")
+    return read_columns(path, dt_s=dt_s, units=units)
 
 
 _SEPARATOR = re.compile(r"[\s,;]+")
 _COMMENT = ("#", "%", "//", "!")
 
 
-def read_columns(path: str | Path, dt_s: float | None = None, units: str = "g") -> GroundMotion:
+def read_columns(path: str | Path, dt_s: float | None = None, units: str | None = None) -> GroundMotion:
     """Read a plain text record: one acceleration per line at the time step ``dt_s``, or two
     columns, time (s) and acceleration, whose times must be evenly spaced (the step is read from
     them; a ``dt_s`` given as well must agree). Columns are separated by spaces, tabs, commas or
     semicolons; lines starting with #, %, // or ! are comments, and a first line of words (a CSV
     header such as ``time,acc``) is skipped. ``units``: the accelerations' unit (:data:`UNITS_IN_G`),
-    converted to g. Every refusal names the file and the line."""
+    converted to g: required (a file in cm/s^2 read as g would run 980 times too strong). Every
+    refusal names the file and the line."""
     if not isinstance(path, (str, os.PathLike)):
         raise RecordError(f"read_columns: path must be a file path, got {path!r}")
     path = Path(path)
+    if units is None or units == "":
+        raise RecordError(f"{path}: a column record file does not say its units: give them (units = \"g\", "
+                          f"\"m/s^2\", ...; [record] units in a run configuration; known: {_known_units()})")
     factor = unit_in_g(units) if isinstance(units, str) else None
     if factor is None:
         raise RecordError(f"{path}: units {units!r} is not an acceleration unit hsio knows ({_known_units()})")

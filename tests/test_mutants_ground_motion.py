@@ -111,18 +111,18 @@ def test_a_two_column_file_in_in_s2_is_read_exactly(tmp_path):
 def test_a_one_column_file_takes_the_given_step(tmp_path):
     path = tmp_path / "r.txt"
     path.write_text("0.1\n-0.2\n0.3\n")
-    g = read_columns(path, dt_s=0.005)
+    g = read_columns(path, dt_s=0.005, units="g")
     assert g.dt == 0.005 and np.array_equal(g.accel_g, [0.1, -0.2, 0.3])
 
 
 def test_two_columns_evenly_spaced_within_a_thousandth_of_a_step(tmp_path):
     path = tmp_path / "r.txt"
     path.write_text("0.0 1\n0.0100099 2\n0.02 3\n")  # a step off by 0.99e-3 of itself
-    g = read_columns(path)
+    g = read_columns(path, units="g")
     assert g.dt == pytest.approx(0.01, rel=1e-12)
     path.write_text("0.0 1\n0.0100101 2\n0.02 3\n0.03 4\n")  # off by 1.01e-3
     with pytest.raises(RecordError, match=":2: the times are not evenly spaced"):
-        read_columns(path)
+        read_columns(path, units="g")
 
 
 @pytest.mark.parametrize("dt_s, ok", [(0.0100099, True), (0.0100101, False), (0.0099901, True), (0.0099899, False)])
@@ -130,17 +130,17 @@ def test_a_step_given_with_two_columns_agrees_within_a_thousandth(tmp_path, dt_s
     path = tmp_path / "r.txt"
     path.write_text("0.0 1\n0.01 2\n0.02 3\n")
     if ok:
-        assert read_columns(path, dt_s=dt_s).dt == pytest.approx(0.01, rel=1e-12)
+        assert read_columns(path, dt_s=dt_s, units="g").dt == pytest.approx(0.01, rel=1e-12)
     else:
         with pytest.raises(RecordError, match="dt_s = .* but the times of the first column"):
-            read_columns(path, dt_s=dt_s)
+            read_columns(path, dt_s=dt_s, units="g")
 
 
 def test_the_first_time_that_does_not_increase_is_named(tmp_path):
     path = tmp_path / "r.txt"
     path.write_text("# c\n0.0 1\n0.01 2\n0.01 3\n0.03 4\n")
     with pytest.raises(RecordError, match=r":4: the times of the first column do not increase \(0.01 s, then 0.01 s\)"):
-        read_columns(path)
+        read_columns(path, units="g")
 
 
 def test_at2_values_several_to_a_line_in_their_order(tmp_path):
@@ -246,7 +246,7 @@ def test_a_huge_npts_is_shown_whole_up_to_18_digits_then_in_part(tmp_path, digit
 def test_two_columns_at_either_bound_of_the_step_are_read(tmp_path, times, dt):
     path = tmp_path / "r.txt"
     path.write_text("".join(f"{t} 0.{i}\n" for i, t in enumerate(times.split())))
-    assert read_columns(path).dt == dt
+    assert read_columns(path, units="g").dt == dt
 
 
 @pytest.mark.parametrize("times", ["0 1.01 2.02", "0 0.0000099 0.0000198"])
@@ -254,7 +254,7 @@ def test_two_columns_beyond_the_bounds_of_the_step_are_refused(tmp_path, times):
     path = tmp_path / "r.txt"
     path.write_text("".join(f"{t} 0.{i}\n" for i, t in enumerate(times.split())))
     with pytest.raises(RecordError, match="r.txt: time step .* s is out of bounds: within 1e-05..1 s"):
-        read_columns(path)
+        read_columns(path, units="g")
 
 
 def test_the_ground_filter_frequency_is_below_nyquist_and_may_be_low():

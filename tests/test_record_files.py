@@ -58,12 +58,22 @@ def test_a_two_column_csv_with_a_header_reads_its_step_from_the_times(tmp_path):
     np.testing.assert_allclose(g.accel_g * 9.80665, np.round(a, 6), atol=1e-12)
 
 
+def test_a_column_file_needs_its_units(tmp_path):
+    path = tmp_path / "acc.txt"
+    path.write_text("0 0.1\n0.01 0.2\n")
+    for units in (None, ""):
+        with pytest.raises(RecordError, match="acc.txt: a column record file does not say its units"):
+            read_columns(path, units=units)
+    with pytest.raises(RecordError, match="does not say its units"):
+        read_record(path)
+
+
 def test_one_column_needs_its_step(tmp_path):
     path = tmp_path / "acc.txt"
     path.write_text("0.1\n-0.2\n\n0.05\n")
     with pytest.raises(RecordError, match="acc.txt: one column of accelerations and no time step: give dt_s"):
-        read_columns(path)
-    g = read_columns(path, dt_s=0.005)
+        read_columns(path, units="g")
+    g = read_columns(path, dt_s=0.005, units="g")
     assert (g.dt, list(g.accel_g)) == (0.005, [0.1, -0.2, 0.05])
 
 
@@ -81,16 +91,16 @@ def test_a_broken_column_file_is_refused_naming_the_line(tmp_path, text, words):
     path = tmp_path / "acc.txt"
     path.write_text(text)
     with pytest.raises(RecordError) as info:
-        read_columns(path, dt_s=0.01)
+        read_columns(path, dt_s=0.01, units="g")
     assert words in str(info.value)
 
 
 def test_a_step_given_for_two_columns_must_agree_with_the_times(tmp_path):
     path = tmp_path / "acc.txt"
     path.write_text("0 0.1\n0.01 0.2\n0.02 0.1\n")
-    assert read_columns(path, dt_s=0.01).dt == pytest.approx(0.01)
+    assert read_columns(path, dt_s=0.01, units="g").dt == pytest.approx(0.01)
     with pytest.raises(RecordError, match="dt_s = 0.02 s but the times of the first column are 0.01 s apart"):
-        read_columns(path, dt_s=0.02)
+        read_columns(path, dt_s=0.02, units="g")
 
 
 def test_read_record_takes_no_step_or_unit_for_an_at2_file(tmp_path):
@@ -113,6 +123,7 @@ def test_a_run_configuration_reads_a_column_record_in_its_units(tmp_path):
     ('[record]\ndt_s = 0.01\n', "[record] dt_s: only read with a column record file"),
     ('[record]\nfile = "r.AT2"\nunits = "g"\n', "[record] units: not read with a PEER .AT2 file"),
     ('[record]\nfile = "acc.txt"\nunits = "furlongs"\n', "[record] units = 'furlongs' is not an acceleration unit"),
+    ('[record]\nfile = "acc.txt"\ndt_s = 0.01\n', "[record] units: a column record file (acc.txt) does not say its units"),
     ('[record]\nfile = "acc.txt"\ndt_s = -1.0\n', "dt_s"),
 ])
 def test_record_keys_where_nothing_reads_them_or_out_of_range_are_refused(tmp_path, toml, words):
