@@ -124,14 +124,10 @@ def parse_emcy_codes(url: str, text) -> frozenset[int]:
     codes = set()
     for item in str(text).replace(",", " ").split():
         try:
-            code = int(item, 0)
-        except ValueError:
-            raise ConfigError(f"[driver] for {url!r}: emcy_warnings: {item!r} is not an EMCY code; give the codes as a "
-                              "string such as \"0x4310, 0xFF01\"") from None
-        if not 0x0100 <= code <= 0xFFFF:
-            raise ConfigError(f"[driver] for {url!r}: emcy_warnings: {item} is not an EMCY error code (0x0100..0xFFFF; "
-                              "0x00xx is the error reset)")
-        codes.add(code)
+            codes.add(common.emcy_code(item))
+        except ValueError as exc:
+            raise ConfigError(f"[driver] for {url!r}: emcy_warnings: {exc}; give the codes as a string such as "
+                              "\"0x4310, 0xFF01\"") from None
     return frozenset(codes)
 
 

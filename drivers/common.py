@@ -226,6 +226,18 @@ def url_port(url: str, default: int) -> int:
     return port
 
 
+def emcy_code(text: str) -> int:
+    """A CANopen EMCY error code written as text (hexadecimal with 0x, or decimal): 0x0100..0xFFFF
+    (0x00xx is the error reset). ValueError, with the reason, for anything else."""
+    try:
+        code = int(text, 0)
+    except ValueError:
+        raise ValueError(f"{text!r} is not an EMCY code (e.g. 0x4210)") from None
+    if not 0x0100 <= code <= 0xFFFF:
+        raise ValueError(f"{text} is not an EMCY error code (0x0100..0xFFFF; 0x00xx is the error reset)")
+    return code
+
+
 # [driver] options of the plausibility check (docs/faults.md), shared by both drivers.
 PLAUSIBILITY_DEFAULTS = {"jump_floor_mm": 2.0, "stuck_samples": 512, "stuck_mm": 5.0, "force_stuck_samples": 512,
                          "force_stuck_mm": 1.0}

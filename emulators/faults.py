@@ -260,14 +260,13 @@ def _arg_max(kind: str) -> float:
 
 
 def _emcy_code(item: str, text: str) -> int:
-    """warn's ARG: an EMCY error code, 0x0100..0xFFFF (hexadecimal with 0x, or decimal)."""
+    """warn's ARG: an EMCY error code (:func:`hsio.drivers.common.emcy_code`)."""
+    from hsio.drivers.common import emcy_code
+
     try:
-        code = int(text, 0)
-    except ValueError:
-        raise ConfigError(f"--faults {item!r}: {text!r} is not an EMCY code (e.g. 0x4210)") from None
-    if not 0x0100 <= code <= 0xFFFF:
-        raise ConfigError(f"--faults {item!r}: {text} is not an EMCY error code (0x0100..0xFFFF)")
-    return code
+        return emcy_code(text)
+    except ValueError as exc:
+        raise ConfigError(f"--faults {item!r}: {exc}") from None
 
 
 def _kinds(item: str, text: str) -> tuple[str, ...]:

@@ -48,7 +48,7 @@ def test_the_new_kinds_parse_with_their_defaults_and_the_random_schedule_keeps_i
 @pytest.mark.parametrize("spec, words", [
     ("fstuck@100:0.5", "'fstuck@100:0.5': '0.5' is not a whole number"),
     ("warn@10:hot", "'warn@10:hot': 'hot' is not an EMCY code (e.g. 0x4210)"),
-    ("warn@10:0x42", "'warn@10:0x42': 0x42 is not an EMCY error code (0x0100..0xFFFF)"),
+    ("warn@10:0x42", "'warn@10:0x42': 0x42 is not an EMCY error code (0x0100..0xFFFF; 0x00xx is the error reset)"),
     ("warn@10:0x10000", "is not an EMCY error code"),
     ("fnan@10:3", "'fnan@10:3': 3 is not in 0..0"),
     ("kinds=drop+fspoke", "unknown fault(s) 'fspoke'; known: drop, delay, corrupt, duplicate, restart, spike, "
