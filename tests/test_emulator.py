@@ -5,12 +5,13 @@ import math
 import numpy as np
 import pytest
 
+from hsio.command import PredictorCorrector
 from hsio.emulators.local import EmulatedActuator, open_url
 from hsio.emulators.servo import ServoConfig, ServoController
 from hsio.clock import LockstepClock
 from hsio.errors import ConfigError, InterlockError, LimitError
 from hsio.interfaces import ControlMode
-from hsio.specimens import Linear
+from hsio.specimens import CrackingInfill, Linear
 from hsio.structures import validation
 
 QUIET = dict(noise_mm=0.0, resolution_mm=0.0, force_noise_kN=0.0, force_resolution_kN=0.0)
@@ -80,6 +81,30 @@ def test_force_control_follows_force_command_with_its_lag():
     c.advance(1024)
     assert c.measured_force == pytest.approx(10.0, rel=1e-3)
     assert c.measured_displacement == pytest.approx(5.0, rel=1e-3)
+
+
+def test_force_loop_under_ramp_hold_commands_never_passes_its_targets():
+    """The force loop (first order on k0) driven by the ramp-hold force profile of the command
+    generator: in every controller period the specimen's force stays within the targets, so force
+    commands below the cracking force leave a brittle specimen uncracked (docs/force_control.md,
+    "hsio study mixed"). Steps of nearly 2 F_cr, each target held for a few steps so that the
+    force settles on it."""
+    infill = CrackingInfill()  # k0 = 122.6 kN/mm, F_cr = 60 kN
+    c = ServoController(infill, ServoConfig(**QUIET))
+    c.set_mode(ControlMode.FORCE)
+    generator = PredictorCorrector(t_d=0.05, period=1 / 1024, hold_fraction=0.5)  # TR 10, dt 0.005 s
+    top = 0.999 * infill.F_cr
+    peak, off_line = 0.0, 0.0
+    for target in [top] * 4 + [-top] * 4 + [0.5 * top, top, top, top, 0.0, -top, -top, -top]:
+        generator.new_target(target)
+        for _ in range(generator.samples_per_step):
+            c.set_command(generator.next_sample())
+            c.step()
+            peak = max(peak, abs(c.force))
+            off_line = max(off_line, abs(c.force - infill.k0 * c.d_spec))
+    assert peak > 0.99 * top  # the force reached the targets
+    assert peak <= top * (1 + 1e-12)
+    assert off_line < 1e-9  # never cracked: the force stayed on the k0 line
 
 
 def test_mode_switch_is_bumpless():
