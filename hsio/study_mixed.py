@@ -34,7 +34,7 @@ import numpy as np
 from hsio.config import BOUNDS, DEFAULTS
 from hsio.errors import ConfigError
 from hsio.integrators import ImplicitMethod, SwitchingRule
-from hsio.integrators.mixed import check_ns
+from hsio.integrators.mixed import check_ns, instrument_uncertainty
 from hsio.structures import Structure, get_structure, sdof
 
 METHODS = ("implicit_dc", "force_control", "mixed")
@@ -111,8 +111,12 @@ def make_method(structure: Structure, method: str, resolution_mm: float, force_r
             rule = rule.elastic_only(ns, structure, r.max_hysteretic_ratio)
     blend = r.fc_blend if method != "implicit_dc" else 1.0
     extra = {}
+    s_u, s_F = instrument_uncertainty(resolution_mm, noise_mm), instrument_uncertainty(force_resolution_kN,
+                                                                                       force_noise_kN)
+    if method == "force_control" and s_u + s_F > 0:  # the instruments known: FC's secant beyond their noise (eq. 11a)
+        extra["secant_uncertainty"] = (s_u, s_F)
     if method == "mixed":
-        extra = {"fallback_after": r.fallback_after, "refractory_steps": r.refractory_steps,
+        extra = {**extra, "fallback_after": r.fallback_after, "refractory_steps": r.refractory_steps,
                  "no_fc_at_reversal": r.no_fc_at_reversal}
     return ImplicitMethod(structure.M, structure.C, structure.numerical_assembly().K_linear,
                           structure.experimental_dofs, K_EI, structure.dt, r.alpha, method, rule, structure.dof_names,

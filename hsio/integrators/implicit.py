@@ -50,6 +50,7 @@ from hsio.interfaces import ControlMode
 DC = ControlMode.DISPLACEMENT
 FC = ControlMode.FORCE
 J_MAX_LIMIT = 100  # commands per step at most (the bound of [integrator] j_max)
+SECANT_Z = 3.0  # an FC element's new secant must differ from the one in use by this many sigma_k (eq. 11a)
 
 
 @dataclass
@@ -127,6 +128,19 @@ class ImplicitAlpha:
     every change of force; FC alone on the cracking infill of structure II (0.18 to 0.25 g, TR 10,
     ramp-hold) is 19 to 60 % off NS with the reset against 47 to 1066 % without
     (docs/force_control.md).
+    ``secant_uncertainty`` ((s_u mm, s_F kN), the standard uncertainties of the transducer and
+    the load cell, :func:`hsio.integrators.mixed.instrument_uncertainty`; None: unknown): an
+    element in FC takes a new estimate of eq. (11) only when it differs from the secant in use by
+    more than ``secant_z`` times the estimate's own standard uncertainty from the instruments,
+
+        sigma_k = |k| sqrt(2 / n) sqrt((s_u / du)^2 + (s_F / dR)^2)                       (11a)
+
+    with du, dR the measured increments from the base and n the samples averaged at each end
+    (the site's estimator, :func:`samples_averaged`). FC moves the displacement along its secant
+    by every change of force (eq. 9), so a secant that follows the transducer's noise moves it
+    by a noise-sized fraction of every force change, step after step; a softening (a crack, a
+    yield) changes k by far more than sigma_k and is taken at once. Elements in DC take every
+    estimate, as without it.
     ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
     per DOF) and stops iterating each one on its own convergence: it runs many single-DOF cases
     side by side (the parametric study).
@@ -135,7 +149,8 @@ class ImplicitAlpha:
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = 0.0, j_max: int = 10,
                  tol_displacement: float = 1e-10, tol_force: float = 1e-10, independent: bool = False,
                  max_stiffness_ratio: float = 20.0, fc_blend: float = 1.0, blend_dc: bool = False,
-                 anchor_dc=True, reset_at_reversal: bool = False):
+                 anchor_dc=True, reset_at_reversal: bool = False, secant_uncertainty=None,
+                 secant_z: float = SECANT_Z):
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
             raise ConfigError(f"implicit alpha method: alpha must be in [-1/3, 0], got {alpha!r}")
         if not dt > 0:
@@ -193,6 +208,21 @@ class ImplicitAlpha:
         # per element (one bool for all): DC elements modelled through their last measurement
         self.anchor_dc = np.broadcast_to(np.asarray(anchor_dc, dtype=bool), self.dofs.shape).copy()
         self.reset_at_reversal = bool(reset_at_reversal)
+        self.secant_uncertainty = None
+        if secant_uncertainty is not None:
+            try:
+                s_u, s_F = (float(x) for x in secant_uncertainty)
+            except (TypeError, ValueError):
+                s_u = s_F = math.nan
+            if not (math.isfinite(s_u) and math.isfinite(s_F) and s_u >= 0 and s_F >= 0 and s_u + s_F > 0):
+                raise ConfigError(f"implicit alpha method: secant_uncertainty must be None or (s_u mm, s_F kN), "
+                                  f"zero or positive and not both zero, got {secant_uncertainty!r:.80}")
+            self.secant_uncertainty = (s_u, s_F)
+        if isinstance(secant_z, bool) or not isinstance(secant_z, numbers.Real) or not (math.isfinite(secant_z)
+                                                                                           and secant_z >= 0):
+            raise ConfigError(f"implicit alpha method: secant_z must be a number, zero or positive, got {secant_z!r}")
+        self.secant_z = float(secant_z)
+        self.secant_refused = 0  # FC estimates of eq. (11) within secant_z sigma_k of the secant in use
         self._last_dR = np.zeros(self.dofs.size)  # the last nonzero measured force increment, per element
         self.reversal_resets = 0
         self._u_fc = np.full(self.dofs.size, np.nan)  # base displacement of FC elements (fc_blend < 1)
@@ -276,6 +306,8 @@ class ImplicitAlpha:
         P_star = (1 + a) * P_next - a * s.P - (1 + a) * self.C @ v_pred + a * self.C @ s.v + self.K_star @ u_pred + a * s.R  # eq. (10)
         u_b, R_b = (np.asarray(x, dtype=float) for x in site.committed())
         u_b_measured = u_b
+        R_b_measured = R_b.copy()
+        n_avg = samples_averaged(site)
         if self.fc_blend < 1:
             u_b = np.where((fc | self.blend_dc) & np.isfinite(self._u_fc), self._u_fc, u_b)
         k = self.k.copy()
@@ -341,6 +373,12 @@ class ImplicitAlpha:
             u_m = np.where(active, m_u, u_m)
             R_m = np.where(active, m_R, R_m)
             plausible = np.isfinite(k_new) & (k_new <= self.max_stiffness_ratio * self.K_EI)
+            if self.secant_uncertainty is not None:  # FC: a new secant only beyond the instruments' noise
+                within = fc & plausible & active & ~self.significant(k_new, k, m_u - u_b_measured,
+                                                                     m_R - R_b_measured, n_avg)
+                self.secant_refused += int(within.sum())
+                plausible &= ~within  # the estimate confirms the secant in use
+                estimated |= within
             k = np.where(active & plausible, k_new, k)
             estimated |= active & plausible
             if self.anchor_dc.any():  # DC elements: the secant line through the last measurement
@@ -377,7 +415,27 @@ class ImplicitAlpha:
                             list(modes), fell_back, not_converging, guarded)
         return self.state, report
 
+    def significant(self, k_new, k, du, dR, n: int) -> np.ndarray:
+        """Whether each estimate ``k_new`` of eq. (11), from the increments (du, dR) of ``n``-sample
+        averages, differs from the secant ``k`` in use by more than ``secant_z`` sigma_k (eq. 11a)."""
+        s_u, s_F = self.secant_uncertainty
+        k_new, du, dR = (np.asarray(x, dtype=float) for x in (k_new, du, dR))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.sqrt(2.0 / n) * np.hypot(s_u / np.abs(du), s_F / np.abs(dR))
+            sigma = np.abs(k_new) * rel
+        return ~(np.abs(k_new - np.asarray(k, dtype=float)) <= self.secant_z * sigma)
+
     def _require_state(self) -> ImplicitState:
         if self.state is None:
             raise RuntimeError("implicit alpha method: call start() before stepping")
         return self.state
+
+
+def samples_averaged(site) -> int:
+    """The samples averaged at each end of an increment of eq. (11): the site's estimator's
+    ``n_avg`` when it averages (``average``), else 1 (the last sample; a least-squares fit is
+    counted as one, the conservative choice)."""
+    estimator = getattr(site, "estimator", None)
+    if getattr(estimator, "method", None) == "average":
+        return max(int(estimator.n_avg), 1)
+    return 1

@@ -43,11 +43,15 @@ class SwitchingRule:
     ``on = "stiffness"``: to FC when k > upper (K_f), to DC when k < lower (K_d).
     ``on = "force"``: to FC when |R| > upper, to DC when |R| < lower (specimens that stiffen
     with load, e.g. a closing gap).
+    ``uncertainty``: (s_u mm, s_F kN), the instruments' standard uncertainties when the rule is
+    built from them (:meth:`from_instruments`; None otherwise); :class:`ImplicitMethod` hands them
+    to the secant update of its FC elements (eq. 11a, :class:`ImplicitAlpha`).
     """
 
     upper: np.ndarray
     lower: np.ndarray
     on: str = "stiffness"
+    uncertainty: tuple | None = None
 
     def __post_init__(self):
         if self.on not in ("stiffness", "force"):
@@ -109,7 +113,7 @@ class SwitchingRule:
                               "above 0")
         K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
         K_f = margin * s_F / s_u
-        return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness")
+        return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness", (s_u, s_F))
 
     def elastic_only(self, ns, structure, max_ratio: float) -> "SwitchingRule":
         """This rule while NS (``ns``, of ``structure`` and the run's record) predicts every
@@ -124,7 +128,7 @@ class SwitchingRule:
         """This rule with the given elements (a boolean mask) kept in DC: their upper threshold is
         infinite."""
         keep = np.broadcast_to(np.asarray(elements, dtype=bool), self.upper.shape)
-        return SwitchingRule(np.where(keep, np.inf, self.upper), self.lower, self.on)
+        return SwitchingRule(np.where(keep, np.inf, self.upper), self.lower, self.on, self.uncertainty)
 
     def as_dict(self) -> dict:
         """``on`` and the thresholds per element as plain numbers; upper None: the element never goes to FC."""
@@ -283,6 +287,9 @@ faster than FC can follow. ``fc_blend``: the
     K_d is the rule's reason (the specimen softens). ``reset_at_reversal``: a stale secant is set
     back to K^EI at a reversal (:class:`ImplicitAlpha`). ``anchor_dc`` (:class:`ImplicitAlpha`) is on
     by default; the other defaults are the behaviour without these guards.
+    ``secant_uncertainty`` ((s_u mm, s_F kN); default: the rule's ``uncertainty`` in ``mixed``,
+    None where the instruments are not known): FC elements take a new secant only beyond the
+    instruments' noise (eq. 11a, :class:`ImplicitAlpha`).
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = -0.05, method: str = "mixed",
@@ -290,7 +297,8 @@ faster than FC can follow. ``fc_blend``: the
                  tol_displacement: float = 0.02, tol_force: float = 0.05, fc_blend: float = 1.0,
                  fallback_after: int | None = None, refractory_steps: int = 0,
                  explored_fraction: float | None = None, blend_dc: bool = False, fc_force_limit=None,
-                 no_fc_at_reversal: bool = False, anchor_dc=True, reset_at_reversal: bool = False):
+                 no_fc_at_reversal: bool = False, anchor_dc=True, reset_at_reversal: bool = False,
+                 secant_uncertainty=None):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc_force_limit,
@@ -303,9 +311,12 @@ faster than FC can follow. ``fc_blend``: the
             raise ConfigError(f"{given[0]}: a guard of method 'mixed', not of {method!r} (it would change the "
                               f"method: e.g. force control falling back to DC for good)")
         self.method = method
+        if secant_uncertainty is None and method == "mixed" and rule is not None:
+            secant_uncertainty = rule.uncertainty
         self.core = ImplicitAlpha(M, C, K_N, element_dofs, K_EI, dt, alpha, j_max=j_max,
                                   tol_displacement=tol_displacement, tol_force=tol_force, fc_blend=fc_blend,
-                                  blend_dc=blend_dc, anchor_dc=anchor_dc, reset_at_reversal=reset_at_reversal)
+                                  blend_dc=blend_dc, anchor_dc=anchor_dc, reset_at_reversal=reset_at_reversal,
+                                  secant_uncertainty=secant_uncertainty)
         if method == "mixed" and rule is None:
             rule = SwitchingRule.from_initial_stiffness(self.core.K_EI)
         self.rule = rule if method == "mixed" else None
