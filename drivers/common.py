@@ -318,6 +318,8 @@ class Plausibility:
                 self._refuse(f"displacement jumped {displacement - d0:+.6g} mm in {elapsed:.4g} s (at most {step:.4g} mm)")
             if abs(force - f0) > self.max_df:
                 self._refuse(f"force jumped {force - f0:+.6g} kN between two samples (at most {self.max_df:g} kN)")
+            if command is None:  # force control or holding: neither count carries over into the next commands
+                self.same, self.command_range, self.force_same, self.displacement_range = 0, None, 0, None
             if self.stuck_samples and command is not None:
                 self.same, self.command_range, moved = _frozen(displacement == d0, self.same, self.command_range,
                                                                command, command)

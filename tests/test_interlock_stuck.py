@@ -75,3 +75,20 @@ def test_a_force_held_in_force_control_is_never_a_stuck_load_cell():
     check = common.Plausibility("preload", Limits(254.0, 500.0, 500.0), 1 / 1024)
     for k in range(4096):
         check.check(2.0 * math.sin(2 * math.pi * k / 1024), 200.0, k / 1024, None)
+
+
+def test_counts_from_before_force_control_do_not_carry_over():
+    """499 equal readings in displacement control, a spell of force control (the force moves), then
+    displacement control again: both counts start afresh, nothing trips."""
+    check = common.Plausibility("C1", Limits(254.0, 250.0, 500.0), 1 / 1024)
+    t = 0
+    for _ in range(499):
+        check.check(0.0, 3.0, t / 1024, 0.0)
+        t += 1
+    for k in range(2000):
+        check.check(0.0, 3.0 + 2.0 * k / 1999, t / 1024, None)  # ends at 5 kN, where the next readings stay
+        t += 1
+    for k in range(100):
+        d = 0.03 * k
+        check.check(d, 5.0, t / 1024, d)
+        t += 1
