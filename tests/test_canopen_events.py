@@ -147,3 +147,28 @@ def test_a_drive_that_changes_its_mode_on_its_own_stops_the_next_period(drive):
             periods(clock, acts, 5)
     finally:
         acts[0].link.close()
+
+
+def test_a_drive_that_faults_after_a_warning_is_stopped_naming_that_warning(drive):
+    """A warning EMCY taken while the drive stayed enabled, then the drive faults with no EMCY of
+    its own: the stop names the warning that came before."""
+    clock = LockstepClock()
+    acts = open_link(drive.url, ["C1"], clock)
+    try:
+        periods(clock, acts, 5)
+        node = acts[0].link.drives[0]
+        drive.axes[0].warn(0x4210)
+        until(lambda: node.emcy, "the warning EMCY")
+        periods(clock, acts, 5)
+        assert node.warnings == {0x4210: 1}
+        axis = drive.axes[0]
+        with drive.bank.lock:
+            axis.state = FAULT
+            axis.apply_targets()
+        axis.send_tpdo1()
+        until(lambda: node.node.tpdo_values.get(0x6041, 0x27) & 0x6F != 0x27, "the statusword of the fault")
+        with pytest.raises(InterlockError, match=r"node 1 left OPERATION ENABLED .* after EMCY 0x4210, taken as a "
+                                                 r"warning"):
+            periods(clock, acts, 20)
+    finally:
+        acts[0].link.close()
