@@ -91,7 +91,8 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     (default 1.2 and 0.8 times each element's K^EI). Further keywords go to
     :class:`hsio.integrators.ImplicitMethod` (``fc_blend``, ``anchor_dc``, ``blend_dc``; for ``mixed`` the guards
     ``fallback_after``, ``refractory_steps``, ``no_fc_at_reversal``, ``explored_fraction``,
-    ``fc_force_limit``; docs/force_control.md).
+    ``fc_force_limit``; docs/force_control.md; for ``force_control`` and ``mixed``
+    ``secant_uncertainty``, the instruments of FC's secant rule, eq. 11a).
     """
     _check_structure("make_integrator", structure)
     if not isinstance(method, str) or method not in METHODS:
@@ -125,6 +126,10 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
                               f"iteration); they apply to the implicit methods")
     if method != "alpha_os" and not correct_measured_displacement:
         raise ConfigError(f"correct_measured_displacement applies to alpha_os; {method!r} iterates to the target")
+    secant_uncertainty = implicit.pop("secant_uncertainty", None)  # FC's secant rule (eq. 11a)
+    if secant_uncertainty is not None and method not in ("force_control", "mixed"):
+        raise ConfigError(f"secant_uncertainty: not an option of method = {method!r} (it applies to the elements in "
+                          f"force control, methods 'force_control' and 'mixed')")
     unknown = sorted(set(implicit) - set(OPTIONS_OFF))
     if unknown:
         raise ConfigError(f"make_integrator: unknown option(s) {', '.join(unknown)}")
@@ -144,6 +149,8 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         raise ConfigError(f"{', '.join(misplaced)}: not an option of method = {method!r} "
                           f"({misplaced[0]} applies to {takes})")
     implicit = {k: v for k, v in implicit.items() if k in allowed and v is not None}  # None: off, the default
+    if secant_uncertainty is not None:
+        implicit["secant_uncertainty"] = secant_uncertainty
     if method == "alpha_os":
         return OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha, dofs, K_EI,
                                  correct_measured_displacement)
@@ -238,6 +245,11 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
             external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
                         for e in structure.experimental for _ in e.basic_dofs]
         site = ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
+        if external is not None:
+            by_name = {i.name: i for i in structure.instruments}
+            site.displacement_instruments = [None if src is None else (float(by_name[src[0]].noise),
+                                                                      float(by_name[src[0]].resolution))
+                                             for src in external]
         site.opened_for = OpenedFor(structure.name, tuple(channel_names(structure)), float(structure.dt))
         return site
     except BaseException:

@@ -66,6 +66,7 @@ class Result:
     R_solution: np.ndarray  # force solution per element (what FC commands)
     switches: list[Switch] = field(default_factory=list)
     thresholds: dict | None = None
+    secant_refused: list | None = None  # FC estimates of eq. (11) turned away per element (eq. 11a); None: rule off
     step_wall_time_s: np.ndarray | None = None
     wall_time_s: float = 0.0
     lab_time_s: float | None = None

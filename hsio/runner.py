@@ -136,16 +136,30 @@ def switch_instruments(integrator: dict, emulator: dict | None) -> tuple[float, 
     the [integrator] keys, or (where 0, with the emulated controller) its transducer's and load
     cell's resolution and noise ([emulator] resolution_mm, force_resolution_kN, noise_mm,
     force_noise_kN, or their defaults)."""
-    servo = ServoConfig()
-    keys = (("switch_resolution_mm", "resolution_mm"), ("switch_force_resolution_kN", "force_resolution_kN"),
-            ("switch_noise_mm", "noise_mm"), ("switch_force_noise_kN", "force_noise_kN"))
-    du, dF, su, sF = (integrator[key] if integrator[key] > 0 or emulator is None
-                      else float(emulator.get(own, getattr(servo, own))) for key, own in keys)
+    du, dF, su, sF = _instrument_values(integrator, emulator)
     if not (du > 0 or su > 0) or not (dF > 0 or sF > 0):
         raise ConfigError("[integrator] switch_rule = 'instruments' needs the transducer's and the load cell's "
                           "resolution or noise above 0: set switch_resolution_mm, switch_force_resolution_kN "
                           "(or switch_noise_mm, switch_force_noise_kN)")
     return du, dF, su, sF
+
+
+def _instrument_values(integrator: dict, emulator: dict | None) -> tuple[float, float, float, float]:
+    """delta_u, delta_F, sigma_u, sigma_F: the [integrator] switch_* keys, or (where 0, with the
+    emulated controller) its transducer's and load cell's (0 where neither is known)."""
+    servo = ServoConfig()
+    keys = (("switch_resolution_mm", "resolution_mm"), ("switch_force_resolution_kN", "force_resolution_kN"),
+            ("switch_noise_mm", "noise_mm"), ("switch_force_noise_kN", "force_noise_kN"))
+    return tuple(float(integrator[key]) if integrator[key] > 0 or emulator is None
+                 else float(emulator.get(own, getattr(servo, own))) for key, own in keys)
+
+
+def secant_instruments(integrator: dict, emulator: dict | None):
+    """The instruments' ((sigma_u, delta_u), (sigma_F, delta_F)) for the FC secant rule of method
+    ``force_control`` (eq. 11a): the switch_* keys, else the emulated controller's; None where
+    neither is known (every estimate taken)."""
+    du, dF, su, sF = _instrument_values(integrator, emulator)
+    return ((su, du), (sF, dF)) if du + dF + su + sF > 0 else None
 
 
 def switching_rule(structure: Structure, integ: dict, emulator: dict | None = None, ns=None) -> SwitchingRule:
@@ -238,6 +252,8 @@ def integrator_options(config: RunConfig, structure: Structure, ns=None) -> dict
                "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"],
                "tol_force": integ["tol_force_kN"], "fc_blend": integ["fc_blend"], "anchor_dc": integ["anchor_dc"],
                "blend_dc": integ["blend_dc"]}
+    if integ["method"] == "force_control":  # FC's secant beyond the instruments' noise where they are known
+        options["secant_uncertainty"] = secant_instruments(integ, emulated_instruments(config))
     if integ["method"] == "mixed":
         options.update(fallback_after=integ["fc_fallback_after"] or None, refractory_steps=integ["refractory_steps"],
                        no_fc_at_reversal=integ["no_fc_at_reversal"],
@@ -749,6 +765,8 @@ def implicit_summary(hs: Result) -> dict:
         "nonconverged_steps": int(np.count_nonzero(~hs.converged[1:])),
         "wall_time_per_step_ms": float(wall.mean() * 1e3) if wall.size else 0.0,
         "thresholds": hs.thresholds,
+        # FC estimates of eq. (11) within 3 sigma_k of the secant in use, turned away, per element (eq. 11a)
+        **({"secant_refused": hs.secant_refused} if hs.secant_refused is not None else {}),
     }
 
 

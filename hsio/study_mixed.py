@@ -114,7 +114,7 @@ def make_method(structure: Structure, method: str, resolution_mm: float, force_r
     s_u, s_F = instrument_uncertainty(resolution_mm, noise_mm), instrument_uncertainty(force_resolution_kN,
                                                                                        force_noise_kN)
     if method == "force_control" and s_u + s_F > 0:  # the instruments known: FC's secant beyond their noise (eq. 11a)
-        extra["secant_uncertainty"] = (s_u, s_F)
+        extra["secant_uncertainty"] = ((noise_mm, resolution_mm), (force_noise_kN, force_resolution_kN))
     if method == "mixed":
         extra = {**extra, "fallback_after": r.fallback_after, "refractory_steps": r.refractory_steps,
                  "no_fc_at_reversal": r.no_fc_at_reversal}
@@ -137,6 +137,7 @@ class Row:
     fc_fraction: float  # share of the element-steps run in force control (the steps made)
     ns_peak_mm: float
     stopped: str = ""  # why the run stopped before the end of the record ("": it did not)
+    secant_refused: int = 0  # FC estimates of eq. (11) turned away (eq. 11a)
 
 
 def infill_sdof(k0: float, dt: float = 0.005, f_hz: float = 8.0) -> Structure:
@@ -201,11 +202,12 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
                     raise exc.cause from None
                 made = exc.result
                 rows.append(Row(case, k0, resolution_mm, force_resolution_kN, method, math.inf, len(made.switches),
-                                _not_converged(made), _fc_fraction(made), peak, str(exc)))
+                                _not_converged(made), _fc_fraction(made), peak, str(exc),
+                                sum(made.secant_refused or [])))
                 continue
         error, _ = max_error_pct(hs.u, ns.u)
         rows.append(Row(case, k0, resolution_mm, force_resolution_kN, method, float(error), len(hs.switches),
-                        _not_converged(hs), _fc_fraction(hs), peak))
+                        _not_converged(hs), _fc_fraction(hs), peak, "", sum(hs.secant_refused or [])))
     return rows
 
 

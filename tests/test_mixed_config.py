@@ -426,3 +426,18 @@ def test_fc_share_is_given_per_actuator_channel_not_per_dof():
     ns = run_numerical(structure, synthetic_record(duration_s=0.05, dt=structure.dt, seed=1), "mixed")
     summary = implicit_summary(ns)
     assert len(summary["fc_step_fraction"]) == len(summary["rms_tracking_error_mm"]) == 2
+
+
+def test_force_control_gets_the_instruments_of_its_secant_rule():
+    from hsio.runner import integrator_options
+    from hsio.structures import get_structure
+
+    structure = get_structure("structure_II_infill")
+    emulated = from_dict({"structure": {"name": "structure_II_infill"}, "integrator": {"method": "force_control"},
+                          "emulator": {"resolution_mm": 0.0025, "force_resolution_kN": 0.02}})
+    # (noise, resolution) of the transducer and of the load cell: the emulator's noises 0.01 mm, 0.002 kN
+    assert integrator_options(emulated, structure)["secant_uncertainty"] == ((0.01, 0.0025), (0.002, 0.02))
+    # on hardware the instruments are not known to force control: every estimate is taken
+    hardware = from_dict({"structure": {"name": "structure_II_infill"}, "integrator": {"method": "force_control"},
+                          "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
+    assert integrator_options(hardware, structure)["secant_uncertainty"] is None

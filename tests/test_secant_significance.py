@@ -1,5 +1,6 @@
 """FC's secant beyond the instruments' noise (docs/method.md eq. 11a): an estimate of eq. (11) within
-z sigma_k of the secant in use is refused for an element in FC; a softening is taken at once."""
+z sigma_k of the secant in use is turned away for an element in FC, the estimates turned away are
+pooled until the secant is next set; a softening over a large increment is taken at once."""
 
 from types import SimpleNamespace
 
@@ -8,9 +9,10 @@ import pytest
 
 from hsio.errors import ConfigError
 from hsio.integrators import ImplicitAlpha, SwitchingRule
+from hsio.integrators.implicit import samples_averaged
 from hsio.integrators.mixed import instrument_uncertainty
 from hsio.interfaces import ControlMode
-from hsio.secant import secant_stiffness
+from hsio.secant import SecantEstimator, secant_stiffness
 from hsio.sites import Daq
 
 FC, DC = ControlMode.FORCE, ControlMode.DISPLACEMENT
@@ -85,12 +87,13 @@ def test_dc_takes_every_estimate():
 
 def test_the_rule_built_from_instruments_carries_their_uncertainty():
     rule = SwitchingRule.from_instruments([K0], 0.001, 0.001, noise_mm=0.01, force_noise_kN=0.001)
-    assert rule.uncertainty == pytest.approx((S_U, S_F))
+    assert rule.uncertainty == ((0.01, 0.001), (0.001, 0.001))  # (noise, resolution) of each
     assert rule.never_fc([True]).uncertainty == rule.uncertainty
     assert SwitchingRule.from_initial_stiffness([K0]).uncertainty is None
 
 
-@pytest.mark.parametrize("bad", [(0.0, 0.0), (-0.01, 0.001), (float("nan"), 0.001), "x", (0.01,)])
+@pytest.mark.parametrize("bad", [(0.0, 0.0), (-0.01, 0.001), (float("nan"), 0.001), "x", (0.01,),
+                                 ((0.01, -0.001), 0.001), ((0.0, 0.0), (0.0, 0.0)), ((0.01, 0.001, 0.1), 0.001)])
 def test_secant_uncertainty_is_checked(bad):
     with pytest.raises(ConfigError, match="secant_uncertainty"):
         ImplicitAlpha([[1.0]], [[0.0]], None, [0], [K0], 0.01, secant_uncertainty=bad)
@@ -104,4 +107,239 @@ def test_the_study_gives_fc_its_instruments_and_leaves_dc_alone():
     made = {m: study_mixed.make_method(s, m, 0.001, 0.001, recipe, 0.01, 0.001).core.secant_uncertainty
             for m in study_mixed.METHODS}
     assert made["implicit_dc"] is None
-    assert made["force_control"] == pytest.approx((S_U, S_F)) and made["mixed"] == pytest.approx((S_U, S_F))
+    assert made["force_control"] == made["mixed"] == ((0.01, 0.001), (0.001, 0.001))
+
+
+# Instruments with noise only: sigma_k of eq. (11a) in closed form, sigma^2 (1/n_end + 1/n_base) per channel.
+NOISE_U, NOISE_F = 0.01, 0.001
+
+
+class _FromBase:
+    """A linear specimen of stiffness ``k`` standing at a nonzero base (1 mm, 3 kN), its readings
+    noise-free; the estimator ``estimator`` (16-sample averages unless given)."""
+
+    U0, R0 = 1.0, 3.0
+
+    def __init__(self, k, estimator=None):
+        self.k = k
+        self.estimator = estimator if estimator is not None else SecantEstimator("average", 16)
+        self._base = (np.array([self.U0]), np.array([self.R0]))
+
+    def committed(self):
+        return self._base
+
+    def set_trial(self, commands, modes):
+        R = np.array(commands, dtype=float)
+        u = self._base[0] + (R - self._base[1]) / self.k
+        self._last = (u, R)
+        self._daq = Daq(u, R, secant_stiffness(u, R, *self._base), R, R)
+
+    def get_daq(self):
+        return self._daq
+
+    def commit(self):
+        self._base = self._last
+
+
+def _quasi_static(uncertainty, **kw):
+    """A single DOF whose inertia is negligible: the FC command of a step is the load P."""
+    return ImplicitAlpha([[1e-12]], [[0.0]], None, [0], [K0], 0.005, 0.0, j_max=3, tol_displacement=1e-12,
+                         tol_force=1e-12, secant_uncertainty=uncertainty, **kw)
+
+
+def _k_at(z, dR, n_end, n_base):
+    """The specimen's stiffness whose estimate from an increment dR lies z sigma_k below K0 (eq. 11a)."""
+    var_u, var_F = NOISE_U**2 * (1 / n_end + 1 / n_base), NOISE_F**2 * (1 / n_end + 1 / n_base)
+    k = K0
+    for _ in range(200):  # fixed point of k = K0 - z k sqrt(var_u k^2 / dR^2 + var_F / dR^2)
+        k = K0 / (1 + z * np.sqrt(var_u * k**2 + var_F) / dR)
+    return k
+
+
+@pytest.mark.parametrize("z, taken", [(2.9, False), (3.1, True)])
+def test_the_first_step_from_a_nonzero_base_at_2_9_and_3_1_sigma(z, taken):
+    # the first step's base is one feedback sample: sigma^2 (1/16 + 1) per channel, increments from the base
+    dR = 0.3
+    site = _FromBase(_k_at(z, dR, 16, 1))
+    integ = _quasi_static((NOISE_U, NOISE_F))
+    integ.start(np.array([site.R0]), site)
+    integ.step(np.array([site.R0 + dR]), site, [FC])
+    assert bool(integ.k[0] == pytest.approx(site.k)) is taken and bool(integ.k[0] == K0) is not taken
+    assert taken or integ.secant_refused[0] >= 1  # the estimate turned away, counted
+
+
+@pytest.mark.parametrize("z, taken", [(2.9, False), (3.1, True)])
+@pytest.mark.parametrize("estimator, n", [(SecantEstimator("average", 16), 16), (SecantEstimator("raw"), 1)])
+def test_a_later_step_at_2_9_and_3_1_sigma_for_n_16_and_n_1(z, taken, estimator, n):
+    dR = 0.3
+    site = _FromBase(_k_at(z, dR, n, n), estimator)
+    integ = _quasi_static((NOISE_U, NOISE_F))
+    integ.start(np.array([site.R0]), site)
+    integ.state.i = 1  # a later step: both ends averaged alike
+    integ.step(np.array([site.R0 + dR]), site, [FC])
+    assert bool(integ.k[0] == pytest.approx(site.k)) is taken and bool(integ.k[0] == K0) is not taken
+    if n == 16 and taken:  # the same estimate read from single samples lies within 3 sigma_k
+        raw = _FromBase(site.k, SecantEstimator("raw"))
+        integ = _quasi_static((NOISE_U, NOISE_F))
+        integ.start(np.array([raw.R0]), raw)
+        integ.state.i = 1
+        integ.step(np.array([raw.R0 + dR]), raw, [FC])
+        assert integ.k[0] == K0
+
+
+def test_samples_averaged_by_each_estimator():
+    assert samples_averaged(SimpleNamespace(estimator=SecantEstimator("average", 16))) == 16
+    assert samples_averaged(SimpleNamespace(estimator=SecantEstimator("raw", 16))) == 1
+    assert samples_averaged(SimpleNamespace(estimator=SecantEstimator("least_squares", 16))) == 1
+    assert samples_averaged(SimpleNamespace()) == 1
+
+
+def test_quantisation_is_not_averaged_down():
+    integ = ImplicitAlpha([[1.0]], [[0.0]], None, [0], [K0], 0.01, secant_uncertainty=((0.0, 0.01), (0.0, 0.001)))
+    one, sixteen = (integ.sigma_k([K0], [0.1], [0.3], n)[0] for n in (1, 16))
+    assert sixteen == pytest.approx(one)
+    assert one == pytest.approx(K0 * np.hypot(0.01 / 0.1, 0.001 / 0.3) * np.sqrt(2 / 12))
+    noisy = ImplicitAlpha([[1.0]], [[0.0]], None, [0], [K0], 0.01, secant_uncertainty=((0.01, 0.01), (0.0, 0.0)))
+    # per end sigma^2 / n + delta^2 / 12
+    assert noisy.sigma_k([K0], [0.1], [0.3], 16)[0] == pytest.approx(K0 * np.sqrt(2 * (1e-4 / 16 + 1e-4 / 12)) / 0.1)
+
+
+class _Quantised:
+    """A linear specimen of stiffness ``k`` read noise-free by a transducer of resolution 0.001 mm
+    and a load cell of 0.001 kN, 16 samples averaged."""
+
+    def __init__(self, k):
+        self.k = k
+        self.estimator = SecantEstimator("average", 16)
+        self._base = (np.zeros(1), np.zeros(1))
+
+    def committed(self):
+        return self._base
+
+    def set_trial(self, commands, modes):
+        c = np.array(commands, dtype=float)
+        u, R = np.round(c / self.k / 0.001) * 0.001, np.round(c / 0.001) * 0.001
+        self._last = (u, R)
+        self._daq = Daq(u, R, secant_stiffness(u, R, *self._base), c, c)
+
+    def get_daq(self):
+        return self._daq
+
+    def commit(self):
+        self._base = self._last
+
+
+def test_a_softening_over_small_increments_is_taken_from_the_estimates_pooled():
+    # 0.01 mm on K0 per step: each estimate of a 30 % softer specimen lies within 3 sigma_k of K0
+    site = _Quantised(0.7 * K0)
+    integ = _quasi_static(((0.01, 0.001), (0.001, 0.001)))
+    integ.start(np.zeros(1), site)
+    sigma = integ.sigma_k([0.7 * K0], [0.03 / (0.7 * K0)], [0.03], 16)[0]
+    assert 0.3 * K0 < 3 * sigma  # alone, no estimate would be taken
+    for i in range(30):
+        integ.step(np.array([0.03 * (i + 1)]), site, [FC])
+    assert integ.k[0] == pytest.approx(0.7 * K0, rel=0.03)
+    assert integ.secant_refused[0] > 0
+
+
+class _Bilinear:
+    """Loads at ``k_load`` and unloads at K0 from the last committed point, noise-free, 16 samples averaged."""
+
+    def __init__(self, k_load):
+        self.k_load = k_load
+        self.estimator = SecantEstimator("average", 16)
+        self._base = (np.zeros(1), np.zeros(1))
+
+    def committed(self):
+        return self._base
+
+    def set_trial(self, commands, modes):
+        R = np.array(commands, dtype=float)
+        u0, R0 = self._base
+        dR = R - R0
+        u = u0 + dR / np.where(dR * np.sign(R0 if R0[0] else 1.0) >= 0, self.k_load, K0)
+        self._last = (u, R)
+        self._daq = Daq(u, R, secant_stiffness(u, R, u0, R0), R, R)
+
+    def get_daq(self):
+        return self._daq
+
+    def commit(self):
+        self._base = self._last
+
+
+def test_an_uninformative_estimate_at_a_reversal_does_not_block_the_reset():
+    # loads at 0.5 K0 (taken: a large increment), then reverses by 0.3 N: sigma_k far above |k|
+    site = _Bilinear(0.5 * K0)
+    integ = _quasi_static(((0.01, 0.001), (0.001, 0.001)), reset_at_reversal=True)
+    integ.start(np.zeros(1), site)
+    for P in (0.3, 0.6):
+        integ.step(np.array([P]), site, [FC])
+    assert integ.k[0] == pytest.approx(0.5 * K0)
+    integ.step(np.array([0.5997]), site, [FC])
+    assert integ.secant_refused[0] > 0  # the unloading estimate is turned away ...
+    assert integ.k[0] == K0 and integ.reversal_resets == 1  # ... and the unloading branch starts at K^EI
+
+
+def test_each_step_reports_the_estimates_turned_away():
+    site = _Specimen(K0, gain=1.05)
+    integ = ImplicitAlpha([[0.01]], [[0.0]], None, [0], [K0], 0.005, 0.0, j_max=3, tol_displacement=1e-12,
+                          tol_force=1e-12, secant_uncertainty=(S_U, S_F))
+    integ.start(np.zeros(1), site)
+    _, report = integ.step(np.array([0.3 * (integ.K_star[0, 0] / K0 + 1.0)]), site, [FC])
+    assert report.secant_refused.tolist() == integ.secant_refused.tolist() and report.secant_refused[0] > 0
+
+
+def test_the_method_carries_the_count_and_force_control_its_instruments():
+    from hsio.api import make_integrator
+    from hsio.runner import secant_instruments
+
+    from hsio.study_mixed import infill_sdof
+
+    s = infill_sdof(3.0)
+    assert make_integrator(s, "force_control").secant_refused is None  # the rule off: nothing to count
+    assert make_integrator(s, "force_control", secant_uncertainty=(S_U, S_F)).secant_refused == [0]
+    known = {"switch_resolution_mm": 0.001, "switch_force_resolution_kN": 0.002, "switch_noise_mm": 0.01,
+             "switch_force_noise_kN": 0.0}
+    assert secant_instruments(known, None) == ((0.01, 0.001), (0.0, 0.002))
+    assert secant_instruments(dict.fromkeys(known, 0.0), None) is None  # not known: every estimate taken
+    emulated = secant_instruments(dict.fromkeys(known, 0.0), {"noise_mm": 0.02})
+    assert emulated[0][0] == 0.02
+
+
+def test_a_displacement_read_by_an_external_instrument_counts_one_reading_of_it():
+    integ = _quasi_static((NOISE_U, NOISE_F))
+    averaged = integ.sigma_k([K0], [0.1], [0.3], 16)[0]
+    lvdt = integ.sigma_k([K0], [0.1], [0.3], 16, external=[(0.02, 0.01)])[0]
+    # one reading at each end: 2 (sigma^2 + delta^2 / 12), whatever the estimator averages
+    assert lvdt == pytest.approx(K0 * np.sqrt(2 * (0.02**2 + 0.01**2 / 12) / 0.1**2 + 2 * NOISE_F**2 / 16 / 0.3**2))
+    assert lvdt > 5 * averaged
+    # a step: 3.1 sigma_k of the averaged transducer is taken with it, turned away on the instrument's reading
+    dR = 0.3
+    for instruments, taken in (([None], True), ([(0.02, 0.01)], False)):
+        site = _FromBase(_k_at(3.1, dR, 16, 16))
+        site.displacement_instruments = instruments
+        integ = _quasi_static((NOISE_U, NOISE_F))
+        integ.start(np.array([site.R0]), site)
+        integ.state.i = 1
+        integ.step(np.array([site.R0 + dR]), site, [FC])
+        assert bool(integ.k[0] == K0) is not taken
+
+
+def test_the_site_knows_which_instrument_reads_each_displacement():
+    from test_instruments_external import WALL
+    from hsio.structure_file import parse_structure
+
+    text = WALL.format(source='displacement_from = "lvdt"').replace('element = "wall"',
+                                                                      'element = "wall"\nnoise = 0.02\nresolution = 0.01')
+    structure = parse_structure(text, "wall.toml")
+    with hsio_open_site(structure) as site:
+        assert site.displacement_instruments == [(0.02, 0.01)]
+    with hsio_open_site(parse_structure(WALL.format(source=""), "wall.toml")) as site:
+        assert site.displacement_instruments == [None]
+
+
+def hsio_open_site(structure):
+    import hsio
+
+    return hsio.open_site(structure, "emulator://", test_rate=20, estimator=SecantEstimator("average", 16, 0.1))

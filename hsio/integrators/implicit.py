@@ -51,6 +51,7 @@ DC = ControlMode.DISPLACEMENT
 FC = ControlMode.FORCE
 J_MAX_LIMIT = 100  # commands per step at most (the bound of [integrator] j_max)
 SECANT_Z = 3.0  # an FC element's new secant must differ from the one in use by this many sigma_k (eq. 11a)
+INFORMATIVE = 0.25  # an estimate turned away confirms the secant in use only when sigma_k is below this share of |k|
 
 
 @dataclass
@@ -83,6 +84,7 @@ class StepReport:
     fell_back: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # FC -> DC within the step
     not_converging: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # of those: FC did not converge
     guarded: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # of those: force outside the range
+    secant_refused: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # FC estimates turned away (eq. 11a)
 
 
 class ImplicitAlpha:
@@ -121,26 +123,38 @@ class ImplicitAlpha:
     1.8 to 3.0 % anchored; docs/force_control.md). The complementary estimate below always uses
     the line through the base.
     ``reset_at_reversal`` (default False): an FC element whose measured force reverses in a step
-    that gave no estimate of eq. (11) (every increment below the estimator's ``min_increment``)
-    takes K^EI as its secant from then on: the branch ahead unloads, and unloading is stiff, while
-    the secant kept from before may come from a soft branch (the cracked envelope of an infill,
-    ten times softer). A stale soft secant moves the complementary estimate ten times too far for
-    every change of force; FC alone on the cracking infill of structure II (0.18 to 0.25 g, TR 10,
-    ramp-hold) is 19 to 60 % off NS with the reset against 47 to 1066 % without
-    (docs/force_control.md).
-    ``secant_uncertainty`` ((s_u mm, s_F kN), the standard uncertainties of the transducer and
-    the load cell, :func:`hsio.integrators.mixed.instrument_uncertainty`; None: unknown): an
-    element in FC takes a new estimate of eq. (11) only when it differs from the secant in use by
-    more than ``secant_z`` times the estimate's own standard uncertainty from the instruments,
+    that gave no estimate of eq. (11) (every increment below the estimator's ``min_increment``, or
+    only estimates turned away that are not informative, eq. 11a below) takes K^EI as its secant
+    from then on: the branch ahead unloads, and unloading is stiff, while the secant kept from
+    before may come from a soft branch (the cracked envelope of an infill, ten times softer). A
+    stale soft secant moves the complementary estimate ten times too far for every change of force;
+    FC alone on the cracking infill of structure II (0.18 to 0.25 g, TR 10, ramp-hold) is 19 to 60
+    % off NS with the reset against 47 to 1066 % without (docs/force_control.md).
+    ``secant_uncertainty`` (the transducer's and the load cell's (noise, resolution): each a
+    standard deviation sigma or a pair (sigma, delta) with delta the resolution, in mm and kN;
+    None: unknown): an element in FC takes a new estimate of eq. (11) only when it differs from
+    the secant in use by more than ``secant_z`` times its standard uncertainty from the
+    instruments (eq. 11a),
 
-        sigma_k = |k| sqrt(2 / n) sqrt((s_u / du)^2 + (s_F / dR)^2)                       (11a)
+        sigma_k = |k| sqrt(var(du) / du^2 + var(dR) / dR^2)
+        var(du) = sum over both ends of sigma_u^2 / n_end + delta_u^2 / 12              (11a)
 
-    with du, dR the measured increments from the base and n the samples averaged at each end
-    (the site's estimator, :func:`samples_averaged`). FC moves the displacement along its secant
-    by every change of force (eq. 9), so a secant that follows the transducer's noise moves it
-    by a noise-sized fraction of every force change, step after step; a softening (a crack, a
-    yield) changes k by far more than sigma_k and is taken at once. Elements in DC take every
-    estimate, as without it.
+    du, dR the measured increments from the base, n_end the samples averaged at that end (the
+    site's estimator, :func:`samples_averaged`; the base of the first step is the one feedback
+    sample the site starts from; a displacement read from an external instrument, the site's
+    ``displacement_instruments``, is one reading of that instrument at each end): the noise
+    averages down, the quantisation of a reading does not. With the same n at both ends and no
+    resolution it is |k| sqrt(2/n) sqrt((s_u/du)^2 + (s_F/dR)^2). FC moves the displacement along
+    its secant by every change of force (eq. 9), so a secant that follows the transducer's noise
+    moves it by a noise-sized fraction of every force change, step after step. The estimates turned
+    away (``secant_refused``, per element) are pooled until the secant is next set: their mean
+    weighted by 1 / sigma_k^2, of standard uncertainty 1 / sqrt(sum 1 / sigma_k^2), is taken when
+    it differs from the secant in use by more than ``secant_z`` times that. A change is therefore
+    taken in the step whose own estimate shows it beyond ``secant_z`` sigma_k (a crack or a yield
+    over an increment of a few sigma_u / (change of k / k)), or, over smaller increments, as soon
+    as the estimates turned away since the secant was set show it together. An estimate turned away
+    counts as a confirmation of the secant in use (no reset at a reversal, below) only when it is
+    informative, sigma_k < ``INFORMATIVE`` |k|. Elements in DC take every estimate, as without it.
     ``independent=True`` treats every DOF as a separate system (M, C, K_N diagonal, one element
     per DOF) and stops iterating each one on its own convergence: it runs many single-DOF cases
     side by side (the parametric study).
@@ -208,21 +222,15 @@ class ImplicitAlpha:
         # per element (one bool for all): DC elements modelled through their last measurement
         self.anchor_dc = np.broadcast_to(np.asarray(anchor_dc, dtype=bool), self.dofs.shape).copy()
         self.reset_at_reversal = bool(reset_at_reversal)
-        self.secant_uncertainty = None
-        if secant_uncertainty is not None:
-            try:
-                s_u, s_F = (float(x) for x in secant_uncertainty)
-            except (TypeError, ValueError):
-                s_u = s_F = math.nan
-            if not (math.isfinite(s_u) and math.isfinite(s_F) and s_u >= 0 and s_F >= 0 and s_u + s_F > 0):
-                raise ConfigError(f"implicit alpha method: secant_uncertainty must be None or (s_u mm, s_F kN), "
-                                  f"zero or positive and not both zero, got {secant_uncertainty!r:.80}")
-            self.secant_uncertainty = (s_u, s_F)
+        self.secant_uncertainty = None if secant_uncertainty is None else _instruments(secant_uncertainty)
         if isinstance(secant_z, bool) or not isinstance(secant_z, numbers.Real) or not (math.isfinite(secant_z)
                                                                                            and secant_z >= 0):
             raise ConfigError(f"implicit alpha method: secant_z must be a number, zero or positive, got {secant_z!r}")
         self.secant_z = float(secant_z)
-        self.secant_refused = 0  # FC estimates of eq. (11) within secant_z sigma_k of the secant in use
+        # FC estimates of eq. (11) within secant_z sigma_k of the secant in use, per element; those
+        # turned away since the secant was last set, pooled: sum of 1 / sigma_k^2 and of k / sigma_k^2
+        self.secant_refused = np.zeros(self.dofs.size, dtype=int)
+        self._pool = (np.zeros(self.dofs.size), np.zeros(self.dofs.size))
         self._last_dR = np.zeros(self.dofs.size)  # the last nonzero measured force increment, per element
         self.reversal_resets = 0
         self._u_fc = np.full(self.dofs.size, np.nan)  # base displacement of FC elements (fc_blend < 1)
@@ -308,6 +316,11 @@ class ImplicitAlpha:
         u_b_measured = u_b
         R_b_measured = R_b.copy()
         n_avg = samples_averaged(site)
+        n_base = 1 if s.i == 0 else n_avg  # the first step's base: the one feedback sample the site starts from
+        external = getattr(site, "displacement_instruments", None)  # channels read by an external instrument
+        refused = np.zeros(self.dofs.size, dtype=int)
+        last_turned = np.zeros(self.dofs.size, dtype=bool)  # the step's last estimate turned away
+        last_w, last_k = np.zeros(self.dofs.size), np.zeros(self.dofs.size)
         if self.fc_blend < 1:
             u_b = np.where((fc | self.blend_dc) & np.isfinite(self._u_fc), self._u_fc, u_b)
         k = self.k.copy()
@@ -374,13 +387,27 @@ class ImplicitAlpha:
             R_m = np.where(active, m_R, R_m)
             plausible = np.isfinite(k_new) & (k_new <= self.max_stiffness_ratio * self.K_EI)
             if self.secant_uncertainty is not None:  # FC: a new secant only beyond the instruments' noise
-                within = fc & plausible & active & ~self.significant(k_new, k, m_u - u_b_measured,
-                                                                     m_R - R_b_measured, n_avg)
-                self.secant_refused += int(within.sum())
-                plausible &= ~within  # the estimate confirms the secant in use
-                estimated |= within
+                judged = fc & plausible & active
+                sigma = self.sigma_k(k_new, m_u - u_b_measured, m_R - R_b_measured, n_avg, n_base, external)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    w = np.where(np.isfinite(sigma) & (sigma > 0), 1.0 / sigma**2, 0.0)
+                    W, Wk = self._pool[0] + w, self._pool[1] + w * np.where(w > 0, k_new, 0.0)
+                    pooled = np.where(W > 0, Wk / W, k)
+                    pooled_sigma = 1.0 / np.sqrt(W)
+                alone = self.beyond(k_new, k, sigma)
+                together = ~alone & (W > 0) & self.beyond(pooled, k, pooled_sigma)
+                k_new = np.where(judged & together, pooled, k_new)
+                within = judged & ~alone & ~together
+                refused += within
+                last_turned = np.where(judged, within, last_turned)
+                last_w, last_k = np.where(judged, w, last_w), np.where(judged, k_new, last_k)
+                plausible &= ~within
+                estimated |= within & (sigma < INFORMATIVE * np.abs(k))  # an informative estimate confirms k
             k = np.where(active & plausible, k_new, k)
             estimated |= active & plausible
+            set_now = active & plausible  # the secant set: its pool starts afresh
+            self._pool = (np.where(set_now, 0.0, self._pool[0]), np.where(set_now, 0.0, self._pool[1]))
+            last_turned &= ~set_now
             if self.anchor_dc.any():  # DC elements: the secant line through the last measurement
                 at_measured = self.anchor_dc & active & ~fc & ~fell_back & ~(self.blend_dc & (self.fc_blend < 1))
                 u_b = np.where(at_measured, u_m, u_b)
@@ -402,8 +429,14 @@ class ImplicitAlpha:
             reset = fc & (dR * self._last_dR < 0) & ~estimated & (k != self.K_EI)
             k = np.where(reset, self.K_EI, k)
             self.reversal_resets += int(reset.sum())
+            self._pool = (np.where(reset, 0.0, self._pool[0]), np.where(reset, 0.0, self._pool[1]))
+            last_turned &= ~reset
             self._last_dR = np.where(dR != 0, dR, self._last_dR)
         self.k = k
+        # the step's last estimate turned away joins the pool (one per step: a step's estimates share its base)
+        self._pool = (self._pool[0] + np.where(last_turned, last_w, 0.0),
+                      self._pool[1] + np.where(last_turned, last_w * last_k, 0.0))
+        self.secant_refused += refused
         if self.fc_blend < 1:  # the complementary estimate of the FC elements' displacement
             on_secant = base[0] + (R_m - base[1]) / k  # the base moved along the secant to the measured force
             self._u_fc = on_secant + self.fc_blend * (u_m - on_secant)  # every element: ready for a switch
@@ -412,23 +445,67 @@ class ImplicitAlpha:
         R = self._E.T @ Re + self.K_N @ u
         self.state = ImplicitState(s.i + 1, u, vel, acc, R, P_next.copy(), u_pred)
         report = StepReport(iterations, converged, k.copy(), ue.copy(), Re.copy(), sent.copy(), u_m, R_m,
-                            list(modes), fell_back, not_converging, guarded)
+                            list(modes), fell_back, not_converging, guarded, refused)
         return self.state, report
 
-    def significant(self, k_new, k, du, dR, n: int) -> np.ndarray:
-        """Whether each estimate ``k_new`` of eq. (11), from the increments (du, dR) of ``n``-sample
-        averages, differs from the secant ``k`` in use by more than ``secant_z`` sigma_k (eq. 11a)."""
-        s_u, s_F = self.secant_uncertainty
+    def sigma_k(self, k_new, du, dR, n: int, n_base: int | None = None, external=None) -> np.ndarray:
+        """The standard uncertainty of each estimate ``k_new`` of eq. (11) from the instruments, its
+        increments (du, dR) the difference of an ``n``-sample average and one of ``n_base`` samples
+        at the base (default ``n``; eq. 11a). ``external`` (per element, None or (noise,
+        resolution)): an element whose displacement an external instrument gives, one reading of
+        it at each end."""
+        (nu, ru), (nF, rF) = self.secant_uncertainty
+        n_base = n if n_base is None else n_base
         k_new, du, dR = (np.asarray(x, dtype=float) for x in (k_new, du, dR))
+        var_u = np.full(np.shape(du), nu**2 / n + nu**2 / n_base + 2 * ru**2 / 12.0)
+        for e, instrument in enumerate(external or []):
+            if instrument is not None:
+                noise, resolution = instrument
+                var_u[e] = 2 * (noise**2 + resolution**2 / 12.0)
+        var_F = nF**2 / n + nF**2 / n_base + 2 * rF**2 / 12.0
         with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.sqrt(2.0 / n) * np.hypot(s_u / np.abs(du), s_F / np.abs(dR))
-            sigma = np.abs(k_new) * rel
-        return ~(np.abs(k_new - np.asarray(k, dtype=float)) <= self.secant_z * sigma)
+            sigma = np.abs(k_new) * np.sqrt(var_u / du**2 + var_F / dR**2)
+        return np.where(np.isnan(sigma), np.inf, sigma)  # no increment: nothing known
+
+    def beyond(self, k_new, k, sigma) -> np.ndarray:
+        """Whether each estimate differs from the secant ``k`` in use by more than ``secant_z`` ``sigma``."""
+        with np.errstate(invalid="ignore"):
+            return ~(np.abs(np.asarray(k_new, dtype=float) - np.asarray(k, dtype=float)) <= self.secant_z * sigma)
+
+    def significant(self, k_new, k, du, dR, n: int, n_base: int | None = None) -> np.ndarray:
+        """Whether each estimate ``k_new`` of eq. (11), from the increments (du, dR) of ``n``-sample
+        averages (``n_base`` at the base), differs from the secant ``k`` in use by more than
+        ``secant_z`` sigma_k (eq. 11a)."""
+        return self.beyond(k_new, k, self.sigma_k(k_new, du, dR, n, n_base))
 
     def _require_state(self) -> ImplicitState:
         if self.state is None:
             raise RuntimeError("implicit alpha method: call start() before stepping")
         return self.state
+
+
+def _instruments(given) -> tuple:
+    """``secant_uncertainty`` as ((sigma_u, delta_u), (sigma_F, delta_F)): each instrument a noise
+    sigma, or a pair (sigma, delta); zero or positive, finite, not all zero."""
+    def one(x):
+        if isinstance(x, numbers.Real) and not isinstance(x, bool):
+            return float(x), 0.0
+        sigma, delta = x
+        return float(sigma), float(delta)
+
+    try:
+        if isinstance(given, (str, bytes)):
+            raise TypeError
+        u, F = given
+        out = (one(u), one(F))
+    except (TypeError, ValueError):
+        out = ((math.nan, math.nan), (math.nan, math.nan))
+    values = [v for pair in out for v in pair]
+    if not (all(math.isfinite(v) and v >= 0 for v in values) and sum(values) > 0):
+        raise ConfigError(f"implicit alpha method: secant_uncertainty must be None or the transducer's and the "
+                          f"load cell's noise (mm, kN), each a number or a pair (noise, resolution), zero or "
+                          f"positive and not both zero, got {given!r:.80}")
+    return out
 
 
 def samples_averaged(site) -> int:

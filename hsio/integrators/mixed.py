@@ -43,9 +43,10 @@ class SwitchingRule:
     ``on = "stiffness"``: to FC when k > upper (K_f), to DC when k < lower (K_d).
     ``on = "force"``: to FC when |R| > upper, to DC when |R| < lower (specimens that stiffen
     with load, e.g. a closing gap).
-    ``uncertainty``: (s_u mm, s_F kN), the instruments' standard uncertainties when the rule is
-    built from them (:meth:`from_instruments`; None otherwise); :class:`ImplicitMethod` hands them
-    to the secant update of its FC elements (eq. 11a, :class:`ImplicitAlpha`).
+    ``uncertainty``: ((sigma_u, delta_u) mm, (sigma_F, delta_F) kN), the instruments' noise and
+    resolution when the rule is built from them (:meth:`from_instruments`; None otherwise);
+    :class:`ImplicitMethod` hands them to the secant update of its FC elements (eq. 11a,
+    :class:`ImplicitAlpha`).
     """
 
     upper: np.ndarray
@@ -113,7 +114,8 @@ class SwitchingRule:
                               "above 0")
         K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
         K_f = margin * s_F / s_u
-        return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness", (s_u, s_F))
+        return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness",
+                   ((float(noise_mm), float(resolution_mm)), (float(force_noise_kN), float(force_resolution_kN))))
 
     def elastic_only(self, ns, structure, max_ratio: float) -> "SwitchingRule":
         """This rule while NS (``ns``, of ``structure`` and the run's record) predicts every
@@ -287,9 +289,9 @@ faster than FC can follow. ``fc_blend``: the
     K_d is the rule's reason (the specimen softens). ``reset_at_reversal``: a stale secant is set
     back to K^EI at a reversal (:class:`ImplicitAlpha`). ``anchor_dc`` (:class:`ImplicitAlpha`) is on
     by default; the other defaults are the behaviour without these guards.
-    ``secant_uncertainty`` ((s_u mm, s_F kN); default: the rule's ``uncertainty`` in ``mixed``,
-    None where the instruments are not known): FC elements take a new secant only beyond the
-    instruments' noise (eq. 11a, :class:`ImplicitAlpha`).
+    ``secant_uncertainty`` (the instruments' (noise, resolution), :class:`ImplicitAlpha`; default:
+    the rule's ``uncertainty`` in ``mixed``, None where the instruments are not known): FC elements
+    take a new secant only beyond the instruments' noise (eq. 11a, :class:`ImplicitAlpha`).
     """
 
     def __init__(self, M, C, K_N, element_dofs, K_EI, dt: float, alpha: float = -0.05, method: str = "mixed",
@@ -341,6 +343,11 @@ faster than FC can follow. ``fc_blend``: the
         self.not_converged: list[dict] = []  # FC elements that did not converge and went on in DC
         self.fallback = self.rule.lower if self.rule is not None and self.rule.on == "stiffness" else None
         self.thresholds = None if self.rule is None else self.rule.as_dict()
+
+    @property
+    def secant_refused(self) -> list[int] | None:
+        """FC estimates of eq. (11) turned away per element (eq. 11a); None where the rule is off."""
+        return None if self.core.secant_uncertainty is None else [int(x) for x in self.core.secant_refused]
 
     def start(self, P0, site, numerical) -> StepOutcome:
         site.set_modes(self.modes)

@@ -48,6 +48,9 @@ class ActuatorSite:
         self.instruments = instruments  # a DAQ of external instruments, read every trial
         # per channel: None (the actuator's transducer) or (instrument name, OuterLoop or None)
         self.external = list(external) if external is not None else []
+        # per channel: (noise, resolution) of the external instrument its displacement is read from,
+        # one reading a trial (None: the actuator's transducer, averaged by the estimator); eq. (11a)
+        self.displacement_instruments = [None] * len(self.external)
         if any(x is not None for x in self.external) and instruments is None:
             raise ConfigError("an element takes its displacement from an external instrument: open the instruments' DAQ")
         # the actuator of each channel that takes an instrument's reading: its element has no setup
