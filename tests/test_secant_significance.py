@@ -148,11 +148,12 @@ def _quasi_static(uncertainty, **kw):
 
 
 def _k_at(z, dR, n_end, n_base):
-    """The specimen's stiffness whose estimate from an increment dR lies z sigma_k below K0 (eq. 11a)."""
+    """The specimen's stiffness whose estimate from an increment dR lies z sigma_k below K0, the
+    secant in use at which sigma_k is evaluated (eq. 11a); du = dR / k."""
     var_u, var_F = NOISE_U**2 * (1 / n_end + 1 / n_base), NOISE_F**2 * (1 / n_end + 1 / n_base)
     k = K0
-    for _ in range(200):  # fixed point of k = K0 - z k sqrt(var_u k^2 / dR^2 + var_F / dR^2)
-        k = K0 / (1 + z * np.sqrt(var_u * k**2 + var_F) / dR)
+    for _ in range(200):  # fixed point of k = K0 - z K0 sqrt(var_u k^2 / dR^2 + var_F / dR^2)
+        k = K0 * (1 - z * np.sqrt(var_u * k**2 + var_F) / dR)
     return k
 
 
@@ -343,3 +344,20 @@ def hsio_open_site(structure):
     import hsio
 
     return hsio.open_site(structure, "emulator://", test_rate=20, estimator=SecantEstimator("average", 16, 0.1))
+
+
+def test_an_estimate_pulled_low_and_one_pulled_high_are_judged_alike():
+    """sigma_k is the secant in use's, not the estimate's: with the load cell's noise alone, an
+    estimate 3 s below K0 and one 3 s above are both turned away (judged at the estimate, the
+    low one would carry a smaller sigma and be taken, the high one not: a secant drifting soft)."""
+    dR = 0.01
+    s = np.sqrt(2 * NOISE_F**2 / 16) / dR  # sigma_k / K0 from the load cell alone: 3.5 %
+    eps = 0.1  # past 3 s / (1 + 3 s) (taken if judged at the low estimate), within 3 s
+    assert 3 * s / (1 + 3 * s) < eps < 3 * s
+    for k in (K0 * (1 - eps), K0 * (1 + eps)):
+        site = _FromBase(k)
+        integ = _quasi_static((0.0, NOISE_F))
+        integ.start(np.array([site.R0]), site)
+        integ.state.i = 1
+        integ.step(np.array([site.R0 + dR]), site, [FC])
+        assert integ.k[0] == K0 and integ.secant_refused[0] >= 1, k

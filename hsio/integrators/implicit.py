@@ -388,7 +388,9 @@ class ImplicitAlpha:
             plausible = np.isfinite(k_new) & (k_new <= self.max_stiffness_ratio * self.K_EI)
             if self.secant_uncertainty is not None:  # FC: a new secant only beyond the instruments' noise
                 judged = fc & plausible & active
-                sigma = self.sigma_k(k_new, m_u - u_b_measured, m_R - R_b_measured, n_avg, n_base, external)
+                # at the secant in use, not at the estimate: an estimate pulled low by noise would
+                # otherwise carry a smaller sigma and a larger weight than one pulled high
+                sigma = self.sigma_k(k, m_u - u_b_measured, m_R - R_b_measured, n_avg, n_base, external)
                 with np.errstate(divide="ignore", invalid="ignore"):
                     w = np.where(np.isfinite(sigma) & (sigma > 0), 1.0 / sigma**2, 0.0)
                     W, Wk = self._pool[0] + w, self._pool[1] + w * np.where(w > 0, k_new, 0.0)
