@@ -361,3 +361,11 @@ def test_an_estimate_pulled_low_and_one_pulled_high_are_judged_alike():
         integ.state.i = 1
         integ.step(np.array([site.R0 + dR]), site, [FC])
         assert integ.k[0] == K0 and integ.secant_refused[0] >= 1, k
+
+
+def test_an_external_instrument_stating_no_noise_counts_as_the_transducer():
+    """An [[instrument]] without noise or resolution (on hardware they are not emulation settings
+    that were given): its readings are not taken as exact, the transducer's uncertainty stands."""
+    integ = _quasi_static((NOISE_U, NOISE_F))
+    plain = integ.sigma_k([K0], [0.1], [0.3], 16)[0]
+    assert integ.sigma_k([K0], [0.1], [0.3], 16, external=[(0.0, 0.0)])[0] == plain

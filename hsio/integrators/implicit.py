@@ -455,13 +455,13 @@ class ImplicitAlpha:
         increments (du, dR) the difference of an ``n``-sample average and one of ``n_base`` samples
         at the base (default ``n``; eq. 11a). ``external`` (per element, None or (noise,
         resolution)): an element whose displacement an external instrument gives, one reading of
-        it at each end."""
+        it at each end (an instrument that states neither, (0, 0), counts as the transducer)."""
         (nu, ru), (nF, rF) = self.secant_uncertainty
         n_base = n if n_base is None else n_base
         k_new, du, dR = (np.asarray(x, dtype=float) for x in (k_new, du, dR))
         var_u = np.full(np.shape(du), nu**2 / n + nu**2 / n_base + 2 * ru**2 / 12.0)
         for e, instrument in enumerate(external or []):
-            if instrument is not None:
+            if instrument is not None and any(x > 0 for x in instrument):  # (0, 0): not known, the transducer's
                 noise, resolution = instrument
                 var_u[e] = 2 * (noise**2 + resolution**2 / 12.0)
         var_F = nF**2 / n + nF**2 / n_base + 2 * rF**2 / 12.0
