@@ -92,3 +92,19 @@ def test_counts_from_before_force_control_do_not_carry_over():
         d = 0.03 * k
         check.check(d, 5.0, t / 1024, d)
         t += 1
+
+
+def test_the_stuck_transducer_count_starts_afresh_after_force_control():
+    """499 equal displacement readings while the command swings 6 mm, a spell of force control,
+    then the same reading again under a swinging command: 100 samples, not 512, since the spell."""
+    check = common.Plausibility("C1", Limits(254.0, 250.0, 500.0), 1 / 1024)
+    t = 0
+    for _ in range(499):
+        check.check(0.0, 0.001 * t, t / 1024, 6.0 * (t % 2))
+        t += 1
+    for _ in range(50):
+        check.check(0.0, 0.001 * t, t / 1024, None)
+        t += 1
+    for _ in range(100):
+        check.check(0.0, 0.001 * t, t / 1024, 6.0 * (t % 2))
+        t += 1
