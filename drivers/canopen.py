@@ -209,7 +209,7 @@ class DriveNode:
         self.status_received = threading.Event()
         self.emcy: list = []
         self.warnings: dict[int, int] = {}  # EMCY code -> how many were taken as warnings
-        self.last_warning: int | None = None  # the code of the last EMCY taken as a warning
+        self.last_warning: tuple[int, float] | None = None  # the last EMCY taken as a warning: code, when (monotonic)
         self.booted = False
         self.identity: dict = {}
         self.max_torque_permille: int | None = None
@@ -307,15 +307,18 @@ class DriveNode:
             if word is None:
                 raise (InterlockError if is_drive_fault(e.code) else CommunicationError)(what)
             self.warnings[e.code] = self.warnings.get(e.code, 0) + 1
-            self.last_warning = e.code
+            self.last_warning = (e.code, time.monotonic())
             if self.warnings[e.code] == 1:
                 log.warning("%s: a warning: the drive stays OPERATION ENABLED with no fault (statusword 0x%04X); the run "
                             "goes on (further EMCY 0x%04X from node %d are counted, not printed)",
                             what, word, e.code, self.id)
         word = self.node.tpdo_values.get(0x6041)
         if self.operating and word is not None and word & 0x6F != 0x27:
-            emcy = ("without an EMCY" if self.last_warning is None else
-                    f"after EMCY 0x{self.last_warning:04X}, taken as a warning while the drive showed itself enabled")
+            emcy = "without an EMCY"
+            if self.last_warning is not None:
+                code, when = self.last_warning
+                emcy += (f" (its last EMCY, 0x{code:04X}, {time.monotonic() - when:.1f} s earlier, was taken as a "
+                         "warning while the drive showed itself enabled)")
             raise InterlockError(f"CANopen node {self.id} left OPERATION ENABLED (statusword 0x{word:04X}, "
                                  f"{self.node.state}) {emcy}: it no longer follows its targets")
         shown = self.node.tpdo_values.get(0x6061)
