@@ -289,7 +289,7 @@ class _Reader:
                 raise self.error("damping.modes", "modal damping applies to every mode; give zeta per mode instead")
             if len(ratios) not in (1, n):
                 raise self.error("damping.zeta", f"{len(ratios)} ratios for {n} modes: give one, or one per mode")
-            return Damping(ratios[0] if len(ratios) == 1 and not isinstance(zeta, list) else ratios, "modal")
+            return Damping(ratios[0] if len(ratios) == 1 else ratios, "modal")  # [z]: z for every mode
         count = 2 if kind == "rayleigh" else 1
         modes = table.get("modes", [1, 2] if kind == "rayleigh" else [1])
         if not isinstance(modes, list) or len(modes) != count:
@@ -303,7 +303,7 @@ class _Reader:
             raise self.error("damping.modes", f"rayleigh damping needs two different modes, got {modes}")
         if len(ratios) not in (1, count):
             raise self.error("damping.zeta", f"{len(ratios)} ratios for {count} mode(s)")
-        value = ratios if isinstance(zeta, list) else ratios[0]
+        value = ratios if len(ratios) > 1 else ratios[0]  # [z]: z on both modes
         return Damping(value, kind, tuple(modes))
 
     def dof(self, where: str, value) -> int:

@@ -94,3 +94,13 @@ def test_a_cantilever_whose_stiffness_leaves_the_floating_point_range_is_named()
     data = text[:start] + 'model = { kind = "cantilever", EI = 1.0e9, L = 1e-200, EA = 1.0 }' + text[end:]
     with pytest.raises(ConfigError, match=r"rig\.toml: experimental\[0\]\.model: cantilever: .*floating-point range"):
         parse_structure(data, "rig.toml")
+
+
+def test_a_list_of_one_damping_ratio_is_that_ratio_on_every_anchor_mode():
+    """zeta = [z] (a list of one) means z, for Rayleigh damping's two modes as for modal damping's
+    every mode: it loads, never an error without the file's name."""
+    for damping in ({"kind": "rayleigh", "zeta": [0.05], "modes": [1, 3]}, {"kind": "modal", "zeta": [0.05]}):
+        doc = copy.deepcopy(DOCUMENTS["three_storey.toml"])
+        doc["damping"] = damping
+        structure = structure_from_tables(doc, "three_storey.toml")
+        assert structure.damping.zeta == 0.05
