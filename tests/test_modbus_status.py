@@ -3,6 +3,8 @@ exchange (the feedback, with the lockstep check) or looked at only (the hold rea
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 
 from hsio.clock import LockstepClock
@@ -39,6 +41,31 @@ def test_a_look_at_the_status_decodes_what_the_exchange_takes_and_leaves_it(tmp_
         emu.stop()
 
 
+@contextlib.contextmanager
+def flag_on_demand(tmp_path, axis: int, flag: str, value, read: bool):
+    """A lockstep Modbus emulator whose axis ``axis`` shows status ``flag`` = ``value`` while the
+    yielded switch is on; yields (switch, period, actuators C1 and C2): ``period(x)`` commands x
+    to both, ticks, and (``read``) reads both back."""
+    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load()).start()
+    flags, switch = emu.bank.flags, {"on": False}
+    emu.bank.flags = lambda k: {**flags(k), flag: value} if k == axis and switch["on"] else flags(k)
+    try:
+        clock = LockstepClock()
+        acts = open_link(emu.url, ["C1", "C2"], clock)
+
+        def period(x):
+            for a in acts:
+                a.command(x)
+            clock.tick()
+            if read:
+                for a in acts:
+                    a.feedback()
+
+        yield switch, period, acts
+    finally:
+        emu.stop()
+
+
 def test_an_axis_that_stops_following_without_a_latch_bit_stops_the_run(tmp_path):
     """A controller that clears an axis' enabled bit on its own (a stop at its panel, hydraulics
     off) with neither the interlock nor the watchdog bit set: the next command stops with an
@@ -46,19 +73,7 @@ def test_an_axis_that_stops_following_without_a_latch_bit_stops_the_run(tmp_path
     not taken for one: its enabled bit is awaited afresh."""
     from hsio.errors import InterlockError
 
-    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load()).start()
-    flags, dropped = emu.bank.flags, {"on": False}
-    emu.bank.flags = lambda k: {**flags(k), "enabled": False} if k == 1 and dropped["on"] else flags(k)
-    try:
-        clock = LockstepClock()
-        acts = open_link(emu.url, ["C1", "C2"], clock)
-
-        def period(value):
-            for a in acts:
-                a.command(value)
-            clock.tick()
-            return [a.feedback() for a in acts]
-
+    with flag_on_demand(tmp_path, 1, "enabled", False, read=True) as (dropped, period, acts):
         for _ in range(10):
             period(0.1)
         for a in acts:  # a pause: held, then enabled again, the bit shown one exchange later
@@ -72,8 +87,6 @@ def test_an_axis_that_stops_following_without_a_latch_bit_stops_the_run(tmp_path
         with pytest.raises(InterlockError, match=r"actuator 'C2' .*no longer follows the commands"):
             for _ in range(10):
                 period(0.1)
-    finally:
-        emu.stop()
 
 
 def test_a_restart_is_seen_in_the_sequence_register_without_a_boot_id(tmp_path):
@@ -112,26 +125,13 @@ def test_a_command_the_controller_refuses_by_its_status_bit_stops_the_run(tmp_pa
     naming the actuator, instead of the run going on until the following error is caught."""
     from hsio.errors import InterlockError
 
-    emu = ModbusEmulator(bank_from_config(write_config(tmp_path), lockstep=True), modbus_map.load()).start()
-    flags, refusing = emu.bank.flags, {"on": False}
-    emu.bank.flags = lambda k: {**flags(k), "refused": True} if k == 0 and refusing["on"] else flags(k)
-    try:
-        clock = LockstepClock()
-        acts = open_link(emu.url, ["C1", "C2"], clock)
-
-        def period(value):
-            for a in acts:
-                a.command(value)
-            clock.tick()
-
+    with flag_on_demand(tmp_path, 0, "refused", True, read=False) as (refusing, period, _):
         for _ in range(10):
             period(0.1)
         refusing["on"] = True
         period(0.1)  # the status of this exchange shows the refusal
         with pytest.raises(InterlockError, match=r"actuator 'C1' .*refused the last command"):
             period(0.1)
-    finally:
-        emu.stop()
 
 
 @pytest.mark.parametrize("garbled", [float("nan"), float("inf"), -1.0, 2.5])

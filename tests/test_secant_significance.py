@@ -114,31 +114,41 @@ def test_the_study_gives_fc_its_instruments_and_leaves_dc_alone():
 NOISE_U, NOISE_F = 0.01, 0.001
 
 
-class _FromBase:
-    """A linear specimen of stiffness ``k`` standing at a nonzero base (1 mm, 3 kN), its readings
-    noise-free; the estimator ``estimator`` (16-sample averages unless given)."""
+class _Site:
+    """A one-DOF specimen read noise-free, its secant from the committed point (eq. 11): a subclass
+    gives ``read(commands)``, the (displacement, force, command) it shows for a force command."""
 
-    U0, R0 = 1.0, 3.0
-
-    def __init__(self, k, estimator=None):
+    def __init__(self, k, estimator=None, base=(0.0, 0.0)):
         self.k = k
         self.estimator = estimator if estimator is not None else SecantEstimator("average", 16)
-        self._base = (np.array([self.U0]), np.array([self.R0]))
+        self._base = (np.array([base[0]]), np.array([base[1]]))
 
     def committed(self):
         return self._base
 
     def set_trial(self, commands, modes):
-        R = np.array(commands, dtype=float)
-        u = self._base[0] + (R - self._base[1]) / self.k
+        u, R, shown = self.read(np.array(commands, dtype=float))
         self._last = (u, R)
-        self._daq = Daq(u, R, secant_stiffness(u, R, *self._base), R, R)
+        self._daq = Daq(u, R, secant_stiffness(u, R, *self._base), shown, shown)
 
     def get_daq(self):
         return self._daq
 
     def commit(self):
         self._base = self._last
+
+
+class _FromBase(_Site):
+    """A linear specimen of stiffness ``k`` standing at a nonzero base (1 mm, 3 kN), its readings
+    noise-free; the estimator ``estimator`` (16-sample averages unless given)."""
+
+    U0, R0 = 1.0, 3.0
+
+    def __init__(self, k, estimator=None):
+        super().__init__(k, estimator, (self.U0, self.R0))
+
+    def read(self, R):
+        return self._base[0] + (R - self._base[1]) / self.k, R, R
 
 
 def _quasi_static(uncertainty, **kw):
@@ -205,29 +215,12 @@ def test_quantisation_is_not_averaged_down():
     assert noisy.sigma_k([K0], [0.1], [0.3], 16)[0] == pytest.approx(K0 * np.sqrt(2 * (1e-4 / 16 + 1e-4 / 12)) / 0.1)
 
 
-class _Quantised:
+class _Quantised(_Site):
     """A linear specimen of stiffness ``k`` read noise-free by a transducer of resolution 0.001 mm
     and a load cell of 0.001 kN, 16 samples averaged."""
 
-    def __init__(self, k):
-        self.k = k
-        self.estimator = SecantEstimator("average", 16)
-        self._base = (np.zeros(1), np.zeros(1))
-
-    def committed(self):
-        return self._base
-
-    def set_trial(self, commands, modes):
-        c = np.array(commands, dtype=float)
-        u, R = np.round(c / self.k / 0.001) * 0.001, np.round(c / 0.001) * 0.001
-        self._last = (u, R)
-        self._daq = Daq(u, R, secant_stiffness(u, R, *self._base), c, c)
-
-    def get_daq(self):
-        return self._daq
-
-    def commit(self):
-        self._base = self._last
+    def read(self, c):
+        return np.round(c / self.k / 0.001) * 0.001, np.round(c / 0.001) * 0.001, c
 
 
 def test_a_softening_over_small_increments_is_taken_from_the_estimates_pooled():
@@ -243,30 +236,13 @@ def test_a_softening_over_small_increments_is_taken_from_the_estimates_pooled():
     assert integ.secant_refused[0] > 0
 
 
-class _Bilinear:
-    """Loads at ``k_load`` and unloads at K0 from the last committed point, noise-free, 16 samples averaged."""
+class _Bilinear(_Site):
+    """Loads at ``k`` and unloads at K0 from the last committed point, noise-free, 16 samples averaged."""
 
-    def __init__(self, k_load):
-        self.k_load = k_load
-        self.estimator = SecantEstimator("average", 16)
-        self._base = (np.zeros(1), np.zeros(1))
-
-    def committed(self):
-        return self._base
-
-    def set_trial(self, commands, modes):
-        R = np.array(commands, dtype=float)
+    def read(self, R):
         u0, R0 = self._base
         dR = R - R0
-        u = u0 + dR / np.where(dR * np.sign(R0 if R0[0] else 1.0) >= 0, self.k_load, K0)
-        self._last = (u, R)
-        self._daq = Daq(u, R, secant_stiffness(u, R, u0, R0), R, R)
-
-    def get_daq(self):
-        return self._daq
-
-    def commit(self):
-        self._base = self._last
+        return u0 + dR / np.where(dR * np.sign(R0 if R0[0] else 1.0) >= 0, self.k, K0), R, R
 
 
 def test_an_uninformative_estimate_at_a_reversal_does_not_block_the_reset():
