@@ -93,3 +93,18 @@ def test_bad_geometry_is_refused():
         PlanarSetup(("ux",), (PlanarActuator("a", (0.0, 0.0)),))
     with pytest.raises(ConfigError, match="strokes"):
         two_actuators(1000.0, 400.0).basic_displacements([1.0])
+
+
+@pytest.mark.parametrize("factor", [1.0, 1000.0, 0.001])
+def test_conditioning_is_judged_in_the_lab_whatever_the_model_scale(factor):
+    # one actuator at angle a from its DOF moves cos(a) mm of stroke per mm: 88.5 deg (0.026) is
+    # accepted, 89.7 deg (0.0052) is nearly square to the DOF and refused, at every model scale
+    assert one_actuator(1000.0, 88.5, Factors(displacement=factor)).n_basic == 1
+    with pytest.raises(ConfigError, match="singular or nearly"):
+        one_actuator(1000.0, 89.7, Factors(displacement=factor))
+
+
+def test_basic_dofs_must_be_distinct_names_of_the_pose():
+    for basic in (("ux", "ux"), ("ux", "w"), ()):
+        with pytest.raises(ConfigError, match="distinct names"):
+            PlanarSetup(basic, (PlanarActuator("a", (-1000.0, 0.0)), PlanarActuator("b", (0.0, -1000.0))))
