@@ -108,3 +108,37 @@ def test_basic_dofs_must_be_distinct_names_of_the_pose():
     for basic in (("ux", "ux"), ("ux", "w"), ()):
         with pytest.raises(ConfigError, match="distinct names"):
             PlanarSetup(basic, (PlanarActuator("a", (-1000.0, 0.0)), PlanarActuator("b", (0.0, -1000.0))))
+
+
+def test_three_actuators_in_closed_form():
+    L, b = 1200.0, 600.0  # horizontal actuator pinned at the control point, verticals b either side of it
+    setup = three_actuators(L, b)
+    for ux, uy, theta in ((20.0, 0.0, 0.0), (0.0, -15.0, 0.0), (0.0, 0.0, 0.05), (30.0, 10.0, -0.2)):
+        c, s = math.cos(theta), math.sin(theta)
+        left, right = (np.array([ux + x * c, uy + x * s]) for x in (-b, b))  # the platen's pins, rotated
+        expected = [math.hypot(L + ux, uy) - L,
+                    math.hypot(left[0] + b, left[1] + L) - L,
+                    math.hypot(right[0] - b, right[1] + L) - L]
+        np.testing.assert_allclose(setup.strokes([ux, uy, theta]), expected, atol=1e-9)
+    # small motions: x drives the horizontal actuator alone, y both verticals alike, a rotation
+    # (counter-clockwise positive) lowers the left vertical and lifts the right by b theta
+    np.testing.assert_allclose(setup.linearised_strokes([1.0, 0.0, 0.0]), [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(setup.linearised_strokes([0.0, 1.0, 0.0]), [0.0, 1.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(setup.linearised_strokes([0.0, 0.0, 1e-3]), [0.0, -b * 1e-3, b * 1e-3], atol=1e-9)
+
+
+def test_jacobian_matches_finite_differences_at_a_large_rotation():
+    setup = three_actuators(1000.0, 500.0)
+    d = np.array([40.0, -20.0, 0.5])
+    h = np.array([1e-4, 1e-4, 1e-7])
+    numeric = np.column_stack([(setup.strokes(d + e) - setup.strokes(d - e)) / (2 * e.sum()) for e in np.diag(h)])
+    np.testing.assert_allclose(setup.jacobian(d), numeric, rtol=1e-6, atol=1e-9)
+
+
+def test_builders_refuse_non_positive_dimensions_by_name():
+    for build, args in ((one_actuator, (0.0,)), (two_actuators, (1000.0, 0.0)), (two_actuators, (0.0, 400.0)),
+                        (three_actuators, (1000.0, 0.0)), (three_actuators, (-1.0, 500.0)),
+                        (inverted_v_brace, (0.0, 40.0)), (inverted_v_brace, (1000.0, 90.0))):
+        with pytest.raises(ConfigError, match="positive|angle_deg"):
+            build(*args)
+    assert one_actuator(1000.0).linearised_strokes([1.0])[0] == pytest.approx(1.0, rel=1e-12)  # along x by default
