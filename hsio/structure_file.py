@@ -282,8 +282,10 @@ class _Reader:
             ratios = tuple(self.number(f"damping.zeta[{k}]", z, non_negative=True) for k, z in enumerate(zeta))
         else:
             ratios = (self.number("damping.zeta", zeta, non_negative=True),)
-        if any(z >= 1.0 for z in ratios):
-            raise self.error("damping.zeta", f"a damping ratio is a fraction of critical, below 1; got {list(ratios)}")
+        over = [k for k, z in enumerate(ratios) if z >= 1.0]
+        if over:
+            where = f"damping.zeta[{over[0]}]" if isinstance(zeta, list) else "damping.zeta"
+            raise self.error(where, f"a damping ratio is a fraction of critical, below 1; got {ratios[over[0]]!r}")
         if kind == "modal":
             if "modes" in table:
                 raise self.error("damping.modes", "modal damping applies to every mode; give zeta per mode instead")
