@@ -165,3 +165,18 @@ def test_an_outer_loop_whose_instrument_does_not_follow_stops_the_run(reads, tar
         assert says in str(info.value) and "does not follow the actuator" in str(info.value)
         moved = float(str(info.value).split("actuator 'wall' ")[1].split(" mm")[0])
         assert 0.9 < abs(moved) <= most  # at most max_iterations corrections, then stopped
+
+
+def test_an_outer_loop_on_an_instrument_coarser_than_its_tolerance_says_so_when_it_stops():
+    """An LVDT whose resolution (0.6 mm) is far coarser than the loop's tolerance (0.05 mm) follows
+    its actuator, but the loop chases its steps until it drifts off the target and stops: the
+    message names that cause beside a detached instrument, and the tolerance."""
+    text = WALL.replace('[[experimental]]\nname = "wall"', '[[experimental]]\nname = "wall"\n'
+                        'displacement_from = "lvdt"\nouter_loop = { tolerance_mm = 0.05, max_iterations = 4 }')
+    structure = parse_structure(text + '\n[[instrument]]\nname = "lvdt"\nkind = "lvdt"\nelement = "wall"\n'
+                                'resolution = 0.6\n', "coarse.toml")
+    ground = hsio.synthetic_record(duration_s=0.5, dt=structure.dt, pga_g=0.3, seed=1)
+    with hsio.open_site(structure, "emulator://", test_rate=10, options={"preset": "structure_I"}) as site:
+        with pytest.raises(hsio.ExperimentStopped, match="instrument 'lvdt': the outer loop moved actuator") as info:
+            hsio.simulate(structure, ground, site)
+    assert "reads more coarsely than the loop's tolerance of 0.05 mm (noise or resolution" in str(info.value)

@@ -341,7 +341,8 @@ class ActuatorSite:
                     f"instrument {name!r}: the outer loop moved actuator {actuator!r} {corrections[k]:+.3f} mm beyond "
                     f"its target in {iterations} corrections, and the instrument went from {first[j]:+.3f} to "
                     f"{last[j]:+.3f} mm off the target: it does not follow the actuator (detached, stuck, or its "
-                    f"scale of the wrong sign); the run stops")
+                    f"scale of the wrong sign), or it reads more coarsely than the loop's tolerance of "
+                    f"{outer.tolerance_mm:g} mm (noise or resolution: the loop then chases them); the run stops")
 
     def continue_trials(self, last_trial: int) -> None:
         """Number the trials from ``last_trial`` + 1: a resumed run's instruments log goes on after
