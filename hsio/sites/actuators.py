@@ -162,9 +162,15 @@ class ActuatorSite:
         return fb
 
     # -- static preloads ------------------------------------------------------------------------
+    # A preload ramped in is reached when every static actuator measures it within this fraction;
+    # the ramp in holds its end, at most as many more loop steps as the ramp took, until it is (a
+    # load train's lag or compliance leaves the force short of a fast ramp's end).
+    PRELOAD_REACHED = 0.005
+
     def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str, stop=None, pause=None) -> None:
         """Ramp the static actuators' targets from ``start`` to ``end`` over the longest ``ramp_s``,
-        the dynamic ones holding. ``stop`` (a callable) is asked before every step; when it
+        the dynamic ones holding; a ramp in then holds ``end`` until the preloads are reached
+        (:attr:`PRELOAD_REACHED`), for at most as long again. ``stop`` (a callable) is asked before every step; when it
         answers true the ramp ends where it stands, the static actuators left in force control at
         their present targets, and :class:`RampStopped` says where (target and measured force).
         ``pause`` (a callable) is called before every step: an operator's pause holds the ramp
@@ -184,17 +190,20 @@ class ActuatorSite:
             return RampStopped(f"the {phase.replace('_', ' ')} of the static preloads was stopped after "
                                f"{done} of {steps} steps; force control left at {left}")
 
+        settle = steps if phase == "ramp_in" else 0
         try:
-            for k in range(1, steps + 1):
+            for k in range(1, steps + settle + 1):
                 if pause is not None:
                     try:
                         pause()
                     except OperatorStop:
-                        raise stopped(k - 1) from None
+                        raise stopped(min(k - 1, steps)) from None
                 if stop is not None and stop():
-                    raise stopped(k - 1)
-                self.static_targets = end.copy() if k == steps else start + (end - start) * (k / steps)
-                self._execute(hold)
+                    raise stopped(min(k - 1, steps))
+                self.static_targets = end.copy() if k >= steps else start + (end - start) * (k / steps)
+                fb = self._execute(hold)
+                if k >= steps and np.all(np.abs(fb.force[self.n_dynamic:] - end) <= self.PRELOAD_REACHED * np.abs(end)):
+                    break
         finally:
             self._phase = "test"
 
