@@ -15,6 +15,7 @@ import inspect
 import math
 import numbers
 import tomllib
+import unicodedata
 from importlib import resources
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, Experimen
 
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
+MAX_NAME = 100  # characters of a name (a DOF, element, actuator, instrument, ...)
 MAX_FILE_BYTES = 4_000_000
 FREQUENCY_BOUNDS_HZ = (1e-3, 1e7)
 GROUND = "ground"
@@ -150,8 +152,16 @@ class _Reader:
         return float(value)
 
     def string(self, where: str, value) -> str:
+        """A name: not empty, at most MAX_NAME characters, no control character (a line break, a
+        tab, ...): names are printed in tables, plotted and recorded as columns."""
         if not isinstance(value, str) or not value.strip():
             raise self.error(where, f"must be a non-empty string, got {value!r}")
+        if len(value) > MAX_NAME:
+            raise self.error(where, f"a name of {len(value)} characters; at most {MAX_NAME}")
+        control = next((c for c in value if unicodedata.category(c) in ("Cc", "Zl", "Zp")), None)
+        if control is not None:
+            raise self.error(where, f"{value!r} holds the control character {control!r}; names are printed, "
+                             "plotted and recorded: give one without")
         return value
 
     def table(self, where: str, value, keys: set[str]) -> dict:

@@ -80,3 +80,21 @@ def test_an_instrument_named_as_an_sql_keyword_or_from_a_digit_is_recorded(tmp_p
     table = Run(path).table("instruments")
     assert set(table) == {"step", "iterations", "select", "1lvdt"}
     assert table["select"][0] == pytest.approx(table["1lvdt"][0]) and abs(table["select"][0]) > 0.1
+
+
+@pytest.mark.parametrize("name, message", [
+    ("x" * 101, r"dof\[0\]\.name: a name of 101 characters; at most 100"),
+    ("a\\nb", r"dof\[0\]\.name: 'a\\nb' holds the control character '\\n'"),
+    ("bell\\u0007", r"dof\[0\]\.name: 'bell\\x07' holds the control character"),
+])
+def test_names_too_long_or_with_control_characters_are_refused(name, message):
+    text = WALL.replace('[[dof]]\nname = "wall"', f'[[dof]]\nname = "{name}"').replace('dof = "wall"', f'dof = "{name}"')
+    with pytest.raises(ConfigError, match="^wall.toml: " + message):
+        parse_structure(text, "wall.toml")
+
+
+def test_names_of_unicode_letters_and_spaces_up_to_100_characters_load():
+    name = "Wand Erdgeschoss \u00e4\u00f6\u00fc \u6f22" + "x" * 78
+    assert len(name) == 100
+    text = WALL.replace('[[dof]]\nname = "wall"', f'[[dof]]\nname = "{name}"').replace('dof = "wall"', f'dof = "{name}"')
+    assert parse_structure(text, "wall.toml").dof_names == (name,)
