@@ -25,6 +25,7 @@ from hsio.interfaces import ControlMode
 from hsio.safety.hold import HoldReport
 from hsio.secant import SecantEstimator, secant_stiffness
 from hsio.sites.base import Daq
+from hsio.structures import OuterLoop
 
 
 def final_hold_warning(report: HoldReport) -> str:
@@ -352,6 +353,28 @@ class ActuatorSite:
                     f"{last[j]:+.3f} mm off the target: it does not follow the actuator (detached, stuck, or its "
                     f"scale of the wrong sign), or it reads more coarsely than the loop's tolerance of "
                     f"{outer.tolerance_mm:g} mm (noise or resolution: the loop then chases them); the run stops")
+
+    def check_instruments_at_rest(self) -> None:
+        """Refuse (ConfigError, before any command) a record from rest where an instrument that
+        gives an element its displacement reads, at enabling, away from that element's actuator
+        transducer by more than BEYOND_TOLERANCE times the outer loop's tolerance (the default
+        tolerance without a loop): an instrument not zeroed, whose offset the first step would take
+        as the specimen's displacement, and an outer loop would drive the actuator by at once."""
+        for j, source in enumerate(self.external):
+            if source is None:
+                continue
+            name, outer = source
+            k = self._actuator_of[j]
+            actuator = self.loop.actuators[k].name
+            reading = self.readback[name] - self.instrument_zero[name]
+            transducer = self.readback[f"{actuator}.displacement"] - self.zero[k]
+            limit = self.BEYOND_TOLERANCE * (outer or OuterLoop()).tolerance_mm
+            if abs(reading - transducer) > limit:
+                raise ConfigError(
+                    f"instrument {name!r} reads {reading:+.3f} mm at rest where actuator {actuator!r} reads "
+                    f"{transducer:+.3f} mm (more than {limit:g} mm apart): it takes the element's displacement, and "
+                    "from rest its offset would be taken as the specimen's (an outer loop would move the actuator "
+                    "by it at the first step); zero the instrument, or open the site with relative=True; nothing moved")
 
     def continue_trials(self, last_trial: int) -> None:
         """Number the trials from ``last_trial`` + 1: a resumed run's instruments log goes on after
