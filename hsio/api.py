@@ -396,6 +396,8 @@ def check_run_inputs(structure: Structure, ground, site, start: str = "rest") ->
             raise ConfigError("simulate: this site has run a record already, and its actuators stand where that run "
                               "left them, not at rest: start=\"present\" goes on from there (docs/safety.md section "
                               "6), or open a new site to start a test from rest; nothing moved")
+        if start == "rest" and not getattr(site, "moved", False) and hasattr(site, "check_instruments_at_rest"):
+            site.check_instruments_at_rest()
 
 
 def format_readback(readback: dict[str, float], units: dict[str, str] | None = None) -> str:

@@ -323,7 +323,8 @@ class Recorder:
         if table not in self._extra_tables:
             names = [_NAME.sub("_", k) for k in row]
             self._extra_tables[table] = names
-            self.db.execute(f"CREATE TABLE {table} (step INTEGER PRIMARY KEY, " + ", ".join(f"{c} REAL" for c in names) + ")")
+            # quoted: a name may be an SQL keyword or begin with a digit (an instrument "1lvdt", "select")
+            self.db.execute(f"CREATE TABLE {table} (step INTEGER PRIMARY KEY, " + ", ".join(f'"{c}" REAL' for c in names) + ")")
         n = len(self._extra_tables[table])
         self.db.execute(f"INSERT INTO {table} VALUES ({', '.join('?' * (n + 1))})",
                         [step, *(None if x is None else float(x) for x in row.values())])

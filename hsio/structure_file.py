@@ -15,6 +15,7 @@ import inspect
 import math
 import numbers
 import tomllib
+import unicodedata
 from importlib import resources
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from hsio.structures import (DAMPING_KINDS, INSTRUMENT_KINDS, Damping, Experimen
 
 MAX_DOF = 1000
 MAX_ELEMENTS = 10000
+MAX_NAME = 100  # characters of a name (a DOF, element, actuator, instrument, ...)
 MAX_FILE_BYTES = 4_000_000
 FREQUENCY_BOUNDS_HZ = (1e-3, 1e7)
 GROUND = "ground"
@@ -150,8 +152,16 @@ class _Reader:
         return float(value)
 
     def string(self, where: str, value) -> str:
+        """A name: not empty, at most MAX_NAME characters, no control character (a line break, a
+        tab, ...): names are printed in tables, plotted and recorded as columns."""
         if not isinstance(value, str) or not value.strip():
             raise self.error(where, f"must be a non-empty string, got {value!r}")
+        if len(value) > MAX_NAME:
+            raise self.error(where, f"a name of {len(value)} characters; at most {MAX_NAME}")
+        control = next((c for c in value if unicodedata.category(c) in ("Cc", "Zl", "Zp")), None)
+        if control is not None:
+            raise self.error(where, f"{value!r} holds the control character {control!r}; names are printed, "
+                             "plotted and recorded: give one without")
         return value
 
     def table(self, where: str, value, keys: set[str]) -> dict:
@@ -282,8 +292,10 @@ class _Reader:
             ratios = tuple(self.number(f"damping.zeta[{k}]", z, non_negative=True) for k, z in enumerate(zeta))
         else:
             ratios = (self.number("damping.zeta", zeta, non_negative=True),)
-        if any(z >= 1.0 for z in ratios):
-            raise self.error("damping.zeta", f"a damping ratio is a fraction of critical, below 1; got {list(ratios)}")
+        over = [k for k, z in enumerate(ratios) if z >= 1.0]
+        if over:
+            where = f"damping.zeta[{over[0]}]" if isinstance(zeta, list) else "damping.zeta"
+            raise self.error(where, f"a damping ratio is a fraction of critical, below 1; got {ratios[over[0]]!r}")
         if kind == "modal":
             if "modes" in table:
                 raise self.error("damping.modes", "modal damping applies to every mode; give zeta per mode instead")

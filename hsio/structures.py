@@ -437,6 +437,7 @@ class Structure:
             self.damping.check(n)
         except ConfigError as exc:
             raise ConfigError(f"structure {self.name!r}: {exc}") from None
+        self._check_record_names()
         self._check_model()
 
     def _check_arguments(self) -> None:
@@ -485,6 +486,50 @@ class Structure:
             except ConfigError as exc:  # the file's key, mass.matrix, is the argument mass_matrix here
                 raise ConfigError(str(exc).replace(": mass.matrix", ": mass_matrix", 1)) from None
             object.__setattr__(self, "mass_matrix", tuple(tuple(float(v) for v in r) for r in M))
+
+    # columns of the record's instruments table beside one per instrument
+    INSTRUMENT_TABLE_COLUMNS = ("step", "iterations")
+
+    def _check_record_names(self) -> None:
+        """Every name the record writes as a column is its own column there: DOFs, recorded
+        channels (:func:`channel_names`), preload actuators and instruments, each kept to letters,
+        digits and _ and compared ignoring case, as SQLite compares column names
+        (hsio.recording.column). Two that would share one (``"A"`` and ``"a"``, ``"lvdt-1"`` and
+        ``"lvdt_1"``, an element named ``"column.x"`` beside element ``column``'s channel on DOF
+        ``x``) are refused here, before a run opens anything, rather than when its first step is written."""
+        from hsio.recording import column
+
+        what = self.source or f"structure {self.name!r}"
+        channels = []
+        for k, e in enumerate(self.experimental):
+            if len(e.basic_dofs) == 1 and not e.has_setup:
+                key = "name" if e.actuator == e.name else "actuator"
+                channels.append((f"experimental[{k}].{key}", e.actuator))
+            else:
+                channels += [(f"experimental[{k}].name", f"{e.name}.{self.dof_names[d]}") for d in e.basic_dofs]
+        groups = (
+            ("DOF", [(f"dof[{k}].name", name) for k, name in enumerate(self.dof_names)], ()),
+            ("recorded channel", channels, ()),
+            ("preload actuator", [(f"static[{k}].actuator", s.actuator) for k, s in enumerate(self.static)], ()),
+            ("instrument", [(f"instrument[{k}].name", i.name) for k, i in enumerate(self.instruments)],
+             self.INSTRUMENT_TABLE_COLUMNS),
+        )
+        for what_kind, names, reserved in groups:
+            seen: dict[str, tuple[str, str]] = {}
+            for where, name in names:
+                key = column("", name)[1:].casefold()
+                if key in reserved:
+                    raise ConfigError(f"{what}: {where}: {what_kind} name {name!r} is a column the record's "
+                                      f"{what_kind}s table keeps for itself ({', '.join(reserved)}); give another")
+                if key in seen:
+                    first_where, first = seen[key]
+                    if first == name:
+                        raise ConfigError(f"{what}: {where}: {what_kind} {name!r} is also the {what_kind} of "
+                                          f"{first_where}; give names that differ")
+                    raise ConfigError(f"{what}: {where}: {what_kind} {name!r} and {first!r} of {first_where} would be "
+                                      "one column of the record (it keeps the letters, digits and _ of a name and "
+                                      "ignores case); give names that differ there")
+                seen[key] = (where, name)
 
     def _check_model(self) -> None:
         """The damping ratios are fractions of critical, K_I is not singular and no mode gets a

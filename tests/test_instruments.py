@@ -165,3 +165,42 @@ def test_an_outer_loop_whose_instrument_does_not_follow_stops_the_run(reads, tar
         assert says in str(info.value) and "does not follow the actuator" in str(info.value)
         moved = float(str(info.value).split("actuator 'wall' ")[1].split(" mm")[0])
         assert 0.9 < abs(moved) <= most  # at most max_iterations corrections, then stopped
+
+
+def test_an_outer_loop_on_an_instrument_coarser_than_its_tolerance_says_so_when_it_stops():
+    """An LVDT whose resolution (0.6 mm) is far coarser than the loop's tolerance (0.05 mm) follows
+    its actuator, but the loop chases its steps until it drifts off the target and stops: the
+    message names that cause beside a detached instrument, and the tolerance."""
+    text = WALL.replace('[[experimental]]\nname = "wall"', '[[experimental]]\nname = "wall"\n'
+                        'displacement_from = "lvdt"\nouter_loop = { tolerance_mm = 0.05, max_iterations = 4 }')
+    structure = parse_structure(text + '\n[[instrument]]\nname = "lvdt"\nkind = "lvdt"\nelement = "wall"\n'
+                                'resolution = 0.6\n', "coarse.toml")
+    ground = hsio.synthetic_record(duration_s=0.5, dt=structure.dt, pga_g=0.3, seed=1)
+    with hsio.open_site(structure, "emulator://", test_rate=10, options={"preset": "structure_I"}) as site:
+        with pytest.raises(hsio.ExperimentStopped, match="instrument 'lvdt': the outer loop moved actuator") as info:
+            hsio.simulate(structure, ground, site)
+    assert "reads more coarsely than the loop's tolerance of 0.05 mm (noise or resolution" in str(info.value)
+
+
+@pytest.mark.parametrize("outer_loop", [True, False])
+def test_a_record_from_rest_is_refused_on_an_instrument_that_is_not_zeroed(monkeypatch, outer_loop):
+    """An LVDT that reads 3 mm at rest where the actuator's transducer reads 0 (not zeroed): from
+    rest its offset would be the specimen's displacement at the first step, and an outer loop would
+    move the actuator by 3 mm at once. simulate refuses before any command, naming both readings;
+    with relative trials (its reading at enabling is its zero) the same run goes."""
+    true_value = EmulatedInstruments.value
+    monkeypatch.setattr(EmulatedInstruments, "value",
+                        lambda self, inst: true_value(self, inst) + (3.0 if inst.name == "wall_lvdt" else 0.0))
+    structure = with_lvdt()
+    if not outer_loop:
+        structure = parse_structure(WALL.replace('[[experimental]]\nname = "wall"', '[[experimental]]\nname = "wall"\n'
+                                                 'displacement_from = "wall_lvdt"') + INSTRUMENTS, "wall.toml")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=structure.dt, pga_g=0.3, seed=1)
+    with hsio.open_site(structure, "emulator://", test_rate=2) as site:
+        with pytest.raises(ConfigError, match=r"instrument 'wall_lvdt' reads \+3\.0\d\d mm at rest where actuator "
+                                              r"'wall' reads [+-]0\.0\d\d mm .*nothing moved"):
+            hsio.simulate(structure, ground, site)
+        assert not getattr(site, "moved", False) and site.instrument_log == []
+    with hsio.open_site(structure, "emulator://", test_rate=2, relative=True) as site:
+        hs = hsio.simulate(structure, ground, site)
+    assert hs.steps == 40 and abs(hs.commands[1, 0]) < 0.1  # no jump by the offset at the first step

@@ -193,6 +193,8 @@ BAD = [
      r"damping\.modes\[0\]: mode 3 does not exist"),
     ('[[dof]]\nname = "a"\nmass = 1.0\n[[spring]]\ndof = "a"\nk = 1.0\n[damping]\nkind = "viscous"\n', r"damping\.kind: must be one of"),
     ('[[dof]]\nname = "a"\nmass = 1.0\n[[spring]]\ndof = "a"\nk = 1.0\n[damping]\nzeta = 1.5\n', r"damping\.zeta: .*below 1"),
+    ('[[dof]]\nname = "a"\nmass = 1.0\n[[dof]]\nname = "b"\nmass = 1.0\n[[spring]]\ndof = "a"\nk = 1.0\n[[spring]]\ndof = "b"\n'
+     'k = 2.0\n[damping]\nkind = "modal"\nzeta = [0.05, 1.0]\n', r"damping\.zeta\[1\]: .*below 1; got 1\.0$"),
     ('[[dof]]\nname = "a"\nmass = 1.0\n[[spring]]\ndof = "a"\nk = 1.0\n[damping]\nkind = "modal"\nzeta = [0.1, 0.2]\n',
      r"damping\.zeta: 2 ratios for 1 modes"),
     ('[[dof]]\nname = "a"\nmass = 1.0\n[[numerical]]\ndof = "a"\nmodel = { kind = "rubber", k = 1.0 }\n',

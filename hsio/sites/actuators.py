@@ -25,6 +25,7 @@ from hsio.interfaces import ControlMode
 from hsio.safety.hold import HoldReport
 from hsio.secant import SecantEstimator, secant_stiffness
 from hsio.sites.base import Daq
+from hsio.structures import OuterLoop
 
 
 def final_hold_warning(report: HoldReport) -> str:
@@ -162,9 +163,15 @@ class ActuatorSite:
         return fb
 
     # -- static preloads ------------------------------------------------------------------------
+    # A preload ramped in is reached when every static actuator measures it within this fraction;
+    # the ramp in holds its end, at most as many more loop steps as the ramp took, until it is (a
+    # load train's lag or compliance leaves the force short of a fast ramp's end).
+    PRELOAD_REACHED = 0.005
+
     def _ramp(self, start: np.ndarray, end: np.ndarray, phase: str, stop=None, pause=None) -> None:
         """Ramp the static actuators' targets from ``start`` to ``end`` over the longest ``ramp_s``,
-        the dynamic ones holding. ``stop`` (a callable) is asked before every step; when it
+        the dynamic ones holding; a ramp in then holds ``end`` until the preloads are reached
+        (:attr:`PRELOAD_REACHED`), for at most as long again. ``stop`` (a callable) is asked before every step; when it
         answers true the ramp ends where it stands, the static actuators left in force control at
         their present targets, and :class:`RampStopped` says where (target and measured force).
         ``pause`` (a callable) is called before every step: an operator's pause holds the ramp
@@ -184,17 +191,20 @@ class ActuatorSite:
             return RampStopped(f"the {phase.replace('_', ' ')} of the static preloads was stopped after "
                                f"{done} of {steps} steps; force control left at {left}")
 
+        settle = steps if phase == "ramp_in" else 0
         try:
-            for k in range(1, steps + 1):
+            for k in range(1, steps + settle + 1):
                 if pause is not None:
                     try:
                         pause()
                     except OperatorStop:
-                        raise stopped(k - 1) from None
+                        raise stopped(min(k - 1, steps)) from None
                 if stop is not None and stop():
-                    raise stopped(k - 1)
-                self.static_targets = end.copy() if k == steps else start + (end - start) * (k / steps)
-                self._execute(hold)
+                    raise stopped(min(k - 1, steps))
+                self.static_targets = end.copy() if k >= steps else start + (end - start) * (k / steps)
+                fb = self._execute(hold)
+                if k >= steps and np.all(np.abs(fb.force[self.n_dynamic:] - end) <= self.PRELOAD_REACHED * np.abs(end)):
+                    break
         finally:
             self._phase = "test"
 
@@ -341,7 +351,30 @@ class ActuatorSite:
                     f"instrument {name!r}: the outer loop moved actuator {actuator!r} {corrections[k]:+.3f} mm beyond "
                     f"its target in {iterations} corrections, and the instrument went from {first[j]:+.3f} to "
                     f"{last[j]:+.3f} mm off the target: it does not follow the actuator (detached, stuck, or its "
-                    f"scale of the wrong sign); the run stops")
+                    f"scale of the wrong sign), or it reads more coarsely than the loop's tolerance of "
+                    f"{outer.tolerance_mm:g} mm (noise or resolution: the loop then chases them); the run stops")
+
+    def check_instruments_at_rest(self) -> None:
+        """Refuse (ConfigError, before any command) a record from rest where an instrument that
+        gives an element its displacement reads, at enabling, away from that element's actuator
+        transducer by more than BEYOND_TOLERANCE times the outer loop's tolerance (the default
+        tolerance without a loop): an instrument not zeroed, whose offset the first step would take
+        as the specimen's displacement, and an outer loop would drive the actuator by at once."""
+        for j, source in enumerate(self.external):
+            if source is None:
+                continue
+            name, outer = source
+            k = self._actuator_of[j]
+            actuator = self.loop.actuators[k].name
+            reading = self.readback[name] - self.instrument_zero[name]
+            transducer = self.readback[f"{actuator}.displacement"] - self.zero[k]
+            limit = self.BEYOND_TOLERANCE * (outer or OuterLoop()).tolerance_mm
+            if abs(reading - transducer) > limit:
+                raise ConfigError(
+                    f"instrument {name!r} reads {reading:+.3f} mm at rest where actuator {actuator!r} reads "
+                    f"{transducer:+.3f} mm (more than {limit:g} mm apart): it takes the element's displacement, and "
+                    "from rest its offset would be taken as the specimen's (an outer loop would move the actuator "
+                    "by it at the first step); zero the instrument, or open the site with relative=True; nothing moved")
 
     def continue_trials(self, last_trial: int) -> None:
         """Number the trials from ``last_trial`` + 1: a resumed run's instruments log goes on after
