@@ -617,7 +617,7 @@ class Structure:
     def damping_ratios(self) -> np.ndarray:
         """zeta_r = phi_r^T C phi_r / (2 w_r), per mode (exact for classical damping)."""
         omega, phi = self.modes()
-        return np.einsum("ir,ij,jr->r", phi, self.C, phi) / (2 * omega)
+        return np.sum(phi * (self.C @ phi), axis=0) / (2 * omega)  # phi_r^T C phi_r, one product
 
     @property
     def experimental_dofs(self) -> list[int]:
