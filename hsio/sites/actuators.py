@@ -374,7 +374,8 @@ class ActuatorSite:
                     f"instrument {name!r} reads {reading:+.3f} mm at rest where actuator {actuator!r} reads "
                     f"{transducer:+.3f} mm (more than {limit:g} mm apart): it takes the element's displacement, and "
                     "from rest its offset would be taken as the specimen's (an outer loop would move the actuator "
-                    "by it at the first step); zero the instrument, or open the site with relative=True; nothing moved")
+                    "by it at the first step); zero the instrument (from Python: or open the site with relative=True); "
+                    "nothing moved")
 
     def continue_trials(self, last_trial: int) -> None:
         """Number the trials from ``last_trial`` + 1: a resumed run's instruments log goes on after
