@@ -311,3 +311,29 @@ def test_elements_of_a_session_the_server_stopped_are_not_recorded_as_leaving_it
     b.close()
     run = Run(tmp_path / "records" / "run.sqlite")
     assert [e["kind"] for e in run.events()] == ["hold", "stop"] and "server" in run.summary["stopped"]
+
+
+def test_a_failed_element_ends_the_session_at_once_for_the_others(tmp_path):
+    """C1's trial is refused (beyond the stroke) in the middle of a step, as an OpenSees model
+    asks its elements one after the other: the model now waits for C1's answer for ever and
+    sends C2 nothing more. The session ends at once (C2's connection is closed by the server,
+    the record closed with the stop), not after C2 has been silent for timeout_s."""
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 30.0\n" + QUIET)
+    with serving(config) as server:
+        a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
+        try:
+            a.setup()
+            b.setup()
+            step_together((a, b), [0.5])
+            a.send(p.SET_TRIAL, [500.0], t=0.02)
+            a.send(p.GET_FORCE)
+            assert a.closed_by_server()
+            assert b.closed_by_server(timeout_s=5.0)  # C2 sent nothing: told at once, not after 30 s
+            assert wait_for(lambda: session_over(server), timeout_s=5.0)
+        finally:
+            a.close()
+            b.close()
+    run = Run(tmp_path / "records" / "run.sqlite")
+    assert run.summary["steps"] == 1 and "beyond the stroke" in run.summary["stopped"]
+    assert "closed the connection" not in run.summary["end"] and "C1" in run.summary["end"]
+    assert [e["kind"] for e in run.events()] == ["hold", "stop"]

@@ -42,6 +42,7 @@ class OpenSeesServer:
         self._freed = threading.Condition(self._lock)  # notified when an element's client leaves
         self._busy: dict[int, socket.socket] = {}
         self._open: set[socket.socket] = set()  # every accepted connection not yet closed
+        self._ended: dict[socket.socket, str] = {}  # connections shut down because another element stopped the session
         self._pending = 0
         self._threads: list[threading.Thread] = []
         self.refused = 0
@@ -140,29 +141,40 @@ class OpenSeesServer:
             handler = ElementHandler(self.lab, j, p.Framer(conn, setup.data_size, self.lab.silent_since),
                                      ctrl=setup.ctrl)
             reason = "left"
+            failed = False  # this element stopped the session: the actuators hold
             try:
                 reason = handler.serve()
             except p.PeerClosed as exc:
                 reason = str(exc)
-                if self._stop.is_set():  # the server shut the connection down: it stopped the session
+                if conn in self._ended:
+                    reason = self._ended[conn]
+                elif self._stop.is_set():  # the server shut the connection down: it stopped the session
                     reason = "stopped: the server is stopping"
                     self.lab.hold(reason)
             except (TimeoutError, socket.timeout):
                 reason = f"silent for {self.lab.settings.timeout_s:g} s: disconnected"
                 self.lab.hold(reason)
+                failed = True
             except p.ProtocolError as exc:
                 reason = f"refused: {exc}"
                 self.lab.hold(reason)
+                failed = True
             except HsioError as exc:
                 reason = f"stopped: {exc}"
                 self.lab.hold(reason)
+                failed = True
             except OSError as exc:
-                reason = ("stopped: the server is stopping" if self._stop.is_set()
-                          else f"connection lost: {exc.strerror or exc}")
-                self.lab.hold(reason)
+                if conn in self._ended:
+                    reason = self._ended[conn]
+                else:
+                    reason = ("stopped: the server is stopping" if self._stop.is_set()
+                              else f"connection lost: {exc.strerror or exc}")
+                    self.lab.hold(reason)
+                    failed = not self._stop.is_set()
             except Exception as exc:  # a fault of the server itself: hold, report, keep serving
                 reason = f"unexpected error: {exc!r}"
                 self.lab.hold(reason)
+                failed = True
             try:
                 leaving = self.lab.begin_detach(j, f"{reason}; {handler.messages} messages", clean=handler.died)
             except Exception as exc:  # the server is closing: the lab closes the session itself
@@ -181,6 +193,8 @@ class OpenSeesServer:
                     conn.close()
                 except OSError:
                     pass
+            if failed and not self._stop.is_set():
+                self._end_session_of_others(name, reason)
             if leaving is not None:
                 try:
                     leaving.result()
@@ -189,11 +203,31 @@ class OpenSeesServer:
         finally:
             with self._freed:
                 self._open.discard(conn)
+                self._ended.pop(conn, None)
                 if claimed:
                     self._busy.pop(j, None)
                     self._freed.notify_all()
             try:
                 conn.close()
+            except OSError:
+                pass
+
+    def _end_session_of_others(self, name: str, reason: str) -> None:
+        """Element ``name`` stopped the session (``reason``; the actuators hold): the session's
+        other elements are disconnected now. Their model waits for ever on the element that
+        failed and sends them nothing more, so their silence would otherwise keep the session,
+        and its record, open for ``timeout_s``."""
+        try:  # queued after the failed element's detach: the elements still in the session
+            others = self.lab._call(lambda: sorted(self.lab.active))
+        except HsioError:
+            return
+        with self._lock:
+            conns = [self._busy[k] for k in others if k in self._busy]
+            for conn in conns:
+                self._ended[conn] = f"stopped: element {name} stopped the session ({reason})"
+        for conn in conns:
+            try:
+                conn.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
 
