@@ -98,7 +98,8 @@ def test_a_setup_message_trickled_byte_by_byte_is_dropped_in_time(opensees_serve
     took = trickle(c.sock, p.element_setup(1).encode(), 0.2, limit_s=4.0)
     c.close()
     assert took is not None and took < 2.5, took
-    assert wait_for(lambda: any("no setup message in time" in line for line in opensees_server.lines))
+    assert wait_for(lambda: any("no setup message within 1 s ([opensees] timeout_s)" in line
+                                for line in opensees_server.lines))
     good = RawClient(opensees_server.ports[0])
     good.setup()
     assert 0.3 < good.step(1.0, 0.01) < 0.9

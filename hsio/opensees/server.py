@@ -105,10 +105,15 @@ class OpenSeesServer:
         claimed = False
         try:
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            conn.settimeout(min(SETUP_TIMEOUT_S, self.lab.settings.timeout_s))
+            limit = min(SETUP_TIMEOUT_S, self.lab.settings.timeout_s)
+            conn.settimeout(limit)
             try:
                 setup = p.Setup.decode(bytes(p.recv_exact(conn, p.SETUP_BYTES)))
                 setup.check(self.lab.n_basic[j], who, self.lab.channels[self.lab.blocks[j]])
+            except (TimeoutError, socket.timeout) as exc:
+                key = " ([opensees] timeout_s)" if limit < SETUP_TIMEOUT_S else ""
+                self._refuse(conn, f"{who}: refused: no setup message within {limit:g} s{key}: {exc}")
+                return
             except (p.ProtocolError, p.PeerClosed, OSError) as exc:
                 self._refuse(conn, f"{who}: refused: {_describe(exc)}")
                 return
@@ -269,7 +274,7 @@ class OpenSeesServer:
 
 def _describe(exc: BaseException) -> str:
     if isinstance(exc, (TimeoutError, socket.timeout)):
-        return "no setup message in time"
+        return f"timed out ({exc})" if str(exc) else "timed out"
     if isinstance(exc, OSError):
         return exc.strerror or str(exc)
     return str(exc)
