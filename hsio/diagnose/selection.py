@@ -45,6 +45,10 @@ RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signat
 # shorter blocks an RMS error is too uncertain for a margin of 10 % to mean anything.
 MIN_BLOCK_LAGS = 10.0
 MIN_BLOCK_SAMPLES = 50
+# The measured displacement follows the command: it correlates with it at this normalised
+# cross-correlation or better and lags it, or leads it by no more than this (s).
+FOLLOW_CORRELATION = 0.5
+FOLLOW_LEAD_S = 0.005
 
 
 @dataclass
@@ -145,6 +149,34 @@ def estimate_lag(record: ActuatorRecord, n_train: int) -> float:
     mid = c.size - 1
     window = xc[mid: mid + max_shift + 1]
     return max(float(np.argmax(window)) * record.dt, 2.0 * record.dt)
+
+
+def check_following(record: ActuatorRecord, n_train: int) -> None:
+    """Refuse a record whose measured displacement does not follow its command: on the training
+    part the two correlate best (normalised cross-correlation r, shifts up to half a second)
+    against each other (r <= -FOLLOW_CORRELATION: a scale of the wrong sign) or with the
+    measurement ahead of the command by more than FOLLOW_LEAD_S (an actuator cannot move before
+    it is told to: the two channels swapped, or the command channel recorded late). Either way
+    no effect of the library applies, and a fit would name a cause with an unphysical value."""
+    c = record.command_mm[:n_train] - record.command_mm[:n_train].mean()
+    m = record.measured_mm[:n_train] - record.measured_mm[:n_train].mean()
+    norm = math.sqrt(float(np.dot(c, c)) * float(np.dot(m, m)))
+    if norm == 0.0:
+        return
+    max_shift = min(n_train // 4, int(round(0.5 / record.dt)))
+    mid = c.size - 1
+    xc = signal.correlate(m, c, mode="full", method="fft")[mid - max_shift: mid + max_shift + 1] / norm
+    k = int(np.argmax(np.abs(xc)))
+    r, shift_s = float(xc[k]), (k - max_shift) * record.dt
+    if r <= -FOLLOW_CORRELATION:
+        raise RecordError(f"{record.source}: the measured displacement moves against the command (correlation "
+                          f"{r:+.2f} on the training part): the sign of a channel's scale is reversed "
+                          "(a column's sign, or --command-scale / --measured-scale of a DAQ export) or the transducer is wired the other way")
+    if r >= FOLLOW_CORRELATION and -shift_s > max(FOLLOW_LEAD_S, 2.0 * record.dt):
+        raise RecordError(f"{record.source}: the measured displacement leads the command by {1e3 * -shift_s:.4g} ms "
+                          f"(cross-correlation {r:.2f} on the training part), and an actuator cannot move before it is "
+                          "commanded: the command and measured channels are swapped (the columns, or --command-channel / "
+                          "--measured-channel of a DAQ export) or the command channel is recorded late")
 
 
 def too_short(record: ActuatorRecord, n_train: int, n_choose: int, lag_s: float) -> str | None:
@@ -260,6 +292,7 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
         raise RecordError(f"{record.source}: the measured displacement does not move in the training part, while "
                           "the command does: the actuator did not follow (hydraulics off, interlock) or the "
                           "channel is not the displacement")
+    check_following(record, n_train)
     baseline = fit_baseline(record, n_train)
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
     names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
