@@ -297,12 +297,15 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
     names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
     short = too_short(record, n_train, n_choose, baseline.params["lag_s"])
+    # A baseline that already predicts the choosing block to rounding (a noise-free record of the
+    # model itself) leaves nothing to explain: gains between rounding errors name nothing.
+    resolved = baseline.rms_choose_mm > residual_mod.precision_floor(record.measured_mm)
     candidates = []
     for name in names:
         f = fit(record, (name,), ctx, n_train, EFFECTS[name].starts(ctx))
         choose_gain = ratio(baseline.rms_choose_mm, f.rms_choose_mm)
         candidates.append(Candidate(name, f, ratio(baseline.rms_test_mm, f.rms_test_mm),
-                                    choose_gain >= margin and short is None, choose_gain))
+                                    choose_gain >= margin and short is None and resolved, choose_gain))
     named = [c for c in candidates if c.named]
     floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
     if not named:
