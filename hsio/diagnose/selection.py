@@ -49,6 +49,7 @@ MIN_BLOCK_SAMPLES = 50
 # cross-correlation or better and lags it, or leads it by no more than this (s).
 FOLLOW_CORRELATION = 0.5
 FOLLOW_LEAD_S = 0.005
+STILL_SHARE = 0.01  # a held-out block whose command moves less than this share of the record's range is at rest
 
 
 @dataclass
@@ -194,6 +195,20 @@ def too_short(record: ActuatorRecord, n_train: int, n_choose: int, lag_s: float)
             f"({1e3 * MIN_BLOCK_LAGS * lag_s:.4g} ms) in each (a longer record)")
 
 
+def still_block(record: ActuatorRecord, n_train: int, n_choose: int) -> str | None:
+    """Why no cause can be judged when the choosing or the scoring block holds no motion (its
+    command moves less than STILL_SHARE of the record's range: a long rest at the end of the
+    record), or None. A block at rest tells no model from another, and its error says nothing of
+    how the model follows a motion: without this, a delay hidden in the motion would answer none."""
+    span = float(np.ptp(record.command_mm))
+    for name, (a, b) in (("choosing", (n_train, n_choose)), ("scoring", (n_choose, record.n))):
+        moves = float(np.ptp(record.command_mm[a:b])) if b > a else 0.0
+        if moves < STILL_SHARE * span:
+            return (f"the {name} block (samples {a} to {b}) holds no motion: its command moves {moves:.4g} mm, under "
+                    f"{100 * STILL_SHARE:g} % of the record's {span:.4g} mm; cut the rest off the record")
+    return None
+
+
 def fit_baseline(record: ActuatorRecord, n_train: int) -> Fit:
     lag0 = estimate_lag(record, n_train)
     ctx = Context(record, lag_s=lag0, residual_rms_mm=0.0, v_cmd_peak=0.0, v_meas_peak=0.0, v_model_peak=0.0,
@@ -296,7 +311,7 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     baseline = fit_baseline(record, n_train)
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
     names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
-    short = too_short(record, n_train, n_choose, baseline.params["lag_s"])
+    short = still_block(record, n_train, n_choose) or too_short(record, n_train, n_choose, baseline.params["lag_s"])
     # A baseline that already predicts the choosing block to rounding (a noise-free record of the
     # model itself) leaves nothing to explain: gains between rounding errors name nothing.
     resolved = baseline.rms_choose_mm > residual_mod.precision_floor(record.measured_mm)
