@@ -253,10 +253,10 @@ def _path_force(specimen, d: np.ndarray, dt: float) -> np.ndarray:
 
 def specimen_models(data: RunData) -> tuple[list, list[dict]]:
     """Per actuator, the specimen model that best predicts its measured force on the last 20 %
-    of the steps: the diagnosed model, the structure's model scaled to the measured force or the
-    structure's model with its parameters refitted (:func:`_refitted`), each fitted on the first
-    80 %; the structure's own model when none predicts the last 20 % SPECIMEN_MARGIN times better
-    (the force's noise alone would otherwise pick a model that differs by chance)."""
+    of the steps: the diagnosed model or the structure's model scaled to the measured force, each
+    fitted on the first 80 %; or the structure's model with its parameters refitted
+    (:func:`_refitted`) when it predicts the last 20 % SPECIMEN_MARGIN times better than both
+    (with every parameter free it would otherwise be taken for fitting the force's noise)."""
     from hsio.diagnose.specimen_fit import diagnose_specimen
     from hsio.diagnose.specimen_record import SpecimenRecord
     from hsio.specimens import Diagnosed, make_specimen
@@ -270,10 +270,6 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
         scale = float(np.dot(base[:n_fit], f[:n_fit]) / max(np.dot(base[:n_fit], base[:n_fit]), 1e-300))
         scaled = _scaled(_QuasiStatic(element.model()), scale)
         options = [("structure's model scaled by %.3f" % scale, scaled, {"scale": scale})]
-        refitted = _refitted(element.model(), d, f, n_fit, dt)
-        if refitted is not None:
-            options.append((f"structure's model refitted ({refitted[1]['kind']})", _QuasiStatic(make_specimen(refitted[1])),
-                            {"params": refitted[1]}))
         try:
             diag = diagnose_specimen(SpecimenRecord(f"{data.source}#{element.name}", dt, d, f))
             from hsio.diagnose.specimen_fit import specimen_table
@@ -289,16 +285,20 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
             pred = _path_force(model, d, dt)
             scored.append((_rms(f[n_fit:] - pred[n_fit:]), name, model, info))
         err, name, model, info = min(scored, key=lambda s: s[0])
-        if SPECIMEN_MARGIN * err > own:  # no clearly better model: the structure's own explains the force
-            err, name, model, info = own, "structure's model (no other predicts the force better by the margin)", \
-                _QuasiStatic(element.model()), {}
+        refitted = _refitted(element.model(), d, f, n_fit, dt)
+        if refitted is not None:  # taken only when clearly better: with all its parameters free it also fits noise
+            table = refitted[1]
+            model_r = _QuasiStatic(make_specimen(table))
+            err_r = _rms(f[n_fit:] - _path_force(model_r, d, dt)[n_fit:])
+            if SPECIMEN_MARGIN * err_r < err:
+                err, name, model, info = err_r, f"structure's model refitted ({table['kind']})", model_r, {"params": table}
         models.append(model)
         notes.append({"element": element.name, "model": name, "rms_force_kN": err,
                       "rms_force_structure_model_kN": own, **info})
     return models, notes
 
 
-SPECIMEN_MARGIN = 1.1  # another model replaces the structure's only when it predicts the force this much better
+SPECIMEN_MARGIN = 1.1  # the refitted model replaces the others only when it predicts the force this much better
 REFIT_RANGE = math.log(4.0)  # a refitted parameter stays within a factor of 4 of the structure's value
 REFIT_EVALS = 60  # force-path evaluations per refitted parameter, at most
 
