@@ -70,3 +70,38 @@ def test_a_fraction_out_of_bounds_names_its_option(tmp_path, option, value):
     path = write_csv(record, tmp_path / "r.csv")
     result = CliRunner().invoke(diagnose, [str(path), option, value])
     assert result.exit_code == 2 and f"({option}) must be in" in result.output, result.output
+
+
+@pytest.mark.parametrize("mistake, message", [
+    ("swapped", "the measured displacement leads the command by 2"),  # by the lag's 24 ms of phase on this chirp
+    ("reversed", "the measured displacement moves against the command (correlation -0.99"),
+])
+def test_a_measurement_that_cannot_follow_its_command_is_refused(tmp_path, mistake, message):
+    """The two channels swapped (the measurement a lag ahead of its command) or one of them of the
+    wrong sign: no effect of the library applies, and a fit would name one with an unphysical
+    value (a compliance of -4 mm/kN, a lag at its 2 s bound); refused, naming the mistake."""
+    record = emulate(chirp_command(6.0, 500.0, amplitude_mm=4.0, f1_hz=3.0), ServoConfig(rate_hz=500.0, lag_s=0.03))
+    if mistake == "swapped":
+        record = dataclasses.replace(record, command_mm=record.measured_mm, measured_mm=record.command_mm)
+    else:
+        record = dataclasses.replace(record, measured_mm=-record.measured_mm)
+    path = write_csv(record, tmp_path / f"{mistake}.csv")
+    result = CliRunner().invoke(diagnose, [str(path), "--json"])
+    assert result.exit_code == 2 and message in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--measured-scale", "5"], "--measured-scale: not read for an actuator record in csv format"),
+    (["--force-channel", "none"], "--force-channel: not read for an actuator record in csv format"),
+    (["--displacement-scale", "3"], "--displacement-scale: not read for an actuator record in csv format"),
+])
+def test_an_option_the_record_does_not_read_is_refused_not_ignored(tmp_path, args, message):
+    """A DAQ export's channel and scale options mean nothing to a CSV file: a scale typed for it
+    would otherwise be ignored unseen, and the diagnosis reported as if it had been applied."""
+    record = emulate(chirp_command(6.0, 500.0, amplitude_mm=4.0, f1_hz=3.0), ServoConfig(rate_hz=500.0, lag_s=0.03))
+    path = write_csv(record, tmp_path / "r.csv")
+    result = CliRunner().invoke(diagnose, [str(path), *args])
+    assert result.exit_code == 2 and message in result.stderr, result.stderr
+    result = CliRunner().invoke(diagnose, ["--run", str(tmp_path), "--margin", "1.2"])
+    assert result.exit_code == 2 and "--margin: not read for --run" in result.stderr, result.stderr

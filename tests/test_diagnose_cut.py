@@ -68,3 +68,21 @@ def test_a_few_samples_on_a_linear_spring_are_too_few_to_judge(n, tmp_path):
         assert d.cause == "too_few_samples", (a, d.cause)
         assert f"too few samples to judge ({n} < " in d.to_json()["too_short"]
     assert "Cause: too_few_samples" in text(d, evidence(d))
+
+
+def test_a_long_rest_at_the_end_judges_nothing():
+    """An 8 ms delay hidden in 10 s of motion followed by 15 s of rest: the choosing and scoring
+    blocks hold no motion, so nothing can be judged there (without this rule the answer was none,
+    as if the lag explained the record)."""
+    rate = 500.0
+    motion = seismic_command(10.0, rate, peak_mm=15.0, seed=4)
+    command = np.r_[motion, np.full(int(15.0 * rate), motion[-1])]
+    record = emulate(command, ServoConfig(rate_hz=rate, lag_s=LAG_S, noise_mm=0.01, resolution_mm=0.025, seed=1,
+                                          transport_delay_s=0.008))
+    d = diagnose(record)
+    assert d.cause == "too_few_samples" and d.gain == 1.0
+    assert "block (samples 7500 to 10000) holds no motion" in d.too_short
+    assert "cut the rest off the record" in d.to_json()["too_short"]
+    # The motion alone names the delay.
+    moving = ActuatorRecord("moving", record.dt, record.command_mm[:5000], record.measured_mm[:5000], record.force_kN[:5000])
+    assert diagnose(moving).cause == "transport_delay"

@@ -47,6 +47,8 @@ def test_csv_round_trip_with_and_without_force(tmp_path):
     (lambda rows: rows[:90] + rows[95:], 92, "gap"),
     (lambda rows: rows + ["end of test"], 202, "expected 3 fields"),
     (lambda rows: rows[:30] + [rows[29]] + rows[30:], 32, "repeated"),
+    # a step of 0.0009 s in a 1 ms record: short, not repeated or backward
+    (lambda rows: rows[:40] + ["0.0399,0.1,0.1"] + rows[41:], 42, r"a short step \(jitter"),
 ])
 def test_csv_refuses_bad_rows_with_the_line(tmp_path, bad, line, words):
     path = _csv(tmp_path, bad(_rows()))

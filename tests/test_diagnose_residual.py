@@ -95,3 +95,18 @@ def test_new_effect_is_named_and_measured(commands, effect):
     assert d.single.gain > 1.0
     if effect == "sensor_drift":  # the signature: the baseline's residual trends at the drift rate
         assert d.to_json()["residual"]["trend_mm_per_s"] == pytest.approx(value, rel=0.20)
+
+
+@pytest.mark.parametrize("kind", ["seismic", "chirp"])
+def test_a_noise_free_record_of_the_lag_answers_none_and_a_hidden_effect_is_still_named(commands, kind):
+    """Without noise or quantisation the baseline replays the emulator to its fit's convergence (1e-9 mm): no
+    candidate may be named on gains between rounding errors (a transport delay of 1e-17 s), and
+    the floor is the arithmetic's, not zero (which made every residual 'unexplained'). An effect
+    hidden in the same noise-free record leaves a real error and is still named."""
+    quiet = {"noise_mm": 0.0, "resolution_mm": 0.0}
+    d = diagnose(emulate(commands[kind], ServoConfig(rate_hz=RATE_HZ, lag_s=LAG_S, **quiet)))
+    assert d.cause == NONE, [(c.cause, c.choose_gain) for c in d.candidates if c.named]
+    floor = d.to_json()["residual"]["sensor_floor_mm"]
+    assert 0 < floor < 1e-6 and d.baseline.rms_test_mm < floor
+    d = diagnose(emulate(commands[kind], ServoConfig(rate_hz=RATE_HZ, lag_s=LAG_S, backlash_mm=0.2, **quiet)))
+    assert d.cause == "backlash" and d.single.fit.params["backlash_mm"] == pytest.approx(0.2, rel=0.01)

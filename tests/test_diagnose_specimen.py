@@ -187,3 +187,19 @@ def test_a_linear_specimen_cut_in_mid_motion_answers_none(sweep, a):
     d = diagnose_specimen(SpecimenRecord("cut", full.dt, full.displacement_mm[a:a + 1000], full.force_kN[a:a + 1000]))
     assert d.cause == NONE, (d.structure.rms_test_mm, d.floor.sensor_floor_mm)
     assert d.baseline.params["k"] == pytest.approx(1.0, rel=0.01)
+
+
+def test_a_force_of_the_wrong_sign_is_refused_and_a_late_one_is_not(sweep):
+    """A damper's force with its sign reversed gives energy out at every cycle: no passive
+    specimen does, so it is refused naming the sign, instead of being fitted as a negative
+    stiffness with a late force channel. A spring whose force is recorded 40 ms late also shows
+    negative work (about -0.8 of sum |F du| on this sweep), but its force still grows with the
+    displacement: it is diagnosed."""
+    from hsio.errors import RecordError
+
+    damper = _record(sweep, {"c": 0.05, "k": 0.05})
+    reversed_sign = SpecimenRecord(damper.source, damper.dt, damper.displacement_mm, -damper.force_kN)
+    with pytest.raises(RecordError, match=r"the force gives energy out .* force channel's sign is reversed"):
+        diagnose_specimen(reversed_sign)
+    late = emulate_specimen(Diagnosed(k=2.0), sweep, RATE_HZ, skew_s=0.04, seed=2)
+    assert diagnose_specimen(late).cause == "channel_skew"

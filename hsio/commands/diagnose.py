@@ -62,6 +62,7 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
         _fail(f"--margin = {margin:g} is out of bounds: a cause is named when it divides the held-out error by at "
               f"least this factor, within {MARGIN_BOUNDS[0]:g}..{MARGIN_BOUNDS[1]:g} (below 1 a model that does worse "
               f"would be named)")
+    _refuse_unused(file, specimen_file, run_dir, fmt)
     if specimen_file:
         _specimen(specimen_file, fmt, displacement_channel, force_channel, displacement_scale, force_scale, actuator,
                   train_fraction, choose_fraction, margin, as_json, report_dir, model_path)
@@ -111,6 +112,41 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
     click.echo(f"            {', '.join(f'{k} = {v:.5g}' for k, v in e.params.items())}")
     for name, path in files.items():
         click.echo(f"{name:<11} {path}")
+
+
+# The options each form reads (docs/diagnose.md); the channel options only of a DAQ export.
+_DAQ_OPTIONS = {"actuator": ("command_channel", "measured_channel", "force_channel", "command_scale", "measured_scale",
+                             "force_scale"),
+                "specimen": ("displacement_channel", "force_channel", "displacement_scale", "force_scale")}
+_FIT_OPTIONS = ("fmt", "actuator", "train_fraction", "choose_fraction", "margin", "model_path")
+
+
+def _refuse_unused(file, specimen_file, run_dir, fmt) -> None:
+    """An option given on the command line that the chosen form or record format does not read
+    is refused, naming it (a scale typed for a CSV file would otherwise be ignored unseen)."""
+    from click.core import ParameterSource
+
+    ctx = click.get_current_context()
+    given = {p.name: p.opts[0] for p in ctx.command.params
+             if p.name and ctx.get_parameter_source(p.name) not in (None, ParameterSource.DEFAULT)}
+    if run_dir:
+        used, what, hint = ("run_dir", "as_json", "report_dir"), "--run (an error budget)", "it reads only --json and --report"
+    else:
+        form = "specimen" if specimen_file else "actuator"
+        path = specimen_file or file
+        if fmt is None:
+            from hsio.diagnose.readers import detect_format
+
+            fmt = _reading(lambda: detect_format(path), path)
+        daq = _DAQ_OPTIONS[form] if fmt == "daq" else ()
+        used = ("file", "specimen_file", "as_json", "report_dir", *_FIT_OPTIONS, *daq)
+        what = f"{'--specimen' if specimen_file else 'an actuator record'} in {fmt} format"
+        flags = {p.name: p.opts[0] for p in ctx.command.params}
+        hint = (f"its DAQ options are {', '.join(flags[n] for n in daq)}" if daq
+                else "the channel and scale options are for a DAQ export")
+    unused = [flag for name, flag in given.items() if name not in used]
+    if unused:
+        _fail(f"{', '.join(unused)}: not read for {what} ({hint})")
 
 
 def _fail(message: str) -> NoReturn:

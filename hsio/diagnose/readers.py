@@ -55,9 +55,14 @@ def uniform_step(time_s: np.ndarray, lines: list[int], path) -> float:
     bad = np.flatnonzero(np.abs(steps - dt) > STEP_TOLERANCE * dt)
     if bad.size:
         i = int(bad[0])
-        kind = "a gap" if steps[i] > dt else "a repeated or backward time"
+        if steps[i] > dt:
+            kind = "a gap"
+        elif steps[i] <= 0:
+            kind = "a repeated or backward time"
+        else:
+            kind = "a short step (jitter, or times printed with too few decimals)"
         raise RecordError(f"{path}:{lines[i + 1]}: {kind}: time steps from {time_s[i]:.6g} to {time_s[i + 1]:.6g} s "
-                          f"(the record's step is {dt:.6g} s)")
+                          f"(the record's step is {dt:.6g} s, each step within {100 * STEP_TOLERANCE:g} % of it)")
     return (float(time_s[-1]) - float(time_s[0])) / (time_s.size - 1)
 
 

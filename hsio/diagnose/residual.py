@@ -6,7 +6,10 @@
   parts of the record (the measurement's scatter while the command rests) and the
   high-frequency content of the residual (white noise of RMS s gives second differences of
   RMS s sqrt(6), while a smooth model error gives almost none). The floor is the largest of
-  the high-frequency and quantisation estimates.
+  the high-frequency and quantisation estimates, and never below the arithmetic's own floor,
+  PRECISION times the measurement's range (a noise-free record of the model itself leaves
+  rounding errors of about 1e-15 of it, and the fits converge to about 1e-10 of it: no model
+  error; the finest transducer, a 24-bit converter, resolves 6e-8 of its range).
 * The structure of a residual r (measured - model, on the samples the fit did not see):
   spectral lines (a narrow peak of the amplitude spectrum standing well above its
   neighbourhood, with its frequency and sinusoidal amplitude), a slow trend (least-squares
@@ -28,6 +31,12 @@ from scipy import ndimage, signal
 FLOOR_FACTOR = 1.5  # a residual above this many floors is "well above the floor"
 LINE_PROMINENCE = 25.0  # a line's spectral density over the median of its neighbourhood
 TREND_FLOORS = 2.0  # a trend is reported when it moves the residual by this many floors over the record
+PRECISION = 1e-8  # the least floor, as a share of the measurement's range: below it an error is rounding
+
+
+def precision_floor(measured: np.ndarray) -> float:
+    """The least error a model can be said to leave: PRECISION times the range of ``measured``."""
+    return PRECISION * float(np.ptp(measured)) if measured.size else 0.0
 
 
 @dataclass
@@ -93,7 +102,7 @@ def sensor_floor(command: np.ndarray, measured: np.ndarray, residual: np.ndarray
     q = quantisation_step(measured)
     hf = high_frequency_rms(residual)
     still = still_rms(command, measured, dt)
-    return Floor(max(hf, q / math.sqrt(12.0)), q, still, hf)
+    return Floor(max(hf, q / math.sqrt(12.0), precision_floor(measured)), q, still, hf)
 
 
 def spectral_lines(r: np.ndarray, dt: float, floor_mm: float, lowest_hz: float = 0.5) -> list[dict]:

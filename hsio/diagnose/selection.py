@@ -45,6 +45,11 @@ RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signat
 # shorter blocks an RMS error is too uncertain for a margin of 10 % to mean anything.
 MIN_BLOCK_LAGS = 10.0
 MIN_BLOCK_SAMPLES = 50
+# The measured displacement follows the command: it correlates with it at this normalised
+# cross-correlation or better and lags it, or leads it by no more than this (s).
+FOLLOW_CORRELATION = 0.5
+FOLLOW_LEAD_S = 0.005
+STILL_SHARE = 0.01  # a held-out block whose command moves less than this share of the record's range is at rest
 
 
 @dataclass
@@ -147,6 +152,34 @@ def estimate_lag(record: ActuatorRecord, n_train: int) -> float:
     return max(float(np.argmax(window)) * record.dt, 2.0 * record.dt)
 
 
+def check_following(record: ActuatorRecord, n_train: int) -> None:
+    """Refuse a record whose measured displacement does not follow its command: on the training
+    part the two correlate best (normalised cross-correlation r, shifts up to half a second)
+    against each other (r <= -FOLLOW_CORRELATION: a scale of the wrong sign) or with the
+    measurement ahead of the command by more than FOLLOW_LEAD_S (an actuator cannot move before
+    it is told to: the two channels swapped, or the command channel recorded late). Either way
+    no effect of the library applies, and a fit would name a cause with an unphysical value."""
+    c = record.command_mm[:n_train] - record.command_mm[:n_train].mean()
+    m = record.measured_mm[:n_train] - record.measured_mm[:n_train].mean()
+    norm = math.sqrt(float(np.dot(c, c)) * float(np.dot(m, m)))
+    if norm == 0.0:
+        return
+    max_shift = min(n_train // 4, int(round(0.5 / record.dt)))
+    mid = c.size - 1
+    xc = signal.correlate(m, c, mode="full", method="fft")[mid - max_shift: mid + max_shift + 1] / norm
+    k = int(np.argmax(np.abs(xc)))
+    r, shift_s = float(xc[k]), (k - max_shift) * record.dt
+    if r <= -FOLLOW_CORRELATION:
+        raise RecordError(f"{record.source}: the measured displacement moves against the command (correlation "
+                          f"{r:+.2f} on the training part): the sign of a channel's scale is reversed "
+                          "(a column's sign, or --command-scale / --measured-scale of a DAQ export) or the transducer is wired the other way")
+    if r >= FOLLOW_CORRELATION and -shift_s > max(FOLLOW_LEAD_S, 2.0 * record.dt):
+        raise RecordError(f"{record.source}: the measured displacement leads the command by {1e3 * -shift_s:.4g} ms "
+                          f"(cross-correlation {r:.2f} on the training part), and an actuator cannot move before it is "
+                          "commanded: the command and measured channels are swapped (the columns, or --command-channel / "
+                          "--measured-channel of a DAQ export) or the command channel is recorded late")
+
+
 def too_short(record: ActuatorRecord, n_train: int, n_choose: int, lag_s: float) -> str | None:
     """Why no cause can be named on this record (a block too short to tell), or None. The least
     number of samples M is the one whose shorter block would hold what a block needs."""
@@ -160,6 +193,20 @@ def too_short(record: ActuatorRecord, n_train: int, n_choose: int, lag_s: float)
             f"samples ({1e3 * (n_choose - n_train) * record.dt:.4g} and {1e3 * (record.n - n_choose) * record.dt:.4g} ms); "
             f"naming a cause needs at least {MIN_BLOCK_SAMPLES} samples and {MIN_BLOCK_LAGS:g} lags "
             f"({1e3 * MIN_BLOCK_LAGS * lag_s:.4g} ms) in each (a longer record)")
+
+
+def still_block(record: ActuatorRecord, n_train: int, n_choose: int) -> str | None:
+    """Why no cause can be judged when the choosing or the scoring block holds no motion (its
+    command moves less than STILL_SHARE of the record's range: a long rest at the end of the
+    record), or None. A block at rest tells no model from another, and its error says nothing of
+    how the model follows a motion: without this, a delay hidden in the motion would answer none."""
+    span = float(np.ptp(record.command_mm))
+    for name, (a, b) in (("choosing", (n_train, n_choose)), ("scoring", (n_choose, record.n))):
+        moves = float(np.ptp(record.command_mm[a:b])) if b > a else 0.0
+        if moves < STILL_SHARE * span:
+            return (f"the {name} block (samples {a} to {b}) holds no motion: its command moves {moves:.4g} mm, under "
+                    f"{100 * STILL_SHARE:g} % of the record's {span:.4g} mm; cut the rest off the record")
+    return None
 
 
 def fit_baseline(record: ActuatorRecord, n_train: int) -> Fit:
@@ -260,16 +307,20 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
         raise RecordError(f"{record.source}: the measured displacement does not move in the training part, while "
                           "the command does: the actuator did not follow (hydraulics off, interlock) or the "
                           "channel is not the displacement")
+    check_following(record, n_train)
     baseline = fit_baseline(record, n_train)
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
     names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
-    short = too_short(record, n_train, n_choose, baseline.params["lag_s"])
+    short = still_block(record, n_train, n_choose) or too_short(record, n_train, n_choose, baseline.params["lag_s"])
+    # A baseline that already predicts the choosing block to rounding (a noise-free record of the
+    # model itself) leaves nothing to explain: gains between rounding errors name nothing.
+    resolved = baseline.rms_choose_mm > residual_mod.precision_floor(record.measured_mm)
     candidates = []
     for name in names:
         f = fit(record, (name,), ctx, n_train, EFFECTS[name].starts(ctx))
         choose_gain = ratio(baseline.rms_choose_mm, f.rms_choose_mm)
         candidates.append(Candidate(name, f, ratio(baseline.rms_test_mm, f.rms_test_mm),
-                                    choose_gain >= margin and short is None, choose_gain))
+                                    choose_gain >= margin and short is None and resolved, choose_gain))
     named = [c for c in candidates if c.named]
     floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
     if not named:

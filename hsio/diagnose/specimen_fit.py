@@ -44,6 +44,7 @@ MIN_REVERSALS = (2, 1, 1)
 # too_few_samples: a scoring block of under 100 samples is too few for its RMS error and its
 # trend to tell a spring's residual from the sensor floor (docs/diagnose.md).
 MIN_SAMPLES = 250
+GIVES_OUT = 0.5  # a force whose work over the training part is this share of sum |F du| below zero is refused
 MIN_JUDGED = 500
 REVERSAL_SHARE = 0.05  # a reversal: the displacement turns back by this share of its range (or 3 noise RMS)
 RATE_BOUNDS_HZ = (1.0, 1e6)  # below 1 Hz no velocity or acceleration is seen; above 1 MHz no DAQ samples
@@ -367,6 +368,27 @@ def thinned(sig: Signals, force: np.ndarray) -> tuple[Signals, int]:
                    sig.cutoff_hz, sig.u_noise), q
 
 
+def check_passive(record: SpecimenRecord, n_train: int) -> None:
+    """Refuse a force that gives energy out instead of taking it: a passive specimen takes work
+    from the actuator over a record, W = sum F du >= 0. On the training part, W at or below
+    -GIVES_OUT of sum |F du| (most of the motion against the force) with a force that does not
+    grow with the displacement either (correlation at most 0) is a force channel of the wrong
+    sign, not a specimen (a late force channel on a spring also shows negative work, but its
+    force still follows the displacement)."""
+    u, f = record.displacement_mm[:n_train], record.force_kN[:n_train]
+    du, fm = np.diff(u), 0.5 * (f[1:] + f[:-1])
+    total = float(np.sum(np.abs(fm * du)))
+    if total == 0.0 or np.ptp(u) == 0.0 or np.ptp(f) == 0.0:
+        return
+    share = float(np.sum(fm * du)) / total
+    r_u = float(np.corrcoef(u, f)[0, 1])
+    if share <= -GIVES_OUT and r_u <= 0.0:
+        raise RecordError(f"{record.source}: the force gives energy out over the training part (sum F du is "
+                          f"{100 * share:+.0f} % of sum |F du|) and does not grow with the displacement (correlation "
+                          f"{r_u:+.2f}): a passive specimen takes work from the actuator; the force channel's sign is "
+                          "reversed (a column's sign, or --force-scale of a DAQ export) or its wires are")
+
+
 @one_blas_thread
 def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRACTION,
                       choose_fraction: float = CHOOSE_FRACTION, margin: float = MARGIN,
@@ -384,6 +406,7 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
     if np.ptp(record.force_kN[:n_train]) <= 0:
         raise RecordError(f"{record.source}: the force does not change in the training part, while the displacement "
                           "moves: the load cell reads nothing (its channel or scale?)")
+    check_passive(record, n_train)
     baseline = fit(sig, (), n_train, n_choose)
     short = too_few(record.n, MIN_SAMPLES, record.n - n_choose) or too_short(sig, n_train, n_choose)
     names = list(effects or NAMES)
