@@ -143,6 +143,48 @@ def test_a_stop_is_answered_at_once_beside_clients_that_connect_and_say_nothing(
         server.close()
 
 
+def test_clients_that_trickle_bytes_hold_the_socket_no_longer_than_its_read_timeout(tmp_path, monkeypatch):
+    """A client that sends a byte now and then, never a newline, is cut off once the whole line
+    has taken READ_TIMEOUT_S: as many of them as the socket answers at once do not keep the
+    operator's stop out for longer than that."""
+    import socket
+
+    monkeypatch.setattr(control_socket.ControlServer, "READ_TIMEOUT_S", 0.5)
+    control = RunControl()
+    server = control_socket.ControlServer(tmp_path, control)
+    done = threading.Event()
+
+    def trickle():
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+            s.connect(str(server.path))
+            try:
+                while not done.wait(0.1):  # a byte every 0.1 s: each read comes well within the timeout
+                    s.send(b"x")
+            except OSError:
+                pass
+
+    threads = [threading.Thread(target=trickle, daemon=True) for _ in range(server.MAX_CLIENTS)]
+    try:
+        for t in threads:
+            t.start()
+        time.sleep(0.2)  # every place taken
+        deadline = time.monotonic() + 5.0
+        reply = ""
+        while time.monotonic() < deadline and not reply.startswith("ok"):
+            try:
+                reply = control_socket.send(server.path, "stop", timeout_s=1.0)
+            except OSError as exc:
+                reply = repr(exc)
+            time.sleep(0.05)
+        assert reply == "ok stopping", reply
+        assert control.stop_requested
+    finally:
+        done.set()
+        for t in threads:
+            t.join(timeout=2.0)
+        server.close()
+
+
 def start_run(tmp_path, record: str):
     cfg = tmp_path / "run.toml"
     cfg.write_text(record + "[output]\nplots = false\n")
