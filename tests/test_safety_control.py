@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from hsio import api, config, runner
-from hsio.experiment import ExperimentStopped
+from hsio.experiment import ExperimentStopped, excitation
 from hsio.ground_motion import synthetic_record
 from hsio.recording import Run
 from hsio.result import max_error_pct
@@ -183,6 +183,28 @@ def test_clients_that_trickle_bytes_hold_the_socket_no_longer_than_its_read_time
         for t in threads:
             t.join(timeout=2.0)
         server.close()
+
+
+def test_a_stop_asked_during_the_last_step_finishes_the_run():
+    """A stop (a signal, the socket) that comes while the last step is made finds no step left to
+    stop before: the run finishes with every step, rather than end as stopped at a step beyond
+    the record (which a resume would then have nothing to continue)."""
+    s = validation()
+    g = synthetic_record(duration_s=0.1, dt=s.dt, pga_g=0.6)
+    n = len(excitation(s, g)[0])  # the steps, the first at rest
+    control = RunControl()
+    made = []
+
+    def progress(_):
+        made.append(1)
+        if len(made) == n - 1:  # while the last step is committed
+            control.request_stop("stopped by SIGTERM during HS")
+
+    with api.open_site(s, "emulator://", options=QUIET) as site:
+        hs = api.simulate(s, g, site, control=control, progress=progress)
+    assert not hs.stopped
+    assert len(hs.t) == n
+    assert control.step == n - 1
 
 
 def start_run(tmp_path, record: str):
