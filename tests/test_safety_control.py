@@ -255,6 +255,8 @@ def test_sigterm_holds_and_closes_the_record(tmp_path, when):
         assert "the actuators hold (confirmed by read-back)" in stderr
     else:
         assert run.summary["steps"] == 0 and run.summary["end_state"] is None  # nothing was opened
+        # the prediction's own steps are not the record's: none is said to be recorded
+        assert "recorded" not in run.summary["stopped"] and "recorded" not in stderr, stderr
 
 
 def test_sigterm_during_start_up_holds_the_actuators(tmp_path, monkeypatch):
