@@ -234,7 +234,10 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
             if progress is not None:
                 progress(1)
             if control is not None:
-                control.checkpoint(site, k, log)
+                if k < n_steps - 1:
+                    control.checkpoint(site, k, log)
+                else:  # the last step: no step left to pause or stop before; the run finishes and holds
+                    control.step = k
     except (Exception, KeyboardInterrupt) as exc:
         stopped = stop_reason(exc, last, structure.dt)
         cause = exc

@@ -140,7 +140,12 @@ class Ledger:
             entry = dict(zip(_COLUMNS, row))
             for k in _JSON:
                 if entry[k] is not None:
-                    entry[k] = json.loads(entry[k])
+                    try:
+                        entry[k] = json.loads(entry[k])
+                    except (TypeError, ValueError) as exc:  # edited by another program
+                        raise ConfigError(f"specimen ledger {self.path}: run {entry['id']}: its {k} is not the JSON "
+                                          f"hsio writes ({str(entry[k])[:40]!r}: {exc}); another program changed "
+                                          f"it: read that row with an SQLite tool") from None
             out.append(entry)
         return out
 

@@ -372,7 +372,9 @@ def _predict(config: RunConfig, structure: Structure, ground: GroundMotion, cont
     try:
         ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
     except ExperimentStopped as exc:  # the models cannot be evaluated along the record: bad input, not a fault
-        if exc.cause is None or isinstance(exc.cause, (KeyboardInterrupt, OperatorStop)):
+        if isinstance(exc.cause, (OperatorStop, KeyboardInterrupt)):
+            raise exc.cause from None  # the run's stop, not a step of this prediction: nothing was recorded
+        if exc.cause is None:
             raise
         raise _prediction_failed(config, structure, exc, "the prediction (NS: the structure with its specimen models "
                                  "in place of the actuators)", "Nothing was sent to the actuators; check the models' "

@@ -174,3 +174,16 @@ def test_a_locked_ledger_under_the_monitor_leaves_no_folder(tmp_path, monkeypatc
         other.execute("COMMIT")
         other.close()
     assert not (tmp_path / "named").exists() and not list(Path("runs").glob("*/run-*"))
+
+
+@pytest.mark.parametrize("cell", ["{not json", "", b"\xff\xfe"])
+def test_a_ledger_cell_changed_by_another_program_is_named_when_read(tmp_path, cell):
+    """A database browser can write anything into a cell: reading the ledger names the run and the
+    column instead of ending in a JSON traceback."""
+    book = ledger.Ledger(tmp_path / "spec", "s1")
+    run_id = book.begin(tmp_path / "r", {"a": 1}, "validation", "synthetic", "0")
+    book.db.execute("UPDATE runs SET config = ? WHERE id = ?", (cell, run_id))
+    book.db.commit()
+    book.close()
+    with pytest.raises(ConfigError, match=rf"ledger.*run {run_id}: its config is not the JSON"):
+        ledger.read(tmp_path / "spec")

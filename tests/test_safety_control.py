@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from hsio import api, config, runner
-from hsio.experiment import ExperimentStopped
+from hsio.experiment import ExperimentStopped, excitation
 from hsio.ground_motion import synthetic_record
 from hsio.recording import Run
 from hsio.result import max_error_pct
@@ -143,6 +143,70 @@ def test_a_stop_is_answered_at_once_beside_clients_that_connect_and_say_nothing(
         server.close()
 
 
+def test_clients_that_trickle_bytes_hold_the_socket_no_longer_than_its_read_timeout(tmp_path, monkeypatch):
+    """A client that sends a byte now and then, never a newline, is cut off once the whole line
+    has taken READ_TIMEOUT_S: as many of them as the socket answers at once do not keep the
+    operator's stop out for longer than that."""
+    import socket
+
+    monkeypatch.setattr(control_socket.ControlServer, "READ_TIMEOUT_S", 0.5)
+    control = RunControl()
+    server = control_socket.ControlServer(tmp_path, control)
+    done = threading.Event()
+
+    def trickle():
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+            s.connect(str(server.path))
+            try:
+                while not done.wait(0.1):  # a byte every 0.1 s: each read comes well within the timeout
+                    s.send(b"x")
+            except OSError:
+                pass
+
+    threads = [threading.Thread(target=trickle, daemon=True) for _ in range(server.MAX_CLIENTS)]
+    try:
+        for t in threads:
+            t.start()
+        time.sleep(0.2)  # every place taken
+        deadline = time.monotonic() + 5.0
+        reply = ""
+        while time.monotonic() < deadline and not reply.startswith("ok"):
+            try:
+                reply = control_socket.send(server.path, "stop", timeout_s=1.0)
+            except OSError as exc:
+                reply = repr(exc)
+            time.sleep(0.05)
+        assert reply == "ok stopping", reply
+        assert control.stop_requested
+    finally:
+        done.set()
+        for t in threads:
+            t.join(timeout=2.0)
+        server.close()
+
+
+def test_a_stop_asked_during_the_last_step_finishes_the_run():
+    """A stop (a signal, the socket) that comes while the last step is made finds no step left to
+    stop before: the run finishes with every step, rather than end as stopped at a step beyond
+    the record (which a resume would then have nothing to continue)."""
+    s = validation()
+    g = synthetic_record(duration_s=0.1, dt=s.dt, pga_g=0.6)
+    n = len(excitation(s, g)[0])  # the steps, the first at rest
+    control = RunControl()
+    made = []
+
+    def progress(_):
+        made.append(1)
+        if len(made) == n - 1:  # while the last step is committed
+            control.request_stop("stopped by SIGTERM during HS")
+
+    with api.open_site(s, "emulator://", options=QUIET) as site:
+        hs = api.simulate(s, g, site, control=control, progress=progress)
+    assert not hs.stopped
+    assert len(hs.t) == n
+    assert control.step == n - 1
+
+
 def start_run(tmp_path, record: str):
     cfg = tmp_path / "run.toml"
     cfg.write_text(record + "[output]\nplots = false\n")
@@ -191,6 +255,8 @@ def test_sigterm_holds_and_closes_the_record(tmp_path, when):
         assert "the actuators hold (confirmed by read-back)" in stderr
     else:
         assert run.summary["steps"] == 0 and run.summary["end_state"] is None  # nothing was opened
+        # the prediction's own steps are not the record's: none is said to be recorded
+        assert "recorded" not in run.summary["stopped"] and "recorded" not in stderr, stderr
 
 
 def test_sigterm_during_start_up_holds_the_actuators(tmp_path, monkeypatch):

@@ -19,6 +19,7 @@ import os
 import socket
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 from hsio.safety.control import RunControl
@@ -38,7 +39,7 @@ class ControlServer:
     answered in a thread of its own (at most MAX_CLIENTS at once)."""
 
     ACCEPT_SLICE_S = 0.2
-    READ_TIMEOUT_S = 2.0
+    READ_TIMEOUT_S = 2.0  # for the whole request line, however it trickles in
     MAX_LINE = 256
     MAX_CLIENTS = 8  # connections answered at once, each in a thread of its own
 
@@ -100,8 +101,8 @@ class ControlServer:
     def _answer(self, conn: socket.socket) -> None:
         try:
             with conn:
-                conn.settimeout(self.READ_TIMEOUT_S)
-                reply = self.handle(_read_line(conn).decode("utf-8", "replace").partition("\n")[0])
+                line = _read_line(conn, time.monotonic() + self.READ_TIMEOUT_S)
+                reply = self.handle(line.decode("utf-8", "replace").partition("\n")[0])
                 conn.sendall((reply + "\n").encode())
         except OSError:
             pass
@@ -126,14 +127,19 @@ def send(path: str | Path, command: str, timeout_s: float = 2.0) -> str:
         s.settimeout(timeout_s)
         s.connect(str(path))
         s.sendall((command.strip() + "\n").encode())
-        data = _read_line(s)
-    return data.decode().strip()
+        data = _read_line(s, time.monotonic() + timeout_s)
+    return data.decode("utf-8", "replace").strip()
 
 
-def _read_line(conn: socket.socket) -> bytes:
-    """What ``conn`` sends up to its first newline, its end, or MAX_LINE bytes."""
+def _read_line(conn: socket.socket, deadline: float) -> bytes:
+    """What ``conn`` sends up to its first newline, its end, or MAX_LINE bytes, by ``deadline``
+    (time.monotonic()): a peer that sends a byte now and then cannot hold the connection longer."""
     data = b""
     while b"\n" not in data and len(data) < ControlServer.MAX_LINE:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError("the line did not come in time")
+        conn.settimeout(left)
         chunk = conn.recv(ControlServer.MAX_LINE)
         if not chunk:
             break
