@@ -311,9 +311,10 @@ def run_folder(config: RunConfig, structure: Structure, out_dir: str | Path | No
 def open_ledger(config: RunConfig, specimen_dir: str | Path | None = None) -> Ledger | None:
     """The specimen ledger of ``--specimen DIR`` or [specimen] folder / id (None: no ledger)."""
     spec = config["specimen"]
-    if spec["id"] and (spec["id"] in (".", "..") or any(c in spec["id"] for c in "/\\\0")):
+    if spec["id"] and (spec["id"] in (".", "..") or any(c in spec["id"] for c in "/\\") or not spec["id"].strip()
+                       or not spec["id"].isprintable()):
         raise ConfigError(f"{config.source}: [specimen] id = {spec['id']!r}: a specimen id is a plain name (it names "
-                          f"the folder specimens/<id>), without '/', '\\' or '..'")
+                          f"the folder specimens/<id>), without '/', '\\', '..', control characters or only spaces")
     folder = specimen_dir or spec["folder"] or (str(Path("specimens") / spec["id"]) if spec["id"] else "")
     return Ledger(folder, spec["id"]) if folder else None
 

@@ -285,7 +285,7 @@ def test_a_folder_with_what_is_left_of_a_record_is_refused(tmp_path, left):
         runner.run_folder(cfg(), get_structure("validation"), tmp_path)
 
 
-@pytest.mark.parametrize("specimen_id", ["../../etc", "a/b", "..", "x\\y"])
+@pytest.mark.parametrize("specimen_id", ["../../etc", "a/b", "..", "x\\y", "a\nb", " ", "tab\there", "nul\0"])
 def test_a_specimen_id_is_a_plain_name(tmp_path, specimen_id, monkeypatch):
     """[specimen] id = "../../etc" does not put the ledger two folders above specimens/."""
     monkeypatch.chdir(tmp_path)
