@@ -516,3 +516,40 @@ def test_offline_needs_a_b_for_every_compensated_actuator():
     with pytest.raises(ConfigError, match=r"by_actuator.lower: actuator 'lower' is not compensated"):
         CompensationStage(["lower", "upper"], 0.1, CompensationSettings(
             mode="offline", b_s_mm=5e-5, actuators=["upper"], by_actuator={"lower": {"b_s_mm": 1e-4}}))
+
+
+@pytest.mark.parametrize("z, zero", [(1.9, True), (2.1, False)])
+def test_a_slope_within_two_standard_deviations_is_zero_lag(z, zero):
+    """zero_fit: the slope b of e on x = sign(v)(|v| - a), through the origin, is zero lag when
+    |b| <= 2 sigma_b; the residual is built orthogonal to x so that b and sigma_b are exact."""
+    est = OnlineEstimator(EstimatorSettings())
+    v = np.linspace(-60.0, 60.0, 121)
+    v = v[v != 0]
+    x = hockey_stick.excess_velocity(v, 0.0)
+    r = np.cos(np.arange(v.size) * 0.7)
+    r -= (r @ x) / (x @ x) * x  # orthogonal to x
+    r *= 1e-4 / np.sqrt(r @ r / v.size)
+    sigma_b = math.sqrt(float(r @ r) / (v.size - 1) / float(x @ x))
+    fit = est.zero_fit(v, z * sigma_b * x + r)
+    assert (fit is not None) is zero
+    if zero:
+        assert fit.b_std == pytest.approx(sigma_b, rel=1e-9)
+
+
+def test_the_estimator_skips_samples_that_are_not_finite_and_refits_every_tenth_after_forty():
+    est = OnlineEstimator(EstimatorSettings())
+    assert est.rejected == est.updates == 0
+    for v, e in ((float("nan"), 0.0), (5.0, float("inf")), (float("-inf"), float("nan"))):
+        assert est.observe(v, e) is False
+    assert len(est._v) == 0
+    rng = np.random.default_rng(3)
+    refits = []
+    for i in range(1, 101):  # noise only: every refit is zero lag or rejected, counted either way
+        before = est.updates + est.rejected
+        est.observe(rng.uniform(-50, 50), rng.normal(0, 0.01))
+        if est.updates + est.rejected > before:
+            refits.append(i)
+    assert refits == [40, 50, 60, 70, 80, 90, 100]
+    for _ in range(500):
+        est.observe(rng.uniform(-50, 50), rng.normal(0, 0.01))
+    assert len(est._v) == 400  # the window
