@@ -57,7 +57,7 @@ EXCEPTION_NAMES = {
 }
 ILLEGAL_ADDRESS = 2  # the answer of a controller that lacks an optional register
 SEQ_MOD = 1 << 24
-FROZEN_S = 0.5  # real time: a sequence register unchanged this long means the controller's loop stopped
+FROZEN_S = 1.0  # real time: a sequence register unchanged this long means the controller's loop stopped
 MODE_READS = 8  # status reads a mode switch may take to show in the status word (lockstep: controller periods)
 PARITIES = ("N", "E", "O")  # Modbus RTU: 8 data bits, parity none, even (the standard's default) or odd
 

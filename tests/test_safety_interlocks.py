@@ -223,4 +223,6 @@ def test_a_real_time_pause_tells_the_interlocks_how_long_it_lasted():
         lasted = site.loop.clock.now_s - started
     finally:
         site.close()
-    assert len(skipped) == 1 and 0.29 <= skipped[0] <= lasted + 0.01  # lab time in controller periods
+    # lab time in controller periods, as the clock counted them over the pause (a loaded machine ticks
+    # fewer than the 0.3 s slept)
+    assert len(skipped) == 1 and 0 < skipped[0] and lasted - 0.05 <= skipped[0] <= lasted + 0.01
