@@ -278,6 +278,20 @@ def test_a_case_the_data_lack_is_a_usage_error_and_table3_is_optional(shared_dat
     assert "Table 3" not in res.output
 
 
+def test_table3_is_shown_only_beside_the_record_it_was_made_with(shared_data, bm, tmp_path):
+    """Table 3 is of El Centro x 0.4: beside a run on another record it would be a false yardstick."""
+    assert bm.is_table3_record() and bm.table3(1) is not None
+    assert benchmark.Benchmark(bm.data, bm.record_t + 3.0, bm.record_a).is_table3_record()  # same ground motion
+    assert not benchmark.Benchmark(bm.data, bm.record_t, 2.0 * bm.record_a).is_table3_record()
+    (tmp_path / "benchmark.json").write_bytes((shared_data / "vrths" / "benchmark.json").read_bytes())
+    t = np.arange(0.0, 1.0, 0.005)
+    np.savetxt(tmp_path / "elcentro_vrths.csv", np.c_[t, 0.5 * np.sin(2 * np.pi * 3 * t)], delimiter=",",
+               header="time_s,accel_m_s2", comments="")
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--data", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "     Table 3 " not in res.output and "Table 3 not shown" in res.output, res.output
+
+
 @pytest.mark.parametrize("shift_s", [10.0, -3.0, 0.02])
 def test_the_ground_motion_starts_at_the_records_first_sample(bm, shift_s):
     """A record whose time column starts elsewhere than 0 is the same ground motion: nothing is
