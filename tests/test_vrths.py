@@ -255,6 +255,14 @@ def _swap_lines_11_12(lines):
      "cases.1: the reference model M x'' + C x' + K x = 0 is not stable"),
     (_json(lambda d: d["plant"].update(b1=-425.0)), "the control plant (servo-valve, actuator, specimen"),
     (_json(lambda d: d["plant"]["std"].update(a3=-1.3)), "plant.std: the standard deviations of a3, b1, b2, ke must not"),
+    (_json(lambda d: d["constraints"].update(noise_rms_V=-0.002)), "constraints.noise_rms_V must not be negative"),
+    (_json(lambda d: d["constraints"].update(max_force_N=-1)), "constraints.max_force_N, the actuator's force saturation, must be"),
+    (_json(lambda d: d["constraints"].update(adc_dac_bits=0)), "constraints.adc_dac_bits must be a whole number of bits"),
+    (_json(lambda d: d["constraints"].update(adc_dac_bits=18.5)), "constraints.adc_dac_bits must be a whole number of bits"),
+    (_json(lambda d: d["constraints"].update(sampling_hz=1000)), "constraints.sampling_hz is 1000; the benchmark runs at 4096 Hz"),
+    (_json(lambda d: d["constraints"].update(stroke_mm="seven")), "constraints.stroke_mm must be a finite number (got 'seven')"),
+    (_json(lambda d: d["constraints"].update(max_velocity_mm_s=0)), "constraints.max_velocity_mm_s must be above 0"),
+    (_json(lambda d: d["experimental_substructure"].update(me_kg=float("inf"))), "the constraints need finite numbers"),
 ])
 def test_a_data_folder_it_cannot_run_on_is_refused_naming_the_file(shared_data, tmp_path, change, message):
     for name in ("benchmark.json", "elcentro_vrths.csv"):

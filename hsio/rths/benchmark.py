@@ -13,6 +13,7 @@ measured restoring force f_m of the specimen:
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
@@ -116,6 +117,11 @@ def check(bm: Benchmark, folder: Path) -> None:
     except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
         raise ValueError(f"{js}: a case, the plant or a constraint is missing or not a number: "
                          f"{type(exc).__name__} {exc}") from None
+    values = [getattr(plant, f) for f in plant.__dataclass_fields__] + std
+    if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
+        raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
+                         "me, ke and the converters' scales positive")
+    _check_constraints(bm.data["constraints"], js)
     for cs in numbers:
         for name in ("M", "C", "K"):
             m = getattr(cs, name)
@@ -128,16 +134,40 @@ def check(bm: Benchmark, folder: Path) -> None:
         if np.max(np.linalg.eigvals(A).real) >= 0.0:
             raise ValueError(f"{js}: cases.{cs.number}: the reference model M x'' + C x' + K x = 0 is not stable "
                              "(K and C must make every mode decay)")
-    values = [getattr(plant, f) for f in plant.__dataclass_fields__] + std
-    if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
-        raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
-                         "me, ke and the converters' scales positive")
     if min(std) < 0.0:
         raise ValueError(f"{js}: plant.std: the standard deviations of {', '.join(plant_mod.UNCERTAIN)} must not be "
                          f"negative (got {', '.join(f'{v:g}' for v in std)})")
     if np.max(np.linalg.eigvals(plant.continuous()[0]).real) >= 0.0:
         raise ValueError(f"{js}: the control plant (servo-valve, actuator, specimen in the unity displacement "
                          "loop, eqs. 21-22) is not stable with these parameters")
+
+
+def _check_constraints(c: dict, js: Path) -> None:
+    """The implementation constraints the loop uses: its rate (FS, which hsio runs at), the
+    converters' bits, a force saturation above zero, a noise that is not negative, and the stroke and
+    velocity limits a run is reported against (positive numbers where given)."""
+    def number(key: str) -> float:
+        try:
+            value = float(c[key])
+        except (TypeError, ValueError):
+            value = math.nan
+        if not math.isfinite(value):
+            raise ValueError(f"{js}: constraints.{key} must be a finite number (got {c[key]!r})")
+        return value
+
+    if "sampling_hz" in c and number("sampling_hz") != FS:
+        raise ValueError(f"{js}: constraints.sampling_hz is {c['sampling_hz']}; the benchmark runs at {FS:g} Hz")
+    bits = number("adc_dac_bits")
+    if bits != int(bits) or not 1 <= bits <= 32:
+        raise ValueError(f"{js}: constraints.adc_dac_bits must be a whole number of bits from 1 to 32 (got {c['adc_dac_bits']})")
+    if not number("max_force_N") > 0.0:
+        raise ValueError(f"{js}: constraints.max_force_N, the actuator's force saturation, must be above 0 "
+                         f"(got {c['max_force_N']})")
+    if not number("noise_rms_V") >= 0.0:
+        raise ValueError(f"{js}: constraints.noise_rms_V must not be negative (got {c['noise_rms_V']})")
+    for key in ("stroke_mm", "max_velocity_mm_s"):
+        if key in c and not number(key) > 0.0:
+            raise ValueError(f"{js}: constraints.{key} must be above 0 (got {c[key]!r})")
 
 
 def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) -> np.ndarray:
