@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from scipy import signal
 
 from hsio.cli import main
-from hsio.rths import benchmark, controllers, criteria, evaluate, loop, plant
+from hsio.rths import amb, ats, benchmark, controllers, criteria, evaluate, loop, plant
 from hsio.rths.jit import HAVE_NUMBA, jit
 
 FS = benchmark.FS
@@ -384,3 +384,22 @@ def test_a_run_whose_command_is_not_finite_stops_with_exit_3(shared_data, monkey
                                     "--data", str(shared_data / "vrths")])
     assert res.exit_code == 3, res.output
     assert "controller 'amb': the command at sample 100" in res.output and "Traceback" not in res.output
+
+
+@pytest.mark.parametrize("build, message", [
+    (lambda nom: ats.make(FS, window_s=0.0), "window_s = 0.0 s holds 0 samples"),
+    (lambda nom: ats.make(FS, update=0), "update = 0 must be a whole number"),
+    (lambda nom: ats.make(FS, update=-3), "update = -3 must be a whole number"),
+    (lambda nom: ats.make(FS, cutoff_hz=3000.0), "cutoff_hz = 3000.0 must lie"),
+    (lambda nom: ats.make(FS, lower=(2, 1, 1), upper=(1, 0, 0)),
+     "lower <= initial <= upper"),
+    (lambda nom: amb.make(FS, nom, mu=-1.0), "mu = -1.0 must be a finite number"),
+    (lambda nom: amb.make(FS, nom, mu=float("nan")), "mu = nan"),
+    (lambda nom: amb.make(FS, nom, jerk_alpha=0.0), "jerk_alpha = 0.0"),
+])
+def test_controller_parameters_it_cannot_run_on_are_refused_naming_them(bm, build, message):
+    """A window too short to fit three coefficients, no refit period, a filter beyond Nyquist, bounds
+    that exclude the start, a step of NLMS outside (0, 2): refused where the stage is made, never a
+    ZeroDivisionError inside the loop or a run that silently diverges."""
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
+        build(plant.nominal(bm.data))
