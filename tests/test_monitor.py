@@ -372,6 +372,19 @@ def test_an_empty_address_is_refused_not_taken_for_every_interface(tmp_path):
         assert proc.returncode == 2 and "the address to listen on is empty" in proc.stderr
 
 
+@pytest.mark.parametrize("args", [["--monitor-port", "9000"], ["--monitor-host", "0.0.0.0"]])
+def test_a_monitor_port_or_address_without_monitor_is_refused_before_anything_runs(tmp_path, args):
+    """The operator asked for a page: a run without one, silently, would leave them without their Stop."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    out = tmp_path / "o"
+    res = CliRunner().invoke(main, ["run", "--out", str(out), *args])
+    assert res.exit_code == 2 and f"{args[0]} set the monitor's page" in res.output and "add --monitor" in res.output
+    assert not out.exists()
+
+
 def test_a_request_without_a_run_to_answer_is_refused_and_logged(tmp_path):
     op = Operator(tmp_path)
     assert op.request("pause").startswith("error: no control socket")
