@@ -632,6 +632,17 @@ def test_a_token_that_cannot_travel_in_a_url_and_a_cookie_is_refused(tmp_path, t
     assert "Traceback" not in proc.stderr
 
 
+@pytest.mark.parametrize("host", ["127.0.0.2", "127.0.0.1"])
+def test_an_empty_token_is_refused_not_replaced_by_a_random_one(tmp_path, host):
+    """An unset variable as the token: the operator would hand out a URL with the token they meant
+    and the page would refuse it; refused at once instead (a server that started would outlive the
+    bounded wait: TimeoutExpired)."""
+    write_record(tmp_path, 5).close()
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--host", host,
+                           "--port", "0", "--token", ""], env=ENV, capture_output=True, text=True, timeout=20)
+    assert proc.returncode == 2 and "the token is empty" in proc.stderr, proc.stderr
+
+
 def test_the_feed_waits_for_a_regular_file_not_on_a_fifo_for_ever(tmp_path):
     """A FIFO in the place of run.sqlite would block its reader (and the page with it) for ever:
     the feed of a run starting waits for a file (`hsio monitor` refuses the FIFO by name:
