@@ -403,3 +403,10 @@ def test_controller_parameters_it_cannot_run_on_are_refused_naming_them(bm, buil
     ZeroDivisionError inside the loop or a run that silently diverges."""
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
         build(plant.nominal(bm.data))
+
+
+def test_a_data_folder_from_the_environment_that_lacks_the_data_is_named_as_such(tmp_path, monkeypatch):
+    """The operator set $HSIO_VRTHS_DATA, not --data: the error names the variable they set."""
+    monkeypatch.setenv("HSIO_VRTHS_DATA", str(tmp_path / "nope"))
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1"])
+    assert res.exit_code == 2 and "$HSIO_VRTHS_DATA" in res.output and "nope" in res.output, res.output

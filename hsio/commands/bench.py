@@ -51,8 +51,10 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
     if seed is not None and perturbed == 0:
         raise click.UsageError("--seed chooses the perturbed plants: give --perturbed K too")
     folder = Path(data) if data else default_data_folder()
+    source = "--data" if data else ("$HSIO_VRTHS_DATA (or --data)" if os.environ.get("HSIO_VRTHS_DATA")
+                                    else "--data (default: shared/data/vrths beside the repository)")
     if not (folder / "benchmark.json").is_file() or not (folder / "elcentro_vrths.csv").is_file():
-        raise click.BadParameter(f"{folder}: benchmark.json and elcentro_vrths.csv not found there", param_hint="--data")
+        raise click.BadParameter(f"{folder}: benchmark.json and elcentro_vrths.csv not found there", param_hint=source)
     try:
         bm = benchmark.load(str(folder))
     except (ValueError, KeyError, TypeError, IndexError, OSError) as exc:  # JSONDecodeError is a ValueError
