@@ -518,6 +518,25 @@ def test_a_record_without_controller_samples_says_why_it_shows_no_phase(tmp_path
     feed.close()
 
 
+def test_a_run_without_the_ns_table_still_shows_its_progress(tmp_path):
+    """[output] ns = false keeps no NS curve, but the test's length is known from the record: the
+    page still shows "of N" and the share done (and hence the time to finish)."""
+    from bokeh.document import Document
+
+    from hsio import config, runner
+    from hsio.monitor import page as page_mod
+
+    for ns in (True, False):
+        cfg = config.from_dict({"structure": {"name": "validation"}, "record": {"synthetic_duration_s": 0.1},
+                                "output": {"plots": False, "ns": ns}, "safety": {"keys": False}})
+        runner.run(cfg, tmp_path / f"run{ns}")
+        feed = RecordFeed(tmp_path / f"run{ns}")
+        page = page_mod.MonitorPage(Document(), feed, Operator(tmp_path / f"run{ns}"))
+        assert feed.n == 10 and feed.total_steps == 10, (ns, feed.n, feed.total_steps)
+        assert "</span> of 10 (100.0 %)" in page.status.text, page.status.text
+        feed.close()
+
+
 def force_controlled_record(folder: Path, modes: list[str], error_mm: float, error_kN: float) -> None:
     """C1 (DOF C1) over len(modes) steps of 64 controller samples each, in the mode given per
     step: the force follows a 3 kN sine (kN in FC) or the displacement a 5 mm one, with the end
