@@ -410,3 +410,17 @@ def test_a_data_folder_from_the_environment_that_lacks_the_data_is_named_as_such
     monkeypatch.setenv("HSIO_VRTHS_DATA", str(tmp_path / "nope"))
     res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1"])
     assert res.exit_code == 2 and "$HSIO_VRTHS_DATA" in res.output and "nope" in res.output, res.output
+
+
+def test_a_negative_count_of_perturbed_plants_is_refused_by_the_api_and_the_bench_script(bm):
+    """Not a mean over no plants (a bare numpy error), nor a traceback from bench/bench_vrths.py."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    with pytest.raises(ValueError, match="perturbed = -1: the number of perturbed plants"):
+        evaluate.evaluate(bm, 1, "amb", -1, 7, None, 1.0)
+    script = Path(__file__).resolve().parents[1] / "bench" / "bench_vrths.py"
+    for args in (["--perturbed", "-1"], ["--python-seconds", "nan"]):
+        proc = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and args[0] in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
