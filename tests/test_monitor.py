@@ -400,6 +400,25 @@ def test_monitor_of_a_missing_folder_is_a_clear_error(tmp_path):
     assert proc.returncode == 2 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_monitor_of_a_folder_of_runs_names_the_run_folders_in_it(tmp_path):
+    """runs/validation instead of runs/validation/run-0002: watched (a run may start there) but the
+    operator is told where the records are, not left before a page that waits for ever."""
+    for name in ("run-0001", "run-0002"):
+        (tmp_path / name).mkdir()
+        write_record(tmp_path / name, 3).close()
+    proc = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    import select
+
+    try:
+        ready, _, _ = select.select([proc.stderr], [], [], 30.0)  # bounded: no line, no hang
+        line = proc.stderr.readline() if ready else ""
+    finally:
+        proc.terminate()
+        proc.wait(20)
+    assert "holds no run.sqlite but run folders with one: run-0001, run-0002" in line, line
+
+
 def test_monitor_is_listed_by_hsio():
     proc = subprocess.run([sys.executable, "-m", "hsio.cli", "--help"], env=ENV, capture_output=True, text=True,
                           timeout=60)
