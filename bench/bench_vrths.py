@@ -40,6 +40,12 @@ def main() -> None:
     ap.add_argument("--python-seconds", type=float, default=5.0, help="record length for the pure-Python timing")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    for bad, message in ((not 0 <= args.perturbed <= 1000, f"--perturbed {args.perturbed}: give 0 to 1000 plants"),
+                         (args.seed < 0, f"--seed {args.seed}: give a seed of 0 or more"),
+                         (not 0.5 <= args.python_seconds <= 1000.0,  # also refuses nan
+                          f"--python-seconds {args.python_seconds:g}: give 0.5 to 1000 s")):
+        if bad:
+            ap.error(message)
     folder = args.data or default_data_folder()
     bm = benchmark.load(str(folder))
     t0 = time.perf_counter()

@@ -99,6 +99,12 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
     (docs/safety.md). Exit status: 0 done, 2 bad input or refused by the dry run, 3 stopped by a
     limit or fault, 4 stopped by an interlock, 5 stopped by the operator or a signal.
     """
+    if not with_monitor:  # a port or address given for a page that would never be served
+        given = [f"--{name.replace('_', '-')}" for name in ("monitor_port", "monitor_host")
+                 if click.get_current_context().get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE]
+        if given:
+            raise click.UsageError(f"{' and '.join(given)} set the monitor's page, which only --monitor serves: "
+                                   "add --monitor")
     from hsio import config as config_mod
     from hsio import runner
     from hsio.experiment import ExperimentStopped, excitation

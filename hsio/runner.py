@@ -24,7 +24,7 @@ from hsio.config import BOUNDS, RunConfig
 from hsio.diagnose.modelfile import merged_emulator_table
 from hsio.emulators.servo import ServoConfig
 from hsio.errors import ConfigError, HsioError, RecordError
-from hsio.experiment import ExperimentStopped, write_events
+from hsio.experiment import ExperimentStopped, excitation, write_events
 from hsio.hardware import check_options
 from hsio.ground_motion import GroundMotion, read_record, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
@@ -548,6 +548,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
         "dry_run_override": safety.override, "start": test["start"],
         "dof_units": dof_units(structure), "channel_units": [u for u, _ in channel_units(structure)],
         "inputs": inputs, "ground_motion_sha256": ground_fingerprint(ground),
+        "steps_total": len(excitation(structure, ground)[0]) - 1,  # the monitor's progress, with or without NS
     }
     site = None
     summary: dict = {}

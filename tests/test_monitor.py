@@ -372,6 +372,19 @@ def test_an_empty_address_is_refused_not_taken_for_every_interface(tmp_path):
         assert proc.returncode == 2 and "the address to listen on is empty" in proc.stderr
 
 
+@pytest.mark.parametrize("args", [["--monitor-port", "9000"], ["--monitor-host", "0.0.0.0"]])
+def test_a_monitor_port_or_address_without_monitor_is_refused_before_anything_runs(tmp_path, args):
+    """The operator asked for a page: a run without one, silently, would leave them without their Stop."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    out = tmp_path / "o"
+    res = CliRunner().invoke(main, ["run", "--out", str(out), *args])
+    assert res.exit_code == 2 and f"{args[0]} set the monitor's page" in res.output and "add --monitor" in res.output
+    assert not out.exists()
+
+
 def test_a_request_without_a_run_to_answer_is_refused_and_logged(tmp_path):
     op = Operator(tmp_path)
     assert op.request("pause").startswith("error: no control socket")
@@ -385,6 +398,25 @@ def test_monitor_of_a_missing_folder_is_a_clear_error(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path / "nope")], env=ENV,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "does not exist" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_monitor_of_a_folder_of_runs_names_the_run_folders_in_it(tmp_path):
+    """runs/validation instead of runs/validation/run-0002: watched (a run may start there) but the
+    operator is told where the records are, not left before a page that waits for ever."""
+    for name in ("run-0001", "run-0002"):
+        (tmp_path / name).mkdir()
+        write_record(tmp_path / name, 3).close()
+    proc = subprocess.Popen([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--port", "0"], env=ENV,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    import select
+
+    try:
+        ready, _, _ = select.select([proc.stderr], [], [], 30.0)  # bounded: no line, no hang
+        line = proc.stderr.readline() if ready else ""
+    finally:
+        proc.terminate()
+        proc.wait(20)
+    assert "holds no run.sqlite but run folders with one: run-0001, run-0002" in line, line
 
 
 def test_monitor_is_listed_by_hsio():
@@ -505,6 +537,25 @@ def test_a_record_without_controller_samples_says_why_it_shows_no_phase(tmp_path
     feed.close()
 
 
+def test_a_run_without_the_ns_table_still_shows_its_progress(tmp_path):
+    """[output] ns = false keeps no NS curve, but the test's length is known from the record: the
+    page still shows "of N" and the share done (and hence the time to finish)."""
+    from bokeh.document import Document
+
+    from hsio import config, runner
+    from hsio.monitor import page as page_mod
+
+    for ns in (True, False):
+        cfg = config.from_dict({"structure": {"name": "validation"}, "record": {"synthetic_duration_s": 0.1},
+                                "output": {"plots": False, "ns": ns}, "safety": {"keys": False}})
+        runner.run(cfg, tmp_path / f"run{ns}")
+        feed = RecordFeed(tmp_path / f"run{ns}")
+        page = page_mod.MonitorPage(Document(), feed, Operator(tmp_path / f"run{ns}"))
+        assert feed.n == 10 and feed.total_steps == 10, (ns, feed.n, feed.total_steps)
+        assert "</span> of 10 (100.0 %)" in page.status.text, page.status.text
+        feed.close()
+
+
 def force_controlled_record(folder: Path, modes: list[str], error_mm: float, error_kN: float) -> None:
     """C1 (DOF C1) over len(modes) steps of 64 controller samples each, in the mode given per
     step: the force follows a 3 kN sine (kN in FC) or the displacement a 5 mm one, with the end
@@ -617,6 +668,17 @@ def test_a_token_that_cannot_travel_in_a_url_and_a_cookie_is_refused(tmp_path, t
                            "--port", "0", "--token", token], env=ENV, capture_output=True, text=True, timeout=20)
     assert proc.returncode == 2 and "may hold only letters, digits" in proc.stderr, proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("host", ["127.0.0.2", "127.0.0.1"])
+def test_an_empty_token_is_refused_not_replaced_by_a_random_one(tmp_path, host):
+    """An unset variable as the token: the operator would hand out a URL with the token they meant
+    and the page would refuse it; refused at once instead (a server that started would outlive the
+    bounded wait: TimeoutExpired)."""
+    write_record(tmp_path, 5).close()
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "monitor", str(tmp_path), "--host", host,
+                           "--port", "0", "--token", ""], env=ENV, capture_output=True, text=True, timeout=20)
+    assert proc.returncode == 2 and "the token is empty" in proc.stderr, proc.stderr
 
 
 def test_the_feed_waits_for_a_regular_file_not_on_a_fifo_for_ever(tmp_path):

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from scipy import signal
 
 from hsio.cli import main
-from hsio.rths import benchmark, controllers, criteria, evaluate, loop, plant
+from hsio.rths import amb, ats, benchmark, controllers, criteria, evaluate, loop, plant
 from hsio.rths.jit import HAVE_NUMBA, jit
 
 FS = benchmark.FS
@@ -255,6 +255,14 @@ def _swap_lines_11_12(lines):
      "cases.1: the reference model M x'' + C x' + K x = 0 is not stable"),
     (_json(lambda d: d["plant"].update(b1=-425.0)), "the control plant (servo-valve, actuator, specimen"),
     (_json(lambda d: d["plant"]["std"].update(a3=-1.3)), "plant.std: the standard deviations of a3, b1, b2, ke must not"),
+    (_json(lambda d: d["constraints"].update(noise_rms_V=-0.002)), "constraints.noise_rms_V must not be negative"),
+    (_json(lambda d: d["constraints"].update(max_force_N=-1)), "constraints.max_force_N, the actuator's force saturation, must be"),
+    (_json(lambda d: d["constraints"].update(adc_dac_bits=0)), "constraints.adc_dac_bits must be a whole number of bits"),
+    (_json(lambda d: d["constraints"].update(adc_dac_bits=18.5)), "constraints.adc_dac_bits must be a whole number of bits"),
+    (_json(lambda d: d["constraints"].update(sampling_hz=1000)), "constraints.sampling_hz is 1000; the benchmark runs at 4096 Hz"),
+    (_json(lambda d: d["constraints"].update(stroke_mm="seven")), "constraints.stroke_mm must be a finite number (got 'seven')"),
+    (_json(lambda d: d["constraints"].update(max_velocity_mm_s=0)), "constraints.max_velocity_mm_s must be above 0"),
+    (_json(lambda d: d["experimental_substructure"].update(me_kg=float("inf"))), "the constraints need finite numbers"),
 ])
 def test_a_data_folder_it_cannot_run_on_is_refused_naming_the_file(shared_data, tmp_path, change, message):
     for name in ("benchmark.json", "elcentro_vrths.csv"):
@@ -276,6 +284,20 @@ def test_a_case_the_data_lack_is_a_usage_error_and_table3_is_optional(shared_dat
     res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--data", str(tmp_path)])
     assert res.exit_code == 0, res.output
     assert "Table 3" not in res.output
+
+
+def test_table3_is_shown_only_beside_the_record_it_was_made_with(shared_data, bm, tmp_path):
+    """Table 3 is of El Centro x 0.4: beside a run on another record it would be a false yardstick."""
+    assert bm.is_table3_record() and bm.table3(1) is not None
+    assert benchmark.Benchmark(bm.data, bm.record_t + 3.0, bm.record_a).is_table3_record()  # same ground motion
+    assert not benchmark.Benchmark(bm.data, bm.record_t, 2.0 * bm.record_a).is_table3_record()
+    (tmp_path / "benchmark.json").write_bytes((shared_data / "vrths" / "benchmark.json").read_bytes())
+    t = np.arange(0.0, 1.0, 0.005)
+    np.savetxt(tmp_path / "elcentro_vrths.csv", np.c_[t, 0.5 * np.sin(2 * np.pi * 3 * t)], delimiter=",",
+               header="time_s,accel_m_s2", comments="")
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--data", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "     Table 3 " not in res.output and "Table 3 not shown" in res.output, res.output
 
 
 @pytest.mark.parametrize("shift_s", [10.0, -3.0, 0.02])
@@ -362,3 +384,43 @@ def test_a_run_whose_command_is_not_finite_stops_with_exit_3(shared_data, monkey
                                     "--data", str(shared_data / "vrths")])
     assert res.exit_code == 3, res.output
     assert "controller 'amb': the command at sample 100" in res.output and "Traceback" not in res.output
+
+
+@pytest.mark.parametrize("build, message", [
+    (lambda nom: ats.make(FS, window_s=0.0), "window_s = 0.0 s holds 0 samples"),
+    (lambda nom: ats.make(FS, update=0), "update = 0 must be a whole number"),
+    (lambda nom: ats.make(FS, update=-3), "update = -3 must be a whole number"),
+    (lambda nom: ats.make(FS, cutoff_hz=3000.0), "cutoff_hz = 3000.0 must lie"),
+    (lambda nom: ats.make(FS, lower=(2, 1, 1), upper=(1, 0, 0)),
+     "lower <= initial <= upper"),
+    (lambda nom: amb.make(FS, nom, mu=-1.0), "mu = -1.0 must be a finite number"),
+    (lambda nom: amb.make(FS, nom, mu=float("nan")), "mu = nan"),
+    (lambda nom: amb.make(FS, nom, jerk_alpha=0.0), "jerk_alpha = 0.0"),
+])
+def test_controller_parameters_it_cannot_run_on_are_refused_naming_them(bm, build, message):
+    """A window too short to fit three coefficients, no refit period, a filter beyond Nyquist, bounds
+    that exclude the start, a step of NLMS outside (0, 2): refused where the stage is made, never a
+    ZeroDivisionError inside the loop or a run that silently diverges."""
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
+        build(plant.nominal(bm.data))
+
+
+def test_a_data_folder_from_the_environment_that_lacks_the_data_is_named_as_such(tmp_path, monkeypatch):
+    """The operator set $HSIO_VRTHS_DATA, not --data: the error names the variable they set."""
+    monkeypatch.setenv("HSIO_VRTHS_DATA", str(tmp_path / "nope"))
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1"])
+    assert res.exit_code == 2 and "$HSIO_VRTHS_DATA" in res.output and "nope" in res.output, res.output
+
+
+def test_a_negative_count_of_perturbed_plants_is_refused_by_the_api_and_the_bench_script(bm):
+    """Not a mean over no plants (a bare numpy error), nor a traceback from bench/bench_vrths.py."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    with pytest.raises(ValueError, match="perturbed = -1: the number of perturbed plants"):
+        evaluate.evaluate(bm, 1, "amb", -1, 7, None, 1.0)
+    script = Path(__file__).resolve().parents[1] / "bench" / "bench_vrths.py"
+    for args in (["--perturbed", "-1"], ["--python-seconds", "nan"]):
+        proc = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and args[0] in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

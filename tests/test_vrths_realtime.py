@@ -92,3 +92,16 @@ def test_the_callers_thread_gets_its_scheduling_back():
     if not timing.granted["sched_fifo"]:
         pytest.skip("SCHED_FIFO is not permitted here: nothing to give back")
     assert os.sched_getscheduler(0) == policy and os.sched_getaffinity(0) == affinity
+
+
+@pytest.mark.parametrize("periods", ["0", "-5", "200000"])
+def test_the_jitter_bench_refuses_a_period_count_it_would_not_measure(periods):
+    """The table says how many periods it measured: a count outside 100-100,000 is refused, not clamped."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "bench" / "bench_jitter.py"
+    proc = subprocess.run([sys.executable, str(script), "--periods", periods], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 2 and "give 100 to 100000 periods" in proc.stderr, proc.stderr

@@ -51,8 +51,10 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
     if seed is not None and perturbed == 0:
         raise click.UsageError("--seed chooses the perturbed plants: give --perturbed K too")
     folder = Path(data) if data else default_data_folder()
+    source = "--data" if data else ("$HSIO_VRTHS_DATA (or --data)" if os.environ.get("HSIO_VRTHS_DATA")
+                                    else "--data (default: shared/data/vrths beside the repository)")
     if not (folder / "benchmark.json").is_file() or not (folder / "elcentro_vrths.csv").is_file():
-        raise click.BadParameter(f"{folder}: benchmark.json and elcentro_vrths.csv not found there", param_hint="--data")
+        raise click.BadParameter(f"{folder}: benchmark.json and elcentro_vrths.csv not found there", param_hint=source)
     try:
         bm = benchmark.load(str(folder))
     except (ValueError, KeyError, TypeError, IndexError, OSError) as exc:  # JSONDecodeError is a ValueError
@@ -86,6 +88,9 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
                 and bm.table3(row["case"]) is not None:
             t3 = " ".join(f"{j:6.2f}" for j in bm.table3(row["case"]))
             click.echo(f"{'':>4} {'Table 3':<8} {'':<6} {t3}")
+    if perturbed == 0 and duration is None and "pi-lead" in names and not bm.is_table3_record():
+        click.echo("Table 3 not shown: it is of the benchmark's El Centro record, and this record differs "
+                   f"({bm.record_t.size} samples, peak {float(abs(bm.record_a).max()):.4g} m/s^2)")
     for row in rows:
         if row["limits_reached"]:
             click.echo(f"case {row['case']} {row['controller']}: " + "; ".join(row["limits_reached"]))

@@ -33,6 +33,21 @@ def _refuse_foreign_record(path: Path) -> None:
         Run(path)  # a RecordError names what is wrong
 
 
+def _point_to_run_folders(folder: Path) -> None:
+    """A folder with no record that holds run folders (runs/validation, not runs/validation/run-0007)
+    is watched all the same, but the operator is told where the records are."""
+    if (folder / RUN_FILE).exists():
+        return
+    try:
+        runs = sorted(p.name for p in folder.iterdir() if (p / RUN_FILE).is_file())
+    except OSError:
+        return
+    if runs:
+        shown = ", ".join(runs[-3:]) + (f" (and {len(runs) - 3} more)" if len(runs) > 3 else "")
+        click.echo(f"hsio monitor: {folder} holds no {RUN_FILE} but run folders with one: {shown}; "
+                   "watching it for a run to start there", err=True)
+
+
 @click.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, exists=True))
 @click.option("--host", default="127.0.0.1", show_default=True,
@@ -56,6 +71,7 @@ def monitor(run_dir: str, host: str, port: int, token: str | None) -> None:
 
     try:
         _refuse_foreign_record(Path(run_dir) / RUN_FILE)
+        _point_to_run_folders(Path(run_dir))
         serve(run_dir, host=host, port=port, token=token, announce=announce)
     except HsioError as exc:
         click.echo(f"hsio monitor: error: {exc}", err=True)

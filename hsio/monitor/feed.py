@@ -106,8 +106,12 @@ class RecordFeed:
 
     @property
     def total_steps(self) -> int | None:
-        """Steps the whole test will take (from the NS prediction; None if none was recorded)."""
-        return len(self.ns["time_s"]) - 1 if self.ns.get("time_s") is not None and len(self.ns["time_s"]) else None
+        """Steps the whole test will take (from the NS prediction, else from the run's ``steps_total``;
+        None if neither was recorded)."""
+        if self.ns.get("time_s") is not None and len(self.ns["time_s"]):
+            return len(self.ns["time_s"]) - 1
+        total = self.meta.get("steps_total")
+        return int(total) if isinstance(total, int) and total > 0 else None
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.columns[name]

@@ -153,6 +153,8 @@ def make_server(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAUL
     if not host.strip():  # an empty address would bind every interface (an unset variable, a typing error)
         raise ConfigError("the address to listen on is empty: give one (127.0.0.1, this machine; 0.0.0.0, every "
                           "interface, with a token)")
+    if token is not None and not token.strip():  # an unset variable: not a token, nor a cue for a random one
+        raise ConfigError("the token is empty: give one, or leave --token out for a random one printed at start-up")
     if token and not re.fullmatch(r"[A-Za-z0-9._~-]+", token):  # it travels in the URL and a cookie as it is
         raise ConfigError(f"the token {token[:40]!r} may hold only letters, digits and - _ . ~ (it is sent in the "
                           f"page's URL and kept in a cookie)")

@@ -148,7 +148,16 @@ def initial_theta(plant, fs: float, delta: float = 0.0, alpha: float = 0.2, f_ma
 
 def make(fs: float, plant, delta: float = 0.0, mu: float = 2e-3, ki: float = 0.0, bound: float = 0.5,
          jerk_alpha: float = 0.2, adapt_from_s: float = 0.5) -> Stage:
-    """AMB on the model ``plant`` (PlantParameters, normally the nominal plant of Table 2)."""
+    """AMB on the model ``plant`` (PlantParameters, normally the nominal plant of Table 2).
+    Parameters it cannot run on are a ValueError naming them."""
+    for name, value, ok, what in (("delta", delta, delta >= 0.0, "not negative (s)"),
+                                  ("mu", mu, 0.0 < mu < 2.0, "between 0 and 2 (the step of NLMS, eq. 3)"),
+                                  ("ki", ki, ki >= 0.0, "not negative"),
+                                  ("bound", bound, bound >= 0.0, "not negative"),
+                                  ("jerk_alpha", jerk_alpha, 0.0 < jerk_alpha <= 1.0, "in (0, 1]"),
+                                  ("adapt_from_s", adapt_from_s, adapt_from_s >= 0.0, "not negative (s)")):
+        if not (np.isfinite(value) and ok):
+            raise ValueError(f"AMB: {name} = {value!r} must be a finite number, {what}")
     Ad, Bd = plant.discrete(fs)
     scale = TAU ** np.arange(NR)
     th0 = initial_theta(plant, fs, delta, jerk_alpha) / scale

@@ -173,9 +173,24 @@ def make(fs: float, initial=(1.0, 0.025, 3.0e-4), window_s: float = 1.0, update:
          lower=(0.8, 0.0, 0.0), upper=(1.25, 0.06, 2.0e-3), cutoff_hz: float = 20.0,
          ridge: float = 1e-9) -> Stage:
     """ATS with a ``window_s`` window re-fitted every ``update`` samples; ``initial`` are the
-    coefficients used until the window first fills (a0, a1 in s, a2 in s^2)."""
+    coefficients used until the window first fills (a0, a1 in s, a2 in s^2). Parameters it cannot
+    run on are a ValueError naming them."""
+    n_win = int(round(window_s * fs)) if np.isfinite(window_s) else 0
+    if n_win < 3:
+        raise ValueError(f"ATS: window_s = {window_s!r} s holds {n_win} samples at {fs:g} Hz; the fit of "
+                         "three coefficients needs at least 3")
+    if isinstance(update, bool) or int(update) != update or not 1 <= update <= n_win:
+        raise ValueError(f"ATS: update = {update!r} must be a whole number of samples from 1 to the window's {n_win}")
+    if not 0.0 < cutoff_hz < fs / 2.0:
+        raise ValueError(f"ATS: cutoff_hz = {cutoff_hz!r} must lie between 0 and half the rate, {fs / 2.0:g} Hz")
+    lo, hi, a_init = (np.asarray(v, dtype=float) for v in (lower, upper, initial))
+    if lo.shape != (3,) or hi.shape != (3,) or a_init.shape != (3,) or not np.all(np.isfinite([lo, hi, a_init])) \
+            or np.any(lo > a_init) or np.any(a_init > hi):
+        raise ValueError(f"ATS: lower <= initial <= upper must hold for each of a0, a1, a2 (three finite numbers each; "
+                         f"got lower {tuple(lower)}, initial {tuple(initial)}, upper {tuple(upper)})")
+    if not ridge >= 0.0:
+        raise ValueError(f"ATS: ridge = {ridge!r} must not be negative")
     b, a = signal.butter(2, cutoff_hz, fs=fs)
-    n_win = int(round(window_s * fs))
     p = np.zeros(P_LEN)
     p[P_B:P_B + 3] = b / a[0]
     p[P_A:P_A + 2] = a[1:] / a[0]

@@ -13,6 +13,7 @@ measured restoring force f_m of the specimen:
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
@@ -26,6 +27,9 @@ RECORD_SCALE = 0.4  # El Centro 1940 x 0.4
 MAX_RECORD_S = 1000.0  # longest record run (the benchmark's lasts 41.18 s)
 MIN_RECORD_S = 0.5  # shortest (as `--duration`): J1-J9 need samples to compare
 MAX_RECORD_ACCEL = 100.0  # m/s^2, about 10 g: a larger value is a record in other units (cm/s^2, mm/s^2)
+# The record of the paper's Table 3 (El Centro 1940 as the benchmark's package holds it, unscaled):
+# its samples, their spacing and its peak. Another record gets no Table 3 beside its results.
+TABLE3_RECORD = dict(samples=2060, dt_s=0.02, peak_m_s2=3.135)
 
 
 @dataclass(frozen=True)
@@ -40,8 +44,17 @@ class Benchmark:
     def cases(self) -> list[int]:
         return sorted(int(c) for c in self.data["cases"])
 
+    def is_table3_record(self) -> bool:
+        """The record is the one of the paper's Table 3 (TABLE3_RECORD; its time may start anywhere)."""
+        t, a, ref = self.record_t, self.record_a, TABLE3_RECORD
+        return (t.size == ref["samples"] and bool(np.allclose(np.diff(t), ref["dt_s"], rtol=1e-6, atol=1e-9))
+                and abs(float(np.max(np.abs(a))) - ref["peak_m_s2"]) <= 1e-3 * ref["peak_m_s2"])
+
     def table3(self, case: int) -> list[float] | None:
-        """The paper's J1-J9 of the sample controller for ``case`` (None when the data lack them)."""
+        """The paper's J1-J9 of the sample controller for ``case`` (None when the data lack them,
+        or when the record is not the one the table was made with)."""
+        if not self.is_table3_record():
+            return None
         table = self.data.get("table3_sample_controller_elcentro")
         row = table.get(str(case)) if isinstance(table, dict) else None
         try:
@@ -104,6 +117,11 @@ def check(bm: Benchmark, folder: Path) -> None:
     except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
         raise ValueError(f"{js}: a case, the plant or a constraint is missing or not a number: "
                          f"{type(exc).__name__} {exc}") from None
+    values = [getattr(plant, f) for f in plant.__dataclass_fields__] + std
+    if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
+        raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
+                         "me, ke and the converters' scales positive")
+    _check_constraints(bm.data["constraints"], js)
     for cs in numbers:
         for name in ("M", "C", "K"):
             m = getattr(cs, name)
@@ -116,16 +134,40 @@ def check(bm: Benchmark, folder: Path) -> None:
         if np.max(np.linalg.eigvals(A).real) >= 0.0:
             raise ValueError(f"{js}: cases.{cs.number}: the reference model M x'' + C x' + K x = 0 is not stable "
                              "(K and C must make every mode decay)")
-    values = [getattr(plant, f) for f in plant.__dataclass_fields__] + std
-    if not all(np.isfinite(values)) or min(plant.me, plant.ke, plant.m_per_V, plant.N_per_V, plant.quantum_V) <= 0.0:
-        raise ValueError(f"{js}: the plant, the substructure and the constraints need finite numbers, "
-                         "me, ke and the converters' scales positive")
     if min(std) < 0.0:
         raise ValueError(f"{js}: plant.std: the standard deviations of {', '.join(plant_mod.UNCERTAIN)} must not be "
                          f"negative (got {', '.join(f'{v:g}' for v in std)})")
     if np.max(np.linalg.eigvals(plant.continuous()[0]).real) >= 0.0:
         raise ValueError(f"{js}: the control plant (servo-valve, actuator, specimen in the unity displacement "
                          "loop, eqs. 21-22) is not stable with these parameters")
+
+
+def _check_constraints(c: dict, js: Path) -> None:
+    """The implementation constraints the loop uses: its rate (FS, which hsio runs at), the
+    converters' bits, a force saturation above zero, a noise that is not negative, and the stroke and
+    velocity limits a run is reported against (positive numbers where given)."""
+    def number(key: str) -> float:
+        try:
+            value = float(c[key])
+        except (TypeError, ValueError):
+            value = math.nan
+        if not math.isfinite(value):
+            raise ValueError(f"{js}: constraints.{key} must be a finite number (got {c[key]!r})")
+        return value
+
+    if "sampling_hz" in c and number("sampling_hz") != FS:
+        raise ValueError(f"{js}: constraints.sampling_hz is {c['sampling_hz']}; the benchmark runs at {FS:g} Hz")
+    bits = number("adc_dac_bits")
+    if bits != int(bits) or not 1 <= bits <= 32:
+        raise ValueError(f"{js}: constraints.adc_dac_bits must be a whole number of bits from 1 to 32 (got {c['adc_dac_bits']})")
+    if not number("max_force_N") > 0.0:
+        raise ValueError(f"{js}: constraints.max_force_N, the actuator's force saturation, must be above 0 "
+                         f"(got {c['max_force_N']})")
+    if not number("noise_rms_V") >= 0.0:
+        raise ValueError(f"{js}: constraints.noise_rms_V must not be negative (got {c['noise_rms_V']})")
+    for key in ("stroke_mm", "max_velocity_mm_s"):
+        if key in c and not number(key) > 0.0:
+            raise ValueError(f"{js}: constraints.{key} must be above 0 (got {c[key]!r})")
 
 
 def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) -> np.ndarray:

@@ -81,6 +81,8 @@ def evaluate(bm: benchmark.Benchmark, case: int, controller: str, perturbed: int
              use_numba: bool | None = None, duration: float | None = None) -> dict:
     """J1-J9 on the nominal plant (``perturbed`` = 0) or the mean and worst over ``perturbed``
     plants drawn with ``seed`` (plant k also gets its own sensor-noise stream)."""
+    if isinstance(perturbed, bool) or int(perturbed) != perturbed or perturbed < 0:
+        raise ValueError(f"perturbed = {perturbed!r}: the number of perturbed plants is a whole number, 0 or more")
     ag = benchmark.ground_motion(bm, duration)
     if perturbed == 0:
         r = run_one(bm, case, controller, plant_mod.nominal(bm.data), 0, use_numba, ag=ag)
