@@ -225,7 +225,8 @@ def switching_text(switching: dict) -> str:
     if elastic is not None:
         dissipating = [name for name, ok in elastic.items() if not ok]
         lines.append("  NS predicts every element elastic: FC allowed where the thresholds say" if not dissipating
-                     else f"  NS predicts {', '.join(dissipating)} dissipating energy: every element stays in DC")
+                     else f"  NS predicts {', '.join(dissipating)} dissipating energy or off the K^EI line: every "
+                          "element stays in DC")
     for name, t in switching["elements"].items():
         if t["upper"] is None:
             lines.append(f"  {name:<12} DC throughout")

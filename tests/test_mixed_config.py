@@ -374,7 +374,7 @@ def test_a_server_that_never_integrates_is_not_refused_for_the_method():
 
 @pytest.mark.parametrize("pga, says", [
     (0.05, ["NS predicts every element elastic", "BF           to FC above 4.22 kN/mm, back to DC below 2.11 kN/mm"]),
-    (0.2, ["NS predicts IF dissipating energy: every element stays in DC", "IF           DC throughout"]),
+    (0.2, ["NS predicts IF dissipating energy or off the K^EI line: every element stays in DC", "IF           DC throughout"]),
 ])
 def test_check_says_what_mixed_control_will_do(tmp_path, pga, says):
     """`hsio check` shows the switching rule of a mixed run: the thresholds (here from the

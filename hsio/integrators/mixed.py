@@ -34,6 +34,7 @@ METHODS = ("implicit_dc", "force_control", "mixed")
 DC = ControlMode.DISPLACEMENT
 FC = ControlMode.FORCE
 RATIO_F, RATIO_D = 1.2, 0.8  # the paper's thresholds, as multiples of K^EI
+LINE_TOLERANCE = 0.05  # FC only on an element NS keeps within this share of its peak force of its K^EI line
 
 
 @dataclass(frozen=True)
@@ -226,6 +227,28 @@ def hysteretic_ratio(u, R, K_EI) -> float:
     return (work - stored) / peak
 
 
+def off_line_ratio(u, R, K_EI) -> float:
+    """How far an element's force leaves its K^EI line over a history: max |R - K^EI u| as a share
+    of max |R|, per basic DOF, the largest over them (``u``, ``R`` as in :func:`hysteretic_ratio`).
+    0 for a linear element whose K^EI is its stiffness; 0.2 for a linear one whose K^EI is declared
+    1.2 times its stiffness; for a closing gap or a nonlinear elastic (Menegotto-Pinto) element, the
+    curvature of its branch. FC moves an element along a line of eq. (9) through its last state, so
+    an element far off the line of K^EI has no line FC can follow. A history with a value that is
+    not finite gives infinity."""
+    u, R = np.asarray(u, dtype=float), np.asarray(R, dtype=float)
+    if u.ndim == 1:
+        u, R = u[:, None], R[:, None]
+    K = np.atleast_2d(np.asarray(K_EI, dtype=float))
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(R)) and np.all(np.isfinite(K))):
+        return float("inf")
+    if u.shape[0] == 0:
+        return 0.0
+    off = np.max(np.abs(R - u @ K.T), axis=0)
+    peak = np.max(np.abs(R), axis=0)
+    ratios = np.where(peak > 0, off / np.where(peak > 0, peak, 1.0), np.where(off > 0, np.inf, 0.0))
+    return float(np.max(ratios))
+
+
 def check_ns(ns, structure) -> None:
     """``ns`` is a :class:`hsio.result.Result` of ``structure``: its name, its DOFs, its
     experimental channels and its time step (a look-alike with other elements, such as
@@ -245,17 +268,20 @@ def check_ns(ns, structure) -> None:
 def predicted_elastic(ns, structure, max_ratio: float) -> np.ndarray:
     """Per experimental element of ``structure``, whether the purely numerical simulation ``ns``
     (a :class:`hsio.result.Result` of that structure) predicts it to stay elastic: its hysteretic
-    ratio (over all its basic DOFs, with its K^EI matrix) below ``max_ratio``. Force control
-    follows an elastic specimen with the load cell's accuracy and runs away on one that
-    dissipates energy (a pinched wall, a cracking infill, a yielding storey), where a force error
-    leaves a displacement offset that nothing brings back."""
+    ratio (over all its basic DOFs, with its K^EI matrix) below ``max_ratio``, and its force within
+    ``LINE_TOLERANCE`` of its K^EI line (:func:`off_line_ratio`). Force control follows an elastic
+    specimen with the load cell's accuracy and runs away on one that dissipates energy (a pinched
+    wall, a cracking infill, a yielding storey), where a force error leaves a displacement offset
+    that nothing brings back; and it moves the element along a secant line (eq. 9), which a
+    specimen whose branch curves (a nonlinear elastic one), or whose K^EI is not its stiffness,
+    does not follow."""
     check_ns(ns, structure)
     elastic, channel = [], 0
     for element in structure.experimental:
         K = element.K_EI_matrix
         basic = slice(channel, channel + K.shape[0])
-        eta = hysteretic_ratio(ns.measured_displacement[:, basic], ns.measured_force[:, basic], K)
-        elastic.append(eta < max_ratio)
+        u, R = ns.measured_displacement[:, basic], ns.measured_force[:, basic]
+        elastic.append(hysteretic_ratio(u, R, K) < max_ratio and off_line_ratio(u, R, K) <= LINE_TOLERANCE)
         channel += K.shape[0]
     return np.array(elastic)
 
