@@ -142,7 +142,8 @@ def max_error_pct(u_hs: np.ndarray, u_ns: np.ndarray) -> tuple[float, list[float
     """Max over time and DOF of |u_HS - u_NS| / peak |u_NS| of that DOF, in percent; and per DOF.
 
     Both are histories (steps x DOF) of the same DOF; the shorter one (a run stopped early) sets
-    the steps compared. Two :class:`Result` objects are compared by their ``u``."""
+    the steps compared. Two :class:`Result` objects are compared by their ``u``. A DOF that NS
+    leaves at rest (peak 0) is compared with 1 mm: its error in hundredths of a millimetre."""
     u_hs, u_ns = (x.u if isinstance(x, Result) else x for x in (u_hs, u_ns))
     try:
         u_hs, u_ns = np.asarray(u_hs, dtype=float), np.asarray(u_ns, dtype=float)
