@@ -126,3 +126,24 @@ def test_a_specimen_off_its_KEI_line_stays_in_dc(tmp_path, model, K_EI):
     on_line = model["kind"] == "linear" and K_EI is None
     assert hysteretic_ratio(ns.measured_displacement[:, 0], ns.measured_force[:, 0], structure.experimental[0].K_EI) < 0.1
     assert predicted_elastic(ns, structure, 0.1).tolist() == [on_line]
+
+
+@pytest.mark.parametrize("seed, duration_s, elastic", [(1994, 0.6, True), (2026, 2.0, False)])
+def test_the_grid_specimen_goes_to_fc_where_ns_grazes_its_crack_not_where_ns_cracks_it(seed, duration_s, elastic):
+    """The study's infill on its scaled records: NS passes the cracking force by 0.01 % on seed 1994
+    over 0.6 s (0.0011 off its K^EI line: FC is allowed and wins), and cracks it, 3 % beyond the
+    cracking displacement, on seed 2026 over 2 s (0.031 off the line, a hysteretic ratio of 0.086
+    under the 0.1 gate): there FC is 4.7 % off against DC's 2.2 %, and the element stays in DC."""
+    from hsio import study_mixed
+    from hsio.api import run_numerical
+    from hsio.ground_motion import synthetic_record
+    from hsio.integrators.mixed import LINE_TOLERANCE, hysteretic_ratio, off_line_ratio, predicted_elastic
+
+    s = study_mixed.infill_sdof(7.2)
+    ns = run_numerical(s, synthetic_record(duration_s=duration_s, dt=s.dt, pga_g=0.1, seed=seed), "mixed")
+    scale = 0.49 / float(np.max(np.abs(ns.u)))
+    ns = run_numerical(s, synthetic_record(duration_s=duration_s, dt=s.dt, pga_g=0.1 * scale, seed=seed), "mixed")
+    u, R = ns.measured_displacement, ns.measured_force
+    assert hysteretic_ratio(u, R, 7.2) < 0.1  # the energy gate alone would let it go to FC
+    assert (off_line_ratio(u, R, 7.2) <= LINE_TOLERANCE) is elastic
+    assert predicted_elastic(ns, s, 0.1).tolist() == [elastic]

@@ -9,7 +9,7 @@ import pytest
 
 from hsio.errors import ConfigError
 from hsio.integrators import ImplicitAlpha, SwitchingRule
-from hsio.integrators.implicit import samples_averaged
+from hsio.integrators.implicit import SECANT_Z as Z, samples_averaged
 from hsio.integrators.mixed import instrument_uncertainty
 from hsio.interfaces import ControlMode
 from hsio.secant import SecantEstimator, secant_stiffness
@@ -167,8 +167,8 @@ def _k_at(z, dR, n_end, n_base):
     return k
 
 
-@pytest.mark.parametrize("z, taken", [(2.9, False), (3.1, True)])
-def test_the_first_step_from_a_nonzero_base_at_2_9_and_3_1_sigma(z, taken):
+@pytest.mark.parametrize("z, taken", [(Z - 0.1, False), (Z + 0.1, True)])
+def test_the_first_step_from_a_nonzero_base_just_within_and_just_beyond_z_sigma(z, taken):
     # the first step's base is one feedback sample: sigma^2 (1/16 + 1) per channel, increments from the base
     dR = 0.3
     site = _FromBase(_k_at(z, dR, 16, 1))
@@ -179,9 +179,9 @@ def test_the_first_step_from_a_nonzero_base_at_2_9_and_3_1_sigma(z, taken):
     assert taken or integ.secant_refused[0] >= 1  # the estimate turned away, counted
 
 
-@pytest.mark.parametrize("z, taken", [(2.9, False), (3.1, True)])
+@pytest.mark.parametrize("z, taken", [(Z - 0.1, False), (Z + 0.1, True)])
 @pytest.mark.parametrize("estimator, n", [(SecantEstimator("average", 16), 16), (SecantEstimator("raw"), 1)])
-def test_a_later_step_at_2_9_and_3_1_sigma_for_n_16_and_n_1(z, taken, estimator, n):
+def test_a_later_step_just_within_and_just_beyond_z_sigma_for_n_16_and_n_1(z, taken, estimator, n):
     dR = 0.3
     site = _FromBase(_k_at(z, dR, n, n), estimator)
     integ = _quasi_static((NOISE_U, NOISE_F))
@@ -189,7 +189,7 @@ def test_a_later_step_at_2_9_and_3_1_sigma_for_n_16_and_n_1(z, taken, estimator,
     integ.state.i = 1  # a later step: both ends averaged alike
     integ.step(np.array([site.R0 + dR]), site, [FC])
     assert bool(integ.k[0] == pytest.approx(site.k)) is taken and bool(integ.k[0] == K0) is not taken
-    if n == 16 and taken:  # the same estimate read from single samples lies within 3 sigma_k
+    if n == 16 and taken:  # the same estimate read from single samples lies within Z sigma_k
         raw = _FromBase(site.k, SecantEstimator("raw"))
         integ = _quasi_static((NOISE_U, NOISE_F))
         integ.start(np.array([raw.R0]), raw)
@@ -224,12 +224,12 @@ class _Quantised(_Site):
 
 
 def test_a_softening_over_small_increments_is_taken_from_the_estimates_pooled():
-    # 0.01 mm on K0 per step: each estimate of a 30 % softer specimen lies within 3 sigma_k of K0
+    # 0.01 mm on K0 per step: each estimate of a 30 % softer specimen lies within Z sigma_k of K0
     site = _Quantised(0.7 * K0)
     integ = _quasi_static(((0.01, 0.001), (0.001, 0.001)))
     integ.start(np.zeros(1), site)
     sigma = integ.sigma_k([0.7 * K0], [0.03 / (0.7 * K0)], [0.03], 16)[0]
-    assert 0.3 * K0 < 3 * sigma  # alone, no estimate would be taken
+    assert 0.3 * K0 < Z * sigma  # alone, no estimate would be taken
     for i in range(30):
         integ.step(np.array([0.03 * (i + 1)]), site, [FC])
     assert integ.k[0] == pytest.approx(0.7 * K0, rel=0.03)
@@ -291,10 +291,10 @@ def test_a_displacement_read_by_an_external_instrument_counts_one_reading_of_it(
     # one reading at each end: 2 (sigma^2 + delta^2 / 12), whatever the estimator averages
     assert lvdt == pytest.approx(K0 * np.sqrt(2 * (0.02**2 + 0.01**2 / 12) / 0.1**2 + 2 * NOISE_F**2 / 16 / 0.3**2))
     assert lvdt > 5 * averaged
-    # a step: 3.1 sigma_k of the averaged transducer is taken with it, turned away on the instrument's reading
+    # a step: Z + 0.1 sigma_k of the averaged transducer is taken with it, turned away on the instrument's reading
     dR = 0.3
     for instruments, taken in (([None], True), ([(0.02, 0.01)], False)):
-        site = _FromBase(_k_at(3.1, dR, 16, 16))
+        site = _FromBase(_k_at(Z + 0.1, dR, 16, 16))
         site.displacement_instruments = instruments
         integ = _quasi_static((NOISE_U, NOISE_F))
         integ.start(np.array([site.R0]), site)
@@ -324,12 +324,13 @@ def hsio_open_site(structure):
 
 def test_an_estimate_pulled_low_and_one_pulled_high_are_judged_alike():
     """sigma_k is the secant in use's, not the estimate's: with the load cell's noise alone, an
-    estimate 3 s below K0 and one 3 s above are both turned away (judged at the estimate, the
-    low one would carry a smaller sigma and be taken, the high one not: a secant drifting soft)."""
+    estimate just within Z s below K0 and one as far above are both turned away (judged at the
+    estimate, the low one would carry a smaller sigma and be taken, the high one not: a secant
+    drifting soft)."""
     dR = 0.01
     s = np.sqrt(2 * NOISE_F**2 / 16) / dR  # sigma_k / K0 from the load cell alone: 3.5 %
-    eps = 0.1  # past 3 s / (1 + 3 s) (taken if judged at the low estimate), within 3 s
-    assert 3 * s / (1 + 3 * s) < eps < 3 * s
+    eps = 0.97 * Z * s  # past Z s / (1 + Z s) (taken if judged at the low estimate), within Z s
+    assert Z * s / (1 + Z * s) < eps < Z * s
     for k in (K0 * (1 - eps), K0 * (1 + eps)):
         site = _FromBase(k)
         integ = _quasi_static((0.0, NOISE_F))

@@ -34,7 +34,7 @@ METHODS = ("implicit_dc", "force_control", "mixed")
 DC = ControlMode.DISPLACEMENT
 FC = ControlMode.FORCE
 RATIO_F, RATIO_D = 1.2, 0.8  # the paper's thresholds, as multiples of K^EI
-LINE_TOLERANCE = 0.05  # FC only on an element NS keeps within this share of its peak force of its K^EI line
+LINE_TOLERANCE = 0.01  # FC only on an element NS keeps within this share of its peak force of its K^EI line
 
 
 @dataclass(frozen=True)
