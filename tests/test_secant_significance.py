@@ -346,3 +346,18 @@ def test_an_external_instrument_stating_no_noise_counts_as_the_transducer():
     integ = _quasi_static((NOISE_U, NOISE_F))
     plain = integ.sigma_k([K0], [0.1], [0.3], 16)[0]
     assert integ.sigma_k([K0], [0.1], [0.3], 16, external=[(0.0, 0.0)])[0] == plain
+
+
+def test_the_run_summary_names_the_z_the_secant_rule_uses(tmp_path, capsys):
+    """`hsio run` prints the estimates turned away with the z they were judged at (SECANT_Z)."""
+    from hsio import config, runner
+    from hsio.cli import _print_summary
+
+    cfg = config.from_dict({"structure": {"name": "validation"}, "record": {"synthetic_duration_s": 0.2},
+                            "integrator": {"method": "force_control"}, "output": {"plots": False},
+                            "safety": {"keys": False}})
+    summary = runner.run(cfg, tmp_path / "run")
+    assert summary["secant_refused"] is not None
+    _print_summary(summary)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("FC secant"))
+    assert f"within {Z:g} sigma_k of the secant in use" in line, line
