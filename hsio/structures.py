@@ -510,7 +510,8 @@ class Structure:
         groups = (
             ("DOF", [(f"dof[{k}].name", name) for k, name in enumerate(self.dof_names)], ()),
             ("recorded channel", channels, ()),
-            ("preload actuator", [(f"static[{k}].actuator", s.actuator) for k, s in enumerate(self.static)], ()),
+            ("preload actuator", [(f"static[{k}].{'name' if s.actuator == s.name else 'actuator'}", s.actuator)
+                                  for k, s in enumerate(self.static)], ()),
             ("instrument", [(f"instrument[{k}].name", i.name) for k, i in enumerate(self.instruments)],
              self.INSTRUMENT_TABLE_COLUMNS),
         )

@@ -57,6 +57,9 @@ def test_an_element_named_as_another_elements_channel_is_refused():
 def test_preload_actuators_that_would_share_a_column_are_refused():
     text = (resources.files("hsio") / "library" / "preloaded_column.toml").read_text()
     text += '\n[[static]]\nname = "Axial"\nforce_kN = 10.0\nmodel = { kind = "linear", k = 5.0 }\n'
+    with pytest.raises(ConfigError, match=r"static\[1\].name: preload actuator 'Axial' and 'axial'"):
+        parse_structure(text, "pre.toml")  # the key the file gives: the actuator is named after the preload
+    text = text.replace('name = "Axial"\n', 'name = "second"\nactuator = "Axial"\n')
     with pytest.raises(ConfigError, match=r"static\[1\].actuator: preload actuator 'Axial' and 'axial'"):
         parse_structure(text, "pre.toml")
 
