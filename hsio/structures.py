@@ -500,13 +500,7 @@ class Structure:
         from hsio.recording import column
 
         what = self.source or f"structure {self.name!r}"
-        channels = []
-        for k, e in enumerate(self.experimental):
-            if len(e.basic_dofs) == 1 and not e.has_setup:
-                key = "name" if e.actuator == e.name else "actuator"
-                channels.append((f"experimental[{k}].{key}", e.actuator))
-            else:
-                channels += [(f"experimental[{k}].name", f"{e.name}.{self.dof_names[d]}") for d in e.basic_dofs]
+        channels = list(recorded_channels(self))
         groups = (
             ("DOF", [(f"dof[{k}].name", name) for k, name in enumerate(self.dof_names)], ()),
             ("recorded channel", channels, ()),
@@ -675,16 +669,22 @@ class NumericalAssembly:
             model.commit()
 
 
-def channel_names(structure: Structure) -> list[str]:
-    """The recorded channels: an element on one DOF without a setup is recorded under its
-    actuator's name; an element with several basic DOFs under ``element.dof`` per DOF."""
-    names = []
-    for e in structure.experimental:
+def recorded_channels(structure: Structure):
+    """Per recorded channel, the structure file's key that names it and its name: an element on
+    one DOF without a setup is recorded under its actuator's name (``experimental[k].actuator``,
+    or ``.name`` when the actuator is named after the element); an element with several basic
+    DOFs or a setup under ``element.dof`` per DOF (``experimental[k].name``)."""
+    for k, e in enumerate(structure.experimental):
         if len(e.basic_dofs) == 1 and not e.has_setup:
-            names.append(e.actuator)
+            yield f"experimental[{k}].{'name' if e.actuator == e.name else 'actuator'}", e.actuator
         else:
-            names += [f"{e.name}.{structure.dof_names[d]}" for d in e.basic_dofs]
-    return names
+            for d in e.basic_dofs:
+                yield f"experimental[{k}].name", f"{e.name}.{structure.dof_names[d]}"
+
+
+def channel_names(structure: Structure) -> list[str]:
+    """The recorded channels (:func:`recorded_channels`), in order."""
+    return [name for _, name in recorded_channels(structure)]
 
 def rotation_dofs(structure: Structure) -> set[int]:
     """The DOFs the structure says are rotations (rad, their forces moments in kN mm): the basic
