@@ -492,7 +492,8 @@ class Structure:
 
     def _check_record_names(self) -> None:
         """Every name the record writes as a column is its own column there: DOFs, recorded
-        channels (:func:`channel_names`), preload actuators and instruments, each kept to letters,
+        channels (:func:`channel_names`), elements (:attr:`experimental_names`, the implicit
+        methods' table), preload actuators and instruments, each kept to letters,
         digits and _ and compared ignoring case, as SQLite compares column names
         (hsio.recording.column). Two that would share one (``"A"`` and ``"a"``, ``"lvdt-1"`` and
         ``"lvdt_1"``, an element named ``"column.x"`` beside element ``column``'s channel on DOF
@@ -501,9 +502,13 @@ class Structure:
 
         what = self.source or f"structure {self.name!r}"
         channels = list(recorded_channels(self))
+        # the implicit methods' table: a column per element (element.dof per basic DOF of one on several)
+        elements = [(f"experimental[{k}].name", e.name if len(e.basic_dofs) == 1 else f"{e.name}.{self.dof_names[d]}")
+                    for k, e in enumerate(self.experimental) for d in e.basic_dofs]
         groups = (
             ("DOF", [(f"dof[{k}].name", name) for k, name in enumerate(self.dof_names)], ()),
             ("recorded channel", channels, ()),
+            ("element", elements, ()),
             ("preload actuator", [(f"static[{k}].{'name' if s.actuator == s.name else 'actuator'}", s.actuator)
                                   for k, s in enumerate(self.static)], ()),
             ("instrument", [(f"instrument[{k}].name", i.name) for k, i in enumerate(self.instruments)],

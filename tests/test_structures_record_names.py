@@ -101,3 +101,15 @@ def test_names_of_unicode_letters_and_spaces_up_to_100_characters_load():
     assert len(name) == 100
     text = WALL.replace('[[dof]]\nname = "wall"', f'[[dof]]\nname = "{name}"').replace('dof = "wall"', f'dof = "{name}"')
     assert parse_structure(text, "wall.toml").dof_names == (name,)
+
+
+def test_elements_that_differ_only_in_case_are_refused_though_their_actuators_differ():
+    """Elements `C1` and `c1` on actuators `C1` and `A2`: their recorded channels differ, but the
+    implicit methods' table has a column per element (iterations_C1, iterations_c1), one column
+    to SQLite; refused when the structure is loaded, not at the first step of a run."""
+    text = (resources.files("hsio") / "library" / "validation.toml").read_text()
+    text = text.replace('[[experimental]]\nname = "C2"\ndof = "C2"', '[[experimental]]\nname = "c1"\ndof = "C2"\n'
+                        'actuator = "A2"')
+    with pytest.raises(ConfigError, match=r"^v.toml: experimental\[1\].name: element 'c1' and 'C1' of "
+                                          r"experimental\[0\].name would be one column of the record"):
+        parse_structure(text, "v.toml")
