@@ -493,7 +493,7 @@ class Structure:
     def _check_record_names(self) -> None:
         """Every name the record writes as a column is its own column there: DOFs, recorded
         channels (:func:`channel_names`), elements (:attr:`experimental_names`, the implicit
-        methods' table), preload actuators and instruments, each kept to letters,
+        methods' table), actuators (the elements' and the preloads') and instruments, each kept to letters,
         digits and _ and compared ignoring case, as SQLite compares column names
         (hsio.recording.column). Two that would share one (``"A"`` and ``"a"``, ``"lvdt-1"`` and
         ``"lvdt_1"``, an element named ``"column.x"`` beside element ``column``'s channel on DOF
@@ -509,8 +509,7 @@ class Structure:
             ("DOF", [(f"dof[{k}].name", name) for k, name in enumerate(self.dof_names)], ()),
             ("recorded channel", channels, ()),
             ("element", elements, ()),
-            ("preload actuator", [(f"static[{k}].{'name' if s.actuator == s.name else 'actuator'}", s.actuator)
-                                  for k, s in enumerate(self.static)], ()),
+            ("actuator", list(self._actuator_keys()), ()),
             ("instrument", [(f"instrument[{k}].name", i.name) for k, i in enumerate(self.instruments)],
              self.INSTRUMENT_TABLE_COLUMNS),
         )
@@ -530,6 +529,20 @@ class Structure:
                                       "one column of the record (it keeps the letters, digits and _ of a name and "
                                       "ignores case); give names that differ there")
                 seen[key] = (where, name)
+
+    def _actuator_keys(self):
+        """Per actuator of the loop (the elements', then the preloads'), the structure file's key
+        that names it and its name: the record keeps a column per actuator (its interlocks,
+        compensation and preload tables)."""
+        for k, e in enumerate(self.experimental):
+            if not e.actuators:
+                yield f"experimental[{k}].{'name' if e.actuator == e.name else 'actuator'}", e.actuator
+                continue
+            for j, a in enumerate(e.actuators):  # named after the element where the file names none
+                yield (f"experimental[{k}].name" if a.startswith(f"{e.name}.") or a == e.name
+                       else f"experimental[{k}].actuators[{j}]" if len(e.actuators) > 1 else f"experimental[{k}].actuator"), a
+        for k, load in enumerate(self.static):
+            yield f"static[{k}].{'name' if load.actuator == load.name else 'actuator'}", load.actuator
 
     def _check_model(self) -> None:
         """The damping ratios are fractions of critical, K_I is not singular and no mode gets a

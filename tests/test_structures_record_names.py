@@ -57,10 +57,10 @@ def test_an_element_named_as_another_elements_channel_is_refused():
 def test_preload_actuators_that_would_share_a_column_are_refused():
     text = (resources.files("hsio") / "library" / "preloaded_column.toml").read_text()
     text += '\n[[static]]\nname = "Axial"\nforce_kN = 10.0\nmodel = { kind = "linear", k = 5.0 }\n'
-    with pytest.raises(ConfigError, match=r"static\[1\].name: preload actuator 'Axial' and 'axial'"):
+    with pytest.raises(ConfigError, match=r"static\[1\].name: actuator 'Axial' and 'axial'"):
         parse_structure(text, "pre.toml")  # the key the file gives: the actuator is named after the preload
     text = text.replace('name = "Axial"\n', 'name = "second"\nactuator = "Axial"\n')
-    with pytest.raises(ConfigError, match=r"static\[1\].actuator: preload actuator 'Axial' and 'axial'"):
+    with pytest.raises(ConfigError, match=r"static\[1\].actuator: actuator 'Axial' and 'axial'"):
         parse_structure(text, "pre.toml")
 
 
@@ -113,3 +113,12 @@ def test_elements_that_differ_only_in_case_are_refused_though_their_actuators_di
     with pytest.raises(ConfigError, match=r"^v.toml: experimental\[1\].name: element 'c1' and 'C1' of "
                                           r"experimental\[0\].name would be one column of the record"):
         parse_structure(text, "v.toml")
+
+
+def test_actuators_of_a_setup_that_differ_only_in_case_are_refused():
+    """A column on actuators `lower` and `Lower`: its channels are column.top_x and column.top_rot,
+    but the record keeps a column per actuator (interlocks, compensation): one column to SQLite."""
+    text = COLUMN.replace('actuators = ["lower", "upper"]', 'actuators = ["lower", "Lower"]')
+    with pytest.raises(ConfigError, match=r"^col.toml: experimental\[0\].actuators\[1\]: actuator 'Lower' and "
+                                          r"'lower' of experimental\[0\].actuators\[0\] would be one column"):
+        parse_structure(text, "col.toml")
