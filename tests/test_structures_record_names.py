@@ -1,5 +1,5 @@
-"""Names the record writes as columns: every DOF, recorded channel, preload actuator and
-instrument has a column of its own, or the structure is refused when it is loaded (before a run
+"""Names the record writes as columns: every DOF, recorded channel, element, actuator
+and instrument has a column of its own, or the structure is refused when it is loaded (before a run
 opens anything), naming the file and the key."""
 
 from __future__ import annotations
