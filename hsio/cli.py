@@ -315,7 +315,9 @@ def _print_summary(s: dict) -> None:
                    f"{s['iterations_per_step_mean']:.2f} commands per step, "
                    f"{s['nonconverged_steps']} steps at j_max without convergence")
         if s.get("secant_refused") is not None:
-            click.echo(f"FC secant      estimates within 3 sigma_k of the secant in use, turned away (eq. 11a): "
+            from hsio.integrators.implicit import SECANT_Z
+
+            click.echo(f"FC secant      estimates within {SECANT_Z:g} sigma_k of the secant in use, turned away (eq. 11a): "
                        f"{', '.join(str(n) for n in s['secant_refused'])}")
     click.echo(f"wall time      {s['wall_time_s']:.1f} s (the lab would take {s['test_time_s']:.1f} s)")
     click.echo(f"record file    {s['run_file']}")

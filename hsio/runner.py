@@ -770,7 +770,7 @@ def implicit_summary(hs: Result) -> dict:
         "nonconverged_steps": int(np.count_nonzero(~hs.converged[1:])),
         "wall_time_per_step_ms": float(wall.mean() * 1e3) if wall.size else 0.0,
         "thresholds": hs.thresholds,
-        # FC estimates of eq. (11) within 3 sigma_k of the secant in use, turned away, per element (eq. 11a)
+        # FC estimates of eq. (11) within SECANT_Z sigma_k of the secant in use, turned away, per element (eq. 11a)
         **({"secant_refused": hs.secant_refused} if hs.secant_refused is not None else {}),
     }
 

@@ -492,7 +492,8 @@ class Structure:
 
     def _check_record_names(self) -> None:
         """Every name the record writes as a column is its own column there: DOFs, recorded
-        channels (:func:`channel_names`), preload actuators and instruments, each kept to letters,
+        channels (:func:`channel_names`), elements (:attr:`experimental_names`, the implicit
+        methods' table), actuators (the elements' and the preloads') and instruments, each kept to letters,
         digits and _ and compared ignoring case, as SQLite compares column names
         (hsio.recording.column). Two that would share one (``"A"`` and ``"a"``, ``"lvdt-1"`` and
         ``"lvdt_1"``, an element named ``"column.x"`` beside element ``column``'s channel on DOF
@@ -500,17 +501,15 @@ class Structure:
         from hsio.recording import column
 
         what = self.source or f"structure {self.name!r}"
-        channels = []
-        for k, e in enumerate(self.experimental):
-            if len(e.basic_dofs) == 1 and not e.has_setup:
-                key = "name" if e.actuator == e.name else "actuator"
-                channels.append((f"experimental[{k}].{key}", e.actuator))
-            else:
-                channels += [(f"experimental[{k}].name", f"{e.name}.{self.dof_names[d]}") for d in e.basic_dofs]
+        channels = list(recorded_channels(self))
+        # the implicit methods' table: a column per element (element.dof per basic DOF of one on several)
+        elements = [(f"experimental[{k}].name", e.name if len(e.basic_dofs) == 1 else f"{e.name}.{self.dof_names[d]}")
+                    for k, e in enumerate(self.experimental) for d in e.basic_dofs]
         groups = (
             ("DOF", [(f"dof[{k}].name", name) for k, name in enumerate(self.dof_names)], ()),
             ("recorded channel", channels, ()),
-            ("preload actuator", [(f"static[{k}].actuator", s.actuator) for k, s in enumerate(self.static)], ()),
+            ("element", elements, ()),
+            ("actuator", list(self._actuator_keys()), ()),
             ("instrument", [(f"instrument[{k}].name", i.name) for k, i in enumerate(self.instruments)],
              self.INSTRUMENT_TABLE_COLUMNS),
         )
@@ -530,6 +529,20 @@ class Structure:
                                       "one column of the record (it keeps the letters, digits and _ of a name and "
                                       "ignores case); give names that differ there")
                 seen[key] = (where, name)
+
+    def _actuator_keys(self):
+        """Per actuator of the loop (the elements', then the preloads'), the structure file's key
+        that names it and its name: the record keeps a column per actuator (its interlocks,
+        compensation and preload tables)."""
+        for k, e in enumerate(self.experimental):
+            if not e.actuators:
+                yield f"experimental[{k}].{'name' if e.actuator == e.name else 'actuator'}", e.actuator
+                continue
+            for j, a in enumerate(e.actuators):  # named after the element where the file names none
+                yield (f"experimental[{k}].name" if a.startswith(f"{e.name}.") or a == e.name
+                       else f"experimental[{k}].actuators[{j}]" if len(e.actuators) > 1 else f"experimental[{k}].actuator"), a
+        for k, load in enumerate(self.static):
+            yield f"static[{k}].{'name' if load.actuator == load.name else 'actuator'}", load.actuator
 
     def _check_model(self) -> None:
         """The damping ratios are fractions of critical, K_I is not singular and no mode gets a
@@ -674,16 +687,22 @@ class NumericalAssembly:
             model.commit()
 
 
-def channel_names(structure: Structure) -> list[str]:
-    """The recorded channels: an element on one DOF without a setup is recorded under its
-    actuator's name; an element with several basic DOFs under ``element.dof`` per DOF."""
-    names = []
-    for e in structure.experimental:
+def recorded_channels(structure: Structure):
+    """Per recorded channel, the structure file's key that names it and its name: an element on
+    one DOF without a setup is recorded under its actuator's name (``experimental[k].actuator``,
+    or ``.name`` when the actuator is named after the element); an element with several basic
+    DOFs or a setup under ``element.dof`` per DOF (``experimental[k].name``)."""
+    for k, e in enumerate(structure.experimental):
         if len(e.basic_dofs) == 1 and not e.has_setup:
-            names.append(e.actuator)
+            yield f"experimental[{k}].{'name' if e.actuator == e.name else 'actuator'}", e.actuator
         else:
-            names += [f"{e.name}.{structure.dof_names[d]}" for d in e.basic_dofs]
-    return names
+            for d in e.basic_dofs:
+                yield f"experimental[{k}].name", f"{e.name}.{structure.dof_names[d]}"
+
+
+def channel_names(structure: Structure) -> list[str]:
+    """The recorded channels (:func:`recorded_channels`), in order."""
+    return [name for _, name in recorded_channels(structure)]
 
 def rotation_dofs(structure: Structure) -> set[int]:
     """The DOFs the structure says are rotations (rad, their forces moments in kN mm): the basic

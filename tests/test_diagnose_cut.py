@@ -72,8 +72,8 @@ def test_a_few_samples_on_a_linear_spring_are_too_few_to_judge(n, tmp_path):
 
 def test_a_long_rest_at_the_end_judges_nothing():
     """An 8 ms delay hidden in 10 s of motion followed by 15 s of rest: the choosing and scoring
-    blocks hold no motion, so nothing can be judged there (without this rule the answer was none,
-    as if the lag explained the record)."""
+    blocks hold no motion, so nothing can be judged there (judged on the rest, the answer would be
+    none, as if the lag explained the record)."""
     rate = 500.0
     motion = seismic_command(10.0, rate, peak_mm=15.0, seed=4)
     command = np.r_[motion, np.full(int(15.0 * rate), motion[-1])]

@@ -101,7 +101,7 @@ def test_new_effect_is_named_and_measured(commands, effect):
 def test_a_noise_free_record_of_the_lag_answers_none_and_a_hidden_effect_is_still_named(commands, kind):
     """Without noise or quantisation the baseline replays the emulator to its fit's convergence (1e-9 mm): no
     candidate may be named on gains between rounding errors (a transport delay of 1e-17 s), and
-    the floor is the arithmetic's, not zero (which made every residual 'unexplained'). An effect
+    the floor is the arithmetic's, not zero (a floor of zero leaves every residual 'unexplained'). An effect
     hidden in the same noise-free record leaves a real error and is still named."""
     quiet = {"noise_mm": 0.0, "resolution_mm": 0.0}
     d = diagnose(emulate(commands[kind], ServoConfig(rate_hz=RATE_HZ, lag_s=LAG_S, **quiet)))

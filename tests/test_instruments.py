@@ -204,3 +204,26 @@ def test_a_record_from_rest_is_refused_on_an_instrument_that_is_not_zeroed(monke
     with hsio.open_site(structure, "emulator://", test_rate=2, relative=True) as site:
         hs = hsio.simulate(structure, ground, site)
     assert hs.steps == 40 and abs(hs.commands[1, 0]) < 0.1  # no jump by the offset at the first step
+
+
+@pytest.mark.parametrize("noise, resolution, offset", [(0.4, 0.0, 0.0), (0.0, 0.3, 0.3)])
+def test_a_zeroed_instrument_coarser_than_the_tolerance_is_not_taken_for_one_not_zeroed(monkeypatch, noise, resolution,
+                                                                                        offset):
+    """A zeroed string pot whose one reading at enabling is off by its own noise (0.4 mm: the
+    emulator's draw reads -0.13 mm) or by a step of its resolution (0.3 mm) is within what the
+    instrument can tell: the limit grows by its noise and resolution, and the run from rest goes;
+    3 mm more is still refused."""
+    true_value = EmulatedInstruments.value
+    text = WALL.replace('[[experimental]]\nname = "wall"', '[[experimental]]\nname = "wall"\ndisplacement_from = "pot"')
+    structure = parse_structure(text + f'\n[[instrument]]\nname = "pot"\nkind = "string_pot"\nelement = "wall"\n'
+                                f'noise = {noise}\nresolution = {resolution}\n', "pot.toml")
+    for extra, refused in ((offset, False), (offset + 3.0, True)):
+        monkeypatch.setattr(EmulatedInstruments, "value", lambda self, inst, extra=extra: true_value(self, inst) + extra)
+        with hsio.open_site(structure, "emulator://", test_rate=2) as site:
+            reading = site.readback["pot"]
+            if refused:
+                with pytest.raises(ConfigError, match="instrument 'pot' reads .* at rest"):
+                    site.check_instruments_at_rest()
+            else:
+                assert abs(reading) > 0.1  # beyond 5 x 0.02 mm: refused on the tolerance alone
+                site.check_instruments_at_rest()

@@ -236,6 +236,24 @@ def test_a_softening_over_small_increments_is_taken_from_the_estimates_pooled():
     assert integ.secant_refused[0] > 0
 
 
+@pytest.mark.parametrize("z, step", [(3.0, 7), (Z, 12)])
+def test_a_softening_over_small_increments_is_taken_in_the_step_the_docs_give(z, step):
+    """docs/method.md and docs/force_control.md: a 30 % softening read in 0.014 mm increments
+    (sigma_k / k about 25 % each) is taken from the pool in the twelfth step at z = 4, the seventh
+    at z = 3."""
+    site = _Quantised(0.7 * K0)
+    integ = _quasi_static(((0.01, 0.001), (0.001, 0.001)), secant_z=z)
+    integ.start(np.zeros(1), site)
+    sigma = integ.sigma_k([0.7 * K0], [0.03 / (0.7 * K0)], [0.03], 16)[0]
+    assert sigma / (0.7 * K0) == pytest.approx(0.25, abs=0.005)
+    taken = None
+    for i in range(30):
+        integ.step(np.array([0.03 * (i + 1)]), site, [FC])
+        if taken is None and integ.k[0] != K0:
+            taken = i + 1
+    assert taken == step
+
+
 class _Bilinear(_Site):
     """Loads at ``k`` and unloads at K0 from the last committed point, noise-free, 16 samples averaged."""
 
@@ -358,3 +376,18 @@ def test_fc_on_a_record_with_one_estimate_3_3_sigma_off_keeps_its_secant():
     (row,) = study_mixed.grid(stiffnesses=(7.2,), resolutions=(0.0025,), force_resolutions=(0.002,), seed=11,
                               methods=("force_control",))
     assert row.error_pct < 3.0 and row.secant_refused >= 1
+
+
+def test_the_run_summary_names_the_z_the_secant_rule_uses(tmp_path, capsys):
+    """`hsio run` prints the estimates turned away with the z they were judged at (SECANT_Z)."""
+    from hsio import config, runner
+    from hsio.cli import _print_summary
+
+    cfg = config.from_dict({"structure": {"name": "validation"}, "record": {"synthetic_duration_s": 0.2},
+                            "integrator": {"method": "force_control"}, "output": {"plots": False},
+                            "safety": {"keys": False}})
+    summary = runner.run(cfg, tmp_path / "run")
+    assert summary["secant_refused"] is not None
+    _print_summary(summary)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("FC secant"))
+    assert f"within {Z:g} sigma_k of the secant in use" in line, line

@@ -1,5 +1,5 @@
-"""Names the record writes as columns: every DOF, recorded channel, preload actuator and
-instrument has a column of its own, or the structure is refused when it is loaded (before a run
+"""Names the record writes as columns: every DOF, recorded channel, element, actuator
+and instrument has a column of its own, or the structure is refused when it is loaded (before a run
 opens anything), naming the file and the key."""
 
 from __future__ import annotations
@@ -57,7 +57,10 @@ def test_an_element_named_as_another_elements_channel_is_refused():
 def test_preload_actuators_that_would_share_a_column_are_refused():
     text = (resources.files("hsio") / "library" / "preloaded_column.toml").read_text()
     text += '\n[[static]]\nname = "Axial"\nforce_kN = 10.0\nmodel = { kind = "linear", k = 5.0 }\n'
-    with pytest.raises(ConfigError, match=r"static\[1\].actuator: preload actuator 'Axial' and 'axial'"):
+    with pytest.raises(ConfigError, match=r"static\[1\].name: actuator 'Axial' and 'axial'"):
+        parse_structure(text, "pre.toml")  # the key the file gives: the actuator is named after the preload
+    text = text.replace('name = "Axial"\n', 'name = "second"\nactuator = "Axial"\n')
+    with pytest.raises(ConfigError, match=r"static\[1\].actuator: actuator 'Axial' and 'axial'"):
         parse_structure(text, "pre.toml")
 
 
@@ -98,3 +101,24 @@ def test_names_of_unicode_letters_and_spaces_up_to_100_characters_load():
     assert len(name) == 100
     text = WALL.replace('[[dof]]\nname = "wall"', f'[[dof]]\nname = "{name}"').replace('dof = "wall"', f'dof = "{name}"')
     assert parse_structure(text, "wall.toml").dof_names == (name,)
+
+
+def test_elements_that_differ_only_in_case_are_refused_though_their_actuators_differ():
+    """Elements `C1` and `c1` on actuators `C1` and `A2`: their recorded channels differ, but the
+    implicit methods' table has a column per element (iterations_C1, iterations_c1), one column
+    to SQLite; refused when the structure is loaded, not at the first step of a run."""
+    text = (resources.files("hsio") / "library" / "validation.toml").read_text()
+    text = text.replace('[[experimental]]\nname = "C2"\ndof = "C2"', '[[experimental]]\nname = "c1"\ndof = "C2"\n'
+                        'actuator = "A2"')
+    with pytest.raises(ConfigError, match=r"^v.toml: experimental\[1\].name: element 'c1' and 'C1' of "
+                                          r"experimental\[0\].name would be one column of the record"):
+        parse_structure(text, "v.toml")
+
+
+def test_actuators_of_a_setup_that_differ_only_in_case_are_refused():
+    """A column on actuators `lower` and `Lower`: its channels are column.top_x and column.top_rot,
+    but the record keeps a column per actuator (interlocks, compensation): one column to SQLite."""
+    text = COLUMN.replace('actuators = ["lower", "upper"]', 'actuators = ["lower", "Lower"]')
+    with pytest.raises(ConfigError, match=r"^col.toml: experimental\[0\].actuators\[1\]: actuator 'Lower' and "
+                                          r"'lower' of experimental\[0\].actuators\[0\] would be one column"):
+        parse_structure(text, "col.toml")

@@ -298,6 +298,13 @@ def test_table3_is_shown_only_beside_the_record_it_was_made_with(shared_data, bm
     res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--data", str(tmp_path)])
     assert res.exit_code == 0, res.output
     assert "     Table 3 " not in res.output and "Table 3 not shown" in res.output, res.output
+    bare = tmp_path / "bare"  # the same record, data without the table: nothing to say of it
+    bare.mkdir()
+    for name in ("benchmark.json", "elcentro_vrths.csv"):
+        (bare / name).write_bytes((tmp_path / name).read_bytes())
+    _json(lambda d: d.pop("table3_sample_controller_elcentro"))(bare)
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--data", str(bare)])
+    assert res.exit_code == 0 and "Table 3" not in res.output, res.output
 
 
 @pytest.mark.parametrize("shift_s", [10.0, -3.0, 0.02])

@@ -357,9 +357,11 @@ class ActuatorSite:
     def check_instruments_at_rest(self) -> None:
         """Refuse (ConfigError, before any command) a record from rest where an instrument that
         gives an element its displacement reads, at enabling, away from that element's actuator
-        transducer by more than BEYOND_TOLERANCE times the outer loop's tolerance (the default
-        tolerance without a loop): an instrument not zeroed, whose offset the first step would take
-        as the specimen's displacement, and an outer loop would drive the actuator by at once."""
+        transducer by more than BEYOND_TOLERANCE times the larger of the outer loop's tolerance (the
+        default tolerance without a loop) and the instrument's noise, plus its resolution (one
+        reading of a zeroed instrument is that far off by itself): an instrument not zeroed, whose
+        offset the first step would take as the specimen's displacement, and an outer loop would
+        drive the actuator by at once."""
         for j, source in enumerate(self.external):
             if source is None:
                 continue
@@ -368,7 +370,8 @@ class ActuatorSite:
             actuator = self.loop.actuators[k].name
             reading = self.readback[name] - self.instrument_zero[name]
             transducer = self.readback[f"{actuator}.displacement"] - self.zero[k]
-            limit = self.BEYOND_TOLERANCE * (outer or OuterLoop()).tolerance_mm
+            noise, resolution = self.displacement_instruments[j] or (0.0, 0.0)
+            limit = self.BEYOND_TOLERANCE * max((outer or OuterLoop()).tolerance_mm, noise) + resolution
             if abs(reading - transducer) > limit:
                 raise ConfigError(
                     f"instrument {name!r} reads {reading:+.3f} mm at rest where actuator {actuator!r} reads "
