@@ -201,6 +201,18 @@ def instrument_uncertainty(resolution: float, noise: float) -> float:
     return float(np.hypot(noise, resolution / np.sqrt(12.0)))
 
 
+def _history(u, R, K_EI):
+    """An element's history as (steps x basic DOF) arrays and its K^EI matrix; None where a value
+    is not finite (an NS that diverged)."""
+    u, R = np.asarray(u, dtype=float), np.asarray(R, dtype=float)
+    if u.ndim == 1:
+        u, R = u[:, None], R[:, None]
+    K = np.atleast_2d(np.asarray(K_EI, dtype=float))
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(R)) and np.all(np.isfinite(K))):
+        return None
+    return u, R, K
+
+
 def hysteretic_ratio(u, R, K_EI) -> float:
     """Energy an element dissipates over a history, against its elastic energy at the peak:
     (W - R_end K^+ R_end / 2) / max(u K u / 2), W the work of R on u (trapezoidal rule), the energy
@@ -211,12 +223,10 @@ def hysteretic_ratio(u, R, K_EI) -> float:
     and u_max: (2 + 8) u_y (u_max - u_y) / u_max^2 (the first loading, the loop). A history with
     a value that is not finite (an NS that diverged) gives infinity: nothing is known to be
     elastic."""
-    u, R = np.asarray(u, dtype=float), np.asarray(R, dtype=float)
-    if u.ndim == 1:
-        u, R = u[:, None], R[:, None]
-    K = np.atleast_2d(np.asarray(K_EI, dtype=float))
-    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(R)) and np.all(np.isfinite(K))):
+    history = _history(u, R, K_EI)
+    if history is None:
         return float("inf")
+    u, R, K = history
     if u.shape[0] == 0:
         return 0.0
     peak = 0.5 * float(np.max(np.einsum("ki,ij,kj->k", u, K, u)))
@@ -235,12 +245,10 @@ def off_line_ratio(u, R, K_EI) -> float:
     curvature of its branch. FC moves an element along a line of eq. (9) through its last state, so
     an element far off the line of K^EI has no line FC can follow. A history with a value that is
     not finite gives infinity."""
-    u, R = np.asarray(u, dtype=float), np.asarray(R, dtype=float)
-    if u.ndim == 1:
-        u, R = u[:, None], R[:, None]
-    K = np.atleast_2d(np.asarray(K_EI, dtype=float))
-    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(R)) and np.all(np.isfinite(K))):
+    history = _history(u, R, K_EI)
+    if history is None:
         return float("inf")
+    u, R, K = history
     if u.shape[0] == 0:
         return 0.0
     off = np.max(np.abs(R - u @ K.T), axis=0)
