@@ -191,7 +191,8 @@ class DriveNode:
         self.node = BaseNode402(node_id, od)
         link.network.add_node(self.node)
         self.node.sdo.RESPONSE_TIMEOUT = link.options["timeout_s"]
-        self.node.sdo.MAX_RETRIES = max(int(link.options["retries"]), 0)
+        # canopen counts attempts: MAX_RETRIES 1 is one request, and 0 would wait for ever on a silent node
+        self.node.sdo.MAX_RETRIES = max(int(link.options["retries"]), 0) + 1
         self.node.TIMEOUT_SWITCH_OP_MODE = link.options["timeout_s"]  # canopen's wait for the mode display
         self.counts_per_mm = float(cod.COUNTS_PER_MM)
         self.rated_N = float(cod.RATED_FORCE_N)
@@ -485,7 +486,17 @@ class CanopenLink(common.AxisLink):
 
     def _identify(self, d: DriveNode) -> None:
         """SDO reads only: device type, identity, scaling, limits, clock."""
-        device_type = d.sdo_read(0x1000, what="device type")
+        try:
+            device_type = d.sdo_read(0x1000, what="device type")
+        except SdoAbortError:
+            raise
+        except CommunicationError as exc:
+            if self.interface != "virtual":
+                raise
+            raise CommunicationError(
+                f"{exc} (canopen+virtual:// is python-can's bus inside one process: nothing answers unless the "
+                "drive's emulator runs in this same process, as in hsio's tests; from the command line run "
+                "`hsio emulate canopen --slcan tcp` and use the canopen+slcan://127.0.0.1:PORT/NODE it prints)") from None
         if device_type & 0xFFFF != 402:
             raise CommunicationError(f"CANopen node {d.id}: device type 0x{device_type:08X} is not a CiA 402 drive")
         d.identity = {"vendor_id": d.sdo_read(0x1018, 1, "vendor id"), "product_code": d.sdo_read(0x1018, 2, "product code"),

@@ -377,3 +377,10 @@ def test_a_lockstep_drive_whose_tpdo2_lacks_the_cycle_counter_is_refused_when_en
         open_link(drive.url, ["C1", "C2"], LockstepClock())
     from hsio.emulators.canopen import OE
     assert "disabled" not in str(exc.value) and not any(axis.state == OE for axis in drive.axes)  # none enabled
+
+
+def test_a_virtual_bus_nobody_answers_on_says_the_emulator_must_share_the_process():
+    """canopen+virtual:// is python-can's in-process bus: from the command line nothing answers.
+    The error says why and names the way a separate emulator is reached (SLCAN over TCP)."""
+    with pytest.raises(CommunicationError, match=r"No SDO response.*inside one process.*canopen\+slcan://"):
+        open_link("canopen+virtual://nobody-here/1", ["C1"], None, {"timeout_s": 0.05, "retries": 0})
