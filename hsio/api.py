@@ -283,6 +283,19 @@ def dwell_periods(dt: float, test_rate: float, hold_fraction: float, rate_hz: fl
     return dwell if dwell >= 1 else periods
 
 
+def _report_preloads_short(site, recorder) -> None:
+    """A preload the ramp-in left beyond PRELOAD_REACHED of its target after holding as long again
+    as the ramp (a soft load train, a slow force loop): the record starts under it, and a warning
+    (printed, and an event of the record) says by how much."""
+    for name, target, measured in getattr(site, "preload_short", []):
+        message = (f"static preload {name!r} reads {measured:.4g} kN of its {target:.4g} kN "
+                   f"({100 * (measured - target) / target:+.2f} %) after the ramp in and a hold as long again; "
+                   "the record starts under it (lengthen ramp_s, or check the load train)")
+        warnings.warn(message, stacklevel=3)
+        if recorder is not None:
+            recorder.write_event(site.lab_time_s, 0, "warning", name, message)
+
+
 def _ramp_pause(control, site, recorder, ramp: str, step: int):
     """An operator's pause between two steps of a ramp of the static preloads: the run holds
     there as between two steps of the record (``control.checkpoint``), its pause and resume
@@ -474,6 +487,7 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         if control is not None and static:  # the status the operator sees (the page, the socket)
             control.phase = "ramp-in"
         site.preload(stop=stop, pause=_ramp_pause(control, site, recorder, "ramp in", 0))
+        _report_preloads_short(site, recorder)
     except BaseException as exc:
         site.hold()
         if isinstance(exc, RampStopped):

@@ -146,3 +146,32 @@ def test_a_fast_ramp_through_a_compliant_load_train_is_reached_before_the_record
     assert len(ramp_in) <= 2 * 10  # 0.5 s at t_d = 0.05 s: 10 steps of ramp, then as many at most to reach it
     assert abs(ramp_in[-1][3][0] - 125.0) <= 0.005 * 125.0
     assert hs.static_hold_error[0] < 0.01
+
+
+def test_a_preload_the_ramp_in_leaves_short_is_told_and_recorded(tmp_path):
+    """Through a 0.3 mm/kN load train a 0.5 s ramp and a hold as long again leave the preload some
+    per cent short: the record starts under it (the interlocks allow it), and a warning and an
+    event of the record say by how much."""
+    import warnings
+
+    from hsio.recording import Recorder, Run
+    from hsio.structures import channel_names
+
+    text = (Path(hsio.__file__).parent / "library" / "preloaded_column.toml").read_text()
+    structure = parse_structure(text.replace("ramp_s = 2.0", "ramp_s = 0.5").replace("k = 50.0", "k = 30.0"),
+                                "fast_ramp.toml")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=structure.dt, pga_g=0.3, seed=2)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with hsio.open_site(structure, "emulator://", test_rate=5, options={"compliance_mm_per_kN": 0.3}) as site:
+            recorder = Recorder(tmp_path / "run.sqlite", structure.dof_names, channel_names(structure))
+            try:
+                hsio.simulate(structure, ground, site, recorder=recorder)
+            finally:
+                recorder.close()
+    events = Run(tmp_path / "run.sqlite").events()
+    ((name, target, measured),) = site.preload_short
+    assert name == "axial" and target == 125.0 and abs(measured - target) > 0.005 * target
+    assert any("static preload 'axial' reads" in str(w.message) and "the record starts under it" in str(w.message)
+               for w in caught)
+    assert [e["kind"] for e in events if e["actuator"] == "axial"] == ["warning"]

@@ -63,6 +63,7 @@ class ActuatorSite:
         self.setups = setups
         self.static = list(static)
         self.n_dynamic = len(loop.actuators) - len(self.static)
+        self.preload_short: list[tuple[str, float, float]] = []  # preloads the ramp-in left short: name, target, measured
         if setups is not None and setups.n_actuators != self.n_dynamic:
             raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {self.n_dynamic} "
                               f"beside the static ones")
@@ -192,6 +193,8 @@ class ActuatorSite:
                                f"{done} of {steps} steps; force control left at {left}")
 
         settle = steps if phase == "ramp_in" else 0
+        if settle:
+            self.preload_short = []
         try:
             for k in range(1, steps + settle + 1):
                 if pause is not None:
@@ -205,6 +208,11 @@ class ActuatorSite:
                 fb = self._execute(hold)
                 if k >= steps and np.all(np.abs(fb.force[self.n_dynamic:] - end) <= self.PRELOAD_REACHED * np.abs(end)):
                     break
+            else:
+                if settle:  # held as long again and still short: the record starts, and says so
+                    self.preload_short = [(load.name, float(t), float(f)) for load, t, f
+                                          in zip(self.static, end, fb.force[self.n_dynamic:])
+                                          if abs(f - t) > self.PRELOAD_REACHED * abs(t)]
         finally:
             self._phase = "test"
 
