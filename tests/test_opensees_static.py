@@ -241,3 +241,29 @@ def test_a_preload_already_on_is_ramped_from_where_it_stands():
 
 if __name__ == "__main__":  # pragma: no cover
     pytest.main([__file__, "-q"])
+
+
+def test_a_preload_left_short_by_the_ramp_in_is_logged_and_recorded(tmp_path, monkeypatch):
+    """A preload still outside the ramp-in's tolerance after its hold (here a tolerance nothing
+    meets, the emulated load cell settling on its target exactly): the session runs under it, and
+    the log and the record's events say so."""
+    from hsio.sites.actuators import ActuatorSite
+
+    monkeypatch.setattr(ActuatorSite, "PRELOAD_REACHED", -1.0)
+    with serve_column(tmp_path) as server:
+        client = RawClient(server.ports[0], timeout_s=30.0)
+        try:
+            client.setup()
+            client.step(0.5, 0.01)
+            client.send(p.DIE)
+        finally:
+            client.close()
+        assert wait_for(lambda: session_over(server), 30.0)
+        lines = list(server.lines)
+    assert any("warning: static preload 'axial' reads" in line and "the session runs under it" in line for line in lines), lines
+    db = sqlite3.connect(tmp_path / "records" / "run.sqlite")
+    try:
+        kinds = [k for (k,) in db.execute("SELECT kind FROM events WHERE actuator = 'axial'")]
+    finally:
+        db.close()
+    assert kinds == ["warning"]
