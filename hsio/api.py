@@ -287,10 +287,8 @@ def _report_preloads_short(site, recorder) -> None:
     """A preload the ramp-in left beyond PRELOAD_REACHED of its target after holding as long again
     as the ramp (a soft load train, a slow force loop): the record starts under it, and a warning
     (printed, and an event of the record) says by how much."""
-    for name, target, measured in getattr(site, "preload_short", []):
-        message = (f"static preload {name!r} reads {measured:.4g} kN of its {target:.4g} kN "
-                   f"({100 * (measured - target) / target:+.2f} %) after the ramp in and a hold as long again; "
-                   "the record starts under it (lengthen ramp_s, or check the load train)")
+    for name, short in site.preloads_short():
+        message = f"{short}; the record starts under it (lengthen ramp_s, or check the load train)"
         warnings.warn(message, stacklevel=3)
         if recorder is not None:
             recorder.write_event(site.lab_time_s, 0, "warning", name, message)

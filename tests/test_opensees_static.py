@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hsio.opensees import protocol as p
-from test_opensees_support import RawClient, serving, session_over, wait_for, write_config
+from test_opensees_support import RawClient, one_step_session, serving, session_over, wait_for, write_config
 
 PRELOAD_KN = 125.0  # preloaded_column's axial load
 K_LATERAL = 0.75  # kN/mm, its lateral element
@@ -239,31 +239,21 @@ def test_a_preload_already_on_is_ramped_from_where_it_stands():
     assert min(forces) > PRELOAD_KN - 0.5
 
 
-if __name__ == "__main__":  # pragma: no cover
-    pytest.main([__file__, "-q"])
-
-
 def test_a_preload_left_short_by_the_ramp_in_is_logged_and_recorded(tmp_path, monkeypatch):
     """A preload still outside the ramp-in's tolerance after its hold (here a tolerance nothing
     meets, the emulated load cell settling on its target exactly): the session runs under it, and
     the log and the record's events say so."""
+    from hsio.recording import Run
     from hsio.sites.actuators import ActuatorSite
 
     monkeypatch.setattr(ActuatorSite, "PRELOAD_REACHED", -1.0)
     with serve_column(tmp_path) as server:
-        client = RawClient(server.ports[0], timeout_s=30.0)
-        try:
-            client.setup()
-            client.step(0.5, 0.01)
-            client.send(p.DIE)
-        finally:
-            client.close()
-        assert wait_for(lambda: session_over(server), 30.0)
+        one_step_session(server)
         lines = list(server.lines)
     assert any("warning: static preload 'axial' reads" in line and "the session runs under it" in line for line in lines), lines
-    db = sqlite3.connect(tmp_path / "records" / "run.sqlite")
-    try:
-        kinds = [k for (k,) in db.execute("SELECT kind FROM events WHERE actuator = 'axial'")]
-    finally:
-        db.close()
-    assert kinds == ["warning"]
+    events = Run(tmp_path / "records" / "run.sqlite").events()
+    assert [e["kind"] for e in events if e["actuator"] == "axial"] == ["warning"]
+
+
+if __name__ == "__main__":  # pragma: no cover
+    pytest.main([__file__, "-q"])

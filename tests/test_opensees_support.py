@@ -185,9 +185,9 @@ def step_together(clients, displacements, dt: float = 0.01) -> None:
 
 
 def one_step_session(server, port_index: int = 0) -> None:
-    """A client of the validation structure's element connects, makes one step of 1 mm (its
-    force that of the cantilever, 0.3 to 0.9 kN), says DIE and leaves; returns once the session
-    is over."""
+    """A client of the structure's element connects, makes one step of 1 mm (its force 0.3 to 0.9
+    kN: the validation structure's cantilever, the preloaded column's lateral spring), says DIE and
+    leaves; returns once the session is over."""
     from hsio.opensees import protocol as p
 
     c = RawClient(server.ports[port_index])

@@ -201,16 +201,16 @@ def instrument_uncertainty(resolution: float, noise: float) -> float:
     return float(np.hypot(noise, resolution / np.sqrt(12.0)))
 
 
-def _history(u, R, K_EI):
-    """An element's history as (steps x basic DOF) arrays and its K^EI matrix; None where a value
-    is not finite (an NS that diverged)."""
+def _over_history(u, R, K_EI, measure) -> float:
+    """``measure(u, R, K)`` of an element's history as (steps x basic DOF) arrays and its K^EI
+    matrix: infinity where a value is not finite (an NS that diverged), 0 for an empty history."""
     u, R = np.asarray(u, dtype=float), np.asarray(R, dtype=float)
     if u.ndim == 1:
         u, R = u[:, None], R[:, None]
     K = np.atleast_2d(np.asarray(K_EI, dtype=float))
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(R)) and np.all(np.isfinite(K))):
-        return None
-    return u, R, K
+        return float("inf")
+    return measure(u, R, K) if u.shape[0] else 0.0
 
 
 def hysteretic_ratio(u, R, K_EI) -> float:
@@ -223,18 +223,15 @@ def hysteretic_ratio(u, R, K_EI) -> float:
     and u_max: (2 + 8) u_y (u_max - u_y) / u_max^2 (the first loading, the loop). A history with
     a value that is not finite (an NS that diverged) gives infinity: nothing is known to be
     elastic."""
-    history = _history(u, R, K_EI)
-    if history is None:
-        return float("inf")
-    u, R, K = history
-    if u.shape[0] == 0:
-        return 0.0
-    peak = 0.5 * float(np.max(np.einsum("ki,ij,kj->k", u, K, u)))
-    if not peak > 0:
-        return 0.0
-    work = float(np.sum(0.5 * (R[1:] + R[:-1]) * np.diff(u, axis=0)))
-    stored = 0.5 * float(R[-1] @ np.linalg.pinv(K) @ R[-1])
-    return (work - stored) / peak
+    def measure(u, R, K):
+        peak = 0.5 * float(np.max(np.einsum("ki,ij,kj->k", u, K, u)))
+        if not peak > 0:
+            return 0.0
+        work = float(np.sum(0.5 * (R[1:] + R[:-1]) * np.diff(u, axis=0)))
+        stored = 0.5 * float(R[-1] @ np.linalg.pinv(K) @ R[-1])
+        return (work - stored) / peak
+
+    return _over_history(u, R, K_EI, measure)
 
 
 def off_line_ratio(u, R, K_EI) -> float:
@@ -245,16 +242,12 @@ def off_line_ratio(u, R, K_EI) -> float:
     curvature of its branch. FC moves an element along a line of eq. (9) through its last state, so
     an element far off the line of K^EI has no line FC can follow. A history with a value that is
     not finite gives infinity."""
-    history = _history(u, R, K_EI)
-    if history is None:
-        return float("inf")
-    u, R, K = history
-    if u.shape[0] == 0:
-        return 0.0
-    off = np.max(np.abs(R - u @ K.T), axis=0)
-    peak = np.max(np.abs(R), axis=0)
-    ratios = np.where(peak > 0, off / np.where(peak > 0, peak, 1.0), np.where(off > 0, np.inf, 0.0))
-    return float(np.max(ratios))
+    def measure(u, R, K):
+        off = np.max(np.abs(R - u @ K.T), axis=0)
+        peak = np.max(np.abs(R), axis=0)
+        return float(np.max(np.where(peak > 0, off / np.where(peak > 0, peak, 1.0), np.where(off > 0, np.inf, 0.0))))
+
+    return _over_history(u, R, K_EI, measure)
 
 
 def check_ns(ns, structure) -> None:

@@ -264,9 +264,8 @@ class Lab:
                 self._close(self.failed)
                 raise
             self.log(f"session {self.sessions}: static preloads ramped in and held ({loads})")
-            for name, target, measured in self.site.preload_short:  # held as long again as the ramp, still short
-                message = (f"static preload {name!r} reads {measured:.4g} kN of its {target:.4g} kN after the ramp in "
-                           "and a hold as long again; the session runs under it")
+            for name, short in self.site.preloads_short():
+                message = f"{short}; the session runs under it"
                 self.log(f"session {self.sessions}: warning: {message}")
                 self.recorder.write_event(self._lab_time(self.site), 0, "warning", name, message)
 

@@ -216,6 +216,12 @@ class ActuatorSite:
         finally:
             self._phase = "test"
 
+    def preloads_short(self) -> list[tuple[str, str]]:
+        """(name, what it reads against its target) of each preload the last ramp in left short."""
+        return [(name, f"static preload {name!r} reads {measured:.4g} kN of its {target:.4g} kN "
+                       f"({100 * (measured - target) / target:+.2f} %) after the ramp in and a hold as long again")
+                for name, target, measured in self.preload_short]
+
     def preload(self, stop=None, pause=None) -> None:
         """Switch the static actuators to force control and ramp their preloads in, the others
         holding where they stand (docs/setups.md). Each ramp starts from the force its actuator
