@@ -285,9 +285,8 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
             pred = _path_force(model, d, dt)
             scored.append((_rms(f[n_fit:] - pred[n_fit:]), name, model, info))
         err, name, model, info = min(scored, key=lambda s: s[0])
-        refitted = _refitted(element.model(), d, f, n_fit, dt)
-        if refitted is not None:  # taken only when clearly better: with all its parameters free it also fits noise
-            table = refitted[1]
+        table = _refitted(element.model(), d, f, n_fit, dt)
+        if table is not None:  # taken only when clearly better: with all its parameters free it also fits noise
             model_r = _QuasiStatic(make_specimen(table))
             err_r = _rms(f[n_fit:] - _path_force(model_r, d, dt)[n_fit:])
             if SPECIMEN_MARGIN * err_r < err:
@@ -303,12 +302,12 @@ REFIT_RANGE = math.log(4.0)  # a refitted parameter stays within a factor of 4 o
 REFIT_EVALS = 60  # force-path evaluations per refitted parameter, at most
 
 
-def _refitted(model, d: np.ndarray, f: np.ndarray, n_fit: int, dt: float) -> tuple[float, dict] | None:
+def _refitted(model, d: np.ndarray, f: np.ndarray, n_fit: int, dt: float) -> dict | None:
     """The structure's own specimen model with each of its positive parameters refitted (within a
     factor of 4) to the measured force on the first ``n_fit`` steps, by least squares on the force
     along the measured path: a specimen that differs from its model in shape, not only in scale
-    (other pinching, other hardening). Returns (RMS force error on those steps, the table) or
-    None when the model has no parameter to refit or cannot be rebuilt."""
+    (other pinching, other hardening). Returns the refitted table, or None when the model has no
+    parameter to refit or cannot be rebuilt."""
     from scipy import optimize
 
     from hsio.specimens import make_specimen, specimen_spec
@@ -338,7 +337,7 @@ def _refitted(model, d: np.ndarray, f: np.ndarray, n_fit: int, dt: float) -> tup
                                      diff_step=1e-3, max_nfev=REFIT_EVALS * len(names))
     except (ValueError, ArithmeticError):
         return None
-    return _rms(sol.fun), table(sol.x)
+    return table(sol.x)
 
 
 class _Scaled:
