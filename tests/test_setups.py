@@ -142,3 +142,27 @@ def test_builders_refuse_non_positive_dimensions_by_name():
         with pytest.raises(ConfigError, match="positive|angle_deg"):
             build(*args)
     assert one_actuator(1000.0).linearised_strokes([1.0])[0] == pytest.approx(1.0, rel=1e-12)  # along x by default
+
+
+def test_a_pose_near_or_past_a_singular_one_is_named():
+    """One actuator 500 mm long at 80 degrees: square to x at u = -L cos(80) = -86.8 mm. Past that
+    the stroke grows again, so the strokes of u = -100 mm are those of a mirror pose on the side
+    of rest, u = -2 L cos(80) + 100 = -73.6 mm: the inverse cannot tell them apart, and the
+    setup names both poses as ones its actuators cannot drive the element to."""
+    L, a = 500.0, math.radians(80.0)
+    setup = one_actuator(L, 80.0)
+    mirror = -2 * L * math.cos(a) + 100.0
+    assert setup.strokes([-100.0])[0] == pytest.approx(setup.strokes([mirror])[0], abs=1e-9)
+    assert setup.basic_displacements(setup.strokes([-100.0]))[0] == pytest.approx(mirror, abs=1e-6)
+    # conditioning at u in closed form: |cos phi(u)| = |L cos a + u| / |B - A|
+    for u in (-86.0, -50.0, 0.0, 100.0):
+        cos_phi = abs(L * math.cos(a) + u) / math.hypot(L * math.cos(a) + u, L * math.sin(a))
+        assert setup.conditioning([u]) == pytest.approx(cos_phi, rel=1e-12)
+    assert "hardly move" in setup.pose_problem([-85.0])  # |cos phi| = 0.0036
+    assert "past a singular" in setup.pose_problem([-100.0])  # |cos phi| = 0.027, but on the far side
+    for u in (-80.0, 0.0, 120.0):
+        assert setup.pose_problem([u]) == ""
+    # two actuators: the upper one square to the platen's rotation at theta = pi / 2
+    column = two_actuators(1500.0, 500.0)
+    assert column.pose_problem([0.0, 0.3]) == ""
+    assert column.pose_problem([0.0, math.pi / 2]) != ""

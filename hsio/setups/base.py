@@ -74,6 +74,10 @@ class Setup(ABC):
         raise ConfigError(f"setup: no basic displacement gives the strokes {s.tolist()} (the geometry "
                           f"does not close within {max_iter} iterations)")
 
+    def pose_problem(self, d) -> str:
+        """Why the actuators cannot drive the element to basic displacements ``d`` (empty: they can)."""
+        return ""
+
     def basic_forces(self, forces: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Basic forces (model units) from the actuator forces (lab kN) at basic displacements ``d``."""
         f = np.asarray(forces, dtype=float)

@@ -260,6 +260,7 @@ class ActuatorSite:
         if self.setups is not None:
             if any(m is not ControlMode.DISPLACEMENT for m in modes):
                 raise ConfigError("elements loaded through setups run in displacement control")
+            self.setups.check_poses(targets)
             actuator_targets = self.setups.strokes(targets)
         else:
             self.set_modes(modes)

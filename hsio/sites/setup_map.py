@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hsio.command import Phase
-from hsio.errors import ConfigError
+from hsio.errors import ConfigError, LimitError
 
 URGENCY = tuple(p.value for p in Phase)  # the command generator's phases, least urgent first
 
@@ -69,6 +69,17 @@ class SetupMap:
         for b in self.blocks:
             out[b.actuators] = b.setup.strokes(d[b.channels])
         return out
+
+    def check_poses(self, d) -> None:
+        """Refuse (:class:`LimitError`, nothing sent) channel displacements ``d`` that put an
+        element where its setup's actuators cannot drive it: near or past a singular pose of its
+        geometry (:meth:`hsio.setups.planar.PlanarSetup.pose_problem`)."""
+        d = np.asarray(d, dtype=float)
+        for b in self.blocks:
+            problem = b.setup.pose_problem(d[b.channels])
+            if problem:
+                pose = ", ".join(f"{x:.6g}" for x in d[b.channels])
+                raise LimitError(f"element {b.name!r}: trial ({pose}) refused: {problem}; not sent")
 
     def basic(self, strokes, forces) -> tuple[np.ndarray, np.ndarray]:
         """Channel displacements and forces from measured actuator strokes and forces."""

@@ -1,0 +1,69 @@
+"""A trial beyond the pose a setup can drive is refused before anything moves (docs/setups.md)."""
+
+import numpy as np
+import pytest
+
+import hsio
+from hsio.errors import LimitError
+from hsio.interfaces import ControlMode
+from hsio.structure_file import parse_structure
+
+STEEP = """
+[structure]
+name = "steep"
+dt = 0.01
+
+[[dof]]
+name = "x"
+mass = 0.01
+
+[[experimental]]
+name = "wall"
+dofs = ["x"]
+actuators = ["act"]
+setup = { kind = "one_actuator", length_mm = 500.0, angle_deg = 80.0 }
+model = { kind = "matrix", K = [[0.002]] }
+"""
+
+
+def test_a_trial_past_the_singular_pose_is_refused_and_nothing_moves():
+    """At 80 degrees the actuator is square to x at u = -86.8 mm, where its stroke is only
+    -7.6 mm (well inside the stroke): a trial of -100 mm would be sent as the strokes of the
+    mirror pose -73.6 mm, and measured as that. It is refused, naming the element, and the
+    actuator keeps its command; a trial on the side of rest moves it."""
+    structure = parse_structure(STEEP, "steep.toml")
+    with hsio.open_site(structure, "emulator://", test_rate=5) as site:
+        site.set_trial(np.array([-20.0]), [ControlMode.DISPLACEMENT])
+        before = [g.command for g in site.loop.generators]
+        assert site.get_daq().u[0] < -10.0  # on its way (the emulated actuator lags)
+        for bad in (-100.0, -86.0):
+            with pytest.raises(LimitError, match="element 'wall': trial .* refused"):
+                site.set_trial(np.array([bad]), [ControlMode.DISPLACEMENT])
+            assert [g.command for g in site.loop.generators] == before
+
+
+def test_opensees_trial_past_the_singular_pose_is_refused_and_the_session_holds(tmp_path):
+    """The same rig served to a genericClient: a trial past the singular pose (its stroke within
+    the actuator's) ends the session before anything moves, naming the element; the record keeps
+    the committed step."""
+    from hsio.recording import Run
+    from test_opensees_support import QUIET, RawClient, serving, session_over, wait_for
+
+    (tmp_path / "steep.toml").write_text(STEEP)
+    config = tmp_path / "serve.toml"
+    config.write_text(f'[structure]\nfile = "{tmp_path / "steep.toml"}"\n[output]\nplots = false\n[test]\nrate = 5\n'
+                      f'[opensees]\nelements = ["wall"]\nout = "{tmp_path / "records"}"\n' + QUIET)
+    with serving(config) as server:
+        client = RawClient(server.ports[0])
+        try:
+            client.setup()
+            client.step(-20.0, 0.01)
+            client.send(3, [-100.0], t=0.02)  # setTrialResponse
+            client.send(10)  # getForce
+            assert client.closed_by_server()
+        finally:
+            client.close()
+        assert wait_for(lambda: session_over(server))
+    assert any("element 'wall': trial (-100) refused" in line for line in server.lines), server.lines
+    record = Run(tmp_path / "records" / "run.sqlite")
+    assert record.summary["steps"] == 1 and "past a singular" in record.summary["stopped"]
