@@ -80,8 +80,26 @@ def test_factors_scale_displacements_and_forces():
     assert model.strokes([10.0])[0] == pytest.approx(lab.strokes([5.0])[0], abs=1e-12)
     assert model.basic_displacements(lab.strokes([5.0]))[0] == pytest.approx(10.0, abs=1e-9)
     assert model.basic_forces([3.0], [10.0])[0] == pytest.approx(-12.0, rel=1e-12)
-    with pytest.raises(ConfigError, match="non-zero"):
+    with pytest.raises(ConfigError, match="magnitude"):
         Factors(force=0.0)
+
+
+@pytest.mark.parametrize("table, words", [
+    ({"kind": "two_actuators", "length_mm": 1500.0, "spacing_mm": 500.0, "factors": {"displacement": 1e-300}},
+     "rig.setup.factors: setup factors: displacement must be a number of magnitude 1e-06 to 1e\\+06"),
+    ({"kind": "two_actuators", "length_mm": 1500.0, "spacing_mm": 500.0, "factors": {"force": -1e300}},
+     "rig.setup.factors: setup factors: force must be a number of magnitude"),
+    ({"kind": "two_actuators", "length_mm": 1e308, "spacing_mm": 500.0}, "rig.setup: two actuators: .* at most 1e\\+06"),
+    ({"kind": "one_actuator", "length_mm": 1500.0, "angle_deg": 1e20}, "rig.setup: one actuator: angle_deg must be within"),
+])
+def test_setup_sizes_beyond_a_rig_are_refused_by_name(table, words):
+    """A factor of 1e-300 overflowed the Jacobian into a singular matrix (a traceback at the dry
+    run) and a length of 1e308 was reported as pins that coincide: each is refused by its name."""
+    from hsio.setups import make_setup
+
+    n = 1 if table["kind"] == "one_actuator" else 2
+    with pytest.raises(ConfigError, match=words):
+        make_setup(table, n, "rig.setup")
 
 
 def test_bad_geometry_is_refused():

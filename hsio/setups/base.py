@@ -28,6 +28,9 @@ import numpy as np
 from hsio.errors import ConfigError
 
 
+MIN_FACTOR = 1e-6  # a factor's magnitude is within [MIN_FACTOR, 1 / MIN_FACTOR]: scales and units, not overflow
+
+
 @dataclass(frozen=True)
 class Factors:
     """Model quantity = factor x lab quantity, per signal (similitude scale, units, sign)."""
@@ -38,8 +41,10 @@ class Factors:
     def __post_init__(self):
         for name in ("displacement", "force"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value == 0:
-                raise ConfigError(f"setup factors: {name} must be a finite, non-zero number, got {value!r}")
+            if (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
+                    or not MIN_FACTOR <= abs(value) <= 1.0 / MIN_FACTOR):
+                raise ConfigError(f"setup factors: {name} must be a number of magnitude {MIN_FACTOR:g} to "
+                                  f"{1.0 / MIN_FACTOR:g} (negative flips the sign), got {value!r}")
 
 
 class Setup(ABC):

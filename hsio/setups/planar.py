@@ -24,6 +24,7 @@ from hsio.errors import ConfigError
 from hsio.setups.base import Factors, Setup
 
 POSE = ("ux", "uy", "theta")
+MAX_LENGTH_MM = 1.0e6  # a rig's lengths: up to a kilometre
 MIN_STROKE_RATIO = 0.01  # smallest singular value of the dimensionless J(0): a stroke error at most 100 times in d
 
 
@@ -129,8 +130,10 @@ class PlanarSetup(Setup):
 def one_actuator(length_mm: float, angle_deg: float = 0.0, factors: Factors | None = None) -> PlanarSetup:
     """One actuator of length ``length_mm`` at rest, at ``angle_deg`` from the basic DOF's
     direction (x), pushing the control point along x."""
-    if not length_mm > 0:
-        raise ConfigError(f"one actuator: length_mm must be positive, got {length_mm!r}")
+    if not 0 < length_mm <= MAX_LENGTH_MM:
+        raise ConfigError(f"one actuator: length_mm must be positive, at most {MAX_LENGTH_MM:g}, got {length_mm!r}")
+    if not -360.0 <= angle_deg <= 360.0:
+        raise ConfigError(f"one actuator: angle_deg must be within -360 to 360, got {angle_deg!r}")
     a = math.radians(angle_deg)
     return PlanarSetup(("ux",), (PlanarActuator("actuator", (-length_mm * math.cos(a), -length_mm * math.sin(a))),),
                        factors or Factors())
@@ -139,8 +142,8 @@ def one_actuator(length_mm: float, angle_deg: float = 0.0, factors: Factors | No
 def two_actuators(length_mm: float, spacing_mm: float, factors: Factors | None = None) -> PlanarSetup:
     """A column top in translation (x) and rotation: two horizontal actuators of length
     ``length_mm``, pinned to the platen at the control point and ``spacing_mm`` above it."""
-    if not (length_mm > 0 and spacing_mm > 0):
-        raise ConfigError("two actuators: length_mm and spacing_mm must be positive")
+    if not (0 < length_mm <= MAX_LENGTH_MM and 0 < spacing_mm <= MAX_LENGTH_MM):
+        raise ConfigError(f"two actuators: length_mm and spacing_mm must be positive, at most {MAX_LENGTH_MM:g}")
     return PlanarSetup(("ux", "theta"), (
         PlanarActuator("lower", (-length_mm, 0.0), (0.0, 0.0)),
         PlanarActuator("upper", (-length_mm, spacing_mm), (0.0, spacing_mm)),
@@ -150,8 +153,8 @@ def two_actuators(length_mm: float, spacing_mm: float, factors: Factors | None =
 def three_actuators(length_mm: float, half_span_mm: float, factors: Factors | None = None) -> PlanarSetup:
     """A joint in x, y and rotation: one horizontal actuator at the control point and two
     vertical ones ``half_span_mm`` either side of it, each ``length_mm`` long at rest."""
-    if not (length_mm > 0 and half_span_mm > 0):
-        raise ConfigError("three actuators: length_mm and half_span_mm must be positive")
+    if not (0 < length_mm <= MAX_LENGTH_MM and 0 < half_span_mm <= MAX_LENGTH_MM):
+        raise ConfigError(f"three actuators: length_mm and half_span_mm must be positive, at most {MAX_LENGTH_MM:g}")
     return PlanarSetup(("ux", "uy", "theta"), (
         PlanarActuator("horizontal", (-length_mm, 0.0), (0.0, 0.0)),
         PlanarActuator("left", (-half_span_mm, -length_mm), (-half_span_mm, 0.0)),
@@ -162,8 +165,8 @@ def three_actuators(length_mm: float, half_span_mm: float, factors: Factors | No
 def inverted_v_brace(leg_length_mm: float, angle_deg: float, factors: Factors | None = None) -> PlanarSetup:
     """An inverted-V brace: two actuators as its legs, from the apex (the control point, moving in
     x and y) down to pins ``leg_length_mm`` away at ``angle_deg`` from the vertical on either side."""
-    if not (leg_length_mm > 0 and 0 < angle_deg < 90):
-        raise ConfigError("inverted V: leg_length_mm must be positive and angle_deg in (0, 90)")
+    if not (0 < leg_length_mm <= MAX_LENGTH_MM and 0 < angle_deg < 90):
+        raise ConfigError(f"inverted V: leg_length_mm must be positive, at most {MAX_LENGTH_MM:g}, and angle_deg in (0, 90)")
     a = math.radians(angle_deg)
     dx, dy = leg_length_mm * math.sin(a), leg_length_mm * math.cos(a)
     return PlanarSetup(("ux", "uy"), (
