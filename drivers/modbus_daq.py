@@ -8,6 +8,7 @@ their order. :class:`ModbusDAQ` reads every input in one request and returns eng
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -94,6 +95,10 @@ class ModbusDAQ(DAQ):
         for inst, reg in zip(self.instruments, self.map.inputs):
             at = reg.address - start
             value = reg.decode(words[at:at + reg.words], self.map.word_order)
+            if not math.isfinite(value):  # a float input of a broken channel
+                raise ImplausibleMeasurementError(
+                    f"{self.url}: instrument {inst.name!r} on input {reg.name!r} reads {value!r}: not a number "
+                    f"(a broken or disconnected channel); the run stops")
             rails = reg.full_scale()
             # a saturated converter: the true value is beyond the rail. An unsigned input's rail at
             # 0 is also where its instrument stands at rest: a reading, not an over range.

@@ -227,3 +227,25 @@ def test_a_zeroed_instrument_coarser_than_the_tolerance_is_not_taken_for_one_not
             else:
                 assert abs(reading) > 0.1  # beyond 5 x 0.02 mm: refused on the tolerance alone
                 site.check_instruments_at_rest()
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_a_float_input_that_reads_no_number_is_refused_naming_the_instrument(bad):
+    """A float32 input of a broken channel reads NaN (or an infinity): refused as implausible,
+    naming the instrument and the input, not passed on as an element's displacement."""
+    from hsio.errors import ImplausibleMeasurementError
+
+    text = WALL + "".join(f'[[instrument]]\nname = "i{k}"\nkind = "lvdt"\nelement = "wall"\n' for k in range(7))
+    structure = parse_structure(text, "wall.toml")
+    (controller,) = make_controllers(structure.experimental, {})
+    daq = EmulatedInstruments(structure.instruments, {"wall": controller})
+    daq.value = lambda inst: bad if inst.name == "i6" else 1.0  # i6 is on ai6, a float32 input
+    bank = ControllerBank([controller], ["wall"], lockstep=True, watchdog_s=0)
+    with ModbusEmulator(bank, modbus_map.load()) as emu:
+        emu.context.add_instruments(daq, load_daq_map())
+        reader = ModbusDAQ(emu.url, structure.instruments)
+        try:
+            with pytest.raises(ImplausibleMeasurementError, match="instrument 'i6' on input 'ai6' reads .*not a number"):
+                reader.read()
+        finally:
+            reader.close()
