@@ -3,7 +3,8 @@
 The map (``drivers/maps/daq_default.toml`` is the default and a template) lists analog inputs
 as holding registers with a type and a scale, in the same register format as the servo
 controller's map (docs/modbus.md). The structure's instruments are assigned to the inputs in
-their order. :class:`ModbusDAQ` reads every input in one request and returns engineering values.
+their order. :class:`ModbusDAQ` reads every input, in one request where they lie within 125
+registers (else in as few as they need), and returns engineering values.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from hsio.errors import CommunicationError, ConfigError, ImplausibleMeasurementE
 from hsio.interfaces import DAQ, Channel
 
 DEFAULT_DAQ_MAP = MAPS_DIR / "daq_default.toml"
+MAX_READ_REGISTERS = 125  # holding registers in one read (function 3), by the Modbus specification
 
 
 @dataclass(frozen=True)
@@ -29,11 +31,17 @@ class DaqMap:
     inputs: tuple[Register, ...]
     source: str = ""
 
-    def span(self, n: int) -> tuple[int, int]:
-        """First address and count of the registers of the first ``n`` inputs."""
-        regs = self.inputs[:n]
-        start = min(r.address for r in regs)
-        return start, max(r.address + r.words for r in regs) - start
+    def spans(self, n: int) -> list[tuple[int, int]]:
+        """The reads (first address, count) that cover the registers of the first ``n`` inputs,
+        each of at most :data:`MAX_READ_REGISTERS` (one Modbus read), as few as the addresses allow."""
+        out: list[list[int]] = []
+        for r in sorted(self.inputs[:n], key=lambda r: r.address):
+            end = r.address + r.words
+            if out and end - out[-1][0] <= MAX_READ_REGISTERS:
+                out[-1][1] = max(out[-1][1], end)
+            else:
+                out.append([r.address, end])
+        return [(a, e - a) for a, e in out]
 
 
 def daq_map_from_dict(data: dict, source: str = "<dict>") -> DaqMap:
@@ -79,22 +87,22 @@ class ModbusDAQ(DAQ):
         self.client = ModbusTcpClient(parts.hostname, port=parts.port or 502, timeout=timeout_s, retries=0)
         if not self.client.connect():
             raise CommunicationError(f"{url}: cannot connect to the DAQ module")
-        self._span = self.map.span(len(self.instruments))
+        self._spans = self.map.spans(len(self.instruments))
 
     @property
     def channels(self) -> tuple[Channel, ...]:
         return tuple(Channel(i.name, i.unit) for i in self.instruments)
 
     def read(self) -> dict[str, float]:
-        start, count = self._span
-        rr = self.client.read_holding_registers(start, count=count, device_id=self.map.device_id)
-        if rr.isError():
-            raise CommunicationError(f"{self.url}: read of the DAQ inputs {start}..{start + count - 1} failed: {rr}")
-        words = rr.registers
+        words: dict[int, int] = {}  # address -> register
+        for start, count in self._spans:
+            rr = self.client.read_holding_registers(start, count=count, device_id=self.map.device_id)
+            if rr.isError():
+                raise CommunicationError(f"{self.url}: read of the DAQ inputs {start}..{start + count - 1} failed: {rr}")
+            words.update(zip(range(start, start + count), rr.registers))
         out = {}
         for inst, reg in zip(self.instruments, self.map.inputs):
-            at = reg.address - start
-            value = reg.decode(words[at:at + reg.words], self.map.word_order)
+            value = reg.decode([words[a] for a in range(reg.address, reg.address + reg.words)], self.map.word_order)
             if not math.isfinite(value):  # a float input of a broken channel
                 raise ImplausibleMeasurementError(
                     f"{self.url}: instrument {inst.name!r} on input {reg.name!r} reads {value!r}: not a number "

@@ -249,3 +249,28 @@ def test_a_float_input_that_reads_no_number_is_refused_naming_the_instrument(bad
                 reader.read()
         finally:
             reader.close()
+
+
+def test_inputs_further_apart_than_one_modbus_read_are_read_in_several():
+    """One read of holding registers takes at most 125 of them: inputs at 600, 601 and 900 are
+    read in two requests (a single one of 301 registers was refused by the Modbus client)."""
+    structure = parse_structure(WALL + INSTRUMENTS, "wall.toml")
+    daq_map = daq_map_from_dict({"inputs": {
+        "ai0": {"address": 600, "type": "int16", "scale": 100.0},
+        "ai1": {"address": 900, "type": "float32"},
+        "ai2": {"address": 601, "type": "int16", "scale": 10.0}}}, "far.toml")
+    assert daq_map.spans(3) == [(600, 2), (900, 2)]
+    (controller,) = make_controllers(structure.experimental, {"noise_mm": 0.0, "force_noise_kN": 0.0, "resolution_mm": 0.0})
+    controller.set_command(12.0)
+    controller.advance(400)
+    bank = ControllerBank([controller], ["wall"], lockstep=True, watchdog_s=0)
+    with ModbusEmulator(bank, modbus_map.load()) as emu:
+        emu.context.add_instruments(EmulatedInstruments(structure.instruments, {"wall": controller}), daq_map)
+        reader = ModbusDAQ(emu.url, structure.instruments, daq_map)
+        try:
+            values = reader.read()
+        finally:
+            reader.close()
+    assert values["wall_lvdt"] == pytest.approx(controller.d_spec, abs=0.0051)
+    assert values["wall_load_cell"] == pytest.approx(controller.force, rel=1e-6)  # float32
+    assert values["wall_gauge"] == pytest.approx(12.5 * controller.force, abs=0.051)
