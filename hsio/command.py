@@ -155,6 +155,8 @@ class PredictorCorrector:
         T = self._n * self.period
         s = k / self._n
         s2, s3 = s * s, s * s * s
-        pos = (2 * s3 - 3 * s2 + 1) * c0 + (s3 - 2 * s2 + s) * T * v0 + (-2 * s3 + 3 * s2) * c1 + (s3 - s2) * T * v1
+        # h00 c0 + h01 c1 with h00 = 1 - h01, written from c0: a segment between equal commands at
+        # rest stays exactly on them (a preload held at its actuator's capacity is not 1 ulp beyond it)
+        pos = c0 + (-2 * s3 + 3 * s2) * (c1 - c0) + (s3 - 2 * s2 + s) * T * v0 + (s3 - s2) * T * v1
         vel = ((6 * s2 - 6 * s) * c0 + (3 * s2 - 4 * s + 1) * T * v0 + (-6 * s2 + 6 * s) * c1 + (3 * s2 - 2 * s) * T * v1) / T
         return pos, vel

@@ -26,7 +26,7 @@ import numpy as np
 
 from hsio.clock import Clock
 from hsio.command import PredictorCorrector
-from hsio.errors import HsioError
+from hsio.errors import HsioError, InterlockError, LimitError
 from hsio.interfaces import Actuator, ControlMode
 from hsio.safety.hold import HoldReport, read_back
 
@@ -118,7 +118,15 @@ class ControlLoop:
             raise self._error or HsioError("the control loop holds the actuators after an earlier stop")
         targets = np.asarray(targets, dtype=float)
         for actuator, target in zip(self.actuators, targets):
-            actuator.limits.check(actuator.mode, float(target), f"actuator {actuator.name!r} target")
+            try:
+                actuator.limits.check(actuator.mode, float(target), f"actuator {actuator.name!r} target")
+            except LimitError as exc:
+                if self._error is not None:  # the loop had stopped already: that is the cause
+                    raise self._error
+                cause = self._trip_instead(actuator, exc)
+                if cause is not exc:
+                    self._fail(cause)
+                raise
         limit = self.STEP_TIMEOUT_STEPS * max(g.samples_per_step for g in self.generators)
         if self._thread is None:
             self._start_step(targets)
@@ -141,6 +149,18 @@ class ControlLoop:
         raise HsioError(f"the step to {np.round(targets, 4).tolist()} did not land within {limit} controller "
                         "periods; every actuator was told to hold")
 
+    @staticmethod
+    def _trip_instead(actuator: Actuator, refusal: LimitError) -> HsioError:
+        """The cause of ``refusal``, a command of ``actuator`` refused by the limits of its present
+        mode: the controller's trip where it tripped (its interlock holds it in displacement
+        control, so a force command was judged as a displacement), else the refusal itself."""
+        probe = getattr(actuator, "tripped", None)
+        try:
+            trip = probe() if probe is not None else None
+        except Exception:  # the controller cannot be asked: the refusal stands
+            trip = None
+        return InterlockError(f"actuator {actuator.name!r}: {trip}; holding") if trip else refusal
+
     def _start_step(self, targets: np.ndarray) -> None:
         """New targets; every generator gets the same segment length so that they land together."""
         self._targets = targets
@@ -152,6 +172,7 @@ class ControlLoop:
         """One command per actuator for this period (velocity and limits checked first)."""
         self._commands = []
         self._phases = []
+        actuator = None
         try:
             for g, actuator in zip(self.generators, self.actuators):
                 previous = g.command
@@ -162,7 +183,7 @@ class ControlLoop:
                 self._commands.append(c)
                 self._phases.append(g.phase.value)
         except BaseException as exc:
-            self._fail(exc)
+            self._fail(self._trip_instead(actuator, exc) if isinstance(exc, LimitError) else exc)
 
     def _collect(self) -> bool:
         """Read the period's measurements. True when every command has landed on its target."""
