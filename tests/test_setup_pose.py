@@ -67,3 +67,14 @@ def test_opensees_trial_past_the_singular_pose_is_refused_and_the_session_holds(
     assert any("element 'wall': trial (-100) refused" in line for line in server.lines), server.lines
     record = Run(tmp_path / "records" / "run.sqlite")
     assert record.summary["steps"] == 1 and "past a singular" in record.summary["stopped"]
+
+
+def test_measured_strokes_that_no_pose_gives_are_implausible_and_name_the_element():
+    """Two actuators 500 mm apart cannot differ in stroke by 600 mm: a transducer's spike, not a
+    configuration error; the site stops as for any implausible measurement, naming the element."""
+    from hsio.errors import ImplausibleMeasurementError
+    from hsio.sites.setup_map import SetupMap
+
+    setups = SetupMap.of(hsio.load_structure("column_two_actuators"))
+    with pytest.raises(ImplausibleMeasurementError, match=r"element 'column': the measured strokes \(0, -600\) mm"):
+        setups.basic(np.array([0.0, -600.0]), np.zeros(2))

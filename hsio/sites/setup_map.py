@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hsio.command import Phase
-from hsio.errors import ConfigError, LimitError
+from hsio.errors import ConfigError, ImplausibleMeasurementError, LimitError
 
 URGENCY = tuple(p.value for p in Phase)  # the command generator's phases, least urgent first
 
@@ -88,7 +88,12 @@ class SetupMap:
         u = np.empty(self.n_channels)
         q = np.empty(self.n_channels)
         for b in self.blocks:
-            d = b.setup.basic_displacements(strokes[b.actuators])
+            try:
+                d = b.setup.basic_displacements(strokes[b.actuators])
+            except ConfigError as exc:  # strokes no pose gives: a transducer's fault, not the geometry's
+                measured = ", ".join(f"{x:.6g}" for x in strokes[b.actuators])
+                raise ImplausibleMeasurementError(f"element {b.name!r}: the measured strokes ({measured}) mm put its "
+                                                  f"platen in no pose of its setup ({exc})") from None
             u[b.channels] = d
             q[b.channels] = b.setup.basic_forces(forces[b.actuators], d)
         return u, q
