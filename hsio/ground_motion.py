@@ -9,6 +9,7 @@ integration time step.
 
 from __future__ import annotations
 
+import codecs
 import math
 import numbers
 import os
@@ -287,6 +288,7 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
             f"{path}: {reason} (a ground-motion file is a text file of at most {MAX_FILE_BYTES} bytes)"))
     except OSError as exc:
         raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
+    data = data.removeprefix(codecs.BOM_UTF8)  # the mark some editors and spreadsheets write first
     rows: list[tuple[float, ...]] = []
     line_of: list[int] = []  # the file's line of each row, for the messages
     columns = 0
@@ -296,7 +298,7 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
         pos, number = match.end(), number + 1
         if match.end() == match.start():
             break
-        text = match.group(1).decode("latin-1").strip().lstrip("\ufeff")
+        text = match.group(1).decode("latin-1").strip()
         if not text or text.startswith(_COMMENT):
             continue
         words = [w for w in _SEPARATOR.split(text) if w]
