@@ -140,11 +140,11 @@ class GroundMotion:
 # Line 3 of an AT2 file says what the values are, e.g. "ACCELERATION TIME SERIES IN UNITS OF G".
 _UNITS = re.compile(r"UNITS\s+OF\s+(\S+(?:\s*/\s*\S+)*)", re.IGNORECASE)
 _NOT_ACCELERATION = re.compile(r"\b(VELOCITY|DISPLACEMENT)\b", re.IGNORECASE)
-_NPTS = re.compile(r"\bNPTS\s*[=:]\s*(\d+)", re.IGNORECASE)
+_NPTS = re.compile(r"\bNPTS\s*[=:]\s*(\d+(?:\.\d*)?(?:[Ee][+-]?\d+)?)", re.IGNORECASE)
 _DT = re.compile(r"\bDT\s*[=:]\s*([0-9.Ee+-]+)", re.IGNORECASE)
 _WORD = re.compile(rb"\S+")
 _LINE = re.compile(rb"([^\r\n]*)(?:\r\n|\r|\n|$)")  # one line, any line ending (LF, CRLF, CR)
-_NPTS_DT_PLAIN = re.compile(r"^\s*(\d+)\s+([0-9.Ee+-]+)\s+NPTS\s*,\s*DT", re.IGNORECASE)
+_NPTS_DT_PLAIN = re.compile(r"^\s*(\d+(?:\.\d*)?(?:[Ee][+-]?\d+)?)\s+([0-9.Ee+-]+)\s+NPTS\s*,\s*DT", re.IGNORECASE)
 
 # Acceleration units a record may be in, and their size in g. A unit is written as the file or the
 # configuration spells it; case, spaces, "sec" for "s" and "s/s", "s2", "s^2", "s**2" all mean the same.
@@ -204,6 +204,10 @@ def read_at2(path: str | Path) -> GroundMotion:
             f"{path}:4: header line must give NPTS and DT ('NPTS= 2000, DT= .0200 SEC' or "
             f"'4000 0.0100 NPTS, DT'), got {lines[3].strip()!r}"
         )
+    if not npts_text.isdigit():  # '2000.0' is 2000; '2000.5' or '2e3' is a header typed wrong
+        if not re.fullmatch(r"\d+\.0*", npts_text):
+            raise RecordError(f"{path}:4: NPTS = {npts_text} is not a whole number of samples")
+        npts_text = npts_text.split(".")[0]
     digits = npts_text.lstrip("0") or "0"
     npts = int(digits) if len(digits) <= 18 else MAX_SAMPLES + 1  # past 18 digits it is out of bounds
     try:
