@@ -64,3 +64,12 @@ def test_a_pinched_wall_at_the_edges_of_its_parameters_dissipates_energy_over_a_
         wall.commit()
     cycle = slice(2000, None)
     assert np.trapezoid(force[cycle], u[cycle]) > 0.0
+
+
+def test_a_structure_built_with_a_mass_matrix_reports_its_diagonal_as_the_masses():
+    from hsio.structures import Damping, ExperimentalElement, Structure
+
+    wall = ExperimentalElement("e", 0, {"kind": "linear", "k": 2.0})
+    s = Structure("s", ("x",), (0.01,), (wall,), damping=Damping(kind="mass"), mass_matrix=((0.05,),))
+    assert s.masses == (0.05,) and np.array_equal(s.M, [[0.05]])
+    assert s.natural_frequencies_hz()[0] == pytest.approx(np.sqrt(2.0 / 0.05) / (2 * np.pi), rel=1e-12)
