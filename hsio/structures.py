@@ -446,6 +446,7 @@ class Structure:
         structure-file loader's checks, docs/structures.md, for a structure built in code)."""
         what = self.source or f"structure {self.name!r}"
         check = _checker(what)
+        check.string("name", self.name)  # run records, plots and folders carry it
         sequences = {"dof_names": self.dof_names, "masses": self.masses}
         if self.influence is not None:
             sequences["influence"] = self.influence

@@ -73,3 +73,12 @@ def test_a_structure_built_with_a_mass_matrix_reports_its_diagonal_as_the_masses
     s = Structure("s", ("x",), (0.01,), (wall,), damping=Damping(kind="mass"), mass_matrix=((0.05,),))
     assert s.masses == (0.05,) and np.array_equal(s.M, [[0.05]])
     assert s.natural_frequencies_hz()[0] == pytest.approx(np.sqrt(2.0 / 0.05) / (2 * np.pi), rel=1e-12)
+
+
+@pytest.mark.parametrize("name", [None, "", "  ", 5, "a\nb"])
+def test_a_structure_built_in_code_needs_a_name_as_a_file_does(name):
+    from hsio.structures import Damping, ExperimentalElement, Structure
+
+    wall = ExperimentalElement("e", 0, {"kind": "linear", "k": 2.0})
+    with pytest.raises(hsio.ConfigError, match=r": name: "):
+        Structure(name, ("x",), (0.01,), (wall,), damping=Damping(kind="mass"))
