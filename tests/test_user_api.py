@@ -39,3 +39,17 @@ def test_plot_to_a_path_that_cannot_be_written_names_it(runs, tmp_path, where, w
     with pytest.raises(hsio.HsioError, match=words):
         runs[0].plot(tmp_path / where)
     assert not (tmp_path / "folder.png").exists()
+
+
+def test_a_step_shorter_than_a_controller_period_is_refused_not_run_at_another_test_rate():
+    """TR 1 at dt 0.1 ms asks for a step of 0.1 ms; the controller's shortest is one period
+    (0.98 ms): the test would run at TR 9.77 without saying so."""
+    from hsio.structures import sdof
+
+    fast = sdof(m=0.01, k=2.0, zeta=0.02, dt=1e-4)
+    with pytest.raises(hsio.ConfigError, match=r"open_site: test_rate: .* would run the test at TR 9.77, not 1\."):
+        hsio.open_site(fast, "emulator://", test_rate=1.0, hold_fraction=0.0, n_avg=1)
+    ground = hsio.synthetic_record(duration_s=0.01, dt=1e-4)
+    with hsio.open_site(fast, "emulator://", test_rate=10 / 1024 / 1e-4, hold_fraction=0.0, n_avg=1) as site:
+        run = hsio.simulate(fast, ground, site)  # ten whole periods a step
+    assert run.lab_time_s == pytest.approx(run.steps * 10 / 1024)
