@@ -330,20 +330,26 @@ def check_instruments(structure: Structure, hardware: str, options: dict | None 
 STEP_ROUNDING = 0.05  # a step's whole controller periods may differ this much from TR x dt, no more
 
 
+def check_step_periods(dt: float, test_rate: float, key: str = "test_rate", rate_hz: float = CONTROLLER_RATE_HZ) -> None:
+    """A step lasts whole controller periods: a TR x dt that they miss by more than
+    :data:`STEP_ROUNDING` (a step shorter than one period, say) would run the test at another
+    test rate than the one asked, and is refused, naming ``key``."""
+    periods, _ = step_samples(test_rate * dt, 1.0 / rate_hz)
+    t_d, lasts = test_rate * dt, periods / rate_hz
+    if abs(lasts - t_d) > STEP_ROUNDING * t_d:
+        raise ConfigError(f"{key} = {test_rate:g}: a step lasts TR x dt = {test_rate:g} x {dt:g} s = {t_d:.3g} s, and the "
+                          f"controller moves in whole periods of 1/{rate_hz:g} s: {periods} period(s), {lasts:.3g} s, "
+                          f"would run the test at TR {lasts / dt:.3g}, not {test_rate:g}. Give a test rate whose step "
+                          f"is within {STEP_ROUNDING:.0%} of whole periods (any TR from {10 / (rate_hz * dt):.3g} is)")
+
+
 def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
                 rate_hz: float = CONTROLLER_RATE_HZ) -> None:
     """The measurement of a step averages its last ``n_avg`` controller periods: they must lie in
-    the step's dwell (:func:`dwell_periods`), never reach back into the ramp or the step before.
-    A step lasts whole controller periods: a TR x dt that they miss by more than
-    :data:`STEP_ROUNDING` (a step shorter than one period, say) would run the test at another
-    test rate than the one asked, and is refused."""
+    the step's dwell (:func:`dwell_periods`), never reach back into the ramp or the step before;
+    and the step itself is whole controller periods (:func:`check_step_periods`)."""
+    check_step_periods(dt, test_rate, rate_hz=rate_hz)
     periods, dwell = step_samples(test_rate * dt, 1.0 / rate_hz, hold_fraction)
-    t_d, lasts = test_rate * dt, periods / rate_hz
-    if abs(lasts - t_d) > STEP_ROUNDING * t_d:
-        raise ConfigError(f"test_rate: a step lasts TR x dt = {test_rate:g} x {dt:g} s = {t_d:.3g} s, and the controller "
-                          f"moves in whole periods of 1/{rate_hz:g} s: {periods} period(s), {lasts:.3g} s, would run the "
-                          f"test at TR {lasts / dt:.3g}, not {test_rate:g}. Give a test rate whose step is within "
-                          f"{STEP_ROUNDING:.0%} of whole periods (any TR from {10 / (rate_hz * dt):.3g} is)")
     limit = dwell if dwell >= 1 else periods  # dwell_periods
     if n_avg > limit:
         what = (f"the dwell of a step: {dwell} periods (TR {test_rate:g} x dt {dt:g} s x {rate_hz:g} Hz x "

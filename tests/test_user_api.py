@@ -47,9 +47,23 @@ def test_a_step_shorter_than_a_controller_period_is_refused_not_run_at_another_t
     from hsio.structures import sdof
 
     fast = sdof(m=0.01, k=2.0, zeta=0.02, dt=1e-4)
-    with pytest.raises(hsio.ConfigError, match=r"open_site: test_rate: .* would run the test at TR 9.77, not 1\."):
+    with pytest.raises(hsio.ConfigError, match=r"open_site: test_rate = 1: .* would run the test at TR 9.77, not 1\."):
         hsio.open_site(fast, "emulator://", test_rate=1.0, hold_fraction=0.0, n_avg=1)
     ground = hsio.synthetic_record(duration_s=0.01, dt=1e-4)
     with hsio.open_site(fast, "emulator://", test_rate=10 / 1024 / 1e-4, hold_fraction=0.0, n_avg=1) as site:
         run = hsio.simulate(fast, ground, site)  # ten whole periods a step
     assert run.lab_time_s == pytest.approx(run.steps * 10 / 1024)
+
+
+def test_hsio_check_refuses_a_test_rate_whose_step_is_shorter_than_a_controller_period(tmp_path):
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    config = tmp_path / "fast.toml"
+    config.write_text('[structure]\nname = "structure_I"\n[record]\nsynthetic_duration_s = 1.0\n'
+                      '[test]\nrate = 0.1\nhold_fraction = 0.0\nn_avg = 1\n')  # 0.5 ms a step at dt 5 ms
+    result = CliRunner().invoke(main, ["check", str(config)])
+    assert result.exit_code == 2
+    assert "fast.toml: [test] rate = 0.1: a step lasts TR x dt" in result.stderr
+    assert "Traceback" not in result.stderr
