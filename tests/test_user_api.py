@@ -67,3 +67,40 @@ def test_hsio_check_refuses_a_test_rate_whose_step_is_shorter_than_a_controller_
     assert result.exit_code == 2
     assert "fast.toml: [test] rate = 0.1: a step lasts TR x dt" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("wrong, words", [
+    ({"progress": 5}, r"simulate: progress must be a callable"),
+    ({"recorder": "run.sqlite"}, r"simulate: recorder must be a hsio.recording.Recorder"),
+    ({"integrator": "frame"}, r"simulate: the integrator was made for structure 'validation', not for 'structure_I'"),
+    ({"site": "frame"}, r"simulate: the NumericalSite holds the specimen models of structure 'validation', not of "
+                        r"'structure_I'"),
+])
+def test_simulate_refuses_arguments_for_another_run_before_the_first_step(wrong, words):
+    wall, frame = hsio.load_structure("structure_I"), hsio.load_structure("validation")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=wall.dt)
+    arguments = {"site": hsio.NumericalSite.of(wall), **wrong}
+    if wrong.get("integrator") == "frame":
+        arguments["integrator"] = hsio.make_integrator(frame)
+    if wrong.get("site") == "frame":
+        arguments["site"] = hsio.NumericalSite.of(frame)
+    with pytest.raises(hsio.ConfigError, match=words):
+        hsio.simulate(wall, ground, **arguments)
+
+
+def test_a_wrong_progress_argument_is_refused_before_an_actuator_moves():
+    wall = hsio.load_structure("structure_I")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=wall.dt)
+    with hsio.open_site(wall, "emulator://", test_rate=10) as site:
+        with pytest.raises(hsio.ConfigError, match="progress must be a callable"):
+            hsio.simulate(wall, ground, site, progress=True)
+        assert not getattr(site, "moved", False)
+        run = hsio.simulate(wall, ground, site)  # the site is still at rest: the fixed call runs from there
+    assert run.steps == 40
+
+
+def test_an_integrator_and_a_site_of_an_equal_structure_loaded_twice_are_taken():
+    first, second = hsio.load_structure("structure_I"), hsio.load_structure("structure_I")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=first.dt)
+    run = hsio.simulate(second, ground, hsio.NumericalSite.of(first), integrator=hsio.make_integrator(first))
+    assert run.steps == 40
