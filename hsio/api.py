@@ -152,16 +152,31 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
     if secant_uncertainty is not None:
         implicit["secant_uncertainty"] = secant_uncertainty
     if method == "alpha_os":
-        return OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha, dofs, K_EI,
-                                 correct_measured_displacement)
+        return _built_for(structure, OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha,
+                                                       dofs, K_EI, correct_measured_displacement))
     numerical = structure.numerical_assembly()
     if not numerical.is_linear:
         raise ConfigError(f"structure {structure.name!r}: the implicit methods ({', '.join(IMPLICIT_METHODS)}) take "
                           f"linear numerical elements only (the secant model of eq. 9 covers the experimental "
                           f"elements); use method = 'alpha_os'")
-    return ImplicitMethod(structure.M, structure.C, numerical.K_linear, dofs, K_EI, structure.dt, alpha, method,
-                          rule, structure.dof_names, j_max=j_max, tol_displacement=tol_displacement,
-                          tol_force=tol_force, **implicit)
+    return _built_for(structure, ImplicitMethod(structure.M, structure.C, numerical.K_linear, dofs, K_EI, structure.dt,
+                                                alpha, method, rule, structure.dof_names, j_max=j_max,
+                                                tol_displacement=tol_displacement, tol_force=tol_force, **implicit))
+
+
+def _same_structure(a: Structure, b: Structure) -> bool:
+    """Whether ``a`` and ``b`` are one structure: the same object, or equal field by field."""
+    try:
+        return a is b or bool(a == b)
+    except (ValueError, TypeError):  # a field that compares element-wise (an array)
+        return False
+
+
+def _built_for(structure: Structure, thing):
+    """``thing`` (an integrator, a numerical site) marked with the structure it was built for, which
+    :func:`simulate` compares with the structure it runs."""
+    thing.built_for = structure
+    return thing
 
 
 def run_numerical(structure: Structure, ground: GroundMotion, method: str = "alpha_os", alpha: float = ALPHA,
@@ -327,10 +342,28 @@ def check_instruments(structure: Structure, hardware: str, options: dict | None 
                           f"driver option 'instruments' (modbus+tcp://HOST:PORT)")
 
 
+STEP_ROUNDING = 0.05  # a step's whole controller periods may differ this much from TR x dt, no more
+
+
+def check_step_periods(dt: float, test_rate: float, key: str = "test_rate", rate_hz: float = CONTROLLER_RATE_HZ) -> None:
+    """A step lasts whole controller periods: a TR x dt that they miss by more than
+    :data:`STEP_ROUNDING` (a step shorter than one period, say) would run the test at another
+    test rate than the one asked, and is refused, naming ``key``."""
+    periods, _ = step_samples(test_rate * dt, 1.0 / rate_hz)
+    t_d, lasts = test_rate * dt, periods / rate_hz
+    if abs(lasts - t_d) > STEP_ROUNDING * t_d:
+        raise ConfigError(f"{key} = {test_rate:g}: a step lasts TR x dt = {test_rate:g} x {dt:g} s = {t_d:.3g} s, and the "
+                          f"controller moves in whole periods of 1/{rate_hz:g} s: {periods} period(s), {lasts:.3g} s, "
+                          f"would run the test at TR {lasts / dt:.3g}, not {test_rate:g}. Give a test rate whose step "
+                          f"is within {STEP_ROUNDING:.0%} of whole periods (any TR from {10 / (rate_hz * dt):.3g} is)")
+
+
 def check_dwell(dt: float, test_rate: float, hold_fraction: float, n_avg: int,
                 rate_hz: float = CONTROLLER_RATE_HZ) -> None:
     """The measurement of a step averages its last ``n_avg`` controller periods: they must lie in
-    the step's dwell (:func:`dwell_periods`), never reach back into the ramp or the step before."""
+    the step's dwell (:func:`dwell_periods`), never reach back into the ramp or the step before;
+    and the step itself is whole controller periods (:func:`check_step_periods`)."""
+    check_step_periods(dt, test_rate, rate_hz=rate_hz)
     periods, dwell = step_samples(test_rate * dt, 1.0 / rate_hz, hold_fraction)
     limit = dwell if dwell >= 1 else periods  # dwell_periods
     if n_avg > limit:
@@ -388,6 +421,14 @@ def check_run_inputs(structure: Structure, ground, site, start: str = "rest") ->
         raise ConfigError(f"simulate: start must be 'rest' or 'present', got {start!r}")
     if not hasattr(site, "set_trial"):
         raise ConfigError(f"simulate: site must be a site from hsio.open_site (or a NumericalSite), got {site!r}")
+    if isinstance(site, NumericalSite):
+        built = getattr(site, "built_for", None)
+        channels = tuple(channel_names(structure))
+        if (built is not None and not _same_structure(built, structure)) or site.n_elements != len(channels):
+            whose = f"structure {built.name!r}" if built is not None else f"{site.n_elements} channel(s)"
+            raise ConfigError(f"simulate: the NumericalSite holds the specimen models of {whose}, not of "
+                              f"{structure.name!r} (channels {', '.join(channels)}); build it with "
+                              f"NumericalSite.of(structure)")
     if isinstance(site, ActuatorSite):
         if getattr(site, "final_hold", None) is not None:
             raise ConfigError("simulate: the site is closed (its actuators were released); open a new one with "
@@ -456,6 +497,15 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     if integrator is not None and not hasattr(integrator, "step"):
         raise ConfigError(f"simulate: integrator must be an integrator from make_integrator, got {integrator!r} (to "
                           f"choose a method by name, pass method=...)")
+    built = getattr(integrator, "built_for", None)
+    if built is not None and not _same_structure(built, structure):
+        raise ConfigError(f"simulate: the integrator was made for structure {built.name!r}, not for "
+                          f"{structure.name!r}; make it with make_integrator(structure, ...)")
+    if progress is not None and not callable(progress):
+        raise ConfigError(f"simulate: progress must be a callable (called with 1 after each step, such as a tqdm "
+                          f"bar's update) or None, got {progress!r}")
+    if recorder is not None and not hasattr(recorder, "write_step"):
+        raise ConfigError(f"simulate: recorder must be a hsio.recording.Recorder or None, got {recorder!r}")
     if integrator is None:
         integrator = make_integrator(structure, method, alpha, **options)
     else:

@@ -9,6 +9,7 @@ integration time step.
 
 from __future__ import annotations
 
+import codecs
 import math
 import numbers
 import os
@@ -139,11 +140,11 @@ class GroundMotion:
 # Line 3 of an AT2 file says what the values are, e.g. "ACCELERATION TIME SERIES IN UNITS OF G".
 _UNITS = re.compile(r"UNITS\s+OF\s+(\S+(?:\s*/\s*\S+)*)", re.IGNORECASE)
 _NOT_ACCELERATION = re.compile(r"\b(VELOCITY|DISPLACEMENT)\b", re.IGNORECASE)
-_NPTS = re.compile(r"\bNPTS\s*[=:]\s*(\d+)", re.IGNORECASE)
+_NPTS = re.compile(r"\bNPTS\s*[=:]\s*(\d+(?:\.\d*)?(?:[Ee][+-]?\d+)?)", re.IGNORECASE)
 _DT = re.compile(r"\bDT\s*[=:]\s*([0-9.Ee+-]+)", re.IGNORECASE)
 _WORD = re.compile(rb"\S+")
 _LINE = re.compile(rb"([^\r\n]*)(?:\r\n|\r|\n|$)")  # one line, any line ending (LF, CRLF, CR)
-_NPTS_DT_PLAIN = re.compile(r"^\s*(\d+)\s+([0-9.Ee+-]+)\s+NPTS\s*,\s*DT", re.IGNORECASE)
+_NPTS_DT_PLAIN = re.compile(r"^\s*(\d+(?:\.\d*)?(?:[Ee][+-]?\d+)?)\s+([0-9.Ee+-]+)\s+NPTS\s*,\s*DT", re.IGNORECASE)
 
 # Acceleration units a record may be in, and their size in g. A unit is written as the file or the
 # configuration spells it; case, spaces, "sec" for "s" and "s/s", "s2", "s^2", "s**2" all mean the same.
@@ -203,6 +204,10 @@ def read_at2(path: str | Path) -> GroundMotion:
             f"{path}:4: header line must give NPTS and DT ('NPTS= 2000, DT= .0200 SEC' or "
             f"'4000 0.0100 NPTS, DT'), got {lines[3].strip()!r}"
         )
+    if not npts_text.isdigit():  # '2000.0' is 2000; '2000.5' or '2e3' is a header typed wrong
+        if not re.fullmatch(r"\d+\.0*", npts_text):
+            raise RecordError(f"{path}:4: NPTS = {npts_text} is not a whole number of samples")
+        npts_text = npts_text.split(".")[0]
     digits = npts_text.lstrip("0") or "0"
     npts = int(digits) if len(digits) <= 18 else MAX_SAMPLES + 1  # past 18 digits it is out of bounds
     try:
@@ -287,6 +292,7 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
             f"{path}: {reason} (a ground-motion file is a text file of at most {MAX_FILE_BYTES} bytes)"))
     except OSError as exc:
         raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
+    data = data.removeprefix(codecs.BOM_UTF8)  # the mark some editors and spreadsheets write first
     rows: list[tuple[float, ...]] = []
     line_of: list[int] = []  # the file's line of each row, for the messages
     columns = 0
@@ -296,7 +302,7 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
         pos, number = match.end(), number + 1
         if match.end() == match.start():
             break
-        text = match.group(1).decode("latin-1").strip().lstrip("\ufeff")
+        text = match.group(1).decode("latin-1").strip()
         if not text or text.startswith(_COMMENT):
             continue
         words = [w for w in _SEPARATOR.split(text) if w]

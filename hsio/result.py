@@ -10,6 +10,7 @@ and force solutions computed in parallel (docs/method.md sections 3 and 5).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -135,7 +136,27 @@ class Result:
         force-displacement loops of each element; a matplotlib Figure, saved to ``path`` if given."""
         from hsio import plots
 
-        return plots.result_figure(self, reference, path)
+        if reference is not None and not isinstance(reference, Result):
+            raise HsioError(f"plot: reference must be a Result (e.g. hsio.run_numerical(...)), got "
+                            f"{type(reference).__name__}")
+        if reference is not None and tuple(reference.dof_names) != tuple(self.dof_names):
+            raise HsioError(f"plot: the reference is a run of other DOFs ({', '.join(map(str, reference.dof_names))}; "
+                            f"this run: {', '.join(map(str, self.dof_names))})")
+        if path is not None:
+            if not isinstance(path, (str, os.PathLike)):
+                raise HsioError(f"plot: path must be a file path, got {type(path).__name__}")
+            if Path(path).is_dir():
+                raise HsioError(f"plot: {path} is a folder; give the image file's path (e.g. {Path(path) / 'run.png'})")
+        figure = plots.result_figure(self, reference, None)
+        if path is not None:
+            try:
+                figure.savefig(path, dpi=110)
+            except (OSError, ValueError) as exc:
+                import matplotlib.pyplot as plt
+
+                plt.close(figure)
+                raise HsioError(f"plot: cannot write {path}: {getattr(exc, 'strerror', None) or exc}") from None
+        return figure
 
 
 def max_error_pct(u_hs: np.ndarray, u_ns: np.ndarray) -> tuple[float, list[float]]:

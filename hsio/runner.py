@@ -343,6 +343,10 @@ def check_instruments(config: RunConfig, structure: Structure) -> None:
 def check_dwell(config: RunConfig, structure: Structure) -> None:
     """[test] n_avg within a step's dwell (:func:`hsio.api.check_dwell`), named with the configuration."""
     test, integ = config["test"], config["integrator"]
+    try:
+        api.check_step_periods(structure.dt, test["rate"], key="[test] rate")
+    except ConfigError as exc:
+        raise ConfigError(f"{config.source}: {exc}") from None
     averaged = [("[test] ", test["n_avg"])]
     if integ["method"] in IMPLICIT_METHODS and integ["secant"] == "average":
         averaged.append(("[integrator] secant_", secant_n_avg(config, structure)))

@@ -14,6 +14,7 @@ from __future__ import annotations
 import inspect
 import math
 import numbers
+import os
 import tomllib
 import unicodedata
 from importlib import resources
@@ -72,7 +73,8 @@ def is_shipped_name(path_or_name: str | Path) -> bool:
     """Whether :func:`load_structure` takes ``path_or_name`` as a shipped structure's name (a
     string with no suffix and no folder) rather than a path."""
     text = str(path_or_name)
-    return not isinstance(path_or_name, Path) and "/" not in text and "\\" not in text and not text.endswith(".toml")
+    return (isinstance(path_or_name, str) and "/" not in text and "\\" not in text
+            and not text.lower().endswith(".toml"))
 
 
 def structure_file(path_or_name: str | Path, relative_to: str | Path | None = None) -> Path | None:
@@ -92,6 +94,9 @@ def load_structure(path_or_name: str | Path, relative_to: str | Path | None = No
     A relative path is taken relative to the folder ``relative_to`` (e.g. that of the run
     configuration that names the file), else to the working directory.
     """
+    if not isinstance(path_or_name, (str, os.PathLike)) or isinstance(os.fspath(path_or_name), bytes):
+        raise ConfigError(f"load_structure: a shipped structure's name or a structure file's path (str or "
+                          f"pathlib.Path), got {type(path_or_name).__name__} {path_or_name!r:.80}")
     if is_shipped_name(path_or_name):
         return load_shipped(str(path_or_name))
     path = structure_file(path_or_name, relative_to)

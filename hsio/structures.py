@@ -394,7 +394,8 @@ class Damping:
 class Structure:
     """A structure for hybrid simulation, in kN, mm, s (mass in kN s^2/mm).
 
-    ``masses`` are lumped per DOF; ``mass_matrix`` (if given) is the full M instead.
+    ``masses`` are lumped per DOF; ``mass_matrix`` (if given) is the full M instead, and
+    ``masses`` then becomes its diagonal (whatever was passed for it).
     ``influence`` is the excitation direction per DOF (the influence vector iota, default 1).
     """
 
@@ -445,6 +446,7 @@ class Structure:
         structure-file loader's checks, docs/structures.md, for a structure built in code)."""
         what = self.source or f"structure {self.name!r}"
         check = _checker(what)
+        check.string("name", self.name)  # run records, plots and folders carry it
         sequences = {"dof_names": self.dof_names, "masses": self.masses}
         if self.influence is not None:
             sequences["influence"] = self.influence
@@ -486,6 +488,7 @@ class Structure:
             except ConfigError as exc:  # the file's key, mass.matrix, is the argument mass_matrix here
                 raise ConfigError(str(exc).replace(": mass.matrix", ": mass_matrix", 1)) from None
             object.__setattr__(self, "mass_matrix", tuple(tuple(float(v) for v in r) for r in M))
+            object.__setattr__(self, "masses", tuple(float(v) for v in np.diag(M)))  # what M lumps at each DOF
 
     # columns of the record's instruments table beside one per instrument
     INSTRUMENT_TABLE_COLUMNS = ("step", "iterations")

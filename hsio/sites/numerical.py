@@ -75,8 +75,11 @@ class NumericalSite:
 
     @classmethod
     def of(cls, structure) -> "NumericalSite":
-        """The specimen models of ``structure``'s experimental elements, in the virgin state."""
-        return cls([e.model() for e in structure.experimental])
+        """The specimen models of ``structure``'s experimental elements, in the virgin state
+        (``built_for`` names the structure, which hsio.simulate checks)."""
+        site = cls([e.model() for e in structure.experimental])
+        site.built_for = structure
+        return site
 
     def committed(self):
         return self._committed

@@ -40,6 +40,15 @@ class PinchedWood(Specimen):
         for name in ("k0", "F0"):  # the backbone divides by both
             if not getattr(self, name) > 0:
                 raise ConfigError(f"pinched_wood: {name} must be positive, got {getattr(self, name)!r}")
+        # The model's premises: a backbone that does not fall (r1), an unloading line at least as
+        # stiff as the backbone's initial tangent k0 (r3; a softer one makes loading follow it and,
+        # below about 0.3, makes a closed cycle give energy out), pinching lines that rise (r4)
+        # and meet the axis between zero and the extreme's force (r_pinch).
+        for name, ok, meaning in (("r1", self.r1 >= 0, "zero or positive"), ("r3", self.r3 >= 1, "at least 1"),
+                                  ("r4", self.r4 >= 0, "zero or positive"),
+                                  ("r_pinch", 0 <= self.r_pinch <= 1, "within 0..1")):
+            if not ok:
+                raise ConfigError(f"pinched_wood: {name} must be {meaning}, got {getattr(self, name)!r}")
         self.revert_to_start()
 
     def revert_to_start(self) -> None:
