@@ -203,3 +203,20 @@ def test_a_force_of_the_wrong_sign_is_refused_and_a_late_one_is_not(sweep):
         diagnose_specimen(reversed_sign)
     late = emulate_specimen(Diagnosed(k=2.0), sweep, RATE_HZ, skew_s=0.04, seed=2)
     assert diagnose_specimen(late).cause == "channel_skew"
+
+
+def test_a_moving_mass_is_not_named_degradation_by_the_library_order():
+    """On a chirp a moving mass and a degrading stiffness both soften the force as the sweep goes
+    on; on a stiff specimen both reach the sensor floor on the choosing block, within 2 % of each
+    other, with one parameter each. The better fit is named (the mass), not the earlier in the
+    library: on the scoring block the degradation stays 1.8x above the floor."""
+    rate = 1000.0
+    u = chirp_command(12.0, rate, amplitude_mm=6.0, f0_hz=0.3, f1_hz=4.0)
+    record = emulate_specimen(Diagnosed(k=5.0, c=0.05, mass_kg=500.0), u, rate, seed=1,
+                              force_noise_kN=0.05, force_resolution_kN=0.025)
+    d = diagnose_specimen(record)
+    degradation = next(c for c in d.candidates if c.cause == "degradation")
+    assert degradation.fit.rms_choose_kN <= 1.02 * d.single.fit.rms_choose_kN  # the tie the rule must settle
+    assert d.cause == "inertia", [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    assert d.single.fit.params["mass_kg"] == pytest.approx(500.0, rel=0.20)
+    assert d.single.gain > degradation.gain
