@@ -45,6 +45,10 @@ MIN_REVERSALS = (2, 1, 1)
 # trend to tell a spring's residual from the sensor floor (docs/diagnose.md).
 MIN_SAMPLES = 250
 GIVES_OUT = 0.5  # a force whose work over the training part is this share of sum |F du| below zero is refused
+# ... or this share, when the force falls as the displacement grows (correlation at most FALLS): only a
+# moving mass does that passively, and it takes work too.
+GIVES_OUT_FALLING = 0.05
+FALLS = -0.5
 MIN_JUDGED = 500
 REVERSAL_SHARE = 0.05  # a reversal: the displacement turns back by this share of its range (or 3 noise RMS)
 RATE_BOUNDS_HZ = (1.0, 1e6)  # below 1 Hz no velocity or acceleration is seen; above 1 MHz no DAQ samples
@@ -377,7 +381,11 @@ def check_passive(record: SpecimenRecord, n_train: int) -> None:
     -GIVES_OUT of sum |F du| (most of the motion against the force) with a force that does not
     grow with the displacement either (correlation at most 0) is a force channel of the wrong
     sign, not a specimen (a late force channel on a spring also shows negative work, but its
-    force still follows the displacement)."""
+    force still follows the displacement). A force that clearly falls as the displacement grows
+    (correlation at most FALLS) and gives out more than GIVES_OUT_FALLING is refused too: a
+    spring or a hysteretic wall read with the wrong sign gives out only what it dissipates, a
+    small share of sum |F du| (about 20 to 45 %), and only a moving mass falls passively, taking
+    work all the same."""
     u, f = record.displacement_mm[:n_train], record.force_kN[:n_train]
     du, fm = np.diff(u), 0.5 * (f[1:] + f[:-1])
     total = float(np.sum(np.abs(fm * du)))
@@ -385,7 +393,7 @@ def check_passive(record: SpecimenRecord, n_train: int) -> None:
         return
     share = float(np.sum(fm * du)) / total
     r_u = float(np.corrcoef(u, f)[0, 1])
-    if share <= -GIVES_OUT and r_u <= 0.0:
+    if (share <= -GIVES_OUT and r_u <= 0.0) or (share <= -GIVES_OUT_FALLING and r_u <= FALLS):
         raise RecordError(f"{record.source}: the force gives energy out over the training part (sum F du is "
                           f"{100 * share:+.0f} % of sum |F du|) and does not grow with the displacement (correlation "
                           f"{r_u:+.2f}): a passive specimen takes work from the actuator; the force channel's sign is "
