@@ -15,11 +15,17 @@ TOO_FEW = "too_few_samples"  # a record too short to judge: neither a cause nor 
 PARSIMONY = 1.02  # a candidate within this factor of the best, with fewer parameters or earlier in the library, wins
 
 
-def parsimonious(named: Sequence, error: Callable, size: Callable, order: Sequence[str]):
+def parsimonious(named: Sequence, error: Callable, size: Callable, order: Sequence[str] | None):
     """The candidate with the lowest choosing error; among those within PARSIMONY of it, the one
-    with the fewest parameters (``size``), then the earliest in the library (``order``)."""
+    with the fewest parameters (``size``), then the earliest in the library (``order``) or, with
+    ``order`` None, the lowest choosing error among those of that size (a place in the library is
+    no reason to prefer a worse fit: the actuator keeps the order because its ties are models
+    the record cannot tell apart, settled afterwards from a fixed first choice)."""
     best = min(named, key=error)
     close = [c for c in named if error(c) <= PARSIMONY * error(best)]
+    if order is None:
+        fewest = min(size(c) for c in close)
+        return min((c for c in close if size(c) == fewest), key=error)
     return min(close, key=lambda c: (size(c), list(order).index(c.cause)))
 
 

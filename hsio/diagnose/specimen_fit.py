@@ -45,6 +45,10 @@ MIN_REVERSALS = (2, 1, 1)
 # trend to tell a spring's residual from the sensor floor (docs/diagnose.md).
 MIN_SAMPLES = 250
 GIVES_OUT = 0.5  # a force whose work over the training part is this share of sum |F du| below zero is refused
+# ... or this share, when the force falls as the displacement grows (correlation at most FALLS): only a
+# moving mass does that passively, and it takes work too.
+GIVES_OUT_FALLING = 0.05
+FALLS = -0.5
 MIN_JUDGED = 500
 REVERSAL_SHARE = 0.05  # a reversal: the displacement turns back by this share of its range (or 3 noise RMS)
 RATE_BOUNDS_HZ = (1.0, 1e6)  # below 1 Hz no velocity or acceleration is seen; above 1 MHz no DAQ samples
@@ -296,8 +300,11 @@ def specimen_table(f: SpecimenFit) -> dict:
     return table
 
 
-def _choose(named: list, ctx_order: tuple) -> SpecimenCandidate:
-    return parsimonious(named, lambda c: c.fit.rms_choose_kN, lambda c: c.fit.n_params, ctx_order)
+def _choose(named: list) -> SpecimenCandidate:
+    """Fewer parameters within PARSIMONY win; at equal size the lower choosing error (on a chirp a
+    moving mass and a degrading stiffness both soften the force as the sweep goes on, and can
+    come within 2 % of each other on the choosing block: the library's order would name the worse)."""
+    return parsimonious(named, lambda c: c.fit.rms_choose_kN, lambda c: c.fit.n_params, None)
 
 
 MAX_SAMPLES = 8000  # longer records are thinned after the low-pass (the Bouc-Wen replay is a loop)
@@ -374,7 +381,11 @@ def check_passive(record: SpecimenRecord, n_train: int) -> None:
     -GIVES_OUT of sum |F du| (most of the motion against the force) with a force that does not
     grow with the displacement either (correlation at most 0) is a force channel of the wrong
     sign, not a specimen (a late force channel on a spring also shows negative work, but its
-    force still follows the displacement)."""
+    force still follows the displacement). A force that clearly falls as the displacement grows
+    (correlation at most FALLS) and gives out more than GIVES_OUT_FALLING is refused too: a
+    spring or a hysteretic wall read with the wrong sign gives out only what it dissipates, a
+    small share of sum |F du| (about 20 to 45 %), and only a moving mass falls passively, taking
+    work all the same."""
     u, f = record.displacement_mm[:n_train], record.force_kN[:n_train]
     du, fm = np.diff(u), 0.5 * (f[1:] + f[:-1])
     total = float(np.sum(np.abs(fm * du)))
@@ -382,7 +393,7 @@ def check_passive(record: SpecimenRecord, n_train: int) -> None:
         return
     share = float(np.sum(fm * du)) / total
     r_u = float(np.corrcoef(u, f)[0, 1])
-    if share <= -GIVES_OUT and r_u <= 0.0:
+    if (share <= -GIVES_OUT and r_u <= 0.0) or (share <= -GIVES_OUT_FALLING and r_u <= FALLS):
         raise RecordError(f"{record.source}: the force gives energy out over the training part (sum F du is "
                           f"{100 * share:+.0f} % of sum |F du|) and does not grow with the displacement (correlation "
                           f"{r_u:+.2f}): a passive specimen takes work from the actuator; the force channel's sign is "
@@ -423,7 +434,7 @@ def diagnose_specimen(record: SpecimenRecord, train_fraction: float = TRAIN_FRAC
                                floor.still_rms_mm, floor.high_frequency_rms_mm)
     cause, current = None, baseline
     if named:
-        best = _choose(named, NAMES)
+        best = _choose(named)
         cause, current = best.cause, best.fit
         singles = {c.cause: c.fit for c in candidates}
 
