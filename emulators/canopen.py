@@ -494,11 +494,11 @@ class SlcanPort:
             try:
                 conn, _ = self.listener.accept()
             except OSError:
+                self._discard()  # nobody listens: what the drives send is gone, as on a cable
                 continue
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._conn = conn
-            while select.select([self._master], [], [], 0)[0]:  # frames sent before anyone listened are gone
-                os.read(self._master, 4096)
+            self._discard()  # frames sent before anyone listened are gone
             with conn:
                 while not self._stop.is_set():
                     ready, _, _ = select.select([conn, self._master], [], [], 0.1)
@@ -515,6 +515,19 @@ class SlcanPort:
                     except OSError:
                         break
             self._conn = None
+
+    def _discard(self) -> None:
+        """Read and drop what the emulated drives sent with no client connected, so that their
+        writes never block on a full pseudo-terminal (a stop would then hang)."""
+        import os
+        import select
+
+        try:
+            while select.select([self._master], [], [], 0)[0]:
+                if not os.read(self._master, 4096):
+                    return
+        except OSError:
+            return
 
     def drop(self) -> None:
         """Close the present client's connection, as when an adapter is unplugged: the client
