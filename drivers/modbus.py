@@ -558,9 +558,11 @@ class ModbusActuator(Actuator, ActuatorChannels):
         if bit(word, "interlock"):
             raise InterlockError(f"actuator {self.name!r} at {self.link.url}: the controller's interlock tripped; holding")
         if bit(word, "watchdog"):
+            watchdog_s = common.reported(self.link.info.get("watchdog_s"))
+            silence = (f"no command for more than {watchdog_s:g} s" if watchdog_s is not None
+                       else "no command within its watchdog time, which its register map does not report")
             raise InterlockError(
-                f"actuator {self.name!r} at {self.link.url}: the controller's host watchdog expired "
-                f"(no command for more than {self.link.info.get('watchdog_s', 0):g} s); it holds")
+                f"actuator {self.name!r} at {self.link.url}: the controller's host watchdog expired ({silence}); it holds")
         if bit(word, "refused"):
             # A controller may refuse a command by its status rather than by an exception
             # response: the axis did not take it, and goes on with an older one.

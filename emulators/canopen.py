@@ -304,6 +304,8 @@ class CanopenEmulator:
 
     def start(self) -> "CanopenEmulator":
         self.network = canopen.Network()
+        if self.interface == "slcan":  # the adapter's end of a serial line anyone may write to
+            self.network.bus = tolerant_slcan_bus(self.channel, **self.bus_options)
         self.network.connect(interface=self.interface, channel=self.channel, **self.bus_options)
         for k in range(len(self.bank.controllers)):
             node = canopen.LocalNode(self.node_id + k, cod.object_dictionary(self.node_id + k))
@@ -404,6 +406,41 @@ class CanopenEmulator:
         self.stop()
 
 
+# The longest line of the Lawicel protocol (an extended CAN FD frame with 64 data bytes and a
+# timestamp) is under 150 characters: a longer run of bytes without a line end is not SLCAN.
+SLCAN_LINE_MAX = 256
+
+
+def tolerant_slcan_bus(channel: str, **options):
+    """python-can's SLCAN bus for the emulated adapter, which a line that is not SLCAN (bytes that
+    are not ASCII, a frame whose id or length is not hexadecimal: a Modbus RTU client on the wrong
+    port, noise) does not stop: the line is dropped, as an adapter answers such a line with an
+    error and goes on, and the bus goes on receiving the frames that follow."""
+    from can.exceptions import CanOperationError
+    from can.interfaces.slcan import slcanBus
+
+    class TolerantSlcanBus(slcanBus):
+        def _recv_internal(self, timeout):
+            try:
+                received = super()._recv_internal(timeout)
+            except CanOperationError as exc:
+                if not isinstance(exc.__cause__, UnicodeDecodeError):
+                    raise  # the serial line itself failed
+                received = self._dropped("not ASCII")
+            except (ValueError, IndexError):
+                received = self._dropped("not a frame")
+            if len(self._buffer) > SLCAN_LINE_MAX:
+                self._dropped(f"over {SLCAN_LINE_MAX} bytes without a line end")
+            return received
+
+        def _dropped(self, why: str):
+            log.warning("SLCAN: a line dropped (%s): %r", why, bytes(self._buffer[:40]))
+            self._buffer.clear()
+            return None, False
+
+    return TolerantSlcanBus(channel=channel, **options)
+
+
 class SlcanPort:
     """The emulated drives' CAN bus reachable from another process the way a USB-CAN adapter is:
     the Lawicel (SLCAN) serial protocol, spoken by python-can's ``slcan`` interface at both ends.
@@ -457,11 +494,11 @@ class SlcanPort:
             try:
                 conn, _ = self.listener.accept()
             except OSError:
+                self._discard()  # nobody listens: what the drives send is gone, as on a cable
                 continue
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._conn = conn
-            while select.select([self._master], [], [], 0)[0]:  # frames sent before anyone listened are gone
-                os.read(self._master, 4096)
+            self._discard()  # frames sent before anyone listened are gone
             with conn:
                 while not self._stop.is_set():
                     ready, _, _ = select.select([conn, self._master], [], [], 0.1)
@@ -478,6 +515,19 @@ class SlcanPort:
                     except OSError:
                         break
             self._conn = None
+
+    def _discard(self) -> None:
+        """Read and drop what the emulated drives sent with no client connected, so that their
+        writes never block on a full pseudo-terminal (a stop would then hang)."""
+        import os
+        import select
+
+        try:
+            while select.select([self._master], [], [], 0)[0]:
+                if not os.read(self._master, 4096):
+                    return
+        except OSError:
+            return
 
     def drop(self) -> None:
         """Close the present client's connection, as when an adapter is unplugged: the client

@@ -293,6 +293,8 @@ class PtyBridge:
     """Two pseudo-terminal pairs joined back to back, like a null-modem cable.
 
     The server opens ``server_path``; a client (the driver, a terminal tool) opens ``path``.
+    As on a cable, what one end sends while the other does not read is lost once the other end's
+    buffer is full: the sender is never blocked by a reader that is not there.
     """
 
     def __init__(self):
@@ -300,6 +302,8 @@ class PtyBridge:
         self._b_master, b_slave = os.openpty()
         for fd in (a_slave, b_slave):
             tty.setraw(fd)
+        for fd in (self._a_master, self._b_master):
+            os.set_blocking(fd, False)
         self.server_path = os.ttyname(a_slave)
         self.path = os.ttyname(b_slave)
         self._slaves = (a_slave, b_slave)  # kept open so the pair stays alive
@@ -317,7 +321,10 @@ class PtyBridge:
                 except OSError:
                     continue
                 if data:
-                    os.write(pair[fd], data)
+                    try:
+                        os.write(pair[fd], data)
+                    except OSError:  # the other end's buffer is full (nobody reads it): lost
+                        pass
 
     def close(self) -> None:
         self._stop.set()

@@ -114,3 +114,56 @@ def test_scaling_from_the_feed_constant_counts_the_gear_ratio(tmp_path):
             a.close()
     finally:
         emu.stop()
+
+
+@pytest.mark.parametrize("garbage", [
+    bytes([0x01, 0x03, 0x00, 0x00, 0x00, 0x02, 0xC4, 0x0B]) + b"\r",  # a Modbus RTU request: not ASCII
+    b"tZZZ5\r",  # a frame whose id is not hexadecimal
+    b"t12\r",  # a frame cut short
+    b"x" * 600,  # a run of bytes without a line end
+])
+def test_a_line_that_is_not_slcan_does_not_stop_the_emulated_adapter(cfg, in_process, tmp_path, garbage, monkeypatch):
+    """A client that writes what is not SLCAN to the emulated adapter (a Modbus RTU driver pointed
+    at the wrong port, noise) has that line dropped; the adapter keeps serving the drives, and the
+    next run through it equals the in-process run, with no thread ended by an exception."""
+    import socket
+    import threading
+
+    from hsio.emulators.canopen import slcan_emulator
+
+    ended = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: ended.append(args.exc_value))
+    emu = slcan_emulator(bank_from_config(cfg, lockstep=True), "tcp")
+    try:
+        with socket.create_connection((emu.slcan.host, emu.slcan.port), timeout=2.0) as s:
+            s.sendall(garbage)
+        summary, recorded = run(cfg, tmp_path / "run", url=emu.url)
+    finally:
+        emu.stop()
+    assert ended == []
+    assert isinstance(summary, dict), summary
+    np.testing.assert_array_equal(recorded.steps["u_C1"], in_process[1].steps["u_C1"])
+
+
+@pytest.mark.parametrize("kind", ["pty", "tcp"])
+def test_an_adapter_nobody_listens_to_neither_blocks_its_drives_nor_its_stop(cfg, kind):
+    """With no client on the SLCAN port, what the drives send (heartbeats, replies to a client
+    gone) is lost, as on a cable nobody reads: their writes never block on a full
+    pseudo-terminal, and stopping the emulator (`hsio emulate`'s SIGTERM) returns at once."""
+    import threading
+    import time
+
+    from hsio.emulators.canopen import slcan_emulator
+
+    emu = slcan_emulator(bank_from_config(cfg, lockstep=True), kind, heartbeat_ms=0)
+    frames = 20_000  # 22 bytes each on the line: far beyond a pseudo-terminal's buffer
+    sender = threading.Thread(target=lambda: [emu.network.send_message(0x181, bytes(8)) for _ in range(frames)],
+                              daemon=True)
+    sender.start()
+    sender.join(20.0)
+    stopper = threading.Thread(target=emu.stop, daemon=True)
+    started = time.monotonic()
+    stopper.start()
+    stopper.join(10.0)
+    assert not sender.is_alive(), "the drives' writes blocked on a port nobody reads"
+    assert not stopper.is_alive() and time.monotonic() - started < 10.0

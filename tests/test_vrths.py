@@ -403,6 +403,13 @@ def test_a_run_whose_command_is_not_finite_stops_with_exit_3(shared_data, monkey
     (lambda nom: amb.make(FS, nom, mu=-1.0), "mu = -1.0 must be a finite number"),
     (lambda nom: amb.make(FS, nom, mu=float("nan")), "mu = nan"),
     (lambda nom: amb.make(FS, nom, jerk_alpha=0.0), "jerk_alpha = 0.0"),
+    (lambda nom: ats.make(FS, update=float("inf")), "update = inf must be a whole number"),
+    (lambda nom: ats.make(FS, update=float("nan")), "update = nan must be a whole number"),
+    (lambda nom: ats.make(FS, update="16"), "update = '16' must be a whole number"),
+    (lambda nom: ats.make(FS, window_s="1"), "window_s = '1' must be a number"),
+    (lambda nom: ats.make(FS, cutoff_hz=None), "cutoff_hz = None must be a number"),
+    (lambda nom: amb.make(FS, nom, mu="0.002"), "mu = '0.002' must be a finite number"),
+    (lambda nom: amb.make(FS, nom, bound=None), "bound = None must be a finite number"),
 ])
 def test_controller_parameters_it_cannot_run_on_are_refused_naming_them(bm, build, message):
     """A window too short to fit three coefficients, no refit period, a filter beyond Nyquist, bounds

@@ -150,13 +150,14 @@ def make(fs: float, plant, delta: float = 0.0, mu: float = 2e-3, ki: float = 0.0
          jerk_alpha: float = 0.2, adapt_from_s: float = 0.5) -> Stage:
     """AMB on the model ``plant`` (PlantParameters, normally the nominal plant of Table 2).
     Parameters it cannot run on are a ValueError naming them."""
-    for name, value, ok, what in (("delta", delta, delta >= 0.0, "not negative (s)"),
-                                  ("mu", mu, 0.0 < mu < 2.0, "between 0 and 2 (the step of NLMS, eq. 3)"),
-                                  ("ki", ki, ki >= 0.0, "not negative"),
-                                  ("bound", bound, bound >= 0.0, "not negative"),
-                                  ("jerk_alpha", jerk_alpha, 0.0 < jerk_alpha <= 1.0, "in (0, 1]"),
-                                  ("adapt_from_s", adapt_from_s, adapt_from_s >= 0.0, "not negative (s)")):
-        if not (np.isfinite(value) and ok):
+    for name, value, ok, what in (("delta", delta, lambda v: v >= 0.0, "not negative (s)"),
+                                  ("mu", mu, lambda v: 0.0 < v < 2.0, "between 0 and 2 (the step of NLMS, eq. 3)"),
+                                  ("ki", ki, lambda v: v >= 0.0, "not negative"),
+                                  ("bound", bound, lambda v: v >= 0.0, "not negative"),
+                                  ("jerk_alpha", jerk_alpha, lambda v: 0.0 < v <= 1.0, "in (0, 1]"),
+                                  ("adapt_from_s", adapt_from_s, lambda v: v >= 0.0, "not negative (s)")):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not (np.isfinite(value) and ok(value)):
             raise ValueError(f"AMB: {name} = {value!r} must be a finite number, {what}")
     Ad, Bd = plant.discrete(fs)
     scale = TAU ** np.arange(NR)

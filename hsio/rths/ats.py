@@ -175,11 +175,16 @@ def make(fs: float, initial=(1.0, 0.025, 3.0e-4), window_s: float = 1.0, update:
     """ATS with a ``window_s`` window re-fitted every ``update`` samples; ``initial`` are the
     coefficients used until the window first fills (a0, a1 in s, a2 in s^2). Parameters it cannot
     run on are a ValueError naming them."""
+    numbers = {"window_s": window_s, "cutoff_hz": cutoff_hz, "ridge": ridge}
+    for name, value in numbers.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(f"ATS: {name} = {value!r} must be a number")
     n_win = int(round(window_s * fs)) if np.isfinite(window_s) else 0
     if n_win < 3:
         raise ValueError(f"ATS: window_s = {window_s!r} s holds {n_win} samples at {fs:g} Hz; the fit of "
                          "three coefficients needs at least 3")
-    if isinstance(update, bool) or int(update) != update or not 1 <= update <= n_win:
+    if isinstance(update, bool) or not isinstance(update, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(update) or int(update) != update or not 1 <= update <= n_win:
         raise ValueError(f"ATS: update = {update!r} must be a whole number of samples from 1 to the window's {n_win}")
     if not 0.0 < cutoff_hz < fs / 2.0:
         raise ValueError(f"ATS: cutoff_hz = {cutoff_hz!r} must lie between 0 and half the rate, {fs / 2.0:g} Hz")
