@@ -46,6 +46,17 @@ def test_flexible_specimen_fine_transducer_switches_on_the_load_cell(rows):
     assert mixed.switches == 0 and mixed.error_pct == dc.error_pct
 
 
+def test_fc_is_as_close_to_ns_with_a_fine_transducer_as_with_a_coarse_one(rows):
+    """A 0.0025 mm transducer with a 0.01 mm noise reads a noise sample at rest, where a 0.025 mm
+    one mostly reads its zero level; FC's first base is the state at rest, so the fine transducer
+    costs FC nothing (based at that one reading, FC was 0.97 to 1.17 % off here, the offset lasting
+    1 / fc_blend steps)."""
+    for k0 in (7.2, 122.6):
+        fine = _get(rows, k0, 0.0025, 0.002, "force_control").error_pct
+        coarse = _get(rows, k0, 0.025, 0.002, "force_control").error_pct
+        assert fine <= 0.5 and fine <= 1.5 * coarse + 0.05, (k0, fine, coarse)
+
+
 def test_mixed_is_never_much_worse_than_the_better_of_dc_and_fc(rows):
     """Over the whole grid mixed is within 20 % or 0.1 percentage point of the better of DC and FC;
     below K_f = c s_F / s_u it is DC exactly."""

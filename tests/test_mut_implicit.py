@@ -204,6 +204,31 @@ def test_fc_base_is_the_complementary_estimate(lam):
     assert abs(u_m - u_s) > 1e-3  # the offset matters: lambda changes the command
 
 
+@pytest.mark.parametrize("reading, expected_u_b", [
+    (0.02, 0.1 * 0.02),  # within 5 s_u + delta_u of rest (0.0867 mm): the initial state, the reading weighted by lambda
+    (-0.09, -0.09),  # beyond it: the specimen is not where the state says; the reading
+])
+def test_the_first_fc_base_is_the_initial_state_when_the_reading_at_rest_is_within_the_noise(reading, expected_u_b):
+    """The transducer zeroed at rest reads one noisy sample there; an FC element whose first base
+    were that sample would keep its noise as an offset of the specimen for as long as lambda takes
+    to correct it (1 / lambda steps). With the instruments known (noise 0.01 mm, resolution
+    0.025 mm: s_u = 0.0123 mm) the first base is u0 + lambda (reading - u0)."""
+    site = _Site([100.0], [np.inf], [100.0])
+    site.base = (np.array([reading]), np.zeros(1))
+    alg = _alpha(1, j_max=1, fc_blend=0.1, tol_force=1e-9, secant_uncertainty=((0.01, 0.025), (0.01, 0.01)))
+    alg.start(np.zeros(1), site)
+    expected = _first_force_command(alg, 40.0, 100.0, 0.0, expected_u_b)
+    alg.step(np.array([40.0]), site, [FC])
+    assert site.sent[0][0][0] == pytest.approx(expected, rel=1e-12)
+    unknown = _alpha(1, j_max=1, fc_blend=0.1, tol_force=1e-9)  # the instruments not known: the reading
+    site = _Site([100.0], [np.inf], [100.0])
+    site.base = (np.array([reading]), np.zeros(1))
+    unknown.start(np.zeros(1), site)
+    expected = _first_force_command(unknown, 40.0, 100.0, 0.0, reading)
+    unknown.step(np.array([40.0]), site, [FC])
+    assert site.sent[0][0][0] == pytest.approx(expected, rel=1e-12)
+
+
 def test_a_guarded_step_restarts_the_complementary_estimate_from_the_measurement():
     """An FC element guarded into DC for a step (its force outside the range) runs that step from
     its measured displacement, and the complementary estimate it carries into the next FC step is

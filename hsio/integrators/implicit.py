@@ -108,7 +108,8 @@ class ImplicitAlpha:
     drift): the transducer noise enters scaled by about sqrt(lambda / (2 - lambda)).
     The estimate is kept for every element, so that one switching from DC to FC starts from
     its DC solution moved to the measured force (within the transducer's noise of the
-    measurement, not offset by it). ``blend_dc=True`` uses
+    measurement, not offset by it). Before the first step it is the initial state, the one
+    reading at rest weighted by lambda (with ``secant_uncertainty`` given; :meth:`_at_rest`). ``blend_dc=True`` uses
     the same estimate for elements in DC (their measured force, through the secant, locates the
     specimen better than a coarse transducer), so that the base stays continuous across switches.
     ``anchor_dc`` (default True; a bool per element, or one for all): an element in DC is modelled, after each command, by the line of
@@ -259,12 +260,24 @@ class ImplicitAlpha:
         n = self.n_dof
         u0 = np.zeros(n) if u0 is None else np.asarray(u0, dtype=float)
         v0 = np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)
-        _, R_b = site.committed()
+        u_b, R_b = site.committed()
         R0 = self._E.T @ np.asarray(R_b, dtype=float) + self.K_N @ u0
+        self._u_fc = self._at_rest(u0[self.dofs], np.asarray(u_b, dtype=float))
         P0 = np.asarray(P0, dtype=float)
         a0 = np.linalg.solve(self.M, P0 - self.C @ v0 - R0)
         self.state = ImplicitState(0, u0, v0, a0, R0, P0.copy(), u0.copy())
         return self.state
+
+    def _at_rest(self, ue0: np.ndarray, u_meas: np.ndarray) -> np.ndarray:
+        """The complementary estimate before the first step (``fc_blend`` < 1 and the instruments
+        known): the specimen stands where the initial state puts it, its transducer zeroed there, and
+        the one reading at rest is weighted by lambda as every later reading is. Without the
+        instruments, or with a reading beyond 5 s_u + delta_u of the initial state, the reading."""
+        if self.secant_uncertainty is None or not self.fc_blend < 1:
+            return np.full(self.dofs.size, np.nan)
+        (sigma_u, delta_u), _ = self.secant_uncertainty
+        near = np.abs(u_meas - ue0) <= 5.0 * math.hypot(sigma_u, delta_u / math.sqrt(12.0)) + delta_u
+        return np.where(near, ue0 + self.fc_blend * (u_meas - ue0), np.nan)
 
     def predict(self) -> tuple[np.ndarray, np.ndarray]:
         s = self._require_state()
