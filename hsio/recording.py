@@ -193,19 +193,23 @@ class Recorder:
                                   "numbers, strings and dicts (e.g. array.tolist())") from None
         if self.path.is_dir():
             raise RecordError(f"{self.path} is a directory; a record is a file (e.g. {self.path / RUN_FILE})")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         try:  # created exclusively: an earlier record is never replaced
+            self.path.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             raise RecordExistsError(f"{self.path} already holds a record; records are never overwritten") from None
+        except OSError as exc:  # a read-only or full file system, a folder without write permission
+            raise RecordError(f"{self.path}: cannot create the record: {exc.strerror or exc}") from None
         self.db = None
         self._lock_fd = _lock(self.path, fd)
         try:
             self._create(meta)
-        except BaseException:  # no half-made record is left behind: the same call can be made again
+        except BaseException as exc:  # no half-made record is left behind: the same call can be made again
             self._abandon()
             for suffix in ("", "-wal", "-shm", "-journal"):
                 Path(f"{self.path}{suffix}").unlink(missing_ok=True)
+            if isinstance(exc, (sqlite3.Error, OSError)):  # e.g. the disk full before the first page
+                raise RecordError(f"{self.path}: cannot create the record: {exc}") from None
             raise
 
     def _create(self, meta: dict) -> None:

@@ -556,7 +556,15 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
     error: BaseException | None = None
     with contextlib.ExitStack() as cleanup:
         # Whatever fails from here on, what was opened is closed (the actuators left holding).
-        recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
+        try:
+            recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
+        except RecordError:  # a full or read-only disk: nothing began, no folder of this run is left
+            if ledger:
+                ledger.close()
+            if not existed:
+                with contextlib.suppress(OSError):  # the Recorder left no file: the folder is empty
+                    out.rmdir()
+            raise
         cleanup.callback(recorder.close)
         try:
             run_id = ledger.begin(out, config.tables, structure.name, ground.name, hsio.__version__) if ledger else None

@@ -197,3 +197,38 @@ def test_a_full_disk_stops_the_run_holding_and_keeps_the_steps_before(tmp_path, 
     run = Run(tmp_path / "o" / "run.sqlite")
     assert list(run.steps["step"]) == [1, 2, 3, 4] and set(run.samples()["step"]) == {1, 2, 3, 4}
     assert run.events()[-1]["kind"] == "stop"
+
+
+@pytest.mark.parametrize("fault", ["read-only", "full"])
+def test_a_record_that_cannot_be_created_is_a_clear_refusal(tmp_path, monkeypatch, fault):
+    """An --out folder on a read-only file system, or a disk already full when the record is
+    created: exit status 2 naming the record and why, no traceback, nothing moved, no folder of
+    this run left behind."""
+    import errno
+    import sqlite3
+
+    from click.testing import CliRunner
+
+    from hsio import recording
+    from hsio.cli import main
+
+    if fault == "read-only":
+        def refuse(path, flags, mode=0o777):
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+
+        monkeypatch.setattr(recording.os, "open", refuse)
+    else:
+        def full(self, meta):
+            self.db = sqlite3.connect(self.path)
+            raise sqlite3.OperationalError("database or disk is full")
+
+        monkeypatch.setattr(Recorder, "_create", full)
+    cfg = tmp_path / "short.toml"
+    cfg.write_text("[record]\nduration_s = 0.3\n[output]\nplots = false\n[safety]\nkeys = false\n")
+    out = tmp_path / "o"
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    reason = "Read-only file system" if fault == "read-only" else "database or disk is full"
+    assert f"{out / 'run.sqlite'}: cannot create the record: {reason}" in result.output
+    assert not out.exists()
