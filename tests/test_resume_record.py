@@ -73,10 +73,12 @@ def _last_step(column, value):
     (_last_step("a_C2", float("inf")), "not finite (a_C2)"),
     (_last_step("step", 10 ** 9), "its last committed step is 1000000000, not one of the record's steps"),
     (lambda db: db.execute("UPDATE steps SET u_C1 = NULL WHERE step = 2"), "its step 2 holds u_C1 = nan"),
+    (lambda db: db.execute("DELETE FROM steps WHERE step = 3"), "its steps are not 1..5 one after the other "
+                                                                  "(step 3 is missing): the record is damaged"),
     (lambda db: db.execute("DROP TABLE events"), "(no events table)"),
     (lambda db: db.execute("UPDATE summary SET value = ? WHERE key = 'exit_status'", (json.dumps("0"),)),
      'its summary\'s exit_status is "0", not a whole number'),
-], ids=["config", "no-config", "inputs-text", "inputs-entry", "dof-names", "nan-force", "inf-acceleration", "step", "hole",
+], ids=["config", "no-config", "inputs-text", "inputs-entry", "dof-names", "nan-force", "inf-acceleration", "step", "hole", "missing-step",
                                   "events", "exit-status-text"])
 def test_a_damaged_record_is_refused_by_name(tmp_path, damage, says):
     out = stopped_run(tmp_path, 5)

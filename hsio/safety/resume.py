@@ -48,6 +48,14 @@ def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
     if not 0 < k < len(P):
         raise ConfigError(f"{run.path}: its last committed step is {k}, not one of the record's steps 1..{len(P) - 1}: "
                           f"the record does not belong to this ground motion; the record is unchanged and nothing moved")
+    whole = np.asarray(steps, dtype=float)
+    missing = np.setdiff1d(np.arange(1, k + 1), whole)
+    if missing.size or len(whole) != k:  # a record is written step by step: a hole or a repeat is damage
+        listed = ", ".join(str(int(m)) for m in missing[:5]) + (" ..." if missing.size > 5 else "")
+        what = (f"step {listed} is missing" if missing.size == 1 else f"steps {listed} are missing" if missing.size
+                else f"it holds {len(whole)} rows for steps 1..{k}")
+        raise ConfigError(f"{run.path}: its steps are not 1..{k} one after the other ({what}): the record is "
+                          f"damaged; the record is unchanged and nothing moved")
     try:
         row = lambda prefix: np.array([run.steps[column(prefix, d)][-1] for d in structure.dof_names])  # noqa: E731
         u, v, a, u_pred, R = row("u"), row("v"), row("a"), row("u_pred"), row("r")
