@@ -359,10 +359,15 @@ class Recorder:
 
     def write_summary(self, summary: dict, replace: bool = False) -> None:
         """Add or replace summary entries; ``replace``: the summary becomes ``summary`` alone."""
-        if replace:
-            self.db.execute("DELETE FROM summary")
-        self.db.executemany("INSERT OR REPLACE INTO summary VALUES (?, ?)", [(k, json.dumps(v)) for k, v in summary.items()])
-        self.db.commit()
+        try:
+            if replace:
+                self.db.execute("DELETE FROM summary")
+            self.db.executemany("INSERT OR REPLACE INTO summary VALUES (?, ?)",
+                                [(k, json.dumps(v)) for k, v in summary.items()])
+            self.db.commit()
+        except BaseException:  # all or nothing: a later commit must not keep the deletion alone
+            self.db.rollback()
+            raise
 
     def _abandon(self) -> None:
         """Close without committing what a failed creation or reopening began, and let go of the lock."""

@@ -704,17 +704,27 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
 
 
 def write_summary(out: Path, recorder, summary: dict, notify, replace: bool = False) -> bool:
-    """``summary.json`` and the record's ``summary`` table. A disk that refuses them (full, gone)
-    is reported, not raised: the steps committed before stay in the record, and the run ends
-    with the status it had. False when not written."""
+    """The record's ``summary`` table, then ``summary.json`` beside it, replaced whole (written to a
+    temporary file, then renamed over it): a disk that refuses either (full, gone) is reported, not
+    raised, and leaves what was there before (the steps committed, an earlier session's summary),
+    never a file cut short; the run ends with the status it had. False when not written."""
+    failed = []
     try:
-        (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
         recorder.write_summary(summary, replace=replace)
-        return True
-    except (OSError, sqlite3.Error) as exc:
-        notify(f"WARNING: the summary could not be written in {out} ({getattr(exc, 'strerror', None) or exc}); "
+    except sqlite3.Error as exc:
+        failed.append(str(exc))
+    path, partial = out / "summary.json", out / "summary.json.partial"
+    try:
+        partial.write_text(json.dumps(summary, indent=2, default=str))
+        partial.replace(path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            partial.unlink(missing_ok=True)
+        failed.append(exc.strerror or str(exc))
+    if failed:
+        notify(f"WARNING: the summary could not be written in {out} ({'; '.join(dict.fromkeys(failed))}); "
                f"the steps committed before are in {out / RUN_FILE}")
-        return False
+    return not failed
 
 
 def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs: Result, ns: Result | None, out: Path) -> dict:

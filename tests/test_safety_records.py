@@ -181,7 +181,8 @@ def test_a_full_disk_stops_the_run_holding_and_keeps_the_steps_before(tmp_path, 
     real_write_text = Path.write_text
 
     def full_disk(self, *args, **kwargs):
-        if self.name == "summary.json":
+        if self.name.startswith("summary.json"):
+            self.write_bytes(b"")  # a full disk takes the file, not its text
             raise OSError(errno.ENOSPC, "No space left on device")
         return real_write_text(self, *args, **kwargs)
 
@@ -197,6 +198,50 @@ def test_a_full_disk_stops_the_run_holding_and_keeps_the_steps_before(tmp_path, 
     run = Run(tmp_path / "o" / "run.sqlite")
     assert list(run.steps["step"]) == [1, 2, 3, 4] and set(run.samples()["step"]) == {1, 2, 3, 4}
     assert run.events()[-1]["kind"] == "stop"
+    assert run.summary["exit_status"] == 3  # the record's summary, though summary.json could not be written
+    assert sorted(p.name for p in (tmp_path / "o").iterdir() if p.name.startswith("summary")) == []  # none cut short
+
+
+def test_a_summary_that_cannot_be_written_leaves_the_earlier_one_whole(tmp_path, monkeypatch):
+    """A resumed session on a full disk: summary.json keeps the earlier session's summary whole
+    (not a file cut short); the record's summary table, which a resume reads, is still written."""
+    import errno
+    import json
+
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+    from wire import stopped_run
+
+    out = stopped_run(tmp_path, 5)
+    before = (out / "summary.json").read_text()
+    assert json.loads(before)["exit_status"] == 5
+    real_write_text = Path.write_text
+
+    def full_disk(self, *args, **kwargs):
+        if self.name.startswith("summary.json"):
+            real_write_text(self, "{")  # the disk fills after the first byte
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write_text(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    result = CliRunner().invoke(main, ["resume", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "WARNING: the summary could not be written" in result.output
+    assert (out / "summary.json").read_text() == before
+    assert not (out / "summary.json.partial").exists()
+    assert Run(out / "run.sqlite").summary["exit_status"] == 0
+
+
+def test_a_summary_that_fails_half_way_replaces_nothing(tmp_path):
+    """Recorder.write_summary(replace=True) is all or nothing: a failure after the old entries were
+    deleted does not leave the deletion for the next commit (the close) to keep."""
+    recorder = Recorder(tmp_path / "run.sqlite", ["x"], ["A"])
+    recorder.write_summary({"exit_status": 5, "steps": 7})
+    with pytest.raises(TypeError):
+        recorder.write_summary({"steps": object()}, replace=True)
+    recorder.close()
+    assert Run(tmp_path / "run.sqlite").summary == {"exit_status": 5, "steps": 7}
 
 
 @pytest.mark.parametrize("fault", ["read-only", "full"])
