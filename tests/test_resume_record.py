@@ -93,6 +93,33 @@ def test_a_damaged_record_is_refused_by_name(tmp_path, damage, says):
         assert db.execute("SELECT COUNT(*) FROM steps").fetchone()[0] == before
 
 
+def test_a_record_on_a_full_disk_is_not_resumed(tmp_path, monkeypatch):
+    """The disk is full when the resume would mark its session in the record: refused by name
+    (exit 2, no traceback) before the hardware opens, the record as it was, the session's ledger
+    row closed as refused; once there is room again the same record resumes."""
+    out = stopped_run(tmp_path, 5, extra=f'[specimen]\nfolder = "{tmp_path / "spec"}"\n')
+    with sqlite3.connect(out / "run.sqlite") as db:
+        before = _fingerprint(out) + [db.execute("SELECT * FROM meta ORDER BY key").fetchall()]
+    real = Recorder.write_meta
+
+    def full(self, entries):
+        self.db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in entries.items()])
+        raise sqlite3.OperationalError("database or disk is full")  # the commit finds no room
+
+    monkeypatch.setattr(Recorder, "write_meta", full)
+    result = _resume(out)
+    assert result.exit_code == 2, result.output
+    assert "run.sqlite: cannot write to the record (database or disk is full); the record is unchanged and " \
+           "nothing moved" in result.output
+    assert "the actuators stand at" not in result.output  # the hardware was not opened
+    with sqlite3.connect(out / "run.sqlite") as db:
+        assert _fingerprint(out) + [db.execute("SELECT * FROM meta ORDER BY key").fetchall()] == before
+    rows = ledger.read(tmp_path / "spec")
+    assert [r["outcome"] for r in rows] == ["stopped by the operator", "refused"]
+    monkeypatch.setattr(Recorder, "write_meta", real)
+    assert _resume(out).exit_code == 0
+
+
 def test_a_resume_that_cannot_open_the_hardware_records_why(tmp_path):
     out = stopped_run(tmp_path, 5)
     with refused_port() as port, sqlite3.connect(out / "run.sqlite") as db:

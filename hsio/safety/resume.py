@@ -30,7 +30,7 @@ from hsio.safety.control import RunControl, stop_on_signals
 from hsio.safety.inputs import compare_inputs, ground_fingerprint
 from hsio.safety.settings import SafetySettings
 from hsio.safety.socket import ControlServer
-from hsio.safety.status import exit_status, outcome_name
+from hsio.safety.status import BAD_INPUT, exit_status, outcome_name
 
 # Summary entries that describe one session of a run rather than its record: a resume leaves them
 # out (the earlier session's are not those of the whole record).
@@ -248,11 +248,20 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         if safety.control_socket:
             server = ControlServer(run_dir, control)
             cleanup.callback(server.close)
-            recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
+        why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
+        try:  # before anything opens: a disk that is full (or gone) refuses the session here
+            if safety.control_socket:
+                recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
+            recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
+        except sqlite3.Error as exc:
+            recorder.db.rollback()
+            refused = RecordError(f"{path}: cannot write to the record ({exc}); the record is unchanged and "
+                                  f"nothing moved")
+            if ledger is not None:
+                ledger.finish(ledger_id, outcome_name(BAD_INPUT), BAD_INPUT, str(refused))
+            raise refused from None
         if keys is not None and safety.keys:
             cleanup.callback(keys(control).close)
-        why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
-        recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
         notify(f"resuming {path} after step {state.i}" + (f" (the run recorded its stop: {why})" if why else ""))
         site = end_state = None
         hold = {}
