@@ -32,6 +32,7 @@ refused (:class:`RecordInUseError`) before anything is written or opened.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -350,12 +351,20 @@ class Recorder:
 
     def write_meta(self, items: dict) -> None:
         """Add or replace metadata (e.g. an override of the dry run, the control socket)."""
-        self.db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in items.items()])
-        self.db.commit()
+        self._commit("meta", "INSERT OR REPLACE INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in items.items()])
 
     def write_ns(self, t: np.ndarray, u: np.ndarray) -> None:
-        self.db.executemany(self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
-        self.db.commit()
+        self._commit("NS", self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
+
+    def _commit(self, what: str, sql: str, rows: list) -> None:
+        """``rows`` into the record whole or not at all; a full or vanished disk is a RecordError."""
+        try:
+            self.db.executemany(sql, rows)
+            self.db.commit()
+        except sqlite3.Error as exc:
+            with contextlib.suppress(sqlite3.Error):
+                self.db.rollback()
+            raise RecordError(f"{self.path}: the {what} could not be written ({exc})") from None
 
     def write_summary(self, summary: dict, replace: bool = False) -> None:
         """Add or replace summary entries; ``replace``: the summary becomes ``summary`` alone."""

@@ -670,11 +670,15 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
                       if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
             if hold is not None:
                 reason += f"; {hold.message}"
-                write_events(recorder, site, 0)  # a trip before the steps (in the ramp in of static preloads)
-                recorder.write_event(site.lab_time_s, 0, "hold", "", hold.message, commit=False)
                 if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
                     exc.stop_message = reason
-            recorder.write_event(None, 0, "stop", "", reason)
+            try:
+                if hold is not None:
+                    write_events(recorder, site, 0)  # a trip before the steps (in the ramp in of static preloads)
+                    recorder.write_event(site.lab_time_s, 0, "hold", "", hold.message, commit=False)
+                recorder.write_event(None, 0, "stop", "", reason)
+            except RecordError:  # a full disk took the record's last page: the message carries the stop
+                pass
             summary = {"structure": structure.name, "record": ground.name, "steps": 0, "stopped": reason,
                        "run_file": str(out / RUN_FILE), "end_state": _state(site)}
         status = exit_status(error)

@@ -277,3 +277,28 @@ def test_a_record_that_cannot_be_created_is_a_clear_refusal(tmp_path, monkeypatc
     reason = "Read-only file system" if fault == "read-only" else "database or disk is full"
     assert f"{out / 'run.sqlite'}: cannot create the record: {reason}" in result.output
     assert not out.exists()
+
+
+def test_a_disk_that_fills_before_the_first_step_is_a_clear_stop(tmp_path, monkeypatch):
+    """The record is created, then the disk fills as the dry run's NS is written (SQLite's page
+    limit: a real 'database or disk is full'): exit status 2 naming what could not be written, no
+    traceback, before the hardware opens."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    real_create = Recorder._create
+
+    def tight(self, meta):
+        real_create(self, meta)
+        pages = self.db.execute("PRAGMA page_count").fetchone()[0]
+        self.db.execute(f"PRAGMA max_page_count = {pages}")
+
+    monkeypatch.setattr(Recorder, "_create", tight)
+    cfg = tmp_path / "short.toml"
+    cfg.write_text("[record]\nduration_s = 3.0\n[output]\nplots = false\n[safety]\nkeys = false\n")
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert f"{tmp_path / 'o' / 'run.sqlite'}: the NS could not be written (database or disk is full)" in result.output
+    assert "the actuators stand at" not in result.output
