@@ -19,6 +19,7 @@ from click.testing import CliRunner
 from hsio import config as config_mod
 from hsio import ledger, runner
 from hsio.cli import main
+from hsio.errors import RecordError
 from hsio.recording import Recorder, Run
 
 from wire import QUIET_SENSORS, refused_port, stopped_run, write_config
@@ -134,6 +135,28 @@ def test_a_resume_that_cannot_open_the_hardware_records_why(tmp_path):
     assert kinds[-2:] == ["resume", "stop"] and "cannot connect" in run.events()[-1]["message"]
     assert run.summary["exit_status"] == 3 and run.summary["resumed_from"] == 5
     assert json.loads((out / "summary.json").read_text())["exit_status"] == 3
+
+
+def test_a_resume_that_cannot_open_the_hardware_on_a_full_disk_says_why(tmp_path, monkeypatch):
+    """The hardware cannot be opened and the disk has no room left for the stop event: the
+    operator still hears why (exit status 3, the link named), not that an event was lost."""
+    out = stopped_run(tmp_path, 5)
+    real = Recorder.write_event
+
+    def full(self, time_s, step, kind, *args, **kwargs):
+        if kind == "stop":
+            raise RecordError(f"{self.path}: the stop event could not be written (database or disk is full)")
+        return real(self, time_s, step, kind, *args, **kwargs)
+
+    monkeypatch.setattr(Recorder, "write_event", full)
+    with refused_port() as port, sqlite3.connect(out / "run.sqlite") as db:
+        meta = json.loads(db.execute("SELECT value FROM meta WHERE key = 'config'").fetchone()[0])
+        meta["hardware"]["url"] = f"modbus+tcp://127.0.0.1:{port}/1"
+        db.execute("UPDATE meta SET value = ? WHERE key = 'config'", (json.dumps(meta),))
+        db.commit()
+        result = _resume(out)
+    assert result.exit_code == 3, result.output
+    assert "cannot connect" in result.output and "event could not be written" not in result.output
 
 
 def test_the_summary_and_the_ledger_describe_the_whole_resumed_record(tmp_path):

@@ -309,7 +309,10 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
                 reason += f"; {held.message}"
                 if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
                     exc.stop_message = reason
-            recorder.write_event(None, state.i, "stop", "", reason)
+            try:
+                recorder.write_event(None, state.i, "stop", "", reason)
+            except RecordError:  # a full disk took the record's last page: the message carries the stop
+                pass
             end_state = _state(site)
         status = exit_status(error)
         steps = recorder.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
