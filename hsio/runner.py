@@ -557,8 +557,13 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
     with contextlib.ExitStack() as cleanup:
         # Whatever fails from here on, what was opened is closed (the actuators left holding).
         try:
+            server = ControlServer(out, control) if safety.control_socket else None
+            if server is not None:
+                cleanup.callback(server.close)
             recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
-        except RecordError:  # a full or read-only disk: nothing began, no folder of this run is left
+        except (RecordError, ConfigError):  # a full or read-only disk, a file in the socket's way: nothing
+            # began, no folder of this run is left
+            cleanup.close()
             if ledger:
                 ledger.close()
             if not existed:
@@ -569,7 +574,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
         try:
             run_id = ledger.begin(out, config.tables, structure.name, ground.name, hsio.__version__) if ledger else None
         except ConfigError as exc:  # not listed, so not begun: no folder left holding only meta
-            recorder.close()
+            cleanup.close()  # the record and the control socket
             ledger.close()
             discard_new_record(out, remove_folder=not existed)
             left = "no run folder was left" if not out.exists() else "no record was left in it"
@@ -579,9 +584,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
         if ledger:
             cleanup.callback(ledger.close)
             recorder.write_meta({"ledger": str(ledger.folder.resolve())})  # where a resume lists itself
-        if safety.control_socket:
-            server = ControlServer(out, control)
-            cleanup.callback(server.close)
+        if server is not None:
             recorder.write_meta({"control_socket": str(server.path)})
         try:
             control.check_stop()

@@ -105,7 +105,8 @@ def test_a_record_on_a_full_disk_is_not_resumed(tmp_path, monkeypatch):
 
     def full(self, entries):
         self.db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in entries.items()])
-        raise sqlite3.OperationalError("database or disk is full")  # the commit finds no room
+        self.db.rollback()  # the commit finds no room
+        raise RecordError(f"{self.path}: the meta could not be written (database or disk is full)")
 
     monkeypatch.setattr(Recorder, "write_meta", full)
     result = _resume(out)

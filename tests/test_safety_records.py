@@ -302,3 +302,27 @@ def test_a_disk_that_fills_before_the_first_step_is_a_clear_stop(tmp_path, monke
     assert result.exception is None or isinstance(result.exception, SystemExit)
     assert f"{tmp_path / 'o' / 'run.sqlite'}: the NS could not be written (database or disk is full)" in result.output
     assert "the actuators stand at" not in result.output
+
+
+@pytest.mark.parametrize("thing", ["file", "folder"])
+def test_a_file_in_the_control_sockets_way_is_kept_and_refused(tmp_path, thing):
+    """A file or folder named control.sock in the --out folder is not a socket a killed run left:
+    it is not removed, and the run is refused by name (exit 2, no traceback, no record left)."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    out = tmp_path / "o"
+    out.mkdir()
+    if thing == "file":
+        (out / "control.sock").write_text("notes")
+    else:
+        (out / "control.sock").mkdir()
+    cfg = tmp_path / "short.toml"
+    cfg.write_text("[record]\nduration_s = 0.3\n[output]\nplots = false\n[safety]\nkeys = false\n")
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert "a file that is not a control socket is in the way" in result.output
+    assert sorted(p.name for p in out.iterdir()) == ["control.sock"]
+    assert thing != "file" or (out / "control.sock").read_text() == "notes"

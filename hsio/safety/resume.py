@@ -241,21 +241,22 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             cleanup.callback(ledger.close)
         recorder = Recorder.append(path)
         cleanup.callback(recorder.close)
+        if safety.control_socket:  # before the ledger and the record hear of the session
+            server = ControlServer(run_dir, control)
+            cleanup.callback(server.close)
         # a row of its own for this session (the earlier rows are left as they are), before the
         # record hears of the session: a ledger that cannot take it leaves the record as it was
         ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
                                  hsio.__version__) if ledger is not None else None
-        if safety.control_socket:
-            server = ControlServer(run_dir, control)
-            cleanup.callback(server.close)
         why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
         try:  # before anything opens: a disk that is full (or gone) refuses the session here
             if safety.control_socket:
                 recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
             recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
-        except sqlite3.Error as exc:
+        except (sqlite3.Error, RecordError) as exc:
             recorder.db.rollback()
-            refused = RecordError(f"{path}: cannot write to the record ({exc}); the record is unchanged and "
+            reason = str(exc).rpartition(" could not be written ")[2] if isinstance(exc, RecordError) else f"({exc})"
+            refused = RecordError(f"{path}: cannot write to the record {reason}; the record is unchanged and "
                                   f"nothing moved")
             if ledger is not None:
                 ledger.finish(ledger_id, outcome_name(BAD_INPUT), BAD_INPUT, str(refused))
