@@ -194,8 +194,8 @@ class Recorder:
                                   "numbers, strings and dicts (e.g. array.tolist())") from None
         if self.path.is_dir():
             raise RecordError(f"{self.path} is a directory; a record is a file (e.g. {self.path / RUN_FILE})")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
         try:  # created exclusively: an earlier record is never replaced
-            self.path.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             raise RecordExistsError(f"{self.path} already holds a record; records are never overwritten") from None
