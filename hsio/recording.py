@@ -32,6 +32,7 @@ refused (:class:`RecordInUseError`) before anything is written or opened.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -198,14 +199,18 @@ class Recorder:
             fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             raise RecordExistsError(f"{self.path} already holds a record; records are never overwritten") from None
+        except OSError as exc:  # a read-only or full file system, a folder without write permission
+            raise RecordError(f"{self.path}: cannot create the record: {exc.strerror or exc}") from None
         self.db = None
         self._lock_fd = _lock(self.path, fd)
         try:
             self._create(meta)
-        except BaseException:  # no half-made record is left behind: the same call can be made again
+        except BaseException as exc:  # no half-made record is left behind: the same call can be made again
             self._abandon()
             for suffix in ("", "-wal", "-shm", "-journal"):
                 Path(f"{self.path}{suffix}").unlink(missing_ok=True)
+            if isinstance(exc, (sqlite3.Error, OSError)):  # e.g. the disk full before the first page
+                raise RecordError(f"{self.path}: cannot create the record: {exc}") from None
             raise
 
     def _create(self, meta: dict) -> None:
@@ -346,19 +351,32 @@ class Recorder:
 
     def write_meta(self, items: dict) -> None:
         """Add or replace metadata (e.g. an override of the dry run, the control socket)."""
-        self.db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in items.items()])
-        self.db.commit()
+        self._commit("meta", "INSERT OR REPLACE INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in items.items()])
 
     def write_ns(self, t: np.ndarray, u: np.ndarray) -> None:
-        self.db.executemany(self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
-        self.db.commit()
+        self._commit("NS", self._insert_ns, [(i, float(t[i]), *map(float, u[i])) for i in range(len(t))])
+
+    def _commit(self, what: str, sql: str, rows: list) -> None:
+        """``rows`` into the record whole or not at all; a full or vanished disk is a RecordError."""
+        try:
+            self.db.executemany(sql, rows)
+            self.db.commit()
+        except sqlite3.Error as exc:
+            with contextlib.suppress(sqlite3.Error):
+                self.db.rollback()
+            raise RecordError(f"{self.path}: the {what} could not be written ({exc})") from None
 
     def write_summary(self, summary: dict, replace: bool = False) -> None:
         """Add or replace summary entries; ``replace``: the summary becomes ``summary`` alone."""
-        if replace:
-            self.db.execute("DELETE FROM summary")
-        self.db.executemany("INSERT OR REPLACE INTO summary VALUES (?, ?)", [(k, json.dumps(v)) for k, v in summary.items()])
-        self.db.commit()
+        try:
+            if replace:
+                self.db.execute("DELETE FROM summary")
+            self.db.executemany("INSERT OR REPLACE INTO summary VALUES (?, ?)",
+                                [(k, json.dumps(v)) for k, v in summary.items()])
+            self.db.commit()
+        except BaseException:  # all or nothing: a later commit must not keep the deletion alone
+            self.db.rollback()
+            raise
 
     def _abandon(self) -> None:
         """Close without committing what a failed creation or reopening began, and let go of the lock."""

@@ -560,12 +560,25 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
     error: BaseException | None = None
     with contextlib.ExitStack() as cleanup:
         # Whatever fails from here on, what was opened is closed (the actuators left holding).
-        recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
+        try:
+            server = ControlServer(out, control) if safety.control_socket else None
+            if server is not None:
+                cleanup.callback(server.close)
+            recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
+        except (RecordError, ConfigError):  # a full or read-only disk, a file in the socket's way: nothing
+            # began, no folder of this run is left
+            cleanup.close()
+            if ledger:
+                ledger.close()
+            if not existed:
+                with contextlib.suppress(OSError):  # the Recorder left no file: the folder is empty
+                    out.rmdir()
+            raise
         cleanup.callback(recorder.close)
         try:
             run_id = ledger.begin(out, config.tables, structure.name, ground.name, hsio.__version__) if ledger else None
         except ConfigError as exc:  # not listed, so not begun: no folder left holding only meta
-            recorder.close()
+            cleanup.close()  # the record and the control socket
             ledger.close()
             discard_new_record(out, remove_folder=not existed)
             left = "no run folder was left" if not out.exists() else "no record was left in it"
@@ -575,9 +588,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
         if ledger:
             cleanup.callback(ledger.close)
             recorder.write_meta({"ledger": str(ledger.folder.resolve())})  # where a resume lists itself
-        if safety.control_socket:
-            server = ControlServer(out, control)
-            cleanup.callback(server.close)
+        if server is not None:
             recorder.write_meta({"control_socket": str(server.path)})
         try:
             control.check_stop()
@@ -666,11 +677,15 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
                       if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
             if hold is not None:
                 reason += f"; {hold.message}"
-                write_events(recorder, site, 0)  # a trip before the steps (in the ramp in of static preloads)
-                recorder.write_event(site.lab_time_s, 0, "hold", "", hold.message, commit=False)
                 if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
                     exc.stop_message = reason
-            recorder.write_event(None, 0, "stop", "", reason)
+            try:
+                if hold is not None:
+                    write_events(recorder, site, 0)  # a trip before the steps (in the ramp in of static preloads)
+                    recorder.write_event(site.lab_time_s, 0, "hold", "", hold.message, commit=False)
+                recorder.write_event(None, 0, "stop", "", reason)
+            except RecordError:  # a full disk took the record's last page: the message carries the stop
+                pass
             summary = {"structure": structure.name, "record": ground.name, "steps": 0, "stopped": reason,
                        "run_file": str(out / RUN_FILE), "end_state": _state(site)}
         status = exit_status(error)
@@ -700,17 +715,27 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
 
 
 def write_summary(out: Path, recorder, summary: dict, notify, replace: bool = False) -> bool:
-    """``summary.json`` and the record's ``summary`` table. A disk that refuses them (full, gone)
-    is reported, not raised: the steps committed before stay in the record, and the run ends
-    with the status it had. False when not written."""
+    """The record's ``summary`` table, then ``summary.json`` beside it, replaced whole (written to a
+    temporary file, then renamed over it): a disk that refuses either (full, gone) is reported, not
+    raised, and leaves what was there before (the steps committed, an earlier session's summary),
+    never a file cut short; the run ends with the status it had. False when not written."""
+    failed = []
     try:
-        (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
         recorder.write_summary(summary, replace=replace)
-        return True
-    except (OSError, sqlite3.Error) as exc:
-        notify(f"WARNING: the summary could not be written in {out} ({getattr(exc, 'strerror', None) or exc}); "
+    except sqlite3.Error as exc:
+        failed.append(str(exc))
+    path, partial = out / "summary.json", out / "summary.json.partial"
+    try:
+        partial.write_text(json.dumps(summary, indent=2, default=str))
+        partial.replace(path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            partial.unlink(missing_ok=True)
+        failed.append(exc.strerror or str(exc))
+    if failed:
+        notify(f"WARNING: the summary could not be written in {out} ({'; '.join(dict.fromkeys(failed))}); "
                f"the steps committed before are in {out / RUN_FILE}")
-        return False
+    return not failed
 
 
 def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs: Result, ns: Result | None, out: Path) -> dict:

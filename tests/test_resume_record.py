@@ -19,6 +19,7 @@ from click.testing import CliRunner
 from hsio import config as config_mod
 from hsio import ledger, runner
 from hsio.cli import main
+from hsio.errors import RecordError
 from hsio.recording import Recorder, Run
 
 from wire import QUIET_SENSORS, refused_port, stopped_run, write_config
@@ -73,10 +74,12 @@ def _last_step(column, value):
     (_last_step("a_C2", float("inf")), "not finite (a_C2)"),
     (_last_step("step", 10 ** 9), "its last committed step is 1000000000, not one of the record's steps"),
     (lambda db: db.execute("UPDATE steps SET u_C1 = NULL WHERE step = 2"), "its step 2 holds u_C1 = nan"),
+    (lambda db: db.execute("DELETE FROM steps WHERE step = 3"), "its steps are not 1..5 one after the other "
+                                                                  "(step 3 is missing): the record is damaged"),
     (lambda db: db.execute("DROP TABLE events"), "(no events table)"),
     (lambda db: db.execute("UPDATE summary SET value = ? WHERE key = 'exit_status'", (json.dumps("0"),)),
      'its summary\'s exit_status is "0", not a whole number'),
-], ids=["config", "no-config", "inputs-text", "inputs-entry", "dof-names", "nan-force", "inf-acceleration", "step", "hole",
+], ids=["config", "no-config", "inputs-text", "inputs-entry", "dof-names", "nan-force", "inf-acceleration", "step", "hole", "missing-step",
                                   "events", "exit-status-text"])
 def test_a_damaged_record_is_refused_by_name(tmp_path, damage, says):
     out = stopped_run(tmp_path, 5)
@@ -89,6 +92,34 @@ def test_a_damaged_record_is_refused_by_name(tmp_path, damage, says):
     assert says in result.output
     with sqlite3.connect(out / "run.sqlite") as db:
         assert db.execute("SELECT COUNT(*) FROM steps").fetchone()[0] == before
+
+
+def test_a_record_on_a_full_disk_is_not_resumed(tmp_path, monkeypatch):
+    """The disk is full when the resume would mark its session in the record: refused by name
+    (exit 2, no traceback) before the hardware opens, the record as it was, the session's ledger
+    row closed as refused; once there is room again the same record resumes."""
+    out = stopped_run(tmp_path, 5, extra=f'[specimen]\nfolder = "{tmp_path / "spec"}"\n')
+    with sqlite3.connect(out / "run.sqlite") as db:
+        before = _fingerprint(out) + [db.execute("SELECT * FROM meta ORDER BY key").fetchall()]
+    real = Recorder.write_meta
+
+    def full(self, entries):
+        self.db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in entries.items()])
+        self.db.rollback()  # the commit finds no room
+        raise RecordError(f"{self.path}: the meta could not be written (database or disk is full)")
+
+    monkeypatch.setattr(Recorder, "write_meta", full)
+    result = _resume(out)
+    assert result.exit_code == 2, result.output
+    assert "run.sqlite: cannot write to the record (database or disk is full); the record is unchanged and " \
+           "nothing moved" in result.output
+    assert "the actuators stand at" not in result.output  # the hardware was not opened
+    with sqlite3.connect(out / "run.sqlite") as db:
+        assert _fingerprint(out) + [db.execute("SELECT * FROM meta ORDER BY key").fetchall()] == before
+    rows = ledger.read(tmp_path / "spec")
+    assert [r["outcome"] for r in rows] == ["stopped by the operator", "refused"]
+    monkeypatch.setattr(Recorder, "write_meta", real)
+    assert _resume(out).exit_code == 0
 
 
 def test_a_resume_that_cannot_open_the_hardware_records_why(tmp_path):
@@ -105,6 +136,28 @@ def test_a_resume_that_cannot_open_the_hardware_records_why(tmp_path):
     assert kinds[-2:] == ["resume", "stop"] and "cannot connect" in run.events()[-1]["message"]
     assert run.summary["exit_status"] == 3 and run.summary["resumed_from"] == 5
     assert json.loads((out / "summary.json").read_text())["exit_status"] == 3
+
+
+def test_a_resume_that_cannot_open_the_hardware_on_a_full_disk_says_why(tmp_path, monkeypatch):
+    """The hardware cannot be opened and the disk has no room left for the stop event: the
+    operator still hears why (exit status 3, the link named), not that an event was lost."""
+    out = stopped_run(tmp_path, 5)
+    real = Recorder.write_event
+
+    def full(self, time_s, step, kind, *args, **kwargs):
+        if kind == "stop":
+            raise RecordError(f"{self.path}: the stop event could not be written (database or disk is full)")
+        return real(self, time_s, step, kind, *args, **kwargs)
+
+    monkeypatch.setattr(Recorder, "write_event", full)
+    with refused_port() as port, sqlite3.connect(out / "run.sqlite") as db:
+        meta = json.loads(db.execute("SELECT value FROM meta WHERE key = 'config'").fetchone()[0])
+        meta["hardware"]["url"] = f"modbus+tcp://127.0.0.1:{port}/1"
+        db.execute("UPDATE meta SET value = ? WHERE key = 'config'", (json.dumps(meta),))
+        db.commit()
+        result = _resume(out)
+    assert result.exit_code == 3, result.output
+    assert "cannot connect" in result.output and "event could not be written" not in result.output
 
 
 def test_the_summary_and_the_ledger_describe_the_whole_resumed_record(tmp_path):

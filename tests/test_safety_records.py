@@ -181,7 +181,8 @@ def test_a_full_disk_stops_the_run_holding_and_keeps_the_steps_before(tmp_path, 
     real_write_text = Path.write_text
 
     def full_disk(self, *args, **kwargs):
-        if self.name == "summary.json":
+        if self.name.startswith("summary.json"):
+            self.write_bytes(b"")  # a full disk takes the file, not its text
             raise OSError(errno.ENOSPC, "No space left on device")
         return real_write_text(self, *args, **kwargs)
 
@@ -197,3 +198,131 @@ def test_a_full_disk_stops_the_run_holding_and_keeps_the_steps_before(tmp_path, 
     run = Run(tmp_path / "o" / "run.sqlite")
     assert list(run.steps["step"]) == [1, 2, 3, 4] and set(run.samples()["step"]) == {1, 2, 3, 4}
     assert run.events()[-1]["kind"] == "stop"
+    assert run.summary["exit_status"] == 3  # the record's summary, though summary.json could not be written
+    assert sorted(p.name for p in (tmp_path / "o").iterdir() if p.name.startswith("summary")) == []  # none cut short
+
+
+def test_a_summary_that_cannot_be_written_leaves_the_earlier_one_whole(tmp_path, monkeypatch):
+    """A resumed session on a full disk: summary.json keeps the earlier session's summary whole
+    (not a file cut short); the record's summary table, which a resume reads, is still written."""
+    import errno
+    import json
+
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+    from wire import stopped_run
+
+    out = stopped_run(tmp_path, 5)
+    before = (out / "summary.json").read_text()
+    assert json.loads(before)["exit_status"] == 5
+    real_write_text = Path.write_text
+
+    def full_disk(self, *args, **kwargs):
+        if self.name.startswith("summary.json"):
+            real_write_text(self, "{")  # the disk fills after the first byte
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write_text(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    result = CliRunner().invoke(main, ["resume", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "WARNING: the summary could not be written" in result.output
+    assert (out / "summary.json").read_text() == before
+    assert not (out / "summary.json.partial").exists()
+    assert Run(out / "run.sqlite").summary["exit_status"] == 0
+
+
+def test_a_summary_that_fails_half_way_replaces_nothing(tmp_path):
+    """Recorder.write_summary(replace=True) is all or nothing: a failure after the old entries were
+    deleted does not leave the deletion for the next commit (the close) to keep."""
+    recorder = Recorder(tmp_path / "run.sqlite", ["x"], ["A"])
+    recorder.write_summary({"exit_status": 5, "steps": 7})
+    with pytest.raises(TypeError):
+        recorder.write_summary({"steps": object()}, replace=True)
+    recorder.close()
+    assert Run(tmp_path / "run.sqlite").summary == {"exit_status": 5, "steps": 7}
+
+
+@pytest.mark.parametrize("fault", ["read-only", "full"])
+def test_a_record_that_cannot_be_created_is_a_clear_refusal(tmp_path, monkeypatch, fault):
+    """An --out folder on a read-only file system, or a disk already full when the record is
+    created: exit status 2 naming the record and why, no traceback, nothing moved, no folder of
+    this run left behind."""
+    import errno
+    import sqlite3
+
+    from click.testing import CliRunner
+
+    from hsio import recording
+    from hsio.cli import main
+
+    if fault == "read-only":
+        def refuse(path, flags, mode=0o777):
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+
+        monkeypatch.setattr(recording.os, "open", refuse)
+    else:
+        def full(self, meta):
+            self.db = sqlite3.connect(self.path)
+            raise sqlite3.OperationalError("database or disk is full")
+
+        monkeypatch.setattr(Recorder, "_create", full)
+    cfg = tmp_path / "short.toml"
+    cfg.write_text("[record]\nduration_s = 0.3\n[output]\nplots = false\n[safety]\nkeys = false\n")
+    out = tmp_path / "o"
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    reason = "Read-only file system" if fault == "read-only" else "database or disk is full"
+    assert f"{out / 'run.sqlite'}: cannot create the record: {reason}" in result.output
+    assert not out.exists()
+
+
+def test_a_disk_that_fills_before_the_first_step_is_a_clear_stop(tmp_path, monkeypatch):
+    """The record is created, then the disk fills as the dry run's NS is written (SQLite's page
+    limit: a real 'database or disk is full'): exit status 2 naming what could not be written, no
+    traceback, before the hardware opens."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    real_create = Recorder._create
+
+    def tight(self, meta):
+        real_create(self, meta)
+        pages = self.db.execute("PRAGMA page_count").fetchone()[0]
+        self.db.execute(f"PRAGMA max_page_count = {pages}")
+
+    monkeypatch.setattr(Recorder, "_create", tight)
+    cfg = tmp_path / "short.toml"
+    cfg.write_text("[record]\nduration_s = 3.0\n[output]\nplots = false\n[safety]\nkeys = false\n")
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert f"{tmp_path / 'o' / 'run.sqlite'}: the NS could not be written (database or disk is full)" in result.output
+    assert "the actuators stand at" not in result.output
+
+
+@pytest.mark.parametrize("thing", ["file", "folder"])
+def test_a_file_in_the_control_sockets_way_is_kept_and_refused(tmp_path, thing):
+    """A file or folder named control.sock in the --out folder is not a socket a killed run left:
+    it is not removed, and the run is refused by name (exit 2, no traceback, no record left)."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    out = tmp_path / "o"
+    out.mkdir()
+    if thing == "file":
+        (out / "control.sock").write_text("notes")
+    else:
+        (out / "control.sock").mkdir()
+    cfg = tmp_path / "short.toml"
+    cfg.write_text("[record]\nduration_s = 0.3\n[output]\nplots = false\n[safety]\nkeys = false\n")
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert "a file that is not a control socket is in the way" in result.output
+    assert sorted(p.name for p in out.iterdir()) == ["control.sock"]
+    assert thing != "file" or (out / "control.sock").read_text() == "notes"

@@ -30,7 +30,7 @@ from hsio.safety.control import RunControl, stop_on_signals
 from hsio.safety.inputs import compare_inputs, ground_fingerprint
 from hsio.safety.settings import SafetySettings
 from hsio.safety.socket import ControlServer
-from hsio.safety.status import exit_status, outcome_name
+from hsio.safety.status import BAD_INPUT, exit_status, outcome_name
 
 # Summary entries that describe one session of a run rather than its record: a resume leaves them
 # out (the earlier session's are not those of the whole record).
@@ -48,6 +48,14 @@ def last_state(run: Run, structure, P: np.ndarray, integrator) -> AlphaOSState:
     if not 0 < k < len(P):
         raise ConfigError(f"{run.path}: its last committed step is {k}, not one of the record's steps 1..{len(P) - 1}: "
                           f"the record does not belong to this ground motion; the record is unchanged and nothing moved")
+    whole = np.asarray(steps, dtype=float)
+    missing = np.setdiff1d(np.arange(1, k + 1), whole)
+    if missing.size or len(whole) != k:  # a record is written step by step: a hole or a repeat is damage
+        listed = ", ".join(str(int(m)) for m in missing[:5]) + (" ..." if missing.size > 5 else "")
+        what = (f"step {listed} is missing" if missing.size == 1 else f"steps {listed} are missing" if missing.size
+                else f"it holds {len(whole)} rows for steps 1..{k}")
+        raise ConfigError(f"{run.path}: its steps are not 1..{k} one after the other ({what}): the record is "
+                          f"damaged; the record is unchanged and nothing moved")
     try:
         row = lambda prefix: np.array([run.steps[column(prefix, d)][-1] for d in structure.dof_names])  # noqa: E731
         u, v, a, u_pred, R = row("u"), row("v"), row("a"), row("u_pred"), row("r")
@@ -233,18 +241,28 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             cleanup.callback(ledger.close)
         recorder = Recorder.append(path)
         cleanup.callback(recorder.close)
+        if safety.control_socket:  # before the ledger and the record hear of the session
+            server = ControlServer(run_dir, control)
+            cleanup.callback(server.close)
         # a row of its own for this session (the earlier rows are left as they are), before the
         # record hears of the session: a ledger that cannot take it leaves the record as it was
         ledger_id = ledger.begin(run_dir, cfg.tables, structure.name, f"{ground.name} (resumed after step {state.i})",
                                  hsio.__version__) if ledger is not None else None
-        if safety.control_socket:
-            server = ControlServer(run_dir, control)
-            cleanup.callback(server.close)
-            recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
+        why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
+        try:  # before anything opens: a disk that is full (or gone) refuses the session here
+            if safety.control_socket:
+                recorder.write_meta({"control_socket": str(server.path)})  # this session's (a long path: a new one)
+            recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
+        except (sqlite3.Error, RecordError) as exc:
+            recorder.db.rollback()
+            reason = str(exc).rpartition(" could not be written ")[2] if isinstance(exc, RecordError) else f"({exc})"
+            refused = RecordError(f"{path}: cannot write to the record {reason}; the record is unchanged and "
+                                  f"nothing moved")
+            if ledger is not None:
+                ledger.finish(ledger_id, outcome_name(BAD_INPUT), BAD_INPUT, str(refused))
+            raise refused from None
         if keys is not None and safety.keys:
             cleanup.callback(keys(control).close)
-        why = run.stop_reason()  # read before this session's resume event, which would hide the stop events
-        recorder.write_event(None, state.i, "resume", "", f"resumed after step {state.i} (hsio {hsio.__version__})")
         notify(f"resuming {path} after step {state.i}" + (f" (the run recorded its stop: {why})" if why else ""))
         site = end_state = None
         hold = {}
@@ -292,7 +310,10 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
                 reason += f"; {held.message}"
                 if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
                     exc.stop_message = reason
-            recorder.write_event(None, state.i, "stop", "", reason)
+            try:
+                recorder.write_event(None, state.i, "stop", "", reason)
+            except RecordError:  # a full disk took the record's last page: the message carries the stop
+                pass
             end_state = _state(site)
         status = exit_status(error)
         steps = recorder.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]

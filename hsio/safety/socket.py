@@ -17,11 +17,13 @@ from __future__ import annotations
 
 import os
 import socket
+import stat
 import tempfile
 import threading
 import time
 from pathlib import Path
 
+from hsio.errors import ConfigError
 from hsio.safety.control import RunControl
 
 MAX_PATH = 100  # sun_path holds 108 bytes on Linux
@@ -48,16 +50,22 @@ class ControlServer:
         self.path = socket_path(run_dir)
         self._stop = threading.Event()
         self._clients = threading.BoundedSemaphore(self.MAX_CLIENTS)
-        if self.path.exists():  # left by a run that was killed: nobody answers on it
+        if os.path.lexists(self.path):  # left by a run that was killed: nobody answers on it
+            if not stat.S_ISSOCK(os.lstat(self.path).st_mode):  # not ours to remove
+                raise ConfigError(f"{self.path}: a file that is not a control socket is in the way of the run's "
+                                  f"control socket; move it aside")
             try:
                 send(self.path, "status", timeout_s=0.5)
-                raise OSError(f"{self.path}: another run is using this control socket")
+                raise ConfigError(f"{self.path}: another run is using this control socket")
             except (ConnectionRefusedError, FileNotFoundError, socket.timeout, TimeoutError):
                 self.path.unlink(missing_ok=True)
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o177)
         try:
             self.sock.bind(str(self.path))
+        except OSError as exc:
+            self.sock.close()
+            raise ConfigError(f"{self.path}: cannot open the run's control socket ({exc.strerror or exc})") from None
         finally:
             os.umask(old)
         self.sock.listen(4)
