@@ -149,3 +149,18 @@ def test_the_command_reads_the_controller_rate(daq_csv):
     assert summary.exit_code == 0 and "cause       slow_record (the record is sampled at 100 Hz" in summary.stdout
     specimen = CliRunner().invoke(diagnose_command, ["--specimen", str(daq_csv), "--controller-rate", "1000"])
     assert specimen.exit_code == 2 and "--controller-rate: not read for --specimen" in specimen.stderr
+
+
+@pytest.mark.parametrize("rate_hz, hidden", [(300.0, {}), (128.0, {"transport_delay_s": 0.008})])
+def test_a_daq_off_the_loops_periods_is_read_between_them(commands, rate_hz, hidden):
+    """A DAQ whose samples fall between the loop's periods (300 or 128 Hz beside 1000 Hz, its
+    channels read between periods by linear interpolation): the prediction is read there too."""
+    loop = _loop_record(commands["seismic"], **hidden)
+    k, periods = np.arange(0.0, loop.n - 1, LOOP_HZ / rate_hz), np.arange(loop.n)
+    record = ActuatorRecord("daq", 1.0 / rate_hz, *(np.interp(k, periods, x) for x in
+                                                    (loop.command_mm, loop.measured_mm, loop.force_kN)))
+    d = diagnose(record, controller_rate_hz=LOOP_HZ)
+    if not hidden:
+        assert d.cause == NONE, [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    else:
+        assert d.cause == "transport_delay" and d.single.fit.params["transport_delay_s"] == pytest.approx(0.008, rel=0.1)
