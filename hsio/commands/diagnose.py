@@ -34,6 +34,9 @@ MARGIN_BOUNDS = (1.0, 100.0)  # --margin: the factor by which a cause must divid
 @click.option("--measured-scale", default=10.0, show_default=True, type=float, help="DAQ: mm per volt of the measured displacement.")
 @click.option("--force-scale", default=9.80665, show_default=True, type=float, help="DAQ: kN per volt of the force.")
 @click.option("--actuator", default=None, help="Run recordings: which actuator (default: the first).")
+@click.option("--controller-rate", "controller_rate", default=None, type=float, metavar="HZ",
+              help="The servo loop's rate, when the record is sampled slower (a DAQ beside the controller): the model "
+                   "steps at it and is compared at the record's samples.")
 @click.option("--train-fraction", default=0.6, show_default=True, type=float, help="Fit on this first part.")
 @click.option("--choose-fraction", default=0.2, show_default=True, type=float,
               help="Choose between models on this next part; the rest scores the choice.")
@@ -44,8 +47,8 @@ MARGIN_BOUNDS = (1.0, 100.0)  # --margin: the factor by which a cause must divid
 @click.option("--model", "model_path", default=None, type=click.Path(dir_okay=False),
               help="Write the extended model (TOML) here (default with --report: DIR/actuator_model.toml).")
 def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_scale, fmt, command_channel, measured_channel,
-             force_channel, command_scale, measured_scale, force_scale, actuator, train_fraction, choose_fraction, margin, as_json,
-             report_dir, model_path) -> None:
+             force_channel, command_scale, measured_scale, force_scale, actuator, controller_rate, train_fraction, choose_fraction,
+             margin, as_json, report_dir, model_path) -> None:
     """Name what the actuator model gets wrong in a measured record FILE and extend it; with
     --specimen, what a linear spring and dashpot miss in a specimen's force; with --run, the
     error budget of a hybrid run."""
@@ -80,7 +83,8 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
     channels = DaqChannels(command_channel, measured_channel, force, command_scale, measured_scale, force_scale)
     record = _reading(lambda: read_record(file, fmt, channels, actuator), file)
     d = _reading(lambda: run_diagnosis(record, train_fraction=train_fraction, choose_fraction=choose_fraction,
-                                       margin=MARGIN if margin is None else margin), file)
+                                       margin=MARGIN if margin is None else margin,
+                                       controller_rate_hz=controller_rate), file)
 
     def write() -> dict:
         out = report_mod.write_report(d, report_dir) if report_dir else {}
@@ -96,13 +100,16 @@ def diagnose(file, specimen_file, run_dir, displacement_channel, displacement_sc
         click.echo(json.dumps(result, indent=2))
         return
     b, e = d.baseline, d.extended
-    click.echo(f"record      {record.source}: {record.n} samples at {record.rate_hz:g} Hz, fit on {d.n_train}, "
+    loop = d.record.controller_dt
+    click.echo(f"record      {record.source}: {record.n} samples at {record.rate_hz:g} Hz"
+               + (f" (controller at {1.0 / loop:g} Hz)" if loop is not None and loop < record.dt else "") + f", fit on {d.n_train}, "
                f"choose on {d.n_choose - d.n_train}, score on {record.n - d.n_choose}")
     click.echo(f"baseline    lag {1e3 * b.params['lag_s']:.2f} ms: RMS {b.rms_train_mm:.4f} mm fitted, {b.rms_test_mm:.4f} mm scored")
     for c in d.candidates:
         click.echo(f"candidate   {c.cause:<20} scored {c.fit.rms_test_mm:.4f} mm  gain {c.gain:6.3f}  "
                    f"(choosing {c.choose_gain:6.3f}){'  *' if c.named else ''}")
-    click.echo(f"cause       {d.cause}" + (f" ({d.too_short})" if d.too_short else ""))
+    why = d.too_short or d.slow_record
+    click.echo(f"cause       {d.cause}" + (f" ({why})" if why else ""))
     if d.timing is not None:
         click.echo(f"timing      {d.timing.verdict}: {d.timing.reason}")
     if d.gain_tie is not None:
@@ -139,7 +146,8 @@ def _refuse_unused(file, specimen_file, run_dir, fmt) -> None:
 
             fmt = _reading(lambda: detect_format(path), path)
         daq = _DAQ_OPTIONS[form] if fmt == "daq" else ()
-        used = ("file", "specimen_file", "as_json", "report_dir", *_FIT_OPTIONS, *daq)
+        own = ("controller_rate",) if form == "actuator" else ()
+        used = ("file", "specimen_file", "as_json", "report_dir", *_FIT_OPTIONS, *own, *daq)
         what = f"{'--specimen' if specimen_file else 'an actuator record'} in {fmt} format"
         flags = {p.name: p.opts[0] for p in ctx.command.params}
         hint = (f"its DAQ options are {', '.join(flags[n] for n in daq)}" if daq

@@ -6,6 +6,7 @@ the gain on data the fit did not see. See docs/diagnose.md.
 
 Modules: :mod:`~hsio.diagnose.record` (the measured record), :mod:`~hsio.diagnose.readers`
 (CSV, DAQ text export, hsio runs), :mod:`~hsio.diagnose.model` (the simulator),
+:mod:`~hsio.diagnose.loop_rate` (the simulator at the controller's rate beside a slower record),
 :mod:`~hsio.diagnose.effects` (the candidate causes), :mod:`~hsio.diagnose.fitting`,
 :mod:`~hsio.diagnose.selection` (:func:`~hsio.diagnose.selection.diagnose`),
 :mod:`~hsio.diagnose.modelfile` (the extended model as TOML, read by the emulator and

@@ -52,7 +52,8 @@ class Effect:
 
 
 def _lag_param(ctx: Context, name: str = "lag_s") -> Param:
-    return Param(name, 2.0 * ctx.record.dt, 2.0, max(ctx.lag_s, 2.0 * ctx.record.dt))
+    # The least lag is two periods of the loop (the model's explicit step is stable above it).
+    return Param(name, 2.0 * ctx.record.loop_dt, 2.0, max(ctx.lag_s, 2.0 * ctx.record.loop_dt))
 
 
 BASELINE_PARAMS = _lag_param
@@ -75,7 +76,7 @@ def _residual_sized(ctx: Context, name: str, fractions: tuple[float, ...]) -> li
 
 def _lag_shared(ctx: Context, name: str, fractions: tuple[float, ...]) -> list[dict]:
     """Starts that give a fraction f of the baseline's lag to the delay ``name`` and keep the rest as lag."""
-    return [{name: f * ctx.lag_s, "lag_s": max((1.0 - f) * ctx.lag_s, 2.0 * ctx.record.dt)} for f in fractions]
+    return [{name: f * ctx.lag_s, "lag_s": max((1.0 - f) * ctx.lag_s, 2.0 * ctx.record.loop_dt)} for f in fractions]
 
 EFFECTS: dict[str, Effect] = {}
 

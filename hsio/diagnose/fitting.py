@@ -18,7 +18,8 @@ import numpy as np
 from scipy import optimize
 
 from hsio.diagnose.effects import BASELINE_PARAMS, EFFECTS, Context, Param
-from hsio.diagnose.model import NEUTRAL, simulate
+from hsio.diagnose.loop_rate import predict
+from hsio.diagnose.model import NEUTRAL
 from hsio.diagnose.record import ActuatorRecord
 
 TRAIN_FRACTION = 0.6
@@ -73,7 +74,7 @@ def evaluate(record: ActuatorRecord, effects: tuple[str, ...], params: dict, n_t
     """Simulate the whole record with ``params`` (offset fitted on the training part) and score it."""
     params = dict(params)
     params["offset_mm"] = 0.0
-    pred = simulate(record.command_mm, record.dt, params, record.force_kN)
+    pred = predict(record, params)
     offset = float(np.mean(record.measured_mm[:n_train] - pred[:n_train]))
     params["offset_mm"] = offset
     pred = pred + offset
@@ -100,13 +101,12 @@ def fit(record: ActuatorRecord, effects: tuple[str, ...], ctx: Context, n_train:
     scale = np.array([s.scale for s in specs])
     names = [s.name for s in specs]
     m = record.measured_mm[:n_train]
-    command, force, dt = record.command_mm, record.force_kN, record.dt
 
     def to_params(z):
         return dict(zip(names, (z * scale).tolist()))
 
     def residual(z):
-        r = m - simulate(command, dt, to_params(z), force, n=n_train)
+        r = m - predict(record, to_params(z), n_train)
         return r - r.mean()
 
     best, nfev = None, 0

@@ -1,6 +1,7 @@
 """The actuator model replayed against a command: the emulator's physics, vectorised where it can be.
 
-Per sample k (dt = 1 / rate), the same explicit step as emulators/servo.py:
+Per controller period k (dt = 1 / the loop's rate; hsio/diagnose/loop_rate.py reads it at a
+slower record's samples), the same explicit step as emulators/servo.py:
 
     c_d[k] = c(t_k - transport_delay)                                     (transport_delay_s)
     v_ff   = clip((c_d[k] - c_d[k-1]) / dt, -a, a) K_p lag                (velocity_threshold_mm_s)

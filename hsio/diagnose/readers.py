@@ -280,8 +280,9 @@ def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (math.isfinite(rate) and rate > 0):
         raise RecordError(f"{path}: its meta gives no usable controller rate (emulator_settings "
                           f"{json.dumps(settings, default=str)[:60]})")
+    # The run records every controller period: its rate is the loop's.
     return ActuatorRecord(f"{path}#{name}", 1.0 / rate, samples[column("cmd", name)], samples[column("disp", name)],
-                          samples[column("force", name)])
+                          samples[column("force", name)], controller_dt=1.0 / rate)
 
 
 def detect_format(path: str | Path) -> str:

@@ -63,13 +63,16 @@ class Sampled:
 @dataclass(frozen=True)
 class ActuatorRecord(Sampled):
     """``command_mm[k]`` is the command in force during sample k, ``measured_mm[k]`` the
-    displacement measured at its end (mm); ``force_kN`` the measured force or None."""
+    displacement measured at its end (mm); ``force_kN`` the measured force or None;
+    ``controller_dt`` the servo loop's period (s) when it is known (hsio/diagnose/loop_rate.py),
+    None when the record's rate is taken as the loop's."""
 
     source: str
     dt: float
     command_mm: np.ndarray
     measured_mm: np.ndarray
     force_kN: np.ndarray | None = None
+    controller_dt: float | None = None
 
     def __post_init__(self):
         checked_channels(self, ("command_mm", "measured_mm", "force_kN"))
@@ -77,6 +80,11 @@ class ActuatorRecord(Sampled):
     @property
     def n(self) -> int:
         return self.command_mm.size
+
+    @property
+    def loop_dt(self) -> float:
+        """The period the model steps at: the controller's, else the record's."""
+        return self.controller_dt if self.controller_dt is not None else self.dt
 
     def command_velocity(self) -> np.ndarray:
         """Backward difference of the command, mm/s (E&M 2007, section 4: v_i = (d_i - d_{i-1}) / t_d)."""

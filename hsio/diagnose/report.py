@@ -14,6 +14,7 @@ from hsio.diagnose.effects import EFFECTS
 from hsio.diagnose.modelfile import write_model
 from hsio.diagnose.plotting import figure, label, mark_blocks, save
 from hsio.diagnose.outcome import ratio
+from hsio.diagnose.loop_rate import SLOW
 from hsio.diagnose.selection import NONE, TOO_FEW, UNEXPLAINED, Diagnosis
 from hsio.diagnose.gain_tie import OPEN as GAIN_OPEN, SETTLING as GAIN_SETTLING
 from hsio.diagnose.timing import EXTRA_CHANNEL as TIMING_CHANNEL, OPEN
@@ -120,7 +121,9 @@ def _params_text(params: dict) -> str:
 def text(d: Diagnosis, ev: dict) -> str:
     rec, b = d.record, d.baseline
     lines = [f"# Actuator diagnosis: {Path(rec.source).name}", "",
-             f"Record: {rec.n} samples at {rec.rate_hz:g} Hz ({rec.duration_s:.2f} s), "
+             f"Record: {rec.n} samples at {rec.rate_hz:g} Hz ({rec.duration_s:.2f} s"
+             + (f"; the model steps at the controller's {1.0 / rec.controller_dt:g} Hz and is compared at these samples"
+                if rec.controller_dt is not None and rec.controller_dt < rec.dt else "") + "), "
              f"{'with' if rec.force_kN is not None else 'without'} force. Every model is fitted on the first "
              f"{100 * d.n_train / rec.n:.0f} % (0 to {d.n_train * rec.dt:.2f} s); models are chosen on the next "
              f"{100 * (d.n_choose - d.n_train) / rec.n:.0f} % (to {d.n_choose * rec.dt:.2f} s) and every gain is scored on the "
@@ -136,12 +139,16 @@ def text(d: Diagnosis, ev: dict) -> str:
              f"{ev['corr_displacement']:+.2f}" + (f", with the force {ev['corr_force']:+.2f}." if "corr_force" in ev else "."),
              ""]
     floor = d.floor.sensor_floor_mm
-    if d.cause in (NONE, UNEXPLAINED, TOO_FEW):
+    if d.cause in (NONE, UNEXPLAINED, TOO_FEW, SLOW):
         best = min(d.candidates, key=lambda c: c.fit.rms_choose_mm) if d.candidates else None
-        lines += [f"## Cause: {d.cause}", ""] + ([f"No cause is named: {d.too_short}.", ""] if d.too_short else []) + [
+        why = d.too_short or d.slow_record
+        lines += [f"## Cause: {d.cause}", ""] + ([f"No cause is named: {why}.", ""] if why else []) + [
                   f"No candidate improves the choosing block by the margin of {d.margin:g}x"
                   + (f" (best: {best.cause}, {best.choose_gain:.3f}x)." if best else ".")]
-        if d.cause == TOO_FEW:
+        if d.cause == SLOW:
+            lines += ["Neither none nor unexplained: at this rate the record cannot tell the loop's period from the "
+                      "actuator's dynamics. The baseline and the candidates above are fitted at the record's rate.", ""]
+        elif d.cause == TOO_FEW:
             lines += ["Neither none nor unexplained: blocks this short cannot tell the lag's residual from the sensor "
                       f"floor ({floor:.4f} mm) either. The baseline above is fitted; a longer record would judge it.", ""]
         elif d.cause == NONE:
@@ -169,7 +176,7 @@ def text(d: Diagnosis, ev: dict) -> str:
                       "each added effect had to clear the margin over the combination before it.", ""]
         else:
             lines += ["No further effect improves on it by the margin: the extended model is the single cause.", ""]
-    if d.cause not in (NONE, UNEXPLAINED, TOO_FEW):
+    if d.cause not in (NONE, UNEXPLAINED, TOO_FEW, SLOW):
         lines += ["## What remains", "",
                   ("The extended model reaches the sensor floor: " if d.explained else "The extended model stays above the sensor floor: ")
                   + d.residual_json()["remains"] + ".", ""]
@@ -219,6 +226,7 @@ def _gain_text(d: Diagnosis) -> list[str]:
 def provenance(d: Diagnosis) -> dict:
     return {
         "source": d.record.source, "samples": d.record.n, "rate_hz": d.record.rate_hz,
+        "controller_rate_hz": None if d.record.controller_dt is None else 1.0 / d.record.controller_dt,
         "train_fraction": d.n_train / d.record.n, "cause": d.cause, "combination": list(d.extended.effects),
         "baseline_lag_s": d.baseline.params["lag_s"], "baseline_rms_test_mm": d.baseline.rms_test_mm,
         "extended_rms_test_mm": d.extended.rms_test_mm, "gain": d.gain,

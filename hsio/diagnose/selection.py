@@ -19,6 +19,7 @@ the sensors allow), otherwise
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -29,6 +30,7 @@ from scipy import signal
 from hsio.diagnose.effects import EFFECTS, NAMES, Context, context
 from hsio.diagnose import residual as residual_mod
 from hsio.diagnose import gain_tie as gain_mod
+from hsio.diagnose import loop_rate
 from hsio.diagnose import timing as timing_mod
 from hsio.diagnose.outcome import NONE, PARSIMONY, TOO_FEW, UNEXPLAINED, Outcome, grow, parsimonious, ratio, scoring_text, unnamed  # noqa: F401
 from hsio.diagnose.fitting import CHOOSE_FRACTION, TRAIN_FRACTION, Fit, blocks, fit
@@ -37,7 +39,7 @@ from hsio.errors import RecordError
 from hsio.diagnose.threads import one_blas_thread
 
 MARGIN = 1.10  # held-out RMS must fall by at least this factor for a cause to be named
-RATE_BOUNDS_HZ = (10.0, 1e6)  # an actuator record holds the controller-rate samples: at least 10 Hz
+RATE_BOUNDS_HZ = (10.0, 1e6)  # an actuator record's rate: a time column in seconds
 HELPS = 1.01  # an effect whose single fit gains less than this on the choosing block joins no combination
 RESONANT_DAMPING = 0.5  # a servo mode fitted below this damping rings: a signature no delay mimics
 # A cause is named only when the choosing and the scoring block each last this many time constants
@@ -73,7 +75,7 @@ class Diagnosis(Outcome):
     margin: float
     baseline: Fit
     candidates: list[Candidate]
-    cause: str  # the best single cause, "none", "unexplained" or "too_few_samples"
+    cause: str  # the best single cause, "none", "unexplained", "too_few_samples" or "slow_record"
     extended: Fit  # the best combination (the baseline when no cause is named)
     elapsed_s: float = 0.0
     context: Context | None = field(default=None, repr=False)
@@ -83,6 +85,7 @@ class Diagnosis(Outcome):
     timing: timing_mod.Timing | None = None  # a late channel against a delay in the loop, by the force
     too_short: str | None = None  # why no cause could be named, when the blocks are too short to tell
     gain_tie: gain_mod.GainTie | None = None  # a transducer gain against a compliant load train, when they tie
+    slow_record: str | None = None  # why no cause is named on a record slower than a loop, its rate not given
 
     @property
     def equivalent(self) -> Candidate | None:
@@ -118,6 +121,7 @@ class Diagnosis(Outcome):
             "source": self.record.source,
             "samples": self.record.n,
             "rate_hz": self.record.rate_hz,
+            "controller_rate_hz": None if self.record.controller_dt is None else 1.0 / self.record.controller_dt,
             "train_fraction": self.n_train / self.record.n,
             "n_train": self.n_train,
             "n_choose": self.n_choose,
@@ -128,6 +132,7 @@ class Diagnosis(Outcome):
                          "rms_test_mm": self.baseline.rms_test_mm},
             "cause": self.cause,
             "too_short": self.too_short,
+            "slow_record": self.slow_record,
             "single": single.summary() if single else None,
             "equivalent": self.equivalent.summary() if self.equivalent else None,
             "timing": self.timing.to_json() if self.timing else None,
@@ -149,7 +154,7 @@ def estimate_lag(record: ActuatorRecord, n_train: int) -> float:
     xc = signal.correlate(m, c, mode="full", method="fft")
     mid = c.size - 1
     window = xc[mid: mid + max_shift + 1]
-    return max(float(np.argmax(window)) * record.dt, 2.0 * record.dt)
+    return max(float(np.argmax(window)) * record.dt, 2.0 * record.loop_dt)
 
 
 def check_following(record: ActuatorRecord, n_train: int) -> None:
@@ -207,6 +212,18 @@ def still_block(record: ActuatorRecord, n_train: int, n_choose: int) -> str | No
             return (f"the {name} block (samples {a} to {b}) holds no motion: its command moves {moves:.4g} mm, under "
                     f"{100 * STILL_SHARE:g} % of the record's {span:.4g} mm; cut the rest off the record")
     return None
+
+
+def with_controller_rate(record: ActuatorRecord, controller_rate_hz: float | None) -> ActuatorRecord:
+    """The record with the servo loop's period, when its rate is given (checked by
+    :func:`~hsio.diagnose.loop_rate.checked_controller_dt`); an hsio run's record keeps its own."""
+    if controller_rate_hz is None:
+        return record
+    dt_c = loop_rate.checked_controller_dt(controller_rate_hz, record.rate_hz, record.n, record.source)
+    if record.controller_dt is not None and not math.isclose(dt_c, record.controller_dt, rel_tol=1e-9):
+        raise RecordError(f"{record.source}: --controller-rate {controller_rate_hz:g} Hz, but the record holds every "
+                          f"period of its controller at {1.0 / record.controller_dt:.6g} Hz: leave the option out")
+    return dataclasses.replace(record, controller_dt=dt_c)
 
 
 def fit_baseline(record: ActuatorRecord, n_train: int) -> Fit:
@@ -275,21 +292,23 @@ def settle_gain(best: Candidate, named: list[Candidate], record: ActuatorRecord)
 def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, baseline: Fit, candidates: list,
             cause: str | None, extended: Fit, t0: float, ctx: Context, floor: residual_mod.Floor,
             timing: timing_mod.Timing | None = None, short: str | None = None,
-            tie: gain_mod.GainTie | None = None) -> Diagnosis:
+            tie: gain_mod.GainTie | None = None, slow: str | None = None) -> Diagnosis:
     """Measure the residual's structure, and settle none against unexplained."""
     r = record.measured_mm - extended.prediction
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
-        cause = TOO_FEW if short else unnamed(s, floor)
+        cause = loop_rate.SLOW if slow else TOO_FEW if short else unnamed(s, floor)
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
-                     n_choose, floor, s, timing, short, tie)
+                     n_choose, floor, s, timing, short, tie, slow)
 
 
 @one_blas_thread
 def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, margin: float = MARGIN,
              effects: tuple[str, ...] | None = None, max_combination: int = 3,
-             choose_fraction: float = CHOOSE_FRACTION) -> Diagnosis:
-    """Fit the baseline and every candidate effect; name the cause; grow the best combination."""
+             choose_fraction: float = CHOOSE_FRACTION, controller_rate_hz: float | None = None) -> Diagnosis:
+    """Fit the baseline and every candidate effect; name the cause; grow the best combination.
+    ``controller_rate_hz``: the servo loop's rate, when the record is sampled slower than the loop
+    runs (hsio/diagnose/loop_rate.py)."""
     t0 = time.perf_counter()
     if not 0.1 <= train_fraction <= 0.8:
         raise RecordError(f"train_fraction (--train-fraction) must be in [0.1, 0.8], got {train_fraction}")
@@ -297,9 +316,10 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
         raise RecordError(f"choose_fraction (--choose-fraction) must be in [0.05, {0.95 - train_fraction:.2f}] (the rest "
                           f"scores), got {choose_fraction}")
     if not RATE_BOUNDS_HZ[0] <= record.rate_hz <= RATE_BOUNDS_HZ[1]:
-        raise RecordError(f"{record.source}: sampled at {record.rate_hz:.6g} Hz; an actuator record holds the "
-                          f"controller-rate samples, within {RATE_BOUNDS_HZ[0]:g}..{RATE_BOUNDS_HZ[1]:g} Hz "
+        raise RecordError(f"{record.source}: sampled at {record.rate_hz:.6g} Hz; an actuator record is sampled "
+                          f"within {RATE_BOUNDS_HZ[0]:g}..{RATE_BOUNDS_HZ[1]:g} Hz "
                           "(is the time column in seconds?)")
+    record = with_controller_rate(record, controller_rate_hz)
     n_train, n_choose = blocks(record.n, train_fraction, choose_fraction)
     if np.ptp(record.command_mm[:n_train]) <= 0:
         raise RecordError(f"{record.source}: the command does not move in the training part")
@@ -311,7 +331,8 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     baseline = fit_baseline(record, n_train)
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
     names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
-    short = still_block(record, n_train, n_choose) or too_short(record, n_train, n_choose, baseline.params["lag_s"])
+    slow = loop_rate.slow_record(record)
+    short = slow or still_block(record, n_train, n_choose) or too_short(record, n_train, n_choose, baseline.params["lag_s"])
     # A baseline that already predicts the choosing block to rounding (a noise-free record of the
     # model itself) leaves nothing to explain: gains between rounding errors name nothing.
     resolved = baseline.rms_choose_mm > residual_mod.precision_floor(record.measured_mm)
@@ -324,7 +345,8 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
     named = [c for c in candidates if c.named]
     floor = residual_mod.sensor_floor(record.command_mm, record.measured_mm, record.measured_mm - baseline.prediction, record.dt)
     if not named:
-        return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx, floor, short=short)
+        return _finish(record, n_train, n_choose, margin, baseline, candidates, None, baseline, t0, ctx, floor,
+                       short=None if slow else short, slow=slow)
     best, timing = settle_timing(choose_single(named, ctx, record), named, record, floor)
     best, tie = settle_gain(best, named, record)
     singles = {c.cause: c.fit for c in candidates}
