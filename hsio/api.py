@@ -153,7 +153,8 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
         implicit["secant_uncertainty"] = secant_uncertainty
     if method == "alpha_os":
         return _built_for(structure, OperatorSplitting(structure.M, structure.C, structure.K_init, structure.dt, alpha,
-                                                       dofs, K_EI, correct_measured_displacement))
+                                                       dofs, K_EI, correct_measured_displacement,
+                                                       structure.experimental_refs))
     numerical = structure.numerical_assembly()
     if not numerical.is_linear:
         raise ConfigError(f"structure {structure.name!r}: the implicit methods ({', '.join(IMPLICIT_METHODS)}) take "
@@ -161,7 +162,8 @@ def make_integrator(structure: Structure, method: str = "alpha_os", alpha: float
                           f"elements); use method = 'alpha_os'")
     return _built_for(structure, ImplicitMethod(structure.M, structure.C, numerical.K_linear, dofs, K_EI, structure.dt,
                                                 alpha, method, rule, structure.dof_names, j_max=j_max,
-                                                tol_displacement=tol_displacement, tol_force=tol_force, **implicit))
+                                                tol_displacement=tol_displacement, tol_force=tol_force,
+                                                element_refs=structure.experimental_refs, **implicit))
 
 
 def _same_structure(a: Structure, b: Structure) -> bool:

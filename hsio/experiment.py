@@ -104,30 +104,28 @@ def _implicit_row(names, out: StepOutcome) -> dict:
 
 
 def start_present(integrator, structure: Structure, P0: np.ndarray, site, numerical) -> StepOutcome:
-    """Step 0 from where the specimen stands: u_0 and R_0 measured at the experimental DOFs, the
-    numerical DOFs in static equilibrium of the linear numerical part, v_0 = 0 (docs/safety.md
-    section 6)."""
+    """Step 0 from where the specimen stands: each element at its measured displacement and
+    force, E u_0 = u_e (E the elements' incidence, :attr:`hsio.structures.Structure.incidence`),
+    the numerical DOFs in static equilibrium of the linear numerical part and the elements'
+    forces on them, K_N u_0 + E^T R_e = 0 there, v_0 = 0 (docs/safety.md section 6)."""
     if getattr(integrator, "method", "") != "alpha_os" or not hasattr(integrator, "core"):
         raise ConfigError(f"start = 'present' is available for the alpha_os method, not {integrator.method!r}")
     dofs = list(structure.experimental_dofs)
+    E = structure.incidence
     u_e, R_e = (np.asarray(x, dtype=float) for x in site.committed())
     n = structure.n_dof
-    u0 = np.zeros(n)
-    R_E = np.zeros(n)
-    for j, d in enumerate(dofs):
-        u0[d] = u_e[j]
-        R_E[d] += R_e[j]
+    R_E = E.T @ R_e
     free = [d for d in range(n) if d not in dofs]
-    if free:
-        if not numerical.is_linear:
-            raise ConfigError(f"structure {structure.name!r}: start = 'present' needs a linear numerical part to put "
-                              f"the numerical DOFs in static equilibrium")
-        K = np.asarray(numerical.K_linear, dtype=float)
-        K_ff = K[np.ix_(free, free)]
-        if np.linalg.matrix_rank(K_ff) < len(free):
-            raise ConfigError(f"structure {structure.name!r}: start = 'present': the numerical stiffness of the DOFs "
-                              f"{', '.join(structure.dof_names[d] for d in free)} is singular; no static equilibrium")
-        u0[free] = np.linalg.solve(K_ff, -K[np.ix_(free, dofs)] @ u0[dofs])
+    if free and not numerical.is_linear:
+        raise ConfigError(f"structure {structure.name!r}: start = 'present' needs a linear numerical part to put "
+                          f"the numerical DOFs in static equilibrium")
+    K = np.asarray(numerical.K_linear, dtype=float)
+    A = np.vstack([E, K[free]])  # a row per element (its displacement), one per numerical DOF (its equilibrium)
+    if np.linalg.matrix_rank(A) < n:
+        raise ConfigError(f"structure {structure.name!r}: start = 'present': the elements' displacements and the "
+                          f"numerical stiffness of the DOFs {', '.join(structure.dof_names[d] for d in free) or '(none)'} "
+                          "do not fix the structure's displacement; no static equilibrium")
+    u0 = np.linalg.solve(A, np.concatenate([u_e, -R_E[free]]))
     R0 = R_E + numerical.trial(u0)
     numerical.commit()
     state = integrator.core.start(P0, u0, np.zeros(n), R0)

@@ -44,8 +44,8 @@ TABLES = {
     "damping": {"kind", "zeta", "modes"},
     "spring": {"name", "dof", "to", "k"},
     "numerical": {"name", "dof", "to", "model"},
-    "experimental": {"name", "dof", "dofs", "actuator", "actuators", "K_EI", "model", "setup", "displacement_from",
-                     "outer_loop"},
+    "experimental": {"name", "dof", "ref", "dofs", "actuator", "actuators", "K_EI", "model", "setup",
+                     "displacement_from", "outer_loop"},
     "static": {"name", "actuator", "force_kN", "ramp_s", "model"},
     "instrument": {"name", "kind", "element", "scale", "noise", "resolution"},
 }
@@ -387,8 +387,18 @@ class _Reader:
         where = f"experimental[{k}]"
         entry = self.table(where, entry, TABLES["experimental"])
         if "dofs" in entry or "actuators" in entry or "setup" in entry:
+            if "ref" in entry:
+                given = next(key for key in ("dofs", "actuators", "setup") if key in entry)
+                raise self.error(f"{where}.ref", f"an element between two DOFs has one DOF, one actuator and no setup; "
+                                 f"this one gives {given} (an element loaded through a setup acts on its basic DOFs, "
+                                 "docs/setups.md)")
             return self.experimental_setup(k, where, entry)
         i = self.dof(f"{where}.dof", self.required(where, entry, "dof"))
+        ref = None
+        if entry.get("ref", GROUND) != GROUND:
+            ref = self.dof(f"{where}.ref", entry["ref"])
+            if ref == i:
+                raise self.error(f"{where}.ref", f"the element joins DOF {entry['ref']!r} to itself")
         name = self.string(f"{where}.name", entry.get("name", list(self.dof_index)[i]))
         actuator = self.string(f"{where}.actuator", entry.get("actuator", name))
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
@@ -404,7 +414,7 @@ class _Reader:
             if isinstance(n_max, bool) or not isinstance(n_max, int) or not 1 <= n_max <= 50:
                 raise self.error(f"{where}.outer_loop.max_iterations", f"must be a whole number in 1..50, got {n_max!r}")
             outer = OuterLoop(tol, n_max)
-        return ExperimentalElement(name, i, spec, actuator, K_EI, displacement_from=source, outer_loop=outer)
+        return ExperimentalElement(name, i, spec, actuator, K_EI, displacement_from=source, outer_loop=outer, ref=ref)
 
     def experimental_setup(self, k: int, where: str, entry: dict) -> ExperimentalElement:
         """An element loaded through a setup: dofs, actuators, setup, a multi-DOF model (docs/setups.md)."""

@@ -72,6 +72,11 @@ class ExperimentalElement:
     ``setup`` table is loaded through an experimental setup (docs/setups.md): its specimen is a
     multi-DOF model (q = K d) and K^EI a matrix over its basic DOFs. ``dof`` is then the first
     basic DOF.
+
+    ``ref`` (a structure DOF index; None: the ground) puts a one-DOF element between ``dof`` and
+    ``ref``, as a storey between two floors: its displacement is u[dof] - u[ref] (the drift the
+    actuator imposes) and its force R acts as +R on ``dof`` and -R on ``ref`` (the element's
+    incidence, :attr:`Structure.incidence`).
     """
 
     name: str
@@ -84,6 +89,7 @@ class ExperimentalElement:
     setup: dict | None = None
     displacement_from: str = ""  # an external instrument's name; "" = the actuator's transducer
     outer_loop: OuterLoop | None = None
+    ref: int | None = None  # the other end of a one-DOF element; None: the ground
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name.strip():
@@ -113,6 +119,13 @@ class ExperimentalElement:
             object.__setattr__(self, "actuator", self.actuators[0] if self.actuators else self.name)
         if self.dofs and self.dof != self.dofs[0]:
             object.__setattr__(self, "dof", self.dofs[0])
+        if self.ref is not None:
+            _index(what, "ref", self.ref)
+            if self.has_setup or self.is_multi_dof:
+                raise ConfigError(f"{what}: ref: an element between two DOFs has one basic DOF and no setup; an element "
+                                  "loaded through a setup acts on its basic DOFs (docs/setups.md)")
+            if self.ref == self.dof:
+                raise ConfigError(f"{what}: ref: the element joins DOF {self.dof} to itself")
 
     @property
     def basic_dofs(self) -> tuple[int, ...]:
@@ -311,6 +324,25 @@ class NumericalElement:
         return make_specimen(self.specimen)
 
 
+def incidence(dofs, refs, n: int) -> np.ndarray:
+    """The incidence matrix E (elements x DOFs) of elements at ``dofs``, each to its ``refs`` entry
+    (None or no ``refs``: to the ground): +1 at the element's DOF, -1 at its reference DOF."""
+    dofs = np.asarray(dofs, dtype=int).reshape(-1)
+    refs = [None] * dofs.size if refs is None else list(refs)
+    if len(refs) != dofs.size:
+        raise ConfigError(f"element_refs: {len(refs)} for {dofs.size} elements (one per element; None: the ground)")
+    E = np.zeros((dofs.size, n))
+    E[np.arange(dofs.size), dofs] = 1.0
+    for j, r in enumerate(refs):
+        if r is None:
+            continue
+        if isinstance(r, (bool, np.bool_)) or not isinstance(r, (int, np.integer)) or not 0 <= r < n or r == dofs[j]:
+            raise ConfigError(f"element_refs[{j}]: must be None (the ground) or a DOF in 0..{n - 1} other than the "
+                              f"element's own ({int(dofs[j])}), got {r!r}")
+        E[j, r] = -1.0
+    return E
+
+
 def _add_between(K: np.ndarray, i: int, j: int | None, k: float) -> None:
     """Add the stiffness k of an element between DOF i and j (j None: ground) to K."""
     K[i, i] += k
@@ -422,7 +454,7 @@ class Structure:
         if self.influence is not None and len(self.influence) != n:
             raise ConfigError(f"structure {self.name!r}: {len(self.influence)} influence coefficients for {n} DOF")
         for element in self.experimental:
-            for dof in element.basic_dofs:
+            for dof in (*element.basic_dofs, *(() if element.ref is None else (element.ref,))):
                 if not 0 <= dof < n:
                     raise ConfigError(f"structure {self.name!r}: element {element.name!r} is at DOF {dof}, not in 0..{n - 1}")
         for e in (*self.springs, *self.numerical):
@@ -586,13 +618,11 @@ class Structure:
 
     @property
     def K_EI(self) -> np.ndarray:
-        """Initial stiffness of the experimental elements, K^EI (diagonal but for elements with
-        several basic DOFs, whose blocks couple them)."""
-        K = np.zeros((self.n_dof, self.n_dof))
-        for e in self.experimental:
-            index = list(e.basic_dofs)
-            K[np.ix_(index, index)] += e.K_EI_matrix
-        return K
+        """Initial stiffness of the experimental elements, K^EI = E^T K^EI_basic E over the
+        structure's DOFs (:attr:`incidence`): diagonal but for elements between two DOFs and
+        elements with several basic DOFs, whose blocks couple them."""
+        E = self.incidence
+        return E.T @ self.K_EI_basic @ E
 
     @property
     def K_EI_basic(self) -> np.ndarray:
@@ -639,6 +669,17 @@ class Structure:
     def experimental_dofs(self) -> list[int]:
         """The structure DOF of each experimental channel: every element's basic DOFs, in order."""
         return [d for e in self.experimental for d in e.basic_dofs]
+
+    @property
+    def experimental_refs(self) -> list[int | None]:
+        """Per experimental channel, the other end of its element (``ref``; None: the ground)."""
+        return [e.ref for e in self.experimental for _ in e.basic_dofs]
+
+    @property
+    def incidence(self) -> np.ndarray:
+        """E, channels x DOFs: channel j's displacement is (E u)_j = u[dof_j] - u[ref_j] (u[ground]
+        = 0), and the channels' forces R act on the structure's DOFs as E^T R."""
+        return incidence(self.experimental_dofs, self.experimental_refs, self.n_dof)
 
     @property
     def experimental_names(self) -> list[str]:

@@ -121,7 +121,7 @@ def make_method(structure: Structure, method: str, resolution_mm: float, force_r
     return ImplicitMethod(structure.M, structure.C, structure.numerical_assembly().K_linear,
                           structure.experimental_dofs, K_EI, structure.dt, r.alpha, method, rule, structure.dof_names,
                           j_max=r.j_max, tol_displacement=r.tol_displacement, tol_force=r.tol_force, fc_blend=blend,
-                          **extra)
+                          element_refs=structure.experimental_refs, **extra)
 
 
 @dataclass

@@ -26,6 +26,7 @@ import scipy.linalg
 from hsio.errors import ConfigError
 from hsio.integrators.base import StepOutcome
 from hsio.interfaces import ControlMode
+from hsio.structures import incidence
 
 
 @dataclass(frozen=True)
@@ -124,13 +125,15 @@ class AlphaOS:
 class OperatorSplitting:
     """alpha-OS as a method of the experiment loop: one trial per step, no iteration (Figure 9).
 
-    The site is driven to the predicted displacement u~_{i+1} of each experimental element and
+    The site is driven to the predicted displacement E u~_{i+1} of each experimental element and
     its measured force brought to the target with the measured displacement (docs/method.md
     section 2; off with ``correct_measured_displacement=False``):
 
-        R~^E = R_measured + K^EI (u~ - u_measured)
+        R~^E = R_measured + K^EI (E u~ - u_measured)
 
-    The numerical part adds R~^N at u~_{i+1}; eq. (4) gives the acceleration. ``K_EI`` is one
+    E is the elements' incidence (``element_dofs``, and ``element_refs``, the other end of each
+    element, None for the ground: :func:`hsio.structures.incidence`); the elements' forces act on
+    the DOFs as E^T R~^E. The numerical part adds R~^N at u~_{i+1}; eq. (4) gives the acceleration. ``K_EI`` is one
     stiffness per channel, or a matrix over the channels when an element loaded through a setup
     couples its basic DOFs (docs/setups.md): the correction is then K^EI (u~ - u_measured) as a
     matrix product.
@@ -140,9 +143,10 @@ class OperatorSplitting:
     thresholds = None
 
     def __init__(self, M, C, K_init, dt: float, alpha: float, element_dofs, K_EI,
-                 correct_measured_displacement: bool = True):
+                 correct_measured_displacement: bool = True, element_refs=None):
         self.core = AlphaOS(M, C, K_init, dt, alpha)
         self.dofs = np.asarray(element_dofs, dtype=int)
+        self.E = incidence(self.dofs, element_refs, self.core.n_dof)
         self.K_EI = np.asarray(K_EI, dtype=float)
         n_e = self.dofs.size
         if self.K_EI.shape not in ((n_e,), (n_e, n_e)):
@@ -155,12 +159,12 @@ class OperatorSplitting:
         return StepOutcome(
             u=state.u, v=state.v, a=state.a, u_pred=state.u_pred, R=state.R_tilde,
             modes=[ControlMode.DISPLACEMENT] * n_e,
-            targets=daq.targets if daq is not None else state.u[self.dofs],
-            commands=daq.commands if daq is not None else state.u[self.dofs],
+            targets=daq.targets if daq is not None else self.E @ state.u,
+            commands=daq.commands if daq is not None else self.E @ state.u,
             measured_u=daq.u if daq is not None else np.zeros(n_e),
             measured_R=daq.R if daq is not None else np.zeros(n_e),
             iterations=np.full(n_e, iterations), converged=True, secant=nan,
-            u_solution=state.u[self.dofs].copy(), R_solution=nan)
+            u_solution=self.E @ state.u, R_solution=nan)
 
     def start(self, P0, site, numerical):
         """a_0 from M a_0 = P_0 (at rest, unloaded)."""
@@ -168,16 +172,13 @@ class OperatorSplitting:
 
     def step(self, P_next, site, numerical, step: int = 0, time_s: float = 0.0):
         u_pred, _ = self.core.predict()
-        targets = u_pred[self.dofs]
+        targets = self.E @ u_pred
         site.set_trial(targets, [ControlMode.DISPLACEMENT] * self.dofs.size)
         daq = site.get_daq()
         F = daq.R.copy()
         if self.correct_measured_displacement:
             F += (self.K_EI @ (targets - daq.u)) if self.K_EI.ndim == 2 else self.K_EI * (targets - daq.u)
-        R_E = np.zeros(self.core.n_dof)
-        for dof, f in zip(self.dofs, F):
-            R_E[dof] += f
-        state = self.core.correct(R_E + numerical.trial(u_pred), P_next)
+        state = self.core.correct(self.E.T @ F + numerical.trial(u_pred), P_next)
         numerical.commit()
         site.commit()
         return self._outcome(state, daq, 1)

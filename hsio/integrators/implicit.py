@@ -8,8 +8,9 @@ The alpha method (HHT) written as an equivalent static problem at step i+1:
     P*_{i+1} = (1+alpha) P_{i+1} - alpha P_i - (1+alpha) C v~_{i+1} + alpha C v_i
                + K* u~_{i+1} + alpha R_i                                                   (10)
 
-R = R^E + K_N u: the experimental elements (one per DOF, diagonal experimental stiffness) and the
-numerical linear springs K_N, which may link the DOF. Each experimental element is modelled over
+R = E^T R^E + K_N u: the experimental elements (one per DOF, each to the ground or to another DOF
+through the incidence E; diagonal experimental stiffness over the elements) and the numerical
+linear springs K_N, which may link the DOF. Each experimental element is modelled over
 the step by its secant line through the base state (u_b, R_b) measured at the end of step i,
 
     u^j = u_b + [k^j]^{-1} (R^j - R_b)                                                     (9)
@@ -46,6 +47,7 @@ import numpy as np
 
 from hsio.errors import ConfigError
 from hsio.interfaces import ControlMode
+from hsio.structures import incidence
 
 DC = ControlMode.DISPLACEMENT
 FC = ControlMode.FORCE
@@ -94,8 +96,11 @@ class ImplicitAlpha:
     control (every element in FC) and mixed control; :class:`hsio.integrators.mixed.ImplicitMethod`
     chooses the modes.
 
-    ``M``, ``C``, ``K_N`` are n x n; ``element_dofs`` gives the DOF of each experimental element;
-    ``K_EI`` their initial stiffness (a vector, or a matrix that must be diagonal).
+    ``M``, ``C``, ``K_N`` are n x n; ``element_dofs`` gives the DOF of each experimental element,
+    ``element_refs`` its other end (None, or None for an element: the ground); ``K_EI`` their
+    initial stiffness (a vector, or a matrix that must be diagonal). Element e's displacement is
+    (E u)_e and its force acts on the DOFs as E^T R, E the elements' incidence
+    (:func:`hsio.structures.incidence`): eq. (7) with R = E^T R^E + K_N u.
     A secant estimate above ``max_stiffness_ratio`` K^EI (a noise spike) is refused and the
     previous secant kept.
 
@@ -167,7 +172,7 @@ class ImplicitAlpha:
                  tol_displacement: float = 1e-10, tol_force: float = 1e-10, independent: bool = False,
                  max_stiffness_ratio: float = 20.0, fc_blend: float = 1.0, blend_dc: bool = False,
                  anchor_dc=True, reset_at_reversal: bool = False, secant_uncertainty=None,
-                 secant_z: float = SECANT_Z):
+                 secant_z: float = SECANT_Z, element_refs=None):
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
             raise ConfigError(f"implicit alpha method: alpha must be in [-1/3, 0], got {alpha!r}")
         if not dt > 0:
@@ -244,10 +249,11 @@ class ImplicitAlpha:
         self.independent = bool(independent)
         if self.independent:
             diagonal = all(np.count_nonzero(m - np.diag(np.diag(m))) == 0 for m in (self.M, self.C, self.K_N))
-            if not diagonal or self.dofs.tolist() != list(range(n)):
-                raise ConfigError("implicit alpha method: independent=True needs diagonal M, C, K_N and element j at DOF j")
-        self._E = np.zeros((self.dofs.size, n))
-        self._E[np.arange(self.dofs.size), self.dofs] = 1.0
+            grounded = element_refs is None or all(r is None for r in element_refs)
+            if not diagonal or self.dofs.tolist() != list(range(n)) or not grounded:
+                raise ConfigError("implicit alpha method: independent=True needs diagonal M, C, K_N and element j at DOF j "
+                                  "to the ground")
+        self._E = incidence(self.dofs, element_refs, n)
         self.k = K_EI.copy()  # the last converged secant, per element
         self.state: ImplicitState | None = None
 
@@ -262,7 +268,7 @@ class ImplicitAlpha:
         v0 = np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)
         u_b, R_b = site.committed()
         R0 = self._E.T @ np.asarray(R_b, dtype=float) + self.K_N @ u0
-        self._u_fc = self._at_rest(u0[self.dofs], np.asarray(u_b, dtype=float))
+        self._u_fc = self._at_rest(self._E @ u0, np.asarray(u_b, dtype=float))
         P0 = np.asarray(P0, dtype=float)
         a0 = np.linalg.solve(self.M, P0 - self.C @ v0 - R0)
         self.state = ImplicitState(0, u0, v0, a0, R0, P0.copy(), u0.copy())
@@ -294,7 +300,7 @@ class ImplicitAlpha:
         else:
             A = self.K_star + (1 + a) * (self.K_N + self._E.T @ np.diag(k) @ self._E)
             u = np.linalg.solve(A, rhs)
-        ue = u[self.dofs]
+        ue = self._E @ u
         return u, ue, R_b + k * (ue - u_b)
 
     def step(self, P_next, site, modes: list[ControlMode],

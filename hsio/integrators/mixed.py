@@ -327,7 +327,7 @@ faster than FC can follow. ``fc_blend``: the
                  fallback_after: int | None = None, refractory_steps: int = 0,
                  explored_fraction: float | None = None, blend_dc: bool = False, fc_force_limit=None,
                  no_fc_at_reversal: bool = False, anchor_dc=True, reset_at_reversal: bool = False,
-                 secant_uncertainty=None):
+                 secant_uncertainty=None, element_refs=None):
         if method not in METHODS:
             raise ConfigError(f"integrator method must be one of {', '.join(METHODS)}, got {method!r}")
         _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc_force_limit,
@@ -345,7 +345,7 @@ faster than FC can follow. ``fc_blend``: the
         self.core = ImplicitAlpha(M, C, K_N, element_dofs, K_EI, dt, alpha, j_max=j_max,
                                   tol_displacement=tol_displacement, tol_force=tol_force, fc_blend=fc_blend,
                                   blend_dc=blend_dc, anchor_dc=anchor_dc, reset_at_reversal=reset_at_reversal,
-                                  secant_uncertainty=secant_uncertainty)
+                                  secant_uncertainty=secant_uncertainty, element_refs=element_refs)
         if method == "mixed" and rule is None:
             rule = SwitchingRule.from_initial_stiffness(self.core.K_EI)
         self.rule = rule if method == "mixed" else None

@@ -87,7 +87,7 @@ def served_structure(structure: Structure, names, source: str = "") -> Structure
         first = len(dof_names)
         index = tuple(range(first, first + len(e.basic_dofs)))
         dof_names += [structure.dof_names[d] for d in e.basic_dofs]
-        elements.append(replace(e, dof=first, dofs=index if e.dofs else ()))
+        elements.append(replace(e, dof=first, dofs=index if e.dofs else (), ref=None))
     # the external instruments that a served element reads its displacement from, or that sit on one
     used = {e.displacement_from for e in elements if e.displacement_from}
     instruments = tuple(i for i in structure.instruments if i.name in used or i.element in names)
