@@ -186,16 +186,16 @@ def test_a_silent_host_trips_the_watchdog_of_holding_axes(tmp_path, protocol):
 
 
 def test_a_watchdog_shorter_than_the_pause_wait_is_fed_from_what_the_controller_reports(tmp_path, monkeypatch):
-    """A controller whose host watchdog (0.4 s, read by the driver from its info registers) is
-    shorter than the pause's wait (made 1 s here, so that the run's own steps keep a watchdog a
-    loaded machine can meet): the wait feeds it every quarter of that time, so a pause of 2 s
+    """A controller whose host watchdog (0.8 s, read by the driver from its info registers) is
+    shorter than the pause's wait (made 2 s here, so that the run's own steps keep a watchdog a
+    loaded machine can meet): the wait feeds it every quarter of that time, so a pause of 3 s
     latches nothing and the run resumes to the end."""
     from hsio.safety.control import RunControl
 
-    monkeypatch.setattr(RunControl, "WAIT_SLICE_S", 1.0)
-    summary, run, seen = run_over_modbus(tmp_path, "short", pause=True, watchdog_s=0.4, pause_s=2.0)
+    monkeypatch.setattr(RunControl, "WAIT_SLICE_S", 2.0)
+    summary, run, seen = run_over_modbus(tmp_path, "short", pause=True, watchdog_s=0.8, pause_s=3.0)
     assert seen["replies"] == ["ok pausing", "ok resuming"]
     assert summary["exit_status"] == 0 and summary["steps"] == 60
-    assert seen["paused_s"] >= 2.0 and len(seen["rods"]) > 10
+    assert seen["paused_s"] >= 3.0 and len(seen["rods"]) > 10
     assert not any(any(e) for e in seen["expired"])  # (a latch after the resume would have stopped the run)
     assert float(np.max(np.ptp(np.array(seen["rods"]), axis=0))) < 1e-9  # held still throughout
