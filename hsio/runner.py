@@ -112,9 +112,12 @@ def check_run_method(config: RunConfig, structure: Structure) -> None:
                           f"iterates on the secant stiffness of elements driven by one actuator each "
                           f"(elements with setups or several basic DOFs: {', '.join(coupled)}): "
                           f"use method = 'alpha_os'")
-    if method == "mixed" and config["integrator"]["switch_rule"] == "instruments":
+    if method == "mixed":  # the rule's inputs (the NS gate aside): a crossed K_f / K_d is refused here
         try:
-            switch_instruments(config["integrator"], emulated_instruments(config))
+            if config["integrator"]["switch_rule"] == "instruments":
+                switch_instruments(config["integrator"], emulated_instruments(config))
+            else:
+                switching_rule(structure, config["integrator"])
         except ConfigError as exc:
             raise ConfigError(f"{config.source}: {exc}") from None
 

@@ -400,12 +400,14 @@ def test_check_says_what_mixed_control_will_do(tmp_path, pga, says):
 ])
 def test_crossed_stiffness_thresholds_exit_2_before_the_actuators_open(tmp_path, integrator, says):
     """K_f given alone below 0.8 K^EI (the default K_d), or K_d alone above 1.2 K^EI: refused with
-    the element and both values, and what the missing one defaults to, before the site opens
-    (no "actuators stand at"); `hsio check` says the same."""
+    the element and both values, and what the missing one defaults to, naming the file, before
+    the dry run and before the run folder is created (no "actuators stand at"); `hsio check`
+    says the same."""
     out = _run(tmp_path, integrator)
     assert out.exit_code == 2, out.output
-    assert says in out.output and "[integrator]" in out.output
-    assert "stand at" not in out.output
+    assert says in out.output and f"{tmp_path / 'c.toml'}: [integrator]" in out.output
+    assert "stand at" not in out.output and "dry run" not in out.output
+    assert not list(tmp_path.glob("*.out"))
     if len(integrator) == 2:
         missing = "K_d = 0.8 K^EI" if "K_f" in integrator else "K_f = 1.2 K^EI"
         assert missing in out.output
