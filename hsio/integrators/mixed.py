@@ -113,7 +113,10 @@ class SwitchingRule:
         if not (s_u > 0 and s_F > 0):
             raise ConfigError("switching rule: the transducer and the load cell each need a resolution or a noise "
                               "above 0")
-        K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
+        try:
+            K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
+        except (TypeError, ValueError):
+            raise ConfigError(f"switching rule: K_EI must be numbers, one per element, got {K_EI!r:.80}") from None
         K_f = margin * s_F / s_u
         return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness",
                    ((float(noise_mm), float(resolution_mm)), (float(force_noise_kN), float(force_resolution_kN))))
@@ -339,6 +342,8 @@ faster than FC can follow. ``fc_blend``: the
         if method != "mixed" and given:
             raise ConfigError(f"{given[0]}: a guard of method 'mixed', not of {method!r} (it would change the "
                               f"method: e.g. force control falling back to DC for good)")
+        if rule is not None and not isinstance(rule, SwitchingRule):
+            raise ConfigError(f"rule must be a SwitchingRule or None, got {rule!r:.80}")
         self.method = method
         if secant_uncertainty is None and method == "mixed" and rule is not None:
             secant_uncertainty = rule.uncertainty
@@ -352,6 +357,12 @@ faster than FC can follow. ``fc_blend``: the
         self.dofs = self.core.dofs
         n_e = self.dofs.size
         self.dof_names = list(dof_names) if dof_names is not None else [str(d) for d in range(self.core.n_dof)]
+        if len(self.dof_names) != self.core.n_dof:
+            raise ConfigError(f"dof_names: {len(self.dof_names)} names for {self.core.n_dof} DOFs")
+        if self.rule is not None and self.rule.upper.size not in (1, n_e) or (
+                self.rule is not None and self.rule.lower.size not in (1, n_e)):
+            raise ConfigError(f"switching rule: {self.rule.upper.size} threshold(s) for {n_e} experimental "
+                              f"element(s); give one per element, or one for all")
         self.modes = [FC if method == "force_control" else DC] * n_e
         if self.rule is not None:  # at rest an element is on its initial branch: its rule's mode at K^EI
             self.modes = self.rule.next_modes(self.modes, self.core.K_EI, np.zeros(n_e))
