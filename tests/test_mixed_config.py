@@ -348,6 +348,29 @@ def test_an_implicit_method_on_setups_is_refused_before_the_run_folder(tmp_path,
     assert checked.exit_code == 2 and "alpha_os" in checked.output
 
 
+@pytest.mark.parametrize("method", ["implicit_dc", "force_control", "mixed"])
+def test_an_implicit_method_on_nonlinear_numerical_elements_is_refused_before_the_run_folder(tmp_path, method):
+    """The secant model of eq. (9) covers the experimental elements only: a structure with a
+    nonlinear numerical element is refused naming the configuration, the method and the element,
+    before the dry run and before anything is created; `hsio check` says the same."""
+    (tmp_path / "s.toml").write_text(
+        '[structure]\nname = "nl"\ndt = 0.01\n[[dof]]\nname = "a"\nmass = 0.01\n[[dof]]\nname = "b"\n'
+        'mass = 0.01\n[[numerical]]\nname = "brace"\ndof = "a"\nto = "b"\n'
+        'model = { kind = "peak_oriented", k0 = 5.0, Fy = 20.0, u_c = 10.0 }\n'
+        '[[experimental]]\ndof = "a"\nmodel = { kind = "linear", k = 3.0 }\n'
+        '[[experimental]]\ndof = "b"\nmodel = { kind = "linear", k = 3.0 }\n')
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(_toml({"structure": {"file": "s.toml"}, "record": {"synthetic_duration_s": 0.2},
+                          "integrator": {"method": method}, "output": {"plots": False}}))
+    out = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert out.exit_code == 2, out.output
+    says = f"{cfg}: [integrator] method = {method!r} takes linear numerical elements only"
+    assert says in out.output and "(brace)" in out.output and "dry run" not in out.output
+    assert not (tmp_path / "o").exists()
+    checked = CliRunner().invoke(main, ["check", str(cfg)])
+    assert checked.exit_code == 2 and says in checked.output
+
+
 def test_mixed_on_instruments_without_resolution_or_noise_is_refused_before_the_run_folder(tmp_path):
     """The instruments rule cannot set K_f from a transducer and a load cell that read exactly:
     refused naming the keys, before the dry run and before anything is created."""
