@@ -27,6 +27,7 @@ The methods, as :func:`make_method` builds them from the instruments:
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -95,6 +96,11 @@ def make_method(structure: Structure, method: str, resolution_mm: float, force_r
         raise ConfigError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     if not isinstance(recipe, Recipe):
         raise ConfigError(f"recipe must be a Recipe (for a table: Recipe(**table)), got {recipe!r:.80}")
+    instruments = {"resolution_mm": resolution_mm, "force_resolution_kN": force_resolution_kN, "noise_mm": noise_mm,
+                   "force_noise_kN": force_noise_kN}
+    for name, value in instruments.items():  # every method reads them (FC's secant rule, eq. 11a)
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (math.isfinite(value) and value >= 0):
+            raise ConfigError(f"{name} must be a number, zero or positive, got {value!r:.80}")
     if ns is not None:
         check_ns(ns, structure)
     K_EI = [e.K_EI for e in structure.experimental]
