@@ -338,7 +338,7 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
     if i["switch_on"] not in ("stiffness", "force"):
         raise ConfigError(f"{source}: [integrator] switch_on must be 'stiffness' or 'force', got {i['switch_on']!r}")
     upper, lower = ("K_f", "K_d") if i["switch_on"] == "stiffness" else ("R_f", "R_d")
-    if i["method"] == "mixed" and i["switch_on"] == "force" and not i[upper] > 0:
+    if i["method"] == "mixed" and i["switch_on"] == "force" and not i[upper] > 0 and i["switch_rule"] != "instruments":
         raise ConfigError(f"{source}: [integrator] switch_on = 'force' needs R_f > 0 (kN)")
     if i[upper] > 0 and i[lower] > 0 and not i[lower] < i[upper]:
         raise ConfigError(f"{source}: [integrator] {lower} ({i[lower]}) must be below {upper} ({i[upper]})")

@@ -257,6 +257,9 @@ def test_an_off_value_of_another_type_is_typed_by_the_default(tmp_path):
     ({"method": "mixed", "switch_rule": "instruments", "R_d": 1.0}, "R_d is not read with switch_rule = 'instruments'"),
     ({"method": "mixed", "R_f": 5.0}, "R_f applies to switch_on = 'force', not to 'stiffness'"),
     ({"method": "mixed", "switch_on": "force", "R_f": 5.0, "K_f": 3.0}, "K_f applies to switch_on = 'stiffness'"),
+    # the key to change, not R_f, which the instruments rule would refuse next
+    ({"method": "mixed", "switch_rule": "instruments", "switch_on": "force"},
+     "switch_rule = 'instruments' switches on the stiffness: leave switch_on = 'stiffness'"),
 ])
 def test_switching_keys_no_rule_reads_exit_2_naming_the_key(tmp_path, integrator, says):
     """docs/force_control.md: the switching keys apply to mixed only, each to the rule that reads
