@@ -117,7 +117,8 @@ def test_the_integrator_gets_the_guards():
     ("switch_force_resolution_kN", 1000.0, "switch_force_resolution_kN = 1000.0 is out of bounds"),
     ("fc_blend", 0.0, "fc_blend = 0.0 is out of bounds"),
     ("fc_blend", 1.5, "fc_blend = 1.5 is out of bounds"),
-    ("fc_fallback_after", 4, "fc_fallback_after (4) must not exceed j_max (3)"),
+    ("fc_fallback_after", 4, "fc_fallback_after (4) must be below j_max (3)"),
+    ("fc_fallback_after", 3, "fc_fallback_after (3) must be below j_max (3)"),  # no command left for DC
     ("fc_fallback_after", 1.5, "fc_fallback_after must be a whole number"),
     ("refractory_steps", -1, "refractory_steps = -1 is out of bounds"),
     ("no_fc_at_reversal", 1, "no_fc_at_reversal must be true or false"),
@@ -305,7 +306,9 @@ def test_mixed_without_thresholds_of_its_own_runs_the_study_recipe():
         i = from_dict({"integrator": {"method": "mixed", **own}})["integrator"]
         assert i["switch_rule"] == "initial_stiffness" and i["fc_blend"] == 1.0 and i["refractory_steps"] == 0
     i = from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "j_max": 1}})["integrator"]
-    assert i["no_fc_at_reversal"] is True and i["fc_fallback_after"] == 1  # never beyond j_max
+    assert i["no_fc_at_reversal"] is True and i["fc_fallback_after"] == 0  # below j_max: off with one command
+    i = from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "j_max": 2}})["integrator"]
+    assert i["fc_fallback_after"] == 1
     assert from_dict({"integrator": {"method": "implicit_dc"}})["integrator"]["fc_blend"] == 1.0
     with pytest.raises(ConfigError, match=r"the rule of method = 'mixed' without thresholds of its own\) on real "
                                           r"hardware needs the transducer's"):

@@ -187,9 +187,10 @@ def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc
             raise ConfigError(f"fc_force_limit must be None (off) or a force in kN above 0, one for every element or "
                               f"one per experimental element ({n_elements}), got {fc_force_limit!r}")
 
-    if fallback_after is not None and not (whole(fallback_after) and 0 <= fallback_after <= j_max):
-        raise ConfigError(f"fallback_after must be None (off) or a whole number of commands in 0..j_max ({j_max}), "
-                          f"got {fallback_after!r}")
+    if fallback_after is not None and not (whole(fallback_after) and (fallback_after == 0 or fallback_after < j_max)
+                                           and fallback_after >= 0):
+        raise ConfigError(f"fallback_after must be None or 0 (off), or a whole number of FC commands below j_max "
+                          f"({j_max}), after which the step's remaining commands go in DC; got {fallback_after!r}")
     if not (whole(refractory_steps) and 0 <= refractory_steps <= 10**9):
         raise ConfigError(f"refractory_steps must be a whole number of steps in 0..1e9, got {refractory_steps!r}")
     if explored_fraction is not None and not (isinstance(explored_fraction, numbers.Real)
@@ -366,7 +367,7 @@ faster than FC can follow. ``fc_blend``: the
         self.modes = [FC if method == "force_control" else DC] * n_e
         if self.rule is not None:  # at rest an element is on its initial branch: its rule's mode at K^EI
             self.modes = self.rule.next_modes(self.modes, self.core.K_EI, np.zeros(n_e))
-        self.fallback_after = fallback_after
+        self.fallback_after = fallback_after or None  # 0: off, as in a run configuration
         self.refractory_steps = int(refractory_steps)
         self._dc_until = np.zeros(n_e, dtype=int)  # an element that did not converge in FC stays in DC
         self.explored_fraction = explored_fraction
