@@ -191,13 +191,13 @@ THRESHOLD_KEYS = ("switch_on", "K_f", "K_d", "R_f", "R_d")
 def _mixed_defaults(integrator: dict, given: set) -> None:
     """``method = "mixed"`` with none of K_f, K_d, R_f, R_d, switch_on given and no switch_rule
     other than "instruments": the keys of MIXED_RECIPE that were not given take the recipe's
-    values (the fallback after at most j_max commands)."""
+    values (the fallback below j_max commands, off with j_max = 1: it needs a command left for DC)."""
     own_rule = "switch_rule" in given and integrator["switch_rule"] != "instruments"
     if integrator["method"] != "mixed" or own_rule or given & set(THRESHOLD_KEYS):
         return
     for key, value in MIXED_RECIPE.items():
         if key not in given:
-            integrator[key] = min(value, integrator["j_max"]) if key == "fc_fallback_after" else value
+            integrator[key] = min(value, integrator["j_max"] - 1) if key == "fc_fallback_after" else value
 
 
 # -- Sanity bounds (docs/faults.md) --------------------------------------------------------------
@@ -338,7 +338,7 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
     if i["switch_on"] not in ("stiffness", "force"):
         raise ConfigError(f"{source}: [integrator] switch_on must be 'stiffness' or 'force', got {i['switch_on']!r}")
     upper, lower = ("K_f", "K_d") if i["switch_on"] == "stiffness" else ("R_f", "R_d")
-    if i["method"] == "mixed" and i["switch_on"] == "force" and not i[upper] > 0:
+    if i["method"] == "mixed" and i["switch_on"] == "force" and not i[upper] > 0 and i["switch_rule"] != "instruments":
         raise ConfigError(f"{source}: [integrator] switch_on = 'force' needs R_f > 0 (kN)")
     if i[upper] > 0 and i[lower] > 0 and not i[lower] < i[upper]:
         raise ConfigError(f"{source}: [integrator] {lower} ({i[lower]}) must be below {upper} ({i[upper]})")
@@ -364,9 +364,10 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
             raise ConfigError(f"{source}: [integrator] {key} applies to the implicit methods, not to 'alpha_os'")
     if i["blend_dc"] and not i["fc_blend"] < 1:
         raise ConfigError(f"{source}: [integrator] blend_dc needs fc_blend below 1 (the estimate it uses)")
-    if i["fc_fallback_after"] > i["j_max"]:
-        raise ConfigError(f"{source}: [integrator] fc_fallback_after ({i['fc_fallback_after']}) must not exceed "
-                          f"j_max ({i['j_max']}); 0: off")
+    if i["fc_fallback_after"] >= i["j_max"] and i["fc_fallback_after"] > 0:
+        raise ConfigError(f"{source}: [integrator] fc_fallback_after ({i['fc_fallback_after']}) must be below "
+                          f"j_max ({i['j_max']}): after that many FC commands the step's remaining commands go in "
+                          f"DC, and at j_max none is left; 0: off")
 
 
 # The keys of the switching rule of mixed control (docs/force_control.md, "Running it"), by the

@@ -112,9 +112,18 @@ def check_run_method(config: RunConfig, structure: Structure) -> None:
                           f"iterates on the secant stiffness of elements driven by one actuator each "
                           f"(elements with setups or several basic DOFs: {', '.join(coupled)}): "
                           f"use method = 'alpha_os'")
-    if method == "mixed" and config["integrator"]["switch_rule"] == "instruments":
+    numerical = structure.numerical_assembly()
+    if not numerical.is_linear:
+        nonlinear = [e.name for e, m in zip(structure.numerical, numerical.models) if m.kind != "linear"]
+        raise ConfigError(f"{config.source}: [integrator] method = {method!r} takes linear numerical elements only "
+                          f"(the secant model of eq. 9 covers the experimental elements), and structure "
+                          f"{structure.name!r} has nonlinear ones ({', '.join(nonlinear)}): use method = 'alpha_os'")
+    if method == "mixed":  # the rule's inputs (the NS gate aside): a crossed K_f / K_d is refused here
         try:
-            switch_instruments(config["integrator"], emulated_instruments(config))
+            if config["integrator"]["switch_rule"] == "instruments":
+                switch_instruments(config["integrator"], emulated_instruments(config))
+            else:
+                switching_rule(structure, config["integrator"])
         except ConfigError as exc:
             raise ConfigError(f"{config.source}: {exc}") from None
 

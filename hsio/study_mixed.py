@@ -27,6 +27,7 @@ The methods, as :func:`make_method` builds them from the instruments:
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -50,7 +51,7 @@ class Recipe:
     hysteresis: float = 2.0  # K_d = K_f / h
     max_hysteretic_ratio: float = 0.1  # FC only while NS predicts every element elastic (0: no such gate)
     fc_blend: float = 0.01  # lambda of the complementary estimate
-    fallback_after: int = 2  # FC commands before a non-converging FC element goes on in DC
+    fallback_after: int = 2  # FC commands before a non-converging FC element goes on in DC (below j_max; 0: off)
     refractory_steps: int = 10**9  # an element that failed in FC stays in DC for the rest of the run
     no_fc_at_reversal: bool = True
     j_max: int = 3
@@ -61,13 +62,15 @@ class Recipe:
     def __post_init__(self):
         for key, config_key in CONFIG_KEYS.items():
             low, high, _ = BOUNDS[("integrator", config_key)]
-            low = 1 if key == "fallback_after" else low  # the recipe falls back; 0 (off in a configuration) is not one
             whole = isinstance(DEFAULTS["integrator"][config_key], int)
             value = getattr(self, key)
             kind = int if whole else (int, float)
             if isinstance(value, bool) or not isinstance(value, kind) or not (math.isfinite(value) and low <= value <= high):
                 what = f"a whole number in {low}..{high}" if whole else f"a number in [{low:g}, {high:g}]"
                 raise ConfigError(f"Recipe: {key} must be {what}, got {value!r}")
+        if 0 < self.fallback_after >= self.j_max:
+            raise ConfigError(f"Recipe: fallback_after ({self.fallback_after}) must be below j_max ({self.j_max}): "
+                              f"after that many FC commands the step's remaining commands go in DC; 0: off")
         alpha = self.alpha
         if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not -1.0 / 3.0 <= alpha <= 0.0:
             raise ConfigError(f"Recipe: alpha must be a number in [-0.333333, 0], got {alpha!r}")
@@ -95,6 +98,11 @@ def make_method(structure: Structure, method: str, resolution_mm: float, force_r
         raise ConfigError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     if not isinstance(recipe, Recipe):
         raise ConfigError(f"recipe must be a Recipe (for a table: Recipe(**table)), got {recipe!r:.80}")
+    instruments = {"resolution_mm": resolution_mm, "force_resolution_kN": force_resolution_kN, "noise_mm": noise_mm,
+                   "force_noise_kN": force_noise_kN}
+    for name, value in instruments.items():  # every method reads them (FC's secant rule, eq. 11a)
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (math.isfinite(value) and value >= 0):
+            raise ConfigError(f"{name} must be a number, zero or positive, got {value!r:.80}")
     if ns is not None:
         check_ns(ns, structure)
     K_EI = [e.K_EI for e in structure.experimental]

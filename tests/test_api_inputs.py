@@ -162,6 +162,20 @@ def test_make_method_checks_recipe_ns_and_its_structure():
         make_method(infill, "mixed", 0.025, 0.01, ns=ns_bare)
 
 
+@pytest.mark.parametrize("method", ["implicit_dc", "force_control", "mixed"])
+@pytest.mark.parametrize("argument, value", [("force_resolution_kN", float("nan")), ("resolution_mm", -0.1),
+                                             ("noise_mm", "0.01"), ("force_noise_kN", True)])
+def test_make_method_refuses_instruments_that_are_not_readings(method, argument, value):
+    """An instrument value that is not a number zero or positive is refused naming it with every
+    method: a NaN force resolution would otherwise leave force control taking every estimate of
+    eq. (11) as if the instruments were unknown."""
+    from hsio.study_mixed import infill_sdof, make_method
+
+    given = {"resolution_mm": 0.025, "force_resolution_kN": 0.01, argument: value}
+    with pytest.raises(ConfigError, match=f"{argument} must be a number, zero or positive"):
+        make_method(infill_sdof(7.2), method, **given)
+
+
 def test_fc_vs_dc_refuses_no_theta():
     from hsio.study import fc_vs_dc
 

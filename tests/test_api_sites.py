@@ -85,7 +85,8 @@ def test_options_beside_a_ready_integrator_are_refused():
     ({"tol_force": "0.05"}, "tol_force must be a number, zero or positive"),
     ({"refractory_steps": -1}, "refractory_steps must be a whole number of steps"),
     ({"explored_fraction": 5.0}, "explored_fraction must be None (off) or a number in (0, 1]"),
-    ({"fallback_after": 50}, "fallback_after must be None (off) or a whole number of commands in 0..j_max (3)"),
+    ({"fallback_after": 50}, "fallback_after must be None or 0 (off), or a whole number of FC commands below j_max (3)"),
+    ({"fallback_after": 3}, "fallback_after must be None or 0 (off), or a whole number of FC commands below j_max (3)"),
 ])
 def test_integrator_settings_outside_the_run_bounds_are_refused(options, says):
     with pytest.raises(ConfigError) as refused:

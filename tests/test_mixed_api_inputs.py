@@ -5,6 +5,7 @@ import pytest
 
 from hsio.api import make_integrator
 from hsio.errors import ConfigError
+from hsio.integrators import SwitchingRule
 from hsio.structures import get_structure
 
 
@@ -65,3 +66,40 @@ def test_a_switching_rule_of_values_that_are_not_thresholds_is_refused(make):
     with pytest.raises(ConfigError, match="switching rule"):
         make(SwitchingRule)
     assert SwitchingRule([3.0, 4.0], [1.0]).lower.tolist() == [1.0]  # one lower threshold for all elements
+
+
+def _implicit_method_args(**changed):
+    import numpy as np
+
+    args = dict(M=np.eye(2) * 0.01, C=np.zeros((2, 2)), K_N=None, element_dofs=[0, 1], K_EI=[1.5, 40.0], dt=0.01)
+    args.update(changed)
+    return args
+
+
+@pytest.mark.parametrize("changed, says", [
+    ({"dt": "0.01"}, "dt must be positive"),
+    ({"element_dofs": [0.5, 1]}, "element_dofs must be whole DOF numbers"),
+    ({"M": [[float("nan"), 0.0], [0.0, 0.01]]}, "M must be finite"),
+    ({"M": [[0.01, 0.0], [0.0, 0.0]]}, "M must be positive definite"),
+    ({"C": "abc"}, "C must be a matrix of numbers"),
+    ({"K_N": [[float("inf"), 0.0], [0.0, 0.0]]}, "K_N must be finite"),
+    ({"dof_names": ["a"]}, "dof_names: 1 names for 2 DOFs"),
+    ({"rule": 5}, "rule must be a SwitchingRule"),
+    ({"rule": "stiffness"}, "rule must be a SwitchingRule"),
+    ({"rule": SwitchingRule([5.0, 6.0, 7.0], [1.0, 2.0, 3.0])}, "3 threshold"),
+])
+def test_implicit_method_refuses_what_it_cannot_integrate_naming_it(changed, says):
+    """ImplicitMethod from Python: a value it would misread (a float DOF truncated to an index, a
+    massless DOF, a NaN matrix, a rule that is not one) is a ConfigError naming it, never a
+    TypeError, an AttributeError at the first step, or a run of NaN."""
+    from hsio.integrators import ImplicitMethod
+
+    with pytest.raises(ConfigError, match=says):
+        ImplicitMethod(**_implicit_method_args(**changed))
+
+
+def test_a_rule_from_instruments_with_stiffnesses_that_are_not_numbers_is_refused():
+    from hsio.integrators import SwitchingRule
+
+    with pytest.raises(ConfigError, match="K_EI must be numbers"):
+        SwitchingRule.from_instruments("abc", 0.025, 0.01)

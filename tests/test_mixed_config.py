@@ -117,7 +117,8 @@ def test_the_integrator_gets_the_guards():
     ("switch_force_resolution_kN", 1000.0, "switch_force_resolution_kN = 1000.0 is out of bounds"),
     ("fc_blend", 0.0, "fc_blend = 0.0 is out of bounds"),
     ("fc_blend", 1.5, "fc_blend = 1.5 is out of bounds"),
-    ("fc_fallback_after", 4, "fc_fallback_after (4) must not exceed j_max (3)"),
+    ("fc_fallback_after", 4, "fc_fallback_after (4) must be below j_max (3)"),
+    ("fc_fallback_after", 3, "fc_fallback_after (3) must be below j_max (3)"),  # no command left for DC
     ("fc_fallback_after", 1.5, "fc_fallback_after must be a whole number"),
     ("refractory_steps", -1, "refractory_steps = -1 is out of bounds"),
     ("no_fc_at_reversal", 1, "no_fc_at_reversal must be true or false"),
@@ -257,6 +258,9 @@ def test_an_off_value_of_another_type_is_typed_by_the_default(tmp_path):
     ({"method": "mixed", "switch_rule": "instruments", "R_d": 1.0}, "R_d is not read with switch_rule = 'instruments'"),
     ({"method": "mixed", "R_f": 5.0}, "R_f applies to switch_on = 'force', not to 'stiffness'"),
     ({"method": "mixed", "switch_on": "force", "R_f": 5.0, "K_f": 3.0}, "K_f applies to switch_on = 'stiffness'"),
+    # the key to change, not R_f, which the instruments rule would refuse next
+    ({"method": "mixed", "switch_rule": "instruments", "switch_on": "force"},
+     "switch_rule = 'instruments' switches on the stiffness: leave switch_on = 'stiffness'"),
 ])
 def test_switching_keys_no_rule_reads_exit_2_naming_the_key(tmp_path, integrator, says):
     """docs/force_control.md: the switching keys apply to mixed only, each to the rule that reads
@@ -302,7 +306,9 @@ def test_mixed_without_thresholds_of_its_own_runs_the_study_recipe():
         i = from_dict({"integrator": {"method": "mixed", **own}})["integrator"]
         assert i["switch_rule"] == "initial_stiffness" and i["fc_blend"] == 1.0 and i["refractory_steps"] == 0
     i = from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "j_max": 1}})["integrator"]
-    assert i["no_fc_at_reversal"] is True and i["fc_fallback_after"] == 1  # never beyond j_max
+    assert i["no_fc_at_reversal"] is True and i["fc_fallback_after"] == 0  # below j_max: off with one command
+    i = from_dict({"integrator": {"method": "mixed", "switch_rule": "instruments", "j_max": 2}})["integrator"]
+    assert i["fc_fallback_after"] == 1
     assert from_dict({"integrator": {"method": "implicit_dc"}})["integrator"]["fc_blend"] == 1.0
     with pytest.raises(ConfigError, match=r"the rule of method = 'mixed' without thresholds of its own\) on real "
                                           r"hardware needs the transducer's"):
@@ -346,6 +352,29 @@ def test_an_implicit_method_on_setups_is_refused_before_the_run_folder(tmp_path,
     assert out.exit_code == 2 and not (tmp_path / "m").exists()  # no page, no folder
     checked = CliRunner().invoke(main, ["check", str(cfg)])
     assert checked.exit_code == 2 and "alpha_os" in checked.output
+
+
+@pytest.mark.parametrize("method", ["implicit_dc", "force_control", "mixed"])
+def test_an_implicit_method_on_nonlinear_numerical_elements_is_refused_before_the_run_folder(tmp_path, method):
+    """The secant model of eq. (9) covers the experimental elements only: a structure with a
+    nonlinear numerical element is refused naming the configuration, the method and the element,
+    before the dry run and before anything is created; `hsio check` says the same."""
+    (tmp_path / "s.toml").write_text(
+        '[structure]\nname = "nl"\ndt = 0.01\n[[dof]]\nname = "a"\nmass = 0.01\n[[dof]]\nname = "b"\n'
+        'mass = 0.01\n[[numerical]]\nname = "brace"\ndof = "a"\nto = "b"\n'
+        'model = { kind = "peak_oriented", k0 = 5.0, Fy = 20.0, u_c = 10.0 }\n'
+        '[[experimental]]\ndof = "a"\nmodel = { kind = "linear", k = 3.0 }\n'
+        '[[experimental]]\ndof = "b"\nmodel = { kind = "linear", k = 3.0 }\n')
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(_toml({"structure": {"file": "s.toml"}, "record": {"synthetic_duration_s": 0.2},
+                          "integrator": {"method": method}, "output": {"plots": False}}))
+    out = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert out.exit_code == 2, out.output
+    says = f"{cfg}: [integrator] method = {method!r} takes linear numerical elements only"
+    assert says in out.output and "(brace)" in out.output and "dry run" not in out.output
+    assert not (tmp_path / "o").exists()
+    checked = CliRunner().invoke(main, ["check", str(cfg)])
+    assert checked.exit_code == 2 and says in checked.output
 
 
 def test_mixed_on_instruments_without_resolution_or_noise_is_refused_before_the_run_folder(tmp_path):
@@ -400,12 +429,14 @@ def test_check_says_what_mixed_control_will_do(tmp_path, pga, says):
 ])
 def test_crossed_stiffness_thresholds_exit_2_before_the_actuators_open(tmp_path, integrator, says):
     """K_f given alone below 0.8 K^EI (the default K_d), or K_d alone above 1.2 K^EI: refused with
-    the element and both values, and what the missing one defaults to, before the site opens
-    (no "actuators stand at"); `hsio check` says the same."""
+    the element and both values, and what the missing one defaults to, naming the file, before
+    the dry run and before the run folder is created (no "actuators stand at"); `hsio check`
+    says the same."""
     out = _run(tmp_path, integrator)
     assert out.exit_code == 2, out.output
-    assert says in out.output and "[integrator]" in out.output
-    assert "stand at" not in out.output
+    assert says in out.output and f"{tmp_path / 'c.toml'}: [integrator]" in out.output
+    assert "stand at" not in out.output and "dry run" not in out.output
+    assert not list(tmp_path.glob("*.out"))
     if len(integrator) == 2:
         missing = "K_d = 0.8 K^EI" if "K_f" in integrator else "K_f = 1.2 K^EI"
         assert missing in out.output

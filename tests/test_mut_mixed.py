@@ -449,3 +449,19 @@ def test_the_instrument_rule_default_margin_is_the_documented_five():
 
     rule = SwitchingRule.from_instruments([100.0], 0.025, 0.01)
     assert rule.upper[0] == pytest.approx(5.0 * 0.01 / 0.025) and rule.lower[0] == pytest.approx(rule.upper[0] / 2)
+
+
+def test_fallback_after_zero_is_off_and_j_max_is_refused():
+    """fallback_after = 0 is off, as fc_fallback_after = 0 in a run configuration (not a fallback
+    after the first FC command); fallback_after = j_max would leave no command for DC, so the
+    guard would never act: refused rather than accepted as a guard that does nothing."""
+    site = _Site([100.0], u_c=[0.5], k2=[10.0])
+    m = _method(1, method="mixed", rule=SwitchingRule(np.array([50.0]), np.array([5.0])), fallback_after=0)
+    assert m.fallback_after is None
+    m.start(np.zeros(1), site, None)
+    m.step(np.array([10.0]), site, None, step=1)
+    out = m.step(np.array([400.0]), site, None, step=2)
+    assert m.not_converged == [] and [s for s in out.switches if s.within_step] == []
+    with pytest.raises(ConfigError, match=r"fallback_after must be None or 0 \(off\), or a whole number of FC "
+                                          r"commands below j_max \(4\)"):
+        _method(1, method="mixed", fallback_after=4)

@@ -175,24 +175,30 @@ class ImplicitAlpha:
                  secant_z: float = SECANT_Z, element_refs=None):
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
             raise ConfigError(f"implicit alpha method: alpha must be in [-1/3, 0], got {alpha!r}")
-        if not dt > 0:
-            raise ConfigError(f"implicit alpha method: dt must be positive, got {dt!r}")
+        if isinstance(dt, bool) or not isinstance(dt, numbers.Real) or not (math.isfinite(dt) and dt > 0):
+            raise ConfigError(f"implicit alpha method: dt must be positive (a number of seconds), got {dt!r}")
         if isinstance(j_max, bool) or not isinstance(j_max, numbers.Integral) or not 1 <= j_max <= J_MAX_LIMIT:
             raise ConfigError(f"implicit alpha method: j_max (commands per step) must be a whole number in 1..{J_MAX_LIMIT}, "
                               f"got {j_max!r}")
         for name, tol in (("tol_displacement", tol_displacement), ("tol_force", tol_force)):
             if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not (math.isfinite(tol) and tol >= 0):
                 raise ConfigError(f"implicit alpha method: {name} must be a number, zero or positive, got {tol!r}")
-        self.M = np.atleast_2d(np.asarray(M, dtype=float))
+        self.M = _matrix("M", M)
         n = self.M.shape[0]
         if self.M.ndim != 2 or self.M.shape != (n, n):
             raise ConfigError(f"implicit alpha method: M must be a square matrix, got shape {self.M.shape}")
-        self.C = np.atleast_2d(np.asarray(C, dtype=float))
-        self.K_N = np.zeros((n, n)) if K_N is None else np.atleast_2d(np.asarray(K_N, dtype=float))
+        if not np.all(np.linalg.eigvalsh(0.5 * (self.M + self.M.T)) > 0):
+            raise ConfigError("implicit alpha method: M must be positive definite (a mass on every DOF)")
+        self.C = _matrix("C", C)
+        self.K_N = np.zeros((n, n)) if K_N is None else _matrix("K_N", K_N)
         for name, mat in (("C", self.C), ("K_N", self.K_N)):
             if mat.shape != (n, n):
                 raise ConfigError(f"implicit alpha method: {name} is {mat.shape}, M is {(n, n)}")
-        self.dofs = np.asarray(element_dofs, dtype=int)
+        dofs = np.atleast_1d(np.asarray(element_dofs, dtype=object))
+        if dofs.ndim != 1 or not all(isinstance(d, numbers.Integral) and not isinstance(d, bool) for d in dofs):
+            raise ConfigError(f"implicit alpha method: element_dofs must be whole DOF numbers, one per element, "
+                              f"got {element_dofs!r:.80}")
+        self.dofs = dofs.astype(int)
         if len(set(self.dofs.tolist())) != len(self.dofs):
             raise ConfigError("implicit alpha method: two experimental elements act on the same DOF; the secant "
                               "stiffness of eq. (11) is per DOF and cannot split a DOF's force between them")
@@ -505,6 +511,17 @@ class ImplicitAlpha:
         if self.state is None:
             raise RuntimeError("implicit alpha method: call start() before stepping")
         return self.state
+
+
+def _matrix(name: str, value) -> np.ndarray:
+    """``value`` as a 2-D array of finite numbers (M, C, K_N), else a ConfigError naming it."""
+    try:
+        out = np.atleast_2d(np.asarray(value, dtype=float))
+    except (TypeError, ValueError):
+        raise ConfigError(f"implicit alpha method: {name} must be a matrix of numbers, got {value!r:.80}") from None
+    if not np.all(np.isfinite(out)):
+        raise ConfigError(f"implicit alpha method: {name} must be finite, got {out.tolist()!r:.80}")
+    return out
 
 
 def _instruments(given) -> tuple:

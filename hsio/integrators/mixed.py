@@ -113,7 +113,10 @@ class SwitchingRule:
         if not (s_u > 0 and s_F > 0):
             raise ConfigError("switching rule: the transducer and the load cell each need a resolution or a noise "
                               "above 0")
-        K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
+        try:
+            K_EI = np.atleast_1d(np.asarray(K_EI, dtype=float))
+        except (TypeError, ValueError):
+            raise ConfigError(f"switching rule: K_EI must be numbers, one per element, got {K_EI!r:.80}") from None
         K_f = margin * s_F / s_u
         return cls(np.full(K_EI.shape, K_f), np.full(K_EI.shape, K_f / hysteresis), "stiffness",
                    ((float(noise_mm), float(resolution_mm)), (float(force_noise_kN), float(force_resolution_kN))))
@@ -184,9 +187,10 @@ def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc
             raise ConfigError(f"fc_force_limit must be None (off) or a force in kN above 0, one for every element or "
                               f"one per experimental element ({n_elements}), got {fc_force_limit!r}")
 
-    if fallback_after is not None and not (whole(fallback_after) and 0 <= fallback_after <= j_max):
-        raise ConfigError(f"fallback_after must be None (off) or a whole number of commands in 0..j_max ({j_max}), "
-                          f"got {fallback_after!r}")
+    if fallback_after is not None and not (whole(fallback_after) and (fallback_after == 0 or fallback_after < j_max)
+                                           and fallback_after >= 0):
+        raise ConfigError(f"fallback_after must be None or 0 (off), or a whole number of FC commands below j_max "
+                          f"({j_max}), after which the step's remaining commands go in DC; got {fallback_after!r}")
     if not (whole(refractory_steps) and 0 <= refractory_steps <= 10**9):
         raise ConfigError(f"refractory_steps must be a whole number of steps in 0..1e9, got {refractory_steps!r}")
     if explored_fraction is not None and not (isinstance(explored_fraction, numbers.Real)
@@ -339,6 +343,8 @@ faster than FC can follow. ``fc_blend``: the
         if method != "mixed" and given:
             raise ConfigError(f"{given[0]}: a guard of method 'mixed', not of {method!r} (it would change the "
                               f"method: e.g. force control falling back to DC for good)")
+        if rule is not None and not isinstance(rule, SwitchingRule):
+            raise ConfigError(f"rule must be a SwitchingRule or None, got {rule!r:.80}")
         self.method = method
         if secant_uncertainty is None and method == "mixed" and rule is not None:
             secant_uncertainty = rule.uncertainty
@@ -352,10 +358,16 @@ faster than FC can follow. ``fc_blend``: the
         self.dofs = self.core.dofs
         n_e = self.dofs.size
         self.dof_names = list(dof_names) if dof_names is not None else [str(d) for d in range(self.core.n_dof)]
+        if len(self.dof_names) != self.core.n_dof:
+            raise ConfigError(f"dof_names: {len(self.dof_names)} names for {self.core.n_dof} DOFs")
+        if self.rule is not None and self.rule.upper.size not in (1, n_e) or (
+                self.rule is not None and self.rule.lower.size not in (1, n_e)):
+            raise ConfigError(f"switching rule: {self.rule.upper.size} threshold(s) for {n_e} experimental "
+                              f"element(s); give one per element, or one for all")
         self.modes = [FC if method == "force_control" else DC] * n_e
         if self.rule is not None:  # at rest an element is on its initial branch: its rule's mode at K^EI
             self.modes = self.rule.next_modes(self.modes, self.core.K_EI, np.zeros(n_e))
-        self.fallback_after = fallback_after
+        self.fallback_after = fallback_after or None  # 0: off, as in a run configuration
         self.refractory_steps = int(refractory_steps)
         self._dc_until = np.zeros(n_e, dtype=int)  # an element that did not converge in FC stays in DC
         self.explored_fraction = explored_fraction
