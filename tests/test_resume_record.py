@@ -122,14 +122,20 @@ def test_a_record_on_a_full_disk_is_not_resumed(tmp_path, monkeypatch):
     assert _resume(out).exit_code == 0
 
 
-def test_a_resume_that_cannot_open_the_hardware_records_why(tmp_path):
-    out = stopped_run(tmp_path, 5)
+def _resume_with_no_hardware(out):
+    """``hsio resume`` of the record in ``out`` with its hardware URL pointing at a port that
+    refuses connections."""
     with refused_port() as port, sqlite3.connect(out / "run.sqlite") as db:
         meta = json.loads(db.execute("SELECT value FROM meta WHERE key = 'config'").fetchone()[0])
         meta["hardware"]["url"] = f"modbus+tcp://127.0.0.1:{port}/1"
         db.execute("UPDATE meta SET value = ? WHERE key = 'config'", (json.dumps(meta),))
         db.commit()
-        result = _resume(out)
+        return _resume(out)
+
+
+def test_a_resume_that_cannot_open_the_hardware_records_why(tmp_path):
+    out = stopped_run(tmp_path, 5)
+    result = _resume_with_no_hardware(out)
     assert result.exit_code == 3, result.output
     run = Run(out / "run.sqlite")
     kinds = [e["kind"] for e in run.events()]
@@ -150,12 +156,7 @@ def test_a_resume_that_cannot_open_the_hardware_on_a_full_disk_says_why(tmp_path
         return real(self, time_s, step, kind, *args, **kwargs)
 
     monkeypatch.setattr(Recorder, "write_event", full)
-    with refused_port() as port, sqlite3.connect(out / "run.sqlite") as db:
-        meta = json.loads(db.execute("SELECT value FROM meta WHERE key = 'config'").fetchone()[0])
-        meta["hardware"]["url"] = f"modbus+tcp://127.0.0.1:{port}/1"
-        db.execute("UPDATE meta SET value = ? WHERE key = 'config'", (json.dumps(meta),))
-        db.commit()
-        result = _resume(out)
+    result = _resume_with_no_hardware(out)
     assert result.exit_code == 3, result.output
     assert "cannot connect" in result.output and "event could not be written" not in result.output
 
