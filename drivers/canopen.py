@@ -49,11 +49,11 @@ from urllib.parse import urlsplit
 
 import can
 import canopen
-from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from hsio.drivers import canopen_od as cod
 from hsio.drivers import common
+from hsio.drivers.canopen_sdo import MatchingNode402
 from hsio.clock import Clock
 from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError, LimitError,
                          SdoAbortError)
@@ -188,7 +188,7 @@ class DriveNode:
     def __init__(self, link: "CanopenLink", node_id: int, od):
         self.link = link
         self.id = node_id
-        self.node = BaseNode402(node_id, od)
+        self.node = MatchingNode402(node_id, od)  # SDO answers taken for the request in flight only
         link.network.add_node(self.node)
         self.node.sdo.RESPONSE_TIMEOUT = link.options["timeout_s"]
         # canopen counts attempts: MAX_RETRIES 1 is one request, and 0 would wait for ever on a silent node
