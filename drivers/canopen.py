@@ -8,7 +8,7 @@ NODE + k (docs/canopen.md). The [driver] table (or
 the URL's query) sets ``eds`` (the drive's EDS file; default hsio's object dictionary),
 ``timeout_s``, ``retries``, ``heartbeat_ms`` and the limits ``stroke_mm``, ``force_kN``,
 ``velocity_mm_s``; the stroke and force capacity default to the drive's own (0x607D, 0x6072 x
-0x6076), never to a guess.
+0x6076), never to a guess, and a configured one may be tighter than the drive's, never wider.
 
 Start-up, per node: SDO reads of identity, device type (must be CiA 402), scaling (counts per mm,
 rated force), software position limits, max torque and the emulator-only lockstep flag; then,
@@ -49,11 +49,11 @@ from urllib.parse import urlsplit
 
 import can
 import canopen
-from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from hsio.drivers import canopen_od as cod
 from hsio.drivers import common
+from hsio.drivers.canopen_sdo import MatchingNode402
 from hsio.clock import Clock
 from hsio.errors import (CommunicationError, ConfigError, ControllerRestartedError, InterlockError, LimitError,
                          SdoAbortError)
@@ -79,6 +79,7 @@ RULES = {
     "counts_per_mm": common.Rule(float, 1e-3, 1e9, False, "between 0.001 and 1e9 counts per mm"),
     **common.PLAUSIBILITY_RULES,
 }
+SCALING_TOLERANCE = 1e-6  # relative: a configured counts_per_mm agrees with the drive's within 1 ppm
 COUNTS_MAX = 2**31 - 1  # the target and actual positions 0x607A, 0x6064 are int32 counts
 PERMILLE_MAX = 32767  # the CiA 402 torque objects are int16, per mille of the rated value 0x6076
 
@@ -188,7 +189,7 @@ class DriveNode:
     def __init__(self, link: "CanopenLink", node_id: int, od):
         self.link = link
         self.id = node_id
-        self.node = BaseNode402(node_id, od)
+        self.node = MatchingNode402(node_id, od)  # SDO answers taken for the request in flight only
         link.network.add_node(self.node)
         self.node.sdo.RESPONSE_TIMEOUT = link.options["timeout_s"]
         # canopen counts attempts: MAX_RETRIES 1 is one request, and 0 would wait for ever on a silent node
@@ -364,11 +365,14 @@ class DriveNode:
     def limits(self, url: str, options: dict):
         """[driver] stroke_mm / force_kN where set, else the drive's own: the software position
         limits 0x607D and the max torque 0x6072 (per mille of the rated torque 0x6076, read as
-        newtons). Asymmetric position limits give the smaller half-range on either side of zero;
-        a force capacity the int16 torque objects cannot carry is refused."""
+        newtons). A configured limit wider than the drive's is refused (a tighter one is a
+        software limit inside the drive's). Asymmetric position limits give the smaller
+        half-range on either side of zero; a force capacity the int16 torque objects cannot
+        carry is refused."""
         lo, hi = self.limits_counts
         where = f"{url} node {self.id}"
         stroke, stroke_why = None, " (0x607D software position limits are 0/0: none set)"
+        stroke_from = f" (its software position limits 0x607D, {lo / self.counts_per_mm:g}..{hi / self.counts_per_mm:g} mm)"
         if (lo, hi) != (0, 0):
             if not lo < 0 < hi:
                 raise ConfigError(f"{where}: software position limits 0x607D {lo}..{hi} counts do not contain zero; "
@@ -378,8 +382,8 @@ class DriveNode:
                 log.warning("%s: asymmetric software position limits %.3f..%.3f mm; using +/-%.3f mm", where,
                             lo / self.counts_per_mm, hi / self.counts_per_mm, stroke / 2)
         force = None if self.max_torque_permille is None else self.max_torque_permille * self.rated_N / 1e6
-        limits = common.resolve_limits(where, options, stroke, force, stroke_why,
-                                       " (no max torque 0x6072)")
+        limits = common.resolve_limits(where, options, stroke, force, stroke_why, " (no max torque 0x6072)",
+                                       stroke_from, " (its max torque 0x6072 x rated torque 0x6076)")
         reach = COUNTS_MAX / self.counts_per_mm
         if limits.half_stroke_mm > reach:
             key = "[driver] stroke_mm" if options["stroke_mm"] is not None else "0x607D"
@@ -518,18 +522,35 @@ class CanopenLink(common.AxisLink):
             self.ticks = d.sdo_read(cod.CLOCK, what="clock")
 
     def _scaling(self, d: DriveNode) -> float:
-        """Position counts per mm: [driver] counts_per_mm where set, else the drive's position
-        factor 0x6093 (numerator / divisor: counts per mm, the drive's user unit being the mm),
-        else its feed constant 0x6092 (feed in mm per driving-shaft revolution) with the encoder
+        """Position counts per mm: the drive's own (:meth:`_reported_scaling`), else [driver]
+        counts_per_mm; never guessed (docs/canopen.md). A configured value where the drive
+        reports its scaling must agree with it (within :data:`SCALING_TOLERANCE`): one that
+        contradicts it would misread every position, and is refused."""
+        given = self.options["counts_per_mm"]
+        reported = self._reported_scaling(d)
+        if reported is None:
+            if given is None:
+                raise ConfigError(f"{self.url} node {d.id}: the drive reports no position scaling (neither the position "
+                                  "factor 0x6093 nor the feed constant 0x6092 with 0x608F); set [driver] counts_per_mm")
+            return float(given)
+        value, what = reported
+        if given is not None and not math.isclose(given, value, rel_tol=SCALING_TOLERANCE):
+            raise ConfigError(f"{self.url} node {d.id}: [driver] counts_per_mm = {given:g} contradicts the drive's own "
+                              f"scaling, {value:g} counts per mm from its {what}; leave counts_per_mm out (it is for a "
+                              "drive that reports no scaling) or correct the drive's objects")
+        return value
+
+    def _reported_scaling(self, d: DriveNode) -> tuple[float, str] | None:
+        """The drive's counts per mm and the objects it comes from, or None: its position factor
+        0x6093 (numerator / divisor: counts per mm, the drive's user unit being the mm), else its
+        feed constant 0x6092 (feed in mm per driving-shaft revolution) with the encoder
         resolution 0x608F (increments per motor revolution) and the gear ratio 0x6091 (motor
-        revolutions per shaft revolution, 1:1 where the drive has none). Never guessed
-        (docs/canopen.md)."""
-        if self.options["counts_per_mm"] is not None:
-            return float(self.options["counts_per_mm"])
+        revolutions per shaft revolution, 1:1 where the drive has none)."""
         num = self._read_optional(d, 0x6093, 1, "position factor numerator")
         div = self._read_optional(d, 0x6093, 2, "position factor divisor")
         if num and div:
-            return self._checked_scale(d, num / div, f"position factor 0x6093 ({num}/{div})")
+            what = f"position factor 0x6093 ({num}/{div})"
+            return self._checked_scale(d, num / div, what), what
         feed = self._read_optional(d, 0x6092, 1, "feed constant")
         revs = self._read_optional(d, 0x6092, 2, "feed constant shaft revolutions")
         incs = self._read_optional(d, 0x608F, 1, "position encoder increments")
@@ -540,11 +561,10 @@ class CanopenLink(common.AxisLink):
             gear_motor = self._read_optional(d, 0x6091, 1, "gear ratio motor revolutions")
             gear_shaft = self._read_optional(d, 0x6091, 2, "gear ratio shaft revolutions")
             gear = gear_motor / gear_shaft if gear_motor and gear_shaft else 1.0
-            return self._checked_scale(d, (incs / turns) * gear * revs / feed,
-                                       f"feed constant 0x6092 ({feed}/{revs}), encoder resolution 0x608F ({incs}/{turns}) "
-                                       f"and gear ratio 0x6091 ({gear:g})")
-        raise ConfigError(f"{self.url} node {d.id}: the drive reports no position scaling (neither the position factor "
-                          "0x6093 nor the feed constant 0x6092 with 0x608F); set [driver] counts_per_mm")
+            what = (f"feed constant 0x6092 ({feed}/{revs}), encoder resolution 0x608F ({incs}/{turns}) and gear ratio "
+                    f"0x6091 ({gear:g})")
+            return self._checked_scale(d, (incs / turns) * gear * revs / feed, what), what
+        return None
 
     @staticmethod
     def _checked_scale(d: DriveNode, value: float, what: str) -> float:

@@ -94,21 +94,47 @@ def reported(value) -> float | None:
     return value if math.isfinite(value) and value > 0 else None
 
 
+WIDER_TOLERANCE = 1e-6  # relative: a float32 register rounds a limit by less
+
+
 def resolve_limits(url: str, options: dict, stroke_mm: float | None, force_kN: float | None,
-                   stroke_why: str = "", force_why: str = "") -> Limits:
+                   stroke_why: str = "", force_why: str = "", stroke_from: str = "", force_from: str = "") -> Limits:
     """The actuator limits: [driver] stroke_mm / force_kN where set, else the controller's own.
 
-    Neither is ever guessed: a limit the controller does not report must be configured.
+    Neither is ever guessed: a limit the controller does not report must be configured. A
+    configured limit tighter than the controller's is a software limit inside the hardware's
+    and is taken; one wider than the controller's reported limit is refused (:func:`configured`).
+    ``*_why`` says why the controller reports none, ``*_from`` where a reported one comes from.
     """
-    stroke = options["stroke_mm"] if options["stroke_mm"] is not None else reported(stroke_mm)
+    stroke = configured(url, options, "stroke_mm", reported(stroke_mm), "stroke", "mm", stroke_from)
     if stroke is None:
         raise ConfigError(f"{url}: the controller does not report its stroke{stroke_why}; set [driver] stroke_mm "
                           "(the total stroke in mm, centred on zero)")
-    force = options["force_kN"] if options["force_kN"] is not None else reported(force_kN)
+    force = configured(url, options, "force_kN", reported(force_kN), "force capacity", "kN", force_from)
     if force is None:
         raise ConfigError(f"{url}: the controller does not report its force capacity{force_why}; set [driver] "
                           "force_kN (the force capacity in kN)")
     return Limits(float(stroke), float(force), float(options["velocity_mm_s"]))
+
+
+def configured(url: str, options: dict, key: str, controller: float | None, what: str, unit: str,
+               source: str = "") -> float | None:
+    """[driver] ``key`` where set, else the controller's reported limit (None: neither).
+
+    A configured limit may be tighter than the controller's, never wider: a limit beyond the
+    hardware's would let commands past that the controller cannot carry out, and the dry run
+    and every check on the host would judge against a range the actuator does not have. So a
+    configured value above the reported one (by more than the rounding of a float32 register)
+    is a ConfigError naming the key and both values, raised before anything is enabled.
+    """
+    value = options[key]
+    if value is None:
+        return controller
+    if controller is not None and value > controller * (1.0 + WIDER_TOLERANCE):
+        raise ConfigError(f"{url}: [driver] {key} = {value:g} {unit} is wider than the {what} the controller reports, "
+                          f"{controller:g} {unit}{source}; a configured limit may be tighter than the controller's, "
+                          f"never wider: set {key} to at most {controller:g} or leave it out")
+    return float(value)
 
 
 def check_clock(url: str, lockstep: bool, clock, rate_hz: float | None = None) -> None:

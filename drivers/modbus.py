@@ -4,7 +4,8 @@
 of the configuration (or the URL's query) sets ``map`` (a TOML register map, default hsio's),
 ``baudrate``, ``parity`` (N, E, O) and ``stopbits`` (RTU), ``timeout_s``, ``retries``, ``reconnect_delay_s``, ``device_id`` and the limits ``stroke_mm``,
 ``force_kN``, ``velocity_mm_s``. The stroke and force capacity default to the controller's own
-(its info registers); one it does not report must be set, never guessed (:mod:`hsio.drivers.common`).
+(its info registers); one it does not report must be set, never guessed, and a configured one may be
+tighter than the controller's, never wider (:mod:`hsio.drivers.common`).
 
 One :class:`ModbusLink` per controller carries the cyclic exchange of all its axes: one write of
 every axis' command block and one read of every status block, in a single request (function
@@ -257,11 +258,13 @@ class ModbusLink(common.AxisLink):
                     raise InterlockError(f"{self.url}: axis {k}: the {bit} bit is still set after the reset")
 
     def axis_limits(self) -> list[Limits]:
-        """One controller, one set of limits: [driver] where set, else the controller's info
-        registers (stroke_mm, force_limit_kN); neither guessed."""
+        """One controller, one set of limits: [driver] where set (tighter than the controller's
+        info registers stroke_mm, force_limit_kN, where it has them), else those registers;
+        neither guessed."""
         why = f" (register map {self.map.name!r} has no such info register or it reads 0)"
         limits = common.resolve_limits(self.url, self.options, self.info.get("stroke_mm"),
-                                       self.info.get("force_limit_kN"), why, why)
+                                       self.info.get("force_limit_kN"), why, why, " (its stroke_mm info register)",
+                                       " (its force_limit_kN info register)")
         self._check_full_scale(limits)
         return [limits] * self.n
 

@@ -115,8 +115,11 @@ def test_sdo_abort_becomes_a_clear_error(drive):
 
 
 def test_interlock_emcy_stops_the_run_with_steps_kept(tmp_path):
+    """A drive that reports no software limits (0x607D 0/0) on an actuator of 1.6 mm stroke, run
+    with [driver] stroke_mm = 10: the host's limit is wider than the hardware's, and the drive's
+    own interlock stops the run."""
     cfg = write_config(tmp_path, duration=1.0, extra="[emulator]\nstroke_mm = 1.6\n")
-    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), channel()).start()
+    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), channel(), position_limits_mm=(0.0, 0.0)).start()
     try:
         result, recorded = run(cfg, tmp_path / "wire", url=emu.url, driver={"stroke_mm": 10.0},
                                safety={"override": True})  # the dry run would refuse it before anything moves

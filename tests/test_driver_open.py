@@ -113,11 +113,15 @@ def test_canopen_limits_are_the_drives_own(cfg):
         emu.stop()
 
 
-def test_canopen_force_capacity_beyond_int16_is_refused_at_open(cfg):
-    """A drive rated 5 kN carries at most 32767 per mille = 163.835 kN: 250 kN is refused at
-    open, by name, and nothing is enabled; a capacity within the range works."""
+def test_canopen_force_capacity_beyond_int16_is_refused_at_open(tmp_path):
+    """A drive rated 5 kN carries at most 32767 per mille = 163.835 kN: a capacity of 250 kN
+    (the drive's own, or configured as the drive's) is refused at open, by name, and nothing is
+    enabled; a capacity within the range, tighter than the drive's, works."""
+    cfg = write_config(tmp_path, duration=0.5, extra="[emulator]\nstroke_mm = 100.0\nforce_limit_kN = 250.0\n")
     emu = canopen_emulator(cfg, rated_force_N=5000)
     try:
+        with pytest.raises(ConfigError, match=r"force capacity 250 kN \(the max torque 0x6072\).*0x6076.*163.835"):
+            canopen_open(emu.url, NAMES, LockstepClock())
         with pytest.raises(ConfigError, match=r"force capacity 250 kN \(\[driver\] force_kN\).*0x6076.*163.835"):
             canopen_open(emu.url, NAMES, LockstepClock(), {"force_kN": 250})
         assert none_enabled(emu.bank) and all(a.state != OE for a in emu.axes)
@@ -137,8 +141,11 @@ def test_canopen_force_capacity_beyond_int16_is_refused_at_open(cfg):
 def test_canopen_stroke_beyond_the_int32_target_position_is_refused_at_open(cfg):
     """At 1e8 counts per mm the int32 target position 0x607A carries +/-21.47 mm: a 254 mm
     stroke would let a 25 mm command pass the stroke check and fail to encode mid-run. Refused
-    at open, naming the object and the reach, before anything is enabled."""
-    emu = canopen_emulator(cfg)
+    at open, naming the object and the reach, before anything is enabled. (A drive that reports
+    neither its scaling nor software limits: both come from [driver].)"""
+    emu = canopen_emulator(cfg, position_limits_mm=(0.0, 0.0))
+    for axis in emu.axes:
+        del axis.node.object_dictionary[0x6093]
     try:
         with pytest.raises(ConfigError, match=r"half stroke 127 mm \(\[driver\] stroke_mm\) at 1e\+08 counts per mm "
                                               r"is beyond .*0x607A.*21.4748 mm"):
@@ -232,3 +239,88 @@ def test_bad_driver_options_in_the_url_are_refused_by_name(url, key):
     link = ModbusLink if url.startswith("modbus") else CanopenLink
     with pytest.raises(ConfigError, match=rf"{key} must be"):
         link(url, 1)
+
+
+# -- configured limits against the controller's ---------------------------------------------------
+
+def test_modbus_configured_limits_wider_than_the_controllers_are_refused_tighter_taken(cfg):
+    """The controller reports 100 mm and 40 kN: [driver] stroke_mm = 1000 would make every check
+    on the host judge against +/-500 mm, beyond the actuator; refused at open, naming the key
+    and both values, nothing enabled. Tighter values are software limits, taken as given."""
+    with ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0), modbus_map.load()) as emu:
+        with pytest.raises(ConfigError, match=r"\[driver\] stroke_mm = 1000 mm is wider than the stroke the controller "
+                                              r"reports, 100 mm \(its stroke_mm info register\)"):
+            modbus_open(emu.url, NAMES, LockstepClock(), {"stroke_mm": 1000})
+        with pytest.raises(ConfigError, match=r"\[driver\] force_kN = 40.5 kN is wider than the force capacity the "
+                                              r"controller reports, 40 kN \(its force_limit_kN info register\)"):
+            modbus_open(emu.url, NAMES, LockstepClock(), {"stroke_mm": 100, "force_kN": 40.5})
+        assert none_enabled(emu.bank)
+        acts = modbus_open(emu.url, NAMES, LockstepClock(), {"stroke_mm": 60, "force_kN": 40})
+        try:
+            assert (acts[0].limits.stroke_mm, acts[0].limits.force_kN) == (60.0, 40.0)
+            with pytest.raises(LimitError, match="beyond the stroke"):
+                acts[0].command(30.5)  # inside the controller's 50 mm, beyond the configured 30 mm
+        finally:
+            close_all(acts)
+
+
+def test_canopen_configured_limits_wider_than_the_drives_are_refused_tighter_taken(cfg):
+    """The drive's software position limits 0x607D (+/-50 mm) and max torque 0x6072 (40 kN)
+    bound what [driver] may set; asymmetric limits -30..+45 mm bound the stroke to 60 mm."""
+    emu = canopen_emulator(cfg)
+    try:
+        with pytest.raises(ConfigError, match=r"node 1: \[driver\] stroke_mm = 101 mm is wider than the stroke the "
+                                              r"controller reports, 100 mm \(its software position limits 0x607D"):
+            canopen_open(emu.url, NAMES, LockstepClock(), {"stroke_mm": 101})
+        with pytest.raises(ConfigError, match=r"\[driver\] force_kN = 41 kN is wider .* 40 kN \(its max torque 0x6072"):
+            canopen_open(emu.url, NAMES, LockstepClock(), {"force_kN": 41})
+        assert none_enabled(emu.bank) and all(a.state != OE for a in emu.axes)
+        acts = canopen_open(emu.url, NAMES, LockstepClock(), {"stroke_mm": 10, "force_kN": 20})
+        try:
+            assert (acts[0].limits.stroke_mm, acts[0].limits.force_kN) == (10.0, 20.0)
+        finally:
+            close_all(acts)
+    finally:
+        emu.stop()
+    emu = canopen_emulator(cfg, position_limits_mm=(-30.0, 45.0))
+    try:
+        with pytest.raises(ConfigError, match=r"stroke_mm = 70 mm is wider .* 60 mm .*-30\.\.45 mm"):
+            canopen_open(emu.url, NAMES, LockstepClock(), {"stroke_mm": 70})
+        assert none_enabled(emu.bank)
+    finally:
+        emu.stop()
+
+
+def test_canopen_counts_per_mm_contradicting_the_drives_scaling_is_refused(cfg):
+    """The drive's position factor 0x6093 says 1000 counts per mm: [driver] counts_per_mm = 2000
+    would read every position at half its size; refused at open. The same value is taken."""
+    emu = canopen_emulator(cfg)
+    try:
+        with pytest.raises(ConfigError, match=r"node 1: \[driver\] counts_per_mm = 2000 contradicts the drive's own "
+                                              r"scaling, 1000 counts per mm from its position factor 0x6093 \(1000/1\)"):
+            canopen_open(emu.url, NAMES, LockstepClock(), {"counts_per_mm": 2000})
+        assert none_enabled(emu.bank)
+        acts = canopen_open(emu.url, NAMES, LockstepClock(), {"counts_per_mm": 1000.0})
+        try:
+            assert acts[0].drive.counts_per_mm == 1000.0
+        finally:
+            close_all(acts)
+    finally:
+        emu.stop()
+
+
+def test_hsio_run_with_a_stroke_wider_than_the_controllers_exits_2_before_anything_moves(tmp_path, cfg):
+    """`hsio run` with [driver] stroke_mm = 1000 against a controller that reports 100 mm: exit
+    status 2, no traceback, the key and both values named; no axis was ever enabled."""
+    import subprocess
+    import sys
+
+    with ModbusEmulator(bank_from_config(cfg, lockstep=True, watchdog_s=0), modbus_map.load()) as emu:
+        run_cfg = write_config(tmp_path, duration=0.5, name="wide.toml",
+                               extra=f'url = "{emu.url}"\n[driver]\nstroke_mm = 1000.0\n')
+        proc = subprocess.run([sys.executable, "-m", "hsio.cli", "run", str(run_cfg), "--out", str(tmp_path / "out")],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2, proc.stderr[-2000:]
+        assert "Traceback" not in proc.stderr
+        assert "[driver] stroke_mm = 1000 mm is wider than the stroke the controller reports, 100 mm" in proc.stderr
+        assert none_enabled(emu.bank) and all(c["enable"] == 0.0 for c in emu.context.commands)

@@ -149,13 +149,15 @@ def test_a_lab_map_with_reserved_status_words_runs_on_the_emulator(tmp_path, cfg
 def test_integer_registers_too_narrow_for_the_limits_are_refused_at_open(tmp_path, cfg):
     """An int32 displacement at 1e7 counts/mm carries +/-214.7 mm: with a 1000 mm stroke a command
     of 300 mm passes the stroke check and could not be encoded mid-run. Refused at open, naming
-    the table, the register and the range, before anything is enabled."""
+    the table, the register and the range, before anything is enabled (a controller of 1000 mm
+    stroke, which [driver] stroke_mm repeats)."""
     text = modbus_map.DEFAULT_MAP.read_text()
     path = tmp_path / "lab.toml"
+    long = write_config(tmp_path, name="long.toml", extra="[emulator]\nstroke_mm = 1000.0\n")
     for table, offset, scale in (("command", 0, 1e7), ("status", 2, 1e8)):
         path.write_text(text.replace(f'displacement = {{ offset = {offset}, type = "float32" }}',
                                      f'displacement = {{ offset = {offset}, type = "int32", scale = {scale} }}'))
-        emu = ModbusEmulator(bank_from_config(cfg, lockstep=True), modbus_map.load(path)).start()
+        emu = ModbusEmulator(bank_from_config(long, lockstep=True), modbus_map.load(path)).start()
         try:
             with pytest.raises(ConfigError, match=rf"\[{table}\] displacement \(int32, scale 1e\+0[78]\) carries "
                                                   r"-21[\d.]+\.\.21[\d.]+ mm, less than the half stroke \+/-500 mm"):
