@@ -700,7 +700,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
             try:
                 summary["plots"] = make_plots(out, structure, hs, ns, config)
                 if implicit:
-                    summary["plots"].append(str(plots.control_modes(out / "modes.png", hs)))
+                    summary["plots"].append(str(plots.control_modes(out / "modes.png", hs, structure.incidence)))
             except OSError as exc:
                 notify(f"WARNING: the plots could not be written to {out} ({exc.strerror or exc})")
             except KeyboardInterrupt:  # the run is over, held and recorded: a second Ctrl-C ends the plots only

@@ -218,3 +218,21 @@ def test_the_two_storey_example_runs_on_the_emulated_actuator(tmp_path):
     assert np.max(np.abs(drift)) < 0.8 * np.max(np.abs(steps["u_roof"]))  # the drift is not the roof's motion
     assert np.allclose(steps["target_act2"], drift, rtol=0, atol=1e-9)
     assert check["peak_displacement_mm"][0] == pytest.approx(np.max(np.abs(drift)), rel=0.05)
+
+
+def test_the_control_modes_plot_shows_the_drift_of_the_storey(monkeypatch, tmp_path):
+    """modes.png of an implicit run: the storey's panel draws its drift u_roof - u_floor1 (what
+    its actuator was commanded), not the roof's displacement."""
+    from hsio import plots
+
+    s = storey_building()
+    hs = ns(s, harmonic(0.6), "mixed")
+    figures = []
+    monkeypatch.setattr(plots.plt, "close", figures.append)
+    plots.control_modes(tmp_path / "modes.png", hs, s.incidence)
+    (fig,) = figures
+    (line,) = [ln for ln in fig.axes[0].get_lines() if ln.get_label() == "drift"]
+    drift = hs.u[:, 1] - hs.u[:, 0]
+    assert np.max(np.abs(hs.u[:, 1] - drift)) > 1.0
+    np.testing.assert_allclose(line.get_ydata(), drift, rtol=0, atol=1e-12)
+    assert "storey2: roof - floor1" in fig.axes[0].get_ylabel()
