@@ -102,10 +102,14 @@ def check_run_method(config: RunConfig, structure: Structure) -> None:
     """The implicit methods iterate on the secant stiffness of elements driven by one actuator
     each: a structure with setups or multi-DOF elements runs with alpha_os (static preloads are held
     on their own actuators while the others iterate); mixed control on the instruments rule needs
-    their resolution or noise. Checked before anything is created or opened."""
+    their resolution or noise; a present start (``[test] start = "present"``) is for alpha_os.
+    Checked before anything is created or opened."""
     method = config["integrator"]["method"]
     if method not in IMPLICIT_METHODS:
         return
+    if config["test"]["start"] == "present":
+        raise ConfigError(f"{config.source}: [test] start = 'present' is available for the alpha_os method, not "
+                          f"[integrator] method = {method!r} (docs/safety.md section 6)")
     coupled = [e.name for e in structure.experimental if e.has_setup]
     if coupled:
         raise ConfigError(f"{config['structure']['file'] or structure.name}: [integrator] method = {method!r} "
