@@ -91,25 +91,30 @@ def tracking_error(path: Path, t, targets, measured, actuator_names, resolution_
     return path
 
 
-def control_modes(path: Path, hs) -> Path:
-    """Per element: displacement with FC steps shaded, and the secant stiffness against the
-    switching thresholds (docs/method.md section 5)."""
+def control_modes(path: Path, hs, incidence=None) -> Path:
+    """Per element: its displacement (E u, ``incidence`` E of the structure: the drift of an
+    element between two DOFs; None: u at the element's DOF) with FC steps shaded, and the secant
+    stiffness against the switching thresholds (docs/method.md section 5)."""
     n = len(hs.element_dofs)
+    E = np.asarray(incidence, dtype=float) if incidence is not None else None
     fig, axes = plt.subplots(2 * n, 1, figsize=(10, 4.4 * n + 0.8), sharex=True, squeeze=False)
     th = hs.thresholds
     for j, d in enumerate(hs.element_dofs):
         ax, ax_k = axes[2 * j, 0], axes[2 * j + 1, 0]
         name = hs.dof_names[d]
         fc = hs.modes[:, d] == "force"
-        ax.plot(hs.t, hs.u[:, d], color="C0", lw=0.9, label="displacement")
+        u = hs.u[:, d] if E is None else hs.u @ E[j]
+        between = [hs.dof_names[k] for k in np.flatnonzero(E[j] < 0)] if E is not None else []
+        label = f"{hs.element_names[j]}: {name} - {between[0]}" if between else name
+        ax.plot(hs.t, u, color="C0", lw=0.9, label="drift" if between else "displacement")
         ymin, ymax = ax.get_ylim()
         ax.fill_between(hs.t, ymin, ymax, where=fc, color="C3", alpha=0.15, step="mid", label="force control")
         ax.set_ylim(ymin, ymax)
-        ax.set_ylabel(f"{name} (mm)")
+        ax.set_ylabel(f"{label} (mm)")
         ax.legend(loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)
         switches = [s for s in hs.switches if s.dof == name]
-        ax.set_title(f"{name}: {len(switches)} switches, {fc[1:].mean() * 100:.0f} % of steps in FC", fontsize=9, loc="left")
+        ax.set_title(f"{label}: {len(switches)} switches, {fc[1:].mean() * 100:.0f} % of steps in FC", fontsize=9, loc="left")
         on_force = th is not None and th["on"] == "force"  # the rule reads |R|: show it against R_f, R_d
         if on_force:
             ax_k.plot(hs.t, np.abs(hs.measured_force[:, j]), color="C2", lw=0.8, label="|restoring force|")

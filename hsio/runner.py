@@ -102,10 +102,14 @@ def check_run_method(config: RunConfig, structure: Structure) -> None:
     """The implicit methods iterate on the secant stiffness of elements driven by one actuator
     each: a structure with setups or multi-DOF elements runs with alpha_os (static preloads are held
     on their own actuators while the others iterate); mixed control on the instruments rule needs
-    their resolution or noise. Checked before anything is created or opened."""
+    their resolution or noise; a present start (``[test] start = "present"``) is for alpha_os.
+    Checked before anything is created or opened."""
     method = config["integrator"]["method"]
     if method not in IMPLICIT_METHODS:
         return
+    if config["test"]["start"] == "present":
+        raise ConfigError(f"{config.source}: [test] start = 'present' is available for the alpha_os method, not "
+                          f"[integrator] method = {method!r} (docs/safety.md section 6)")
     coupled = [e.name for e in structure.experimental if e.has_setup]
     if coupled:
         raise ConfigError(f"{config['structure']['file'] or structure.name}: [integrator] method = {method!r} "
@@ -709,7 +713,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
             try:
                 summary["plots"] = make_plots(out, structure, hs, ns, config)
                 if implicit:
-                    summary["plots"].append(str(plots.control_modes(out / "modes.png", hs)))
+                    summary["plots"].append(str(plots.control_modes(out / "modes.png", hs, structure.incidence)))
             except OSError as exc:
                 notify(f"WARNING: the plots could not be written to {out} ({exc.strerror or exc})")
             except KeyboardInterrupt:  # the run is over, held and recorded: a second Ctrl-C ends the plots only

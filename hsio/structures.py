@@ -463,6 +463,7 @@ class Structure:
         dofs = self.experimental_dofs
         if len(set(dofs)) != len(dofs):
             raise ConfigError(f"structure {self.name!r}: two experimental elements share a DOF")
+        self._check_refs()
         actuators = [a for e in (*self.experimental, *self.static) for a in e.actuator_names]
         if len(set(actuators)) != len(actuators):
             raise ConfigError(f"structure {self.name!r}: two experimental elements share an actuator")
@@ -472,6 +473,20 @@ class Structure:
             raise ConfigError(f"structure {self.name!r}: {exc}") from None
         self._check_record_names()
         self._check_model()
+
+    def _check_refs(self) -> None:
+        """An element between two DOFs joins two translations: its displacement, the drift
+        u[dof] - u[ref], is in mm, and a setup's rotation (its basic DOF ``theta``, in rad) is
+        no end of it."""
+        if all(e.ref is None for e in self.experimental):
+            return
+        rotations = rotation_dofs(self)
+        for k, e in enumerate(self.experimental):
+            if e.ref is not None and e.ref in rotations:
+                raise ConfigError(f"{self.source or f'structure {self.name!r}'}: experimental[{k}].ref: DOF "
+                                  f"{self.dof_names[e.ref]!r} is a rotation (the basic DOF theta of a setup, in rad); "
+                                  f"an element between two DOFs joins two translations (its drift u[dof] - u[ref] "
+                                  f"is in mm)")
 
     def _check_arguments(self) -> None:
         """Each argument is of its type and holds finite numbers where numbers are due (the

@@ -3,10 +3,14 @@ the specimen stands, with no command jump, and the pair matches NS of the two re
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
-from hsio import api
+from hsio import api, runner
+from hsio import config as config_mod
 from hsio.errors import ConfigError, HsioError
 from hsio.experiment import start_present
 from hsio.interfaces import ControlMode
@@ -78,6 +82,33 @@ def test_present_start_needs_alpha_os():
     integrator = api.make_integrator(s, "implicit_dc")
     with pytest.raises(ConfigError, match="start = 'present' is available for the alpha_os method"):
         start_present(integrator, s, np.zeros(s.n_dof), _Standing([1.0], [2.0]), s.numerical_assembly())
+
+
+PRESENT = '[record]\nsynthetic_duration_s = 1.0\n[test]\nstart = "present"\n[integrator]\nmethod = "{method}"\n' \
+          'switch_rule = "initial_stiffness"\n[output]\nplots = false\n'
+
+
+@pytest.mark.parametrize("method", ["implicit_dc", "force_control", "mixed"])
+def test_a_present_start_of_an_implicit_method_is_bad_input(tmp_path, method):
+    path = tmp_path / "run.toml"
+    path.write_text(PRESENT.format(method=method))
+    cfg = config_mod.load(path)
+    with pytest.raises(ConfigError, match=rf"\[test\] start = 'present' is available for the alpha_os method, not "
+                                          rf"\[integrator\] method = '{method}'"):
+        runner.check_run_method(cfg, runner.load_run_structure(cfg))
+
+
+def test_a_present_start_of_an_implicit_method_is_refused_before_anything_opens(tmp_path):
+    """`hsio run` refuses it as bad input (exit 2) naming [test] start and the method: no
+    hardware opened, no record written."""
+    config = tmp_path / "run.toml"
+    config.write_text(PRESENT.format(method="implicit_dc"))
+    proc = subprocess.run([sys.executable, "-m", "hsio.cli", "run", str(config), "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "[test] start = 'present' is available for the alpha_os method" in proc.stderr
+    assert not (tmp_path / "out").exists()
 
 
 def test_the_standing_site_is_each_virgin_model_about_where_its_element_stands():

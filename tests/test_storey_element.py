@@ -218,3 +218,58 @@ def test_the_two_storey_example_runs_on_the_emulated_actuator(tmp_path):
     assert np.max(np.abs(drift)) < 0.8 * np.max(np.abs(steps["u_roof"]))  # the drift is not the roof's motion
     assert np.allclose(steps["target_act2"], drift, rtol=0, atol=1e-9)
     assert check["peak_displacement_mm"][0] == pytest.approx(np.max(np.abs(drift)), rel=0.05)
+
+
+def test_the_control_modes_plot_shows_the_drift_of_the_storey(monkeypatch, tmp_path):
+    """modes.png of an implicit run: the storey's panel draws its drift u_roof - u_floor1 (what
+    its actuator was commanded), not the roof's displacement."""
+    from hsio import plots
+
+    s = storey_building()
+    hs = ns(s, harmonic(0.6), "mixed")
+    figures = []
+    monkeypatch.setattr(plots.plt, "close", figures.append)
+    plots.control_modes(tmp_path / "modes.png", hs, s.incidence)
+    (fig,) = figures
+    (line,) = [ln for ln in fig.axes[0].get_lines() if ln.get_label() == "drift"]
+    drift = hs.u[:, 1] - hs.u[:, 0]
+    assert np.max(np.abs(hs.u[:, 1] - drift)) > 1.0
+    np.testing.assert_allclose(line.get_ydata(), drift, rtol=0, atol=1e-12)
+    assert "storey2: roof - floor1" in fig.axes[0].get_ylabel()
+
+
+ROTATION = """
+[structure]
+dt = 0.005
+[[dof]]
+name = "top_x"
+mass = 0.05
+[[dof]]
+name = "top_rot"
+mass = 50.0
+[[dof]]
+name = "roof"
+mass = 0.04
+[[experimental]]
+name = "column"
+dofs = ["top_x", "top_rot"]
+actuators = ["lower", "upper"]
+setup = { kind = "two_actuators", length_mm = 1500.0, spacing_mm = 500.0 }
+model = { kind = "cantilever", EI = 2.0e9, L = 2000.0 }
+[[experimental]]
+name = "brace"
+dof = "roof"
+ref = "REF"
+model = { kind = "linear", k = 10.0 }
+"""
+
+
+def test_a_ref_at_a_rotation_is_refused_naming_the_key(tmp_path):
+    """A drift u[dof] - u[ref] between mm and rad means nothing: a setup's theta is no end of an
+    element between two DOFs; its translation is."""
+    path = tmp_path / "frame.toml"
+    path.write_text(ROTATION.replace("REF", "top_rot"))
+    with pytest.raises(ConfigError, match=r"frame\.toml: experimental\[1\]\.ref: DOF 'top_rot' is a rotation"):
+        load_structure(path)
+    path.write_text(ROTATION.replace("REF", "top_x"))
+    assert load_structure(path).experimental_refs == [None, None, 0]
