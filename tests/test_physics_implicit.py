@@ -152,6 +152,21 @@ def test_fc_element_falls_back_to_dc_within_the_step_when_it_softens():
         assert r.fell_back.tolist() == [True, False]
 
 
+def test_a_fall_back_needs_a_command_left_to_send_in_dc():
+    """The secant that shows the specimen softer than fallback_below arrives with the measurement
+    of a command: with j_max = 1 that was the step's only command, sent in FC, so the step is
+    reported in FC (the mode its command was sent in, its target a force) and not as fallen back;
+    with j_max = 2 the second command goes in DC and the step is reported so."""
+    k_site = np.array([0.5, 0.9]) * K_EI2
+    out, site = run(k_site, (FC, FC), j_max=1, fallback_below=0.8 * K_EI2)
+    assert all(r.modes == [FC, FC] and not r.fell_back.any() for _, r in out)
+    assert all(m == [FC, FC] for *_, m in site.log)
+    out, site = run(k_site, (FC, FC), j_max=2, fallback_below=0.8 * K_EI2)
+    for step, (_, r) in enumerate(out, start=1):
+        assert r.modes == [DC, FC] and r.fell_back.tolist() == [True, False]
+        assert [m for s, trial, c, m in site.log if s == step] == [[FC, FC], [DC, FC]]
+
+
 def test_without_fallback_an_fc_element_stays_in_fc():
     k_site = np.array([0.5, 0.9]) * K_EI2
     out, site = run(k_site, (FC, FC))

@@ -315,7 +315,8 @@ class ImplicitAlpha:
         """One step: iterate eq. (7) with the elements in ``modes``; accept and advance.
 
         ``fallback_below`` (per element, kN/mm; None: off): an FC element whose secant estimate
-        falls below it during the step goes on in DC for the rest of the step. The FC iteration
+        falls below it during the step goes on in DC for the rest of the step (where a command is
+        left: after the step's last command the step stays in FC, as its command was sent). The FC iteration
         converges only while the secant it uses is below twice the stiffness of the branch
         ahead; at the end of a stiff branch (the specimen softens within the step) it would
         oscillate, whereas the DC iteration, dominated by K*, converges.
@@ -444,7 +445,7 @@ class ImplicitAlpha:
             iterations += active
             previous = commands
             sent = commands
-            if fallback_below is not None:
+            if fallback_below is not None and j < self.j_max - 1:  # a command is left to send in DC
                 soft = fc & np.isfinite(k_new) & (k_new < fallback_below)
                 if soft.any():
                     modes = [DC if soft[e] else m for e, m in enumerate(modes)]
