@@ -10,7 +10,8 @@ While paused, the wait feeds the controllers' host watchdogs every :attr:`RunCon
 or every quarter of the shortest watchdog time the controllers report where that is shorter,
 down to :attr:`RunControl.MIN_SLICE_S` (the site's ``keep_alive`` and ``keep_alive_period_s``: the
 axes keep holding), so a pause may last any time; a host that dies stops feeding them, and the
-controllers' watchdogs trip as they should.
+controllers' watchdogs trip as they should. A controller that cannot be reached to feed it is
+told and recorded as a trip is (below): its hold cannot be confirmed, and the run stays paused.
 
 While paused, the wait also watches the controllers every :attr:`RunControl.WATCH_S` (the site's
 ``watch_controllers``: each controller's latched trip, its interlock, its host watchdog, a drive
@@ -159,7 +160,7 @@ class RunControl:
             if leaving:
                 break
             if keep_alive is not None:  # the controllers' host watchdogs see a live host
-                keep_alive()
+                self._keep_alive(keep_alive, seen, log)
         with self._lock:  # resuming: a pause asked from here on is for the next step boundary
             if self.state != STOPPING:
                 self.state = PAUSING if self._pause_wanted else RUNNING
@@ -171,6 +172,18 @@ class RunControl:
             log("resume", message)
         self._tell(message)
 
+
+    def _keep_alive(self, keep_alive, seen: set[str], log) -> None:
+        """Feed the controllers' host watchdogs. A controller that cannot be reached is told and
+        recorded as a trip (:meth:`_watch`): the run stays paused, its hold not confirmed, until
+        the operator acknowledges it or stops the run; the feeding goes on meanwhile."""
+        try:
+            lost = keep_alive() or []
+        except Exception as exc:  # a site that raises rather than names the controller
+            lost = [f"the controllers could not be reached to feed their host watchdogs ({type(exc).__name__}): "
+                    f"whether the actuators hold cannot be confirmed"]
+        if lost:
+            self._watch(lambda: lost, seen, log)
 
     def _watch(self, watch, seen: set[str], log) -> bool:
         """Ask the controllers whether they tripped; tell and record each trip not seen before in
