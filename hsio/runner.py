@@ -565,8 +565,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
             if server is not None:
                 cleanup.callback(server.close)
             recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
-        except (RecordError, ConfigError):  # a full or read-only disk, a file in the socket's way: nothing
-            # began, no folder of this run is left
+        except (RecordError, ConfigError) as exc:  # a full or read-only disk, a file in the socket's way:
+            # nothing began, no folder of this run is left
+            exc.not_begun = str(exc)  # a caller that wrote in the folder (the monitor's log) may clear it
             cleanup.close()
             if ledger:
                 ledger.close()

@@ -733,3 +733,23 @@ def test_many_channels_draw_fewer_points_less_often_with_every_legend_entry(tmp_
     write_record(tmp_path / "two", 10).close()
     two = page_mod.MonitorPage(Document(), RecordFeed(tmp_path / "two"), Operator(tmp_path / "two"))
     assert two.decimation.cap == page_mod.DEFAULT_CAP and two.plot_every_s == page_mod.PLOT_EVERY_S
+
+
+def test_a_run_refused_by_its_control_socket_check_leaves_no_page_log(tmp_path, monkeypatch):
+    """`hsio run --monitor --out DIR`, DIR holding a file named control.sock that is not a socket:
+    the run is refused before its record begins, and the folder is left as it was (no monitor.log
+    of a page that watched no run)."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "control.sock").write_text("")
+    (tmp_path / "run.toml").write_text("[record]\nduration_s = 0.1\n[output]\nplots = false\n[safety]\nkeys = false\n")
+    got = CliRunner().invoke(main, ["run", "run.toml", "--out", str(out), "--monitor", "--monitor-port", "0"])
+    assert got.exit_code == 2, got.output
+    assert sorted(p.name for p in out.iterdir()) == ["control.sock"]
+    assert "control.sock: a file that is not a control socket" in got.output
+    assert "no record was left in it" in got.output
