@@ -753,3 +753,23 @@ def test_a_run_refused_by_its_control_socket_check_leaves_no_page_log(tmp_path, 
     assert sorted(p.name for p in out.iterdir()) == ["control.sock"]
     assert "control.sock: a file that is not a control socket" in got.output
     assert "no record was left in it" in got.output
+
+
+@pytest.mark.parametrize("line, pause, resume", [
+    ("ok running phase HS step 5", False, True),
+    ("ok pausing phase HS step 5", True, False),  # a resume cancels the pause asked
+    ("ok paused phase HS step 5", True, False),
+    ("ok stopping phase HS step 5", True, True),
+])
+def test_the_pause_and_resume_buttons_follow_the_runs_state(tmp_path, line, pause, resume):
+    """Pause is offered only to a running run, Resume only to one pausing or paused (disabled)."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), _RunAnswering(line))
+    disabled = {b.name: b.disabled for b in page.buttons}
+    assert (disabled["pause_button"], disabled["resume_button"]) == (pause, resume)
+    assert disabled["stop_button"] is False
+    rec.close()

@@ -53,6 +53,8 @@ class RunControl:
         self.trips: list[str] = []  # controller trips seen during the pauses of this run, as told
         self._unacknowledged: list[str] = []  # trips seen during this pause, not yet acknowledged
         self._acknowledged: list[str] = []  # acknowledgements to record (by the loop's thread)
+        self._cancelled: list[str] = []  # pauses a resume cancelled before they took effect, to record
+        self.paused_s = 0.0  # wall time spent paused in this run, all pauses
         self.listeners: list[Callable[[str], None]] = []  # told of each pause, resume and stop
 
     # -- requests (any thread) ------------------------------------------------------------
@@ -76,6 +78,8 @@ class RunControl:
             self._pause_wanted = False
             if self.state == PAUSING:
                 self.state = RUNNING
+                self._cancelled.append(f"pause cancelled by a resume ({source}) before it took effect (phase "
+                                       f"{self.phase}, after step {self.step}): nothing was held")
         self._wake.set()
         return f"ok {self.state if self.state != PAUSED else 'resuming'}"
 
@@ -127,6 +131,7 @@ class RunControl:
         """Between two steps: stop, or pause (hold, wait, resume), as requested."""
         self.step = step
         self.check_stop()
+        self._record(self._cancelled, "pause_cancelled", log)
         if not self._pause_wanted:
             return
         pause = getattr(site, "pause", None)
@@ -167,6 +172,7 @@ class RunControl:
         resume = getattr(site, "resume", None)
         if resume is not None:
             resume()
+        self.paused_s += time.monotonic() - started
         message = f"resumed after {time.monotonic() - started:.1f} s of pause"
         if log:
             log("resume", message)
@@ -206,11 +212,16 @@ class RunControl:
         return True
 
     def _record_acknowledgements(self, log) -> None:
+        self._record(self._acknowledged, "acknowledge", log)
+
+    def _record(self, pending: list[str], kind: str, log) -> None:
+        """Record and tell what a request made of the run (by the loop's thread), once each."""
         with self._lock:
-            done, self._acknowledged = self._acknowledged, []
+            done = pending[:]
+            pending.clear()
         for message in done:
             if log:
-                log("acknowledge", message)
+                log(kind, message)
             self._tell(message)
 
 
