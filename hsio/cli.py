@@ -150,7 +150,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                     summary = runner.run(cfg, out_dir, progress, ground=ground, control=control,
                                          specimen_dir=specimen_dir, checked=True,
                                          notify=notify if not as_json else (lambda line: None))
-                except ConfigError as exc:
+                except HsioError as exc:
                     if not (with_monitor and hasattr(exc, "not_begun")):
                         raise
                     cleanup.close()  # the page first: it writes its log in the folder

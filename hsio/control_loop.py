@@ -297,16 +297,25 @@ class ControlLoop:
                 self.monitor.skip(self.clock.now_s - self._paused_at)  # the pause's lab time does not count
             self._paused_at = None
 
-    def keep_alive(self) -> None:
+    def keep_alive(self) -> list[str]:
         """While paused: each actuator that has a host watchdog is kept alive (it keeps holding).
-        Called by the pause's wait (hsio.safety.control); an error is raised to that wait."""
+        Called by the pause's wait (hsio.safety.control). Returns one line per actuator whose
+        controller could not be reached ("<actuator>: <what>"): its hold cannot be confirmed, and
+        the pause tells it as the watch tells a trip; the others are still fed."""
+        lost = []
         with self._lock:
             if not self._paused:
-                return
+                return lost
             for actuator in self.actuators:
                 keep = getattr(actuator, "keep_alive", None)
-                if keep is not None:
+                if keep is None:
+                    continue
+                try:
                     keep()
+                except Exception as exc:  # the same words at every wait, however the error's text varies
+                    lost.append(f"{actuator.name}: its controller could not be reached to feed its host watchdog "
+                                f"({type(exc).__name__}): whether it holds cannot be confirmed")
+        return lost
 
     def watch_controllers(self) -> list[str]:
         """While paused: each controller's latched trip, as "<actuator>: <what>" (the actuators'

@@ -14,6 +14,7 @@ Every write is committed durably (WAL, ``synchronous=FULL``).
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import time
 from pathlib import Path
@@ -25,6 +26,28 @@ LEDGER_FILE = "ledger.sqlite"
 _COLUMNS = ("id", "specimen", "run_dir", "started", "ended", "version", "structure", "record", "config",
             "start_state", "end_state", "dry_run", "override", "outcome", "exit_status", "message")
 _JSON = {"config", "start_state", "end_state", "dry_run"}
+
+
+WRITABLE = ("let hsio write there (chmod u+w, or a disk mounted writable), or name another specimen folder "
+            "(--specimen DIR, [specimen] folder)")
+
+
+def unwritable(path: Path) -> str | None:
+    """Why this process cannot write the ledger at ``path`` (a read-only file system, the file or
+    its folder write-protected: SQLite writes its journal ``-wal`` and index ``-shm`` beside the
+    file), or None when it can."""
+    folder = path.parent
+    try:
+        if os.statvfs(folder).f_flag & os.ST_RDONLY:
+            return f"{folder} is on a file system mounted read-only"
+    except OSError:
+        return None
+    if path.exists() and not os.access(path, os.W_OK):
+        return f"the file {path.name} is write-protected"
+    if not os.access(folder, os.W_OK):
+        return (f"its folder {folder} is write-protected: SQLite writes {path.name}-wal and {path.name}-shm "
+                f"beside the file")
+    return None
 
 
 def _now() -> str:
@@ -52,6 +75,9 @@ class Ledger:
             self._open(specimen_id)
         except sqlite3.Error as exc:
             self.close()
+            reason = unwritable(self.path)
+            if reason:
+                raise ConfigError(f"specimen ledger {self.path}: cannot write to it ({reason}): {WRITABLE}") from None
             raise ConfigError(f"specimen ledger {self.path}: not a ledger hsio can keep ({exc}); move it aside or "
                               f"name another specimen folder") from None
 
@@ -96,7 +122,10 @@ class Ledger:
             self.db.commit()
         except sqlite3.Error as exc:
             self._rollback()
-            if "locked" in str(exc) or "busy" in str(exc):
+            reason = unwritable(self.path)
+            if reason:
+                detail = f"{reason}: {WRITABLE}"
+            elif "locked" in str(exc) or "busy" in str(exc):
                 detail = (f"database is locked: another program has held it open for writing for more than "
                           f"{self.WAIT_S:g} s, a database browser or another run listing itself; let it go and "
                           f"start the run again")
@@ -134,20 +163,7 @@ class Ledger:
 
     def runs(self) -> list[dict]:
         """Every run on the specimen, oldest first."""
-        cur = self.db.execute(f"SELECT {', '.join(_COLUMNS)} FROM runs ORDER BY id")
-        out = []
-        for row in cur.fetchall():
-            entry = dict(zip(_COLUMNS, row))
-            for k in _JSON:
-                if entry[k] is not None:
-                    try:
-                        entry[k] = json.loads(entry[k])
-                    except (TypeError, ValueError) as exc:  # edited by another program
-                        raise ConfigError(f"specimen ledger {self.path}: run {entry['id']}: its {k} is not the JSON "
-                                          f"hsio writes ({str(entry[k])[:40]!r}: {exc}); another program changed "
-                                          f"it: read that row with an SQLite tool") from None
-            out.append(entry)
-        return out
+        return _rows(self.db, self.path)
 
     def close(self) -> None:
         if self.db is not None:
@@ -156,12 +172,38 @@ class Ledger:
 
 
 def read(folder: str | Path) -> list[dict]:
-    """The runs listed in the ledger of ``folder`` (read only)."""
+    """The runs listed in the ledger of ``folder``, read only: a write-protected ledger (an archived
+    specimen) is read as it is."""
+    from hsio.recording import connect_read_only
+
     path = Path(folder) / LEDGER_FILE
     if not path.exists():
         raise ConfigError(f"{folder}: no specimen ledger ({LEDGER_FILE})")
-    ledger = Ledger(folder)
     try:
-        return ledger.runs()
+        db = connect_read_only(path)
+    except sqlite3.Error as exc:
+        raise ConfigError(f"specimen ledger {path}: cannot be read ({exc})") from None
+    try:
+        return _rows(db, path)
+    except sqlite3.Error as exc:
+        raise ConfigError(f"specimen ledger {path}: not a ledger hsio wrote ({exc})") from None
     finally:
-        ledger.close()
+        db.close()
+
+
+def _rows(db: sqlite3.Connection, path: Path) -> list[dict]:
+    """The rows of the ledger's ``runs`` table, oldest first, JSON columns decoded."""
+    cur = db.execute(f"SELECT {', '.join(_COLUMNS)} FROM runs ORDER BY id")
+    out = []
+    for row in cur.fetchall():
+        entry = dict(zip(_COLUMNS, row))
+        for k in _JSON:
+            if entry[k] is not None:
+                try:
+                    entry[k] = json.loads(entry[k])
+                except (TypeError, ValueError) as exc:  # edited by another program
+                    raise ConfigError(f"specimen ledger {path}: run {entry['id']}: its {k} is not the JSON "
+                                      f"hsio writes ({str(entry[k])[:40]!r}: {exc}); another program changed "
+                                      f"it: read that row with an SQLite tool") from None
+        out.append(entry)
+    return out

@@ -23,6 +23,10 @@ One file per run (``run.sqlite``), readable by any SQLite tool, pandas or MATLAB
 
 Each step is committed durably (WAL journal, ``synchronous=FULL``) before the next begins: a run
 that stops for any reason, a killed process or a power loss included, keeps every step it made.
+A committed step lives in the journal ``run.sqlite-wal`` until a checkpoint copies it into
+``run.sqlite``: the Recorder checkpoints when the record is created (its tables and meta), every
+:attr:`Recorder.CHECKPOINT_S` of wall time after a step, and when it closes, so ``run.sqlite``
+alone holds what was committed up to the last checkpoint; the record is the folder, both files.
 A record is never overwritten: the Recorder refuses a file that exists, and
 :func:`new_run_folder` creates a fresh numbered folder per run (docs/safety.md section 1). A
 record has one writer at a time: the Recorder holds an exclusive lock (``flock``) on its file
@@ -38,6 +42,7 @@ import json
 import os
 import re
 import sqlite3
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -168,6 +173,8 @@ class Recorder:
     """Writes a run, step by step, to ``path`` (an SQLite database): a new file, never one that
     exists (:class:`RecordExistsError`)."""
 
+    CHECKPOINT_S = 1.0  # a committed step reaches run.sqlite itself within this much wall time
+
     def __init__(self, path: str | Path, dof_names, actuator_names, meta: dict | None = None):
         self.path = Path(path)
         self.dof_names = _names(self.path, "dof_names", dof_names)
@@ -232,6 +239,7 @@ class Recorder:
                     phase_codes=PHASE_CODES)
         self.db.executemany("INSERT INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in meta.items()])
         self.db.commit()
+        self._checkpoint()  # run.sqlite alone holds the tables and the meta
         self._insert_step = f"INSERT INTO steps VALUES ({', '.join('?' * len(self._step_cols))})"
         self._insert_sample = f"INSERT INTO samples VALUES ({', '.join('?' * len(self._sample_cols))})"
         self._insert_ns = f"INSERT INTO ns VALUES ({', '.join('?' * len(self._ns_cols))})"
@@ -266,7 +274,7 @@ class Recorder:
         missing = sorted(set(CORE_TABLES) - tables)
         if missing:
             raise NotARunError(f"{self.path}: not an hsio run record that can be continued (no {', '.join(missing)} "
-                               f"table); the record is unchanged")
+                               f"table){without_journal(self.path)}; the record is unchanged")
         self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")
         meta = {k: json.loads(v) for k, v in self.db.execute("SELECT key, value FROM meta")}
@@ -277,6 +285,7 @@ class Recorder:
         self._insert_sample = f"INSERT INTO samples VALUES ({', '.join('?' * len(self._sample_cols))})"
         self._insert_ns = f"INSERT INTO ns VALUES ({', '.join('?' * len(self._ns_cols))})"
         self.steps_written = self.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
+        self._checkpointed = time.monotonic()
         # every extra table the record holds (compensation, implicit, static, instruments) is continued
         self._extra_tables = {name: cols(name)[1:] for name in sorted(tables - set(CORE_TABLES))
                              if not name.startswith("sqlite_")}
@@ -301,6 +310,16 @@ class Recorder:
                 pass
             raise RecordError(f"{self.path}: step {step} could not be written ({exc})") from None
         self.steps_written += 1
+        if time.monotonic() - self._checkpointed >= self.CHECKPOINT_S:
+            self._checkpoint()
+
+    def _checkpoint(self) -> None:
+        """Copy what the journal (``-wal``) holds into the record's file (a passive checkpoint:
+        it waits for no reader, such as the monitor; what a reader still needs stays for the next
+        one). The steps are durable in the journal already: a checkpoint that fails loses nothing."""
+        self._checkpointed = time.monotonic()
+        with contextlib.suppress(sqlite3.Error):
+            self.db.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchall()
 
     def _write_step(self, step: int, row: list, samples, sample_meta) -> None:
         self.db.execute(self._insert_step, row)
@@ -391,6 +410,7 @@ class Recorder:
         try:
             if self.db is not None:
                 self.db.commit()
+                self._checkpoint()  # a reader still open (the monitor) keeps SQLite's own from running at close
                 self.db.close()
         finally:
             self.db = None
@@ -421,6 +441,28 @@ def connect_read_only(path: str | Path, check_same_thread: bool = True) -> sqlit
         raise sqlite3.OperationalError(f"its folder is write-protected and its journal {wal.name} holds steps not "
                                        f"yet merged into it: let the folder be written to, or copy it, to read it")
     return sqlite3.connect(path.as_uri() + "?mode=ro&immutable=1", uri=True, check_same_thread=check_same_thread)
+
+
+def without_journal(path: str | Path) -> str:
+    """A clause for the error about a record file that holds no tables and has no journal beside
+    it: a ``run.sqlite`` copied alone, whose committed steps were still in its ``-wal`` (empty
+    otherwise)."""
+    path = Path(path)
+    wal = Path(f"{path}-wal")
+    if wal.exists() and wal.stat().st_size > 0:  # an empty one: made by SQLite as the file was read
+        return ""
+    try:
+        db = connect_read_only(path)
+        try:
+            tables = db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0]
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return ""
+    if tables:
+        return ""
+    return (f"; it holds no tables and no {path.name}-wal with steps is beside it: a record is its folder, and what a run "
+            f"commits stays in {path.name}-wal until copied into {path.name}: copy both files together")
 
 
 class Run:
@@ -460,7 +502,7 @@ class Run:
                 raise ValueError(f"meta config is {json.dumps(self.meta['config'])[:60]}, not a table")
         except (sqlite3.Error, KeyError, ValueError) as exc:
             detail = f"no {exc} in its meta table" if isinstance(exc, KeyError) else str(exc)
-            raise NotARunError(f"{self.path}: not an hsio run record ({detail})") from None
+            raise NotARunError(f"{self.path}: not an hsio run record ({detail}){without_journal(self.path)}") from None
 
     @staticmethod
     def _table(db, name: str) -> dict[str, np.ndarray]:

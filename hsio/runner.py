@@ -389,7 +389,8 @@ def _predict(config: RunConfig, structure: Structure, ground: GroundMotion, cont
     """:func:`predict` of a site checked already."""
     integ, test, hardware = config["integrator"], config["test"], config["hardware"]
     try:
-        ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"], control=control)
+        ns = api.run_numerical(structure, ground, integ["method"], integ["alpha"],  # a pause: before the first step
+                               control=_StopOnly(control) if control is not None else None)
     except ExperimentStopped as exc:  # the models cannot be evaluated along the record: bad input, not a fault
         if isinstance(exc.cause, (OperatorStop, KeyboardInterrupt)):
             raise exc.cause from None  # the run's stop, not a step of this prediction: nothing was recorded
@@ -408,8 +409,9 @@ def _predict(config: RunConfig, structure: Structure, ground: GroundMotion, cont
 
 
 class _StopOnly:
-    """A run's control as the NS from the present state sees it: a stop (key, socket, signal) ends
-    that NS at once; a pause waits for the first step of the test (the actuators hold meanwhile)."""
+    """A run's control as its predictions (NS, and NS from the present state) see it: a stop (key,
+    socket, signal) ends that NS at once; a pause waits for the first step of the test, where it
+    holds the actuators and is recorded ("paused after step 0")."""
 
     def __init__(self, control: RunControl):
         self.control = control
@@ -578,8 +580,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
             if server is not None:
                 cleanup.callback(server.close)
             recorder = Recorder(out / RUN_FILE, structure.dof_names, channel_names(structure), meta)
-        except (RecordError, ConfigError):  # a full or read-only disk, a file in the socket's way: nothing
-            # began, no folder of this run is left
+        except (RecordError, ConfigError) as exc:  # a full or read-only disk, a file in the socket's way:
+            # nothing began, no folder of this run is left
+            exc.not_begun = str(exc)  # a caller that wrote in the folder (the monitor's log) may clear it
             cleanup.close()
             if ledger:
                 ledger.close()
@@ -675,9 +678,11 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
                 summary["clock_lateness"] = site.loop.clock.lateness()
             periods = getattr(site.loop.clock, "ticks", 0)
             if periods and overruns > OVERRUN_WARNING * periods:
+                paused = f" (not counting {control.paused_s:.3g} s of pause)" if control.paused_s else ""
                 notify(f"WARNING: the host did not keep the controller's rate: {overruns} of {periods} periods started "
                        "more than one period late (a link slower than the period, or a loaded machine); the test took "
-                       f"{summary['wall_time_s']:g} s for {summary['test_time_s']:g} s at its rate TR {test['rate']:g}")
+                       f"{max(0.0, summary['wall_time_s'] - control.paused_s):.6g} s{paused} for "
+                       f"{summary['test_time_s']:g} s at its rate TR {test['rate']:g}")
             summary["compensation"] = compensation.summary()
             summary["start_state"], summary["end_state"] = start_state, end_state
             summary.update(site.report_final_hold(recorder, notify, len(hs.t) - 1))  # read back; warned if not

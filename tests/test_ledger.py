@@ -187,3 +187,49 @@ def test_a_ledger_cell_changed_by_another_program_is_named_when_read(tmp_path, c
     book.close()
     with pytest.raises(ConfigError, match=rf"ledger.*run {run_id}: its config is not the JSON"):
         ledger.read(tmp_path / "spec")
+
+
+@pytest.mark.parametrize("protect", ["file", "folder"])
+def test_a_write_protected_ledger_is_named_as_such_and_read_as_it_is(tmp_path, protect):
+    """A specimen's ledger that this user cannot write (the file, or its folder where SQLite writes
+    the -wal and -shm beside it): the refusal says so and what to do, not "move it aside" as for a
+    damaged file; `hsio.ledger.read` reads it as it is. As root, run as the user nobody
+    (setpriv), for whom the permissions hold."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    import tempfile
+
+    as_user = []
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("as root, the test needs setpriv to write as another user")
+        as_user = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+    top = Path(tempfile.mkdtemp(dir="/tmp" if as_user else tmp_path))
+    try:
+        spec = top / "wall-ro"
+        book = ledger.Ledger(spec, "s1")
+        book.finish(book.begin(top / "r", {"a": 1}, "validation", "synthetic", "0"), "finished", 0)
+        book.close()
+        top.chmod(0o755)
+        spec.chmod(0o555 if protect == "folder" else 0o777)
+        (spec / "ledger.sqlite").chmod(0o444 if protect == "file" else 0o666)
+        script = ("import sys\nfrom hsio import ledger\nfrom hsio.errors import ConfigError\n"
+                  "print([r['outcome'] for r in ledger.read(sys.argv[1])])\n"
+                  "try:\n    book = ledger.Ledger(sys.argv[1], 's1')\n"
+                  "    book.begin('/tmp/x', {}, 'validation', 'synthetic', '0')\n"
+                  "except ConfigError as exc:\n    print(exc)\n")
+        got = subprocess.run([*as_user, sys.executable, "-c", script, str(spec)], capture_output=True, text=True,
+                             timeout=60, cwd="/")
+        assert got.returncode == 0, got.stderr
+        read, refusal = got.stdout.splitlines()
+        assert read == "['finished']"
+        assert "move it aside" not in refusal
+        what = "the file ledger.sqlite is write-protected" if protect == "file" else f"its folder {spec} is write-protected"
+        assert f"specimen ledger {spec / 'ledger.sqlite'}: cannot" in refusal and what in refusal, refusal
+        assert "chmod u+w" in refusal and "name another specimen folder" in refusal
+    finally:
+        for p in (top, *top.rglob("*")):
+            p.chmod(0o777) if p.is_dir() else p.chmod(0o666)
+        shutil.rmtree(top)

@@ -733,3 +733,43 @@ def test_many_channels_draw_fewer_points_less_often_with_every_legend_entry(tmp_
     write_record(tmp_path / "two", 10).close()
     two = page_mod.MonitorPage(Document(), RecordFeed(tmp_path / "two"), Operator(tmp_path / "two"))
     assert two.decimation.cap == page_mod.DEFAULT_CAP and two.plot_every_s == page_mod.PLOT_EVERY_S
+
+
+def test_a_run_refused_by_its_control_socket_check_leaves_no_page_log(tmp_path, monkeypatch):
+    """`hsio run --monitor --out DIR`, DIR holding a file named control.sock that is not a socket:
+    the run is refused before its record begins, and the folder is left as it was (no monitor.log
+    of a page that watched no run)."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "control.sock").write_text("")
+    (tmp_path / "run.toml").write_text("[record]\nduration_s = 0.1\n[output]\nplots = false\n[safety]\nkeys = false\n")
+    got = CliRunner().invoke(main, ["run", "run.toml", "--out", str(out), "--monitor", "--monitor-port", "0"])
+    assert got.exit_code == 2, got.output
+    assert sorted(p.name for p in out.iterdir()) == ["control.sock"]
+    assert "control.sock: a file that is not a control socket" in got.output
+    assert "no record was left in it" in got.output
+
+
+@pytest.mark.parametrize("line, pause, resume", [
+    ("ok running phase HS step 5", False, True),
+    ("ok pausing phase HS step 5", True, False),  # a resume cancels the pause asked
+    ("ok paused phase HS step 5", True, False),
+    ("ok stopping phase HS step 5", True, True),
+])
+def test_the_pause_and_resume_buttons_follow_the_runs_state(tmp_path, line, pause, resume):
+    """Pause is offered only to a running run, Resume only to one pausing or paused (disabled)."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), _RunAnswering(line))
+    disabled = {b.name: b.disabled for b in page.buttons}
+    assert (disabled["pause_button"], disabled["resume_button"]) == (pause, resume)
+    assert disabled["stop_button"] is False
+    rec.close()

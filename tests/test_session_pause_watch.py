@@ -94,3 +94,52 @@ def test_a_controller_that_cannot_be_read_is_one_trip_however_its_error_reads():
     assert control._watch(lambda: ControlLoop.watch_controllers(loop), seen, None) is True
     assert control._watch(lambda: ControlLoop.watch_controllers(loop), seen, None) is False
     assert len(control.trips) == 1
+
+
+def test_a_controller_lost_while_paused_is_told_unconfirmed_and_the_run_stays_paused(tmp_path, monkeypatch):
+    """The keep-alive of a pause cannot reach a controller (a link lost): the pause tells and
+    records it as a trip whose hold cannot be confirmed, and waits for the operator (section 4)
+    rather than ending the run on the failed write."""
+    from hsio.errors import CommunicationError
+    from hsio.safety.status import OPERATOR
+
+    monkeypatch.setattr(RunControl, "WAIT_SLICE_S", 0.01)
+    cfg = config.from_dict({"record": {"duration_s": 1.0}, "output": {"plots": False}})
+    control, heard, replies = RunControl(), [], {}
+    control.listeners.append(heard.append)
+
+    def lost():
+        raise CommunicationError("no reply from 127.0.0.1:5020 within 0.2 s")
+
+    def operator():
+        deadline = time.monotonic() + 60
+        while not (control.phase == "HS" and control.step >= 5) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        operator.site.loop.actuators[0].keep_alive = lost  # the link to C1's controller goes
+        control.request_pause("test")
+        while not control.trips and time.monotonic() < deadline:
+            time.sleep(0.005)
+        replies["resume"] = control.request_resume("test")
+        time.sleep(0.1)
+        replies["state"] = control.state
+        control.request_stop("stopped by the operator")
+
+    real_open = runner.api.open_site
+
+    def open_site(*args, **kwargs):
+        operator.site = real_open(*args, **kwargs)
+        return operator.site
+
+    monkeypatch.setattr(runner.api, "open_site", open_site)
+    thread = threading.Thread(target=operator, daemon=True)
+    thread.start()
+    with pytest.raises(ExperimentStopped) as info:
+        runner.run(cfg, tmp_path / "o", control=control)
+    thread.join(timeout=10)
+    assert exit_status(info.value) == OPERATOR  # the operator's stop, not the failed write
+    assert len(control.trips) == 1
+    assert "C1: its controller could not be reached" in control.trips[0]
+    assert "cannot be confirmed" in control.trips[0]
+    assert replies["resume"].startswith("error: not resumed") and replies["state"] == PAUSED
+    kinds = [e["kind"] for e in Run(tmp_path / "o" / "run.sqlite").events()]
+    assert kinds.index("pause") < kinds.index("controller_trip") < kinds.index("stop")

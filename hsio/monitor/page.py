@@ -386,7 +386,9 @@ class MonitorPage:
         trip = self._trip_to_acknowledge()
         if running and trip:
             state += f"; a controller tripped during the pause ({trip[:200]}): acknowledge it before resuming"
-        disabled = {"pause": not running, "resume": not running, "ack": not (running and trip),
+        run_state = line.split()[1] if running and len(line.split()) >= 2 else ""
+        disabled = {"pause": run_state != "running", "resume": run_state not in ("pausing", "paused"),
+                    "ack": not (running and trip),
                     "stop": over or answers is False}
         for action, b in zip(ACTIONS, self.buttons):
             if b.disabled != disabled[action]:

@@ -10,7 +10,8 @@ While paused, the wait feeds the controllers' host watchdogs every :attr:`RunCon
 or every quarter of the shortest watchdog time the controllers report where that is shorter,
 down to :attr:`RunControl.MIN_SLICE_S` (the site's ``keep_alive`` and ``keep_alive_period_s``: the
 axes keep holding), so a pause may last any time; a host that dies stops feeding them, and the
-controllers' watchdogs trip as they should.
+controllers' watchdogs trip as they should. A controller that cannot be reached to feed it is
+told and recorded as a trip is (below): its hold cannot be confirmed, and the run stays paused.
 
 While paused, the wait also watches the controllers every :attr:`RunControl.WATCH_S` (the site's
 ``watch_controllers``: each controller's latched trip, its interlock, its host watchdog, a drive
@@ -52,6 +53,8 @@ class RunControl:
         self.trips: list[str] = []  # controller trips seen during the pauses of this run, as told
         self._unacknowledged: list[str] = []  # trips seen during this pause, not yet acknowledged
         self._acknowledged: list[str] = []  # acknowledgements to record (by the loop's thread)
+        self._cancelled: list[str] = []  # pauses a resume cancelled before they took effect, to record
+        self.paused_s = 0.0  # wall time spent paused in this run, all pauses
         self.listeners: list[Callable[[str], None]] = []  # told of each pause, resume and stop
 
     # -- requests (any thread) ------------------------------------------------------------
@@ -75,6 +78,8 @@ class RunControl:
             self._pause_wanted = False
             if self.state == PAUSING:
                 self.state = RUNNING
+                self._cancelled.append(f"pause cancelled by a resume ({source}) before it took effect (phase "
+                                       f"{self.phase}, after step {self.step}): nothing was held")
         self._wake.set()
         return f"ok {self.state if self.state != PAUSED else 'resuming'}"
 
@@ -126,6 +131,7 @@ class RunControl:
         """Between two steps: stop, or pause (hold, wait, resume), as requested."""
         self.step = step
         self.check_stop()
+        self._record(self._cancelled, "pause_cancelled", log)
         if not self._pause_wanted:
             return
         pause = getattr(site, "pause", None)
@@ -159,18 +165,31 @@ class RunControl:
             if leaving:
                 break
             if keep_alive is not None:  # the controllers' host watchdogs see a live host
-                keep_alive()
+                self._keep_alive(keep_alive, seen, log)
         with self._lock:  # resuming: a pause asked from here on is for the next step boundary
             if self.state != STOPPING:
                 self.state = PAUSING if self._pause_wanted else RUNNING
         resume = getattr(site, "resume", None)
         if resume is not None:
             resume()
+        self.paused_s += time.monotonic() - started
         message = f"resumed after {time.monotonic() - started:.1f} s of pause"
         if log:
             log("resume", message)
         self._tell(message)
 
+
+    def _keep_alive(self, keep_alive, seen: set[str], log) -> None:
+        """Feed the controllers' host watchdogs. A controller that cannot be reached is told and
+        recorded as a trip (:meth:`_watch`): the run stays paused, its hold not confirmed, until
+        the operator acknowledges it or stops the run; the feeding goes on meanwhile."""
+        try:
+            lost = keep_alive() or []
+        except Exception as exc:  # a site that raises rather than names the controller
+            lost = [f"the controllers could not be reached to feed their host watchdogs ({type(exc).__name__}): "
+                    f"whether the actuators hold cannot be confirmed"]
+        if lost:
+            self._watch(lambda: lost, seen, log)
 
     def _watch(self, watch, seen: set[str], log) -> bool:
         """Ask the controllers whether they tripped; tell and record each trip not seen before in
@@ -193,11 +212,16 @@ class RunControl:
         return True
 
     def _record_acknowledgements(self, log) -> None:
+        self._record(self._acknowledged, "acknowledge", log)
+
+    def _record(self, pending: list[str], kind: str, log) -> None:
+        """Record and tell what a request made of the run (by the loop's thread), once each."""
         with self._lock:
-            done, self._acknowledged = self._acknowledged, []
+            done = pending[:]
+            pending.clear()
         for message in done:
             if log:
-                log("acknowledge", message)
+                log(kind, message)
             self._tell(message)
 
 

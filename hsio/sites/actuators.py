@@ -464,9 +464,10 @@ class ActuatorSite:
     def resume(self) -> None:
         self.loop.resume()
 
-    def keep_alive(self) -> None:
-        """While paused: keep the controllers' host watchdogs fed (the actuators keep holding)."""
-        self.loop.keep_alive()
+    def keep_alive(self) -> list[str]:
+        """While paused: keep the controllers' host watchdogs fed (the actuators keep holding);
+        one line per controller that could not be reached."""
+        return self.loop.keep_alive()
 
     def watch_controllers(self) -> list[str]:
         """While paused: the controllers' latched trips, one line each (docs/safety.md section 4)."""
