@@ -760,6 +760,7 @@ def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs:
         # a rotation's displacements are in rad (the keys say mm): the unit of each DOF and channel
         "dof_units": dof_units(structure),
         "channel_units": [u for u, _ in channel_units(structure)],
+        "channels": channel_names(structure),  # the actuators, in the order of the per-channel lists
         "peak_displacement_mm": [float(x) for x in np.max(np.abs(hs.u), axis=0)],
         "rms_tracking_error_mm": [float(x) for x in np.sqrt(np.mean(hs.tracking_error()[1:] ** 2, axis=0))] if hs.steps else [],
         "late_steps": hs.late_steps,
@@ -806,6 +807,8 @@ def implicit_summary(hs: Result) -> dict:
         "iterations_per_step_max": int(its.max()) if its.size else 0,
         # Steps accepted after j_max commands without reaching the tolerance.
         "nonconverged_steps": int(np.count_nonzero(~hs.converged[1:])),
+        # Steps an FC element ran in DC as its force left the FC range (fc_force_limit_kN, explored_fraction).
+        "guarded_steps": hs.guarded_steps,
         "wall_time_per_step_ms": float(wall.mean() * 1e3) if wall.size else 0.0,
         "thresholds": hs.thresholds,
         # FC estimates of eq. (11) within SECANT_Z sigma_k of the secant in use, turned away, per element (eq. 11a)
