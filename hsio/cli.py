@@ -295,10 +295,9 @@ def _print_summary(s: dict) -> None:
         click.echo(f"max error      {s['max_error_pct']:.3f} % (HS vs NS)")
     rms = s["rms_tracking_error_mm"]
     units = s.get("channel_units") or ["mm"] * len(rms)
-    if set(units) <= {"mm"}:
-        click.echo(f"tracking RMS   {', '.join(f'{x:.4f}' for x in rms)} mm")
-    else:
-        click.echo(f"tracking RMS   {', '.join(f'{x:.4f} mm' if u == 'mm' else _amount(x, u) for x, u in zip(rms, units))}")
+    channels = s.get("channels") or [str(k) for k in range(len(rms))]
+    click.echo("tracking RMS   " + ", ".join(f"{name} {x:.4f} mm" if u == "mm" else f"{name} {_amount(x, u)}"
+                                             for name, x, u in zip(channels, rms, units)))
     for name, error in s.get("static_hold_error_pct", {}).items():
         click.echo(f"preload {name:<6} held within {error:.3f} % through the record")
     if "outer_loop_iterations" in s:
@@ -311,14 +310,15 @@ def _print_summary(s: dict) -> None:
         click.echo(f"compensation   {comp['mode']} ({comp['form']}): {used}")
     if "switches" in s:
         click.echo(f"method         {s['method']}: {s['switches']} switches, FC in "
-                   f"{', '.join(f'{x * 100:.0f} %' for x in s['fc_step_fraction'])} of steps, "
-                   f"{s['iterations_per_step_mean']:.2f} commands per step, "
-                   f"{s['nonconverged_steps']} steps at j_max without convergence")
+                   f"{', '.join(f'{x * 100:.0f} % ({name})' for name, x in zip(channels, s['fc_step_fraction']))} "
+                   f"of steps, {s['iterations_per_step_mean']:.2f} commands per step, "
+                   f"{s['nonconverged_steps']} steps at j_max without convergence"
+                   + (f", {s['guarded_steps']} guarded steps" if s.get("guarded_steps") else ""))
         if s.get("secant_refused") is not None:
             from hsio.integrators.implicit import SECANT_Z
 
             click.echo(f"FC secant      estimates within {SECANT_Z:g} sigma_k of the secant in use, turned away (eq. 11a): "
-                       f"{', '.join(str(n) for n in s['secant_refused'])}")
+                       f"{', '.join(f'{n} ({name})' for name, n in zip(channels, s['secant_refused']))}")
     click.echo(f"wall time      {s['wall_time_s']:.1f} s (the lab would take {s['test_time_s']:.1f} s)")
     click.echo(f"record file    {s['run_file']}")
     if s.get("dry_run_override"):

@@ -255,6 +255,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
         dof_names=tuple(structure.dof_names), element_names=tuple(names), element_dofs=tuple(dofs),
         t=t[: last + 1], **h.cut(last), switches=switches, thresholds=integrator.thresholds,
         secant_refused=getattr(integrator, "secant_refused", None),
+        guarded_steps=int(getattr(integrator, "guarded_steps", 0)),
         wall_time_s=time.perf_counter() - started, lab_time_s=site.lab_time_s, late_steps=site.late_steps,
         stopped=stopped, dof_units=tuple(dof_units(structure)),
     )

@@ -68,6 +68,7 @@ class Result:
     switches: list[Switch] = field(default_factory=list)
     thresholds: dict | None = None
     secant_refused: list | None = None  # FC estimates of eq. (11) turned away per element (eq. 11a); None: rule off
+    guarded_steps: int = 0  # mixed: steps an FC element ran in DC for its force range (fc_force_limit, explored_fraction)
     step_wall_time_s: np.ndarray | None = None
     wall_time_s: float = 0.0
     lab_time_s: float | None = None

@@ -168,9 +168,9 @@ def _instrument_values(integrator: dict, emulator: dict | None) -> tuple[float, 
 
 
 def secant_instruments(integrator: dict, emulator: dict | None):
-    """The instruments' ((sigma_u, delta_u), (sigma_F, delta_F)) for the FC secant rule of method
-    ``force_control`` (eq. 11a): the switch_* keys, else the emulated controller's; None where
-    neither is known (every estimate taken)."""
+    """The instruments' ((sigma_u, delta_u), (sigma_F, delta_F)) for the FC secant rule of methods
+    ``force_control`` and ``mixed`` (eq. 11a), whatever the switching rule: the switch_* keys, else
+    the emulated controller's; None where neither is known (every estimate taken)."""
     du, dF, su, sF = _instrument_values(integrator, emulator)
     return ((su, du), (sF, dF)) if du + dF + su + sF > 0 else None
 
@@ -266,8 +266,8 @@ def integrator_options(config: RunConfig, structure: Structure, ns=None) -> dict
                "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"],
                "tol_force": integ["tol_force_kN"], "fc_blend": integ["fc_blend"], "anchor_dc": integ["anchor_dc"],
                "blend_dc": integ["blend_dc"]}
-    if integ["method"] == "force_control":  # FC's secant beyond the instruments' noise where they are known
-        options["secant_uncertainty"] = secant_instruments(integ, emulated_instruments(config))
+    if integ["method"] in ("force_control", "mixed"):  # FC's secant beyond the instruments' noise wherever
+        options["secant_uncertainty"] = secant_instruments(integ, emulated_instruments(config))  # they are known
     if integ["method"] == "mixed":
         options.update(fallback_after=integ["fc_fallback_after"] or None, refractory_steps=integ["refractory_steps"],
                        no_fc_at_reversal=integ["no_fc_at_reversal"],
@@ -769,6 +769,7 @@ def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs:
         # a rotation's displacements are in rad (the keys say mm): the unit of each DOF and channel
         "dof_units": dof_units(structure),
         "channel_units": [u for u, _ in channel_units(structure)],
+        "channels": channel_names(structure),  # the actuators, in the order of the per-channel lists
         "peak_displacement_mm": [float(x) for x in np.max(np.abs(hs.u), axis=0)],
         "rms_tracking_error_mm": [float(x) for x in np.sqrt(np.mean(hs.tracking_error()[1:] ** 2, axis=0))] if hs.steps else [],
         "late_steps": hs.late_steps,
@@ -815,6 +816,8 @@ def implicit_summary(hs: Result) -> dict:
         "iterations_per_step_max": int(its.max()) if its.size else 0,
         # Steps accepted after j_max commands without reaching the tolerance.
         "nonconverged_steps": int(np.count_nonzero(~hs.converged[1:])),
+        # Steps an FC element ran in DC as its force left the FC range (fc_force_limit_kN, explored_fraction).
+        "guarded_steps": hs.guarded_steps,
         "wall_time_per_step_ms": float(wall.mean() * 1e3) if wall.size else 0.0,
         "thresholds": hs.thresholds,
         # FC estimates of eq. (11) within SECANT_Z sigma_k of the secant in use, turned away, per element (eq. 11a)
