@@ -328,6 +328,9 @@ def incidence(dofs, refs, n: int) -> np.ndarray:
     """The incidence matrix E (elements x DOFs) of elements at ``dofs``, each to its ``refs`` entry
     (None or no ``refs``: to the ground): +1 at the element's DOF, -1 at its reference DOF."""
     dofs = np.asarray(dofs, dtype=int).reshape(-1)
+    outside = [int(d) for d in dofs if not 0 <= d < n]
+    if outside:
+        raise ConfigError(f"element_dofs: DOF {outside[0]} is not in 0..{n - 1} (one DOF index per element)")
     refs = [None] * dofs.size if refs is None else list(refs)
     if len(refs) != dofs.size:
         raise ConfigError(f"element_refs: {len(refs)} for {dofs.size} elements (one per element; None: the ground)")
@@ -454,9 +457,12 @@ class Structure:
         if self.influence is not None and len(self.influence) != n:
             raise ConfigError(f"structure {self.name!r}: {len(self.influence)} influence coefficients for {n} DOF")
         for element in self.experimental:
-            for dof in (*element.basic_dofs, *(() if element.ref is None else (element.ref,))):
+            for dof in element.basic_dofs:
                 if not 0 <= dof < n:
                     raise ConfigError(f"structure {self.name!r}: element {element.name!r} is at DOF {dof}, not in 0..{n - 1}")
+            if element.ref is not None and not 0 <= element.ref < n:
+                raise ConfigError(f"structure {self.name!r}: element {element.name!r}: ref (its other end) is DOF "
+                                  f"{element.ref}, not in 0..{n - 1}")
         for e in (*self.springs, *self.numerical):
             if not 0 <= e.i < n or (e.j is not None and not 0 <= e.j < n) or e.i == e.j:
                 raise ConfigError(f"structure {self.name!r}: {e} must join a DOF in 0..{n - 1} to another or to the ground")

@@ -103,3 +103,11 @@ def test_a_rule_from_instruments_with_stiffnesses_that_are_not_numbers_is_refuse
 
     with pytest.raises(ConfigError, match="K_EI must be numbers"):
         SwitchingRule.from_instruments("abc", 0.025, 0.01)
+
+
+@pytest.mark.parametrize("j_max", ["3", None, 2.5])
+def test_a_j_max_that_is_not_a_whole_number_is_named_beside_a_fallback(j_max):
+    """fallback_after is compared with j_max: a j_max that is not a whole number is refused by its
+    own name, not met by the comparison."""
+    with pytest.raises(ConfigError, match="j_max"):
+        make_integrator(get_structure("structure_I"), "mixed", j_max=j_max, fallback_after=2)

@@ -49,7 +49,7 @@ def test_flexible_specimen_fine_transducer_switches_on_the_load_cell(rows):
 def test_fc_is_as_close_to_ns_with_a_fine_transducer_as_with_a_coarse_one(rows):
     """A 0.0025 mm transducer with a 0.01 mm noise reads a noise sample at rest, where a 0.025 mm
     one mostly reads its zero level; FC's first base is the state at rest, so the fine transducer
-    costs FC nothing (based at that one reading, FC was 0.97 to 1.17 % off here, the offset lasting
+    costs FC nothing (based at that one reading, FC is 0.97 to 1.17 % off here, the offset lasting
     1 / fc_blend steps)."""
     for k0 in (7.2, 122.6):
         fine = _get(rows, k0, 0.0025, 0.002, "force_control").error_pct

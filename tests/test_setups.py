@@ -93,8 +93,8 @@ def test_factors_scale_displacements_and_forces():
     ({"kind": "one_actuator", "length_mm": 1500.0, "angle_deg": 1e20}, "rig.setup: one actuator: angle_deg must be within"),
 ])
 def test_setup_sizes_beyond_a_rig_are_refused_by_name(table, words):
-    """A factor of 1e-300 overflowed the Jacobian into a singular matrix (a traceback at the dry
-    run) and a length of 1e308 was reported as pins that coincide: each is refused by its name."""
+    """A factor of 1e-300 would overflow the Jacobian into a singular matrix, and a length of 1e308
+    would make the pins seem to coincide: each is refused by its name."""
     from hsio.setups import make_setup
 
     n = 1 if table["kind"] == "one_actuator" else 2

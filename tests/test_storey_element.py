@@ -142,6 +142,23 @@ def test_independent_mode_is_for_elements_to_the_ground():
                       element_refs=[None, 0])
 
 
+
+def test_a_ref_outside_the_structure_is_named_as_the_ref():
+    with pytest.raises(ConfigError, match=r"element 'storey2': ref \(its other end\) is DOF 5, not in 0..1"):
+        Structure("storey", ("floor1", "roof"), (M1, M2),
+                  experimental=(ExperimentalElement("storey2", 1, {"kind": "linear", "k": K2}, ref=5),),
+                  springs=(Spring(0, None, K1, "storey1"),), damping=Damping(0.03, "rayleigh"), dt=DT)
+
+
+@pytest.mark.parametrize("dofs", ([2], [-1]))
+def test_alpha_os_refuses_an_element_dof_outside_the_structure(dofs):
+    """A DOF index past the last, or negative (which numpy would take as the last DOF), is refused."""
+    from hsio.integrators.alpha_os import OperatorSplitting
+
+    with pytest.raises(ConfigError, match=f"DOF {dofs[0]} is not in 0..1"):
+        OperatorSplitting(np.eye(2), np.zeros((2, 2)), np.eye(2), DT, -0.05, dofs, [1.0])
+
+
 BUILDING = """
 [structure]
 dt = 0.005

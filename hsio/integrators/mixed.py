@@ -187,8 +187,9 @@ def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc
             raise ConfigError(f"fc_force_limit must be None (off) or a force in kN above 0, one for every element or "
                               f"one per experimental element ({n_elements}), got {fc_force_limit!r}")
 
-    if fallback_after is not None and not (whole(fallback_after) and (fallback_after == 0 or fallback_after < j_max)
-                                           and fallback_after >= 0):
+    if fallback_after is not None and not (whole(fallback_after) and fallback_after >= 0
+                                           and (fallback_after == 0 or not whole(j_max)  # ImplicitAlpha names j_max
+                                                or fallback_after < j_max)):
         raise ConfigError(f"fallback_after must be None or 0 (off), or a whole number of FC commands below j_max "
                           f"({j_max}), after which the step's remaining commands go in DC; got {fallback_after!r}")
     if not (whole(refractory_steps) and 0 <= refractory_steps <= 10**9):
