@@ -13,8 +13,8 @@ from hsio.structure_file import parse_structure
 @pytest.mark.parametrize("value", [250.0, 249.9, 123.456, -250.0, 0.1])
 def test_a_segment_between_equal_commands_at_rest_stays_exactly_on_them(value):
     """A held target (a preload, every step the same) is interpolated from itself to itself: each
-    sample is the target exactly, never 1 ulp beyond it (250.00000000000003 kN was refused
-    against a 250 kN capacity that the preload itself had passed)."""
+    sample is the target exactly, never 1 ulp beyond it (250.00000000000003 kN would be refused
+    against a 250 kN capacity that the preload itself passed)."""
     g = PredictorCorrector(t_d=0.1, period=1 / 1024, initial=value)
     for _ in range(5):
         g.new_target(value)
@@ -25,8 +25,8 @@ def test_a_segment_between_equal_commands_at_rest_stays_exactly_on_them(value):
 def test_a_controller_tripped_in_force_control_is_reported_as_its_trip():
     """A preload exactly at the capacity trips the emulated controller on its load cell's noise;
     the tripped controller holds in displacement control, and its next force command (250, beyond
-    the 127 mm stroke as a displacement) was reported as 'displacement command 250 mm beyond the
-    stroke'. The run stops naming the trip."""
+    the 127 mm stroke read as a displacement) must not be reported as a displacement command beyond
+    the stroke. The run stops naming the trip."""
     text = (Path(hsio.__file__).parent / "library" / "preloaded_column.toml").read_text()
     structure = parse_structure(text.replace("force_kN = 125.0", "force_kN = 250.0").replace("ramp_s = 2.0", "ramp_s = 0.5"),
                                 "at_capacity.toml")
