@@ -374,10 +374,8 @@ def _check_implicit(i: dict, source: str, url: str = "emulator://") -> None:
 # rule that reads them; each is refused where no rule reads it rather than silently ignored.
 BY_STIFFNESS = ("K_f", "K_d")
 BY_FORCE = ("R_f", "R_d")
-BY_INSTRUMENTS = ("switch_margin", "switch_hysteresis", "switch_max_hysteretic_ratio")
-# The instruments themselves: read by the instruments rule, and by FC's secant rule (eq. 11a) of
-# methods force_control and mixed whatever the switching rule.
-INSTRUMENT_KEYS = ("switch_resolution_mm", "switch_force_resolution_kN", "switch_noise_mm", "switch_force_noise_kN")
+BY_INSTRUMENTS = ("switch_margin", "switch_hysteresis", "switch_resolution_mm", "switch_force_resolution_kN",
+                  "switch_noise_mm", "switch_force_noise_kN", "switch_max_hysteretic_ratio")
 
 
 def _check_switching(i: dict, source: str) -> None:
@@ -385,13 +383,8 @@ def _check_switching(i: dict, source: str) -> None:
     K_f / K_d to ``switch_on = "stiffness"``, R_f / R_d to ``switch_on = "force"`` (both with
     ``switch_rule = "initial_stiffness"``), the margin, hysteresis, resolutions, noises and the
     hysteretic ratio to ``switch_rule = "instruments"``, which sets the thresholds on the stiffness
-    itself. The instruments' resolutions and noises are read by FC's secant rule (eq. 11a) too:
-    they apply to ``force_control`` and to ``mixed`` with any rule."""
+    itself."""
     off = DEFAULTS["integrator"]
-    instruments = [k for k in INSTRUMENT_KEYS if i[k] != off[k]]
-    if instruments and i["method"] not in ("force_control", "mixed"):
-        raise ConfigError(f"{source}: [integrator] {instruments[0]} applies to the elements in force control "
-                          f"(method = 'force_control' or 'mixed'; FC's secant rule, eq. 11a), not to {i['method']!r}")
     given = [k for k in ("switch_on", "switch_rule") + BY_STIFFNESS + BY_FORCE + BY_INSTRUMENTS if i[k] != off[k]]
     if i["method"] != "mixed":
         if given:

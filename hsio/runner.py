@@ -168,9 +168,9 @@ def _instrument_values(integrator: dict, emulator: dict | None) -> tuple[float, 
 
 
 def secant_instruments(integrator: dict, emulator: dict | None):
-    """The instruments' ((sigma_u, delta_u), (sigma_F, delta_F)) for the FC secant rule of methods
-    ``force_control`` and ``mixed`` (eq. 11a), whatever the switching rule: the switch_* keys, else
-    the emulated controller's; None where neither is known (every estimate taken)."""
+    """The instruments' ((sigma_u, delta_u), (sigma_F, delta_F)) for the FC secant rule of method
+    ``force_control`` (eq. 11a): the switch_* keys, else the emulated controller's; None where
+    neither is known (every estimate taken)."""
     du, dF, su, sF = _instrument_values(integrator, emulator)
     return ((su, du), (sF, dF)) if du + dF + su + sF > 0 else None
 
@@ -266,8 +266,8 @@ def integrator_options(config: RunConfig, structure: Structure, ns=None) -> dict
                "j_max": integ["j_max"], "tol_displacement": integ["tol_displacement_mm"],
                "tol_force": integ["tol_force_kN"], "fc_blend": integ["fc_blend"], "anchor_dc": integ["anchor_dc"],
                "blend_dc": integ["blend_dc"]}
-    if integ["method"] in ("force_control", "mixed"):  # FC's secant beyond the instruments' noise wherever
-        options["secant_uncertainty"] = secant_instruments(integ, emulated_instruments(config))  # they are known
+    if integ["method"] == "force_control":  # FC's secant beyond the instruments' noise where they are known
+        options["secant_uncertainty"] = secant_instruments(integ, emulated_instruments(config))
     if integ["method"] == "mixed":
         options.update(fallback_after=integ["fc_fallback_after"] or None, refractory_steps=integ["refractory_steps"],
                        no_fc_at_reversal=integ["no_fc_at_reversal"],

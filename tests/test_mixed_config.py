@@ -244,16 +244,16 @@ def test_an_off_value_of_another_type_is_typed_by_the_default(tmp_path):
 @pytest.mark.parametrize("integrator, says", [
     ({"method": "implicit_dc", "switch_margin": 10.0}, "switch_margin applies to method = 'mixed', not to 'implicit_dc'"),
     ({"method": "alpha_os", "switch_hysteresis": 5.0}, "switch_hysteresis applies to method = 'mixed', not to 'alpha_os'"),
-    ({"method": "implicit_dc", "switch_resolution_mm": 0.5},
-     "switch_resolution_mm applies to the elements in force control (method = 'force_control' or 'mixed'"),
-    ({"method": "force_control", "switch_margin": 10.0}, "switch_margin applies to method = 'mixed'"),
+    ({"method": "force_control", "switch_resolution_mm": 0.5}, "switch_resolution_mm applies to method = 'mixed'"),
     ({"method": "implicit_dc", "K_f": 3.0}, "K_f applies to method = 'mixed'"),
     ({"method": "implicit_dc", "switch_rule": "instruments"}, "switch_rule applies to method = 'mixed'"),
     ({"method": "mixed", "switch_rule": "initial_stiffness", "switch_margin": 10.0},
      "switch_margin applies to switch_rule = 'instruments', not to 'initial_stiffness'"),
     ({"method": "mixed", "K_f": 3.0, "switch_hysteresis": 5.0}, "switch_hysteresis applies to switch_rule = 'instruments'"),
-    ({"method": "mixed", "switch_on": "force", "R_f": 5.0, "switch_max_hysteretic_ratio": 0.5},
-     "switch_max_hysteretic_ratio applies to switch_rule = 'instruments'"),
+    ({"method": "mixed", "switch_rule": "initial_stiffness", "switch_resolution_mm": 0.5,
+      "switch_force_resolution_kN": 1.0}, "switch_resolution_mm applies to switch_rule = 'instruments'"),
+    ({"method": "mixed", "R_f": 5.0, "switch_on": "force", "switch_force_resolution_kN": 1.0},
+     "switch_force_resolution_kN applies to switch_rule"),
     ({"method": "mixed", "switch_rule": "instruments", "R_f": 5.0}, "R_f is not read with switch_rule = 'instruments'"),
     ({"method": "mixed", "switch_rule": "instruments", "R_d": 1.0}, "R_d is not read with switch_rule = 'instruments'"),
     ({"method": "mixed", "R_f": 5.0}, "R_f applies to switch_on = 'force', not to 'stiffness'"),
@@ -472,34 +472,3 @@ def test_force_control_gets_the_instruments_of_its_secant_rule():
     hardware = from_dict({"structure": {"name": "structure_II_infill"}, "integrator": {"method": "force_control"},
                           "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
     assert integrator_options(hardware, structure)["secant_uncertainty"] is None
-
-
-@pytest.mark.parametrize("integrator", [{"K_f": 50.5, "K_d": 25.0}, {"switch_rule": "initial_stiffness"},
-                                        {"switch_on": "force", "R_f": 3.0}])
-def test_mixed_with_thresholds_of_its_own_gets_the_instruments_of_fc_secant(integrator):
-    """FC's secant rule (eq. 11a) reads the instruments wherever the run knows them, whatever
-    the switching rule: the emulator's, or the switch_* keys on hardware."""
-    from hsio.api import make_integrator
-    from hsio.runner import integrator_options
-    from hsio.structures import get_structure
-
-    structure = get_structure("structure_I")
-    emulated = from_dict({"structure": {"name": "structure_I"}, "integrator": {"method": "mixed", **integrator},
-                          "emulator": {"resolution_mm": 0.0025, "force_resolution_kN": 0.02}})
-    options = integrator_options(emulated, structure)
-    assert options["rule"].uncertainty is None  # thresholds of its own: the rule carries no instruments
-    assert options["secant_uncertainty"] == ((0.01, 0.0025), (0.002, 0.02))
-    assert make_integrator(structure, "mixed", **options).secant_refused == [0]  # the rule is on
-    hardware = from_dict({"structure": {"name": "structure_I"}, "integrator": {
-        "method": "mixed", **integrator, "switch_noise_mm": 0.02, "switch_force_resolution_kN": 0.05},
-        "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
-    assert integrator_options(hardware, structure)["secant_uncertainty"] == ((0.02, 0.0), (0.0, 0.05))
-    fc = from_dict({"structure": {"name": "structure_I"}, "integrator": {
-        "method": "force_control", "switch_noise_mm": 0.02, "switch_force_resolution_kN": 0.05},
-        "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})  # and force control on hardware, given them
-    assert integrator_options(fc, structure)["secant_uncertainty"] == ((0.02, 0.0), (0.0, 0.05))
-    unknown = from_dict({"structure": {"name": "structure_I"}, "integrator": {"method": "mixed", **integrator},
-                         "hardware": {"url": "modbus+tcp://127.0.0.1:1502"}})
-    options = integrator_options(unknown, structure)
-    assert options["secant_uncertainty"] is None  # not known: every estimate taken
-    assert make_integrator(structure, "mixed", **options).secant_refused is None
