@@ -21,8 +21,6 @@ def test_a_mixed_run_names_each_actuator_and_counts_its_guarded_steps(tmp_path, 
     assert lines["tracking RMS"] == f"BF {rms[0]:.4f} mm, IF {rms[1]:.4f} mm"
     assert f"FC in {fc[0] * 100:.0f} % (BF), {fc[1] * 100:.0f} % (IF) of steps" in lines["method"]
     assert lines["method"].endswith(f", {summary['guarded_steps']} guarded steps")
-    refused = summary["secant_refused"]  # the emulator's instruments: FC's secant rule is on (eq. 11a)
-    assert lines["FC secant"].endswith(f": {refused[0]} (BF), {refused[1]} (IF)")
 
 
 def test_a_run_without_guards_reports_none_guarded(tmp_path):
@@ -31,3 +29,14 @@ def test_a_run_without_guards_reports_none_guarded(tmp_path):
                             "output": {"plots": False, "ns": False}})
     summary = runner.run(cfg, tmp_path / "run")
     assert summary["guarded_steps"] == 0 and summary["channels"] == ["wall"]
+
+
+def test_the_fc_secant_line_names_each_actuator(tmp_path, capsys):
+    # force control on the emulator: the instruments are known, FC's secant rule is on (eq. 11a)
+    cfg = config.from_dict({"structure": {"name": "structure_II"}, "record": {"synthetic_duration_s": 0.1, "pga_g": 0.05},
+                            "integrator": {"method": "force_control"}, "output": {"plots": False, "ns": False}})
+    summary = runner.run(cfg, tmp_path / "run")
+    _print_summary(summary)
+    lines = {line[:15].strip(): line[15:] for line in capsys.readouterr().out.splitlines()}
+    refused = summary["secant_refused"]
+    assert lines["FC secant"].endswith(f": {refused[0]} (BF), {refused[1]} (IF)")
