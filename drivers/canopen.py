@@ -79,7 +79,7 @@ RULES = {
     "counts_per_mm": common.Rule(float, 1e-3, 1e9, False, "between 0.001 and 1e9 counts per mm"),
     **common.PLAUSIBILITY_RULES,
 }
-SCALING_TOLERANCE = 1e-6  # relative: a configured counts_per_mm agrees with the drive's within 1 ppm
+SCALING_TOLERANCE = 1e-6  # relative: a configured counts_per_mm within 1 ppm of the drive's figure is the same
 COUNTS_MAX = 2**31 - 1  # the target and actual positions 0x607A, 0x6064 are int32 counts
 PERMILLE_MAX = 32767  # the CiA 402 torque objects are int16, per mille of the rated value 0x6076
 
@@ -522,23 +522,28 @@ class CanopenLink(common.AxisLink):
             self.ticks = d.sdo_read(cod.CLOCK, what="clock")
 
     def _scaling(self, d: DriveNode) -> float:
-        """Position counts per mm: the drive's own (:meth:`_reported_scaling`), else [driver]
-        counts_per_mm; never guessed (docs/canopen.md). A configured value where the drive
-        reports its scaling must agree with it (within :data:`SCALING_TOLERANCE`): one that
-        contradicts it would misread every position, and is refused."""
+        """Position counts per mm (the units of 0x607A, 0x6064 and 0x607D per mm): [driver]
+        counts_per_mm where set, else the drive's own (:meth:`_reported_scaling`); never guessed
+        (docs/canopen.md). The drive's objects give counts per mm only where its position unit is
+        the one hsio reads them in; a drive left at the position factor 1/1, its positions in
+        encoder increments, is stated by counts_per_mm. A configured value that differs from the
+        drive's figure (by more than :data:`SCALING_TOLERANCE`) is taken, and the difference
+        logged, both figures named."""
         given = self.options["counts_per_mm"]
-        reported = self._reported_scaling(d)
-        if reported is None:
-            if given is None:
+        if given is None:
+            reported = self._reported_scaling(d)
+            if reported is None:
                 raise ConfigError(f"{self.url} node {d.id}: the drive reports no position scaling (neither the position "
                                   "factor 0x6093 nor the feed constant 0x6092 with 0x608F); set [driver] counts_per_mm")
-            return float(given)
-        value, what = reported
-        if given is not None and not math.isclose(given, value, rel_tol=SCALING_TOLERANCE):
-            raise ConfigError(f"{self.url} node {d.id}: [driver] counts_per_mm = {given:g} contradicts the drive's own "
-                              f"scaling, {value:g} counts per mm from its {what}; leave counts_per_mm out (it is for a "
-                              "drive that reports no scaling) or correct the drive's objects")
-        return value
+            return reported[0]
+        try:
+            reported = self._reported_scaling(d)
+        except ConfigError:  # a figure of the drive's that cannot be counts per mm: the configured one states it
+            reported = None
+        if reported is not None and not math.isclose(given, reported[0], rel_tol=SCALING_TOLERANCE):
+            log.warning("%s node %d: [driver] counts_per_mm = %g is taken; the drive's %s would give %g counts per mm",
+                        self.url, d.id, given, reported[1], reported[0])
+        return float(given)
 
     def _reported_scaling(self, d: DriveNode) -> tuple[float, str] | None:
         """The drive's counts per mm and the objects it comes from, or None: its position factor

@@ -123,7 +123,8 @@ class ControlLoop:
             except LimitError as exc:
                 if self._error is not None:  # the loop had stopped already: that is the cause
                     raise self._error
-                cause = self._trip_instead(actuator, exc)
+                with self._lock:  # the controller is asked between two periods, not across the loop's exchange
+                    cause = self._trip_instead(actuator, exc)
                 if cause is not exc:
                     self._fail(cause)
                 raise

@@ -18,7 +18,7 @@ from hsio.errors import CommunicationError, SdoAbortError
 from wire import write_config
 
 _channels = itertools.count()
-TIMEOUT_S = 0.05  # each unanswered attempt costs this much
+TIMEOUT_S = 0.3  # each unanswered attempt costs this much; a loaded host answers well within it
 
 
 class AnswersTwiceLate:

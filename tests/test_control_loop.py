@@ -9,7 +9,7 @@ import pytest
 from hsio.emulators.local import open_url
 from hsio.clock import LockstepClock, RealTimeClock
 from hsio.control_loop import ControlLoop
-from hsio.errors import HsioError
+from hsio.errors import HsioError, InterlockError
 from hsio.interfaces import ControlMode
 from hsio.structures import validation
 
@@ -87,3 +87,23 @@ def test_real_time_clock_does_not_burst_after_a_stall():
     for _ in range(20):
         clock.tick()
     assert time.perf_counter() - started > 15 * clock.period_s  # paced, not made up at once
+
+
+def test_a_refused_target_asks_the_controller_for_its_trip_between_two_periods():
+    """A target the limits refuse while the real-time loop runs: the controller is asked whether it
+    tripped (the cause to report) with the loop's lock held, so the question never crosses the
+    loop's own exchange on the same link; the trip is what the step reports."""
+    loop, actuators = loop_on_emulators(RealTimeClock())
+    asked = []
+
+    def tripped():
+        asked.append(loop._lock._is_owned())
+        return "interlock tripped: force 251 kN beyond the capacity"
+
+    actuators[0].tripped = tripped
+    try:
+        with pytest.raises(InterlockError, match="actuator .*: interlock tripped: force 251 kN"):
+            loop.execute(np.array([10 * actuators[0].limits.stroke_mm, 0.0]))
+        assert asked == [True]
+    finally:
+        loop.close()

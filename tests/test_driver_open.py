@@ -4,6 +4,9 @@ leaves every axis holding; bad [driver] options are refused by name."""
 
 from __future__ import annotations
 
+import logging
+import struct
+
 import itertools
 
 import pytest
@@ -291,18 +294,34 @@ def test_canopen_configured_limits_wider_than_the_drives_are_refused_tighter_tak
         emu.stop()
 
 
-def test_canopen_counts_per_mm_contradicting_the_drives_scaling_is_refused(cfg):
-    """The drive's position factor 0x6093 says 1000 counts per mm: [driver] counts_per_mm = 2000
-    would read every position at half its size; refused at open. The same value is taken."""
+def test_canopen_counts_per_mm_configured_is_taken_over_the_drives_position_factor(cfg, caplog):
+    """A drive left at the position factor 1/1 (its positions in encoder increments) reports 1
+    count per mm: the operator's [driver] counts_per_mm states the rig's 1000, and is taken, the
+    difference logged with both figures; the drive's software limits 0x607D (+/-50 000 counts)
+    are read with it as +/-50 mm. The same value as the drive's is taken without a word."""
     emu = canopen_emulator(cfg)
+    for axis in emu.axes:
+        axis.node.data_store.setdefault(0x6093, {})[1] = struct.pack("<I", 1)
     try:
-        with pytest.raises(ConfigError, match=r"node 1: \[driver\] counts_per_mm = 2000 contradicts the drive's own "
-                                              r"scaling, 1000 counts per mm from its position factor 0x6093 \(1000/1\)"):
-            canopen_open(emu.url, NAMES, LockstepClock(), {"counts_per_mm": 2000})
-        assert none_enabled(emu.bank)
-        acts = canopen_open(emu.url, NAMES, LockstepClock(), {"counts_per_mm": 1000.0})
+        with caplog.at_level(logging.WARNING, logger="hsio.drivers.canopen"):
+            acts = canopen_open(emu.url, NAMES, LockstepClock(), {"counts_per_mm": 1000.0})
         try:
             assert acts[0].drive.counts_per_mm == 1000.0
+            assert acts[0].limits.stroke_mm == pytest.approx(100.0)
+            assert any("counts_per_mm = 1000 is taken; the drive's position factor 0x6093 (1/1) would give 1 counts "
+                       "per mm" in r.getMessage() for r in caplog.records)
+        finally:
+            close_all(acts)
+    finally:
+        emu.stop()
+    emu = canopen_emulator(cfg)
+    try:
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="hsio.drivers.canopen"):
+            acts = canopen_open(emu.url, NAMES, LockstepClock(), {"counts_per_mm": 1000.0})
+        try:
+            assert acts[0].drive.counts_per_mm == 1000.0
+            assert not [r for r in caplog.records if "counts_per_mm" in r.getMessage()]
         finally:
             close_all(acts)
     finally:

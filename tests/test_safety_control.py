@@ -122,6 +122,27 @@ def test_unknown_socket_command_is_answered_plainly(tmp_path):
         server.close()
 
 
+def test_a_socket_in_the_way_that_cannot_be_asked_is_refused_by_name(tmp_path, monkeypatch):
+    """A control.sock left in the folder that cannot be asked whether a run answers on it (another
+    user's socket: permission denied) is neither removed nor a traceback: a ConfigError names it."""
+    import socket
+
+    from hsio.errors import ConfigError
+
+    left = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    left.bind(str(tmp_path / "control.sock"))
+    left.close()
+
+    def denied(path, command, timeout_s=2.0):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(control_socket, "send", denied)
+    with pytest.raises(ConfigError, match=r"control.sock: a control socket is there that cannot be asked whether a "
+                                          r"run uses it \(Permission denied\)"):
+        control_socket.ControlServer(tmp_path, RunControl())
+    assert (tmp_path / "control.sock").exists()
+
+
 def test_a_stop_is_answered_at_once_beside_clients_that_connect_and_say_nothing(tmp_path):
     """Local clients stalled on the socket (a hung script) do not hold up the operator's stop:
     each connection is answered on its own, so the stop is obeyed and acknowledged at once."""

@@ -58,7 +58,14 @@ class ControlServer:
                 send(self.path, "status", timeout_s=0.5)
                 raise ConfigError(f"{self.path}: another run is using this control socket")
             except (ConnectionRefusedError, FileNotFoundError, socket.timeout, TimeoutError):
-                self.path.unlink(missing_ok=True)
+                try:
+                    self.path.unlink(missing_ok=True)
+                except OSError as exc:
+                    raise ConfigError(f"{self.path}: a control socket left by an earlier run cannot be removed "
+                                      f"({exc.strerror or exc}); move it aside") from None
+            except OSError as exc:  # e.g. another user's socket: whether a run answers on it cannot be told
+                raise ConfigError(f"{self.path}: a control socket is there that cannot be asked whether a run "
+                                  f"uses it ({exc.strerror or exc}); move it aside if no run does") from None
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o177)
         try:
