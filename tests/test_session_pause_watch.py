@@ -16,6 +16,24 @@ from hsio.safety.control import PAUSED, RunControl
 from hsio.safety.status import LIMIT_OR_FAULT, exit_status
 
 
+
+def _run_stopped_beside(operator, cfg, tmp_path, control, monkeypatch):
+    """``hsio run`` of ``cfg`` with ``operator`` (given the site as ``operator.site``) in a thread
+    beside it; the run must stop: its ExperimentStopped info."""
+    real_open = runner.api.open_site
+
+    def open_site(*args, **kwargs):
+        operator.site = real_open(*args, **kwargs)
+        return operator.site
+
+    monkeypatch.setattr(runner.api, "open_site", open_site)
+    thread = threading.Thread(target=operator, daemon=True)
+    thread.start()
+    with pytest.raises(ExperimentStopped) as info:
+        runner.run(cfg, tmp_path / "o", control=control)
+    thread.join(timeout=10)
+    return info
+
 def test_a_controller_trip_while_paused_is_told_recorded_and_holds_the_resume(tmp_path, monkeypatch):
     monkeypatch.setattr(RunControl, "WATCH_S", 0.05)
     cfg = config.from_dict({"record": {"duration_s": 1.0}, "output": {"plots": False}})
@@ -41,18 +59,7 @@ def test_a_controller_trip_while_paused_is_told_recorded_and_holds_the_resume(tm
         replies["ack"] = control.request_ack("test")
         replies["resume2"] = control.request_resume("test")
 
-    real_open = runner.api.open_site
-
-    def open_site(*args, **kwargs):
-        operator.site = real_open(*args, **kwargs)
-        return operator.site
-
-    monkeypatch.setattr(runner.api, "open_site", open_site)
-    thread = threading.Thread(target=operator, daemon=True)
-    thread.start()
-    with pytest.raises(ExperimentStopped) as info:
-        runner.run(cfg, tmp_path / "o", control=control)
-    thread.join(timeout=10)
+    info = _run_stopped_beside(operator, cfg, tmp_path, control, monkeypatch)
     told = [line for line in replies["told"] if "controller trip during the pause" in line]
     assert told and "C1: interlock tripped: oil pressure low" in told[0] and "Z)" in told[0]  # UTC time
     assert replies["resume"].startswith("error: not resumed: a controller tripped during the pause")
@@ -124,18 +131,7 @@ def test_a_controller_lost_while_paused_is_told_unconfirmed_and_the_run_stays_pa
         replies["state"] = control.state
         control.request_stop("stopped by the operator")
 
-    real_open = runner.api.open_site
-
-    def open_site(*args, **kwargs):
-        operator.site = real_open(*args, **kwargs)
-        return operator.site
-
-    monkeypatch.setattr(runner.api, "open_site", open_site)
-    thread = threading.Thread(target=operator, daemon=True)
-    thread.start()
-    with pytest.raises(ExperimentStopped) as info:
-        runner.run(cfg, tmp_path / "o", control=control)
-    thread.join(timeout=10)
+    info = _run_stopped_beside(operator, cfg, tmp_path, control, monkeypatch)
     assert exit_status(info.value) == OPERATOR  # the operator's stop, not the failed write
     assert len(control.trips) == 1
     assert "C1: its controller could not be reached" in control.trips[0]
