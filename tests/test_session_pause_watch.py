@@ -16,7 +16,6 @@ from hsio.safety.control import PAUSED, RunControl
 from hsio.safety.status import LIMIT_OR_FAULT, exit_status
 
 
-
 def _run_stopped_beside(operator, cfg, tmp_path, control, monkeypatch):
     """``hsio run`` of ``cfg`` with ``operator`` (given the site as ``operator.site``) in a thread
     beside it; the run must stop: its ExperimentStopped info."""
