@@ -195,18 +195,14 @@ def test_a_write_protected_ledger_is_named_as_such_and_read_as_it_is(tmp_path, p
     the -wal and -shm beside it): the refusal says so and what to do, not "move it aside" as for a
     damaged file; `hsio.ledger.read` reads it as it is. As root, run as the user nobody
     (setpriv), for whom the permissions hold."""
-    import os
     import shutil
     import subprocess
     import sys
-    import tempfile
 
-    as_user = []
-    if os.geteuid() == 0:
-        if shutil.which("setpriv") is None:
-            pytest.skip("as root, the test needs setpriv to write as another user")
-        as_user = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
-    top = Path(tempfile.mkdtemp(dir="/tmp" if as_user else tmp_path))
+    from other_user import as_other_user, folder_for
+
+    as_user = as_other_user("write")
+    top = folder_for(as_user, tmp_path)
     try:
         spec = top / "wall-ro"
         book = ledger.Ledger(spec, "s1")

@@ -123,16 +123,12 @@ def test_a_write_protected_record_is_read_and_not_resumed(tmp_path):
     name, exit 2."""
     import shutil
     import stat
-    import tempfile
 
+    from other_user import as_other_user, folder_for
     from wire import stopped_run
 
-    as_user = []
-    if os.geteuid() == 0:
-        if shutil.which("setpriv") is None:
-            pytest.skip("as root, the test needs setpriv to read as another user")
-        as_user = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
-    folder = Path(tempfile.mkdtemp(dir="/tmp" if as_user else tmp_path))
+    as_user = as_other_user("read")
+    folder = folder_for(as_user, tmp_path)
     try:
         out = stopped_run(tmp_path, 5)
         archived = folder / "archived"

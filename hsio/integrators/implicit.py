@@ -288,7 +288,7 @@ class ImplicitAlpha:
         if self.secant_uncertainty is None or not self.fc_blend < 1:
             return np.full(self.dofs.size, np.nan)
         (sigma_u, delta_u), _ = self.secant_uncertainty
-        near = np.abs(u_meas - ue0) <= 5.0 * math.hypot(sigma_u, delta_u / math.sqrt(12.0)) + delta_u
+        near = np.abs(u_meas - ue0) <= 5.0 * instrument_uncertainty(delta_u, sigma_u) + delta_u
         return np.where(near, ue0 + self.fc_blend * (u_meas - ue0), np.nan)
 
     def predict(self) -> tuple[np.ndarray, np.ndarray]:
@@ -512,6 +512,12 @@ class ImplicitAlpha:
         if self.state is None:
             raise RuntimeError("implicit alpha method: call start() before stepping")
         return self.state
+
+
+def instrument_uncertainty(resolution: float, noise: float) -> float:
+    """Standard uncertainty of an instrument: its noise (standard deviation) and its resolution (a
+    uniform quantisation error, resolution / sqrt(12)) combined in quadrature."""
+    return float(np.hypot(noise, resolution / np.sqrt(12.0)))
 
 
 def _matrix(name: str, value) -> np.ndarray:

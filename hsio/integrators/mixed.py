@@ -26,7 +26,7 @@ import numpy as np
 
 from hsio.errors import ConfigError
 from hsio.integrators.base import StepOutcome
-from hsio.integrators.implicit import ImplicitAlpha
+from hsio.integrators.implicit import ImplicitAlpha, instrument_uncertainty
 from hsio.interfaces import ControlMode
 from hsio.result import Switch
 
@@ -198,12 +198,6 @@ def _check_guards(fallback_after, refractory_steps, explored_fraction, j_max, fc
                                               and not isinstance(explored_fraction, bool)
                                               and 0 < explored_fraction <= 1):
         raise ConfigError(f"explored_fraction must be None (off) or a number in (0, 1], got {explored_fraction!r}")
-
-
-def instrument_uncertainty(resolution: float, noise: float) -> float:
-    """Standard uncertainty of an instrument: its noise (standard deviation) and its resolution (a
-    uniform quantisation error, resolution / sqrt(12)) combined in quadrature."""
-    return float(np.hypot(noise, resolution / np.sqrt(12.0)))
 
 
 def _over_history(u, R, K_EI, measure) -> float:

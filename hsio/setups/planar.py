@@ -67,8 +67,9 @@ class PlanarSetup(Setup):
         # an actuator nearly square to its DOF would move it by a stroke's many times.
         size = max(float(np.max(np.linalg.norm(self._r, axis=1))), 1.0)
         self._lab = self._scale * np.array([size if b == "theta" else 1.0 for b in self.basic])
-        weakest = self.conditioning(np.zeros(self.n_basic))
-        self._orientation = np.sign(np.linalg.det(self.jacobian(np.zeros(self.n_basic)))) if self.square else 0.0
+        J0 = self.jacobian(np.zeros(self.n_basic))
+        weakest = self.conditioning(None, J0)
+        self._orientation = np.sign(np.linalg.det(J0)) if self.square else 0.0
         if not weakest >= MIN_STROKE_RATIO:
             raise ConfigError(f"planar setup: the actuators cannot move every basic DOF (the Jacobian at rest is "
                               f"singular or nearly: some motion of the element changes their strokes by only "
@@ -79,10 +80,12 @@ class PlanarSetup(Setup):
     def square(self) -> bool:
         return self.n_actuators == self.n_basic
 
-    def conditioning(self, d) -> float:
-        """The smallest singular value of the Jacobian at ``d`` in lab units, dimensionless: mm of
-        stroke per mm of translation, and per mm of arc at the farthest pin for a rotation."""
-        return float(np.linalg.svd(self.jacobian(d) / self._lab, compute_uv=False)[-1])
+    def conditioning(self, d, J=None) -> float:
+        """The smallest singular value of the Jacobian at ``d`` (or ``J``, the Jacobian there) in
+        lab units, dimensionless: mm of stroke per mm of translation, and per mm of arc at the
+        farthest pin for a rotation."""
+        J = self.jacobian(d) if J is None else J
+        return float(np.linalg.svd(J / self._lab, compute_uv=False)[-1])
 
     def pose_problem(self, d) -> str:
         """Why the actuators cannot drive the element to basic displacements ``d`` (empty: they
@@ -91,11 +94,12 @@ class PlanarSetup(Setup):
         it the strokes no longer tell the pose (the same strokes have a mirror pose on the side
         of rest), so the geometry holds only on the side of rest, as well conditioned as at rest
         is required (:data:`MIN_STROKE_RATIO`)."""
-        weakest = self.conditioning(d)
+        J = self.jacobian(d)
+        weakest = self.conditioning(d, J)
         if not weakest >= MIN_STROKE_RATIO:
             return (f"the actuators can hardly move the element there (their strokes change by {weakest:.3g} of "
                     f"some motion's size, at least {MIN_STROKE_RATIO:g} is needed: a pose near a singular one)")
-        if self.square and np.sign(np.linalg.det(self.jacobian(d))) != self._orientation:
+        if self.square and np.sign(np.linalg.det(J)) != self._orientation:
             return ("the pose is past a singular one (an actuator went through square to its motion): its "
                     "strokes are those of another pose on the side of rest")
         return ""
