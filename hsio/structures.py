@@ -469,7 +469,7 @@ class Structure:
         dofs = self.experimental_dofs
         if len(set(dofs)) != len(dofs):
             raise ConfigError(f"structure {self.name!r}: two experimental elements share a DOF")
-        self._check_refs()
+        self._check_rotations()
         actuators = [a for e in (*self.experimental, *self.static) for a in e.actuator_names]
         if len(set(actuators)) != len(actuators):
             raise ConfigError(f"structure {self.name!r}: two experimental elements share an actuator")
@@ -480,19 +480,35 @@ class Structure:
         self._check_record_names()
         self._check_model()
 
-    def _check_refs(self) -> None:
-        """An element between two DOFs joins two translations: its displacement, the drift
-        u[dof] - u[ref], is in mm, and a setup's rotation (its basic DOF ``theta``, in rad) is
-        no end of it."""
-        if all(e.ref is None for e in self.experimental):
+    def _check_rotations(self) -> None:
+        """A setup's rotation (its basic DOF ``theta``, in rad) is no translation: an element
+        between two DOFs joins two translations (its displacement, the drift u[dof] - u[ref], is
+        in mm), a spring or a numerical element joins a rotation to the ground or to another
+        rotation only, and a ground translation does not rotate it (iota = 0: the load
+        P = -M iota a_g is a force, a_g a translation's acceleration)."""
+        if not any(e.setup is not None for e in self.experimental):
             return
         rotations = rotation_dofs(self)
+        if not rotations:
+            return
+        where = self.source or f"structure {self.name!r}"
         for k, e in enumerate(self.experimental):
             if e.ref is not None and e.ref in rotations:
-                raise ConfigError(f"{self.source or f'structure {self.name!r}'}: experimental[{k}].ref: DOF "
-                                  f"{self.dof_names[e.ref]!r} is a rotation (the basic DOF theta of a setup, in rad); "
-                                  f"an element between two DOFs joins two translations (its drift u[dof] - u[ref] "
-                                  f"is in mm)")
+                raise ConfigError(f"{where}: experimental[{k}].ref: DOF {self.dof_names[e.ref]!r} is a rotation (the "
+                                  f"basic DOF theta of a setup, in rad); an element between two DOFs joins two "
+                                  f"translations (its drift u[dof] - u[ref] is in mm)")
+        for key, elements in (("spring", self.springs), ("numerical", self.numerical)):
+            for k, e in enumerate(elements):
+                if e.j is not None and (e.i in rotations) != (e.j in rotations):
+                    raise ConfigError(f"{where}: {key}[{k}]: joins DOF {self.dof_names[e.i]!r} to "
+                                      f"{self.dof_names[e.j]!r}, a rotation (rad) to a translation (mm); join a "
+                                      "rotation to the ground or to another rotation")
+        for r in sorted(rotations):
+            if self.iota[r] != 0.0:
+                key = f"dof[{r}].iota" if self.source else f"influence[{r}]"
+                raise ConfigError(f"{where}: {key}: DOF {self.dof_names[r]!r} is a rotation (the basic DOF theta of a "
+                                  f"setup, in rad), which a ground translation does not turn: its iota must be 0, "
+                                  f"got {self.iota[r]:g} (iota is 1 unless given)")
 
     def _check_arguments(self) -> None:
         """Each argument is of its type and holds finite numbers where numbers are due (the

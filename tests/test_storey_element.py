@@ -264,6 +264,7 @@ mass = 0.05
 [[dof]]
 name = "top_rot"
 mass = 50.0
+iota = 0.0
 [[dof]]
 name = "roof"
 mass = 0.04
