@@ -10,7 +10,11 @@ from pathlib import Path
 import hsio
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/notebook")
-out.mkdir(parents=True, exist_ok=True)
+try:
+    out.mkdir(parents=True, exist_ok=True)
+except OSError as exc:  # a file of that name, a folder that cannot be written
+    print(f"notebook.py: cannot use {str(out)!r} as the output folder: {exc.strerror}", file=sys.stderr)
+    sys.exit(2)
 
 # 1. The structure: a shipped one by name, or your own file (docs/structures.md).
 structure = hsio.load_structure("validation")

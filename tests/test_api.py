@@ -25,6 +25,16 @@ def test_notebook_example_writes_a_dataframe_and_a_plot(tmp_path):
     assert (tmp_path / "hs_vs_ns.png").stat().st_size > 20_000
 
 
+def test_notebook_example_names_an_output_folder_it_cannot_use(tmp_path):
+    taken = tmp_path / "steps"
+    taken.write_text("a file, not a folder")
+    proc = subprocess.run([sys.executable, str(ROOT / "examples" / "notebook.py"), str(taken)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert f"cannot use {str(taken)!r} as the output folder" in proc.stderr
+
+
 def test_api_result_is_typed_and_converts_to_a_dataframe():
     structure = hsio.load_structure("structure_I")
     ground = hsio.synthetic_record(duration_s=1.0, dt=structure.dt, pga_g=0.3, seed=2)
