@@ -296,6 +296,7 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
     rows: list[tuple[float, ...]] = []
     line_of: list[int] = []  # the file's line of each row, for the messages
     columns = 0
+    decimals = 0  # the most decimal places of a time in the first column
     pos, number, seen_data = 0, 0, False
     while pos < len(data):
         match = _LINE.match(data, pos)
@@ -331,6 +332,8 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
             raise RecordError(f"{path}:{number}: more than {MAX_SAMPLES} samples")
         rows.append(row)
         line_of.append(number)
+        if columns == 2:
+            decimals = max(decimals, _decimals(words[0]))
     if len(rows) < 2:
         raise RecordError(f"{path}: {len(rows)} samples; a record needs at least 2")
     values = np.array(rows, dtype=float)
@@ -346,17 +349,44 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
         raise RecordError(f"{path}:{line_of[i + 1]}: the times of the first column do not increase "
                           f"({t[i]:g} s, then {t[i + 1]:g} s)")
     step = float(np.median(steps))
+    dt = float(t[-1] - t[0]) / (len(t) - 1)
     uneven = np.flatnonzero(np.abs(steps - step) > 1e-3 * step)
+    if uneven.size:
+        # Times printed to fewer decimals than the step has (1/256 s as 0.0039, 0.0078, 0.0117, ...;
+        # 0.0025 s as 0.002, 0.005, 0.007, ...) are each off the even grid by up to half their last
+        # place: taken where that is at most a quarter of a step (a missing sample, a step twice as
+        # long, is still refused) and every time lies on one even grid within it.
+        printed = 0.5 * 10.0 ** -min(decimals, 300)
+        if printed <= 0.25 * dt:
+            uneven = np.flatnonzero(np.abs(steps - step) > max(1e-3 * step, 2 * printed * (1 + 1e-9)))
+            if not uneven.size:
+                index = np.arange(len(t))
+                dt, t0 = (float(v) for v in np.polyfit(index, t, 1))
+                off = np.flatnonzero(np.abs(t - (t0 + index * dt)) > max(1e-3 * dt, 1.5 * printed))
+                if off.size:
+                    j = int(off[0])
+                    raise RecordError(f"{path}:{line_of[j]}: the times are not evenly spaced: {t[j]:g} s is "
+                                      f"{t[j] - (t0 + j * dt):+.3g} s off the even steps of {dt:g} s, more than the "
+                                      f"rounding of times written to {decimals} decimals; resample it")
     if uneven.size:
         i = int(uneven[0])
         raise RecordError(f"{path}:{line_of[i + 1]}: the times are not evenly spaced: {t[i]:g} to {t[i + 1]:g} s is a "
                           f"step of {steps[i]:g} s where the record's step is {step:g} s; resample it")
-    dt = float(t[-1] - t[0]) / (len(t) - 1)
     if not DT_MIN_S <= dt <= DT_MAX_S:
         raise RecordError(f"{path}: time step {dt:g} s is out of bounds: within {DT_MIN_S:g}..{DT_MAX_S:g} s")
     if dt_s is not None and not math.isclose(dt_s, dt, rel_tol=1e-3):
         raise RecordError(f"{path}: dt_s = {dt_s:g} s but the times of the first column are {dt:g} s apart")
     return GroundMotion(name=path.name, dt=dt, accel_g=accel * factor)
+
+
+def _decimals(word: str) -> int:
+    """The decimal places a number is written to: 3 for '0.125' and '1.25e-1', 0 for '12'."""
+    mantissa, _, exponent = word.lower().partition("e")
+    places = len(mantissa.partition(".")[2])
+    try:
+        return max(0, places - int(exponent or 0))
+    except ValueError:
+        return places
 
 
 def _is_number(word: str) -> bool:

@@ -1,0 +1,52 @@
+"""A two-column record whose times are written to fewer decimals than its step has (a DAQ at
+256 Hz exporting 0.0039, 0.0078, ...; 400 Hz written to the millisecond) is evenly sampled: it is
+read at its true step. A missing sample or a rate that changes is still refused."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hsio.errors import RecordError
+from hsio.ground_motion import read_columns
+
+
+def write(path, dt, n, decimals, skip=(), header="time,acc\n", step_after=None):
+    lines, t = [], 0.0
+    for i in range(n):
+        if i not in skip:
+            lines.append(f"{t:.{decimals}f},{0.05 * math.sin(2 * math.pi * 2.0 * t):.6f}\n")
+        t += step_after if step_after is not None and i >= n // 2 else dt
+    path.write_text(header + "".join(lines))
+    return path
+
+
+@pytest.mark.parametrize("dt, decimals", [(1 / 256, 4), (0.0025, 3), (1 / 60, 3), (1 / 1024, 5), (0.02, 2)])
+def test_times_rounded_in_print_give_the_true_step(tmp_path, dt, decimals):
+    g = read_columns(write(tmp_path / "acc.csv", dt, 1024, decimals), units="g")
+    assert g.dt == pytest.approx(dt, rel=1e-3)
+    assert g.accel_g.size == 1024
+    t = np.arange(1024) * dt
+    np.testing.assert_allclose(g.accel_g, 0.05 * np.sin(2 * np.pi * 2.0 * t), atol=2e-3)
+
+
+@pytest.mark.parametrize("decimals", [3, 6])
+def test_a_missing_sample_is_still_refused_naming_its_line(tmp_path, decimals):
+    path = write(tmp_path / "acc.csv", 0.0025, 400, decimals, skip={200})
+    with pytest.raises(RecordError, match=r"acc\.csv:202: the times are not evenly spaced: 0\.49\d* to 0\.50\d* s"):
+        read_columns(path, units="g")
+
+
+def test_a_rate_that_changes_halfway_is_still_refused(tmp_path):
+    """Steps of 2.5 then 2.6 ms written to the millisecond: each step is within the rounding,
+    the times are not on one even grid."""
+    path = write(tmp_path / "acc.csv", 0.0025, 800, 3, step_after=0.0026)
+    with pytest.raises(RecordError, match=r"acc\.csv:\d+: the times are not evenly spaced: .* off the even steps"):
+        read_columns(path, units="g")
+
+
+def test_times_written_coarser_than_a_quarter_step_are_refused_as_before(tmp_path):
+    """0.0025 s written to two decimals (0.00, 0.00, 0.01, ...) says nothing of the step."""
+    path = write(tmp_path / "acc.csv", 0.004, 100, 2)
+    with pytest.raises(RecordError, match="not evenly spaced|do not increase"):
+        read_columns(path, units="g")
