@@ -3,8 +3,8 @@
 The map (``drivers/maps/daq_default.toml`` is the default and a template) lists analog inputs
 as holding registers with a type and a scale, in the same register format as the servo
 controller's map (docs/modbus.md). The structure's instruments are assigned to the inputs in
-their order. :class:`ModbusDAQ` reads every input, in one request where they lie within 125
-registers (else in as few as they need), and returns engineering values.
+their order. :class:`ModbusDAQ` reads every input, one request per run of adjacent inputs (of at
+most 125 registers; never across a gap the module may not map), and returns engineering values.
 """
 
 from __future__ import annotations
@@ -33,11 +33,13 @@ class DaqMap:
 
     def spans(self, n: int) -> list[tuple[int, int]]:
         """The reads (first address, count) that cover the registers of the first ``n`` inputs,
-        each of at most :data:`MAX_READ_REGISTERS` (one Modbus read), as few as the addresses allow."""
+        each of at most :data:`MAX_READ_REGISTERS` (one Modbus read) and of inputs' registers
+        only (a module may refuse a read of an address it does not map, as hsio's emulator does):
+        one read per run of adjacent inputs."""
         out: list[list[int]] = []
         for r in sorted(self.inputs[:n], key=lambda r: r.address):
             end = r.address + r.words
-            if out and end - out[-1][0] <= MAX_READ_REGISTERS:
+            if out and r.address <= out[-1][1] and end - out[-1][0] <= MAX_READ_REGISTERS:
                 out[-1][1] = max(out[-1][1], end)
             else:
                 out.append([r.address, end])
