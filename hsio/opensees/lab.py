@@ -60,7 +60,7 @@ from hsio.recording import Recorder, RecordExistsError
 from hsio.safety.settings import SafetySettings
 from hsio.sites.actuators import RampStopped
 from hsio.sites.setup_map import SetupMap
-from hsio.structures import Damping, ExperimentalElement, Structure, channel_names
+from hsio.structures import Damping, ExperimentalElement, Structure, channel_names, rotation_dofs
 
 
 MAX_SESSION_FILES = 100_000  # record names tried for one session
@@ -81,12 +81,14 @@ def served_structure(structure: Structure, names, source: str = "") -> Structure
     if unknown:
         raise ConfigError(f"{source + ': ' if source else ''}[opensees] elements: {unknown[0]!r} is not an experimental element of structure "
                           f"{structure.name!r}; known: {', '.join(by_name)}")
-    elements, dof_names = [], []
+    elements, dof_names, influence = [], [], []
+    rotations = rotation_dofs(structure)
     for name in names:
         e = by_name[name]
         first = len(dof_names)
         index = tuple(range(first, first + len(e.basic_dofs)))
         dof_names += [structure.dof_names[d] for d in e.basic_dofs]
+        influence += [0.0 if d in rotations else 1.0 for d in e.basic_dofs]  # a rotation is not loaded by a_g
         elements.append(replace(e, dof=first, dofs=index if e.dofs else (), ref=None))
     # the external instruments that a served element reads its displacement from, or that sit on one
     used = {e.displacement_from for e in elements if e.displacement_from}
@@ -94,6 +96,7 @@ def served_structure(structure: Structure, names, source: str = "") -> Structure
     # OpenSees integrates the model: the served structure's mass and damping are placeholders, never used
     return Structure(name=structure.name, dof_names=tuple(dof_names), masses=(1.0,) * len(dof_names),
                      experimental=tuple(elements), damping=Damping(0.0, "mass"), dt=structure.dt,
+                     influence=tuple(influence) if any(influence) else None,
                      description=f"served elements of {structure.name}", static=structure.static,
                      instruments=instruments)
 
