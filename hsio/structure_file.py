@@ -598,7 +598,19 @@ class _Reader:
             if z_i != z_j and abs(w[j - 1] - w[i - 1]) <= 1e-9 * max(w[i - 1], w[j - 1]):
                 raise self.error("damping.modes", f"rayleigh damping cannot give modes {i} and {j} two ratios "
                                  f"({100 * z_i:g} % and {100 * z_j:g} %): both are at {w[i - 1] / (2 * math.pi):.6g} "
-                                 "Hz; give one ratio, anchor modes of two frequencies, or use kind = \"modal\"")
+                                 "Hz; give one ratio, or anchor modes of two frequencies")
+        if d.kind == "modal" and not isinstance(d.zeta, (int, float)) and len(d.zeta) == structure.n_dof:
+            # Modes of one frequency have no shapes of their own (any combination of them is a mode):
+            # a ratio each would give C = M Phi diag(2 zeta w) Phi^T M that depends on which
+            # combination the eigensolver returns, e.g. on the order of the [[dof]] tables.
+            w = np.sqrt(np.clip(scipy.linalg.eigh(structure.K_init, structure.M, eigvals_only=True), 0.0, None))
+            z = [float(v) for v in d.zeta]
+            for r in range(1, len(w)):
+                if z[r] != z[r - 1] and abs(w[r] - w[r - 1]) <= 1e-9 * w[r]:
+                    raise self.error("damping.zeta", f"modal damping cannot give modes {r} and {r + 1} two ratios "
+                                     f"({100 * z[r - 1]:g} % and {100 * z[r]:g} %): both are at "
+                                     f"{w[r] / (2 * math.pi):.6g} Hz, where any combination of the two is a mode "
+                                     "shape; give them one ratio")
         zeta = structure.damping_ratios()
         bad = np.flatnonzero(zeta < -1e-9)
         if bad.size:
