@@ -337,3 +337,28 @@ def test_a_failed_element_ends_the_session_at_once_for_the_others(tmp_path):
     assert run.summary["steps"] == 1 and "beyond the stroke" in run.summary["stopped"]
     assert "closed the connection" not in run.summary["end"] and "C1" in run.summary["end"]
     assert [e["kind"] for e in run.events()] == ["hold", "stop"]
+
+
+def test_a_model_stepping_other_than_the_structures_dt_is_told_the_lab_time_scale(tmp_path):
+    """Each step's motion lasts TR dt of lab time (the structure's dt, 0.01 s), whatever the
+    model's time step: a model stepping 0.005 s runs the lab at 2 TR, not TR. Once its steady
+    time step shows (5 steps alike), the session says so once: an event naming both steps and
+    the lab's time scale, the step flagged ``time_step``. A model stepping dt is not told."""
+    srv, server = serve(tmp_path)
+    try:
+        c = RawClient(server.ports[0])
+        c.setup()
+        for k in range(1, 9):
+            c.step(0.1 * k, 0.01 * k)  # the structure's dt: nothing said
+        for k in range(1, 9):
+            c.step(0.8 + 0.1 * k, 0.08 + 0.005 * k)
+        run = finish(server, c)
+    finally:
+        srv.__exit__(None, None, None)
+    flags = run.steps["flags"].tolist()
+    assert flags == [""] * 12 + ["time_step"] + [""] * 3  # steps 9 .. 13 alike: said at step 13, once
+    (event,) = [e for e in run.events() if e["kind"] == "time_step"]
+    assert event["step"] == 13
+    assert "time step 0.005 s is not the structure's dt 0.01 s" in event["message"]
+    assert "runs 40 times slower than the model's, not TR = 20 times" in event["message"]
+    assert any("warning: step 13: the model's time step 0.005 s" in line for line in server.lines)

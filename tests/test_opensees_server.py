@@ -270,7 +270,9 @@ def test_an_element_with_more_basic_dofs_than_served_is_refused_with_the_reason(
     c.setup(n=2)  # e.g. '-node 1 2 -dof 1 -dof 1' for C1, a one-DOF element on one actuator
     assert c.closed_by_server()
     c.close()
-    assert any("has 2 basic DOFs" in line and "served element has 1: C1" in line for line in server.lines)
+    (line,) = [x for x in server.lines if "has 2 basic DOFs" in x]
+    assert "served element has 1: C1" in line
+    assert line.count("element C1 (127.0.0.1:") == 1, line  # the element and its peer named once
     good_step_works(server)
 
 

@@ -78,3 +78,19 @@ def test_measured_strokes_that_no_pose_gives_are_implausible_and_name_the_elemen
     setups = SetupMap.of(hsio.load_structure("column_two_actuators"))
     with pytest.raises(ImplausibleMeasurementError, match=r"element 'column': the measured strokes \(0, -600\) mm"):
         setups.basic(np.array([0.0, -600.0]), np.zeros(2))
+
+
+def test_a_rotation_of_a_whole_turn_is_refused_not_sent_as_the_pose_at_rest():
+    """The strokes of two actuators on a column top repeat with every whole turn: a trial of
+    2 pi rad (a model in degrees, a garbled message) has the strokes of the pose at rest, and
+    would be measured as 0 rad. It is refused, naming the element, and nothing moves; so is
+    1.9 pi, the strokes of -0.1 pi."""
+    from hsio.structures import get_structure
+
+    with hsio.open_site(get_structure("column_two_actuators"), "emulator://", test_rate=5) as site:
+        site.set_trial(np.array([1.0, 0.001]), [ControlMode.DISPLACEMENT] * 2)
+        before = [g.command for g in site.loop.generators]
+        for theta in (2 * np.pi, 1.9 * np.pi, -np.pi):
+            with pytest.raises(LimitError, match="element 'column': trial .* refused: a rotation of .* half a turn"):
+                site.set_trial(np.array([1.0, theta]), [ControlMode.DISPLACEMENT] * 2)
+            assert [g.command for g in site.loop.generators] == before

@@ -64,6 +64,7 @@ from hsio.structures import Damping, ExperimentalElement, Structure, channel_nam
 
 
 MAX_SESSION_FILES = 100_000  # record names tried for one session
+STEADY_STEPS = 5  # steps in a row with one time step other than the structure's dt: said once
 
 
 class SessionBusy(HsioError):
@@ -180,6 +181,9 @@ class Lab:
         self.abandoned_total = 0
         self.retried_steps = 0
         self.last_time: float | None = None  # the time of the last recorded step
+        self.time_step_noted = False  # the model's time step was found to differ from dt (said once)
+        self.last_increment: float | None = None  # the model's last time step, s
+        self.time_steps_alike = 0  # steps in a row with that time step
         self.failed = ""
         self.clean_end = True  # every element that left said DIE (the preloads may ramp off)
         self.left: set[int] = set()  # elements that left this session: a new client joins the next one
@@ -570,12 +574,35 @@ class Lab:
             events.append(self._note(lab_time, "time_back", f"step {self.steps}: the model's time {t_step:g} s is not "
                                      f"after the previous step's {self.last_time:g} s; recorded as the model sent it "
                                      f"(a static analysis' pseudo-time, or a clock set back, e.g. loadConst -time)"))
+        elif self.last_time is not None and not self.time_step_noted and times:
+            note = self._time_step_note(t_step - self.last_time)
+            if note and self.time_steps_alike >= STEADY_STEPS:
+                self.time_step_noted = True
+                events.append(self._note(lab_time, "time_step", note))
+                self.log(f"session {self.sessions}: warning: {note}")
         self.last_time = t_step
         self.recorder.write_step(self.steps, t_step, u, v, a, target,
                                  answered, [ControlMode.DISPLACEMENT.value] * self.n_channels, target, command, disp,
                                  force, samples, late_steps=getattr(site, "late_steps", 0),
                                  flags=sorted({e["kind"] for e in events}))
         self.record_s += time.perf_counter() - t0
+
+    def _time_step_note(self, increment: float) -> str:
+        """What to say when the model's time step ``increment`` is not the structure's dt (empty
+        when it is, within 1 %): each step's motion lasts TR dt of lab time whatever the model's
+        step, so the lab's time runs at TR dt / increment times the model's, not at TR. Counts
+        the steps in a row with this increment (``time_steps_alike``): a step tried again with a
+        shorter dt is no steady time step."""
+        dt, rate = self.structure.dt, self.config["test"]["rate"]
+        same = self.last_increment is not None and abs(increment - self.last_increment) <= 1e-6 * abs(increment)
+        self.time_steps_alike = self.time_steps_alike + 1 if same else 1
+        self.last_increment = increment
+        if abs(increment - dt) <= 0.01 * dt:
+            return ""
+        return (f"step {self.steps}: the model's time step {increment:g} s is not the structure's dt {dt:g} s; each "
+                f"step's motion lasts TR x dt = {rate * dt:g} s of lab time, so the lab's time runs "
+                f"{rate * dt / increment:g} times slower than the model's, not TR = {rate:g} times (a static "
+                f"analysis' pseudo-time: no matter; a dynamic one: give the structure the model's dt)")
 
     def _standing(self, site, j: int) -> tuple:
         """A step's row for element ``j`` without a committed trial in it (it left the session, or

@@ -109,7 +109,7 @@ class OpenSeesServer:
             conn.settimeout(limit)
             try:
                 setup = p.Setup.decode(bytes(p.recv_exact(conn, p.SETUP_BYTES)))
-                setup.check(self.lab.n_basic[j], who, self.lab.channels[self.lab.blocks[j]])
+                setup.check(self.lab.n_basic[j], "setup message", self.lab.channels[self.lab.blocks[j]])
             except (TimeoutError, socket.timeout) as exc:
                 key = " ([opensees] timeout_s)" if limit < SETUP_TIMEOUT_S else ""
                 self._refuse(conn, f"{who}: refused: no setup message within {limit:g} s{key}: {exc}")

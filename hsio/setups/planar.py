@@ -93,7 +93,13 @@ class PlanarSetup(Setup):
         moves the element many times as far and carries a force many times the basic force; past
         it the strokes no longer tell the pose (the same strokes have a mirror pose on the side
         of rest), so the geometry holds only on the side of rest, as well conditioned as at rest
-        is required (:data:`MIN_STROKE_RATIO`)."""
+        is required (:data:`MIN_STROKE_RATIO`). A rotation of half a turn or more is refused too:
+        the strokes repeat with every whole turn (the platen turned by 2 pi stands where it stood),
+        so such a pose is sent, and measured, as the pose a whole turn back."""
+        theta = self._pose(d)[2]
+        if abs(theta) >= math.pi:
+            return (f"a rotation of {theta:.6g} rad is half a turn or more: its strokes are those of the pose turned "
+                    f"back by a whole turn ({math.remainder(theta, 2 * math.pi):.6g} rad)")
         J = self.jacobian(d)
         weakest = self.conditioning(d, J)
         if not weakest >= MIN_STROKE_RATIO:
