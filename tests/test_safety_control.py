@@ -393,3 +393,22 @@ def test_a_ctrl_c_while_the_plots_are_drawn_ends_the_plots_not_the_finished_run(
     (row,) = ledger.read(tmp_path / "w1")
     assert row["outcome"] == "finished" and row["exit_status"] == 0
     assert any("plots were not written" in line for line in heard)
+
+
+class _HoldingSite:
+    def pause(self):
+        return None
+
+    def resume(self):
+        pass
+
+
+def test_a_pause_that_a_stop_ends_counts_as_pause():
+    """The run's wall time without its pauses (the late-controller warning) leaves out a pause
+    that a stop ended, as it leaves out one that a resume ended."""
+    control = RunControl()
+    control.request_pause()
+    threading.Timer(0.3, control.request_stop).start()
+    with pytest.raises(OperatorStop):
+        control.checkpoint(_HoldingSite(), 5)
+    assert control.paused_s >= 0.25
