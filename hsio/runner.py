@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import sqlite3
 import time
 from pathlib import Path
@@ -553,7 +554,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
     ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
     if ledger:
         ledger.warn = notify
-    existed = out_dir is not None and Path(out_dir).is_dir()
+    existed = out_dir is not None and os.path.isdir(out_dir)  # False for a name too long: run_folder names it
     try:
         out = run_folder(config, structure, out_dir)
     except BaseException:
