@@ -506,12 +506,12 @@ REST_GAP_MM = 1.0
 
 
 def check_rest_start(structure: Structure, method: str, start_state: dict | None, t_d: float,
-                     safety: SafetySettings, recorder, notify) -> None:
+                     safety: SafetySettings, recorder, notify, overridden=lambda: None) -> None:
     """A test from rest (``[test] start = "rest"``) on actuators that stand away from zero (the
     residual displacement of an earlier record) would drive them back to zero within its first
     step t_d = TR dt: a motion the dry run, made from rest, does not predict. Beyond REST_GAP_MM it
     is refused as the dry run refuses (DryRunRefused: no command sent), unless overridden
-    (``--override-dry-run``, recorded). Elements on one actuator each, in displacement control
+    (``--override-dry-run``, recorded: ``overridden`` marks it in the ledger). Elements on one actuator each, in displacement control
     (through setups the strokes at rest are not known here; in force control the first command
     is a force)."""
     if not start_state or "error" in start_state or structure.has_setups or method == "force_control":
@@ -528,6 +528,7 @@ def check_rest_start(structure: Structure, method: str, start_state: dict | None
             f"the specimen stands ([test] start = \"present\"), or bring the actuators back to zero first")
     recorder.write_event(None, 0, "dry_run", "", text)
     if safety.override:
+        overridden()
         notify(f"WARNING: {text} (overridden)")
         return
     raise DryRunRefused(f"{text}; no command was sent")
@@ -686,7 +687,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
                 notify(f"[emulator] and [hardware] actuator_model are not read by a run on {hardware['url']}: they "
                        f"set the emulated controller (`hsio emulate ... CONFIG`), not the real one")
             if not present and safety.dry_run:
-                check_rest_start(structure, method, start_state, test["rate"] * structure.dt, safety, recorder, notify)
+                check_rest_start(structure, method, start_state, test["rate"] * structure.dt, safety, recorder, notify,
+                                 lambda: ledger.update(run_id, override=1) if ledger else None)
             if present:  # what HS is compared with: NS from the same start, not from rest
                 ns_present = ns_from_present(config, structure, ground, start_state, control) \
                     if ns is not None or report is not None else None

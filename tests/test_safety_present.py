@@ -180,6 +180,7 @@ def test_a_rest_start_on_a_displaced_specimen_is_refused_before_the_first_comman
     within its first step (t_d = 0.02 s here: some 160 mm/s the dry run never predicted): refused
     as the dry run refuses (exit status 2, the axes holding where they stand, no command sent),
     unless overridden, which is recorded."""
+    from hsio import ledger
     from hsio.commands.emulate import bank_from_config
     from hsio.drivers import modbus_map
     from hsio.emulators.modbus import ModbusEmulator
@@ -202,7 +203,7 @@ def test_a_rest_start_on_a_displaced_specimen_is_refused_before_the_first_comman
         assert exit_status(refused.value) == 2
         assert "no command was sent" in str(refused.value) and "start = \"present\"" in str(refused.value)
         cfg["safety"]["override"] = True
-        runner.run(cfg, tmp_path / "third", ground=still)
+        runner.run(cfg, tmp_path / "third", ground=still, specimen_dir=tmp_path / "specimen")
     finally:
         emulator.stop()
     second, third = Run(tmp_path / "second" / "run.sqlite"), Run(tmp_path / "third" / "run.sqlite")
@@ -210,4 +211,5 @@ def test_a_rest_start_on_a_displaced_specimen_is_refused_before_the_first_comman
     assert abs(standing) > 2.0 and len(second.steps["step"]) == 0
     assert third.meta["start_state"]["C1"]["displacement_mm"] == pytest.approx(standing, abs=1e-6)  # nothing moved
     assert [e["kind"] for e in third.events()].count("dry_run") == 2  # the override is recorded
+    assert [row["override"] for row in ledger.read(tmp_path / "specimen")] == [1]  # in the ledger too
     assert len(third.steps["step"]) == len(still.accel_g) - 1  # and the run went on
