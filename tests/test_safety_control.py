@@ -412,3 +412,16 @@ def test_a_pause_that_a_stop_ends_counts_as_pause():
     with pytest.raises(OperatorStop):
         control.checkpoint(_HoldingSite(), 5)
     assert control.paused_s >= 0.25
+
+
+def test_a_socket_in_a_temporary_folder_leaves_no_folder_behind(tmp_path):
+    """A run folder whose path is too long for a UNIX socket gets its socket in a temporary folder
+    of its own; closing the socket removes that folder too (a run would otherwise leave one in
+    the temporary directory each time)."""
+    run_dir = tmp_path / ("d" * 120)
+    run_dir.mkdir()
+    server = control_socket.ControlServer(run_dir, RunControl())
+    assert server.path.parent != run_dir
+    assert control_socket.send(server.path, "status").startswith("ok running")
+    server.close()
+    assert not server.path.parent.exists()
