@@ -511,9 +511,9 @@ def check_rest_start(structure: Structure, method: str, start_state: dict | None
     residual displacement of an earlier record) would drive them back to zero within its first
     step t_d = TR dt: a motion the dry run, made from rest, does not predict. Beyond REST_GAP_MM it
     is refused as the dry run refuses (DryRunRefused: no command sent), unless overridden
-    (``--override-dry-run``, recorded: ``overridden`` marks it in the ledger). Elements on one actuator each, in displacement control
-    (through setups the strokes at rest are not known here; in force control the first command
-    is a force)."""
+    (``--override-dry-run``, recorded: ``overridden`` marks it in the ledger). Elements on one
+    actuator each, in displacement control (through setups the strokes at rest are not known here;
+    in force control the first command is a force)."""
     if not start_state or "error" in start_state or structure.has_setups or method == "force_control":
         return
     far = {name: start_state[name]["displacement_mm"] for name in channel_names(structure)
