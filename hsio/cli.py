@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
+import os
 import signal
 import sys
 from pathlib import Path
@@ -134,7 +135,7 @@ def run(config_file: str | None, out_dir: str | None, specimen_dir: str | None, 
                     from hsio.monitor.server import MonitorProcess
 
                     runner.fingerprints(cfg)  # an input file that cannot be read: refused before the folder too
-                    created = out_dir is None or not Path(out_dir).exists()
+                    created = out_dir is None or not os.path.exists(out_dir)  # a name too long: run_folder names it
                     out_dir = runner.run_folder(cfg, structure, out_dir)
                     try:
                         page = cleanup.enter_context(MonitorProcess(out_dir, monitor_host, monitor_port))

@@ -62,10 +62,10 @@ class Ledger:
     def __init__(self, folder: str | Path, specimen_id: str = "", warn=None):
         self.folder = Path(folder)
         self.warn = warn or (lambda line: None)  # hears a row that could not be updated
-        if self.folder.exists() and not self.folder.is_dir():
-            raise ConfigError(f"specimen folder {self.folder}: this is a file, not a folder; name a folder for the "
-                              f"specimen's ledger")
         try:
+            if self.folder.exists() and not self.folder.is_dir():
+                raise ConfigError(f"specimen folder {self.folder}: this is a file, not a folder; name a folder for the "
+                                  f"specimen's ledger")
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ConfigError(f"specimen folder {self.folder}: cannot create it: {exc.strerror}") from None

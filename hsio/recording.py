@@ -461,6 +461,10 @@ def without_journal(path: str | Path) -> str:
         return ""
     if tables:
         return ""
+    journal = Path(f"{path}-journal")
+    if journal.exists() and journal.stat().st_size > 0:  # the creation's transaction, never committed
+        return (f"; it holds no tables and its {journal.name} is beside it: the run was interrupted while it "
+                f"created its record, before its first step; there is nothing to read or resume: start the run again")
     return (f"; it holds no tables and no {path.name}-wal with steps is beside it: a record is its folder, and what a run "
             f"commits stays in {path.name}-wal until copied into {path.name}: copy both files together")
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import sqlite3
 import time
 from pathlib import Path
@@ -500,6 +501,39 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, r
 
 
 
+# A rest start on an actuator standing farther than this from zero is refused (as a resume's gap, mm).
+REST_GAP_MM = 1.0
+
+
+def check_rest_start(structure: Structure, method: str, start_state: dict | None, t_d: float,
+                     safety: SafetySettings, recorder, notify, overridden=lambda: None) -> None:
+    """A test from rest (``[test] start = "rest"``) on actuators that stand away from zero (the
+    residual displacement of an earlier record) would drive them back to zero within its first
+    step t_d = TR dt: a motion the dry run, made from rest, does not predict. Beyond REST_GAP_MM it
+    is refused as the dry run refuses (DryRunRefused: no command sent), unless overridden
+    (``--override-dry-run``, recorded: ``overridden`` marks it in the ledger). Elements on one
+    actuator each, in displacement control (through setups the strokes at rest are not known here;
+    in force control the first command is a force)."""
+    if not start_state or "error" in start_state or structure.has_setups or method == "force_control":
+        return
+    far = {name: start_state[name]["displacement_mm"] for name in channel_names(structure)
+           if name in start_state and not abs(start_state[name]["displacement_mm"]) <= REST_GAP_MM}
+    if not far:
+        return
+    where = "; ".join(f"{name} stands at {d:+.3f} mm" for name, d in far.items())
+    fastest = max(abs(d) for d in far.values()) / t_d
+    text = (f"dry run from the present state: the test starts from rest ([test] start = \"rest\") but {where}, more "
+            f"than {REST_GAP_MM:g} mm from zero: its first step would drive the specimen back to zero within "
+            f"{t_d:g} s (about {fastest:.0f} mm/s), a motion the dry run from rest does not predict; start from where "
+            f"the specimen stands ([test] start = \"present\"), or bring the actuators back to zero first")
+    recorder.write_event(None, 0, "dry_run", "", text)
+    if safety.override:
+        overridden()
+        notify(f"WARNING: {text} (overridden)")
+        return
+    raise DryRunRefused(f"{text}; no command was sent")
+
+
 def run(config: RunConfig, out_dir: str | Path | None = None, progress=None, ground: GroundMotion | None = None,
         control: RunControl | None = None, specimen_dir: str | Path | None = None, notify=None,
         checked: bool = False) -> dict:
@@ -553,7 +587,7 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
     ledger = open_ledger(config, specimen_dir)  # before the folder: a ledger that cannot be kept leaves none
     if ledger:
         ledger.warn = notify
-    existed = out_dir is not None and Path(out_dir).is_dir()
+    existed = out_dir is not None and os.path.isdir(out_dir)  # False for a name too long: run_folder names it
     try:
         out = run_folder(config, structure, out_dir)
     except BaseException:
@@ -652,6 +686,9 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
             if not hardware["url"].startswith("emulator") and (config["emulator"] or hardware["actuator_model"]):
                 notify(f"[emulator] and [hardware] actuator_model are not read by a run on {hardware['url']}: they "
                        f"set the emulated controller (`hsio emulate ... CONFIG`), not the real one")
+            if not present and safety.dry_run:
+                check_rest_start(structure, method, start_state, test["rate"] * structure.dt, safety, recorder, notify,
+                                 lambda: ledger.update(run_id, override=1) if ledger else None)
             if present:  # what HS is compared with: NS from the same start, not from rest
                 ns_present = ns_from_present(config, structure, ground, start_state, control) \
                     if ns is not None or report is not None else None

@@ -321,3 +321,26 @@ def test_a_resumed_session_takes_the_terminals_keys_as_the_run_says(tmp_path, ke
         assert exit_status(exc) == 5 and "key s" in str(exc)
     assert (summary is None) == keys and (started[-1] == "closed" if keys else not started)
     assert Run(out / "run.sqlite").summary["exit_status"] == (5 if keys else 0)
+
+
+def test_a_record_killed_while_it_was_created_says_so(tmp_path):
+    """A run killed while it created its record leaves run.sqlite without tables and the creation's
+    rollback journal beside it: the refusal says that no step was committed (start the run again),
+    not that a journal of steps was left behind when copying."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "killed"
+    out.mkdir()
+    code = ("import os, sqlite3, sys\n"
+            "db = sqlite3.connect(sys.argv[1], isolation_level=None)\n"
+            "db.execute('BEGIN'); db.execute('CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)')\n"
+            "db.execute('PRAGMA cache_spill = 1'); db.execute('CREATE TABLE pad (x)')\n"
+            "db.executemany('INSERT INTO pad VALUES (?)', [(b'x' * 4000,)] * 50)\n"
+            "os._exit(0)\n")  # killed: the transaction that creates the tables is never committed
+    subprocess.run([sys.executable, "-c", code, str(out / "run.sqlite")], check=True, timeout=30)
+    assert (out / "run.sqlite-journal").stat().st_size > 0
+    result = _resume(out)
+    assert result.exit_code == 2
+    assert "interrupted while it created its record, before its first step" in result.output
+    assert "copy both files together" not in result.output

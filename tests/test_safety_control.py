@@ -393,3 +393,35 @@ def test_a_ctrl_c_while_the_plots_are_drawn_ends_the_plots_not_the_finished_run(
     (row,) = ledger.read(tmp_path / "w1")
     assert row["outcome"] == "finished" and row["exit_status"] == 0
     assert any("plots were not written" in line for line in heard)
+
+
+class _HoldingSite:
+    def pause(self):
+        return None
+
+    def resume(self):
+        pass
+
+
+def test_a_pause_that_a_stop_ends_counts_as_pause():
+    """The run's wall time without its pauses (the late-controller warning) leaves out a pause
+    that a stop ended, as it leaves out one that a resume ended."""
+    control = RunControl()
+    control.request_pause()
+    threading.Timer(0.3, control.request_stop).start()
+    with pytest.raises(OperatorStop):
+        control.checkpoint(_HoldingSite(), 5)
+    assert control.paused_s >= 0.25
+
+
+def test_a_socket_in_a_temporary_folder_leaves_no_folder_behind(tmp_path):
+    """A run folder whose path is too long for a UNIX socket gets its socket in a temporary folder
+    of its own; closing the socket removes that folder too (a run would otherwise leave one in
+    the temporary directory each time)."""
+    run_dir = tmp_path / ("d" * 120)
+    run_dir.mkdir()
+    server = control_socket.ControlServer(run_dir, RunControl())
+    assert server.path.parent != run_dir
+    assert control_socket.send(server.path, "status").startswith("ok running")
+    server.close()
+    assert not server.path.parent.exists()

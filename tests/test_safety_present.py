@@ -173,3 +173,43 @@ def test_a_present_start_is_compared_with_ns_from_where_the_specimen_stands(tmp_
     assert abs(standing) > 2.0  # the first record left the specimen displaced
     assert run.ns["u_C1"][0] == pytest.approx(standing, abs=0.05)  # NS starts where HS starts
     assert summary["max_error_pct"] < 2.0, summary["max_error_pct"]
+
+
+def test_a_rest_start_on_a_displaced_specimen_is_refused_before_the_first_command(tmp_path):
+    """A record from rest on a specimen an earlier record left displaced would drive it back to zero
+    within its first step (t_d = 0.02 s here: some 160 mm/s the dry run never predicted): refused
+    as the dry run refuses (exit status 2, the axes holding where they stand, no command sent),
+    unless overridden, which is recorded."""
+    from hsio import ledger
+    from hsio.commands.emulate import bank_from_config
+    from hsio.drivers import modbus_map
+    from hsio.emulators.modbus import ModbusEmulator
+    from hsio.ground_motion import GroundMotion
+    from hsio.safety.status import DryRunRefused, exit_status
+    from wire import QUIET_SENSORS, write_config
+
+    dt = get_structure("validation").dt
+    push = GroundMotion("push", dt, np.minimum(np.arange(100) / 10.0, 1.0) * 0.2)  # leaves it ~3 mm out
+    still = GroundMotion("still", dt, np.zeros(20))
+    emu_cfg = write_config(tmp_path, duration=0.0, rate=2.0, extra=QUIET_SENSORS, name="emu.toml")
+    emulator = ModbusEmulator(bank_from_config(emu_cfg, lockstep=True), modbus_map.load()).start()
+    try:
+        cfg = config_mod.load(emu_cfg)
+        cfg["hardware"]["url"] = emulator.url
+        runner.run(cfg, tmp_path / "first", ground=push)
+        with pytest.raises(DryRunRefused, match=r"starts from rest .* C1 stands at -\d+\.\d+ mm; "
+                                                r"C2 stands at -\d+\.\d+ mm, more than 1 mm from zero") as refused:
+            runner.run(cfg, tmp_path / "second", ground=still)
+        assert exit_status(refused.value) == 2
+        assert "no command was sent" in str(refused.value) and "start = \"present\"" in str(refused.value)
+        cfg["safety"]["override"] = True
+        runner.run(cfg, tmp_path / "third", ground=still, specimen_dir=tmp_path / "specimen")
+    finally:
+        emulator.stop()
+    second, third = Run(tmp_path / "second" / "run.sqlite"), Run(tmp_path / "third" / "run.sqlite")
+    standing = second.meta["start_state"]["C1"]["displacement_mm"]
+    assert abs(standing) > 2.0 and len(second.steps["step"]) == 0
+    assert third.meta["start_state"]["C1"]["displacement_mm"] == pytest.approx(standing, abs=1e-6)  # nothing moved
+    assert [e["kind"] for e in third.events()].count("dry_run") == 2  # the override is recorded
+    assert [row["override"] for row in ledger.read(tmp_path / "specimen")] == [1]  # in the ledger too
+    assert len(third.steps["step"]) == len(still.accel_g) - 1  # and the run went on

@@ -322,3 +322,23 @@ def test_a_file_in_the_control_sockets_way_is_kept_and_refused(tmp_path, thing):
     assert "a file that is not a control socket is in the way" in result.output
     assert sorted(p.name for p in out.iterdir()) == ["control.sock"]
     assert thing != "file" or (out / "control.sock").read_text() == "notes"
+
+
+@pytest.mark.parametrize("option", [["--out"], ["--out", "--monitor", "--monitor-port", "0"], ["--specimen"]])
+def test_a_folder_name_too_long_for_the_file_system_is_a_clear_refusal(tmp_path, monkeypatch, option):
+    """A run folder or specimen folder whose name the file system cannot hold (over 255 bytes):
+    exit 2 naming the folder and why, no traceback, nothing made."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    cfg = tmp_path / "short.toml"
+    cfg.write_text("[record]\nduration_s = 0.3\n[output]\nplots = false\n")
+    name = "x" * 300
+    args = ["run", str(cfg), option[0], name, *option[1:]]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 2, result.output
+    assert "File name too long" in result.output and name in result.output
+    assert not isinstance(result.exception, OSError)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["short.toml"]

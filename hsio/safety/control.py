@@ -154,7 +154,8 @@ class RunControl:
         while True:  # as long as the operator wants; each wait is bounded
             self._wake.wait(wait_s)
             self._wake.clear()
-            if self.state == STOPPING:
+            if self.state == STOPPING:  # a stop ends the pause: its time is pause all the same
+                self.paused_s += time.monotonic() - started
                 raise OperatorStop(self.stop_reason)
             self._record_acknowledgements(log)
             leaving = not self._pause_wanted

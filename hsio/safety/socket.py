@@ -15,6 +15,7 @@ reach it (file permissions 0600).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import stat
@@ -48,6 +49,8 @@ class ControlServer:
     def __init__(self, run_dir: str | Path, control: RunControl):
         self.control = control
         self.path = socket_path(run_dir)
+        # a run folder whose path is too long for a socket: a temporary folder of its own, removed at close
+        self._own_folder = self.path.parent != Path(run_dir).resolve()
         self._stop = threading.Event()
         self._clients = threading.BoundedSemaphore(self.MAX_CLIENTS)
         if os.path.lexists(self.path):  # left by a run that was killed: nobody answers on it
@@ -72,6 +75,9 @@ class ControlServer:
             self.sock.bind(str(self.path))
         except OSError as exc:
             self.sock.close()
+            if self._own_folder:
+                with contextlib.suppress(OSError):
+                    self.path.parent.rmdir()
             raise ConfigError(f"{self.path}: cannot open the run's control socket ({exc.strerror or exc})") from None
         finally:
             os.umask(old)
@@ -132,6 +138,8 @@ class ControlServer:
         finally:
             try:
                 self.path.unlink()
+                if self._own_folder:
+                    self.path.parent.rmdir()
             except OSError:
                 pass
 
