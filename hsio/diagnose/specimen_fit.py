@@ -143,6 +143,8 @@ def design(sig: Signals, effects: tuple[str, ...], theta: dict) -> tuple[list[st
     else:
         damp = v
     names.append("c"), cols.append(damp), lower.append(0.0)
+    if "nonlinear_elastic" in effects:
+        names.append("k3"), cols.append(d * u**3), lower.append(-np.inf)
     if "friction" in effects:
         names.append("friction_kN"), cols.append(np.tanh(v / theta["friction_v0_mm_s"])), lower.append(0.0)
     if "inertia" in effects:
@@ -293,7 +295,7 @@ def specimen_table(f: SpecimenFit) -> dict:
     The load-cell offset and a channel skew are measurement effects, not the specimen's."""
     p = f.params
     table = {"kind": "diagnosed", "k": p["k"], "c": p["c"]}
-    for key in ("alpha", "v_ref_mm_s", "friction_kN", "friction_v0_mm_s", "mass_kg", "gap_mm", "k_gap", "fy_kN", "uy_mm",
+    for key in ("k3", "alpha", "v_ref_mm_s", "friction_kN", "friction_v0_mm_s", "mass_kg", "gap_mm", "k_gap", "fy_kN", "uy_mm",
                 "pinch", "pinch_width_mm", "degradation_per_mm"):
         if key in p:
             table[key] = float(p[key])
