@@ -291,3 +291,17 @@ def test_the_diagnosed_model_of_a_cubic_spring_replays_it(sweep, tmp_path):
     specimen = load_specimen_model(write_specimen_model(tmp_path / "specimen.toml", d))
     assert specimen.k3 == pytest.approx(0.005, rel=0.05)
     assert specimen.force(8.0, 0.0) == pytest.approx(8.0 + 0.005 * 512, rel=0.02)
+
+
+@pytest.mark.parametrize("kind", ["seismic", "sweep"])
+@pytest.mark.parametrize("c", [0.0, 0.01])
+def test_a_noise_free_linear_specimen_answers_none(seismic, sweep, kind, c):
+    """Without noise the only error left is what the displacement's low-pass cannot keep (a
+    sweep's ramps): no skew or other cause is named, and the residual is at the floor."""
+    u = seismic if kind == "seismic" else sweep
+    record = emulate_specimen(Diagnosed(k=1.0, c=c), u, RATE_HZ, noise_mm=0.0, resolution_mm=0.0, force_noise_kN=0.0,
+                              force_resolution_kN=0.0)
+    d = diagnose_specimen(record)
+    assert d.cause == NONE, (d.cause, [(x.cause, round(x.choose_gain, 3)) for x in d.candidates],
+                             d.structure.rms_test_mm, d.floor.sensor_floor_mm)
+    assert d.explained
