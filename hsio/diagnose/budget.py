@@ -23,6 +23,12 @@ and the largest share s_1 is at least DOMINANCE times the next one's and at leas
 of A (it carries most of what the sources reproduce). Below ACCOUNTED_MIN no modelled source
 explains D, and the budget says so, with the part it leaves (u_HS - u_all).
 
+The noise floor is the RMS of the difference the sensors' noise alone makes: NS replayed
+NOISE_REALISATIONS times with independent white noise at the levels measured in the run, on the
+tracking error (the transducer's, from its high band) and on the force (the residual's white
+level, :func:`noise_level`). A difference within NOISE_FLOOR_FACTOR of it is at the noise floor:
+whatever the sources reproduce of it is noise, so no source but the force noise itself is named.
+
 A run stopped early (fewer steps recorded than its record has) is budgeted over the steps it
 recorded; the budget says how many of how many, and why it stopped when the run recorded that.
 
@@ -45,6 +51,9 @@ from hsio.diagnose.threads import one_blas_thread
 SOURCES = ("tracking", "force_noise", "specimen")
 ACCOUNTED_MIN = 0.5  # a main source is named only when the sources together reproduce this share of D
 DOMINANCE = 2.0  # ... and the largest share is this many times the next and at least 1 / DOMINANCE of A
+NOISE_REALISATIONS = 8  # replays with independent noise that set the noise floor
+NOISE_FLOOR_FACTOR = 1.5  # a difference within this factor of the noise floor is at it (as residual.FLOOR_FACTOR)
+NOISE_SEED = 16  # the realisations are the same at every call
 TITLES = {"tracking": "actuator tracking error", "force_noise": "force measurement noise",
           "specimen": "specimen-model mismatch", "rest": "integrator and interaction (the rest)"}
 
@@ -416,6 +425,31 @@ def force_noise(data: RunData, models) -> tuple[np.ndarray, list[dict]]:
     return noise, notes
 
 
+def white_sigma(x: np.ndarray) -> float:
+    """The standard deviation per sample of the white part of ``x`` (:func:`noise_level`)."""
+    return float(np.sqrt(noise_level(x) / x.size)) if x.size else 0.0
+
+
+def noise_floor(data: RunData, force_sigma: list[float]) -> dict:
+    """The RMS difference from NS that the sensors' noise alone makes: NS replayed
+    NOISE_REALISATIONS times with independent white noise on the tracking error (each actuator's
+    transducer, its white level in the measured tracking error) and on the force (``force_sigma``,
+    kN per step), the RMS over the realisations."""
+    error = data.targets - data.displacement
+    transducer = [white_sigma(error[:, j]) for j in range(error.shape[1])]
+    rng = np.random.default_rng(NOISE_SEED)
+    models = structure_models(data.structure)
+    squares = []
+    for _ in range(NOISE_REALISATIONS):
+        e = rng.normal(0.0, 1.0, error.shape) * np.array(transducer)
+        f = rng.normal(0.0, 1.0, data.force.shape) * np.array(force_sigma)
+        u = replay(data, models, tracking_error=e, force_noise=f)
+        m = min(u.shape[0], data.u_ns.shape[0])
+        squares.append(float(np.mean(np.square(u[:m] - data.u_ns[:m]))))
+    return {"rms_mm": float(np.sqrt(np.mean(squares))), "factor": NOISE_FLOOR_FACTOR, "realisations": NOISE_REALISATIONS,
+            "transducer_sigma_mm": transducer, "force_sigma_kN": list(map(float, force_sigma))}
+
+
 @dataclass
 class Budget:
     source: str
@@ -428,6 +462,12 @@ class Budget:
     steps_planned: int = 0  # 0: not known (taken as the steps recorded)
     stop_reason: str | None = None
     noise_notes: list = field(default_factory=list)
+    floor: dict | None = None  # :func:`noise_floor` (None: not estimated)
+
+    @property
+    def at_noise_floor(self) -> bool:
+        """The difference is within NOISE_FLOOR_FACTOR of what the sensors' noise alone makes."""
+        return bool(self.floor) and _rms(self.difference) <= self.floor["factor"] * self.floor["rms_mm"]
 
     @property
     def difference(self) -> np.ndarray:
@@ -449,10 +489,17 @@ class Budget:
     @property
     def verdict(self) -> str:
         """``main_source`` (one source carries the difference), ``together`` (the sources account
-        for it, none alone), ``unexplained`` (they account for less than ACCOUNTED_MIN of it) or
-        ``no_difference`` (HS and NS agree: nothing to budget)."""
+        for it, none alone), ``unexplained`` (they account for less than ACCOUNTED_MIN of it),
+        ``noise_floor`` (the difference is no larger than the sensors' noise makes, and the force
+        noise is not the main source) or ``no_difference`` (HS and NS agree: nothing to budget)."""
         if _rms(self.difference) == 0:
             return "no_difference"
+        verdict = self._attribution()
+        if self.at_noise_floor and not (verdict == "main_source" and self.ranked[0][0] == "force_noise"):
+            return "noise_floor"
+        return verdict
+
+    def _attribution(self) -> str:
         a = self.accounted
         if not a >= ACCOUNTED_MIN:
             return "unexplained"
@@ -499,8 +546,16 @@ class Budget:
         (top, s1), rest = self.ranked[0], self.ranked[1:]
         if verdict == "no_difference":
             return "HS and NS agree at every recorded step: there is no difference to budget"
+        if verdict == "noise_floor":
+            return (f"the difference is at the noise floor: HS - NS RMS {_rms(self.difference):.4f} mm, within "
+                    f"{self.floor['factor']:g} times the {self.floor['rms_mm']:.4f} mm the sensors' noise alone makes "
+                    f"(NS replayed with {self.floor['realisations']} realisations of white noise at the levels measured in "
+                    f"the run); no source is named beyond the noise (all sources together account for {100 * a:.1f} % "
+                    "of it)")
         if verdict == "main_source":
-            return f"all sources together account for {100 * a:.1f} % of the difference; main source: {TITLES[top]}"
+            floor = (f" (the difference is at the noise floor, {self.floor['rms_mm']:.4f} mm)"
+                     if self.at_noise_floor else "")
+            return f"all sources together account for {100 * a:.1f} % of the difference; main source: {TITLES[top]}{floor}"
         if verdict == "together":
             nxt, s2 = rest[0] if rest else (None, 0.0)
             why = (f"none alone reproduces any of it (the largest share, {TITLES[top]}, is {100 * s1:.1f} %): they "
@@ -534,6 +589,7 @@ class Budget:
                 "accounted": self.accounted, "main_source": self.main_source, "verdict": self.verdict,
                 "conclusion": self.conclusion(), "unexplained": self.unexplained(),
                 "rule": {"accounted_min": ACCOUNTED_MIN, "dominance": DOMINANCE}, "run": self.run_json(),
+                "noise_floor": {**self.floor, "at_floor": self.at_noise_floor} if self.floor else None,
                 "specimen_models": self.specimen_notes, "force_noise": self.noise_notes,
                 "method": "NS replayed with one measured source at a time; share = 1 - RMS(HS - replay) / RMS(HS - NS)"}
 
@@ -558,9 +614,10 @@ def error_budget(run_dir: str | Path) -> Budget:
                "force_noise": replay(data, structure_models(data.structure), force_noise=noise),
                "specimen": replay(data, models)}
     u_all = replay(data, models, tracking_error=error, force_noise=noise)
+    floor = noise_floor(data, [n["sigma_kN"] for n in noise_notes])
     m = min(n, data.u_ns.shape[0], u_all.shape[0], *(u.shape[0] for u in replays.values()))
     return Budget(data.source, data.t[:m], data.u_hs[:m], data.u_ns[:m], {k: u[:m] for k, u in replays.items()}, u_all[:m], notes,
-                  data.steps_planned, data.stop_reason, noise_notes)
+                  data.steps_planned, data.stop_reason, noise_notes, floor)
 
 
 def write_budget(b: Budget, out_dir: str | Path) -> dict:
@@ -576,6 +633,9 @@ def write_budget(b: Budget, out_dir: str | Path) -> dict:
     for i, (s, u) in enumerate(b.replays.items()):
         axes[0].plot(b.t, (u - b.u_ns)[:, dof], lw=0.9, color=f"C{i}", label=TITLES[s])
     axes[0].plot(b.t, (b.u_all - b.u_ns)[:, dof], lw=0.9, ls="--", color="C3", label="all sources")
+    if b.floor:
+        for sign in (1, -1):
+            axes[0].axhline(sign * b.floor["rms_mm"], color="0.6", lw=0.8, ls=":", label="noise floor (RMS)" if sign > 0 else None)
     label(axes[0], None, "displacement difference (mm)")
     axes[1].plot(b.t, (b.u_hs - b.u_all)[:, dof], color="0.4", lw=0.8, label=TITLES["rest"])
     label(axes[1], "time (s)", "unaccounted (mm)")
