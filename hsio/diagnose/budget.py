@@ -639,7 +639,8 @@ def write_budget(b: Budget, out_dir: str | Path) -> dict:
     label(axes[0], None, "displacement difference (mm)")
     axes[1].plot(b.t, (b.u_hs - b.u_all)[:, dof], color="0.4", lw=0.8, label=TITLES["rest"])
     label(axes[1], "time (s)", "unaccounted (mm)")
-    named = f"main source {TITLES[b.main_source]}" if b.main_source else "no main source named"
+    named = (f"main source {TITLES[b.main_source]}" if b.main_source else
+             "at the noise floor" if b.verdict == "noise_floor" else "no main source named")
     early = f" (stopped early: {b.steps_recorded} of {b.steps_planned} steps)" if b.stopped_early else ""
     save(fig, out / "budget.png", f"Error budget: {100 * b.accounted:.1f} % of HS - NS accounted; {named}{early}")
     (out / "budget.md").write_text("# Error budget\n\n```\n" + b.table() + "\n```\n", encoding="utf-8")
