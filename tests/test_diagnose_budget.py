@@ -231,6 +231,7 @@ def test_a_run_stopped_early_is_budgeted_over_its_steps_and_says_so(stopped_dir,
     # noise (docs/diagnose.md): the noise's replay reproduces the largest share of it.
     assert out["sources"][1]["source"] == "force_noise"
     assert max(out["sources"][:3], key=lambda s: s["share"])["source"] == "force_noise"
+    assert out["noise_floor"]["at_floor"] and "at the noise floor" in out["conclusion"]
 
 
 def test_a_run_stopped_too_early_to_budget_says_how_far_it_got(tmp_path):
@@ -391,23 +392,30 @@ def test_a_difference_at_the_noise_floor_names_no_source_but_the_noise(shares, t
 @pytest.fixture(scope="module")
 def compensated_dir(tmp_path_factory):
     """Structure I on the structure_I hockey-stick actuator, compensated offline with its own a and
-    b, its transducer noisy (0.03 mm): what is left of HS - NS is what the noise makes."""
+    b, its transducer noisy (0.03 mm on a 0.001 mm grid). Without the noise the same run's
+    difference is the compensation's residual tracking error (its replay reproduces 90 % of it)."""
     out = tmp_path_factory.mktemp("compensated_run")
     config = cfg.from_dict({"structure": {"name": "structure_I"}, "record": {"pga_g": 0.5, "synthetic_duration_s": 3.0},
                             "test": {"rate": 10.0, "hold_fraction": 0.0},
-                            "emulator": {"preset": "structure_I", "noise_mm": 0.03},
+                            "emulator": {"preset": "structure_I", "noise_mm": 0.03, "resolution_mm": 0.001},
                             "compensation": {"mode": "offline", "a_mm_s": 5.18, "b_s_mm": 7.874e-5},
                             "output": {"plots": False}})
     run(config, out)
     return out
 
 
-def test_a_compensated_run_at_the_noise_floor_says_so(compensated_dir):
+def test_a_noisy_compensated_run_still_names_its_tracking_error(compensated_dir):
+    """The transducer's noise is in the measured tracking error; imposed on the hysteretic wall's
+    model it drove the model off the path the wall followed, and a specimen model scaled by
+    0.999 to the noisy force took a share of its own: the budget named no source. The noise goes
+    where HS met it (the displacement read), the structure's model stays when nothing predicts
+    the force clearly better, and the tracking error is named, as without the noise."""
     result = CliRunner().invoke(diagnose, ["--run", str(compensated_dir), "--json"])
     assert result.exit_code == 0, result.stderr
     out = json.loads(result.stdout)
-    assert out["verdict"] == "noise_floor" and out["main_source"] is None, out["conclusion"]
+    assert out["main_source"] == "tracking", out["conclusion"]
+    assert out["specimen_models"][0]["model"].startswith("structure's own model")
+    shares = {s["source"]: s["share"] for s in out["sources"]}
+    assert shares["specimen"] == 0.0 and shares["tracking"] > 0.4
     floor = out["noise_floor"]
-    assert floor["at_floor"] and out["rms_difference_mm"] <= 1.5 * floor["rms_mm"]
-    assert floor["transducer_sigma_mm"][0] == pytest.approx(0.03 / 2, rel=0.5)  # n_avg = 4 samples a step
-    assert "the difference is at the noise floor" in out["conclusion"]
+    assert not floor["at_floor"] and floor["transducer_sigma_mm"][0] == pytest.approx(0.03 / 2, rel=0.5)
