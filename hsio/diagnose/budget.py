@@ -29,8 +29,8 @@ explains D, and the budget says so, with the part it leaves (u_HS - u_all).
 
 The noise floor is the RMS of the difference the sensors' noise alone makes: NS replayed
 NOISE_REALISATIONS times with independent white noise at the levels measured in the run, on the
-tracking error (the transducer's, from its high band) and on the force (the residual's white
-level, :func:`noise_level`). A difference within NOISE_FLOOR_FACTOR of it is at the noise floor:
+displacement read (the transducer's, the white level of the measured tracking error) and on the
+force (the residual's white level, :func:`noise_level`). A difference within NOISE_FLOOR_FACTOR of it is at the noise floor:
 whatever the sources reproduce of it is noise, so no source but the force noise itself is named.
 
 A run stopped early (fewer steps recorded than its record has) is budgeted over the steps it
