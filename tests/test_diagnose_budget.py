@@ -47,6 +47,8 @@ def test_budget_names_the_specimen_mismatch(run_dir, tmp_path):
     shares = {s["source"]: s["share"] for s in budget["sources"]}
     assert shares["specimen"] > shares["tracking"] > shares["force_noise"] - 0.01
     assert budget["specimen_models"][0]["rms_force_kN"] < budget["specimen_models"][0]["rms_force_structure_model_kN"] / 3
+    assert not budget["noise_floor"]["at_floor"]  # 20 % of the wall's force is far above what the noise makes
+    assert budget["rms_difference_mm"] > 3 * budget["noise_floor"]["rms_mm"]
     assert (tmp_path / "b" / "budget.png").stat().st_size > 10_000
     assert "specimen-model mismatch" in (tmp_path / "b" / "budget.md").read_text()
 
@@ -229,6 +231,7 @@ def test_a_run_stopped_early_is_budgeted_over_its_steps_and_says_so(stopped_dir,
     # noise (docs/diagnose.md): the noise's replay reproduces the largest share of it.
     assert out["sources"][1]["source"] == "force_noise"
     assert max(out["sources"][:3], key=lambda s: s["share"])["source"] == "force_noise"
+    assert out["noise_floor"]["at_floor"] and "at the noise floor" in out["conclusion"]
 
 
 def test_a_run_stopped_too_early_to_budget_says_how_far_it_got(tmp_path):
@@ -361,3 +364,58 @@ def test_a_run_dominated_by_load_cell_noise_names_the_noise(noisy_dir):
     assert budget["accounted"] >= 0.7
     (noise,) = budget["force_noise"]
     assert noise["element"] == "wall" and noise["sigma_kN"] == pytest.approx(3.0 / np.sqrt(4), rel=0.15)
+
+
+# -- the noise floor -----------------------------------------------------------------------------
+
+def _floor(rms_mm):
+    return {"rms_mm": rms_mm, "factor": 1.5, "realisations": 8, "transducer_sigma_mm": [0.01], "force_sigma_kN": [0.02]}
+
+
+@pytest.mark.parametrize("shares, together, verdict", [
+    ((0.45, 0.0, 0.22), 0.50, "noise_floor"),  # tracking would be named: at the floor it is noise
+    ((0.01, 0.038, -0.02), -0.05, "noise_floor"),  # unexplained: at the floor, nothing to explain
+    ((0.0, 0.9, 0.0), 0.95, "main_source"),  # the noise itself stays named
+])
+def test_a_difference_at_the_noise_floor_names_no_source_but_the_noise(shares, together, verdict):
+    b = _budget(*shares, together, floor=_floor(0.6))  # RMS(D) = 0.707 mm, within 1.5 x 0.6 mm
+    assert b.at_noise_floor and b.verdict == verdict
+    text = " ".join(b.table().split())
+    assert "at the noise floor" in text and "0.6000 mm" in text
+    out = b.to_json()
+    assert out["noise_floor"]["at_floor"] is True and out["verdict"] == verdict
+    assert out["main_source"] == ("force_noise" if verdict == "main_source" else None)
+    above = _budget(*shares, together, floor=_floor(0.4))  # 0.707 mm > 1.5 x 0.4 mm: the rule as before
+    assert not above.at_noise_floor and above.verdict != "noise_floor"
+
+
+@pytest.fixture(scope="module")
+def compensated_dir(tmp_path_factory):
+    """Structure I on the structure_I hockey-stick actuator, compensated offline with its own a and
+    b, its transducer noisy (0.03 mm on a 0.001 mm grid). Without the noise the same run's
+    difference is the compensation's residual tracking error (its replay reproduces 90 % of it)."""
+    out = tmp_path_factory.mktemp("compensated_run")
+    config = cfg.from_dict({"structure": {"name": "structure_I"}, "record": {"pga_g": 0.5, "synthetic_duration_s": 3.0},
+                            "test": {"rate": 10.0, "hold_fraction": 0.0},
+                            "emulator": {"preset": "structure_I", "noise_mm": 0.03, "resolution_mm": 0.001},
+                            "compensation": {"mode": "offline", "a_mm_s": 5.18, "b_s_mm": 7.874e-5},
+                            "output": {"plots": False}})
+    run(config, out)
+    return out
+
+
+def test_a_noisy_compensated_run_still_names_its_tracking_error(compensated_dir):
+    """The transducer's noise is in the measured tracking error; imposed on the hysteretic wall's
+    model it drove the model off the path the wall followed, and a specimen model scaled by
+    0.999 to the noisy force took a share of its own: the budget named no source. The noise goes
+    where HS met it (the displacement read), the structure's model stays when nothing predicts
+    the force clearly better, and the tracking error is named, as without the noise."""
+    result = CliRunner().invoke(diagnose, ["--run", str(compensated_dir), "--json"])
+    assert result.exit_code == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["main_source"] == "tracking", out["conclusion"]
+    assert out["specimen_models"][0]["model"].startswith("structure's own model")
+    shares = {s["source"]: s["share"] for s in out["sources"]}
+    assert shares["specimen"] == 0.0 and shares["tracking"] > 0.4
+    floor = out["noise_floor"]
+    assert not floor["at_floor"] and floor["transducer_sigma_mm"][0] == pytest.approx(0.03 / 2, rel=0.5)

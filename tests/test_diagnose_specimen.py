@@ -243,3 +243,65 @@ def test_a_moving_mass_is_not_named_degradation_by_the_library_order():
     assert d.cause == "inertia", [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
     assert d.single.fit.params["mass_kg"] == pytest.approx(500.0, rel=0.20)
     assert d.single.gain > degradation.gain
+
+
+# -- elastic nonlinearity and noise-free records -----------------------------------------------------
+
+class _ElasticSpring:
+    """A nonlinear elastic spring with a dashpot, written here (not hsio's model): its force is a
+    function of the displacement alone, so its loops enclose only the dashpot's area."""
+
+    def __init__(self, spring, c=0.01):
+        self.spring, self.c, self.u = spring, c, 0.0
+
+    def revert_to_start(self):
+        self.u = 0.0
+
+    def force(self, u, dt):
+        v, self.u = (u - self.u) / dt, u
+        return self.spring(u) + self.c * v
+
+
+@pytest.fixture(scope="module")
+def seismic():
+    from hsio.diagnose.synth import seismic_command
+
+    return seismic_command(10.0, RATE_HZ, peak_mm=8.0, seed=7)
+
+
+@pytest.mark.parametrize("k3", [0.01, -0.005])
+def test_a_hardening_or_softening_spring_is_named_nonlinear_elastic(seismic, k3):
+    """A cubic spring F = k u + k3 u^3 dissipates nothing: no hysteretic cause (pinching fits a
+    hardening curve with its pinched Bouc-Wen, a softening one with its saturating z) may be named."""
+    d = diagnose_specimen(emulate_specimen(_ElasticSpring(lambda u: u + k3 * u**3), seismic, RATE_HZ, seed=2))
+    assert d.cause == "nonlinear_elastic", [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+    assert d.single.fit.params["k3"] == pytest.approx(k3, rel=0.05)
+    assert d.single.fit.params["k"] == pytest.approx(1.0, rel=0.05)
+
+
+@pytest.mark.parametrize("kind", ["seismic", "sweep"])
+def test_a_saturating_elastic_spring_is_not_named_a_dissipative_cause(seismic, sweep, kind):
+    u = seismic if kind == "seismic" else sweep
+    d = diagnose_specimen(emulate_specimen(_ElasticSpring(lambda x: 6.0 * np.tanh(x / 5.0)), u, RATE_HZ, seed=1))
+    assert d.cause in ("nonlinear_elastic", "gap"), [(c.cause, round(c.choose_gain, 3)) for c in d.candidates]
+
+
+def test_the_diagnosed_model_of_a_cubic_spring_replays_it(sweep, tmp_path):
+    d = diagnose_specimen(_record(sweep, {"k3": 0.005}))
+    specimen = load_specimen_model(write_specimen_model(tmp_path / "specimen.toml", d))
+    assert specimen.k3 == pytest.approx(0.005, rel=0.05)
+    assert specimen.force(8.0, 0.0) == pytest.approx(8.0 + 0.005 * 512, rel=0.02)
+
+
+@pytest.mark.parametrize("kind", ["seismic", "sweep"])
+@pytest.mark.parametrize("c", [0.0, 0.01])
+def test_a_noise_free_linear_specimen_answers_none(seismic, sweep, kind, c):
+    """Without noise the only error left is what the displacement's low-pass cannot keep (a
+    sweep's ramps): no skew or other cause is named, and the residual is at the floor."""
+    u = seismic if kind == "seismic" else sweep
+    record = emulate_specimen(Diagnosed(k=1.0, c=c), u, RATE_HZ, noise_mm=0.0, resolution_mm=0.0, force_noise_kN=0.0,
+                              force_resolution_kN=0.0)
+    d = diagnose_specimen(record)
+    assert d.cause == NONE, (d.cause, [(x.cause, round(x.choose_gain, 3)) for x in d.candidates],
+                             d.structure.rms_test_mm, d.floor.sensor_floor_mm)
+    assert d.explained

@@ -2,12 +2,16 @@
 
 The difference D(t) = u_HS - u_NS is attributed by replaying NS with one source at a time put in:
 
-* actuator tracking: each step's measured tracking error (target - measured displacement) is
-  imposed on the specimen model, and the force corrected as in HS (R = F + K^EI (d - d_m));
-* force measurement noise: the noise of each measured force, over the whole band (the residual
-  of the specimen model on the measured path, its white level read above the response's band
-  and its Wiener estimate taken in every bin: :func:`noise_estimate`), is added to the model's
-  force;
+* actuator tracking: each step's measured tracking error (target - measured displacement) less
+  its transducer's noise (its white part, :func:`tracking_parts`) is imposed on the specimen
+  model, and the force corrected as in HS (R = F + K^EI (d - d_m)). The physical specimen never
+  moved with its transducer's noise; a hysteretic model driven along the noisy path would
+  drift from it;
+* measurement noise: the transducer's noise in the displacement the DAQ reads (through the
+  correction it reaches the restoring force as -K^EI n_d) and the noise of each measured force,
+  over the whole band (the residual of the specimen model on the measured path less the
+  transducer's noise, its white level read above the response's band and its Wiener estimate
+  taken in every bin: :func:`noise_estimate`), added to the model's force;
 * specimen-model mismatch: the specimen model is replaced by the one the specimen diagnosis
   fits to the measured displacement and force (hsio.diagnose.specimen_fit), or by the
   structure's own model scaled to the measured force, whichever predicts the last 20 % of the
@@ -22,6 +26,12 @@ A main source is named only when the sources together account for at least ACCOU
 and the largest share s_1 is at least DOMINANCE times the next one's and at least 1 / DOMINANCE
 of A (it carries most of what the sources reproduce). Below ACCOUNTED_MIN no modelled source
 explains D, and the budget says so, with the part it leaves (u_HS - u_all).
+
+The noise floor is the RMS of the difference the sensors' noise alone makes: NS replayed
+NOISE_REALISATIONS times with independent white noise at the levels measured in the run, on the
+displacement read (the transducer's, the white level of the measured tracking error) and on the
+force (the residual's white level, :func:`noise_level`). A difference within NOISE_FLOOR_FACTOR of it is at the noise floor:
+whatever the sources reproduce of it is noise, so no source but the force noise itself is named.
 
 A run stopped early (fewer steps recorded than its record has) is budgeted over the steps it
 recorded; the budget says how many of how many, and why it stopped when the run recorded that.
@@ -45,6 +55,9 @@ from hsio.diagnose.threads import one_blas_thread
 SOURCES = ("tracking", "force_noise", "specimen")
 ACCOUNTED_MIN = 0.5  # a main source is named only when the sources together reproduce this share of D
 DOMINANCE = 2.0  # ... and the largest share is this many times the next and at least 1 / DOMINANCE of A
+NOISE_REALISATIONS = 8  # replays with independent noise that set the noise floor
+NOISE_FLOOR_FACTOR = 1.5  # a difference within this factor of the noise floor is at it (as residual.FLOOR_FACTOR)
+NOISE_SEED = 16  # the realisations are the same at every call
 TITLES = {"tracking": "actuator tracking error", "force_noise": "force measurement noise",
           "specimen": "specimen-model mismatch", "rest": "integrator and interaction (the rest)"}
 
@@ -147,14 +160,15 @@ def _same_inputs(run, config, path: Path) -> None:
 class _Replay:
     """An experimental site (hsio.sites.ExperimentalSite) whose elements are specimen models,
     with the run's measured errors put in: each trial lands ``tracking_error`` short of its
-    target, and the force it reads carries ``force_noise``."""
+    target, the displacement it reads carries ``transducer_noise`` (d_m = d - e - n) and the force
+    it reads ``force_noise``."""
 
     late_steps = 0
     lab_time_s = None
 
-    def __init__(self, data: RunData, specimens, tracking_error=None, force_noise=None):
+    def __init__(self, data: RunData, specimens, tracking_error=None, force_noise=None, transducer_noise=None):
         self.data, self.specimens = data, specimens
-        self.error, self.noise = tracking_error, force_noise
+        self.error, self.noise, self.transducer = tracking_error, force_noise, transducer_noise
         self.n_elements = len(specimens)
         self.step = 0
         self._daq = None
@@ -171,8 +185,9 @@ class _Replay:
         self.step += 1
         k = min(self.step, self.data.t.size - 1)
         d = np.asarray(commands, dtype=float)
-        d_m = d - self.error[k] if self.error is not None else d
-        F = np.array([s.force(x, self.data.structure.dt) for s, x in zip(self.specimens, d_m)])
+        stands = d - self.error[k] if self.error is not None else d
+        d_m = stands - self.transducer[k] if self.transducer is not None else stands
+        F = np.array([s.force(x, self.data.structure.dt) for s, x in zip(self.specimens, stands)])
         if self.noise is not None:
             F = F + self.noise[k]
         self._daq = Daq(u=d_m, R=F, k=np.full(self.n_elements, np.nan), targets=d.copy(), commands=d.copy())
@@ -193,14 +208,15 @@ class _Replay:
         pass
 
 
-def replay(data: RunData, specimens, tracking_error=None, force_noise=None) -> np.ndarray:
+def replay(data: RunData, specimens, tracking_error=None, force_noise=None, transducer_noise=None) -> np.ndarray:
     """NS of the run's structure and record with ``specimens`` in place of the experimental
     elements, and the measured errors put in (displacement history, steps x DOF)."""
     from hsio.api import simulate
 
     for s in specimens:
         s.revert_to_start()
-    result = simulate(data.structure, data.ground, _Replay(data, specimens, tracking_error, force_noise), "alpha_os",
+    site = _Replay(data, specimens, tracking_error, force_noise, transducer_noise)
+    result = simulate(data.structure, data.ground, site, "alpha_os",
                       data.alpha, correct_measured_displacement=data.correction)
     n = min(result.u.shape[0], data.u_hs.shape[0])
     if result.stopped:
@@ -256,7 +272,10 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
     of the steps: the diagnosed model or the structure's model scaled to the measured force, each
     fitted on the first 80 %; or the structure's model with its parameters refitted
     (:func:`_refitted`) when it predicts the last 20 % SPECIMEN_MARGIN times better than both
-    (with every parameter free it would otherwise be taken for fitting the force's noise)."""
+    (with every parameter free it would otherwise be taken for fitting the force's noise). The
+    structure's own model stays when none predicts that force SPECIMEN_MARGIN times better than
+    it: a scale of 0.999 fitted to a noisy force is the noise, not a mismatch, and its replay
+    would put a spurious share in the budget."""
     from hsio.diagnose.specimen_fit import diagnose_specimen
     from hsio.diagnose.specimen_record import SpecimenRecord
     from hsio.specimens import Diagnosed, make_specimen
@@ -291,6 +310,9 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
             err_r = _rms(f[n_fit:] - _path_force(model_r, d, dt)[n_fit:])
             if SPECIMEN_MARGIN * err_r < err:
                 err, name, model, info = err_r, f"structure's model refitted ({table['kind']})", model_r, {"params": table}
+        if not SPECIMEN_MARGIN * err < own:  # no replacement clearly better: the gain would be the force's noise
+            err, name, model, info = own, "structure's own model (no other predicts its force 1.1 times better)", \
+                _QuasiStatic(element.model()), {}
         models.append(model)
         notes.append({"element": element.name, "model": name, "rms_force_kN": err,
                       "rms_force_structure_model_kN": own, **info})
@@ -402,18 +424,54 @@ def noise_estimate(r: np.ndarray) -> tuple[np.ndarray, float]:
     return np.fft.irfft(H * R, r.size), float(np.sqrt(S0 / r.size))
 
 
-def force_noise(data: RunData, models) -> tuple[np.ndarray, list[dict]]:
+def tracking_parts(data: RunData) -> tuple[np.ndarray, np.ndarray]:
+    """The measured tracking error e = target - d_m split per actuator into the transducer's
+    noise n (:func:`noise_estimate`: its white part) and the rest, e - n, how far the rod really
+    stood from its target (d_m = d_true + n)."""
+    error = data.targets - data.displacement
+    noise = np.column_stack([noise_estimate(error[:, j])[0] for j in range(error.shape[1])]) if error.size else error
+    return error - noise, noise
+
+
+def force_noise(data: RunData, models, transducer=None) -> tuple[np.ndarray, list[dict]]:
     """The measured force's noise per actuator (:func:`noise_estimate` of the model's residual on
-    the measured path), and per actuator its standard deviation and the estimate's RMS."""
+    the measured path, less the ``transducer`` noise: where the specimen stood), and per actuator
+    its standard deviation and the estimate's RMS."""
     dt = data.structure.dt
     noise = np.zeros_like(data.force)
     notes = []
+    path = data.displacement + transducer if transducer is not None else data.displacement
     for j, model in enumerate(models):
-        r = data.force[:, j] - _path_force(model, data.displacement[:, j], dt)
+        r = data.force[:, j] - _path_force(model, path[:, j], dt)
         noise[:, j], sigma = noise_estimate(r)
         notes.append({"element": data.structure.experimental[j].name, "sigma_kN": sigma,
                       "rms_estimate_kN": _rms(noise[:, j]), "rms_residual_kN": _rms(r)})
     return noise, notes
+
+
+def white_sigma(x: np.ndarray) -> float:
+    """The standard deviation per sample of the white part of ``x`` (:func:`noise_level`)."""
+    return float(np.sqrt(noise_level(x) / x.size)) if x.size else 0.0
+
+
+def noise_floor(data: RunData, force_sigma: list[float]) -> dict:
+    """The RMS difference from NS that the sensors' noise alone makes: NS replayed
+    NOISE_REALISATIONS times with independent white noise on the displacement read (each
+    actuator's transducer, its white level in the measured tracking error) and on the force
+    (``force_sigma``, kN per step), the RMS over the realisations."""
+    error = data.targets - data.displacement
+    transducer = [white_sigma(error[:, j]) for j in range(error.shape[1])]
+    rng = np.random.default_rng(NOISE_SEED)
+    models = structure_models(data.structure)
+    squares = []
+    for _ in range(NOISE_REALISATIONS):
+        e = rng.normal(0.0, 1.0, error.shape) * np.array(transducer)
+        f = rng.normal(0.0, 1.0, data.force.shape) * np.array(force_sigma)
+        u = replay(data, models, force_noise=f, transducer_noise=e)
+        m = min(u.shape[0], data.u_ns.shape[0])
+        squares.append(float(np.mean(np.square(u[:m] - data.u_ns[:m]))))
+    return {"rms_mm": float(np.sqrt(np.mean(squares))), "factor": NOISE_FLOOR_FACTOR, "realisations": NOISE_REALISATIONS,
+            "transducer_sigma_mm": transducer, "force_sigma_kN": list(map(float, force_sigma))}
 
 
 @dataclass
@@ -428,6 +486,12 @@ class Budget:
     steps_planned: int = 0  # 0: not known (taken as the steps recorded)
     stop_reason: str | None = None
     noise_notes: list = field(default_factory=list)
+    floor: dict | None = None  # :func:`noise_floor` (None: not estimated)
+
+    @property
+    def at_noise_floor(self) -> bool:
+        """The difference is within NOISE_FLOOR_FACTOR of what the sensors' noise alone makes."""
+        return bool(self.floor) and _rms(self.difference) <= self.floor["factor"] * self.floor["rms_mm"]
 
     @property
     def difference(self) -> np.ndarray:
@@ -449,10 +513,17 @@ class Budget:
     @property
     def verdict(self) -> str:
         """``main_source`` (one source carries the difference), ``together`` (the sources account
-        for it, none alone), ``unexplained`` (they account for less than ACCOUNTED_MIN of it) or
-        ``no_difference`` (HS and NS agree: nothing to budget)."""
+        for it, none alone), ``unexplained`` (they account for less than ACCOUNTED_MIN of it),
+        ``noise_floor`` (the difference is no larger than the sensors' noise makes, and the force
+        noise is not the main source) or ``no_difference`` (HS and NS agree: nothing to budget)."""
         if _rms(self.difference) == 0:
             return "no_difference"
+        verdict = self._attribution()
+        if self.at_noise_floor and not (verdict == "main_source" and self.ranked[0][0] == "force_noise"):
+            return "noise_floor"
+        return verdict
+
+    def _attribution(self) -> str:
         a = self.accounted
         if not a >= ACCOUNTED_MIN:
             return "unexplained"
@@ -499,8 +570,16 @@ class Budget:
         (top, s1), rest = self.ranked[0], self.ranked[1:]
         if verdict == "no_difference":
             return "HS and NS agree at every recorded step: there is no difference to budget"
+        if verdict == "noise_floor":
+            return (f"the difference is at the noise floor: HS - NS RMS {_rms(self.difference):.4f} mm, within "
+                    f"{self.floor['factor']:g} times the {self.floor['rms_mm']:.4f} mm the sensors' noise alone makes "
+                    f"(NS replayed with {self.floor['realisations']} realisations of white noise at the levels measured in "
+                    f"the run); no source is named beyond the noise (all sources together account for {100 * a:.1f} % "
+                    "of it)")
         if verdict == "main_source":
-            return f"all sources together account for {100 * a:.1f} % of the difference; main source: {TITLES[top]}"
+            floor = (f" (the difference is at the noise floor, {self.floor['rms_mm']:.4f} mm)"
+                     if self.at_noise_floor else "")
+            return f"all sources together account for {100 * a:.1f} % of the difference; main source: {TITLES[top]}{floor}"
         if verdict == "together":
             nxt, s2 = rest[0] if rest else (None, 0.0)
             why = (f"none alone reproduces any of it (the largest share, {TITLES[top]}, is {100 * s1:.1f} %): they "
@@ -534,6 +613,7 @@ class Budget:
                 "accounted": self.accounted, "main_source": self.main_source, "verdict": self.verdict,
                 "conclusion": self.conclusion(), "unexplained": self.unexplained(),
                 "rule": {"accounted_min": ACCOUNTED_MIN, "dominance": DOMINANCE}, "run": self.run_json(),
+                "noise_floor": {**self.floor, "at_floor": self.at_noise_floor} if self.floor else None,
                 "specimen_models": self.specimen_notes, "force_noise": self.noise_notes,
                 "method": "NS replayed with one measured source at a time; share = 1 - RMS(HS - replay) / RMS(HS - NS)"}
 
@@ -552,15 +632,16 @@ def error_budget(run_dir: str | Path) -> Budget:
     data = load_run(run_dir)
     n = data.u_hs.shape[0]
     models, notes = specimen_models(data)
-    error = data.targets - data.displacement
-    noise, noise_notes = force_noise(data, models)
+    error, transducer = tracking_parts(data)
+    noise, noise_notes = force_noise(data, models, transducer)
     replays = {"tracking": replay(data, structure_models(data.structure), tracking_error=error),
-               "force_noise": replay(data, structure_models(data.structure), force_noise=noise),
+               "force_noise": replay(data, structure_models(data.structure), force_noise=noise, transducer_noise=transducer),
                "specimen": replay(data, models)}
-    u_all = replay(data, models, tracking_error=error, force_noise=noise)
+    u_all = replay(data, models, tracking_error=error, force_noise=noise, transducer_noise=transducer)
+    floor = noise_floor(data, [n["sigma_kN"] for n in noise_notes])
     m = min(n, data.u_ns.shape[0], u_all.shape[0], *(u.shape[0] for u in replays.values()))
     return Budget(data.source, data.t[:m], data.u_hs[:m], data.u_ns[:m], {k: u[:m] for k, u in replays.items()}, u_all[:m], notes,
-                  data.steps_planned, data.stop_reason, noise_notes)
+                  data.steps_planned, data.stop_reason, noise_notes, floor)
 
 
 def write_budget(b: Budget, out_dir: str | Path) -> dict:
@@ -576,10 +657,14 @@ def write_budget(b: Budget, out_dir: str | Path) -> dict:
     for i, (s, u) in enumerate(b.replays.items()):
         axes[0].plot(b.t, (u - b.u_ns)[:, dof], lw=0.9, color=f"C{i}", label=TITLES[s])
     axes[0].plot(b.t, (b.u_all - b.u_ns)[:, dof], lw=0.9, ls="--", color="C3", label="all sources")
+    if b.floor:
+        for sign in (1, -1):
+            axes[0].axhline(sign * b.floor["rms_mm"], color="0.6", lw=0.8, ls=":", label="noise floor (RMS)" if sign > 0 else None)
     label(axes[0], None, "displacement difference (mm)")
     axes[1].plot(b.t, (b.u_hs - b.u_all)[:, dof], color="0.4", lw=0.8, label=TITLES["rest"])
     label(axes[1], "time (s)", "unaccounted (mm)")
-    named = f"main source {TITLES[b.main_source]}" if b.main_source else "no main source named"
+    named = (f"main source {TITLES[b.main_source]}" if b.main_source else
+             "at the noise floor" if b.verdict == "noise_floor" else "no main source named")
     early = f" (stopped early: {b.steps_recorded} of {b.steps_planned} steps)" if b.stopped_early else ""
     save(fig, out / "budget.png", f"Error budget: {100 * b.accounted:.1f} % of HS - NS accounted; {named}{early}")
     (out / "budget.md").write_text("# Error budget\n\n```\n" + b.table() + "\n```\n", encoding="utf-8")

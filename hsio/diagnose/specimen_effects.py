@@ -60,6 +60,15 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
                    {"uy_mm": 0.05 * s.u_peak, "pinch": 0.8, "pinch_width_mm": 0.15 * s.u_peak}],
         lambda p: f"hysteretic strength {p['fy_kN']:.4g} kN over {p['uy_mm']:.3g} mm, pinched by {p['pinch']:.2f} "
                   f"within {p['pinch_width_mm']:.3g} mm of zero", "pinch", "fy_kN"),
+    _effect("nonlinear_elastic", "nonlinear elastic stiffness (hardening or softening spring)",
+        "the force is a nonlinear but single-valued function of the displacement, F = k u + k_3 u^3: the "
+        "stiffness rises (k_3 > 0: geometric stiffening, a membrane or cable that tightens, a rubber bearing "
+        "at large strain) or falls (k_3 < 0: buckling, softening contact) with the displacement, while the "
+        "loops enclose no more area than the dashpot's: no energy is dissipated by it",
+        (), lambda s: [{}],
+        lambda p: (f"cubic stiffness k_3 = {p['k3']:.4g} kN/mm^3 ({'hardening' if p['k3'] > 0 else 'softening'}: "
+                   f"the tangent stiffness changes by {100 * 3 * p['k3'] / p['k'] if p['k'] else float('inf'):.3g} % per mm^2)"),
+        "k3", "k3"),
     _effect("inertia", "inertia (a moving mass)",
         "a mass moves with the specimen (its own, the clevis and load cell between it and the actuator): "
         "a force proportional to the acceleration, which rises with the square of the frequency",

@@ -1,11 +1,13 @@
 """The specimen model that `hsio diagnose --specimen` writes: a linear spring and dashpot with the
 effects the diagnosis found (docs/diagnose.md, "Specimen diagnosis").
 
-    F = D(s) [k u + k_gap sign(u) max(|u| - gap, 0) + f_y (z / u_y) P(u)]      spring, gap, hysteresis
+    F = D(s) [k u + k_3 u^3 + k_gap sign(u) max(|u| - gap, 0) + f_y (z / u_y) P(u)]   spring, gap, hysteresis
         + c v_ref sign(v) |v / v_ref|^alpha                                     dashpot (alpha = 1: viscous)
         + F_c tanh(v / v_0)                                                     friction (Coulomb; with c: Bingham)
         + m a                                                                   a moving mass
 
+* k_3 u^3 makes the spring nonlinear but elastic (hardening with k_3 > 0, softening with
+  k_3 < 0): the force is a function of the displacement alone and its loops enclose no area.
 * z is the Bouc-Wen hysteretic displacement, dz = du [1 - |z/u_y|^2 (beta sign(du z) + gamma)]
   with beta = gamma = 1/2 (Wen 1976, with n = 2), integrated exactly over each move: it follows
   u elastically after a reversal and saturates at +-u_y, so the hysteretic force is bounded by
@@ -62,6 +64,7 @@ class Diagnosed(Specimen):
 
     k: float
     c: float = 0.0
+    k3: float = 0.0  # kN/mm^3
     alpha: float = 1.0
     v_ref_mm_s: float = 1.0
     friction_kN: float = 0.0
@@ -81,12 +84,12 @@ class Diagnosed(Specimen):
     def __post_init__(self):
         from hsio.errors import ConfigError
 
-        for name in ("k", "c", "alpha", "v_ref_mm_s", "friction_kN", "friction_v0_mm_s", "mass_kg", "gap_mm", "k_gap",
+        for name in ("k", "k3", "c", "alpha", "v_ref_mm_s", "friction_kN", "friction_v0_mm_s", "mass_kg", "gap_mm", "k_gap",
                      "fy_kN", "uy_mm", "pinch", "pinch_width_mm", "degradation_per_mm"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ConfigError(f"specimen 'diagnosed': {name} must be a finite number, got {value!r}")
-            if name != "k" and value < 0:
+            if name not in ("k", "k3") and value < 0:
                 raise ConfigError(f"specimen 'diagnosed': {name} must be zero or positive, got {value!r}")
         for name in ("alpha", "v_ref_mm_s", "friction_v0_mm_s", "uy_mm", "pinch_width_mm"):
             if not getattr(self, name) > 0:
@@ -108,7 +111,7 @@ class Diagnosed(Specimen):
         a = (v - v_c) / dt if dt > 0.0 else 0.0
         self._trial = (u, v, z, s)
         d = 1.0 / (1.0 + self.degradation_per_mm * s)
-        spring = self.k * u + self.k_gap * math.copysign(max(abs(u) - self.gap_mm, 0.0), u)
+        spring = self.k * u + self.k3 * u**3 + self.k_gap * math.copysign(max(abs(u) - self.gap_mm, 0.0), u)
         if self.fy_kN > 0.0:
             spring += self.fy_kN * (z / self.uy_mm) * pinching(u, self.pinch, self.pinch_width_mm)
         rate = damper(v, self.c, self.alpha, self.v_ref_mm_s) + self.friction_kN * math.tanh(v / self.friction_v0_mm_s)
