@@ -87,6 +87,7 @@ RULES = {
 SCALING_TOLERANCE = 1e-6  # relative: a configured counts_per_mm within 1 ppm of the drive's figure is the same
 COUNTS_MAX = 2**31 - 1  # the target and actual positions 0x607A, 0x6064 are int32 counts
 PERMILLE_MAX = 32767  # the CiA 402 torque objects are int16, per mille of the rated value 0x6076
+BUS_POLL_S = 0.01  # while awaiting the TPDOs, how often a failed bus is looked for
 
 
 def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
@@ -807,8 +808,7 @@ class CanopenLink(common.AxisLink):
                 self.bus_watch.note(exc)
                 continue
             self.requests += 1
-            deadline = time.monotonic() + timeout
-            if all(d.received.wait(max(deadline - time.monotonic(), 0.0)) for d in self.drives):
+            if self._await_tpdos(time.monotonic() + timeout):
                 break
             self.check_bus("the wait for the TPDOs")
         else:
@@ -827,6 +827,15 @@ class CanopenLink(common.AxisLink):
         for d in self.drives:
             d.check_events()
         self.fresh = [True] * self.n
+
+    def _await_tpdos(self, deadline: float) -> bool:
+        """Every drive's TPDO2 by ``deadline``; False then, or as soon as the bus fails (its
+        reconnection starts at once, not a whole timeout later: the drives' host watchdog runs)."""
+        for d in self.drives:
+            while not d.received.wait(min(BUS_POLL_S, max(deadline - time.monotonic(), 0.0))):
+                if self.bus_watch.error is not None or time.monotonic() >= deadline:
+                    return False
+        return True
 
     def _heartbeat_age(self, d: DriveNode) -> str:
         ts = getattr(d.node.nmt, "timestamp", None)

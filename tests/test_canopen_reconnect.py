@@ -135,3 +135,32 @@ def test_a_drive_that_changed_while_the_link_was_down_stops_the_run(monkeypatch,
     steps = result.result.steps
     assert 5 < steps <= DROP_TICK // 20 + 1
     assert list(recorded.steps["step"]) == list(range(1, steps + 1))
+
+
+def test_a_link_lost_while_the_tpdos_are_awaited_is_made_again_before_the_drives_watchdog(tmp_path, cfg, reference):
+    """The link goes while the driver awaits the TPDOs of a SYNC the drives took (their answers
+    go with the link). The driver sees the bus fail and makes the link again at once, not after
+    its 10 s timeout: the drives' 2 s host watchdog does not expire, and the SYNC that arrived is
+    not sent again (the run equals the reference)."""
+    from hsio.emulators.canopen import slcan_emulator
+
+    emu = slcan_emulator(bank_from_config(cfg, lockstep=True, watchdog_s=2.0), "tcp")
+    send, cut = emu._send_tpdos, []
+
+    def answer_or_cut(fault=None):
+        if not cut and emu.bank.ticks >= DROP_TICK:
+            cut.append(emu.bank.ticks)
+            emu.slcan.drop()  # the SYNC was taken (the clock advanced); its answers are lost
+            return
+        send(fault)
+
+    emu._send_tpdos = answer_or_cut
+    try:
+        summary, recorded = run(cfg, tmp_path / "run", url=emu.url, driver={"timeout_s": 10.0})
+    finally:
+        emu.stop()
+    assert cut
+    assert isinstance(summary, dict), summary
+    for key in reference[1].steps:
+        if key.startswith(("u_", "disp_", "force_", "target_")):
+            assert np.array_equal(recorded.steps[key], reference[1].steps[key]), key
