@@ -261,16 +261,16 @@ class DriveNode:
         """One SDO transfer; a bus that failed before or under it is reconnected (within the
         budget, :meth:`CanopenLink.recover`) and the transfer made once more: a read, and a write
         of an absolute value, may be repeated."""
-        for attempt in range(2):
-            self.link.check_bus(what)
-            try:
-                return transfer()
-            except (SdoCommunicationError, can.CanError) as exc:
-                if isinstance(exc, can.CanError):
-                    self.link.bus_watch.note(exc)
-                if attempt or self.link.bus_watch.error is None or self.link.recovering:
-                    raise  # no answer on a working bus, or the bus failed again
-        raise AssertionError("unreachable")
+        self.link.check_bus(what)
+        try:
+            return transfer()
+        except (SdoCommunicationError, can.CanError) as exc:
+            if isinstance(exc, can.CanError):
+                self.link.bus_watch.note(exc)
+            if self.link.bus_watch.error is None or self.link.recovering:
+                raise  # no answer on a working bus, or a failure within a reconnection (one failed attempt)
+        self.link.check_bus(what)  # the bus failed under the transfer: made again (or LinkLostError)
+        return transfer()
 
     def take_pdos(self) -> None:
         """RPDO2 and TPDO2 as the drive maps them (read from its 0x1601 / 0x1A01 over SDO): the
