@@ -6,7 +6,7 @@ process), ``canopen+socketcan://can0/NODE``, or a Lawicel (SLCAN) adapter:
 ``canopen+slcan://127.0.0.1:PORT/NODE`` (a TCP serial port, pyserial's socket://); axis k is node
 NODE + k (docs/canopen.md). The [driver] table (or
 the URL's query) sets ``eds`` (the drive's EDS file; default hsio's object dictionary),
-``timeout_s``, ``retries``, ``heartbeat_ms`` and the limits ``stroke_mm``, ``force_kN``,
+``timeout_s``, ``retries``, ``reconnect_delay_s``, ``heartbeat_ms`` and the limits ``stroke_mm``, ``force_kN``,
 ``velocity_mm_s``; the stroke and force capacity default to the drive's own (0x607D, 0x6072 x
 0x6076), never to a guess, and a configured one may be tighter than the drive's, never wider.
 
@@ -19,6 +19,10 @@ machine walked to OPERATION ENABLED in cyclic synchronous position mode.
 Each controller period: RPDO2 (targets) to every node, one SYNC, and the TPDO2 of every node
 (actual position and torque, cycle counter) awaited with a timeout. In lockstep the SYNC is
 what advances the emulated drive's clock.
+
+A bus that fails (an SLCAN adapter's TCP link closed) is opened again within ``retries`` attempts
+(``reconnect_delay_s`` x attempt apart), the drives checked by SDO before the run goes on
+(:meth:`CanopenLink.recover`); one that does not come back stops the run (:class:`LinkLostError`).
 
 Errors: SDO aborts, EMCY messages, a silent node (no TPDO, no heartbeat) and a restarted node
 (boot-up message) become :class:`~hsio.errors.CommunicationError` or
@@ -65,7 +69,8 @@ log = logging.getLogger(__name__)
 # those reports stay out of a terminal unless logging is configured.
 logging.getLogger("canopen").addHandler(logging.NullHandler())
 
-DEFAULT_OPTIONS = {"eds": "", "emcy_warnings": "", "timeout_s": 0.5, "retries": 2, "heartbeat_ms": 100, "bitrate": 1000000,
+DEFAULT_OPTIONS = {"eds": "", "emcy_warnings": "", "timeout_s": 0.5, "retries": 2, "reconnect_delay_s": 0.1,
+                   "heartbeat_ms": 100, "bitrate": 1000000,
                    "stroke_mm": None, "force_kN": None, "velocity_mm_s": 500.0, "counts_per_mm": None,
                    **common.PLAUSIBILITY_DEFAULTS}
 MODE_NAMES = {ControlMode.DISPLACEMENT: "CYCLIC SYNCHRONOUS POSITION", ControlMode.FORCE: "CYCLIC SYNCHRONOUS TORQUE"}
@@ -82,6 +87,7 @@ RULES = {
 SCALING_TOLERANCE = 1e-6  # relative: a configured counts_per_mm within 1 ppm of the drive's figure is the same
 COUNTS_MAX = 2**31 - 1  # the target and actual positions 0x607A, 0x6064 are int32 counts
 PERMILLE_MAX = 32767  # the CiA 402 torque objects are int16, per mille of the rated value 0x6076
+BUS_POLL_S = 0.01  # while awaiting the TPDOs, how often a failed bus is looked for
 
 
 def parse_url(url: str, options: dict | None) -> tuple[str, str, int, dict]:
@@ -151,6 +157,11 @@ def sdo_error(node_id: int, what: str, exc: Exception) -> CommunicationError:
     return CommunicationError(f"CANopen node {node_id}: SDO {what} failed: {exc}")
 
 
+class LinkLostError(CommunicationError):
+    """The CAN bus failed and did not come back within the reconnection budget ([driver]
+    ``retries`` attempts, ``reconnect_delay_s`` x attempt apart): the run stops."""
+
+
 def bus_error(where: str, what: str, exc: BaseException) -> CommunicationError:
     """The CAN bus itself failed (an adapter unplugged, the TCP link of an SLCAN adapter closed):
     a link fault, named with python-can's reason and the one beneath it."""
@@ -174,10 +185,14 @@ class BusWatch(can.Listener):
         pass
 
     def on_error(self, exc: Exception) -> None:
+        self.note(exc)
+        log.debug("CAN bus receive error: %r", exc)
+        time.sleep(self.RETRY_S)
+
+    def note(self, exc: BaseException) -> None:
+        """The bus failed (its first error is kept until the link is made again)."""
         if self.error is None:
             self.error = exc
-            log.debug("CAN bus receive error: %r", exc)
-        time.sleep(self.RETRY_S)
 
     def stop(self) -> None:
         pass
@@ -223,23 +238,39 @@ class DriveNode:
     def sdo_read(self, index: int, sub: int = 0, what: str = ""):
         """An SDO upload; an object missing from the local dictionary is read as an unsigned
         integer (so a drive that lacks it answers with its own abort)."""
-        self.link.check_bus(f"the SDO read of 0x{index:04X}:{sub} from node {self.id}")
-        try:
+        def read():
             if index in self.node.object_dictionary:
                 obj = self.node.sdo[index]
                 return (obj[sub] if sub else obj).raw
             return int.from_bytes(self.node.sdo.upload(index, sub), "little")
+
+        try:
+            return self._sdo(f"the SDO read of 0x{index:04X}:{sub} from node {self.id}", read)
         except (SdoAbortedError, SdoCommunicationError, can.CanError) as exc:
             raise sdo_error(self.id, f"read of {what or hex(index)} (0x{index:04X}:{sub})", exc) from None
         except KeyError:
             raise CommunicationError(f"CANopen node {self.id}: object 0x{index:04X}:{sub} is not in its dictionary") from None
 
     def sdo_write(self, index: int, value, what: str = ""):
-        self.link.check_bus(f"the SDO write of 0x{index:04X} to node {self.id}")
         try:
-            self.node.sdo[index].raw = value
+            self._sdo(f"the SDO write of 0x{index:04X} to node {self.id}", lambda: setattr(self.node.sdo[index], "raw", value))
         except (SdoAbortedError, SdoCommunicationError, can.CanError) as exc:
             raise sdo_error(self.id, f"write of {what or hex(index)} (0x{index:04X}) = {value!r}", exc) from None
+
+    def _sdo(self, what: str, transfer):
+        """One SDO transfer; a bus that failed before or under it is reconnected (within the
+        budget, :meth:`CanopenLink.recover`) and the transfer made once more: a read, and a write
+        of an absolute value, may be repeated."""
+        self.link.check_bus(what)
+        try:
+            return transfer()
+        except (SdoCommunicationError, can.CanError) as exc:
+            if isinstance(exc, can.CanError):
+                self.link.bus_watch.note(exc)
+            if self.link.bus_watch.error is None or self.link.recovering:
+                raise  # no answer on a working bus, or a failure within a reconnection (one failed attempt)
+        self.link.check_bus(what)  # the bus failed under the transfer: made again (or LinkLostError)
+        return transfer()
 
     def take_pdos(self) -> None:
         """RPDO2 and TPDO2 as the drive maps them (read from its 0x1601 / 0x1A01 over SDO): the
@@ -402,8 +433,7 @@ class DriveNode:
         """RPDO2 through canopen's PDO map: target position 0x607A, target torque 0x6071."""
         self.rpdo2[0x607A].raw = self.target_counts
         self.rpdo2[0x6071].raw = self.target_torque
-        with self.link.bus(f"the RPDO2 to node {self.id}"):
-            self.rpdo2.transmit()
+        self.link.transmit(f"the RPDO2 to node {self.id}", self.rpdo2.transmit)
 
     def send_control(self) -> bool:
         """RPDO1 (controlword with or without halt, mode); True when the drive confirmed it
@@ -411,8 +441,8 @@ class DriveNode:
         cw = 0x000F | (0x0100 if self.halt else 0)
         self.node.rpdo_pointers[0x6060].raw = MODE_CODES[self.mode]
         self.status_received.clear()
-        with self.link.bus(f"the RPDO1 to node {self.id}"):
-            self.node.controlword = cw  # RPDO1 (event driven: transmitted at once)
+        # RPDO1 (event driven: transmitted at once); an absolute controlword may be sent again
+        self.link.transmit(f"the RPDO1 to node {self.id}", lambda: setattr(self.node, "controlword", cw))
         return self.status_received.wait(self.link.options["timeout_s"])
 
 
@@ -434,6 +464,8 @@ class CanopenLink(common.AxisLink):
         self.fresh = [False] * n_axes
         self.submitted: set[int] = set()
         self.requests = 0
+        self.reconnects = 0  # links made again after the bus failed
+        self.recovering = False  # within recover(): a failure there is one failed attempt, not a new recovery
         self.actuators: list = []
         self.bus_watch = BusWatch()
         self.network.listeners.append(self.bus_watch)
@@ -449,8 +481,110 @@ class CanopenLink(common.AxisLink):
             raise bus_error(self.url, what, exc) from None
 
     def check_bus(self, what: str) -> None:
+        """Before a transmission or an SDO transfer: a bus that failed is reconnected within the
+        budget (:meth:`recover`), or the run stops with :class:`LinkLostError`."""
         if self.bus_watch.error is not None:
-            raise bus_error(self.url, what, self.bus_watch.error)
+            if self.recovering:
+                raise bus_error(self.url, what, self.bus_watch.error)
+            self.recover(what, self.bus_watch.error)
+
+    def transmit(self, what: str, send) -> None:
+        """A frame that may be sent again (absolute targets, a controlword): after a bus failure
+        the link is made again (:meth:`check_bus`) and the frame sent once more."""
+        for attempt in range(2):
+            self.check_bus(what)
+            try:
+                send()
+                return
+            except can.CanError as exc:
+                self.bus_watch.note(exc)
+                if attempt or self.recovering:
+                    raise bus_error(self.url, what, exc) from None
+
+    def recover(self, what: str, error: BaseException) -> None:
+        """The bus failed during ``what``: close it and open it again, up to ``retries`` times,
+        ``reconnect_delay_s`` x attempt apart (as the Modbus driver reconnects), then check that
+        every drive is as it was left: the lockstep clock not gone back (a restart, whose boot-up
+        went with the link) and, for a drive taken to OPERATION ENABLED, its statusword still
+        there with the commanded mode (an EMCY sent while the link was down is lost with it; a
+        trip shows as FAULT). A drive that is not stops the run; a link that does not come back
+        raises :class:`LinkLostError` naming the first failure and the last attempt's. The step in
+        flight is settled by the exchange (:meth:`exchange`: the drive's clock tells whether its
+        SYNC arrived)."""
+        lost = bus_error(self.url, what, error)
+        retries, delay = int(self.options["retries"]), self.options["reconnect_delay_s"]
+        if retries == 0:
+            raise LinkLostError(f"{lost} (no reconnection: [driver] retries = 0)")
+        started, last = time.monotonic(), ""
+        self.recovering = True
+        try:
+            for attempt in range(1, retries + 1):
+                self.reconnects += 1
+                self._disconnect()
+                time.sleep(delay * attempt)
+                try:
+                    self._connect()
+                    self._check_drives_after_reconnect()
+                except (ControllerRestartedError, InterlockError):
+                    raise
+                except CommunicationError as exc:
+                    last = f"attempt {attempt}: {exc}"
+                    continue
+                log.warning("%s; reconnected (attempt %d of %d, %.2f s)", lost, attempt, retries,
+                            time.monotonic() - started)
+                return
+        finally:
+            self.recovering = False
+        raise LinkLostError(f"{lost}; not reconnected after {retries} attempt(s) in {time.monotonic() - started:.2f} s "
+                            f"(last: {last})")
+
+    def _check_drives_after_reconnect(self) -> None:
+        if self.lockstep and self.drives:
+            clock = self.drives[0].sdo_read(cod.CLOCK, what="clock (after the link was made again)")
+            if clock < self.ticks:
+                raise ControllerRestartedError(
+                    f"{self.url}: after the link was lost, the drive's clock reads {clock}, behind the {self.ticks} "
+                    "periods already run: it restarted (its boot-up message went with the link); its state is lost, "
+                    "the run stops")
+        for d in self.drives:
+            if not d.operating:
+                continue
+            word = int(d.sdo_read(0x6041, what="statusword (after the link was made again)"))
+            d.node.tpdo_values[0x6041] = word
+            if word & 0x6F != 0x27:
+                raise InterlockError(
+                    f"CANopen node {d.id} is no longer OPERATION ENABLED after the link was lost (statusword "
+                    f"0x{word:04X}): it tripped or restarted while the link was down (an EMCY or boot-up message "
+                    "sent then went with the link); it no longer follows its targets, the run stops")
+            shown = int(d.sdo_read(0x6061, what="modes of operation display (after the link was made again)"))
+            d.node.tpdo_values[0x6061] = shown
+            if shown != MODE_CODES[d.mode]:
+                raise InterlockError(
+                    f"CANopen node {d.id}: after the link was lost, the mode display 0x6061 shows {mode_name(shown)} "
+                    f"while the driver commands {mode_name(MODE_CODES[d.mode])}; the run stops")
+
+    def _connect(self) -> None:
+        try:
+            self.network.connect(**self._bus_options)
+        except Exception as exc:
+            self.network.bus = None
+            raise CommunicationError(f"{self.url}: cannot open the CAN bus: {exc}") from None
+
+    def _disconnect(self) -> None:
+        """Close the bus; one whose link is gone may fail its own shutdown (an adapter's close
+        command cannot be written), so its port is closed here, and the bus's error forgotten."""
+        network = self.network
+        bus = network.bus
+        try:
+            network.disconnect()
+        except Exception:
+            port = getattr(bus, "serialPortOrig", None)
+            if port is not None:
+                with contextlib.suppress(Exception):
+                    port.close()
+        network.bus = None
+        network.notifier = None
+        self.bus_watch.error = None
 
     def open(self, enable: bool = True) -> None:
         """Connect and identify every drive (nothing enabled); then (``enable``) enable them."""
@@ -459,10 +593,8 @@ class CanopenLink(common.AxisLink):
             kwargs["bitrate"] = self.options["bitrate"]
         if self.interface == "slcan" and (self.channel.startswith("socket://") or self.channel.startswith("/dev/pts/")):
             kwargs["sleep_after_open"] = 0.0  # no adapter to reset behind a TCP port or a pseudo-terminal
-        try:
-            self.network.connect(**kwargs)
-        except Exception as exc:
-            raise CommunicationError(f"{self.url}: cannot open the CAN bus: {exc}") from None
+        self._bus_options = kwargs
+        self._connect()
         eds = self.options["eds"]
         for k in range(self.n):
             node_id = self.node_id + k
@@ -659,20 +791,30 @@ class CanopenLink(common.AxisLink):
                         for d in self.drives:
                             d.actual = (d.sdo_read(0x6064), d.sdo_read(0x6077), clock & 0xFFFF)
                         break
+                except LinkLostError:
+                    raise
                 except CommunicationError:
                     continue
             for d in self.drives:
                 d.await_cycle(expected if self.lockstep else None)
                 d.check_events()
                 d.send_targets()
-            with self.bus("the SYNC"):
+            self.check_bus("the SYNC")
+            try:
                 self.network.sync.transmit()
+            except can.CanError as exc:
+                # Whether it left cannot be told: the next attempt, on a link made again, asks
+                # the drive's clock (lockstep) before it sends another.
+                self.bus_watch.note(exc)
+                continue
             self.requests += 1
-            deadline = time.monotonic() + timeout
-            if all(d.received.wait(max(deadline - time.monotonic(), 0.0)) for d in self.drives):
+            if self._await_tpdos(time.monotonic() + timeout):
                 break
             self.check_bus("the wait for the TPDOs")
         else:
+            if self.bus_watch.error is not None:  # the last attempt's SYNC could not be sent
+                raise LinkLostError(f"{bus_error(self.url, 'the SYNC', self.bus_watch.error)} (at the last of "
+                                    f"{int(self.options['retries']) + 1} attempt(s))")
             silent = [d.id for d in self.drives if not d.received.is_set()]
             beat = ", ".join(f"node {d.id}: last heartbeat {self._heartbeat_age(d)}" for d in self.drives if d.id in silent)
             raise CommunicationError(f"{self.url}: no TPDO from node(s) {silent} within {timeout:g} s after "
@@ -685,6 +827,15 @@ class CanopenLink(common.AxisLink):
         for d in self.drives:
             d.check_events()
         self.fresh = [True] * self.n
+
+    def _await_tpdos(self, deadline: float) -> bool:
+        """Every drive's TPDO2 by ``deadline``; False then, or as soon as the bus fails (its
+        reconnection starts at once, not a whole timeout later: the drives' host watchdog runs)."""
+        for d in self.drives:
+            while not d.received.wait(min(BUS_POLL_S, max(deadline - time.monotonic(), 0.0))):
+                if self.bus_watch.error is not None or time.monotonic() >= deadline:
+                    return False
+        return True
 
     def _heartbeat_age(self, d: DriveNode) -> str:
         ts = getattr(d.node.nmt, "timestamp", None)

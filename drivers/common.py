@@ -60,6 +60,7 @@ def whole(low: int, high: int) -> Rule:
 COMMON_RULES = {
     "timeout_s": positive(60.0, "s"),
     "retries": whole(0, 20),
+    "reconnect_delay_s": Rule(float, 0.0, 10.0, False, "between 0 and 10 s"),
     "stroke_mm": positive(10000.0, "mm (the total stroke)"),
     "force_kN": positive(100000.0, "kN"),
     "velocity_mm_s": positive(10000.0, "mm/s"),

@@ -71,7 +71,6 @@ DEFAULT_OPTIONS = {
 
 RULES = {
     **common.COMMON_RULES,
-    "reconnect_delay_s": common.Rule(float, 0.0, 10.0, False, "between 0 and 10 s"),
     "device_id": common.whole(1, 247),  # 0 is the broadcast address: no device answers it
     "baudrate": common.Rule(int, 1, 10_000_000, False, "a whole number of bit/s, 1..10000000"),
     "stopbits": common.whole(1, 2),

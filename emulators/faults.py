@@ -301,10 +301,13 @@ def random_faults(seed: int, every: int, kinds=RECOVERABLE, until: int = 10**7, 
     """A seeded schedule: one fault every ``every`` ticks on average, up to ``until``."""
     rng = random.Random(seed)
     out, tick = [], start
-    while len(out) < MAX_FAULTS:
+    while True:
         tick += rng.randint(max(every // 2, 1), max(3 * every // 2, 1))
         if tick > until:
-            break
+            return out
+        if len(out) == MAX_FAULTS:  # refused, not cut short: the faults would end long before until
+            raise ConfigError(f"--faults: a fault every {every} ticks up to tick {until} is more than {MAX_FAULTS} "
+                              f"faults (the {MAX_FAULTS}th falls at tick {out[-1].tick}); give a larger every= or a "
+                              "smaller until=")
         kind = rng.choice(kinds)
         out.append(Fault(kind, tick, KINDS[kind]))
-    return out

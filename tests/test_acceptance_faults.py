@@ -28,20 +28,23 @@ def thread_errors(monkeypatch):
 
 
 def test_can_adapter_lost_mid_run_is_a_named_link_fault(monkeypatch, tmp_path, thread_errors):
-    """The SLCAN adapter's TCP link closes a third into a run: the run stops as a lost link
-    (CommunicationError naming the CAN bus), no thread dies with a traceback, every step made
-    before is in the record and the hold is not claimed (nothing answers to read it back)."""
+    """The SLCAN adapter's TCP link closes a third into a run with no reconnection allowed
+    ([driver] retries = 0; tests/test_canopen_reconnect.py makes it again): the run stops as a
+    lost link (CommunicationError naming the CAN bus), no thread dies with a traceback, every
+    step made before is in the record and the hold is not claimed (nothing answers to read it
+    back)."""
     cfg = write_config(tmp_path, duration=0.5, rate=2.0, extra=QUIET_SENSORS)
     emu = slcan_emulator(bank_from_config(cfg, lockstep=True, watchdog_s=5.0), "tcp")
     try:
         trigger = fault_at(monkeypatch, 300, emu.slcan.drop)  # the adapter's TCP link is cut
-        result, recorded = run(cfg, tmp_path / "run", url=emu.url, driver={"timeout_s": 0.2, "retries": 1})
+        result, recorded = run(cfg, tmp_path / "run", url=emu.url, driver={"timeout_s": 0.2, "retries": 0})
     finally:
         emu.stop()  # closes its SLCAN port too
     assert trigger.done
     assert isinstance(result, ExperimentStopped), result
     message = str(result)
     assert "the CAN bus failed" in message and "the adapter or its link is lost" in message, message
+    assert "no reconnection: [driver] retries = 0" in message, message
     assert "unexpected" not in message
     assert "confirmed by read-back" not in message
     assert thread_errors == []

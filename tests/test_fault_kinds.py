@@ -81,7 +81,7 @@ def test_warn_is_refused_over_modbus_before_it_serves(tmp_path):
                                           r"drop, .*fnan\)"):
         ModbusEmulator(bank, modbus_map.load(), faults=parse("drop@10,warn@300"))
     check_transport(parse("warn@300"), "canopen")  # CANopen's own
-    proc = hsio("emulate", "modbus", "--port", "0", "--faults", "seed=1,every=50,kinds=drop+warn",
+    proc = hsio("emulate", "modbus", "--port", "0", "--faults", "seed=1,every=50,kinds=drop+warn,until=100000",
                 emulator_config(tmp_path), timeout=60)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "is a CANopen fault" in proc.stderr and "refused over Modbus" in proc.stderr

@@ -26,6 +26,9 @@ from hsio.errors import ConfigError
     ("kinds=drop+bogus", "--faults 'kinds=drop+bogus': unknown fault(s) 'bogus'"),
     ("kinds=drop++corrupt", "--faults 'kinds=drop++corrupt': an empty kind"),
     ("kinds=", "--faults 'kinds=': no kind given"),
+    # a random schedule beyond the cap on faults is refused, not cut short at its 100,000th fault
+    ("seed=1,every=10", "--faults: a fault every 10 ticks up to tick 10000000 is more than 100000 faults"),
+    ("seed=1,every=100,until=20000000", "a larger every= or a smaller until="),
 ])
 def test_a_bad_spec_is_refused_quoting_the_item_as_given(spec, words):
     with pytest.raises(ConfigError) as exc:

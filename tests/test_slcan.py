@@ -167,3 +167,22 @@ def test_an_adapter_nobody_listens_to_neither_blocks_its_drives_nor_its_stop(cfg
     stopper.join(10.0)
     assert not sender.is_alive(), "the drives' writes blocked on a port nobody reads"
     assert not stopper.is_alive() and time.monotonic() - started < 10.0
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--slcan", "pty", "--port", "5000"], "--port 5000 is the TCP port of --slcan tcp; it is not used with --slcan pty"),
+    (["--channel", "bus", "--port", "5000"], "--port 5000 is the TCP port of --slcan tcp; it is not used without --slcan"),
+    (["--slcan", "tcp", "--channel", "bus"], "--channel 'bus' is not used with --slcan tcp"),
+])
+def test_an_option_the_canopen_emulator_would_not_use_is_refused(monkeypatch, args, words):
+    """`hsio emulate canopen` refuses, before it builds anything, an option its other options
+    leave unused (a port the pseudo-terminal never opens), rather than ignoring it."""
+    from click.testing import CliRunner
+
+    import hsio.commands.emulate as emulate_command
+    from hsio.cli import main
+
+    monkeypatch.setattr(emulate_command, "bank_from_config", lambda *a, **k: pytest.fail("the emulator was built"))
+    result = CliRunner().invoke(main, ["emulate", "canopen", *args])
+    assert result.exit_code == 2, result.output
+    assert words in " ".join(result.output.split()), result.output

@@ -130,6 +130,11 @@ class FaultProxy:
                 break
             if not data:
                 break
+            if hasattr(socket, "TCP_QUICKACK"):  # ack at once, as the emulators do: a sender's Nagle waits for it
+                try:
+                    src.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
+                except OSError:
+                    pass
             if reply:
                 self.replies += 1
                 if self.silent_after is not None and self.replies > self.silent_after:

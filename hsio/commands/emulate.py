@@ -212,6 +212,12 @@ def canopen_cmd(channel, interface, slcan, port, node_id, heartbeat_ms, config_f
     """CiA 402 drives (canopen LocalNode) on a python-can bus, or on an SLCAN port for another process."""
     from hsio.emulators.canopen import CanopenEmulator, slcan_emulator
 
+    if port and slcan != "tcp":  # an option that would do nothing is refused, not ignored
+        raise click.BadParameter(f"--port {port} is the TCP port of --slcan tcp; it is not used "
+                                 f"{'with --slcan pty' if slcan else 'without --slcan'}", param_hint="--port")
+    if slcan and channel:
+        raise click.BadParameter(f"--channel {channel!r} is not used with --slcan {slcan} (it serves its own bus)",
+                                 param_hint="--channel")
     try:
         bank = _bank(config_file, clock, watchdog_s, settings, faults_spec, watch_holding)
         if slcan:
