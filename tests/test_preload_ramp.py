@@ -94,3 +94,24 @@ def test_the_ramp_off_from_a_larger_present_force_is_checked_too():
         site.static_targets = np.array([240.0])  # as if the record had held 240 kN
         with pytest.raises(LimitError, match="the ramp off over 0.6 s moves the rod at"):
             site.release()
+
+
+def test_two_preloads_ramp_together_over_the_longest_ramp_and_each_is_checked_on_its_own(tmp_path):
+    """A tension preload of 24 kN on 0.25 kN/mm with ramp_s 0.1 ramps over the other's 2 s (10 loop
+    steps of 0.2 s, ramp-hold 0.5): its rod moves at 1.5 (24 / 10) / (0.5 x 0.2) / 0.25 = 144 mm/s,
+    the 100 kN one on 1 kN/mm at 150 mm/s. With the longest ramp 0.2 s, each is refused on its own."""
+    second = '\n[[static]]\nname = "brace"\nforce_kN = -24.0\nramp_s = 0.1\nmodel = { kind = "linear", k = 0.25 }\n'
+
+    def velocities(out):
+        return {name: next(x for x in out.output.splitlines() if x.lstrip().startswith(f"{name} ") and "velocity" in x)
+                for name in ("axial", "brace")}
+
+    out = check(tmp_path, column(ramp="2.0", extra=second))
+    assert out.exit_code == 0, out.output
+    lines = velocities(out)
+    assert float(lines["axial"].split("predicted")[1].split()[0]) == pytest.approx(150, rel=0.01)
+    assert float(lines["brace"].split("predicted")[1].split()[0]) == pytest.approx(144, rel=0.01)
+    assert "static preload 'brace': 24 kN over 0.25 kN/mm, ramped in and off over 2 s" in lines["brace"]
+    out = check(tmp_path, column(ramp="0.2", extra=second))
+    assert out.exit_code == 2
+    assert all("EXCEEDS" in line for line in velocities(out).values())
