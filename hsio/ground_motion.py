@@ -268,7 +268,10 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
     columns, time (s) and acceleration, whose times must be evenly spaced (the step is read from
     them; a ``dt_s`` given as well must agree). Columns are separated by spaces, tabs, commas or
     semicolons; lines starting with #, %, // or ! are comments, and a first line of words (a CSV
-    header such as ``time,acc``) is skipped. ``units``: the accelerations' unit (:data:`UNITS_IN_G`),
+    header such as ``time,acc``) is skipped. A one-column file whose first value is a whole number
+    written without a point equal to the count of the values below it (a count header, "4000" then
+    4000 accelerations) is refused, naming it: read as an acceleration it would be a pulse of
+    4000 g at t = 0. ``units``: the accelerations' unit (:data:`UNITS_IN_G`),
     converted to g: required (a file in cm/s^2 read as g would run 980 times too strong). Every
     refusal names the file and the line."""
     if not isinstance(path, (str, os.PathLike)):
@@ -330,6 +333,8 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
             raise RecordError(f"{path}:{number}: {len(row)} columns where the lines above have {columns}")
         if len(rows) == MAX_SAMPLES:
             raise RecordError(f"{path}:{number}: more than {MAX_SAMPLES} samples")
+        if not rows:
+            first_words = words
         rows.append(row)
         line_of.append(number)
         if columns == 2:
@@ -338,6 +343,10 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
         raise RecordError(f"{path}: {len(rows)} samples; a record needs at least 2")
     values = np.array(rows, dtype=float)
     if columns == 1:
+        if re.fullmatch(r"\+?\d+", first_words[0]) and int(first_words[0]) == len(rows) - 1:
+            raise RecordError(f"{path}:{line_of[0]}: {first_words[0]!r} is the count of the {len(rows) - 1} values "
+                              f"below it, not an acceleration ({rows[0][0]:g} {units}): remove that line or make "
+                              f"it a comment ('# {first_words[0]}')")
         if dt_s is None:
             raise RecordError(f"{path}: one column of accelerations and no time step: give dt_s ([record] dt_s in a "
                               "run configuration), or a first column of times")

@@ -479,8 +479,9 @@ def _dry_run_from_present(config: RunConfig, structure: Structure, ns_present, r
         test = config["test"]
         rest = report.prediction
         lag = None if rest.lag is None else rest.lag.first(len(rest.actuators) - rest.static)
-        prediction = with_static(predict_peaks(ns_present, test["rate"] * structure.dt, test["hold_fraction"],
-                                               lag=lag), structure.static)
+        t_d = test["rate"] * structure.dt
+        prediction = with_static(predict_peaks(ns_present, t_d, test["hold_fraction"], lag=lag), structure.static,
+                                 t_d, test["hold_fraction"])
         how = "NS from where the specimen stands"
     source = report.source
     unknown = [key for key, value in report.limits.items() if value is None]

@@ -125,7 +125,8 @@ def test_a_run_from_the_present_state_does_not_add_the_held_preload_twice():
     from hsio.safety.dry_run import Prediction, from_present, with_static
 
     (load,) = hsio.load_structure("preloaded_column").static
-    prediction = with_static(Prediction(("lateral",), np.array([10.0]), np.array([8.0]), np.array([50.0]), 100), [load])
+    prediction = with_static(Prediction(("lateral",), np.array([10.0]), np.array([8.0]), np.array([50.0]), 100), [load],
+                             t_d=0.1, hold_fraction=0.0)
     state = {"lateral": {"displacement_mm": 2.0, "force_kN": 1.5}, "axial": {"displacement_mm": 2.5, "force_kN": 125.0}}
     shifted = from_present(prediction, state)
     np.testing.assert_allclose(shifted.displacement, [12.0, 2.5])

@@ -133,3 +133,24 @@ def test_record_keys_where_nothing_reads_them_or_out_of_range_are_refused(tmp_pa
     with pytest.raises(ConfigError) as info:
         load_config(tmp_path / "run.toml")
     assert words in str(info.value)
+
+
+def test_a_count_on_the_first_line_of_one_column_is_refused_naming_it(tmp_path):
+    """'4000' then 4000 accelerations: read as a value, the count is a 4000 g pulse at t = 0. The
+    reader refuses it by name, so the API (run_numerical) and `hsio run` both stop there."""
+    path = tmp_path / "count.txt"
+    path.write_text("4000\n" + "\n".join(f"{0.1 * np.sin(0.05 * i):.6f}" for i in range(4000)) + "\n")
+    with pytest.raises(RecordError, match=r"count\.txt:1: '4000' is the count of the 4000 values below it, not an "
+                                          r"acceleration \(4000 g\)"):
+        read_record(path, dt_s=0.01, units="g")
+    path.write_text("# 4000\n" + path.read_text().partition("\n")[2])  # the advice: a comment
+    assert len(read_record(path, dt_s=0.01, units="g").accel_g) == 4000
+
+
+@pytest.mark.parametrize("first", ["4001", "3999", "4000.0", "-4000", "4e3"])
+def test_a_first_value_that_is_not_the_count_is_an_acceleration(tmp_path, first):
+    """Only a whole number written without a point equal to the count below is taken for a count."""
+    path = tmp_path / "r.txt"
+    path.write_text(first + "\n" + "0.01\n" * 4000)
+    g = read_record(path, dt_s=0.01, units="g")
+    assert len(g.accel_g) == 4001 and g.accel_g[0] == float(first)

@@ -32,6 +32,7 @@ from hsio.safety.settings import SafetySettings
 from hsio.safety.status import DryRunRefused
 
 DRIVER_LAG = "a driver's actuators: not known"
+HELD, RAMPS = -1, -2  # the "step" of a static preload's peak: held throughout, in its ramps in and off
 QUANTITIES = (("displacement", "stroke_mm", "mm", "stroke_margin"), ("force", "force_kN", "kN", "force_margin"),
               ("velocity", "velocity_mm_s", "mm/s", "velocity_margin"))
 
@@ -74,7 +75,8 @@ def compensated(targets: np.ndarray, t_d: float, lead_s: float, a_mm_s: float) -
 @dataclass(frozen=True)
 class Prediction:
     """Per actuator: peak |displacement| (mm), |force| (kN) and |command velocity| (mm/s); where
-    known, the step of each peak (``at``: {quantity: steps}, -1 for a preload held throughout),
+    known, the step of each peak (``at``: {quantity: steps}, HELD for a preload held throughout,
+    RAMPS for the velocity of its ramps),
     the record's dt, the peak |step velocity| (mm/s, backward quadratic over t_d) and the
     actuators' :class:`ActuatorLag` (the peaks are of the commands compensated with its lead)."""
 
@@ -88,6 +90,7 @@ class Prediction:
     dt: float = 0.0
     step_velocity: np.ndarray | None = None
     lag: "ActuatorLag | None" = None
+    notes: dict | None = None  # {(quantity, actuator index): what the peak comes from}, told beside it
 
     def lag_allowance(self) -> np.ndarray:
         """L |v|_max per actuator (mm), L the lag not compensated: what it may add to the peak; at
@@ -111,6 +114,8 @@ class Prediction:
         if steps is None:
             return ""
         step = int(steps[k])
+        if step == RAMPS:
+            return " (in the ramps of the static preloads)"
         if step < 0:
             return " (held throughout)"
         return f" at step {step} (t = {step * self.dt:.3f} s)" if self.dt > 0 else f" at step {step}"
@@ -348,6 +353,7 @@ def check(prediction: Prediction, limits: dict, source: str, settings: SafetySet
                 value *= float(growth[k])
             if what != "force" and prediction.lag is not None and prediction.lag.lead_s[k] > 0:
                 lag += f"; commands compensated with lead {prediction.lag.lead_s[k]:g} s"
+            lag += (prediction.notes or {}).get((what, k), "")
             ok = value <= allowed
             verdict = "ok" if ok else "EXCEEDS"
             when = prediction.when(what, k)
@@ -361,17 +367,32 @@ def check(prediction: Prediction, limits: dict, source: str, settings: SafetySet
     return report
 
 
-def with_static(prediction: Prediction, static) -> Prediction:
+def with_static(prediction: Prediction, static, t_d: float, hold_fraction: float,
+                period: float = 1.0 / CONTROLLER_RATE_HZ) -> Prediction:
     """``prediction`` and the static actuators (:class:`hsio.structures.StaticLoad`, docs/setups.md)
-    holding their preloads: the force is the preload, the displacement the preload over the
-    initial stiffness of what it loads, the command velocity nil (force control), held throughout."""
+    holding their preloads: the force is the preload and the displacement the preload over the
+    initial stiffness K^EI of what it loads, held throughout; the velocity that of the ramps in
+    and off (:func:`hsio.safety.preload_ramp.ramp_velocity`: the command generator's force rate
+    over the loop steps of the longest ``ramp_s``, over K^EI)."""
     if not static:
         return prediction
+    from hsio.safety.preload_ramp import ramp_velocity
+
     force = np.array([abs(load.force_kN) for load in static])
-    disp = np.array([abs(load.force_kN) / load.model().initial_stiffness for load in static])
+    stiffness = np.array([load.model().initial_stiffness for load in static])
+    disp = force / np.abs(stiffness)
+    _, ramp = ramp_velocity(np.zeros(len(static)), force, stiffness, max(load.ramp_s for load in static), t_d,
+                            period, hold_fraction)
     zeros = np.zeros(len(static))
-    at = None if prediction.at is None else {what: np.concatenate([steps, np.full(len(static), -1)])
-                                             for what, steps in prediction.at.items()}
+    ramp_s = max(load.ramp_s for load in static)
+    n = len(prediction.actuators)
+    notes = dict(prediction.notes or {})
+    notes.update({("velocity", n + j): f"; static preload {load.name!r}: {force[j]:g} kN over {stiffness[j]:g} kN/mm, "
+                                       f"ramped in and off over {ramp_s:g} s in loop steps of {t_d:g} s"
+                  for j, load in enumerate(static)})
+    at = None if prediction.at is None else {
+        what: np.concatenate([steps, np.full(len(static), RAMPS if what == "velocity" else HELD)])
+        for what, steps in prediction.at.items()}
 
     def more(values):
         return None if values is None else np.concatenate([np.asarray(values, dtype=float), zeros])
@@ -379,8 +400,8 @@ def with_static(prediction: Prediction, static) -> Prediction:
     return replace(prediction, actuators=prediction.actuators + tuple(load.actuator for load in static),
                    displacement=np.concatenate([prediction.displacement, disp]),
                    force=np.concatenate([prediction.force, force]),
-                   velocity=np.concatenate([prediction.velocity, zeros]), static=prediction.static + len(static),
-                   at=at, step_velocity=more(prediction.step_velocity),
+                   velocity=np.concatenate([prediction.velocity, ramp]), static=prediction.static + len(static),
+                   at=at, step_velocity=more(prediction.step_velocity), notes=notes,
                    lag=None if prediction.lag is None else prediction.lag.more(len(static)))
 
 
@@ -426,7 +447,7 @@ def dry_run(ns, t_d: float, hold_fraction: float, url: str, emulator: dict, driv
     ``lag``: the actuators' (:func:`actuator_lag`)."""
     limits, source = known_limits(url, emulator, driver)
     prediction = predict(ns, t_d, hold_fraction, setups=setups, lag=lag)
-    return check(with_static(prediction, static), limits, source, settings)
+    return check(with_static(prediction, static, t_d, hold_fraction), limits, source, settings)
 
 
 def enforce(report: DryRunReport) -> None:

@@ -23,6 +23,7 @@ from hsio.control_loop import ControlLoop, with_hold_report
 from hsio.errors import ConfigError, HsioError, ImplausibleMeasurementError
 from hsio.interfaces import ControlMode
 from hsio.safety.hold import HoldReport
+from hsio.safety.preload_ramp import check_ramp, ramp_steps, ramp_targets
 from hsio.secant import SecantEstimator, secant_stiffness
 from hsio.sites.base import Daq
 from hsio.structures import OuterLoop
@@ -181,8 +182,7 @@ class ActuatorSite:
         from hsio.safety.status import OperatorStop
 
         self._phase = phase
-        ramp_s = max(s.ramp_s for s in self.static)
-        steps = max(int(np.ceil(ramp_s / self.loop.t_d)), 1)
+        steps = ramp_steps(max(s.ramp_s for s in self.static), self.loop.t_d)
         hold = np.array([g.command for g in self.loop.generators[: self.n_dynamic]]) - self.zero
 
         def stopped(done: int) -> RampStopped:
@@ -192,6 +192,7 @@ class ActuatorSite:
             return RampStopped(f"the {phase.replace('_', ' ')} of the static preloads was stopped after "
                                f"{done} of {steps} steps; force control left at {left}")
 
+        targets = ramp_targets(start, end, steps)
         settle = steps if phase == "ramp_in" else 0
         if settle:
             self.preload_short = []
@@ -204,7 +205,7 @@ class ActuatorSite:
                         raise stopped(min(k - 1, steps)) from None
                 if stop is not None and stop():
                     raise stopped(min(k - 1, steps))
-                self.static_targets = end.copy() if k >= steps else start + (end - start) * (k / steps)
+                self.static_targets = targets[min(k, steps) - 1].copy()
                 fb = self._execute(hold)
                 if k >= steps and np.all(np.abs(fb.force[self.n_dynamic:] - end) <= self.PRELOAD_REACHED * np.abs(end)):
                     break
@@ -226,23 +227,36 @@ class ActuatorSite:
         """Switch the static actuators to force control and ramp their preloads in, the others
         holding where they stand (docs/setups.md). Each ramp starts from the force its actuator
         measures now, so a preload left on by an earlier session is not dropped and reapplied.
-        ``stop``, ``pause``: see :meth:`_ramp`."""
+        ``stop``, ``pause``: see :meth:`_ramp`. Refused before anything moves: a preload beyond
+        its actuator's force capacity, and a ramp in or off that would move a rod faster than its
+        actuator's velocity limit (:func:`hsio.safety.preload_ramp.check_ramp`)."""
         if not self.static:
             return
-        for j, load in enumerate(self.static):  # refused before anything moves
+        for j, load in enumerate(self.static):
             actuator = self.loop.actuators[self.n_dynamic + j]
             actuator.limits.check(ControlMode.FORCE, load.force_kN, f"static preload {load.name!r} on actuator {actuator.name!r}")
+        present = np.array([f.force_kN for f in self.loop.feedback()[self.n_dynamic:]])
+        end = np.array([s.force_kN for s in self.static])
+        self._check_ramp(present, end, "ramp in")
+        self._check_ramp(end, np.zeros(len(self.static)), "ramp off")
         for j in range(len(self.static)):
             self.loop.set_mode(self.n_dynamic + j, ControlMode.FORCE)
         present = np.array([f.force_kN for f in self.loop.feedback()[self.n_dynamic:]])
         self.static_targets = present
-        self._ramp(present, np.array([s.force_kN for s in self.static]), "ramp_in", stop, pause)
+        self._ramp(present, end, "ramp_in", stop, pause)
+
+    def _check_ramp(self, start: np.ndarray, end: np.ndarray, phase: str) -> None:
+        """Refuse a ramp of the preloads that would move a rod beyond its actuator's velocity limit."""
+        limits = [a.limits.velocity_mm_s for a in self.loop.actuators[self.n_dynamic:]]
+        check_ramp(self.static, start, end, limits, self.loop.t_d, self.loop.clock.period_s,
+                   self.loop.hold_fraction, phase)
 
     def release(self, stop=None, pause=None) -> None:
         """Ramp the static preloads off, the others holding where they stand. ``stop``,
         ``pause``: see :meth:`_ramp`."""
         if not self.static:
             return
+        self._check_ramp(self.static_targets, np.zeros(len(self.static)), "ramp off")
         self._ramp(self.static_targets.copy(), np.zeros(len(self.static)), "ramp_off", stop, pause)
 
     def static_hold_error(self) -> np.ndarray:
