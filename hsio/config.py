@@ -26,7 +26,7 @@ DEFAULTS: dict[str, dict] = {
                    "switch_on": "stiffness", "K_f": 0.0, "K_d": 0.0, "R_f": 0.0, "R_d": 0.0,
                    # mixed control (docs/force_control.md, "Running it"): where K_f / K_d come from,
                    # and the guards of ImplicitMethod; the defaults are the behaviour without them
-                   "switch_rule": "initial_stiffness", "switch_margin": 5.0, "switch_hysteresis": 2.0,
+                   "switch_rule": "initial_stiffness", "switch_margin": 0.03, "switch_hysteresis": 2.0,
                    "switch_resolution_mm": 0.0, "switch_force_resolution_kN": 0.0, "switch_noise_mm": 0.0,
                    "switch_force_noise_kN": 0.0, "switch_max_hysteretic_ratio": 0.1,
                    "fc_blend": 1.0, "fc_fallback_after": 0, "refractory_steps": 0, "no_fc_at_reversal": False,

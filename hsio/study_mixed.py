@@ -47,7 +47,7 @@ STRUCTURES = ("structure_I", "structure_II", "structure_II_infill", "three_store
 class Recipe:
     """How the methods use the instruments (the defaults of ``hsio study mixed``)."""
 
-    margin: float = 5.0  # c in K_f = c s_F / s_u
+    margin: float = 0.03  # c in K_f = c s_F / s_u
     hysteresis: float = 2.0  # K_d = K_f / h
     max_hysteretic_ratio: float = 0.1  # FC only while NS predicts every element elastic (0: no such gate)
     fc_blend: float = 0.01  # lambda of the complementary estimate

@@ -58,7 +58,7 @@ def test_every_key_runs_and_reaches_the_integrator(tmp_path):
 
 def test_a_wall_that_ns_finds_hysteretic_never_goes_to_fc(tmp_path):
     """Structure I's pinched wood wall with a 0.001 kN load cell: the instruments alone would put
-    it in FC (K_f = 5 x 0.00104 / 0.0123 = 0.42 kN/mm, below its 2.6), but NS finds it dissipating
+    it in FC (K_f = 0.03 x 0.00104 / 0.0123 = 0.0025 kN/mm, below its 2.6), but NS finds it dissipating
     energy, so its K_f is infinite (null) and no step runs in FC, with [output] ns and the dry run
     both off (the rule computes NS itself)."""
     tables = {"structure": {"name": "structure_I"}, "record": {"synthetic_duration_s": 0.5},
@@ -77,7 +77,7 @@ def test_a_wall_that_ns_finds_hysteretic_never_goes_to_fc(tmp_path):
     cfg.write_text(_toml(tables))
     out = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "ungated")])
     summary = json.loads((tmp_path / "ungated" / "summary.json").read_text())
-    assert summary["thresholds"]["upper"][0] == pytest.approx(5 * (0.001**2 * 13 / 12) ** 0.5 / (0.01**2 + 0.025**2 / 12) ** 0.5)
+    assert summary["thresholds"]["upper"][0] == pytest.approx(0.03 * (0.001**2 * 13 / 12) ** 0.5 / (0.01**2 + 0.025**2 / 12) ** 0.5)
     assert summary["fc_step_fraction"][0] > 0
 
 
@@ -402,12 +402,12 @@ def test_a_server_that_never_integrates_is_not_refused_for_the_method():
 
 
 @pytest.mark.parametrize("pga, says", [
-    (0.05, ["NS predicts every element elastic", "BF           to FC above 4.22 kN/mm, back to DC below 2.11 kN/mm"]),
+    (0.05, ["NS predicts every element elastic", "BF           to FC above 0.02532 kN/mm, back to DC below 0.01266 kN/mm"]),
     (0.2, ["NS predicts IF dissipating energy or off the K^EI line: every element stays in DC", "IF           DC throughout"]),
 ])
 def test_check_says_what_mixed_control_will_do(tmp_path, pga, says):
     """`hsio check` shows the switching rule of a mixed run: the thresholds (here from the
-    emulator's instruments: 5 x 0.0104 / 0.0123 kN/mm) and what the NS gate read."""
+    emulator's instruments: 0.03 x 0.0104 / 0.0123 kN/mm) and what the NS gate read."""
     cfg = tmp_path / "c.toml"
     cfg.write_text(_toml({"structure": {"name": "structure_II_infill"},
                           "record": {"synthetic_duration_s": 2.0, "pga_g": pga},

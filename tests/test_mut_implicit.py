@@ -229,6 +229,33 @@ def test_the_first_fc_base_is_the_initial_state_when_the_reading_at_rest_is_with
     assert site.sent[0][0][0] == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.parametrize("reading, expected_R_b", [
+    (0.04, 0.1 * 0.04),  # within 5 s_F + delta_F of rest (0.062 kN): the state's force, the reading weighted by lambda
+    (-0.5, -0.5),  # beyond it (a preload, an offset): the reading
+])
+def test_the_first_fc_base_force_is_the_state_at_rest_when_the_reading_is_within_the_noise(reading, expected_R_b):
+    """The load cell zeroed at rest reads one noisy sample there; an FC element whose first base
+    force were that sample would apply its noise as a force on the specimen (moving it by noise / k)
+    until the complementary estimate corrects it. With the instruments known (load cell noise
+    0.01 kN, resolution 0.01 kN: s_F = 0.0104 kN) the first base force is the initial state's,
+    0 at rest, plus lambda (reading - 0)."""
+    site = _Site([100.0], [np.inf], [100.0])
+    site.base = (np.zeros(1), np.array([reading]))
+    alg = _alpha(1, j_max=1, fc_blend=0.1, tol_force=1e-9, secant_uncertainty=((0.01, 0.025), (0.01, 0.01)))
+    alg.start(np.zeros(1), site)
+    expected = _first_force_command(alg, 40.0, 100.0, expected_R_b, 0.0)
+    alg.step(np.array([40.0]), site, [FC])
+    assert site.sent[0][0][0] == pytest.approx(expected, rel=1e-12)
+    dc = _alpha(1, j_max=1, fc_blend=0.1, tol_force=1e-9, secant_uncertainty=((0.01, 0.025), (0.01, 0.01)))
+    site = _Site([100.0], [np.inf], [100.0])
+    site.base = (np.zeros(1), np.array([reading]))
+    dc.start(np.zeros(1), site)
+    K_star = dc.K_star[0, 0]
+    P_star = 40.0 + K_star * dc.predict()[0][0]
+    dc.step(np.array([40.0]), site, [DC])  # a DC element keeps the pair it reads: K* u + reading + k u = P*
+    assert site.sent[0][0][0] == pytest.approx((P_star - reading) / (K_star + 100.0), rel=1e-12)
+
+
 def test_a_guarded_step_restarts_the_complementary_estimate_from_the_measurement():
     """An FC element guarded into DC for a step (its force outside the range) runs that step from
     its measured displacement, and the complementary estimate it carries into the next FC step is

@@ -60,7 +60,7 @@ def test_thresholds_from_instruments_closed_form():
     s_u, s_F = math.sqrt(0.01**2 + 0.0025**2 / 12), math.sqrt(0.002**2 + 0.002**2 / 12)
     assert rule.upper[0] == pytest.approx(5.0 * s_F / s_u)  # 1.04 kN/mm
     rule = SwitchingRule.from_instruments([7.2], 0.0, 0.0, noise_mm=0.01, force_noise_kN=0.003)  # noise alone
-    assert rule.upper[0] == pytest.approx(5.0 * 0.003 / 0.01)
+    assert rule.upper[0] == pytest.approx(0.03 * 0.003 / 0.01)  # the default c
 
 
 @pytest.mark.parametrize("kwargs", [dict(resolution_mm=0.0), dict(resolution_mm=-0.025),
@@ -444,11 +444,16 @@ def test_a_guard_of_mixed_is_refused_with_another_method(method, guard):
     ImplicitMethod(np.eye(1), np.zeros((1, 1)), None, [0], [1.0], 0.01, -0.05, "mixed", **guard)  # accepted
 
 
-def test_the_instrument_rule_default_margin_is_the_documented_five():
+def test_the_instrument_rule_default_margin_is_the_documented_c():
+    """c = 0.03 (docs/force_control.md), the same in the function, the study's recipe and a run
+    configuration's switch_margin."""
+    from hsio.config import DEFAULTS
     from hsio.integrators import SwitchingRule
+    from hsio.study_mixed import Recipe
 
+    assert Recipe().margin == DEFAULTS["integrator"]["switch_margin"] == 0.03
     rule = SwitchingRule.from_instruments([100.0], 0.025, 0.01)
-    assert rule.upper[0] == pytest.approx(5.0 * 0.01 / 0.025) and rule.lower[0] == pytest.approx(rule.upper[0] / 2)
+    assert rule.upper[0] == pytest.approx(0.03 * 0.01 / 0.025) and rule.lower[0] == pytest.approx(rule.upper[0] / 2)
 
 
 def test_fallback_after_zero_is_off_and_j_max_is_refused():

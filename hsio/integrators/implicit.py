@@ -248,6 +248,7 @@ class ImplicitAlpha:
         self._last_dR = np.zeros(self.dofs.size)  # the last nonzero measured force increment, per element
         self.reversal_resets = 0
         self._u_fc = np.full(self.dofs.size, np.nan)  # base displacement of FC elements (fc_blend < 1)
+        self._R_fc = np.full(self.dofs.size, np.nan)  # their base force before the first step
         self.tol_displacement = float(tol_displacement)
         self.tol_force = float(tol_force)
         a, b, g, h = self.alpha, self.beta, self.gamma, self.dt
@@ -275,6 +276,7 @@ class ImplicitAlpha:
         u_b, R_b = site.committed()
         R0 = self._E.T @ np.asarray(R_b, dtype=float) + self.K_N @ u0
         self._u_fc = self._at_rest(self._E @ u0, np.asarray(u_b, dtype=float))
+        self._R_fc = self._force_at_rest(self.K_EI * (self._E @ u0), np.asarray(R_b, dtype=float))
         P0 = np.asarray(P0, dtype=float)
         a0 = np.linalg.solve(self.M, P0 - self.C @ v0 - R0)
         self.state = ImplicitState(0, u0, v0, a0, R0, P0.copy(), u0.copy())
@@ -290,6 +292,17 @@ class ImplicitAlpha:
         (sigma_u, delta_u), _ = self.secant_uncertainty
         near = np.abs(u_meas - ue0) <= 5.0 * instrument_uncertainty(delta_u, sigma_u) + delta_u
         return np.where(near, ue0 + self.fc_blend * (u_meas - ue0), np.nan)
+
+    def _force_at_rest(self, Re0: np.ndarray, R_meas: np.ndarray) -> np.ndarray:
+        """The FC elements' base force before the first step, as :meth:`_at_rest` their displacement:
+        the force of the initial state (on the K^EI line, the load cell zeroed at rest), the one
+        reading weighted by lambda; the reading where it is beyond 5 s_F + delta_F of that force (a
+        preload, an offset), or without the instruments."""
+        if self.secant_uncertainty is None or not self.fc_blend < 1:
+            return np.full(self.dofs.size, np.nan)
+        _, (sigma_F, delta_F) = self.secant_uncertainty
+        near = np.abs(R_meas - Re0) <= 5.0 * instrument_uncertainty(delta_F, sigma_F) + delta_F
+        return np.where(near, Re0 + self.fc_blend * (R_meas - Re0), np.nan)
 
     def predict(self) -> tuple[np.ndarray, np.ndarray]:
         s = self._require_state()
@@ -351,6 +364,8 @@ class ImplicitAlpha:
         last_w, last_k = np.zeros(self.dofs.size), np.zeros(self.dofs.size)
         if self.fc_blend < 1:
             u_b = np.where((fc | self.blend_dc) & np.isfinite(self._u_fc), self._u_fc, u_b)
+            if s.i == 0:  # the first base: the force of the state at rest (_force_at_rest)
+                R_b = np.where((fc | self.blend_dc) & np.isfinite(self._R_fc), self._R_fc, R_b)
         k = self.k.copy()
         active = np.ones(self.dofs.size, dtype=bool)
         iterations = np.zeros(self.dofs.size, dtype=int)
