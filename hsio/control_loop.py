@@ -84,6 +84,7 @@ class ControlLoop:
         self.generators = [PredictorCorrector(self.t_d, clock.period_s, x0, hold_fraction=hold_fraction) for x0 in initial]
         self.monitor = monitor  # hsio.safety.interlocks.InterlockMonitor or None
         self._samples: list[tuple] = []  # every period since the last step landed
+        self._unanswered: tuple | None = None  # a period's commands sent, its measurement never read
         self._sample_meta: list[tuple] = []  # (lab time, phases) of each of those periods
         self._phases: list[str] = []
         self._paused = False
@@ -133,7 +134,12 @@ class ControlLoop:
             self._start_step(targets)
             for _ in range(limit):
                 self._send()
-                self.clock.tick()
+                sent_at = self.clock.now_s
+                try:
+                    self.clock.tick()
+                except BaseException:  # an interrupt while the period ran: its commands went out
+                    self._keep_unanswered(sent_at + self.clock.period_s)
+                    raise
                 if self._collect():
                     return self._result
         else:
@@ -184,20 +190,36 @@ class ControlLoop:
                 self._commands.append(c)
                 self._phases.append(g.phase.value)
         except BaseException as exc:
+            self._keep_unanswered(self.clock.now_s + self.clock.period_s)
             self._fail(self._trip_instead(actuator, exc) if isinstance(exc, LimitError) else exc)
+
+    def _keep_unanswered(self, lab_time_s: float) -> None:
+        """The period whose commands (some or all) went out but whose measurement was never read
+        (a refusal, a lost link, an interrupt): kept for :meth:`take_unfinished`."""
+        n = len(self.actuators)
+        sent = list(self._commands)[:n]
+        if not sent:
+            return  # nothing went out in that period
+        self._unanswered = (sent + [np.nan] * (n - len(sent)), list(self._phases)[:n] + [None] * (n - len(sent)),
+                            float(lab_time_s))
 
     def _collect(self) -> bool:
         """Read the period's measurements. True when every command has landed on its target."""
         commands = self._commands
         try:
             feedback = [a.feedback() for a in self.actuators]
+        except BaseException as exc:
+            self._keep_unanswered(self.clock.now_s)
+            self._fail(exc)
+        # kept before the interlocks judge it: the period that trips one is the step's last sample
+        self._samples.append((commands, [f.displacement_mm for f in feedback], [f.force_kN for f in feedback]))
+        if self.keep_samples:
+            self._sample_meta.append((self.clock.now_s, self._phases))
+        try:
             if self.monitor is not None:
                 self.monitor.check(self.clock.now_s, commands, feedback, [a.mode for a in self.actuators])
         except BaseException as exc:
             self._fail(exc)
-        self._samples.append((commands, [f.displacement_mm for f in feedback], [f.force_kN for f in feedback]))
-        if self.keep_samples:
-            self._sample_meta.append((self.clock.now_s, self._phases))
         if not all(g.reached for g in self.generators):
             return False
         tail = np.array(self._samples[-self.n_avg:])  # n x 3 x n_act
@@ -346,6 +368,31 @@ class ControlLoop:
         """Ask every actuator whether it holds (True, False or None: cannot tell)."""
         with self._lock:
             return read_back(self.actuators)
+
+    def take_unfinished(self) -> StepFeedback | None:
+        """After a stop in the middle of a step: the periods of that step so far, never returned
+        by :meth:`execute` (commands sent, measurements, lab times, phases; a last period whose
+        measurement was never read has NaN measurements, and NaN commands where none went out).
+        None when no period is pending or the loop keeps no samples. The loop forgets them."""
+        with self._lock:
+            rows, meta, unanswered = self._samples, self._sample_meta, self._unanswered
+            self._samples, self._sample_meta, self._unanswered = [], [], None
+        if not self.keep_samples:
+            return None
+        n = len(self.actuators)
+        rows = [(list(c), list(d), list(f)) for c, d, f in rows]
+        meta = list(meta)
+        if unanswered is not None:
+            sent, phases, when = unanswered
+            rows.append((sent, [np.nan] * n, [np.nan] * n))
+            meta.append((when, phases))
+        if not rows:
+            return None
+        samples = np.array(rows, dtype=float).transpose(0, 2, 1)  # n_samples x n_actuators x 3
+        return StepFeedback(targets=np.array(getattr(self, "_targets", np.full(n, np.nan)), dtype=float),
+                            commands=samples[-1, :, 0].copy(), displacement=samples[-1, :, 1].copy(),
+                            force=samples[-1, :, 2].copy(), samples=samples,
+                            sample_time=np.array([m[0] for m in meta], dtype=float), phases=[list(m[1]) for m in meta])
 
     def take_events(self) -> list[dict]:
         """What the interlock monitor saw since the last call (warnings, trips)."""

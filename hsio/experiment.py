@@ -145,6 +145,23 @@ def write_events(recorder, site, step: int) -> list[dict]:
     return events
 
 
+def write_unfinished(recorder, site, step: int, t: np.ndarray, stop_lab_time_s: float, stopped: str) -> str:
+    """After a stop in the middle of step ``step``: its samples so far (``site.take_unfinished``)
+    into the record's uncommitted tables (:meth:`hsio.recording.Recorder.write_uncommitted`),
+    never into its steps. Returns "" when written or when there was nothing to write, else a
+    clause saying they could not be (a full disk): never raised, the stop is what counts."""
+    take = getattr(site, "take_unfinished", None)
+    try:
+        unfinished = take() if take is not None else None
+        if unfinished is None or not len(unfinished["samples"]) or step >= len(t):
+            return ""
+        recorder.write_uncommitted(step, float(t[step]), stop_lab_time_s, stopped, unfinished["targets"],
+                                   unfinished["samples"], unfinished["times"], unfinished["phases"])
+        return ""
+    except Exception as exc:  # the trip, the hold and the steps before are recorded already
+        return f"the samples of the unfinished step {step} could not be recorded ({exc})"
+
+
 INTERLOCK_TABLE = "interlocks"
 
 
@@ -187,6 +204,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
     cause: BaseException | None = None
     hold_report = None
     interlock_row = None
+    unfinished_note = ""
 
     def log(kind: str, message: str) -> None:
         if recorder is not None:
@@ -239,6 +257,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
     except (Exception, KeyboardInterrupt) as exc:
         stopped = stop_reason(exc, last, structure.dt)
         cause = exc
+        stop_lab_time_s = site.lab_time_s
         hold = getattr(site, "hold", None)
         if hold is not None:
             hold_report = hold()
@@ -250,6 +269,8 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
                 recorder.write_event(site.lab_time_s, last + 1, "stop", "", stopped)
             except Exception:
                 pass  # the record keeps what it has; the stop is reported below
+            # after the trip, the hold and the stop are committed: a failure here loses none of them
+            unfinished_note = write_unfinished(recorder, site, last + 1, t, stop_lab_time_s, stopped)
     result = Result(
         structure=structure.name, method=integrator.method, dt=structure.dt,
         dof_names=tuple(structure.dof_names), element_names=tuple(names), element_dofs=tuple(dofs),
@@ -261,5 +282,7 @@ def run_steps(structure: Structure, ground: GroundMotion, integrator: Integrator
     )
     if stopped:
         held = hold_report.message if hold_report is not None else "no actuators to hold"
-        raise ExperimentStopped(f"run stopped at {stopped}; {held}; {last} steps recorded", result, cause, hold_report)
+        note = f"; {unfinished_note}" if unfinished_note else ""
+        raise ExperimentStopped(f"run stopped at {stopped}; {held}; {last} steps recorded{note}", result, cause,
+                                hold_report)
     return result

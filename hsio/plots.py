@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -9,6 +10,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from hsio.recording import column  # noqa: E402
 
 
 def displacement_histories(path: Path, t, u_hs, t_ns, u_ns, dof_names, title: str = "", units=None) -> Path:
@@ -85,6 +88,42 @@ def tracking_error(path: Path, t, targets, measured, actuator_names, resolution_
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time (s)")
     fig.suptitle("Tracking error: target - measured at the end of each step")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def last_samples(path: Path, committed: dict, uncommitted: dict, stop: dict, actuator_names, units=None) -> Path:
+    """The controller-rate samples before a stop in the middle of a step (docs/safety.md
+    section 1): per channel, command and measurement of the last committed steps (``committed``,
+    columns of the ``samples`` table) and of the unfinished step (``uncommitted``, its
+    ``uncommitted_samples`` rows), shaded, up to the stop's lab time (``stop``: a row of
+    ``uncommitted_steps``), marked."""
+    n = len(actuator_names)
+    units = units or ["mm"] * n
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.6 * n + 0.8), sharex=True, squeeze=False)
+    t_stop = stop["stop_lab_time_s"]
+    for j, name in enumerate(actuator_names):
+        ax = axes[j, 0]
+        for rows, labelled in ((committed, True), (uncommitted, False)):
+            if not rows or not len(rows.get("lab_time_s", ())):
+                continue
+            t = rows["lab_time_s"]
+            ax.plot(t, rows[column("cmd", name)], color="C0", lw=0.9, label="command" if labelled else None)
+            ax.plot(t, rows[column("disp", name)], color="C3", lw=0.9, label="measured" if labelled else None)
+        if uncommitted and len(uncommitted.get("lab_time_s", ())):
+            ax.axvspan(float(np.nanmin(uncommitted["lab_time_s"])), float(np.nanmax(uncommitted["lab_time_s"])),
+                       color="0.85", zorder=0)
+        if np.isfinite(t_stop):
+            ax.axvline(t_stop, color="k", ls="--", lw=0.8)
+        ax.set_ylabel(f"{name} ({units[j]})")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, loc="best")
+    axes[-1, 0].set_xlabel("lab time (s)")
+    cause = textwrap.shorten(str(stop.get("cause", "")), 240)
+    fig.suptitle("\n".join([f"Samples before the stop in step {int(stop['step'])} (shaded: that step, not committed; "
+                             "dashed: the stop)", *textwrap.wrap(cause, 120)]), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -17,6 +17,10 @@ One file per run (``run.sqlite``), readable by any SQLite tool, pandas or MATLAB
 * ``events``: what the safety layer saw (docs/safety.md) - time (s of lab time), step, kind
   (``warning``, ``trip``, ``hold``, ``pause``, ``resume``, ``stop``, ``dry_run``, ...), actuator
   (or empty), message.
+* ``uncommitted_steps`` and ``uncommitted_samples`` (after a stop in the middle of a step, never
+  steps): the step the run was making, its trial, the stop's cause and lab time, and its
+  controller-rate samples up to the stop (:meth:`Recorder.write_uncommitted`, docs/safety.md
+  section 1).
 * ``compensation`` (when the run has a compensation stage): one row per step - per actuator
   ``dc_``, ``da_`` (command and adjusted command, mm), ``v_`` (mm/s), ``er_cc_`` or ``er_ca_`` and
   ``er_aa_`` (execution errors / d_max), ``a_``, ``b_`` (parameters used), see hsio.compensation.
@@ -167,6 +171,9 @@ def _names(path: Path, what: str, names) -> list[str]:
 
 
 CORE_TABLES = ("meta", "summary", "steps", "samples", "events", "ns")  # every record has these; the others are extra
+# what a stop in the middle of a step leaves (:meth:`Recorder.write_uncommitted`): never a step,
+# never continued by a resume; made on the first such stop
+UNCOMMITTED_TABLES = ("uncommitted_steps", "uncommitted_samples")
 
 
 class Recorder:
@@ -287,7 +294,7 @@ class Recorder:
         self.steps_written = self.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
         self._checkpointed = time.monotonic()
         # every extra table the record holds (compensation, implicit, static, instruments) is continued
-        self._extra_tables = {name: cols(name)[1:] for name in sorted(tables - set(CORE_TABLES))
+        self._extra_tables = {name: cols(name)[1:] for name in sorted(tables - set(CORE_TABLES) - set(UNCOMMITTED_TABLES))
                              if not name.startswith("sqlite_")}
 
     def write_step(self, step: int, time_s: float, u, v, a, u_pred, r, modes, targets, commands, disp, force, samples=None,
@@ -356,6 +363,51 @@ class Recorder:
     def write_compensation(self, step: int, row: dict) -> None:
         """One step of the compensation stage (Er^cc, or Er^ca and Er^aa, per actuator)."""
         self.write_row("compensation", step, row)
+
+    def write_uncommitted(self, step: int, time_s: float, stop_lab_time_s: float | None, cause: str, targets,
+                          samples, times=None, phases=None) -> int:
+        """What a run that stopped in the middle of step ``step`` had of it (docs/safety.md
+        section 1): a row of ``uncommitted_steps`` (the step's time ``time_s``, the lab time of
+        the stop, its cause, the step's trial ``target_`` per actuator, ``committed`` = 0) and the
+        step's controller-rate samples so far in ``uncommitted_samples`` (the columns of
+        ``samples``, after a ``stop`` number), in a transaction of their own. The ``steps`` and
+        ``samples`` tables are untouched: a resume, the summaries, diagnose and the monitor see
+        whole steps only. Returns the stop's number (1 for a record's first such stop); a full
+        or vanished disk is a :class:`RecordError`, everything recorded before kept."""
+        n_act = len(self.actuator_names)
+        flat = np.asarray(samples, dtype=float).reshape(len(samples), -1)
+        times = [None] * len(flat) if times is None or len(times) != len(flat) else [float(t) for t in times]
+        if phases is None or len(phases) != len(flat):
+            phases = [[None] * n_act] * len(flat)
+        targets = [np.nan] * n_act if targets is None else [float(x) for x in targets]
+        try:  # a savepoint of its own: a failure undoes these rows only, never an event not yet committed
+            self.db.execute("SAVEPOINT uncommitted")
+            self.db.execute("CREATE TABLE IF NOT EXISTS uncommitted_steps (stop INTEGER PRIMARY KEY, step INTEGER, "
+                            "time_s REAL, stop_lab_time_s REAL, n_samples INTEGER, committed INTEGER, cause TEXT, "
+                            + ", ".join(f"{column('target', a)} REAL" for a in self.actuator_names) + ")")
+            self.db.execute("CREATE TABLE IF NOT EXISTS uncommitted_samples (stop INTEGER, "
+                            + ", ".join(f"{c} {'INTEGER' if c in ('step', 'k') else 'REAL'}" for c in self._sample_cols)
+                            + ")")
+            stop = self.db.execute("SELECT COALESCE(MAX(stop), 0) + 1 FROM uncommitted_steps").fetchone()[0]
+            self.db.execute(f"INSERT INTO uncommitted_steps VALUES ({', '.join('?' * (7 + n_act))})",
+                            [stop, int(step), float(time_s), None if stop_lab_time_s is None else float(stop_lab_time_s),
+                             len(flat), 0, cause, *targets])
+            code = lambda p: PHASE_CODES.get(p) if p in PHASE_CODES else None  # noqa: E731  (None: none went out)
+            self.db.executemany(f"INSERT INTO uncommitted_samples VALUES ({', '.join('?' * (len(self._sample_cols) + 1))})",
+                                [(stop, int(step), k, *map(float, r_), t, *(code(p) for p in ph))
+                                 for k, (r_, t, ph) in enumerate(zip(flat, times, phases))])
+            self.db.execute("RELEASE uncommitted")
+            self.db.commit()
+        except sqlite3.Error as exc:
+            try:
+                self.db.execute("ROLLBACK TO uncommitted")
+                self.db.execute("RELEASE uncommitted")
+            except sqlite3.Error:
+                with contextlib.suppress(sqlite3.Error):
+                    self.db.rollback()
+            raise RecordError(f"{self.path}: the samples of the unfinished step {step} could not be written "
+                              f"({exc})") from None
+        return stop
 
     def write_event(self, time_s: float | None, step: int | None, kind: str, actuator: str, message: str,
                     commit: bool = True) -> None:
@@ -521,20 +573,22 @@ class Run:
                               dtype=object if text else float)
         return out
 
-    def samples(self) -> dict[str, np.ndarray]:
-        """Every controller-period sample (may be large)."""
+    def samples(self, first_step: int | None = None) -> dict[str, np.ndarray]:
+        """Every controller-period sample (may be large), or those of the steps from
+        ``first_step`` on."""
         try:
             db = connect_read_only(self.path)
             try:
-                return self._table_samples(db)
+                return self._table_samples(db, first_step)
             finally:
                 db.close()
         except (sqlite3.Error, ValueError, TypeError) as exc:
             raise NotARunError(f"{self.path}: its samples cannot be read ({exc})") from None
 
     @staticmethod
-    def _table_samples(db) -> dict[str, np.ndarray]:
-        cur = db.execute("SELECT * FROM samples ORDER BY step, k")
+    def _table_samples(db, first_step: int | None = None) -> dict[str, np.ndarray]:
+        cur = (db.execute("SELECT * FROM samples ORDER BY step, k") if first_step is None else
+               db.execute("SELECT * FROM samples WHERE step >= ? ORDER BY step, k", (int(first_step),)))
         cols = [c[0] for c in cur.description]
         data = np.array([[np.nan if x is None else x for x in row] for row in cur.fetchall()],
                         dtype=float).reshape(-1, len(cols))
@@ -556,6 +610,34 @@ class Run:
                 db.close()
         except (sqlite3.Error, ValueError, TypeError) as exc:
             raise NotARunError(f"{self.path}: its {name} table cannot be read ({exc})") from None
+
+    def uncommitted(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """What the run had of the steps it stopped in the middle of (docs/safety.md section 1):
+        ``uncommitted_steps`` (a row per such stop: ``stop``, ``step``, ``time_s``,
+        ``stop_lab_time_s``, ``n_samples``, ``committed`` = 0, ``cause``, ``target_`` per
+        actuator) and ``uncommitted_samples`` (the ``samples`` columns after ``stop``), ordered by
+        stop and sample; both empty for a run that never stopped mid-step. Never steps: the
+        ``steps`` and ``samples`` tables do not hold them. Missing values are NaN."""
+        try:
+            db = connect_read_only(self.path)
+            try:
+                if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='uncommitted_steps'").fetchone():
+                    return {}, {}
+                cur = db.execute("SELECT * FROM uncommitted_steps ORDER BY stop")
+                cols = [c[0] for c in cur.description]
+                rows = cur.fetchall()
+                steps = {c: (np.array([r[i] for r in rows], dtype=object) if c == "cause" else
+                             np.array([np.nan if r[i] is None else r[i] for r in rows], dtype=float))
+                         for i, c in enumerate(cols)}
+                cur = db.execute("SELECT * FROM uncommitted_samples ORDER BY stop, k")
+                cols = [c[0] for c in cur.description]
+                data = np.array([[np.nan if x is None else x for x in row] for row in cur.fetchall()],
+                                dtype=float).reshape(-1, len(cols))
+                return steps, {c: data[:, i] for i, c in enumerate(cols)}
+            finally:
+                db.close()
+        except (sqlite3.Error, ValueError, TypeError) as exc:
+            raise NotARunError(f"{self.path}: its uncommitted steps cannot be read ({exc})") from None
 
     def events(self) -> list[dict]:
         """The events table as a list of dicts (time_s, step, kind, actuator, message)."""

@@ -31,7 +31,8 @@ from hsio.ground_motion import GroundMotion, read_record, synthetic_record
 from hsio.integrators import IMPLICIT_METHODS, SwitchingRule
 from hsio.integrators.mixed import RATIO_D, RATIO_F, initial_stiffness_thresholds, predicted_elastic
 from hsio.ledger import Ledger
-from hsio.recording import RUN_FILE, Recorder, discard_new_record, new_run_folder, refuse_recorded_folder
+from hsio.recording import (RUN_FILE, NotARunError, Recorder, Run, discard_new_record, new_run_folder,
+                            refuse_recorded_folder)
 from hsio.safety.control import RunControl, stop_on_signals
 from hsio.safety.dry_run import actuator_lag, actuator_limits, check, dry_run, enforce, from_present, with_static
 from hsio.safety.dry_run import predict as predict_peaks
@@ -757,6 +758,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
                 summary["plots"] = make_plots(out, structure, hs, ns, config)
                 if implicit:
                     summary["plots"].append(str(plots.control_modes(out / "modes.png", hs, structure.incidence)))
+                if error is not None:
+                    summary["plots"] += stop_plot(out, structure, notify)
             except OSError as exc:
                 notify(f"WARNING: the plots could not be written to {out} ({exc.strerror or exc})")
             except KeyboardInterrupt:  # the run is over, held and recorded: a second Ctrl-C ends the plots only
@@ -861,6 +864,30 @@ def implicit_summary(hs: Result) -> dict:
         # FC estimates of eq. (11) within SECANT_Z sigma_k of the secant in use, turned away, per element (eq. 11a)
         **({"secant_refused": hs.secant_refused} if hs.secant_refused is not None else {}),
     }
+
+
+STOP_PLOT_STEPS = 5  # committed steps shown before the unfinished one
+
+
+def stop_plot(out: Path, structure: Structure, notify) -> list[str]:
+    """``stop.png``: the samples before a stop in the middle of a step, from the record's
+    uncommitted tables (docs/safety.md section 1); none when the run stopped between steps. A
+    record that cannot be read for it is a warning: the run ends as recorded."""
+    try:
+        run = Run(out / RUN_FILE)
+        steps, uncommitted = run.uncommitted()
+        if not steps:
+            return []
+        last = len(steps["stop"]) - 1
+        stop = {key: values[last] for key, values in steps.items()}
+        mine = {key: values[uncommitted["stop"] == stop["stop"]] for key, values in uncommitted.items()}
+        committed = run.samples(first_step=int(stop["step"]) - STOP_PLOT_STEPS)
+        path = plots.last_samples(out / "stop.png", committed, mine, stop, channel_names(structure),
+                                  units=[u for u, _ in channel_units(structure)])
+        return [str(path)]
+    except NotARunError as exc:
+        notify(f"WARNING: the samples before the stop could not be plotted ({exc})")
+        return []
 
 
 def make_plots(out: Path, structure: Structure, hs: Result, ns: Result | None, config: RunConfig) -> list[str]:

@@ -271,6 +271,7 @@ class ActuatorSite:
     # -- trials -------------------------------------------------------------------------------
     def set_trial(self, commands, modes) -> None:
         targets = np.asarray(commands, dtype=float)
+        self._trial_targets = targets.copy()
         if self.setups is not None:
             if any(m is not ControlMode.DISPLACEMENT for m in modes):
                 raise ConfigError("elements loaded through setups run in displacement control")
@@ -290,12 +291,7 @@ class ActuatorSite:
         fb, readings, iterations = self._outer_loop(targets, actuator_targets, fb)
         samples = fb.samples[:, :n] if fb.samples is not None else None
         if samples is not None:
-            self._samples.append(self.setups.linearised_samples(samples) if self.setups is not None else samples)
-            # phases per recorded channel: the first n actuators' (with setups, those of each
-            # channel's element: SetupMap.channel_phases)
-            phases = None if fb.phases is None else [list(ph[:n]) if self.setups is None
-                                                     else self.setups.channel_phases(list(ph[:n])) for ph in fb.phases]
-            self._sample_meta.append((fb.sample_time, phases))
+            self._keep_samples(samples, fb.sample_time, fb.phases)
         if self.estimator is not None:
             u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
             if any(src is not None for src in self.external):  # eq. (11) on the instrument's reading
@@ -449,6 +445,39 @@ class ActuatorSite:
         self._committed = self._last
         if self.estimator is not None:
             self.estimator.begin_step(*self._committed)
+
+    def _keep_samples(self, samples: np.ndarray, times, phases) -> None:
+        """The dynamic actuators' samples of one trial (relative to the zero) as the record's
+        channels hold them, with their lab times and phases, for :meth:`take_samples`."""
+        n = self.n_dynamic
+        self._samples.append(self.setups.linearised_samples(samples) if self.setups is not None else samples)
+        # phases per recorded channel: the first n actuators' (with setups, those of each
+        # channel's element: SetupMap.channel_phases)
+        phases = None if phases is None else [list(ph[:n]) if self.setups is None
+                                              else self.setups.channel_phases(list(ph[:n])) for ph in phases]
+        self._sample_meta.append((times, phases))
+
+    def take_unfinished(self) -> dict | None:
+        """After a stop in the middle of a step (docs/safety.md section 1): that step's trial
+        targets per channel and its controller-rate samples so far, those of its finished
+        trials and the periods of the trial it was in when it stopped (the period that tripped
+        an interlock last; a period whose measurement was never read with NaN measurements).
+        None when there are none (the stop came between steps, or the run keeps no samples)."""
+        pending = self.loop.take_unfinished()
+        if pending is not None:
+            n = self.n_dynamic
+            samples = pending.samples[:, :n].copy()
+            if np.any(self.zero != 0.0):
+                samples[:, :, 0] -= self.zero
+                samples[:, :, 1] -= self.zero
+            self._keep_samples(samples, pending.sample_time, pending.phases)
+        meta = self.take_sample_meta()
+        samples = self.take_samples()
+        if samples is None:
+            return None
+        targets = getattr(self, "_trial_targets", None)
+        return {"targets": None if targets is None else np.asarray(targets, dtype=float), "samples": samples,
+                "times": None if meta is None else meta[0], "phases": None if meta is None else meta[1]}
 
     def take_samples(self) -> np.ndarray | None:
         if not self._samples:
