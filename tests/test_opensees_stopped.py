@@ -19,20 +19,22 @@ STROKE_MM = 127.0  # the validation structure's actuators
 
 # One DOF of mass 0.001 kN s^2/mm on C1 (K^EI 0.613 kN/mm, omega ~ 24.8 rad/s) under a constant
 # force of 0.613 x 100 kN: x(t) = 100 (1 - cos omega t) mm passes the 127 mm stroke near t = 0.08 s.
+# With two elements, a second DOF on C2 (0.536 kN/mm) under 0.536 x 10 kN stays within its stroke.
 MODEL = """
 import json, math, sys
 import openseespy.opensees as ops
-port, algorithm = int(sys.argv[1]), sys.argv[2]
+algorithm, ports = sys.argv[1], [int(x) for x in sys.argv[2:]]
 ops.wipe()
 ops.model("basic", "-ndm", 1, "-ndf", 1)
 ops.node(1, 0.0)
 ops.fix(1, 1)
-ops.node(2, 0.0)
-ops.mass(2, 0.001)
-ops.element("genericClient", 1, "-node", 2, "-dof", 1, "-server", port, "127.0.0.1")
 ops.timeSeries("Constant", 1)
 ops.pattern("Plain", 1, 1)
-ops.load(2, 0.613 * 100.0)
+for k, (port, force) in enumerate(zip(ports, (0.613 * 100.0, 0.536 * 10.0))):
+    ops.node(k + 2, 0.0)
+    ops.mass(k + 2, 0.001)
+    ops.element("genericClient", k + 1, "-node", k + 2, "-dof", 1, "-server", port, "127.0.0.1")
+    ops.load(k + 2, force)
 ops.constraints("Plain")
 ops.numberer("Plain")
 ops.system("FullGeneral")
@@ -56,12 +58,14 @@ print("STEPS " + json.dumps(steps), flush=True)
 """
 
 
-@pytest.mark.parametrize("algorithm", ["AlphaOS", "Newton"])
-def test_a_model_whose_trial_passes_the_stroke_ends_by_itself(tmp_path, algorithm):
+@pytest.mark.parametrize("algorithm, elements", [("AlphaOS", ["C1"]), ("Newton", ["C1"]), ("AlphaOS", ["C1", "C2"])])
+def test_a_model_whose_trial_passes_the_stroke_ends_by_itself(tmp_path, algorithm, elements):
+    """With two elements, C2 (within its stroke) is detached when C1 stops the session and is
+    answered NaN too: the model ends, nothing of C2 moves after C1's fault either."""
     need_openseespy()
     script = tmp_path / "model.py"
     script.write_text(MODEL)
-    config = write_config(tmp_path, "validation", ["C1"], extra="timeout_s = 10.0\n" + QUIET)
+    config = write_config(tmp_path, "validation", elements, extra="timeout_s = 10.0\n" + QUIET)
     lines: list[str] = []
     at_fault: list[int] = []  # the lab's motions of the actuators when the session stopped
 
@@ -71,15 +75,15 @@ def test_a_model_whose_trial_passes_the_stroke_ends_by_itself(tmp_path, algorith
             at_fault.append(server.lab.trials)
 
     with serving(config, log=log) as server:
-        proc = subprocess.run([sys.executable, str(script), str(server.ports[0]), algorithm], capture_output=True,
+        proc = subprocess.run([sys.executable, str(script), algorithm, *map(str, server.ports)], capture_output=True,
                               text=True, timeout=30)  # on a closed connection it would spin until killed
         assert proc.returncode == 0, proc.stdout + proc.stderr
         assert wait_for(lambda: session_over(server))
-        assert wait_for(lambda: any("stopped session: DIE received" in line for line in lines))
+        assert wait_for(lambda: sum("stopped session: DIE received" in line for line in lines) == len(elements))
         assert server.lab.sessions == 1  # the stopped client opened no session of its own
         trials = server.lab.trials
     steps = json.loads(proc.stdout.split("STEPS ", 1)[1])
-    oks, u = np.array([s[0] for s in steps]), np.array([s[1] for s in steps])
+    oks, u = np.array([s[0] for s in steps]), np.array([s[1] for s in steps])  # u: C1's DOF
     assert len(steps) < 40 and np.all(oks[:-1] == 0) and np.all(np.abs(u[:-1]) < STROKE_MM)
     if algorithm == "AlphaOS":  # one update per step: the step is done, its state not finite
         assert oks[-1] == 0 and np.isnan(u[-1])
@@ -96,8 +100,10 @@ def test_a_model_whose_trial_passes_the_stroke_ends_by_itself(tmp_path, algorith
     # record has one compensation row per motion, every sample's command within the stroke
     assert at_fault == [trials] and trials >= n, (at_fault, trials)
     assert len(record.compensation()["step"]) == trials
-    commands = record.samples()["cmd_C1"]
-    assert commands.size and np.all(np.abs(commands) < STROKE_MM)
+    samples = record.samples()
+    for name in elements:
+        assert samples[f"cmd_{name}"].size and np.all(np.abs(samples[f"cmd_{name}"]) < STROKE_MM)
     assert sum("the session stopped: nothing this client sends moves the actuators again" in line
-               for line in lines) == 1
-    assert any("stopped session: DIE received" in line and "answered with NaN" in line for line in lines)
+               for line in lines) == len(elements)
+    if len(elements) == 2:
+        assert any(line.startswith("element C2: stopped: element C1 stopped the session") for line in lines), lines
