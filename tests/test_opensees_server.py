@@ -144,6 +144,24 @@ def test_a_trial_that_is_not_finite_stops_the_session_and_a_silent_stopped_clien
     good_step_works(server)
 
 
+def test_closing_the_server_closes_a_stopped_client_at_once(tmp_path):
+    config = write_config(tmp_path, "validation", ["C1"], extra="timeout_s = 30.0\n" + QUIET)
+    lines: list[str] = []
+    with serving(config, log=lines.append) as server:
+        c = RawClient(server.ports[0])
+        try:
+            c.setup()
+            c.send(p.SET_TRIAL, [500.0], t=0.01)
+            assert np.isnan(c.ask(p.GET_FORCE)[0])  # stopped; the client lingers without DIE
+            server.close(timeout_s=2.0)
+            assert not [t.name for t in server._threads if t.is_alive()]
+            assert c.closed_by_server(timeout_s=1.0)
+        finally:
+            c.close()
+    assert any("stopped session: the server is stopping" in line for line in lines), "\n".join(lines)
+    assert not any("still running" in line for line in lines), lines
+
+
 def test_units_of_the_model_are_converted(tmp_path):
     config = write_config(tmp_path, "validation", ["C1"],
                           extra="length_factor = 1000.0\nforce_factor = 0.001\nmass = {C1 = 0.002}\n" + QUIET)

@@ -252,8 +252,8 @@ class OpenSeesServer:
                  f"is answered with NaN until DIE, a closed connection or {timeout:g} s of silence")
         try:
             end = stopped.serve(pending)
-        except p.PeerClosed:
-            end = "the element closed the connection"
+        except p.PeerClosed:  # the client closed it, or the server shut it down as it stops
+            end = "the server is stopping" if self._stop.is_set() else "the element closed the connection"
         except (TimeoutError, socket.timeout):
             end = f"silent for {timeout:g} s: disconnected"
         except p.ProtocolError as exc:
