@@ -66,7 +66,7 @@ def test_a_trip_is_recorded_with_the_hold_and_the_stop(tmp_path):
         c.step(0.002, 0.02)
         c.send(p.SET_TRIAL, [2.0], t=0.03)
         c.send(p.GET_FORCE)
-        assert c.closed_by_server()
+        assert c.answered_as_stopped()
         c.close()
         assert wait_for(lambda: session_over(server))
     finally:
@@ -259,7 +259,7 @@ def test_a_records_folder_that_cannot_be_written_is_named_and_the_server_goes_on
         (tmp_path / "records").write_text("not a folder")  # no session has made it yet
         c = RawClient(server.ports[0])
         c.setup()
-        assert c.closed_by_server()
+        assert c.answered_as_stopped(pending=False)  # no session: NaN to every request, closed on DIE
         c.close()
         refusal = [line for line in server.lines if "record" in line and "element C1" in line]
         assert refusal and str(tmp_path / "records") in refusal[0] and "actuators" not in refusal[0], server.lines
@@ -315,9 +315,9 @@ def test_elements_of_a_session_the_server_stopped_are_not_recorded_as_leaving_it
 
 def test_a_failed_element_ends_the_session_at_once_for_the_others(tmp_path):
     """C1's trial is refused (beyond the stroke) in the middle of a step, as an OpenSees model
-    asks its elements one after the other: the model now waits for C1's answer for ever and
-    sends C2 nothing more. The session ends at once (C2's connection is closed by the server,
-    the record closed with the stop), not after C2 has been silent for timeout_s."""
+    asks its elements one after the other. The session ends at once (C2 is detached, the record
+    closed with the stop), not after C2 has been silent for timeout_s; C1 is answered NaN, and so
+    is C2 when the model asks it next: both connections stay open until DIE."""
     config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 30.0\n" + QUIET)
     with serving(config) as server:
         a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
@@ -327,9 +327,9 @@ def test_a_failed_element_ends_the_session_at_once_for_the_others(tmp_path):
             step_together((a, b), [0.5])
             a.send(p.SET_TRIAL, [500.0], t=0.02)
             a.send(p.GET_FORCE)
-            assert a.closed_by_server()
-            assert b.closed_by_server(timeout_s=5.0)  # C2 sent nothing: told at once, not after 30 s
-            assert wait_for(lambda: session_over(server), timeout_s=5.0)
+            assert wait_for(lambda: session_over(server), timeout_s=5.0)  # C2 sent nothing: not after 30 s
+            assert a.answered_as_stopped()
+            assert b.answered_as_stopped(pending=False)
         finally:
             a.close()
             b.close()

@@ -118,11 +118,48 @@ def test_trial_beyond_the_stroke_is_refused_and_the_actuator_holds(server):
     c.step(0.5, 0.01)
     c.send(p.SET_TRIAL, [500.0], t=0.02)
     c.send(p.GET_FORCE)
-    assert c.closed_by_server()
+    assert c.answered_as_stopped()  # the model is told NaN, not left reading a closed socket
     c.close()
     assert wait_for(lambda: session_over(server))
     assert any("beyond the stroke" in line for line in server.lines)
     good_step_works(server)
+
+
+def test_a_trial_that_is_not_finite_stops_the_session_and_a_silent_stopped_client_is_dropped(server):
+    """A diverging model sends a NaN trial: the session stops (nothing moves), the client's
+    getForce is answered NaN, and the stopped client, silent, is closed after timeout_s (2 s)."""
+    c = RawClient(server.ports[0])
+    c.setup()
+    c.step(0.5, 0.01)
+    c.send(p.SET_TRIAL, [math.nan], t=0.02)
+    assert np.isnan(c.ask(p.GET_FORCE)[0])
+    assert wait_for(lambda: session_over(server))
+    assert c.closed_by_server(timeout_s=5.0)
+    c.close()
+    run = Run(records(server)[-1])
+    assert run.summary["steps"] == 1 and "not finite" in run.summary["stopped"]
+    assert run.summary["uncommitted_trials"] == 0  # the NaN trial moved nothing
+    assert any("stopped session: silent for 2 s: disconnected; 1 request(s) answered with NaN" in line
+               for line in server.lines), server.lines
+    good_step_works(server)
+
+
+def test_closing_the_server_closes_a_stopped_client_at_once(tmp_path):
+    config = write_config(tmp_path, "validation", ["C1"], extra="timeout_s = 30.0\n" + QUIET)
+    lines: list[str] = []
+    with serving(config, log=lines.append) as server:
+        c = RawClient(server.ports[0])
+        try:
+            c.setup()
+            c.send(p.SET_TRIAL, [500.0], t=0.01)
+            assert np.isnan(c.ask(p.GET_FORCE)[0])  # stopped; the client lingers without DIE
+            server.close(timeout_s=2.0)
+            assert not [t.name for t in server._threads if t.is_alive()]
+            assert c.closed_by_server(timeout_s=1.0)
+        finally:
+            c.close()
+    assert any("stopped session: the server is stopping" in line for line in lines), "\n".join(lines)
+    assert not any("still running" in line for line in lines), lines
 
 
 def test_units_of_the_model_are_converted(tmp_path):
@@ -193,6 +230,7 @@ frames = st.lists(st.tuples(actions, values, st.booleans()), min_size=1, max_siz
 def test_hostile_data_messages_are_refused_and_the_actuators_hold(server, messages):
     sessions = server.lab.sessions
     c = RawClient(server.ports[0], timeout_s=5.0)
+    stopped = False  # a refused trial stopped the session: every later reply is NaN
     try:
         c.setup()
         for action, value, truncate in messages:
@@ -208,7 +246,11 @@ def test_hostile_data_messages_are_refused_and_the_actuators_hold(server, messag
                     reply = c.receive()
                 except (p.PeerClosed, OSError):  # refused: the server closed the connection
                     break
-                assert np.all(np.isfinite(reply))
+                stopped = stopped or bool(np.isnan(reply[0]))
+                if stopped:  # one slot (n = 1): NaN, zeros after it
+                    assert np.isnan(reply[0]) and not reply[1:].any()
+                else:
+                    assert np.all(np.isfinite(reply))
     except OSError:
         pass
     finally:

@@ -141,6 +141,20 @@ class RawClient:
         self.send(p.COMMIT)
         return force
 
+    def answered_as_stopped(self, n: int = 1, pending: bool = True, timeout_s: float = 5.0) -> bool:
+        """True when the server treats this client as one whose session stopped on a fault
+        (docs/opensees.md): the request in flight (``pending``: a getForce) is answered with NaN, a
+        new trial moves nothing and its force, stiffness and displacement are NaN in the reply's
+        slots (zeros after them), and DIE then closes the connection within ``timeout_s``."""
+        self.sock.settimeout(timeout_s)
+        replies = [(self.receive(), n)] if pending else []
+        self.send(p.SET_TRIAL, [0.1] * n, t=1e3)
+        replies += [(self.ask(p.GET_FORCE), n), (self.ask(p.GET_TANGENT_STIFF), n * n), (self.ask(p.GET_DISP), n)]
+        self.send(p.COMMIT)
+        self.send(p.DIE)
+        answered = all(np.isnan(r[:k]).all() and not r[k:].any() for r, k in replies)
+        return answered and self.closed_by_server(timeout_s)
+
     def closed_by_server(self, timeout_s: float = 5.0) -> bool:
         """True when the server has closed the connection (reads end) within ``timeout_s``."""
         self.sock.settimeout(timeout_s)

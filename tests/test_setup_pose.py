@@ -60,7 +60,7 @@ def test_opensees_trial_past_the_singular_pose_is_refused_and_the_session_holds(
             client.step(-20.0, 0.01)
             client.send(3, [-100.0], t=0.02)  # setTrialResponse
             client.send(10)  # getForce
-            assert client.closed_by_server()
+            assert client.answered_as_stopped()  # NaN to every request, closed on DIE
         finally:
             client.close()
         assert wait_for(lambda: session_over(server))

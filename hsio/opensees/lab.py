@@ -396,8 +396,10 @@ class Lab:
         with self._stepped:
             self._stepped.notify_all()
 
-    def _hold(self, reason: str) -> None:
+    def _hold(self, reason: str, j: int | None = None) -> None:
         """Stop the session's motion: every actuator holds; later force requests fail."""
+        if j is not None and j not in self.active:
+            return
         self.failed = self.failed or reason
         if self.site is not None:
             try:
@@ -437,7 +439,12 @@ class Lab:
         return np.asarray(K, dtype=float) * np.outer(self.units[j], self.units[j]) / (s.force_factor * s.length_factor)
 
     # --- actions --------------------------------------------------------------------------
-    def _require_site(self):
+    def _require_site(self, j: int | None = None):
+        """The session's site; refused when the session stopped, or when element ``j`` is not in
+        it (a client whose element left, or was detached when another element stopped the session,
+        never moves the actuators of a later session)."""
+        if j is not None and j not in self.active:
+            raise HsioError(f"element {self.names[j]} is not in the open session")
         if self.failed:
             raise HsioError(f"the session stopped earlier ({self.failed}); the actuators hold")
         if self.site is None:
@@ -446,7 +453,7 @@ class Lab:
 
     def _force(self, j: int) -> np.ndarray:
         """Element ``j``'s basic forces (kN, kN mm) at its latest trial, moving the actuators if needed."""
-        site = self._require_site()
+        site = self._require_site(j)
         b = self.blocks[j]
         trial = self.latest[j]
         if trial is None:
@@ -469,7 +476,7 @@ class Lab:
         latest = list(self.latest)
         targets = (self.imposed if self.has_imposed else site.committed()[0]).copy()
         for k, trial in enumerate(latest):
-            if trial is not None:
+            if trial is not None and k in self.active:  # an element that left keeps its last target
                 targets[self.blocks[k]] = self.to_mm(k, trial.d)
         strokes = site.setups.strokes(targets) if site.setups is not None else targets
         for actuator, value in zip(site.loop.actuators, strokes):  # refused before anything moves
@@ -488,12 +495,12 @@ class Lab:
         self.imposed = targets
         self.has_imposed = True
         for k, trial in enumerate(latest):
-            if trial is not None:
+            if trial is not None and k in self.active:
                 self.moved_this_step[k] = True
 
     def _displacement(self, j: int) -> np.ndarray:
         """The measured basic displacements (mm, rad) of element ``j`` after its last trial."""
-        site = self._require_site()
+        site = self._require_site(j)
         b = self.blocks[j]
         try:
             return site.get_daq().u[b].copy()
@@ -516,7 +523,7 @@ class Lab:
         """Element ``j`` accepts the step: its state is kept as it is now (the next trial may come
         before the other elements commit); once every connected element has committed, the step is
         recorded. A step in which nothing moved (a commit before any force) is not a step."""
-        site = self._require_site()
+        site = self._require_site(j)
         if self.moved_this_step[j]:
             daq = site.get_daq()
             b = self.blocks[j]
@@ -718,9 +725,11 @@ class Lab:
         except RuntimeError:  # the worker has stopped: the server is closing
             raise HsioError("the server is stopping") from None
 
-    def hold(self, reason: str) -> None:
-        """Every actuator holds; later force requests of this session fail."""
-        self._call(self._hold, reason)
+    def hold(self, reason: str, j: int | None = None) -> None:
+        """Every actuator holds; later force requests of this session fail. With ``j``: only when
+        element ``j`` is in the open session (a client left behind by a session that ended does
+        not stop the next one)."""
+        self._call(self._hold, reason, j)
 
     def set_trial(self, j: int, trial: Trial) -> None:
         """Store element ``j``'s trial (nothing moves until a force is asked for); no worker hop:
@@ -731,6 +740,8 @@ class Lab:
         if (committed is not None and self.trials > self.trials_recorded and trial.t == committed.t
                 and np.array_equal(trial.d, committed.d)):
             self._call(self._went_back, j)
+        if j not in self.active:  # left, or detached when another element stopped the session
+            raise HsioError(f"element {self.names[j]} is not in the open session")
         self.latest[j] = trial
 
     def force(self, j: int) -> np.ndarray:

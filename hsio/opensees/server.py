@@ -7,8 +7,15 @@ an element already served is refused (logged, then closed). Each connection runs
 thread with a socket timeout: an element silent for ``timeout_s`` is dropped, its silence counted
 only while the actuators are not executing a motion (for any element: the elements of one model
 wait for each other, :meth:`hsio.opensees.lab.Lab.silent_since`). Whatever a client
-sends, the server answers it, refuses it and closes that connection, or times out; the actuators
-hold and the session's record is closed when the last element leaves (docs/opensees.md).
+sends, the server answers it, refuses it, or times out; the actuators hold and the session's
+record is closed when the last element leaves (docs/opensees.md).
+
+A session that stops on a fault (a trial beyond the stroke, an interlock, a controller lost, a
+non-finite trial, a silent element of the same model) detaches all its elements at once, and
+their connections stay open as *stopped* ones (:class:`hsio.opensees.element.StoppedElement`):
+every request is answered with NaN and nothing reaches the actuators again, until DIE, a closed
+connection or ``timeout_s`` of silence. OpenSees' genericClient does not notice a closed
+connection (it reads the closed socket for ever); NaN answers make its analysis end by itself.
 """
 
 from __future__ import annotations
@@ -18,7 +25,7 @@ import threading
 
 from hsio.errors import HsioError, RecordError
 from hsio.opensees import protocol as p
-from hsio.opensees.element import ElementHandler
+from hsio.opensees.element import ElementHandler, SessionEnded, StoppedElement
 from hsio.opensees.lab import Lab, SessionBusy
 
 SETUP_TIMEOUT_S = 10.0  # for the setup message (the element sends it right after connecting)
@@ -42,7 +49,8 @@ class OpenSeesServer:
         self._freed = threading.Condition(self._lock)  # notified when an element's client leaves
         self._busy: dict[int, socket.socket] = {}
         self._open: set[socket.socket] = set()  # every accepted connection not yet closed
-        self._ended: dict[socket.socket, str] = {}  # connections shut down because another element stopped the session
+        self._ended: dict[socket.socket, str] = {}  # connections detached because another element stopped the session
+        self._detached: set[socket.socket] = set()  # connections whose element's detach is queued
         self._pending = 0
         self._threads: list[threading.Thread] = []
         self.refused = 0
@@ -138,55 +146,67 @@ class OpenSeesServer:
                 return
             except RecordError as exc:  # the actuators were opened, held and released again
                 self.log(f"{who}: no session: {exc}")
+                self._serve_stopped(j, conn, setup, None, who)
                 return
             except Exception as exc:
                 self.log(f"{who}: cannot open the actuators: {_describe(exc)}")
+                self._serve_stopped(j, conn, setup, None, who)
                 return
             self.log(f"{who}: connected (dataSize {setup.data_size})")
             handler = ElementHandler(self.lab, j, p.Framer(conn, setup.data_size, self.lab.silent_since),
-                                     ctrl=setup.ctrl)
+                                     ctrl=setup.ctrl, ended=lambda: self._ended.get(conn, ""))
             reason = "left"
+            hold = False  # the actuators are told to hold (when this element is still in the session)
             failed = False  # this element stopped the session: the actuators hold
+            stopped = False  # the session stopped on a fault: the client is answered NaN until it leaves
             try:
                 reason = handler.serve()
+            except SessionEnded as exc:  # another element stopped the session and detached this one
+                reason = str(exc)
+                stopped = True
             except p.PeerClosed as exc:
                 reason = str(exc)
-                if conn in self._ended:
-                    reason = self._ended[conn]
-                elif self._stop.is_set():  # the server shut the connection down: it stopped the session
+                if self._stop.is_set():  # the server shut the connection down: it stopped the session
                     reason = "stopped: the server is stopping"
-                    self.lab.hold(reason)
+                    hold = True
             except (TimeoutError, socket.timeout):
                 reason = f"silent for {self.lab.settings.timeout_s:g} s: disconnected"
-                self.lab.hold(reason)
-                failed = True
+                hold = failed = True
             except p.ProtocolError as exc:
                 reason = f"refused: {exc}"
-                self.lab.hold(reason)
-                failed = True
+                hold = failed = True
+                stopped = handler.action is not None  # a known action: its reply (if any) is known
             except HsioError as exc:
                 reason = f"stopped: {exc}"
-                self.lab.hold(reason)
-                failed = True
+                hold = failed = stopped = True
             except OSError as exc:
-                if conn in self._ended:
-                    reason = self._ended[conn]
-                else:
-                    reason = ("stopped: the server is stopping" if self._stop.is_set()
-                              else f"connection lost: {exc.strerror or exc}")
-                    self.lab.hold(reason)
-                    failed = not self._stop.is_set()
+                reason = ("stopped: the server is stopping" if self._stop.is_set()
+                          else f"connection lost: {exc.strerror or exc}")
+                hold = True
+                failed = not self._stop.is_set()
             except Exception as exc:  # a fault of the server itself: hold, report, keep serving
                 reason = f"unexpected error: {exc!r}"
-                self.lab.hold(reason)
-                failed = True
-            try:
-                leaving = self.lab.begin_detach(j, f"{reason}; {handler.messages} messages", clean=handler.died)
-            except Exception as exc:  # the server is closing: the lab closes the session itself
-                self.log(f"{who}: {reason}; {exc}")
-                leaving = None
-            # The element is free once its detach is queued: a client that reconnects now attaches
-            # after it, in the next session (after the preloads ramped off, if they do).
+                hold = failed = stopped = True
+            with self._lock:  # another element that stopped the session may have detached this one already
+                mine = conn not in self._detached
+                self._detached.add(conn)
+            leaving = None
+            if mine:
+                if hold:
+                    self.lab.hold(reason, j)
+                try:
+                    leaving = self.lab.begin_detach(j, f"{reason}; {handler.messages} messages", clean=handler.died)
+                except Exception as exc:  # the server is closing: the lab closes the session itself
+                    self.log(f"{who}: {reason}; {exc}")
+            elif not stopped:
+                self.log(f"{who}: {reason} (detached earlier: {self._ended.get(conn, 'the session stopped')})")
+            stopped = stopped and not self._stop.is_set()
+            if stopped:  # the others are detached first: no request of theirs moves anything after this fault
+                if failed and mine:
+                    self._end_session_of_others(name, reason)
+                handler.died = self._serve_stopped(j, conn, setup, handler.action, who)
+            # The element is free once its detach is queued (and its stopped client has gone): a client
+            # that reconnects now attaches after it, in the next session (after the preloads ramped off).
             with self._freed:
                 self._busy.pop(j, None)
                 claimed = False
@@ -198,7 +218,7 @@ class OpenSeesServer:
                     conn.close()
                 except OSError:
                     pass
-            if failed and not self._stop.is_set():
+            if failed and mine and not stopped and not self._stop.is_set():
                 self._end_session_of_others(name, reason)
             if leaving is not None:
                 try:
@@ -209,6 +229,7 @@ class OpenSeesServer:
             with self._freed:
                 self._open.discard(conn)
                 self._ended.pop(conn, None)
+                self._detached.discard(conn)
                 if claimed:
                     self._busy.pop(j, None)
                     self._freed.notify_all()
@@ -217,24 +238,55 @@ class OpenSeesServer:
             except OSError:
                 pass
 
+    def _serve_stopped(self, j: int, conn: socket.socket, setup: p.Setup, pending: int | None, who: str) -> bool:
+        """The session of element ``j``'s client stopped on a fault (or never opened): its
+        connection stays open and every request is answered with NaN (:class:`StoppedElement`),
+        first ``pending``, the request the fault interrupted, so that the model ends by itself,
+        until DIE (returns True), a closed connection, ``timeout_s`` of silence or the server's
+        stop. Nothing reaches the lab: the actuators do not move for this client again."""
+        if self._stop.is_set():  # the server is closing: its connections are shut down
+            return False
+        timeout = self.lab.settings.timeout_s
+        stopped = StoppedElement(p.Framer(conn, setup.data_size), self.lab.n_basic[j], self.lab.names[j])
+        self.log(f"{who}: the session stopped: nothing this client sends moves the actuators again; every request "
+                 f"is answered with NaN until DIE, a closed connection or {timeout:g} s of silence")
+        try:
+            end = stopped.serve(pending)
+        except p.PeerClosed:  # the client closed it, or the server shut it down as it stops
+            end = "the server is stopping" if self._stop.is_set() else "the element closed the connection"
+        except (TimeoutError, socket.timeout):
+            end = f"silent for {timeout:g} s: disconnected"
+        except p.ProtocolError as exc:
+            end = f"refused: {exc}"
+        except OSError as exc:
+            end = "the server is stopping" if self._stop.is_set() else f"connection lost: {exc.strerror or exc}"
+        self.log(f"{who}: stopped session: {end}; {stopped.answered} request(s) answered with NaN")
+        return stopped.died
+
     def _end_session_of_others(self, name: str, reason: str) -> None:
         """Element ``name`` stopped the session (``reason``; the actuators hold): the session's
-        other elements are disconnected now. Their model waits for ever on the element that
-        failed and sends them nothing more, so their silence would otherwise keep the session,
-        and its record, open for ``timeout_s``."""
+        other elements are detached from it now, each on its client's behalf, so that the session
+        and its record close at once (their model, waiting on the element that failed, may send
+        them nothing for a while). Their clients stay connected: each one's next message finds its
+        session stopped (:class:`SessionEnded`) and is answered as a stopped session's."""
         try:  # queued after the failed element's detach: the elements still in the session
             others = self.lab._call(lambda: sorted(self.lab.active))
         except HsioError:
             return
+        why = f"stopped: element {name} stopped the session ({reason})"
+        ended = []
         with self._lock:
-            conns = [self._busy[k] for k in others if k in self._busy]
-            for conn in conns:
-                self._ended[conn] = f"stopped: element {name} stopped the session ({reason})"
-        for conn in conns:
+            for k in others:
+                conn = self._busy.get(k)
+                if conn is not None and conn not in self._detached:
+                    self._detached.add(conn)
+                    self._ended[conn] = why
+                    ended.append(k)
+        for k in ended:
             try:
-                conn.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
+                self.lab.begin_detach(k, why)
+            except HsioError:  # the server is closing: the lab closes the session itself
+                return
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Stop listening, drop every client, end the session (actuators hold, record closed).

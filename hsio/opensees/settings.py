@@ -7,7 +7,8 @@
     stiffness = "initial"      # getTangentStiff: "initial" (K^EI) or "secant" (estimated per step)
     force_correction = true    # getForce: measured force + K^EI (target - measured displacement)
     timeout_s = 60.0           # a silent element is disconnected after this long (at most 86400 s),
-                               # not counting the time the actuators spend executing a motion
+                               # not counting the time the actuators spend executing a motion; so
+                               # is the client of a session that stopped on a fault
     mass = {}                  # per element, kN s^2/mm, answered to getMass (default 0): a number
                                # (times the identity) or a matrix over its basic DOFs
     damping = {}               # per element, kN s/mm, answered to getDamp (default 0): idem
