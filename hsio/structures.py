@@ -227,6 +227,8 @@ class StaticLoad:
         wrong = ramp_out_of_bounds(check.number("ramp_s", self.ramp_s, positive=True))
         if wrong:
             raise ConfigError(f"static load {self.name!r}: ramp_s: {wrong}")
+        # the preload's displacement and the rod velocity of its ramps are over this stiffness
+        _check_specimen(f"static load {self.name!r}", self.specimen)
 
     has_setup = False
     is_multi_dof = False

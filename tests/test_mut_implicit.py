@@ -320,3 +320,19 @@ def test_a_mass_matrix_that_is_not_square_is_refused():
 
     with pytest.raises(ConfigError, match=r"M must be a square matrix, got shape \(1, 2\)"):
         ImplicitAlpha([[1.0, 0.0]], np.zeros((1, 1)), None, [0], [1.0], 0.01)
+
+
+def test_an_fc_element_guarded_in_its_first_step_runs_it_from_the_pair_it_reads():
+    """Guarded into DC (its first force command outside the range), the first step starts from
+    its measurement: the displacement and the force it reads, as a DC element's line passes
+    through the measurement; not the force of the state at rest (the FC base, lambda-weighted)."""
+    reading = 0.04  # within 5 s_F + delta_F of rest: FC would base at 0.1 x 0.04
+    site = _Site([100.0], [np.inf], [100.0])
+    site.base = (np.zeros(1), np.array([reading]))
+    alg = _alpha(1, j_max=1, fc_blend=0.1, tol_force=1e-9, secant_uncertainty=((0.01, 0.025), (0.01, 0.01)))
+    alg.start(np.zeros(1), site)
+    K_star = alg.K_star[0, 0]
+    P_star = 40.0 + K_star * alg.predict()[0][0]
+    _, rep = alg.step(np.array([40.0]), site, [FC], fc_force_range=(np.array([5.0]), np.array([6.0])))
+    assert list(rep.guarded) == [True]
+    assert site.sent[0][0][0] == pytest.approx((P_star - reading) / (K_star + 100.0), rel=1e-12)

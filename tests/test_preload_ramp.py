@@ -115,3 +115,29 @@ def test_two_preloads_ramp_together_over_the_longest_ramp_and_each_is_checked_on
     out = check(tmp_path, column(ramp="0.2", extra=second))
     assert out.exit_code == 2
     assert all("EXCEEDS" in line for line in velocities(out).values())
+
+
+def test_a_static_load_on_a_model_without_initial_stiffness_is_refused_by_the_api_too():
+    """The rod velocity of a ramp is its force rate over K^EI: a preload on a gap that starts
+    slack (k1 = 0) has none to predict. Refused when the load is made (as the structure file
+    refuses it), not an OverflowError at the ramp in."""
+    from hsio.errors import ConfigError
+    from hsio.structures import StaticLoad
+
+    with pytest.raises(ConfigError, match=r"^static load 'axial': specimen .* initial stiffness must be positive, "
+                                          r"got 0\.0"):
+        StaticLoad("axial", 100.0, {"kind": "bilinear_gap", "k1": 0.0, "k2": 50.0, "gap": 0.5}, 2.0)
+    with pytest.raises(ConfigError, match=r"^static load 'axial': specimen: unknown specimen kind 'spring'"):
+        StaticLoad("axial", 100.0, {"kind": "spring", "k": 1.0}, 2.0)
+
+
+@pytest.mark.parametrize("t_d, hold, force, limit", [(0.2, 0.3, 1000.0, 1.0), (0.1, 0.5, 100.0, 0.1)])
+def test_the_advised_ramp_s_keeps_within_the_limit_as_printed(t_d, hold, force, limit):
+    """The advice is a ramp_s of whole loop steps: printed to four digits it could be one that
+    is a few steps short (2148 s for 2148.2 s) and refused in its turn."""
+    from hsio.safety.preload_ramp import within_limit
+
+    advice = within_limit(0.0, force, 1.0, limit, t_d, t_d, 1 / 1024, hold)
+    ramp_s = float(advice.split("a ramp_s of ")[1].split(" s ")[0])
+    _, (velocity,) = ramp_velocity([0.0], [force], [1.0], ramp_s, t_d, 1 / 1024, hold)
+    assert velocity <= limit, advice

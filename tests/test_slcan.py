@@ -173,6 +173,8 @@ def test_an_adapter_nobody_listens_to_neither_blocks_its_drives_nor_its_stop(cfg
     (["--slcan", "pty", "--port", "5000"], "--port 5000 is the TCP port of --slcan tcp; it is not used with --slcan pty"),
     (["--channel", "bus", "--port", "5000"], "--port 5000 is the TCP port of --slcan tcp; it is not used without --slcan"),
     (["--slcan", "tcp", "--channel", "bus"], "--channel 'bus' is not used with --slcan tcp"),
+    (["--slcan", "pty", "--interface", "socketcan"], "--interface 'socketcan' is not used with --slcan pty"),
+    (["--slcan", "tcp", "--interface", "virtual"], "--interface 'virtual' is not used with --slcan tcp"),
 ])
 def test_an_option_the_canopen_emulator_would_not_use_is_refused(monkeypatch, args, words):
     """`hsio emulate canopen` refuses, before it builds anything, an option its other options

@@ -12,6 +12,7 @@ from __future__ import annotations
 import sys
 
 import click
+from click.core import ParameterSource
 
 from hsio.commands import BindAddress, RegularFile, stop_requested, wait_for_stop
 from hsio.errors import HsioError
@@ -218,6 +219,9 @@ def canopen_cmd(channel, interface, slcan, port, node_id, heartbeat_ms, config_f
     if slcan and channel:
         raise click.BadParameter(f"--channel {channel!r} is not used with --slcan {slcan} (it serves its own bus)",
                                  param_hint="--channel")
+    if slcan and click.get_current_context().get_parameter_source("interface") is not ParameterSource.DEFAULT:
+        raise click.BadParameter(f"--interface {interface!r} is not used with --slcan {slcan} (it serves its own bus)",
+                                 param_hint="--interface")
     try:
         bank = _bank(config_file, clock, watchdog_s, settings, faults_spec, watch_holding)
         if slcan:

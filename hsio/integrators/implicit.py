@@ -388,6 +388,7 @@ class ImplicitAlpha:
                 fc = fc & ~guarded
                 tol = np.where(fc, self.tol_force, self.tol_displacement)
                 u_b = np.where(guarded, u_b_measured, u_b)
+                R_b = np.where(guarded, R_b_measured, R_b)  # the pair it reads, as a DC element's
                 base = (u_b.copy(), R_b.copy())  # a guarded element's step starts from its measurement
                 u, ue, Re = self._solve(P_star, k, u_b, R_b)
                 fell_back |= guarded

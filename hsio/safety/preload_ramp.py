@@ -83,6 +83,6 @@ def within_limit(start: float, end: float, stiffness: float, limit: float, ramp_
             break
         _, (v,) = ramp_velocity([start], [end], [stiffness], n * t_d, t_d, period, hold_fraction)
         if v <= limit:
-            return f"a ramp_s of {n * t_d:.4g} s keeps within it"
+            return f"a ramp_s of {n * t_d:.10g} s keeps within it"  # as many digits as it has: not rounded down
         n += max(n // 8, 1)
     return f"no ramp_s up to {MAX_RAMP_S:g} s keeps within it at t_d = {t_d:g} s"
