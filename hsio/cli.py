@@ -297,7 +297,8 @@ def _print_summary(s: dict) -> None:
     rms = s["rms_tracking_error_mm"]
     units = s.get("channel_units") or ["mm"] * len(rms)
     channels = s.get("channels") or [str(k) for k in range(len(rms))]
-    click.echo("tracking RMS   " + ", ".join(f"{name} {x:.4f} mm" if u == "mm" else f"{name} {_amount(x, u)}"
+    click.echo("tracking RMS   " + ", ".join(f"{name} none (no step in displacement control)" if x is None
+                                             else f"{name} {x:.4f} mm" if u == "mm" else f"{name} {_amount(x, u)}"
                                              for name, x, u in zip(channels, rms, units)))
     for name, error in s.get("static_hold_error_pct", {}).items():
         click.echo(f"preload {name:<6} held within {error:.3f} % through the record")

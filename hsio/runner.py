@@ -842,8 +842,8 @@ def implicit_summary(hs: Result) -> dict:
     d_err = np.where(~fc_act, hs.targets[1:] - hs.measured_displacement[1:], np.nan)
     f_err = np.where(fc_act, hs.targets[1:] - hs.measured_force[1:], np.nan)
 
-    def rms(columns):
-        return [float(np.sqrt(np.nanmean(c ** 2))) if np.isfinite(c).any() else 0.0 for c in columns.T]
+    def rms(columns):  # None for an actuator that made no step in that mode: nothing was tracked
+        return [float(np.sqrt(np.nanmean(c ** 2))) if np.isfinite(c).any() else None for c in columns.T]
 
     return {
         "rms_tracking_error_mm": rms(d_err),

@@ -64,12 +64,38 @@ def test_summary_rms_error_is_over_the_steps_in_displacement_control():
         d_c = [0.1 * k, 0.3 if k < 2 else 40.0]
         d_a = stage.adjust(d_c, dc)
         stage.observe(d_c, d_a, [0.1 * k - 0.2, 0.3 - 0.1 * (k < 2)], dc)
+        stage.commit()
     used = stage.summary()["actuators"]
     assert used["BF"]["rms_error_mm"] == pytest.approx(0.2)
     assert used["IF"]["rms_error_mm"] == pytest.approx(0.1)
     never = _stage()
     never.observe([0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [True, False])
+    never.commit()
     assert never.summary()["actuators"]["IF"]["rms_error_mm"] is None
+
+
+def test_an_iterated_step_is_one_row_of_its_last_command():
+    """The implicit methods send several commands per step: the compensation table keeps one row
+    per integration step, numbered as the steps, holding the step's last command (the one the
+    steps table records), and the summary's RMS error is over those steps."""
+    from hsio.api import simulate
+    from hsio.ground_motion import synthetic_record
+    from hsio.secant import SecantEstimator
+
+    structure = get_structure("structure_I")
+    ground = synthetic_record(duration_s=0.1, dt=structure.dt, pga_g=1.0, seed=3)
+    stage = CompensationStage(["wall"], 6.25 * structure.dt,
+                              CompensationSettings(mode="offline", a_mm_s=5.18, b_s_mm=7.874e-5))
+    rows = []
+    stage.sink = lambda step, row: rows.append((step, row))
+    with open_site(structure, "emulator://?preset=structure_I", test_rate=6.25, hold_fraction=0.0, n_avg=1,
+                   estimator=SecantEstimator("average", 1, 0.1), compensation=stage) as site:
+        hs = simulate(structure, ground, site, method="implicit_dc", j_max=3, tol_displacement=0.0)
+    assert hs.iterations[1:].sum() > 2 * hs.steps  # several commands per step
+    assert [step for step, _ in rows] == list(range(1, hs.steps + 1))
+    np.testing.assert_array_equal([row["da_wall"] for _, row in rows], hs.commands[1:, 0])
+    error = np.array([row["dc_wall"] for _, row in rows]) - hs.measured_displacement[1:, 0]
+    assert stage.summary()["actuators"]["wall"]["rms_error_mm"] == pytest.approx(np.sqrt(np.mean(error ** 2)), rel=1e-3)
 
 
 def test_mixed_site_compensates_the_displacement_controlled_actuator():

@@ -40,3 +40,22 @@ def test_the_fc_secant_line_names_each_actuator(tmp_path, capsys):
     lines = {line[:15].strip(): line[15:] for line in capsys.readouterr().out.splitlines()}
     refused = summary["secant_refused"]
     assert lines["FC secant"].endswith(f": {refused[0]} (BF), {refused[1]} (IF)")
+
+
+def test_a_mode_an_actuator_never_ran_has_no_tracking_error(tmp_path, capsys):
+    """Force control only: no displacement was tracked, so the DC tracking error is none, not a
+    perfect 0 mm; the FC one is measured (and the other way round for implicit DC)."""
+    for method in ("force_control", "implicit_dc"):
+        cfg = config.from_dict({"structure": {"name": "structure_II"},
+                                "record": {"synthetic_duration_s": 0.05, "pga_g": 0.05},
+                                "integrator": {"method": method}, "output": {"plots": False, "ns": False}})
+        summary = runner.run(cfg, tmp_path / method)
+        dc, fc = summary["rms_tracking_error_mm"], summary["rms_force_tracking_error_kN"]
+        if method == "force_control":
+            assert dc == [None, None] and all(x > 0 for x in fc)
+            _print_summary(summary)
+            lines = {line[:15].strip(): line[15:] for line in capsys.readouterr().out.splitlines()}
+            assert lines["tracking RMS"] == ("BF none (no step in displacement control), "
+                                             "IF none (no step in displacement control)")
+        else:
+            assert fc == [None, None] and all(x > 0 for x in dc)

@@ -204,7 +204,10 @@ class CompensationStage:
             self.feedforward.append(FeedForward(self.t_d, a, lag, s.form))
             self.estimators.append(est)
         self.sink = sink
-        self.step = 0
+        self.step = 0  # steps committed
+        self._commands = 0  # commands observed (with the implicit methods, several per step)
+        self._row: dict | None = None  # the row of the step's last command, recorded at commit()
+        self._errors: list[float | None] = [None] * len(self.names)  # its d^c - d^m per actuator (None: FC)
         self._sent: list[list[float]] = [[] for _ in self.names]  # last adjusted commands, per actuator
         self._sq = np.zeros(len(self.names))  # sum of (d^c - d^m)^2 over the steps in displacement control
         self._n = np.zeros(len(self.names), dtype=int)  # and their count
@@ -235,11 +238,16 @@ class CompensationStage:
         return last_velocity(h, self.t_d, 1 if self.settings.form == "eq2" else 2)
 
     def observe(self, d_c, d_a, d_m, displacement=None) -> dict:
-        """After the step: record Er^cc or Er^ca/Er^aa, update the online estimates. Returns the row.
-        Actuators in force control (``displacement`` False) record no error and add no sample."""
-        self.step += 1
+        """After a command: Er^cc or Er^ca/Er^aa, and the online estimates updated. Returns the row.
+        Actuators in force control (``displacement`` False) record no error and add no sample.
+
+        The implicit methods send several commands per step (one per iteration): each one adds its
+        sample to the online estimate, and the step's row is that of its last command, recorded
+        by :meth:`commit` (one row per step, as the ``steps`` table)."""
+        self._commands += 1
         d_max = self.settings.d_max_mm
         row: dict[str, float | None] = {}
+        errors: list[float | None] = [None] * len(self.names)
         for j, name in enumerate(self.names):
             c, a, m = float(d_c[j]), float(d_a[j]), float(d_m[j])
             ff = self.feedforward[j]
@@ -257,15 +265,27 @@ class CompensationStage:
             row[f"er_ca_{name}"] = (c - m) / d_max if on else None
             row[f"er_aa_{name}"] = (a - m) / d_max if on else None
             est = self.estimators[j]
-            if est is not None and self.step > 2 and len(self._sent[j]) > 1 and est.observe(v_sent, a - m):
+            if est is not None and self._commands > 2 and len(self._sent[j]) > 1 and est.observe(v_sent, a - m):
                 ff.set_parameters(est.a, est.lag)
             row[f"a_{name}"] = ff.a
             row[f"b_{name}"] = ff.lag / d_max
-            self._sq[j] += (c - m) ** 2
-            self._n[j] += 1
+            errors[j] = c - m
+        self._row, self._errors = row, errors
+        return row
+
+    def commit(self) -> None:
+        """The step is accepted: its row (its last command's) goes to the record and its errors to
+        the RMS of :meth:`summary`. A step without a command records nothing."""
+        self.step += 1
+        if self._row is None:
+            return
+        for j, error in enumerate(self._errors):
+            if error is not None:
+                self._sq[j] += error ** 2
+                self._n[j] += 1
+        row, self._row = self._row, None
         if self.sink is not None:
             self.sink(self.step, row)
-        return row
 
     def summary(self) -> dict:
         """The compensation used: mode, form and, per actuator, the parameters at the end."""

@@ -443,6 +443,8 @@ class ActuatorSite:
 
     def commit(self) -> None:
         self._committed = self._last
+        if self.compensation is not None:  # the step's row of Er^cc or Er^ca/Er^aa
+            self.compensation.commit()
         if self.estimator is not None:
             self.estimator.begin_step(*self._committed)
 
