@@ -311,8 +311,8 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
             if SPECIMEN_MARGIN * err_r < err:
                 err, name, model, info = err_r, f"structure's model refitted ({table['kind']})", model_r, {"params": table}
         if not SPECIMEN_MARGIN * err < own:  # no replacement clearly better: the gain would be the force's noise
-            err, name, model, info = own, f"structure's own model (no other predicts its force {SPECIMEN_MARGIN:g} times better)", \
-                _QuasiStatic(element.model()), {}
+            name = f"structure's own model (no other predicts its force {SPECIMEN_MARGIN:g} times better)"
+            err, model, info = own, _QuasiStatic(element.model()), {}
         models.append(model)
         notes.append({"element": element.name, "model": name, "rms_force_kN": err,
                       "rms_force_structure_model_kN": own, **info})
