@@ -229,8 +229,11 @@ class Recorder:
 
     def _create(self, meta: dict) -> None:
         self.db = sqlite3.connect(self.path, check_same_thread=False)
-        self.db.execute("PRAGMA journal_mode=WAL")
         self.db.execute("PRAGMA synchronous=FULL")  # each commit on disk before the next step
+        # The tables and the meta in one transaction of the rollback journal, then WAL: a run killed
+        # while it creates its record leaves no tables and a -journal beside them (without_journal),
+        # never a record with some of its tables.
+        self.db.execute("BEGIN")
         self.db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
         self.db.execute("CREATE TABLE summary (key TEXT PRIMARY KEY, value TEXT)")
         self.db.execute(
@@ -246,6 +249,7 @@ class Recorder:
                     phase_codes=PHASE_CODES)
         self.db.executemany("INSERT INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in meta.items()])
         self.db.commit()
+        self.db.execute("PRAGMA journal_mode=WAL")
         self._checkpoint()  # run.sqlite alone holds the tables and the meta
         self._insert_step = f"INSERT INTO steps VALUES ({', '.join('?' * len(self._step_cols))})"
         self._insert_sample = f"INSERT INTO samples VALUES ({', '.join('?' * len(self._sample_cols))})"
@@ -514,9 +518,19 @@ def without_journal(path: str | Path) -> str:
     if tables:
         return ""
     journal = Path(f"{path}-journal")
-    if journal.exists() and journal.stat().st_size > 0:  # the creation's transaction, never committed
-        return (f"; it holds no tables and its {journal.name} is beside it: the run was interrupted while it "
-                f"created its record, before its first step; there is nothing to read or resume: start the run again")
+    try:
+        with open(path, "rb") as f:
+            header = f.read(20)
+    except OSError:
+        header = b""
+    # The tables are made in one transaction of the rollback journal before the record turns to WAL
+    # (Recorder): no tables in a file still in the rollback format (bytes 18-19 of the header are 1;
+    # 2 in WAL), or in an empty one, is that transaction never committed.
+    creating = len(header) < 20 or header[18] == 1
+    if creating or (journal.exists() and journal.stat().st_size > 0):
+        beside = f" and its {journal.name} is beside it" if journal.exists() else ""
+        return (f"; it holds no tables{beside}: the run was interrupted while it created its record, before "
+                f"its first step; there is nothing to read or resume: start the run again")
     return (f"; it holds no tables and no {path.name}-wal with steps is beside it: a record is its folder, and what a run "
             f"commits stays in {path.name}-wal until copied into {path.name}: copy both files together")
 

@@ -323,6 +323,42 @@ def test_a_resumed_session_takes_the_terminals_keys_as_the_run_says(tmp_path, ke
     assert Run(out / "run.sqlite").summary["exit_status"] == (5 if keys else 0)
 
 
+@pytest.mark.parametrize("when", ["tables", "meta"])
+def test_a_recorder_killed_in_its_creation_leaves_a_record_that_says_so(tmp_path, when):
+    """The Recorder itself killed while it creates its tables or writes its meta (the process ends
+    at once, as under SIGKILL): the file holds no tables, and reading or resuming it says the run
+    was interrupted while it created its record, not that a journal of steps was left behind."""
+    import subprocess
+    import sys
+
+    from hsio.recording import NotARunError
+
+    out = tmp_path / "killed"
+    code = ("import os, sys, sqlite3\n"
+            "import hsio.recording as r\n"
+            "made = []\n"
+            "class Db(sqlite3.Connection):\n"
+            "    def execute(self, sql, *a):\n"
+            "        if sql.startswith('CREATE TABLE'):\n"
+            "            made.append(sql)\n"
+            "            if sys.argv[2] == 'tables' and len(made) == 3: os._exit(0)\n"
+            "        return super().execute(sql, *a)\n"
+            "    def executemany(self, sql, *a):\n"
+            "        super().executemany(sql, *a)\n"
+            "        if sql.startswith('INSERT INTO meta'): os._exit(0)\n"
+            "connect = sqlite3.connect\n"
+            "r.sqlite3.connect = lambda *a, **k: connect(*a, factory=Db, **k)\n"
+            "r.Recorder(sys.argv[1], ['x'], ['C1'], {})\n")
+    subprocess.run([sys.executable, "-c", code, str(out / "run.sqlite"), when], check=True, timeout=60)
+    with pytest.raises(NotARunError) as info:
+        Run(out / "run.sqlite")
+    assert "interrupted while it created its record, before its first step" in str(info.value)
+    assert "copy both files together" not in str(info.value)
+    result = _resume(out)
+    assert result.exit_code == 2
+    assert "interrupted while it created its record" in result.output
+
+
 def test_a_record_killed_while_it_was_created_says_so(tmp_path):
     """A run killed while it created its record leaves run.sqlite without tables and the creation's
     rollback journal beside it: the refusal says that no step was committed (start the run again),

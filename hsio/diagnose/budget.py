@@ -311,8 +311,8 @@ def specimen_models(data: RunData) -> tuple[list, list[dict]]:
             if SPECIMEN_MARGIN * err_r < err:
                 err, name, model, info = err_r, f"structure's model refitted ({table['kind']})", model_r, {"params": table}
         if not SPECIMEN_MARGIN * err < own:  # no replacement clearly better: the gain would be the force's noise
-            err, name, model, info = own, "structure's own model (no other predicts its force 1.1 times better)", \
-                _QuasiStatic(element.model()), {}
+            name = f"structure's own model (no other predicts its force {SPECIMEN_MARGIN:g} times better)"
+            err, model, info = own, _QuasiStatic(element.model()), {}
         models.append(model)
         notes.append({"element": element.name, "model": name, "rms_force_kN": err,
                       "rms_force_structure_model_kN": own, **info})
@@ -425,9 +425,9 @@ def noise_estimate(r: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def tracking_parts(data: RunData) -> tuple[np.ndarray, np.ndarray]:
-    """The measured tracking error e = target - d_m split per actuator into the transducer's
-    noise n (:func:`noise_estimate`: its white part) and the rest, e - n, how far the rod really
-    stood from its target (d_m = d_true + n)."""
+    """The measured tracking error e = target - d_m split per actuator into its white part
+    (:func:`noise_estimate`), the transducer's noise: -n with d_m = d_true + n, and the rest,
+    e + n = target - d_true, how far the rod really stood from its target."""
     error = data.targets - data.displacement
     noise = np.column_stack([noise_estimate(error[:, j])[0] for j in range(error.shape[1])]) if error.size else error
     return error - noise, noise
