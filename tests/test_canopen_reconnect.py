@@ -13,10 +13,9 @@ import numpy as np
 import pytest
 
 from hsio.commands.emulate import bank_from_config
-from hsio.emulators.canopen import CanopenEmulator
 from hsio.experiment import ExperimentStopped
 from test_emulate_cli import Emulator
-from wire import QUIET_SENSORS, FaultProxy, fault_at, run, write_config
+from wire import QUIET_SENSORS, FaultProxy, fault_at, in_process_run, run, write_config
 
 _channels = itertools.count()
 DROP_TICK = 300  # a third into the run: 20 periods a step, step 15
@@ -30,13 +29,7 @@ def cfg(tmp_path_factory):
 @pytest.fixture(scope="module")
 def reference(cfg, tmp_path_factory):
     """The same run with the drives in this process on python-can's virtual bus."""
-    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), f"reconnect-ref-{next(_channels)}", 1).start()
-    try:
-        summary, recorded = run(cfg, tmp_path_factory.mktemp("local") / "run", url=emu.url)
-    finally:
-        emu.stop()
-    assert isinstance(summary, dict), summary
-    return summary, recorded
+    return in_process_run(cfg, tmp_path_factory.mktemp("local") / "run", f"reconnect-ref-{next(_channels)}")
 
 
 @pytest.fixture

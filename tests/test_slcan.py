@@ -15,7 +15,7 @@ from hsio.commands.emulate import bank_from_config
 from hsio.emulators.canopen import CanopenEmulator, SlcanPort
 from hsio.recording import Run
 from test_emulate_cli import Emulator, hsio
-from wire import QUIET_SENSORS, run, write_config
+from wire import QUIET_SENSORS, in_process_run, run, write_config
 
 _channels = itertools.count()
 
@@ -27,13 +27,7 @@ def cfg(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def in_process(cfg, tmp_path_factory):
-    emu = CanopenEmulator(bank_from_config(cfg, lockstep=True), f"slcan-ref-{next(_channels)}", 1).start()
-    try:
-        summary, recorded = run(cfg, tmp_path_factory.mktemp("local") / "run", url=emu.url)
-    finally:
-        emu.stop()
-    assert isinstance(summary, dict), summary
-    return summary, recorded
+    return in_process_run(cfg, tmp_path_factory.mktemp("local") / "run", f"slcan-ref-{next(_channels)}")
 
 
 @pytest.mark.parametrize("kind", ["pty", "tcp"])

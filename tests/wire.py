@@ -68,6 +68,21 @@ def run(config_path: Path, out: Path, url: str | None = None, driver: dict | Non
     return result, Run(out / "run.sqlite")
 
 
+def in_process_run(config_path: Path, out: Path, channel: str):
+    """The run of ``config_path`` against its drives emulated in this process on python-can's
+    virtual bus ``channel`` (the reference a run across processes is compared with)."""
+    from hsio.commands.emulate import bank_from_config
+    from hsio.emulators.canopen import CanopenEmulator
+
+    emu = CanopenEmulator(bank_from_config(config_path, lockstep=True), channel, 1).start()
+    try:
+        summary, recorded = run(config_path, out, url=emu.url)
+    finally:
+        emu.stop()
+    assert isinstance(summary, dict), summary
+    return summary, recorded
+
+
 def max_abs_diff(a: Run, b: Run, prefix: str = "u_") -> float:
     keys = [k for k in a.steps if k.startswith(prefix)]
     n = min(len(a.steps["step"]), len(b.steps["step"]))
