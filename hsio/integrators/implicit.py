@@ -114,7 +114,8 @@ class ImplicitAlpha:
     The estimate is kept for every element, so that one switching from DC to FC starts from
     its DC solution moved to the measured force (within the transducer's noise of the
     measurement, not offset by it). Before the first step it is the initial state, the one
-    reading at rest weighted by lambda (with ``secant_uncertainty`` given; :meth:`_at_rest`). ``blend_dc=True`` uses
+    reading at rest weighted by lambda (with ``secant_uncertainty`` given; :meth:`_at_rest`), and
+    the base force likewise the initial state's (:meth:`_force_at_rest`). ``blend_dc=True`` uses
     the same estimate for elements in DC (their measured force, through the secant, locates the
     specimen better than a coarse transducer), so that the base stays continuous across switches.
     ``anchor_dc`` (default True; a bool per element, or one for all): an element in DC is modelled, after each command, by the line of
