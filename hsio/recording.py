@@ -507,17 +507,20 @@ def without_journal(path: str | Path) -> str:
     wal = Path(f"{path}-wal")
     if wal.exists() and wal.stat().st_size > 0:  # an empty one: made by SQLite as the file was read
         return ""
+    journal = Path(f"{path}-journal")
+    hot = journal.exists() and journal.stat().st_size > 0
     try:
         db = connect_read_only(path)
         try:
             tables = db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0]
         finally:
             db.close()
-    except sqlite3.Error:
-        return ""
+    except sqlite3.Error:  # a reader cannot roll back the journal of a creation killed as it was written
+        if not hot:
+            return ""
+        tables = 0
     if tables:
         return ""
-    journal = Path(f"{path}-journal")
     try:
         with open(path, "rb") as f:
             header = f.read(20)
@@ -527,7 +530,7 @@ def without_journal(path: str | Path) -> str:
     # (Recorder): no tables in a file still in the rollback format (bytes 18-19 of the header are 1;
     # 2 in WAL), or in an empty one, is that transaction never committed.
     creating = len(header) < 20 or header[18] == 1
-    if creating or (journal.exists() and journal.stat().st_size > 0):
+    if creating or hot:
         beside = f" and its {journal.name} is beside it" if journal.exists() else ""
         return (f"; it holds no tables{beside}: the run was interrupted while it created its record, before "
                 f"its first step; there is nothing to read or resume: start the run again")

@@ -380,3 +380,29 @@ def test_a_record_killed_while_it_was_created_says_so(tmp_path):
     assert result.exit_code == 2
     assert "interrupted while it created its record, before its first step" in result.output
     assert "copy both files together" not in result.output
+
+
+def test_a_record_killed_in_the_commit_of_its_creation_says_so_when_read(tmp_path):
+    """Killed while the creation's transaction was being written (pages of it in run.sqlite, its
+    rollback journal beside it, never deleted): reading the record (the monitor, plots, diagnose)
+    cannot roll the journal back, and still says the run was interrupted while it created it."""
+    import subprocess
+    import sys
+
+    from hsio.recording import NotARunError
+
+    out = tmp_path / "killed"
+    out.mkdir()
+    code = ("import os, sqlite3, sys\n"
+            "db = sqlite3.connect(sys.argv[1], isolation_level=None)\n"
+            "db.execute('PRAGMA cache_size = 1'); db.execute('BEGIN')\n"
+            "db.execute('CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)')\n"
+            "db.execute('CREATE TABLE pad (x)')\n"
+            "db.executemany('INSERT INTO pad VALUES (?)', [(b'x' * 4000,)] * 50)\n"
+            "os._exit(0)\n")  # pages spilled into run.sqlite, the transaction never committed
+    subprocess.run([sys.executable, "-c", code, str(out / "run.sqlite")], check=True, timeout=30)
+    assert (out / "run.sqlite").stat().st_size > 0 and (out / "run.sqlite-journal").stat().st_size > 0
+    with pytest.raises(NotARunError) as info:
+        Run(out / "run.sqlite")
+    assert "interrupted while it created its record, before its first step" in str(info.value)
+    assert (out / "run.sqlite-journal").exists()  # a reader changes nothing
