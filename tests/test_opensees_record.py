@@ -339,6 +339,46 @@ def test_a_failed_element_ends_the_session_at_once_for_the_others(tmp_path):
     assert [e["kind"] for e in run.events()] == ["hold", "stop"]
 
 
+def test_a_failed_element_ends_only_its_own_session_for_the_others(tmp_path):
+    """C2 said DIE, and the model built again connected C2 at once: that client waits for the
+    next session. C1 then fails, its session closes and C2's new client opens the next one;
+    however late the server detaches the failed session's other elements, the next session's
+    client is none of them: it goes on, its forces measured, not answered NaN."""
+    config = write_config(tmp_path, "validation", ["C1", "C2"], extra="timeout_s = 30.0\n" + QUIET)
+    with serving(config) as server:
+        end_others = server._end_session_of_others
+
+        def late(*args):  # the failed session's others are detached once the next session is open
+            assert wait_for(lambda: server.lab._call(lambda: server.lab.sessions == 2 and server.lab.active == {1}))
+            end_others(*args)
+
+        server._end_session_of_others = late
+        a, b = RawClient(server.ports[0]), RawClient(server.ports[1])
+        again = None
+        try:
+            a.setup()
+            b.setup()
+            step_together((a, b), [0.5])
+            b.send(p.DIE)
+            assert b.closed_by_server()
+            again = RawClient(server.ports[1])
+            again.setup()
+            assert wait_for(lambda: any("joins the next session" in line for line in server.lines))
+            a.send(p.SET_TRIAL, [500.0], t=0.02)
+            a.send(p.GET_FORCE)
+            assert a.answered_as_stopped()
+            force = again.step(0.5, 0.01)
+            assert np.isfinite(force) and force > 0, server.lines
+            again.send(p.DIE)
+            assert again.closed_by_server()
+        finally:
+            a.close()
+            b.close()
+            if again is not None:
+                again.close()
+    assert Run(tmp_path / "records" / "run-2.sqlite").summary["steps"] == 1
+
+
 def test_a_model_stepping_other_than_the_structures_dt_is_told_the_lab_time_scale(tmp_path):
     """Each step's motion lasts TR dt of lab time (the structure's dt, 0.01 s), whatever the
     model's time step: a model stepping 0.005 s runs the lab at 2 TR, not TR. Once its steady

@@ -51,6 +51,7 @@ class OpenSeesServer:
         self._open: set[socket.socket] = set()  # every accepted connection not yet closed
         self._ended: dict[socket.socket, str] = {}  # connections detached because another element stopped the session
         self._detached: set[socket.socket] = set()  # connections whose element's detach is queued
+        self._session_of: dict[socket.socket, int] = {}  # the session each attached connection joined
         self._pending = 0
         self._threads: list[threading.Thread] = []
         self.refused = 0
@@ -152,6 +153,12 @@ class OpenSeesServer:
                 self.log(f"{who}: cannot open the actuators: {_describe(exc)}")
                 self._serve_stopped(j, conn, setup, None, who)
                 return
+            try:  # the session it joined (only a detach of j ends it for j)
+                session = self.lab._call(lambda: self.lab.sessions)
+            except HsioError:  # the server is closing: its connections are shut down
+                session = 0
+            with self._lock:
+                self._session_of[conn] = session
             self.log(f"{who}: connected (dataSize {setup.data_size})")
             handler = ElementHandler(self.lab, j, p.Framer(conn, setup.data_size, self.lab.silent_since),
                                      ctrl=setup.ctrl, ended=lambda: self._ended.get(conn, ""))
@@ -203,7 +210,7 @@ class OpenSeesServer:
             stopped = stopped and not self._stop.is_set()
             if stopped:  # the others are detached first: no request of theirs moves anything after this fault
                 if failed and mine:
-                    self._end_session_of_others(name, reason)
+                    self._end_session_of_others(name, reason, session)
                 handler.died = self._serve_stopped(j, conn, setup, handler.action, who)
             # The element is free once its detach is queued (and its stopped client has gone): a client
             # that reconnects now attaches after it, in the next session (after the preloads ramped off).
@@ -219,7 +226,7 @@ class OpenSeesServer:
                 except OSError:
                     pass
             if failed and mine and not stopped and not self._stop.is_set():
-                self._end_session_of_others(name, reason)
+                self._end_session_of_others(name, reason, session)
             if leaving is not None:
                 try:
                     leaving.result()
@@ -230,6 +237,7 @@ class OpenSeesServer:
                 self._open.discard(conn)
                 self._ended.pop(conn, None)
                 self._detached.discard(conn)
+                self._session_of.pop(conn, None)
                 if claimed:
                     self._busy.pop(j, None)
                     self._freed.notify_all()
@@ -263,14 +271,15 @@ class OpenSeesServer:
         self.log(f"{who}: stopped session: {end}; {stopped.answered} request(s) answered with NaN")
         return stopped.died
 
-    def _end_session_of_others(self, name: str, reason: str) -> None:
-        """Element ``name`` stopped the session (``reason``; the actuators hold): the session's
-        other elements are detached from it now, each on its client's behalf, so that the session
+    def _end_session_of_others(self, name: str, reason: str, session: int) -> None:
+        """Element ``name`` stopped its session (number ``session``; ``reason``; the actuators hold):
+        the session's other elements are detached from it now, each on its client's behalf, so that the session
         and its record close at once (their model, waiting on the element that failed, may send
         them nothing for a while). Their clients stay connected: each one's next message finds its
-        session stopped (:class:`SessionEnded`) and is answered as a stopped session's."""
+        session stopped (:class:`SessionEnded`) and is answered as a stopped session's. A later
+        session (opened by a client that waited for this one to end) is none of theirs."""
         try:  # queued after the failed element's detach: the elements still in the session
-            others = self.lab._call(lambda: sorted(self.lab.active))
+            others = self.lab._call(lambda: sorted(self.lab.active) if self.lab.sessions == session else [])
         except HsioError:
             return
         why = f"stopped: element {name} stopped the session ({reason})"
@@ -278,7 +287,7 @@ class OpenSeesServer:
         with self._lock:
             for k in others:
                 conn = self._busy.get(k)
-                if conn is not None and conn not in self._detached:
+                if conn is not None and conn not in self._detached and self._session_of.get(conn) == session:
                     self._detached.add(conn)
                     self._ended[conn] = why
                     ended.append(k)
