@@ -258,7 +258,7 @@ class Lab:
             self.site.close()
             self.site = None
             raise
-        # per motion of the actuators, as `hsio run` records it: what `hsio calibrate` reads (docs/compensation.md)
+        # per step (its last motion's), as `hsio run` records it: what `hsio calibrate` reads (docs/compensation.md)
         compensation.sink = self.recorder.write_compensation
         self.log(f"session {self.sessions}: actuators of {', '.join(self.names)} open; record {self.recorder.path}")
         if self.structure.static:
