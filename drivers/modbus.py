@@ -352,7 +352,13 @@ class ModbusLink(common.AxisLink):
                     if self.boot_id is not None and "boot_id" in self.map.info:
                         reg = self.map.info["boot_id"]
                         rr = self.client.read_holding_registers(reg.address, count=reg.words, device_id=self.device_id)
-                        if not rr.isError() and self.map.decode(reg, rr.registers) != self.boot_id:
+                        got = getattr(rr, "registers", None)
+                        if not rr.isError() and not (isinstance(got, list) and len(got) == reg.words):
+                            # a late reply to the request before the reconnection: not the boot id
+                            last = f"reply with {len(got) if isinstance(got, list) else 'no'} registers to the " \
+                                   f"read of the boot id, expected {reg.words}"
+                            continue
+                        if not rr.isError() and self.map.decode(reg, got) != self.boot_id:
                             raise ControllerRestartedError(
                                 f"{self.url}: the controller restarted during the run (new boot id); "
                                 "its state is lost, the run stops")
@@ -363,6 +369,9 @@ class ModbusLink(common.AxisLink):
                     continue
                 except (ModbusException, OSError) as exc:
                     last = f"{type(exc).__name__}: {exc}"
+                    continue
+                except Exception as exc:  # a reply pymodbus could not make sense of, as below
+                    last = f"malformed reply to the read of the boot id ({type(exc).__name__}: {exc})"
                     continue
             try:
                 self.requests += 1

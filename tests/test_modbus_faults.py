@@ -153,3 +153,41 @@ def test_malformed_frames_do_not_disturb_the_controller(monkeypatch, tmp_path, c
     assert len(answers) == 3
     assert answers[2][7] & 0x80 and answers[2][8] == 1  # unknown function 0x63: exception 1 (illegal function)
     assert summary["steps"] == reference[0]["steps"] and same_run(reference, b)
+
+
+def test_a_reply_of_another_size_to_the_boot_id_read_is_a_failed_attempt(monkeypatch, cfg, emulator):
+    """After a reconnection the driver reads the controller's boot id. A reply with another number
+    of registers (a late answer to the request before the reconnection, as over a loaded serial
+    line) is not the boot id: that attempt fails and the next one is made, instead of decoding it
+    (struct: "unpack requires a buffer of 4 bytes") and stopping the run on an unexpected error."""
+    from pymodbus.exceptions import ConnectionException
+
+    from hsio.clock import LockstepClock
+    from hsio.drivers.modbus import open_link
+
+    acts = open_link(emulator.url, ["C1", "C2"], LockstepClock(), {"timeout_s": 0.2, "retries": 3,
+                                                                   "reconnect_delay_s": 0.01})
+    link = acts[0].link
+    try:
+        boot = link.map.info["boot_id"]
+        assert boot.words == 2 and link.boot_id is not None
+        client_class = type(link.client)
+        real = client_class.read_holding_registers
+        left = {"drop": 1, "short": 1}
+
+        def read(self, address, count=1, **kwargs):
+            if left["drop"]:  # the request in flight: the link drops
+                left["drop"] -= 1
+                raise ConnectionException("link dropped")
+            if address == boot.address and left["short"]:  # the boot id read after the reconnection
+                left["short"] -= 1
+                return real(self, address, count=1, **kwargs)  # one register where two were asked
+            return real(self, address, count=count, **kwargs)
+
+        monkeypatch.setattr(client_class, "read_holding_registers", read)
+        rr = link.request("read_holding_registers", boot.address, count=boot.words, what="read of the boot id")
+        assert len(rr.registers) == boot.words and left == {"drop": 0, "short": 0}
+        assert link.reconnects == 2  # the short reply cost one attempt
+    finally:
+        monkeypatch.undo()
+        link.close()
