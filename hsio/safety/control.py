@@ -206,10 +206,10 @@ class RunControl:
         for line in new:
             message = (f"controller trip during the pause after step {self.step} (at {when}): {line}; "
                        f"resume refused until acknowledged (ack), or stop the run")
-            self.trips.append(message)
             if log:
                 log("controller_trip", message)
             self._tell(message)
+            self.trips.append(message)  # last: whoever watches trips finds it recorded and told
         return True
 
     def _record_acknowledgements(self, log) -> None:
