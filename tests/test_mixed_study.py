@@ -60,7 +60,8 @@ def test_fc_is_as_close_to_ns_with_a_fine_transducer_as_with_a_coarse_one(rows):
 
 def test_mixed_is_never_much_worse_than_the_better_of_dc_and_fc(rows):
     """Over the whole grid mixed is within 20 % or 0.1 percentage point of the better of DC and FC;
-    below K_f = c s_F / s_u it is DC exactly."""
+    below K_f = c s_F / s_u it would be DC exactly (no configuration of this grid is: the next test
+    runs one that is)."""
     from hsio.emulators.servo import ServoConfig
     from hsio.integrators import SwitchingRule
 
