@@ -299,7 +299,7 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
     rows: list[tuple[float, ...]] = []
     line_of: list[int] = []  # the file's line of each row, for the messages
     columns = 0
-    decimals = 0  # the most decimal places of a time in the first column
+    places = []  # the decimal places each time of the first column is written to
     pos, number, seen_data = 0, 0, False
     while pos < len(data):
         match = _LINE.match(data, pos)
@@ -338,7 +338,7 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
         rows.append(row)
         line_of.append(number)
         if columns == 2:
-            decimals = max(decimals, _decimals(words[0]))
+            places.append(_decimals(words[0]))
     if len(rows) < 2:
         raise RecordError(f"{path}: {len(rows)} samples; a record needs at least 2")
     values = np.array(rows, dtype=float)
@@ -362,21 +362,28 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
     uneven = np.flatnonzero(np.abs(steps - step) > 1e-3 * step)
     if uneven.size:
         # Times printed to fewer decimals than the step has (1/256 s as 0.0039, 0.0078, 0.0117, ...;
-        # 0.0025 s as 0.002, 0.005, 0.007, ...) are each off the even grid by up to half their last
-        # place: taken where that is at most a quarter of a step (a missing sample, a step twice as
-        # long, is still refused) and every time lies on one even grid within it.
-        printed = 0.5 * 10.0 ** -min(decimals, 300)
-        if printed <= 0.25 * dt:
-            uneven = np.flatnonzero(np.abs(steps - step) > max(1e-3 * step, 2 * printed * (1 + 1e-9)))
+        # 0.0025 s as 0.002, 0.005, 0.007, ...; to six significant digits, 0.00390625 then 11.9961)
+        # are each off the even grid by up to half their own last place: taken where that is at most
+        # a quarter of a step (a missing sample, a step twice as long, is still refused) and every
+        # time lies on one even grid within it.
+        # A time with fewer places than both its neighbours lost trailing zeros (%g writes 1/256 s x
+        # 256 as "1"): it is as exact as the coarser of them.
+        written = np.array(places, dtype=float)
+        padded = np.concatenate(([np.inf], written, [np.inf]))
+        written = np.maximum(written, np.minimum(padded[:-2], padded[2:]))
+        printed = 0.5 * 10.0 ** -np.minimum(written, 300.0)
+        if printed.max() <= 0.25 * dt:
+            tolerance = np.maximum(1e-3 * step, (printed[:-1] + printed[1:]) * (1 + 1e-9))
+            uneven = np.flatnonzero(np.abs(steps - step) > tolerance)
             if not uneven.size:
                 index = np.arange(len(t))
                 dt, t0 = (float(v) for v in np.polyfit(index, t, 1))
-                off = np.flatnonzero(np.abs(t - (t0 + index * dt)) > max(1e-3 * dt, 1.5 * printed))
+                off = np.flatnonzero(np.abs(t - (t0 + index * dt)) > np.maximum(1e-3 * dt, 1.5 * printed))
                 if off.size:
                     j = int(off[0])
                     raise RecordError(f"{path}:{line_of[j]}: the times are not evenly spaced: {t[j]:g} s is "
                                       f"{t[j] - (t0 + j * dt):+.3g} s off the even steps of {dt:g} s, more than the "
-                                      f"rounding of times written to {decimals} decimals; resample it")
+                                      f"rounding of a time written to {int(written[j])} decimals; resample it")
     if uneven.size:
         i = int(uneven[0])
         raise RecordError(f"{path}:{line_of[i + 1]}: the times are not evenly spaced: {t[i]:g} to {t[i + 1]:g} s is a "

@@ -50,3 +50,20 @@ def test_times_written_coarser_than_a_quarter_step_are_refused_as_before(tmp_pat
     path = write(tmp_path / "acc.csv", 0.004, 100, 2)
     with pytest.raises(RecordError, match="not evenly spaced|do not increase"):
         read_columns(path, units="g")
+
+
+@pytest.mark.parametrize("dt", [1 / 256, 1 / 60, 0.0025])
+def test_times_written_to_six_significant_digits_give_the_true_step(tmp_path, dt):
+    """Times printed with %g (six significant digits: 0.00390625 at first, 11.9961 at 12 s) each
+    carry their own rounding, finer at the start than at the end of the record."""
+    n = int(round(12.0 / dt))
+    t = np.arange(n) * dt
+    path = tmp_path / "acc.csv"
+    path.write_text("".join(f"{x:g},{0.05 * math.sin(2 * math.pi * 2.0 * x):.6f}\n" for x in t))
+    g = read_columns(path, units="g")
+    assert g.dt == pytest.approx(dt, rel=1e-6) and g.accel_g.size == n
+    lines = path.read_text().splitlines()
+    del lines[n // 2]  # a missing sample is still refused
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordError, match=rf"acc\.csv:{n // 2 + 1}: the times are not evenly spaced"):
+        read_columns(path, units="g")
