@@ -97,6 +97,7 @@ class ControlLoop:
         self._stop = threading.Event()
         self._held = False
         self._closed = False
+        self._reconnects: dict[int, int] = {}  # per link (id): its reconnections already told
         self._final_hold = HoldReport({})
         self._error: BaseException | None = None
         self._result: StepFeedback | None = None
@@ -395,8 +396,28 @@ class ControlLoop:
                             sample_time=np.array([m[0] for m in meta], dtype=float), phases=[list(m[1]) for m in meta])
 
     def take_events(self) -> list[dict]:
-        """What the interlock monitor saw since the last call (warnings, trips)."""
-        return self.monitor.take_events() if self.monitor is not None else []
+        """What the interlock monitor saw since the last call (warnings, trips), and each link to
+        a controller made again since then (kind ``link``)."""
+        events = self.monitor.take_events() if self.monitor is not None else []
+        return events + self._link_events()
+
+    def _link_events(self) -> list[dict]:
+        """One event per driver link (Modbus, CANopen) whose count of reconnections grew since the
+        last call: the link dropped (or a reply was lost) and was made again; the step went on."""
+        out, seen = [], set()
+        for actuator in self.actuators:
+            link = getattr(actuator, "link", None)
+            count = getattr(link, "reconnects", None)
+            if link is None or id(link) in seen or isinstance(count, bool) or not isinstance(count, int):
+                continue
+            seen.add(id(link))
+            before = self._reconnects.get(id(link), 0)
+            if count > before:
+                self._reconnects[id(link)] = count
+                out.append({"time_s": float(self.clock.now_s), "kind": "link", "actuator": "",
+                            "message": f"{getattr(link, 'url', 'the controller')}: the link was made again after "
+                                       f"{count - before} reconnection attempt(s) ({count} in the run so far)"})
+        return out
 
     def hold_all(self) -> None:
         """Stop commanding, and every actuator holds (each is tried; errors while holding are

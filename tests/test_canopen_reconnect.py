@@ -69,6 +69,8 @@ def test_link_lost_mid_run_is_made_again_and_the_run_is_unchanged(monkeypatch, t
     for key in reference[1].steps:
         if key.startswith(("u_", "disp_", "force_", "target_")):  # the step in flight neither lost nor made twice
             assert np.array_equal(recorded.steps[key], reference[1].steps[key]), key
+    links = [e for e in recorded.events() if e["kind"] == "link"]  # and the record says when
+    assert len(links) == 1 and "the link was made again after 1 reconnection attempt(s)" in links[0]["message"]
     assert thread_errors == []
 
 

@@ -78,6 +78,10 @@ def test_dropped_link_reconnects_and_the_run_is_unchanged(monkeypatch, tmp_path,
     assert trigger.done and proxy.connections >= 2
     assert summary["steps"] == reference[0]["steps"]
     assert same_run(reference, b)
+    links = [e for e in b.events() if e["kind"] == "link"]  # the record says so, at the step it happened
+    assert len(links) == 1 and f"127.0.0.1:{proxy.port}: the link was made again after 1" in links[0]["message"]
+    assert "link" in b.steps["flags"][list(b.steps["step"]).index(links[0]["step"])]
+    assert not [e for e in reference[1].events() if e["kind"] == "link"]
 
 
 def test_reply_later_than_the_timeout_is_retried(monkeypatch, tmp_path, cfg, proxy, reference):
