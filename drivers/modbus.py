@@ -107,6 +107,14 @@ def input_files(url: str, options: dict | None = None) -> list[tuple[str, Path]]
     return [("[driver] map", Path(parse_options(url, options)["map"] or modbus_map.DEFAULT_MAP))]
 
 
+def _wrong_count(rr, expected: int) -> str:
+    """"" when a read's reply carries the ``expected`` number of registers, else what it carries."""
+    got = getattr(rr, "registers", None)
+    if isinstance(got, list) and len(got) == expected:
+        return ""
+    return f"reply with {len(got) if isinstance(got, list) else 'no'} registers, expected {expected}"
+
+
 class ModbusLink(common.AxisLink):
     """One controller over Modbus: connection, retries, and the cyclic exchange of all axes."""
 
@@ -352,13 +360,11 @@ class ModbusLink(common.AxisLink):
                     if self.boot_id is not None and "boot_id" in self.map.info:
                         reg = self.map.info["boot_id"]
                         rr = self.client.read_holding_registers(reg.address, count=reg.words, device_id=self.device_id)
-                        got = getattr(rr, "registers", None)
-                        if not rr.isError() and not (isinstance(got, list) and len(got) == reg.words):
-                            # a late reply to the request before the reconnection: not the boot id
-                            last = f"reply with {len(got) if isinstance(got, list) else 'no'} registers to the " \
-                                   f"read of the boot id, expected {reg.words}"
+                        wrong = "" if rr.isError() else _wrong_count(rr, reg.words)
+                        if wrong:  # a late reply to the request before the reconnection: not the boot id
+                            last = f"{wrong} (the read of the boot id)"
                             continue
-                        if not rr.isError() and self.map.decode(reg, got) != self.boot_id:
+                        if not rr.isError() and self.map.decode(reg, rr.registers) != self.boot_id:
                             raise ControllerRestartedError(
                                 f"{self.url}: the controller restarted during the run (new boot id); "
                                 "its state is lost, the run stops")
@@ -391,10 +397,9 @@ class ModbusLink(common.AxisLink):
                 raise ModbusExceptionError(f"{self.url}: {what} answered with Modbus exception {code} ({name})",
                                            code if isinstance(code, int) else -1)
             expected = kwargs.get("read_count", kwargs.get("count")) if method.startswith(("read", "readwrite")) else None
-            got = getattr(rr, "registers", None)
-            if expected is not None and (not isinstance(got, list) or len(got) != expected):
+            if expected is not None and _wrong_count(rr, expected):
                 # an echo of the request or a reply to another request: not an answer
-                last = f"reply with {len(got) if isinstance(got, list) else 'no'} registers, expected {expected}"
+                last = _wrong_count(rr, expected)
                 continue
             return rr
         raise CommunicationError(

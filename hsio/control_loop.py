@@ -84,6 +84,7 @@ class ControlLoop:
         self.generators = [PredictorCorrector(self.t_d, clock.period_s, x0, hold_fraction=hold_fraction) for x0 in initial]
         self.monitor = monitor  # hsio.safety.interlocks.InterlockMonitor or None
         self._samples: list[tuple] = []  # every period since the last step landed
+        self._targets = np.full(len(actuators), np.nan)  # the step's targets (none before the first)
         self._unanswered: tuple | None = None  # a period's commands sent, its measurement never read
         self._sample_meta: list[tuple] = []  # (lab time, phases) of each of those periods
         self._phases: list[str] = []
@@ -390,7 +391,7 @@ class ControlLoop:
         if not rows:
             return None
         samples = np.array(rows, dtype=float).transpose(0, 2, 1)  # n_samples x n_actuators x 3
-        return StepFeedback(targets=np.array(getattr(self, "_targets", np.full(n, np.nan)), dtype=float),
+        return StepFeedback(targets=np.array(self._targets, dtype=float),
                             commands=samples[-1, :, 0].copy(), displacement=samples[-1, :, 1].copy(),
                             force=samples[-1, :, 2].copy(), samples=samples,
                             sample_time=np.array([m[0] for m in meta], dtype=float), phases=[list(m[1]) for m in meta])

@@ -500,9 +500,9 @@ def connect_read_only(path: str | Path, check_same_thread: bool = True) -> sqlit
 
 
 def without_journal(path: str | Path) -> str:
-    """A clause for the error about a record file that holds no tables and has no journal beside
-    it: a ``run.sqlite`` copied alone, whose committed steps were still in its ``-wal`` (empty
-    otherwise)."""
+    """A clause for the error about a record file that holds no tables: a run interrupted while it
+    created its record (the file still in the rollback format, or its ``-journal`` beside it), or a
+    ``run.sqlite`` copied alone, whose committed steps were still in its ``-wal`` ("" otherwise)."""
     path = Path(path)
     wal = Path(f"{path}-wal")
     if wal.exists() and wal.stat().st_size > 0:  # an empty one: made by SQLite as the file was read
@@ -578,14 +578,15 @@ class Run:
             raise NotARunError(f"{self.path}: not an hsio run record ({detail}){without_journal(self.path)}") from None
 
     @staticmethod
-    def _table(db, name: str) -> dict[str, np.ndarray]:
-        cur = db.execute(f"SELECT * FROM {name} ORDER BY step")
+    def _table(db, name: str, order: str = "step", text_columns=()) -> dict[str, np.ndarray]:
+        """A table as arrays by column (text columns as objects, the others float, NULL as NaN)."""
+        cur = db.execute(f"SELECT * FROM {name} ORDER BY {order}")
         cols = [c[0] for c in cur.description]
         rows = cur.fetchall()
         out = {}
         for i, c in enumerate(cols):
             values = [r[i] for r in rows]
-            text = c.startswith("mode_") or c == "flags"
+            text = c.startswith("mode_") or c == "flags" or c in text_columns
             out[c] = np.array([v if v is not None else np.nan for v in values] if not text else values,
                               dtype=object if text else float)
         return out
@@ -640,17 +641,8 @@ class Run:
             try:
                 if not db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='uncommitted_steps'").fetchone():
                     return {}, {}
-                cur = db.execute("SELECT * FROM uncommitted_steps ORDER BY stop")
-                cols = [c[0] for c in cur.description]
-                rows = cur.fetchall()
-                steps = {c: (np.array([r[i] for r in rows], dtype=object) if c == "cause" else
-                             np.array([np.nan if r[i] is None else r[i] for r in rows], dtype=float))
-                         for i, c in enumerate(cols)}
-                cur = db.execute("SELECT * FROM uncommitted_samples ORDER BY stop, k")
-                cols = [c[0] for c in cur.description]
-                data = np.array([[np.nan if x is None else x for x in row] for row in cur.fetchall()],
-                                dtype=float).reshape(-1, len(cols))
-                return steps, {c: data[:, i] for i, c in enumerate(cols)}
+                return (self._table(db, "uncommitted_steps", "stop", ("cause",)),
+                        self._table(db, "uncommitted_samples", "stop, k"))
             finally:
                 db.close()
         except (sqlite3.Error, ValueError, TypeError) as exc:
