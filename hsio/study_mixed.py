@@ -10,7 +10,9 @@ Two parts:
   :data:`SEED` unless given) is scaled so that the NS peak is about the cracking displacement
   (the infill just cracks);
 * the shipped structures (``structure_I``, ``structure_II``, ``structure_II_infill``,
-  ``three_storey``) with every method.
+  ``three_storey``) with every method;
+* a lab's own run configurations (:func:`configured`): its structure file, record, test rate and
+  emulated instruments, with every method.
 
 Each run is HS on the emulator (lockstep) against NS (implicit DC converged, the specimen models),
 error = max over time and DOF of |u_HS - u_NS| / peak |u_NS| (``hsio.result.max_error_pct``).
@@ -29,6 +31,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -296,6 +299,43 @@ def structures(names=STRUCTURES, duration_s: float = 4.0, resolution_mm: float =
     return rows
 
 
+def configured(path, methods=METHODS, recipe: Recipe = Recipe(), progress=None) -> list[Row]:
+    """A lab's own run configuration (the TOML file of ``hsio run``) with every method: its
+    structure (a structure file or a shipped name), its record (scaled and cut as the run would),
+    its test rate and hold fraction, and its emulated controller ([emulator], [hardware]
+    actuator_model: the instruments, the actuator's lag and limits); [compensation] as the run
+    would apply it. The methods are :func:`make_method`'s from the emulated instruments and the
+    study's ``recipe``: the configuration's [integrator] table is not read (the study compares the
+    methods, not the configuration's one). Lockstep, whatever [hardware] clock says; a
+    configuration for real hardware is refused (the study runs on the emulated controller)."""
+    from hsio import config as run_config
+    from hsio.diagnose.modelfile import merged_emulator_table
+    from hsio.emulators.servo import ServoConfig
+    from hsio.runner import build_record, load_run_structure
+
+    config = run_config.load(path)
+    url = config["hardware"]["url"]
+    if not url.startswith("emulator"):
+        raise ConfigError(f"{config.source}: [hardware] url = {url!r}: hsio study mixed runs on the emulated "
+                          "controller (url = \"emulator://\"); the runs compare the methods, not the rig")
+    structure = load_run_structure(config)
+    ground = build_record(config, structure)
+    emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
+    servo = ServoConfig()
+    du, dF, su, sF = (float(emulator.get(key, getattr(servo, key)))
+                      for key in ("resolution_mm", "force_resolution_kN", "noise_mm", "force_noise_kN"))
+    compensation = config["compensation"] if config["compensation"]["mode"] != "off" else None
+    try:
+        rows = run_case(Path(config.source).name, structure, ground, methods, du, dF, config["test"]["rate"],
+                        config["test"]["hold_fraction"], recipe, force_noise_kN=sF, noise_mm=su,
+                        emulator=dict(emulator), compensation=compensation)
+    except ConfigError as exc:
+        raise ConfigError(f"{config.source}: {exc}") from None
+    if progress:
+        progress(rows)
+    return rows
+
+
 def winners(rows: list[Row]) -> dict:
     """Per configuration: the method with the smallest error, and whether mixed is within 20 %
     (relative) or 0.1 percentage point of the better of DC and FC. A run that stopped (error
@@ -326,21 +366,24 @@ def rows_as_dicts(rows: list[Row]) -> list[dict]:
 
 
 def plot(rows: list[Row], path: str) -> None:
-    """Error maps: per load-cell resolution, the error of each method over k0 x delta_u, and the winner."""
+    """Error maps: per load-cell resolution, the error of each method over k0 x delta_u, and the
+    winner; below them, the error of each method on each structure or run configuration (bars, a
+    stopped run marked)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     grid_rows = [r for r in rows if r.case == "grid"]
-    if not grid_rows:
-        return
+    case_rows = [r for r in rows if r.case != "grid"]
     ks = sorted({r.k0_kN_mm for r in grid_rows})
     dus = sorted({r.resolution_mm for r in grid_rows})
     dFs = sorted({r.force_resolution_kN for r in grid_rows})
-    fig, axes = plt.subplots(len(dFs), len(METHODS) + 1, figsize=(4 * (len(METHODS) + 1), 3.2 * len(dFs)),
-                             squeeze=False)
+    columns = len(METHODS) + 1
+    fig = plt.figure(figsize=(4 * columns, 3.2 * (len(dFs) + (1 if case_rows else 0))))
+    layout = fig.add_gridspec(len(dFs) + (1 if case_rows else 0), columns)
     for i, dF in enumerate(dFs):
+        axes = [fig.add_subplot(layout[i, j]) for j in range(columns)]
         errs = {}
         for j, method in enumerate(METHODS):
             E = np.full((len(dus), len(ks)), np.nan)  # NaN: not run; inf: the run stopped
@@ -348,21 +391,50 @@ def plot(rows: list[Row], path: str) -> None:
                 if r.method == method and r.force_resolution_kN == dF:
                     E[dus.index(r.resolution_mm), ks.index(r.k0_kN_mm)] = r.error_pct
             errs[method] = E
-            ax = axes[i][j]
+            ax = axes[j]
             shown = np.where(np.isfinite(E), np.minimum(E, 1e3), np.nan)  # a stopped run is left blank
             im = ax.imshow(np.log10(np.maximum(shown, 1e-3)), origin="lower", aspect="auto", cmap="viridis")
             fig.colorbar(im, ax=ax, label="log10 error (%)")
             ax.set_title(f"{method}, dF = {dF:g} kN" + (" (blank: stopped)" if np.isinf(E).any() else ""))
         stack = np.stack([np.where(np.isnan(errs[m]), np.inf, errs[m]) for m in METHODS])
         best = np.where(np.isfinite(stack).any(axis=0), np.argmin(stack, axis=0), np.nan)  # none where all stopped
-        ax = axes[i][-1]
+        ax = axes[-1]
         ax.imshow(best, origin="lower", aspect="auto", vmin=0, vmax=2, cmap="Set1")
         ax.set_title(f"winner (0 DC, 1 FC, 2 mixed), dF = {dF:g} kN")
-        for a in axes[i]:
+        for a in axes:
             a.set_xticks(range(len(ks)), [f"{k:g}" for k in ks])
             a.set_yticks(range(len(dus)), [f"{d:g}" for d in dus])
             a.set_xlabel("k0 (kN/mm)")
             a.set_ylabel("delta_u (mm)")
+    if case_rows:
+        _plot_cases(fig.add_subplot(layout[len(dFs), :]), case_rows)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def _plot_cases(ax, rows: list[Row]) -> None:
+    """Grouped bars: per structure or run configuration, each method's error (log scale); a run
+    that stopped is a hatched bar at the top, labelled."""
+    cases = list(dict.fromkeys(r.case for r in rows))
+    finite = [r.error_pct for r in rows if math.isfinite(r.error_pct) and r.error_pct > 0]
+    top = 10 ** math.ceil(math.log10(max(finite))) if finite else 100.0
+    width = 0.8 / len(METHODS)
+    for j, method in enumerate(METHODS):
+        for i, case in enumerate(cases):
+            found = [r for r in rows if r.case == case and r.method == method]
+            if not found:
+                continue
+            x = i - 0.4 + (j + 0.5) * width
+            error = found[0].error_pct
+            if math.isfinite(error):
+                ax.bar(x, max(error, 1e-3), width, color=f"C{j}", label=method if i == 0 else None)
+                ax.text(x, max(error, 1e-3), f"{error:.3g}", ha="center", va="bottom", fontsize=7)
+            else:
+                ax.bar(x, top, width, color="none", edgecolor=f"C{j}", hatch="//", label=method if i == 0 else None)
+                ax.text(x, top, "stopped", ha="center", va="bottom", fontsize=7, rotation=90)
+    ax.set_yscale("log")
+    ax.set_xticks(range(len(cases)), cases)
+    ax.set_ylabel("HS-vs-NS error (% of the NS peak)")
+    ax.set_title("each method on the structures and run configurations")
+    ax.legend(fontsize=8)

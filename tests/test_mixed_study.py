@@ -91,7 +91,7 @@ def test_cli_json_and_plot(tmp_path):
     out = CliRunner().invoke(study, ["mixed", "--json", "--stiffness", "122.6", "--resolution", "0.025",
                                      "--force-resolution", "0.01", "--duration", "0.3", "--plot", str(png)])
     assert out.exit_code == 0, out.output
-    data = json.loads(out.output)
+    data = json.loads(out.stdout)  # the progress lines go to stderr
     assert {r["method"] for r in data["rows"]} == {"implicit_dc", "force_control", "mixed"}
     assert data["winners"][0]["best"] in ("force_control", "mixed")
     assert png.stat().st_size > 0

@@ -43,7 +43,7 @@ def test_a_stiff_grid_specimen_runs_on_an_actuator_sized_to_it_and_a_stopped_run
     out = CliRunner().invoke(study, ["mixed", "--json", "--stiffness", "10000", "--resolution", "0.025",
                                      "--force-resolution", "0.01", "--duration", "0.1"])
     assert out.exit_code == 0, out.output
-    rows = {r["method"]: r for r in json.loads(out.output)["rows"]}
+    rows = {r["method"]: r for r in json.loads(out.stdout)["rows"]}
     assert rows["implicit_dc"]["error_pct"] is not None and rows["implicit_dc"]["stopped"] == ""
     assert rows["implicit_dc"]["fc_fraction"] == 0.0
     for row in rows.values():  # a run that stopped gives its reason, and no error

@@ -76,8 +76,15 @@ GRID_BOUNDS = {"stiffness": (0.0, 10000.0, "kN/mm"), "resolution": (0.0, 10.0, "
               help="Seed of the grid's synthetic record [default: the study's, 1994].")
 @click.option("--structures/--no-structures", default=False, show_default=True,
               help="Also run the shipped structures with every method (4 s records).")
-def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, duration, seed, structures) -> None:
-    """HS-vs-NS error of DC, FC and mixed over stiffness x transducer x load-cell resolution."""
+@click.option("--config", "configs", multiple=True, type=click.Path(dir_okay=False),
+              help="A run configuration (hsio run's TOML: its structure, record, test rate, emulated "
+                   "instruments) to run with every method; repeat.")
+@click.option("--grid/--no-grid", "with_grid", default=None,
+              help="Run the grid [default: yes, unless --config is given].")
+def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, duration, seed, structures, configs,
+          with_grid) -> None:
+    """HS-vs-NS error of DC, FC and mixed over stiffness x transducer x load-cell resolution, on the
+    shipped structures (--structures) and on run configurations of your own (--config)."""
     from hsio import study_mixed as sm
 
     for option, values, (low, high, unit) in (("--stiffness", stiffnesses, GRID_BOUNDS["stiffness"]),
@@ -87,12 +94,34 @@ def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, durat
             if not low < value <= high:
                 raise click.BadParameter(f"{value:g} is out of bounds: it must be above {low:g} and at most "
                                          f"{high:g} {unit}", param_hint=option)
+    if with_grid is None:
+        with_grid = not configs
+    grid_options = [name for name, given in (("--stiffness", stiffnesses), ("--resolution", resolutions),
+                                             ("--force-resolution", force_resolutions), ("--seed", seed is not None))
+                    if given]
+    if not with_grid and grid_options:
+        raise click.UsageError(f"{', '.join(grid_options)} set the grid, which does not run here (--no-grid, or "
+                               "--config without --grid)")
+
+    def progress(rows):
+        row = rows[0]
+        where = "grid" if row.case == "grid" else row.case
+        errors = ", ".join(f"{r.method} {r.error_pct:.3g} %" if r.error_pct != float("inf") else f"{r.method} stopped"
+                           for r in rows)
+        axes = (f" k0 {row.k0_kN_mm:g} kN/mm, du {row.resolution_mm:g} mm, dF {row.force_resolution_kN:g} kN:"
+                if row.case == "grid" else ":")
+        click.echo(f"  {where}{axes} {errors}", err=True)
+
     try:
-        rows = sm.grid(stiffnesses or (7.2, 122.6), resolutions or (0.0025, 0.025),
-                       force_resolutions or (0.002, 0.02), duration_s=duration,
-                       seed=sm.SEED if seed is None else seed)
+        rows = []
+        if with_grid:
+            rows += sm.grid(stiffnesses or (7.2, 122.6), resolutions or (0.0025, 0.025),
+                            force_resolutions or (0.002, 0.02), duration_s=duration,
+                            seed=sm.SEED if seed is None else seed, progress=progress)
         if structures:
-            rows += sm.structures()
+            rows += sm.structures(progress=progress)
+        for path in configs:
+            rows += sm.configured(path, progress=progress)
     except HsioError as exc:
         click.echo(f"hsio study mixed: error: {exc}", err=True)
         sys.exit(2)

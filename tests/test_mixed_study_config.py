@@ -1,0 +1,101 @@
+"""`hsio study mixed --config`: a lab's own run configuration (its structure file, record, test
+rate and emulated instruments) run with DC, FC and mixed (docs/force_control.md, "hsio study mixed")."""
+
+import json
+import math
+
+from click.testing import CliRunner
+
+from hsio import study_mixed as sm
+from hsio.commands.study import study
+
+# A stiff elastic wall of 50 kN/mm on one DOF (8 Hz: m = k / (2 pi 8)^2), 5 % damping
+STRUCTURE = """
+[structure]
+name = "lab_wall"
+dt = 0.005
+
+[[dof]]
+name = "wall"
+mass = {mass}
+
+[damping]
+kind = "stiffness"
+zeta = 0.05
+modes = [1]
+
+[[experimental]]
+name = "wall"
+dof = "wall"
+actuator = "A1"
+model = {{ kind = "linear", k = 50.0 }}
+"""
+
+
+def _config(tmp_path, emulator="", hardware=""):
+    mass = 50.0 / (2 * math.pi * 8.0) ** 2
+    (tmp_path / "wall.toml").write_text(STRUCTURE.format(mass=mass))
+    path = tmp_path / "lab.toml"
+    path.write_text(f"""
+[structure]
+file = "wall.toml"
+[record]
+pga_g = 0.1
+synthetic_duration_s = 1.0
+seed = 7
+[test]
+rate = 10.0
+[emulator]
+resolution_mm = 0.025
+force_resolution_kN = 0.01
+force_noise_kN = 0.01
+{emulator}
+{hardware}
+""")
+    return path
+
+
+def test_a_run_configuration_runs_with_every_method_and_a_stiff_wall_goes_to_fc(tmp_path):
+    """50 kN/mm read by a 0.025 mm transducer (noise 0.01 mm) and a 0.01 kN load cell:
+    rho = k s_u / s_F is about 50, far above c = 0.03, so mixed runs the wall in FC, and FC,
+    which moves it by the load cell's s_F / k, is closer to NS than DC, which reads k s_u."""
+    rows = sm.configured(_config(tmp_path))
+    assert [r.method for r in rows] == list(sm.METHODS)
+    assert {r.case for r in rows} == {"lab.toml"} and all(r.k0_kN_mm == 50.0 for r in rows)
+    dc, fc, mixed = rows
+    assert not (dc.stopped or fc.stopped or mixed.stopped)
+    assert mixed.fc_fraction == 1.0 and dc.fc_fraction == 0.0
+    assert fc.error_pct < dc.error_pct / 2
+    assert mixed.error_pct <= max(1.2 * min(dc.error_pct, fc.error_pct), min(dc.error_pct, fc.error_pct) + 0.1)
+
+
+def test_the_configuration_s_emulated_actuator_is_the_one_the_study_runs(tmp_path):
+    """The [emulator] table reaches every run: an actuator of 0.5 kN stops each method on its capacity."""
+    rows = sm.configured(_config(tmp_path, emulator="force_limit_kN = 0.5"))
+    assert all(math.isinf(r.error_pct) and "capacity" in r.stopped for r in rows)
+
+
+def test_cli_config_only_json_progress_and_plot(tmp_path):
+    png = tmp_path / "bars.png"
+    out = CliRunner().invoke(study, ["mixed", "--json", "--config", str(_config(tmp_path)), "--plot", str(png)])
+    assert out.exit_code == 0, out.output
+    data = json.loads(out.stdout)
+    assert {r["case"] for r in data["rows"]} == {"lab.toml"}  # no grid rows: --config alone runs no grid
+    assert data["winners"][0]["best"] in ("force_control", "mixed") and data["winners"][0]["mixed_ok"] is True
+    assert "lab.toml: implicit_dc" in out.stderr
+    assert png.stat().st_size > 10_000
+
+
+def test_cli_refuses_hardware_a_grid_option_without_the_grid_and_setups(tmp_path):
+    hw = _config(tmp_path, hardware='[hardware]\nurl = "modbus+tcp://127.0.0.1:5020"')
+    out = CliRunner().invoke(study, ["mixed", "--config", str(hw)])
+    assert out.exit_code == 2 and "lab.toml" in out.stderr and "emulated controller" in out.stderr
+    cfg = _config(tmp_path)
+    out = CliRunner().invoke(study, ["mixed", "--config", str(cfg), "--seed", "3"])
+    assert out.exit_code == 2 and "--seed" in out.output and "grid" in out.output
+    setups = tmp_path / "setups.toml"
+    setups.write_text('[structure]\nname = "column_two_actuators"\n[record]\nsynthetic_duration_s = 0.5\n')
+    out = CliRunner().invoke(study, ["mixed", "--config", str(setups)])
+    assert out.exit_code == 2 and "setups.toml" in out.stderr and "alpha_os" in out.stderr
+    out = CliRunner().invoke(study, ["mixed", "--config", str(tmp_path / "missing.toml")])
+    assert out.exit_code == 2 and "missing.toml" in out.stderr
