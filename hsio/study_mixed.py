@@ -299,7 +299,7 @@ def structures(names=STRUCTURES, duration_s: float = 4.0, resolution_mm: float =
     return rows
 
 
-def configured(path, methods=METHODS, recipe: Recipe = Recipe(), progress=None) -> list[Row]:
+def configured(path, methods=METHODS, recipe: Recipe = Recipe(), progress=None, case: str | None = None) -> list[Row]:
     """A lab's own run configuration (the TOML file of ``hsio run``) with every method: its
     structure (a structure file or a shipped name), its record (scaled and cut as the run would),
     its test rate and hold fraction, and its emulated controller ([emulator], [hardware]
@@ -307,7 +307,8 @@ def configured(path, methods=METHODS, recipe: Recipe = Recipe(), progress=None) 
     would apply it. The methods are :func:`make_method`'s from the emulated instruments and the
     study's ``recipe``: the configuration's [integrator] table is not read (the study compares the
     methods, not the configuration's one). Lockstep, whatever [hardware] clock says; a
-    configuration for real hardware is refused (the study runs on the emulated controller)."""
+    configuration for real hardware is refused (the study runs on the emulated controller). The
+    rows' ``case`` is ``case``, else the file's name."""
     from hsio import config as run_config
     from hsio.diagnose.modelfile import merged_emulator_table
     from hsio.emulators.servo import ServoConfig
@@ -326,7 +327,7 @@ def configured(path, methods=METHODS, recipe: Recipe = Recipe(), progress=None) 
                       for key in ("resolution_mm", "force_resolution_kN", "noise_mm", "force_noise_kN"))
     compensation = config["compensation"] if config["compensation"]["mode"] != "off" else None
     try:
-        rows = run_case(Path(config.source).name, structure, ground, methods, du, dF, config["test"]["rate"],
+        rows = run_case(case or Path(config.source).name, structure, ground, methods, du, dF, config["test"]["rate"],
                         config["test"]["hold_fraction"], recipe, force_noise_kN=sF, noise_mm=su,
                         emulator=dict(emulator), compensation=compensation)
     except ConfigError as exc:

@@ -99,3 +99,14 @@ def test_cli_refuses_hardware_a_grid_option_without_the_grid_and_setups(tmp_path
     assert out.exit_code == 2 and "setups.toml" in out.stderr and "alpha_os" in out.stderr
     out = CliRunner().invoke(study, ["mixed", "--config", str(tmp_path / "missing.toml")])
     assert out.exit_code == 2 and "missing.toml" in out.stderr
+
+
+def test_two_configurations_of_one_file_name_are_told_apart_by_their_paths(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    a, b = _config(tmp_path / "a"), _config(tmp_path / "b", emulator="force_limit_kN = 0.5")
+    out = CliRunner().invoke(study, ["mixed", "--json", "--config", str(a), "--config", str(b)])
+    assert out.exit_code == 0, out.output
+    data = json.loads(out.stdout)
+    assert [w["case"] for w in data["winners"]] == [str(a), str(b)]
+    assert data["winners"][1]["best"] is None  # every run of b stopped on its 0.5 kN actuator

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import click
 
@@ -120,8 +121,9 @@ def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, durat
                             seed=sm.SEED if seed is None else seed, progress=progress)
         if structures:
             rows += sm.structures(progress=progress)
-        for path in configs:
-            rows += sm.configured(path, progress=progress)
+        names = [Path(path).name for path in configs]
+        for path in configs:  # each configuration by its file's name, by its path where two share a name
+            rows += sm.configured(path, progress=progress, case=path if names.count(Path(path).name) > 1 else None)
     except HsioError as exc:
         click.echo(f"hsio study mixed: error: {exc}", err=True)
         sys.exit(2)
