@@ -68,17 +68,38 @@ def load(folder: str | Path) -> Benchmark:
     """Read and check the data folder; anything the benchmark cannot run on is a ValueError
     naming the file and what is wrong there."""
     folder = Path(folder)
-    data = json.loads((folder / "benchmark.json").read_text())
+    js = folder / "benchmark.json"
+    try:
+        data = json.loads(js.read_text(encoding="utf-8"))
+    except ValueError as exc:  # JSON that does not parse, bytes that are no UTF-8
+        raise ValueError(f"{js}: {exc}") from None
     csv = folder / "elcentro_vrths.csv"
+    with open(csv, encoding="utf-8-sig", errors="replace") as fh:  # undecodable bytes: refused by loadtxt below
+        first = fh.readline().strip()
+    if _numbers(first):
+        raise ValueError(f"{csv}:1: {first!r} is a row of numbers; the first line is the header time_s,accel_m_s2 "
+                         "(a record without one would lose its first sample)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # an empty file: refused below
-        rec = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
+        try:
+            rec = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as exc:  # a field that is no number (data row 0 is line 2), bytes that are no UTF-8
+            raise ValueError(f"{csv}: {exc}") from None
     if rec.shape[0] < 2 or rec.shape[1] != 2:
         raise ValueError(f"{csv}: needs a header and at least two rows of time_s,accel_m_s2 "
                          f"(has {rec.shape[0]} rows of {rec.shape[1]} columns)")
     bm = Benchmark(data, rec[:, 0].copy(), rec[:, 1].copy())
     check(bm, folder)
     return bm
+
+
+def _numbers(line: str) -> bool:
+    """The line is comma-separated numbers (a data row, not a header)."""
+    try:
+        [float(x) for x in line.split(",")]
+    except ValueError:
+        return False
+    return True
 
 
 def check(bm: Benchmark, folder: Path) -> None:
