@@ -47,7 +47,12 @@ def main() -> None:
         if bad:
             ap.error(message)
     folder = args.data or default_data_folder()
-    bm = benchmark.load(str(folder))
+    if not (folder / "benchmark.json").is_file() or not (folder / "elcentro_vrths.csv").is_file():
+        ap.error(f"--data {folder}: benchmark.json and elcentro_vrths.csv not found there")
+    try:
+        bm = benchmark.load(str(folder))
+    except (ValueError, KeyError, TypeError, IndexError, OSError) as exc:  # as `hsio bench vrths` refuses them
+        ap.error(f"--data {folder}: benchmark.json or elcentro_vrths.csv cannot be read: {exc}")
     t0 = time.perf_counter()
     rows = []
     for case in bm.cases:

@@ -444,3 +444,19 @@ def test_a_negative_count_of_perturbed_plants_is_refused_by_the_api_and_the_benc
     for args in (["--perturbed", "-1"], ["--python-seconds", "nan"]):
         proc = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2 and args[0] in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_the_bench_script_refuses_a_data_folder_it_cannot_run_on_without_a_traceback(shared_data, tmp_path):
+    """As `hsio bench vrths --data` does: exit 2 naming the folder and the file, no traceback."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "bench" / "bench_vrths.py"
+    (tmp_path / "benchmark.json").write_bytes((shared_data / "vrths" / "benchmark.json").read_bytes())
+    (tmp_path / "elcentro_vrths.csv").write_text("time_s,accel_m_s2\n0,0\n0.02,nan\n1,1\n")
+    for folder, message in ((tmp_path / "nope", "benchmark.json and elcentro_vrths.csv not found there"),
+                            (tmp_path, "elcentro_vrths.csv:3: a value that is not a finite number")):
+        proc = subprocess.run([sys.executable, str(script), "--data", str(folder)], capture_output=True, text=True,
+                              timeout=60)
+        assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
