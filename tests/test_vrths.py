@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -460,3 +461,17 @@ def test_the_bench_script_refuses_a_data_folder_it_cannot_run_on_without_a_trace
         proc = subprocess.run([sys.executable, str(script), "--data", str(folder)], capture_output=True, text=True,
                               timeout=60)
         assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("duration, message", [
+    (0.1, "give a finite duration of 0.5 s or more"),
+    (float("nan"), "give a finite duration of 0.5 s or more"),
+    (-5.0, "give a finite duration of 0.5 s or more"),
+    (True, "give a finite duration of 0.5 s or more"),
+    (100.0, "100 s is longer than the record (36.2 s from the first motion)"),
+])
+def test_a_duration_the_record_cannot_give_is_refused_by_the_api_not_cut(bm, duration, message):
+    """As `hsio bench vrths --duration`: a run of the API is never silently shorter than asked."""
+    with pytest.raises(ValueError, match=re.escape(message)):
+        evaluate.evaluate(bm, 1, "pi-lead", 0, 0, False, duration)
+    assert benchmark.ground_motion(bm, 2.0).size == int(2.0 * FS) + 1

@@ -8,7 +8,6 @@ perturbed plants (mean and worst of J1-J9), and prints J1-J9 per case and contro
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 
@@ -61,7 +60,7 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
         raise click.BadParameter(f"{folder}: benchmark.json or elcentro_vrths.csv cannot be read: {exc}",
                                  param_hint="--data") from None
     if duration is not None:
-        available = (benchmark.ground_motion(bm, math.inf).size - 1) / benchmark.FS
+        available = benchmark.moving_span(bm)[1]
         if duration > available + 0.5 / benchmark.FS:  # a cut, never a silent clamp
             raise click.BadParameter(f"{duration:g} s is longer than the record ({available:g} s from the first "
                                      "motion); leave --duration out to run the whole record", param_hint="--duration")

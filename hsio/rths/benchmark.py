@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
@@ -199,12 +200,25 @@ def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) 
     t0 = bm.record_t[0]
     t_end = bm.record_t[-1]
     if duration is not None:
-        moving = np.flatnonzero(bm.record_a != 0.0)
-        t0 = bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else t0
+        t0, available = moving_span(bm)
+        if isinstance(duration, bool) or not (isinstance(duration, numbers.Real) and math.isfinite(duration)
+                                              and duration >= MIN_RECORD_S):
+            raise ValueError(f"duration = {duration!r} s: give a finite duration of {MIN_RECORD_S:g} s or more")
+        if duration > available + 0.5 / fs:  # a cut, never a silent clamp
+            raise ValueError(f"duration = {duration:g} s is longer than the record ({available:g} s from the first "
+                             "motion); give None to run the whole record")
         t_end = min(t0 + duration, t_end)
     n = int(np.floor((t_end - t0) * fs + 1e-9)) + 1
     t = t0 + np.arange(n) / fs
     return RECORD_SCALE * np.interp(t, bm.record_t, bm.record_a)
+
+
+def moving_span(bm: Benchmark) -> tuple[float, float]:
+    """The time of the last quiet sample before the ground starts to move, and the seconds of
+    record from there to its end (what ``ground_motion`` can cut a duration from)."""
+    moving = np.flatnonzero(bm.record_a != 0.0)
+    t0 = float(bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else bm.record_t[0])
+    return t0, float(bm.record_t[-1]) - t0
 
 
 @dataclass(frozen=True)
