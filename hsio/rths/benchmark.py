@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import math
 import numbers
-import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -75,23 +74,38 @@ def load(folder: str | Path) -> Benchmark:
     except ValueError as exc:  # JSON that does not parse, bytes that are no UTF-8
         raise ValueError(f"{js}: {exc}") from None
     csv = folder / "elcentro_vrths.csv"
-    with open(csv, encoding="utf-8-sig", errors="replace") as fh:  # undecodable bytes: refused by loadtxt below
-        first = fh.readline().strip()
-    if _numbers(first):
-        raise ValueError(f"{csv}:1: {first!r} is a row of numbers; the first line is the header time_s,accel_m_s2 "
-                         "(a record without one would lose its first sample)")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # an empty file: refused below
-        try:
-            rec = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
-        except ValueError as exc:  # a field that is no number (data row 0 is line 2), bytes that are no UTF-8
-            raise ValueError(f"{csv}: {exc}") from None
-    if rec.shape[0] < 2 or rec.shape[1] != 2:
-        raise ValueError(f"{csv}: needs a header and at least two rows of time_s,accel_m_s2 "
-                         f"(has {rec.shape[0]} rows of {rec.shape[1]} columns)")
+    rec, lines = _read_record(csv)
     bm = Benchmark(data, rec[:, 0].copy(), rec[:, 1].copy())
-    check(bm, folder)
+    check(bm, folder, lines)
     return bm
+
+
+def _read_record(csv: Path) -> tuple[np.ndarray, list[int]]:
+    """The record's rows of numbers (n x 2) and the line of the file each one is on (blank lines
+    and # comments are skipped). The first line is the header time_s,accel_m_s2."""
+    try:
+        text = csv.read_text(encoding="utf-8-sig")
+    except ValueError as exc:  # bytes that are no UTF-8
+        raise ValueError(f"{csv}: {exc}") from None
+    rows, lines = [], []
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if number == 1:
+            if _numbers(line):
+                raise ValueError(f"{csv}:1: {line!r} is a row of numbers; the first line is the header "
+                                 "time_s,accel_m_s2 (a record without one would lose its first sample)")
+            continue
+        if not line:
+            continue
+        if not _numbers(line):
+            raise ValueError(f"{csv}:{number}: {line[:60]!r} is not comma-separated numbers time_s,accel_m_s2")
+        rows.append([float(x) for x in line.split(",")])
+        lines.append(number)
+    width = len(rows[0]) if rows else 0
+    if len(rows) < 2 or any(len(r) != 2 for r in rows):
+        raise ValueError(f"{csv}: needs a header and at least two rows of time_s,accel_m_s2 "
+                         f"(has {len(rows)} rows of {width} columns)")
+    return np.array(rows, dtype=float), lines
 
 
 def _numbers(line: str) -> bool:
@@ -103,7 +117,7 @@ def _numbers(line: str) -> bool:
     return True
 
 
-def check(bm: Benchmark, folder: Path) -> None:
+def check(bm: Benchmark, folder: Path, lines: list[int] | None = None) -> None:
     """The record: at least two finite rows, time increasing over MIN_RECORD_S to MAX_RECORD_S, accelerations
     within MAX_RECORD_ACCEL, a ground that moves; benchmark.json: every number the cases, the plant and the constraints
     need (3 x 3 matrices for each case, finite, a mass that leaves the numerical substructure a
@@ -112,13 +126,14 @@ def check(bm: Benchmark, folder: Path) -> None:
     from hsio.rths import plant as plant_mod
 
     csv, js = folder / "elcentro_vrths.csv", folder / "benchmark.json"
+    line = (lambda i: lines[i]) if lines is not None else (lambda i: i + 2)  # noqa: E731  the file's line of row i
     t, a = bm.record_t, bm.record_a
     bad = np.flatnonzero(~(np.isfinite(t) & np.isfinite(a)))
     if bad.size:
-        raise ValueError(f"{csv}:{int(bad[0]) + 2}: a value that is not a finite number")
+        raise ValueError(f"{csv}:{line(int(bad[0]))}: a value that is not a finite number")
     back = np.flatnonzero(np.diff(t) <= 0.0)
     if back.size:
-        raise ValueError(f"{csv}:{int(back[0]) + 3}: time does not increase ({t[back[0]]:g} s, then {t[back[0] + 1]:g} s)")
+        raise ValueError(f"{csv}:{line(int(back[0]) + 1)}: time does not increase ({t[back[0]]:g} s, then {t[back[0] + 1]:g} s)")
     if t[-1] - t[0] < MIN_RECORD_S:
         raise ValueError(f"{csv}: the record lasts {t[-1] - t[0]:g} s; the benchmark needs at least {MIN_RECORD_S:g} s")
     if t[-1] - t[0] > MAX_RECORD_S:
@@ -126,7 +141,7 @@ def check(bm: Benchmark, folder: Path) -> None:
                          f"at {FS:g} Hz (is the time column in seconds?)")
     big = np.flatnonzero(np.abs(a) > MAX_RECORD_ACCEL)
     if big.size:
-        raise ValueError(f"{csv}:{int(big[0]) + 2}: an acceleration of {a[big[0]]:g} m/s^2, beyond {MAX_RECORD_ACCEL:g} "
+        raise ValueError(f"{csv}:{line(int(big[0]))}: an acceleration of {a[big[0]]:g} m/s^2, beyond {MAX_RECORD_ACCEL:g} "
                          "m/s^2 (about 10 g; is the record in m/s^2, not cm/s^2?)")
     if not np.any(a != 0.0):
         raise ValueError(f"{csv}: the ground never moves (every acceleration is 0)")
