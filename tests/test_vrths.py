@@ -479,3 +479,28 @@ def test_a_duration_the_record_cannot_give_is_refused_by_the_api_not_cut(bm, dur
     with pytest.raises(ValueError, match=re.escape(message)):
         evaluate.evaluate(bm, 1, "pi-lead", 0, 0, False, duration)
     assert benchmark.ground_motion(bm, 2.0).size == int(2.0 * FS) + 1
+
+
+@pytest.mark.parametrize("delay", [20, 41])
+def test_ats_on_a_pure_delay_identifies_the_delay_and_its_square(delay):
+    """Chae et al. (2013): on x_m[k] = u[k - d] the command u(t) = x_m(t + tau), tau = d / fs, so the
+    fit of U = X_m A gives a0 = 1, a1 = tau, a2 = tau^2 / 2 (Taylor), and the compensated
+    response tracks the target to the Taylor remainder (tau w)^3 / 6."""
+    stage = ats.make(FS)
+    step, p, s = stage.step.py_func if hasattr(stage.step, "py_func") else stage.step, stage.p, stage.fresh_state()
+    n = int(3.0 * FS)  # the 1 s window fills, then slides past the start-up
+    t = np.arange(n) / FS
+    w, amp = 2 * np.pi * np.array([1.0, 2.3, 3.7]), np.array([1e-3, 5e-4, 2e-4])
+    x = np.sin(np.outer(t, w)) @ amp
+    v = np.cos(np.outer(t, w)) @ (amp * w)
+    a = -np.sin(np.outer(t, w)) @ (amp * w * w)
+    u = np.zeros(n)
+    for k in range(n):
+        u[k] = step(p, s, k, x[k], v[k], a[k], u[k - delay] if k >= delay else 0.0)
+    tau = delay / FS
+    assert s[ats.S_A] == pytest.approx(1.0, abs=1e-4)
+    assert s[ats.S_A + 1] == pytest.approx(tau, rel=0.01)
+    assert s[ats.S_A + 2] == pytest.approx(tau ** 2 / 2, rel=0.02)
+    last = slice(n - int(FS) // 2, n)
+    x_m = np.r_[np.zeros(delay), u[:-delay]]
+    assert np.std(x_m[last] - x[last]) / np.std(x[last]) < 1e-3
