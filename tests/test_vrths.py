@@ -504,3 +504,18 @@ def test_ats_on_a_pure_delay_identifies_the_delay_and_its_square(delay):
     last = slice(n - int(FS) // 2, n)
     x_m = np.r_[np.zeros(delay), u[:-delay]]
     assert np.std(x_m[last] - x[last]) / np.std(x[last]) < 1e-3
+
+
+def test_perturbed_plants_the_data_cannot_draw_positive_are_refused_not_run(shared_data, tmp_path, bm):
+    """A perturbed plant draws its uncertain parameters positive (docs/rths.md): a nominal 0 with no
+    spread gives no such draw, and is refused naming the parameter, not run with a3 = 0."""
+    data = json.loads(json.dumps(bm.data))
+    data["plant"]["a3"], data["plant"]["std"]["a3"] = 0.0, 0.0
+    with pytest.raises(ValueError, match=r"plant.a3 = 0 with plant.std.a3 = 0: 1000 draws gave no positive value"):
+        plant.perturbed(data, 1, 2)
+    (tmp_path / "benchmark.json").write_text(json.dumps(data))
+    (tmp_path / "elcentro_vrths.csv").write_bytes((shared_data / "vrths" / "elcentro_vrths.csv").read_bytes())
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--duration", "0.5",
+                                    "--perturbed", "2", "--seed", "1", "--data", str(tmp_path)])
+    assert res.exit_code == 2 and "plant.a3 = 0 with plant.std.a3 = 0" in res.output, res.output
+    assert "Traceback" not in res.output
