@@ -53,6 +53,10 @@ def main() -> None:
         bm = benchmark.load(str(folder))
     except (ValueError, KeyError, TypeError, IndexError, OSError) as exc:  # as `hsio bench vrths` refuses them
         ap.error(f"--data {folder}: benchmark.json or elcentro_vrths.csv cannot be read: {exc}")
+    try:
+        plant.perturbed(bm.data, args.seed, args.perturbed)  # the plants the runs will draw
+    except ValueError as exc:
+        ap.error(f"--perturbed {args.perturbed}: {folder / 'benchmark.json'}: {exc}")
     t0 = time.perf_counter()
     rows = []
     for case in bm.cases:

@@ -519,3 +519,12 @@ def test_perturbed_plants_the_data_cannot_draw_positive_are_refused_not_run(shar
                                     "--perturbed", "2", "--seed", "1", "--data", str(tmp_path)])
     assert res.exit_code == 2 and "plant.a3 = 0 with plant.std.a3 = 0" in res.output, res.output
     assert "Traceback" not in res.output
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "bench" / "bench_vrths.py"
+    proc = subprocess.run([sys.executable, str(script), "--data", str(tmp_path), "--perturbed", "2"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "plant.a3 = 0 with plant.std.a3 = 0" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
