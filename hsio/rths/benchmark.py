@@ -97,9 +97,10 @@ def _read_record(csv: Path) -> tuple[np.ndarray, list[int]]:
             continue
         if not line:
             continue
-        if not _numbers(line):
-            raise ValueError(f"{csv}:{number}: {line[:60]!r} is not comma-separated numbers time_s,accel_m_s2")
-        rows.append([float(x) for x in line.split(",")])
+        try:
+            rows.append([float(x) for x in line.split(",")])
+        except ValueError:
+            raise ValueError(f"{csv}:{number}: {line[:60]!r} is not comma-separated numbers time_s,accel_m_s2") from None
         lines.append(number)
     width = len(rows[0]) if rows else 0
     if len(rows) < 2 or any(len(r) != 2 for r in rows):
