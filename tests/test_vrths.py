@@ -528,3 +528,15 @@ def test_perturbed_plants_the_data_cannot_draw_positive_are_refused_not_run(shar
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "plant.a3 = 0 with plant.std.a3 = 0" in proc.stderr, proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_a_data_folder_read_again_after_its_record_changed_gives_the_new_record(shared_data, tmp_path):
+    for name in ("benchmark.json", "elcentro_vrths.csv"):
+        (tmp_path / name).write_bytes((shared_data / "vrths" / name).read_bytes())
+    first = benchmark.load(str(tmp_path))
+    assert benchmark.load(str(tmp_path)) is first  # read once while nothing changes
+    t = np.arange(0.0, 2.0, 0.01)
+    np.savetxt(tmp_path / "elcentro_vrths.csv", np.c_[t, np.sin(t)], delimiter=",", header="time_s,accel_m_s2",
+               comments="")
+    again = benchmark.load(str(tmp_path))
+    assert again.record_t.size == t.size and not again.is_table3_record()

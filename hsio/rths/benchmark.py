@@ -63,10 +63,17 @@ class Benchmark:
             return None
 
 
-@lru_cache(maxsize=4)
 def load(folder: str | Path) -> Benchmark:
     """Read and check the data folder; anything the benchmark cannot run on is a ValueError
-    naming the file and what is wrong there."""
+    naming the file and what is wrong there. Kept while neither file changes (size and mtime)."""
+    folder = Path(folder)
+    stamps = tuple((st.st_size, st.st_mtime_ns) for st in
+                   ((folder / name).stat() for name in ("benchmark.json", "elcentro_vrths.csv")))
+    return _load(str(folder.resolve()), stamps)
+
+
+@lru_cache(maxsize=4)
+def _load(folder: str, _stamps: tuple) -> Benchmark:
     folder = Path(folder)
     js = folder / "benchmark.json"
     try:
