@@ -53,6 +53,9 @@ def main() -> None:
         bm = benchmark.load(str(folder))
     except (ValueError, KeyError, TypeError, IndexError, OSError) as exc:  # as `hsio bench vrths` refuses them
         ap.error(f"--data {folder}: benchmark.json or elcentro_vrths.csv cannot be read: {exc}")
+    available = benchmark.moving_span(bm)[1]
+    if args.python_seconds > available:
+        ap.error(f"--python-seconds {args.python_seconds:g}: the record has {available:g} s from its first motion")
     try:
         plant.perturbed(bm.data, args.seed, args.perturbed)  # the plants the runs will draw
     except ValueError as exc:

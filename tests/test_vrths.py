@@ -446,7 +446,7 @@ def test_a_negative_count_of_perturbed_plants_is_refused_by_the_api_and_the_benc
     with pytest.raises(ValueError, match="perturbed = -1: the number of perturbed plants"):
         evaluate.evaluate(bm, 1, "amb", -1, 7, None, 1.0)
     script = Path(__file__).resolve().parents[1] / "bench" / "bench_vrths.py"
-    for args in (["--perturbed", "-1"], ["--python-seconds", "nan"]):
+    for args in (["--perturbed", "-1"], ["--python-seconds", "nan"], ["--python-seconds", "100"]):
         proc = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2 and args[0] in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
 
