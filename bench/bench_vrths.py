@@ -47,7 +47,19 @@ def main() -> None:
         if bad:
             ap.error(message)
     folder = args.data or default_data_folder()
-    bm = benchmark.load(str(folder))
+    if not (folder / "benchmark.json").is_file() or not (folder / "elcentro_vrths.csv").is_file():
+        ap.error(f"--data {folder}: benchmark.json and elcentro_vrths.csv not found there")
+    try:
+        bm = benchmark.load(str(folder))
+    except (ValueError, KeyError, TypeError, IndexError, OSError) as exc:  # as `hsio bench vrths` refuses them
+        ap.error(f"--data {folder}: benchmark.json or elcentro_vrths.csv cannot be read: {exc}")
+    available = benchmark.moving_span(bm)[1]
+    if args.python_seconds > available:
+        ap.error(f"--python-seconds {args.python_seconds:g}: the record has {available:g} s from its first motion")
+    try:
+        plant.perturbed(bm.data, args.seed, args.perturbed)  # the plants the runs will draw
+    except ValueError as exc:
+        ap.error(f"--perturbed {args.perturbed}: {folder / 'benchmark.json'}: {exc}")
     t0 = time.perf_counter()
     rows = []
     for case in bm.cases:

@@ -3,6 +3,7 @@ estimation, and the whole loop on the emulated hockey-stick actuators of structu
 
 import json
 import math
+import re
 import subprocess
 import sys
 
@@ -553,3 +554,19 @@ def test_the_estimator_skips_samples_that_are_not_finite_and_refits_every_tenth_
     for _ in range(500):
         est.observe(rng.uniform(-50, 50), rng.normal(0, 0.01))
     assert len(est._v) == 400  # the window
+
+
+@pytest.mark.parametrize("start, message", [
+    (dict(a_mm_s=60.0), "starting threshold a = 60.0 mm/s is out of bounds: 0 to a_max_mm_s = 50"),
+    (dict(a_mm_s=-1.0), "starting threshold a = -1.0 mm/s is out of bounds"),
+    (dict(a_mm_s=float("nan")), "starting threshold a = nan mm/s is out of bounds"),
+    (dict(lag_s=0.2), "starting lag b d_max = 0.2 s is out of bounds: 0 to 0.1 s"),
+    (dict(lag_s=0.02, lag_limit_s=0.01), "starting lag b d_max = 0.02 s is out of bounds: 0 to 0.01 s"),
+    (dict(lag_s=-0.01), "starting lag b d_max = -0.01 s is out of bounds"),
+])
+def test_the_online_estimator_refuses_a_starting_guess_beyond_its_bounds(start, message):
+    """As the [compensation] table does: the estimator built in code never clamps its start."""
+    with pytest.raises(ValueError, match=re.escape(message)):
+        OnlineEstimator(EstimatorSettings(), **start)
+    edge = OnlineEstimator(EstimatorSettings(), a_mm_s=50.0, lag_s=0.1)
+    assert (edge.a, edge.lag) == (50.0, 0.1)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -238,11 +239,21 @@ def _swap_lines_11_12(lines):
     (_record(lambda lines: [lines[0]] + [line + ",1" for line in lines[1:]]), "(has 2060 rows of 3 columns)"),
     (_record(_nan_at_line_300), "elcentro_vrths.csv:300: a value that is not a finite number"),
     (_record(_swap_lines_11_12), "elcentro_vrths.csv:12: time does not increase (0.2 s, then 0.18 s)"),
+    (_record(lambda lines: _nan_at_line_300(lines[:5] + ["", "# a comment"] + lines[5:])),
+     "elcentro_vrths.csv:300: a value that is not a finite number"),
+    (_record(lambda lines: _swap_lines_11_12(lines[:3] + [""] + lines[3:])),
+     "elcentro_vrths.csv:12: time does not increase (0.18 s, then 0.16 s)"),
     (_record(lambda lines: [lines[0]] + [f"{line.split(',')[0]},0" for line in lines[1:]]), "the ground never moves"),
     (_record(lambda lines: [lines[0], "0,0", "1e9,1"]), "the record lasts 1e+09 s"),
     (_record(lambda lines: [lines[0], "0,0", "0.0001,1"]), "the record lasts 0.0001 s; the benchmark needs at least 0.5 s"),
     (_record(lambda lines: [lines[0]] + [f"{t},{100.0 * float(a)!r}" for t, a in (ln.split(",") for ln in lines[1:])]),
      "elcentro_vrths.csv:317: an acceleration of -126.979 m/s^2, beyond 100 m/s^2 (about 10 g; is the record in m/s^2, not cm/s^2?)"),
+    (_record(lambda lines: lines[1:]), "elcentro_vrths.csv:1: '0.00,0' is a row of numbers; the first line is the header"),
+    (_record(lambda lines: [lines[0]] + [line.replace(",", ";") for line in lines[1:]]),
+     "elcentro_vrths.csv:2: '0.00;0' is not comma-separated numbers time_s,accel_m_s2"),
+    (lambda folder: (folder / "elcentro_vrths.csv").write_bytes(b"time_s,acc\xe9l\n0,0\n1,1\n"),
+     "elcentro_vrths.csv: 'utf-8' codec can't decode"),
+    (lambda folder: (folder / "benchmark.json").write_text('{"cases": '), "benchmark.json: Expecting value"),
     (_json(lambda d: d.pop("experimental_substructure")), "KeyError 'experimental_substructure'"),
     (_json(lambda d: d["cases"]["2"].update(K=[[1.0, 2.0], [3.0, 4.0]])), "cases.2.K must be a 3 x 3 matrix"),
     (_json(lambda d: d["plant"].update(a3="fast")), "a case, the plant or a constraint is missing or not a number"),
@@ -435,6 +446,97 @@ def test_a_negative_count_of_perturbed_plants_is_refused_by_the_api_and_the_benc
     with pytest.raises(ValueError, match="perturbed = -1: the number of perturbed plants"):
         evaluate.evaluate(bm, 1, "amb", -1, 7, None, 1.0)
     script = Path(__file__).resolve().parents[1] / "bench" / "bench_vrths.py"
-    for args in (["--perturbed", "-1"], ["--python-seconds", "nan"]):
+    for args in (["--perturbed", "-1"], ["--python-seconds", "nan"], ["--python-seconds", "100"]):
         proc = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2 and args[0] in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_the_bench_script_refuses_a_data_folder_it_cannot_run_on_without_a_traceback(shared_data, tmp_path):
+    """As `hsio bench vrths --data` does: exit 2 naming the folder and the file, no traceback."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "bench" / "bench_vrths.py"
+    (tmp_path / "benchmark.json").write_bytes((shared_data / "vrths" / "benchmark.json").read_bytes())
+    (tmp_path / "elcentro_vrths.csv").write_text("time_s,accel_m_s2\n0,0\n0.02,nan\n1,1\n")
+    for folder, message in ((tmp_path / "nope", "benchmark.json and elcentro_vrths.csv not found there"),
+                            (tmp_path, "elcentro_vrths.csv:3: a value that is not a finite number")):
+        proc = subprocess.run([sys.executable, str(script), "--data", str(folder)], capture_output=True, text=True,
+                              timeout=60)
+        assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("duration, message", [
+    (0.1, "give a finite duration of 0.5 s or more"),
+    (float("nan"), "give a finite duration of 0.5 s or more"),
+    (-5.0, "give a finite duration of 0.5 s or more"),
+    (True, "give a finite duration of 0.5 s or more"),
+    (100.0, "100 s is longer than the record (36.2 s from the first motion)"),
+])
+def test_a_duration_the_record_cannot_give_is_refused_by_the_api_not_cut(bm, duration, message):
+    """As `hsio bench vrths --duration`: a run of the API is never silently shorter than asked."""
+    with pytest.raises(ValueError, match=re.escape(message)):
+        evaluate.evaluate(bm, 1, "pi-lead", 0, 0, False, duration)
+    assert benchmark.ground_motion(bm, 2.0).size == int(2.0 * FS) + 1
+
+
+@pytest.mark.parametrize("delay", [20, 41])
+def test_ats_on_a_pure_delay_identifies_the_delay_and_its_square(delay):
+    """Chae et al. (2013): on x_m[k] = u[k - d] the command u(t) = x_m(t + tau), tau = d / fs, so the
+    fit of U = X_m A gives a0 = 1, a1 = tau, a2 = tau^2 / 2 (Taylor), and the compensated
+    response tracks the target to the Taylor remainder (tau w)^3 / 6."""
+    stage = ats.make(FS)
+    step, p, s = stage.step.py_func if hasattr(stage.step, "py_func") else stage.step, stage.p, stage.fresh_state()
+    n = int(3.0 * FS)  # the 1 s window fills, then slides past the start-up
+    t = np.arange(n) / FS
+    w, amp = 2 * np.pi * np.array([1.0, 2.3, 3.7]), np.array([1e-3, 5e-4, 2e-4])
+    x = np.sin(np.outer(t, w)) @ amp
+    v = np.cos(np.outer(t, w)) @ (amp * w)
+    a = -np.sin(np.outer(t, w)) @ (amp * w * w)
+    u = np.zeros(n)
+    for k in range(n):
+        u[k] = step(p, s, k, x[k], v[k], a[k], u[k - delay] if k >= delay else 0.0)
+    tau = delay / FS
+    assert s[ats.S_A] == pytest.approx(1.0, abs=1e-4)
+    assert s[ats.S_A + 1] == pytest.approx(tau, rel=0.01)
+    assert s[ats.S_A + 2] == pytest.approx(tau ** 2 / 2, rel=0.02)
+    last = slice(n - int(FS) // 2, n)
+    x_m = np.r_[np.zeros(delay), u[:-delay]]
+    assert np.std(x_m[last] - x[last]) / np.std(x[last]) < 1e-3
+
+
+def test_perturbed_plants_the_data_cannot_draw_positive_are_refused_not_run(shared_data, tmp_path, bm):
+    """A perturbed plant draws its uncertain parameters positive (docs/rths.md): a nominal 0 with no
+    spread gives no such draw, and is refused naming the parameter, not run with a3 = 0."""
+    data = json.loads(json.dumps(bm.data))
+    data["plant"]["a3"], data["plant"]["std"]["a3"] = 0.0, 0.0
+    with pytest.raises(ValueError, match=r"plant.a3 = 0 with plant.std.a3 = 0: 1000 draws gave no positive value"):
+        plant.perturbed(data, 1, 2)
+    (tmp_path / "benchmark.json").write_text(json.dumps(data))
+    (tmp_path / "elcentro_vrths.csv").write_bytes((shared_data / "vrths" / "elcentro_vrths.csv").read_bytes())
+    res = CliRunner().invoke(main, ["bench", "vrths", "--case", "1", "--controller", "pi-lead", "--duration", "0.5",
+                                    "--perturbed", "2", "--seed", "1", "--data", str(tmp_path)])
+    assert res.exit_code == 2 and "plant.a3 = 0 with plant.std.a3 = 0" in res.output, res.output
+    assert "Traceback" not in res.output
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "bench" / "bench_vrths.py"
+    proc = subprocess.run([sys.executable, str(script), "--data", str(tmp_path), "--perturbed", "2"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "plant.a3 = 0 with plant.std.a3 = 0" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_a_data_folder_read_again_after_its_record_changed_gives_the_new_record(shared_data, tmp_path):
+    for name in ("benchmark.json", "elcentro_vrths.csv"):
+        (tmp_path / name).write_bytes((shared_data / "vrths" / name).read_bytes())
+    first = benchmark.load(str(tmp_path))
+    assert benchmark.load(str(tmp_path)) is first  # read once while nothing changes
+    t = np.arange(0.0, 2.0, 0.01)
+    np.savetxt(tmp_path / "elcentro_vrths.csv", np.c_[t, np.sin(t)], delimiter=",", header="time_s,accel_m_s2",
+               comments="")
+    again = benchmark.load(str(tmp_path))
+    assert again.record_t.size == t.size and not again.is_table3_record()

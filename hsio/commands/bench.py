@@ -8,7 +8,6 @@ perturbed plants (mean and worst of J1-J9), and prints J1-J9 per case and contro
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 
@@ -47,6 +46,7 @@ def bench() -> None:
 def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) -> None:
     """J1-J9 of the vRTHS benchmark (Silva et al. 2020) per case and controller."""
     from hsio.rths import benchmark, controllers, evaluate, loop
+    from hsio.rths import plant as plant_mod
 
     if seed is not None and perturbed == 0:
         raise click.UsageError("--seed chooses the perturbed plants: give --perturbed K too")
@@ -61,7 +61,7 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
         raise click.BadParameter(f"{folder}: benchmark.json or elcentro_vrths.csv cannot be read: {exc}",
                                  param_hint="--data") from None
     if duration is not None:
-        available = (benchmark.ground_motion(bm, math.inf).size - 1) / benchmark.FS
+        available = benchmark.moving_span(bm)[1]
         if duration > available + 0.5 / benchmark.FS:  # a cut, never a silent clamp
             raise click.BadParameter(f"{duration:g} s is longer than the record ({available:g} s from the first "
                                      "motion); leave --duration out to run the whole record", param_hint="--duration")
@@ -70,6 +70,10 @@ def vrths(case, controller, perturbed, seed, data, duration, no_numba, as_json) 
     cases = [case] if case else bm.cases
     names = list(controllers.NAMES) if controller == "all" else [controller]
     use_numba = False if no_numba else None
+    try:
+        plant_mod.perturbed(bm.data, seed or 0, perturbed)  # the plants the runs will draw
+    except ValueError as exc:
+        raise click.BadParameter(f"{folder / 'benchmark.json'}: {exc}", param_hint="--perturbed") from None
     try:
         rows = [evaluate.evaluate(bm, c, name, perturbed, seed or 0, use_numba, duration) for c in cases for name in names]
     except loop.NonFiniteCommandError as exc:

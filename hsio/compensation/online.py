@@ -20,7 +20,8 @@ destabilise the test:
   positive b that passes the relative test, and without this the estimate would stay at the last
   lag; a window without motion beyond the threshold still changes nothing.
 
-It starts from a configured guess (a, L) or from nothing (L = 0: no compensation until the
+It starts from a configured guess (a, L) within the bounds (one beyond them is refused, not
+clamped) or from nothing (L = 0: no compensation until the
 first accepted estimate).
 """
 
@@ -57,8 +58,15 @@ class OnlineEstimator:
                  lag_limit_s: float = math.inf):
         self.settings = s = settings or EstimatorSettings()
         self.lag_limit = min(s.lag_max_s, lag_limit_s)  # a hard ceiling (e.g. eq. 2 stability)
-        self.a = float(min(max(a_mm_s, 0.0), s.a_max_mm_s))
-        self.lag = float(min(max(lag_s, 0.0), self.lag_limit))
+        # a starting guess beyond the bounds on the estimate is refused, not clamped
+        if not (math.isfinite(a_mm_s) and 0.0 <= a_mm_s <= s.a_max_mm_s):
+            raise ValueError(f"starting threshold a = {a_mm_s!r} mm/s is out of bounds: 0 to a_max_mm_s = "
+                             f"{s.a_max_mm_s:g} mm/s")
+        if not (math.isfinite(lag_s) and 0.0 <= lag_s <= self.lag_limit):
+            raise ValueError(f"starting lag b d_max = {lag_s!r} s is out of bounds: 0 to {self.lag_limit:g} s "
+                             "(lag_max_s, and below 0.45 t_d with eq. 2)")
+        self.a = float(a_mm_s)
+        self.lag = float(lag_s)
         self._v: collections.deque = collections.deque(maxlen=s.window)
         self._e: collections.deque = collections.deque(maxlen=s.window)
         self._since = 0

@@ -105,11 +105,12 @@ def ats_step(p, s, k, x_t, v_t, a_t, x_m):
     s[S_YU] = yu
     count = int(s[S_COUNT])
     if count >= 2:
-        # regressors at k-1 (central differences), target: the command of k-1
+        # regressors at k-1 (central differences), target: the command of k-1, the one sent last
+        # period (s[S_YU]; s[S_YU + 1] is the command of k-2)
         x = s[S_YM + 1]
         v = (s[S_YM] - s[S_YM + 2]) / (2.0 * dt)
         acc = (s[S_YM] - 2.0 * s[S_YM + 1] + s[S_YM + 2]) / (dt * dt)
-        u = s[S_YU + 1]
+        u = s[S_YU]
         slot = S_BUF + 4 * ((count - 2) % n_win)
         if count - 2 >= n_win:  # drop the sample leaving the window
             ox = s[slot]

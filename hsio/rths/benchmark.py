@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import math
-import warnings
+import numbers
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -63,25 +63,69 @@ class Benchmark:
             return None
 
 
-@lru_cache(maxsize=4)
 def load(folder: str | Path) -> Benchmark:
     """Read and check the data folder; anything the benchmark cannot run on is a ValueError
-    naming the file and what is wrong there."""
+    naming the file and what is wrong there. Kept while neither file changes (size and mtime)."""
     folder = Path(folder)
-    data = json.loads((folder / "benchmark.json").read_text())
+    stamps = tuple((st.st_size, st.st_mtime_ns) for st in
+                   ((folder / name).stat() for name in ("benchmark.json", "elcentro_vrths.csv")))
+    return _load(str(folder.resolve()), stamps)
+
+
+@lru_cache(maxsize=4)
+def _load(folder: str, _stamps: tuple) -> Benchmark:
+    folder = Path(folder)
+    js = folder / "benchmark.json"
+    try:
+        data = json.loads(js.read_text(encoding="utf-8"))
+    except ValueError as exc:  # JSON that does not parse, bytes that are no UTF-8
+        raise ValueError(f"{js}: {exc}") from None
     csv = folder / "elcentro_vrths.csv"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # an empty file: refused below
-        rec = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
-    if rec.shape[0] < 2 or rec.shape[1] != 2:
-        raise ValueError(f"{csv}: needs a header and at least two rows of time_s,accel_m_s2 "
-                         f"(has {rec.shape[0]} rows of {rec.shape[1]} columns)")
+    rec, lines = _read_record(csv)
     bm = Benchmark(data, rec[:, 0].copy(), rec[:, 1].copy())
-    check(bm, folder)
+    check(bm, folder, lines)
     return bm
 
 
-def check(bm: Benchmark, folder: Path) -> None:
+def _read_record(csv: Path) -> tuple[np.ndarray, list[int]]:
+    """The record's rows of numbers (n x 2) and the line of the file each one is on (blank lines
+    and # comments are skipped). The first line is the header time_s,accel_m_s2."""
+    try:
+        text = csv.read_text(encoding="utf-8-sig")
+    except ValueError as exc:  # bytes that are no UTF-8
+        raise ValueError(f"{csv}: {exc}") from None
+    rows, lines = [], []
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if number == 1:
+            if _numbers(line):
+                raise ValueError(f"{csv}:1: {line!r} is a row of numbers; the first line is the header "
+                                 "time_s,accel_m_s2 (a record without one would lose its first sample)")
+            continue
+        if not line:
+            continue
+        try:
+            rows.append([float(x) for x in line.split(",")])
+        except ValueError:
+            raise ValueError(f"{csv}:{number}: {line[:60]!r} is not comma-separated numbers time_s,accel_m_s2") from None
+        lines.append(number)
+    width = len(rows[0]) if rows else 0
+    if len(rows) < 2 or any(len(r) != 2 for r in rows):
+        raise ValueError(f"{csv}: needs a header and at least two rows of time_s,accel_m_s2 "
+                         f"(has {len(rows)} rows of {width} columns)")
+    return np.array(rows, dtype=float), lines
+
+
+def _numbers(line: str) -> bool:
+    """The line is comma-separated numbers (a data row, not a header)."""
+    try:
+        [float(x) for x in line.split(",")]
+    except ValueError:
+        return False
+    return True
+
+
+def check(bm: Benchmark, folder: Path, lines: list[int] | None = None) -> None:
     """The record: at least two finite rows, time increasing over MIN_RECORD_S to MAX_RECORD_S, accelerations
     within MAX_RECORD_ACCEL, a ground that moves; benchmark.json: every number the cases, the plant and the constraints
     need (3 x 3 matrices for each case, finite, a mass that leaves the numerical substructure a
@@ -90,13 +134,14 @@ def check(bm: Benchmark, folder: Path) -> None:
     from hsio.rths import plant as plant_mod
 
     csv, js = folder / "elcentro_vrths.csv", folder / "benchmark.json"
+    line = (lambda i: lines[i]) if lines is not None else (lambda i: i + 2)  # noqa: E731  the file's line of row i
     t, a = bm.record_t, bm.record_a
     bad = np.flatnonzero(~(np.isfinite(t) & np.isfinite(a)))
     if bad.size:
-        raise ValueError(f"{csv}:{int(bad[0]) + 2}: a value that is not a finite number")
+        raise ValueError(f"{csv}:{line(int(bad[0]))}: a value that is not a finite number")
     back = np.flatnonzero(np.diff(t) <= 0.0)
     if back.size:
-        raise ValueError(f"{csv}:{int(back[0]) + 3}: time does not increase ({t[back[0]]:g} s, then {t[back[0] + 1]:g} s)")
+        raise ValueError(f"{csv}:{line(int(back[0]) + 1)}: time does not increase ({t[back[0]]:g} s, then {t[back[0] + 1]:g} s)")
     if t[-1] - t[0] < MIN_RECORD_S:
         raise ValueError(f"{csv}: the record lasts {t[-1] - t[0]:g} s; the benchmark needs at least {MIN_RECORD_S:g} s")
     if t[-1] - t[0] > MAX_RECORD_S:
@@ -104,7 +149,7 @@ def check(bm: Benchmark, folder: Path) -> None:
                          f"at {FS:g} Hz (is the time column in seconds?)")
     big = np.flatnonzero(np.abs(a) > MAX_RECORD_ACCEL)
     if big.size:
-        raise ValueError(f"{csv}:{int(big[0]) + 2}: an acceleration of {a[big[0]]:g} m/s^2, beyond {MAX_RECORD_ACCEL:g} "
+        raise ValueError(f"{csv}:{line(int(big[0]))}: an acceleration of {a[big[0]]:g} m/s^2, beyond {MAX_RECORD_ACCEL:g} "
                          "m/s^2 (about 10 g; is the record in m/s^2, not cm/s^2?)")
     if not np.any(a != 0.0):
         raise ValueError(f"{csv}: the ground never moves (every acceleration is 0)")
@@ -178,12 +223,25 @@ def ground_motion(bm: Benchmark, duration: float | None = None, fs: float = FS) 
     t0 = bm.record_t[0]
     t_end = bm.record_t[-1]
     if duration is not None:
-        moving = np.flatnonzero(bm.record_a != 0.0)
-        t0 = bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else t0
+        t0, available = moving_span(bm)
+        if isinstance(duration, bool) or not (isinstance(duration, numbers.Real) and math.isfinite(duration)
+                                              and duration >= MIN_RECORD_S):
+            raise ValueError(f"duration = {duration!r} s: give a finite duration of {MIN_RECORD_S:g} s or more")
+        if duration > available + 0.5 / fs:  # a cut, never a silent clamp
+            raise ValueError(f"duration = {duration:g} s is longer than the record ({available:g} s from the first "
+                             "motion); give None to run the whole record")
         t_end = min(t0 + duration, t_end)
     n = int(np.floor((t_end - t0) * fs + 1e-9)) + 1
     t = t0 + np.arange(n) / fs
     return RECORD_SCALE * np.interp(t, bm.record_t, bm.record_a)
+
+
+def moving_span(bm: Benchmark) -> tuple[float, float]:
+    """The time of the last quiet sample before the ground starts to move, and the seconds of
+    record from there to its end (what ``ground_motion`` can cut a duration from)."""
+    moving = np.flatnonzero(bm.record_a != 0.0)
+    t0 = float(bm.record_t[max(int(moving[0]) - 1, 0)] if moving.size else bm.record_t[0])
+    return t0, float(bm.record_t[-1]) - t0
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,8 @@ force saturates at 8.9 kN. Converters: the command and both measurements pass th
 quantisers (span +-3.8 V; 7.89 mm/V for displacement, 1096 N/V for force) and the measurements
 carry white noise of 0.002 V RMS. The uncertain parameters a3, b1, b2 and k_e are Gaussian about
 their nominal values with the standard deviations of Table 2; a perturbed plant draws them from
-a seeded generator (a draw with a non-positive value is drawn again).
+a seeded generator (a draw with a non-positive value is drawn again; a parameter that MAX_DRAWS
+draws leave non-positive is a ValueError).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import numpy as np
 from scipy import signal
 
 UNCERTAIN = ("a3", "b1", "b2", "ke")
+MAX_DRAWS = 1000  # draws of one uncertain parameter before its distribution is taken to give no positive value
 
 
 @dataclass(frozen=True)
@@ -82,10 +84,13 @@ def perturbed(bm_data: dict, seed: int, count: int) -> list[PlantParameters]:
     for _ in range(count):
         values = {}
         for name in UNCERTAIN:
-            for _attempt in range(1000):
+            for _attempt in range(MAX_DRAWS):
                 v = rng.normal(getattr(nom, name), float(std[name]))
                 if v > 0.0:
                     break
+            else:
+                raise ValueError(f"plant.{name} = {getattr(nom, name):g} with plant.std.{name} = {float(std[name]):g}: "
+                                 f"{MAX_DRAWS} draws gave no positive value; a perturbed plant draws it positive")
             values[name] = float(v)
         plants.append(replace(nom, **values))
     return plants
