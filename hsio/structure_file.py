@@ -450,7 +450,8 @@ class _Reader:
             actuators = (self.string(f"{where}.actuator", entry["actuator"]),)
         else:
             actuators = tuple(f"{name}.{getattr(a, 'name', j)}" for j, a in enumerate(getattr(setup, "actuators", ())))
-            actuators = actuators or ((name,) if n == 1 else tuple(f"{name}.{j}" for j in range(n)))
+            m = setup.n_actuators
+            actuators = actuators or ((name,) if m == 1 else tuple(f"{name}.{j}" for j in range(m)))
         if len(actuators) != setup.n_actuators:
             raise self.error(f"{where}.actuators", f"{len(actuators)} actuator(s); setup "
                              f"{table.get('kind', 'none')!r} drives {setup.n_actuators}")

@@ -12,6 +12,7 @@ import numpy as np
 
 from hsio.errors import ConfigError
 from hsio.setups.base import Factors, Setup
+from hsio.setups.parallel import ParallelSetup
 from hsio.setups.planar import inverted_v_brace, one_actuator, three_actuators, two_actuators
 
 
@@ -42,13 +43,9 @@ SETUP_KINDS = {
     "two_actuators": (two_actuators, ("length_mm", "spacing_mm"), 2),
     "three_actuators": (three_actuators, ("length_mm", "half_span_mm"), 3),
     "inverted_v_brace": (inverted_v_brace, ("leg_length_mm", "angle_deg"), 2),
+    "parallel": (ParallelSetup, ("ratios",), 1),
 }
 OPTIONAL = {"angle_deg"}
-
-
-def setup_actuator_count(table: dict, n_basic: int) -> int:
-    """How many actuators the setup ``table`` drives (every kind is square)."""
-    return n_basic
 
 
 def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
@@ -75,6 +72,15 @@ def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
         raise ConfigError(f"{where}.factors: {exc}") from None
     if factory is None:
         return IdentitySetup(n_basic, factors)
+    if kind == "parallel":
+        ratios = table.get("ratios")
+        if not isinstance(ratios, list):
+            raise ConfigError(f"{where}.ratios: {'missing' if ratios is None else f'got {ratios!r}'} (setup 'parallel' "
+                              "needs ratios, an array of each actuator's stroke per unit of the DOF, e.g. [1.0, 1.0])")
+        try:
+            return ParallelSetup(ratios, factors)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.{exc}") from None
     args = {}
     for key in keys:
         if key not in table:

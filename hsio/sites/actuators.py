@@ -17,6 +17,8 @@ against the limits, generated at the controller rate and reached after t_d = TR 
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from hsio.control_loop import ControlLoop, with_hold_report
@@ -44,6 +46,8 @@ class ActuatorSite:
     or several per element through its setup (``setups``); ``static`` preloads
     (:class:`hsio.structures.StaticLoad`) on the actuators after those of the channels."""
 
+    ACTUATOR_LOG_ROWS = 10_000  # trials of the actuators' log kept for the record between its takes
+
     def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None,
                  setups=None, static=(), instruments=None, external=None, relative: bool = False):
         self.loop = loop
@@ -59,6 +63,9 @@ class ActuatorSite:
         self._actuator_of = {j: setups.identity_actuator(j) if setups is not None else j
                              for j, x in enumerate(self.external) if x is not None}
         self.instrument_log: list[tuple] = []  # (trial, iterations, readings)
+        # through setups: (trial, strokes sent, commands, strokes, forces) of each actuator, the rows
+        # not yet handed to the record (which takes them every step; without one, the latest only)
+        self.actuator_log: deque[tuple] = deque(maxlen=self.ACTUATOR_LOG_ROWS)
         self._tables_taken = {"static": 0, "instruments": 0}  # log rows handed to the record so far
         self._trials = 0
         self.setups = setups
@@ -289,6 +296,9 @@ class ActuatorSite:
         else:
             fb = self._execute(actuator_targets)
         fb, readings, iterations = self._outer_loop(targets, actuator_targets, fb)
+        if self.setups is not None:
+            self.actuator_log.append((self._trials, np.array(actuator_targets, dtype=float), fb.commands[:n].copy(),
+                                      fb.displacement[:n].copy(), fb.force[:n].copy()))
         samples = fb.samples[:, :n] if fb.samples is not None else None
         if samples is not None:
             self._keep_samples(samples, fb.sample_time, fb.phases)
@@ -406,15 +416,27 @@ class ActuatorSite:
                     "nothing moved")
 
     def continue_trials(self, last_trial: int) -> None:
-        """Number the trials from ``last_trial`` + 1: a resumed run's instruments log goes on after
-        the one its record holds."""
+        """Number the trials from ``last_trial`` + 1: a resumed run's instruments and actuators logs
+        go on after the ones its record holds."""
         self._trials = int(last_trial)
 
     def record_tables(self) -> dict[str, list[tuple[int, dict]]]:
         """Extra tables for the record, the rows logged since the last call: ``static`` (the
-        preloads' log) and ``instruments`` (every trial's readings and outer-loop iterations). The
+        preloads' log), ``instruments`` (every trial's readings and outer-loop iterations) and,
+        through setups, ``actuators`` (every trial's target, command, stroke and force of each
+        actuator, where the per-channel columns hold the linearised geometry's view). The
         experiment loop takes them every step, so that they are committed with the step's row."""
         tables = {}
+        if self.setups is not None:
+            rows = []
+            for trial, *values in self.actuator_log:
+                row = {}
+                for j, name in enumerate(self.setups.actuator_names):
+                    row.update({f"{p}_{name}": v[j] for p, v in zip(("target", "command", "disp", "force"), values)})
+                rows.append((trial, row))
+            self.actuator_log.clear()
+            if rows:
+                tables["actuators"] = rows
         if self.static:
             phases = {"ramp_in": 0, "test": 1, "ramp_off": 2}
             first, self._tables_taken["static"] = self._tables_taken["static"], len(self.static_log)

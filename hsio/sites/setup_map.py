@@ -100,14 +100,15 @@ class SetupMap:
 
     def forces_for(self, q, d) -> np.ndarray:
         """Actuator forces (lab kN) that carry basic forces ``q`` at basic displacements ``d``:
-        the solution of q = J(d)^T f (square setups)."""
+        the solution of q = J(d)^T f (square setups); with more actuators than basic DOFs
+        (``parallel``) the least-norm one, each actuator's share in proportion to its ratio."""
         q = np.asarray(q, dtype=float)
         d = np.asarray(d, dtype=float)
         f = np.empty(self.n_actuators)
         for b in self.blocks:
             s = b.setup
             J = s.jacobian(d[b.channels]) * s.factors.force * s.factors.displacement
-            f[b.actuators] = np.linalg.solve(J.T, q[b.channels])
+            f[b.actuators] = np.linalg.lstsq(J.T, q[b.channels], rcond=None)[0]
         return f
 
     def channel_phases(self, phases) -> list[str]:
@@ -124,12 +125,14 @@ class SetupMap:
 
     def linearised_samples(self, samples: np.ndarray) -> np.ndarray:
         """Controller-rate samples (n x actuators x 3: command, stroke, force) in channel space
-        by the linearised geometry J(0): what the recorder's per-channel columns hold."""
+        by the linearised geometry J(0): what the recorder's per-channel columns hold (commands
+        and strokes by its pseudo-inverse: with several actuators on one DOF, their least-squares
+        displacement; forces by J(0)^T: their ratio-weighted sum)."""
         n = samples.shape[0]
         out = np.empty((n, self.n_channels, 3))
         for b, J0 in zip(self.blocks, self._J0):
             s = b.setup
-            inv = np.linalg.inv(J0)
+            inv = np.linalg.pinv(J0)
             out[:, b.channels, 0] = samples[:, b.actuators, 0] @ inv.T
             out[:, b.channels, 1] = samples[:, b.actuators, 1] @ inv.T
             out[:, b.channels, 2] = samples[:, b.actuators, 2] @ J0 * s.factors.force * s.factors.displacement
