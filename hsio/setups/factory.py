@@ -59,7 +59,7 @@ def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
     factory, keys, n = SETUP_KINDS[kind]
     if factory is not None and n != n_basic:
         raise ConfigError(f"{where}.kind: setup {kind!r} drives {n} basic DOF(s); the element has {n_basic} (dofs)")
-    known = {"kind", "factors", *keys}
+    known = {"kind", "factors", *keys} | ({"mirror"} if factory not in (None, ParallelSetup) else set())
     unknown = sorted(set(table) - known)
     if unknown:
         raise ConfigError(f"{where}.{unknown[0]}: unknown key of setup {kind!r}; known: {', '.join(sorted(known))}")
@@ -81,7 +81,11 @@ def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
             return ParallelSetup(ratios, factors)
         except ConfigError as exc:
             raise ConfigError(f"{where}.{exc}") from None
-    args = {}
+    mirror = table.get("mirror", False)
+    if not isinstance(mirror, bool):
+        raise ConfigError(f"{where}.mirror: must be true or false (the rig mirrored left to right, its actuators "
+                          f"on the other side), got {mirror!r}")
+    args = {"mirror": mirror} if "mirror" in known else {}
     for key in keys:
         if key not in table:
             if key in OPTIONAL:
