@@ -184,3 +184,25 @@ def test_a_pose_near_or_past_a_singular_one_is_named():
     column = two_actuators(1500.0, 500.0)
     assert column.pose_problem([0.0, 0.3]) == ""
     assert column.pose_problem([0.0, math.pi / 2]) != ""
+
+
+def test_actuators_turned_through_their_reaction_pins_are_refused():
+    """Two actuators 300 mm long with the platen moved 594.6 mm towards them: both have passed
+    through their reaction pins and point the other way, so the Jacobian's sign is as at rest, and
+    their strokes (-5.4 and -1.0 mm) are those of a pose near rest, which the inverse returns. The
+    pose is refused, naming an actuator; so are the three-actuator joint's legs pushed past their
+    pins, and an actuator swung exactly square to its line at rest."""
+    column = two_actuators(300.0, 800.0)
+    far = np.array([-594.642925, 5.42970665e-03])
+    strokes = column.strokes(far)
+    assert np.max(np.abs(strokes)) < 6.0
+    near = column.basic_displacements(strokes)
+    assert abs(near[0]) < 6.0 and np.allclose(column.strokes(near), strokes, atol=1e-9)
+    assert column.pose_problem(near) == ""
+    assert "actuator 'lower' would turn through square" in column.pose_problem(far)
+    joint = three_actuators(1000.0, 400.0)
+    assert "would turn through square" in joint.pose_problem([-987.2, -1016.8, -0.0573])
+    side = one_actuator(1000.0, 0.0)
+    assert "would turn through square" in side.pose_problem([-1000.0 - 1e-9])
+    # a pose turned by less than a quarter turn from the line at rest still stands
+    assert column.pose_problem([-100.0, 0.05]) == ""

@@ -105,11 +105,21 @@ class PlanarSetup(Setup):
         of rest), so the geometry holds only on the side of rest, as well conditioned as at rest
         is required (:data:`MIN_STROKE_RATIO`). A rotation of half a turn or more is refused too:
         the strokes repeat with every whole turn (the platen turned by 2 pi stands where it stood),
-        so such a pose is sent, and measured, as the pose a whole turn back."""
+        so such a pose is sent, and measured, as the pose a whole turn back. So is a pose that turns
+        an actuator through square to its line at rest (e_i . e_i(0) <= 0: its platen pin beside
+        or past its reaction pin): two actuators turned so together leave the Jacobian's sign as
+        at rest, and their small strokes would be measured as a pose near rest."""
         theta = self._pose(d)[2]
         if abs(theta) >= math.pi:
             return (f"a rotation of {theta:.6g} rad is half a turn or more: its strokes are those of the pose turned "
                     f"back by a whole turn ({math.remainder(theta, 2 * math.pi):.6g} rad)")
+        pose = self._pose(d)
+        along = self._pins(pose) - self._A
+        turned = np.sum(along * (self._r - self._A), axis=1) <= 0.0  # e_i . e_i(0) <= 0
+        if np.any(turned):
+            name = self.actuators[int(np.argmax(turned))].name
+            return (f"actuator {name!r} would turn through square to its line at rest (its platen pin passes "
+                    f"beside or through its reaction pin), where its stroke no longer tells the pose")
         J = self.jacobian(d)
         weakest = self.conditioning(d, J)
         if not weakest >= MIN_STROKE_RATIO:
