@@ -32,7 +32,7 @@ class IdentitySetup(Setup):
     def jacobian(self, d) -> np.ndarray:
         return self._J.copy()
 
-    def basic_displacements(self, strokes, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
+    def basic_displacements(self, strokes, tol: float = 1e-12, max_iter: int = 50, guess=None) -> np.ndarray:
         return np.asarray(strokes, dtype=float) * self.factors.displacement
 
 

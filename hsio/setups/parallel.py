@@ -54,7 +54,7 @@ class ParallelSetup(Setup):
     def jacobian(self, d) -> np.ndarray:
         return self._J.copy()
 
-    def basic_displacements(self, strokes, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
+    def basic_displacements(self, strokes, tol: float = 1e-12, max_iter: int = 50, guess=None) -> np.ndarray:
         """Least squares over the actuators: d = lambda_d (a . s) / (a . a)."""
         s = np.asarray(strokes, dtype=float)
         if s.shape != (self.n_actuators,):

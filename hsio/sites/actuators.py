@@ -137,10 +137,10 @@ class ActuatorSite:
                 switched.append(index)
         return switched
 
-    def _to_channels(self, strokes: np.ndarray, forces: np.ndarray):
+    def _to_channels(self, strokes: np.ndarray, forces: np.ndarray, guess=None):
         if self.setups is None:
             return strokes, forces
-        return self.setups.basic(strokes, forces)
+        return self.setups.basic(strokes, forces, guess)
 
     def read_back(self) -> dict[str, float]:
         """One reading of every channel: each actuator's displacement and force, each instrument
@@ -312,11 +312,12 @@ class ActuatorSite:
                     if source is not None:
                         k[j] = k_ext[j] if abs(u[j] - base[j]) > self.estimator.min_increment else np.nan
         else:
-            u, R = self._to_channels(fb.displacement[:n], fb.force[:n])
+            u, R = self._to_channels(fb.displacement[:n], fb.force[:n], targets)
             u = self._external_displacements(u, readings)
             k = secant_stiffness(u, R, *self._committed)
         self._last = (u, R)
-        commands = fb.commands[:n] if self.setups is None else self.setups.basic(fb.commands[:n], fb.force[:n])[0]
+        commands = (fb.commands[:n] if self.setups is None
+                    else self.setups.basic(fb.commands[:n], fb.force[:n], targets)[0])
         self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=commands, samples=samples)
         self.last_actuator_feedback = fb
 

@@ -81,15 +81,18 @@ class SetupMap:
                 pose = ", ".join(f"{x:.6g}" for x in d[b.channels])
                 raise LimitError(f"element {b.name!r}: trial ({pose}) refused: {problem}; not sent")
 
-    def basic(self, strokes, forces) -> tuple[np.ndarray, np.ndarray]:
-        """Channel displacements and forces from measured actuator strokes and forces."""
+    def basic(self, strokes, forces, guess=None) -> tuple[np.ndarray, np.ndarray]:
+        """Channel displacements and forces from measured actuator strokes and forces; ``guess``,
+        the channel displacements commanded, starts each setup's inverse (the pose nearest it)."""
         strokes = np.asarray(strokes, dtype=float)
+        guess = None if guess is None else np.asarray(guess, dtype=float)
         forces = np.asarray(forces, dtype=float)
         u = np.empty(self.n_channels)
         q = np.empty(self.n_channels)
         for b in self.blocks:
             try:
-                d = b.setup.basic_displacements(strokes[b.actuators])
+                d = b.setup.basic_displacements(strokes[b.actuators],
+                                                guess=None if guess is None else guess[b.channels])
             except ConfigError as exc:  # strokes no pose gives: a transducer's fault, not the geometry's
                 measured = ", ".join(f"{x:.6g}" for x in strokes[b.actuators])
                 raise ImplausibleMeasurementError(f"element {b.name!r}: the measured strokes ({measured}) mm put its "
