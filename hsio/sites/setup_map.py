@@ -81,6 +81,16 @@ class SetupMap:
                 pose = ", ".join(f"{x:.6g}" for x in d[b.channels])
                 raise LimitError(f"element {b.name!r}: trial ({pose}) refused: {problem}; not sent")
 
+    def first_pose_problem(self, rows) -> tuple[int, str] | None:
+        """The first row (step) of channel displacements ``rows`` that :meth:`check_poses` refuses,
+        with the refusal; None if every row stands (the dry run's check of a prediction)."""
+        for k, row in enumerate(np.asarray(rows, dtype=float)):
+            try:
+                self.check_poses(row)
+            except LimitError as exc:
+                return k, str(exc)
+        return None
+
     def basic(self, strokes, forces, guess=None) -> tuple[np.ndarray, np.ndarray]:
         """Channel displacements and forces from measured actuator strokes and forces; ``guess``,
         the channel displacements commanded, starts each setup's inverse (the pose nearest it)."""
