@@ -159,3 +159,75 @@ def test_hsio_run_records_and_limits_each_actuator(tmp_path):
     _, report = runner.predict(cfg, structure, runner.build_record(cfg, structure))
     assert report.refused
     assert report.exceeded and all("west" in e and "east" not in e for e in report.exceeded), report.exceeded
+
+
+WOOD = """
+[structure]
+name = "wood_two_actuators"
+dt = 0.005
+
+[[dof]]
+name = "wall"
+mass = 0.011
+
+[damping]
+kind = "mass"
+zeta = 0.05
+
+[[instrument]]
+name = "top_lvdt"
+kind = "lvdt"
+element = "wall"
+
+[[experimental]]
+name = "wall"
+dofs = ["wall"]
+actuators = ["east", "west"]
+setup = {setup}
+model = {{ kind = "pinched_wood", k0 = 2.6, F0 = 30.0, r1 = 0.05, r3 = 1.5, r4 = 0.02, r_pinch = 0.15 }}
+{external}
+"""
+LVDT = 'displacement_from = "top_lvdt"\nouter_loop = { tolerance_mm = 0.05, max_iterations = 4 }'
+
+
+def test_an_lvdt_on_a_wall_pushed_by_two_actuators_takes_out_the_load_trains(tmp_path):
+    """Structure I's wood wall pushed by two actuators side by side, each behind a load train of
+    0.1 mm/kN (0.05 mm/kN together): on the actuators' transducers HS is about 15 % off its NS;
+    with the wall's LVDT and the outer loop, whose corrections move both actuators by their
+    ratios, it is back within 2 %."""
+    setup = '{ kind = "parallel", ratios = [1.0, 1.0] }'
+    (tmp_path / "plain.toml").write_text(WOOD.format(setup=setup, external=""))
+    (tmp_path / "lvdt.toml").write_text(WOOD.format(setup=setup, external=LVDT))
+    plain, lvdt = hsio.load_structure(tmp_path / "plain.toml"), hsio.load_structure(tmp_path / "lvdt.toml")
+    ground = hsio.synthetic_record(duration_s=1.5, dt=plain.dt, pga_g=0.3, seed=1)
+    ns = hsio.run_numerical(plain, ground)
+    errors, runs = {}, {}
+    for label, structure in (("compliant", plain), ("lvdt", lvdt)):
+        with hsio.open_site(structure, "emulator://", test_rate=5, options={"compliance_mm_per_kN": 0.1}) as site:
+            runs[label] = hsio.simulate(structure, ground, site)
+            feedback = site.last_actuator_feedback
+        errors[label] = max_error_pct(runs[label].u, ns.u)[0]
+    assert errors["compliant"] > 5.0 and errors["lvdt"] < 2.0, errors
+    iterations = [row[1] for row in runs["lvdt"].instrument_log]
+    assert max(iterations) >= 1 and max(iterations) <= 4
+    # the element's displacement is the LVDT's reading, and both rods went past it alike
+    readings = np.array([row[2]["top_lvdt"] for row in runs["lvdt"].instrument_log])
+    np.testing.assert_allclose(runs["lvdt"].measured_displacement[1:, 0], readings, atol=1e-12)
+    assert feedback.commands[0] == pytest.approx(feedback.commands[1], abs=1e-9)
+
+
+@pytest.mark.parametrize("setup, message", [
+    ('{ kind = "two_actuators", length_mm = 1500.0, spacing_mm = 500.0 }', "elements without setups or with a 'parallel' one"),
+    ('{ kind = "parallel", ratios = [1.0, 1.0], factors = { displacement = 0.5 } }', "displacement factor must be 1"),
+])
+def test_an_external_displacement_elsewhere_is_refused_not_ignored(tmp_path, setup, message):
+    text = WOOD.format(setup=setup, external=LVDT)
+    if "two_actuators" in setup:
+        text = text.replace('dofs = ["wall"]', 'dofs = ["wall", "rot"]').replace(
+            "model = {", 'model = { kind = "matrix", K = [[2.6, 0.0], [0.0, 1.0e5]] }\n#').replace(
+            "[damping]", '[[dof]]\nname = "rot"\nmass = 1.0\niota = 0.0\n\n[damping]')
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        hsio.load_structure(path)
+    assert str(info.value).startswith(f"{path}: experimental[0].displacement_from: ") and message in str(info.value)

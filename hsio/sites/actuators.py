@@ -59,9 +59,6 @@ class ActuatorSite:
         self.displacement_instruments = [None] * len(self.external)
         if any(x is not None for x in self.external) and instruments is None:
             raise ConfigError("an element takes its displacement from an external instrument: open the instruments' DAQ")
-        # the actuator of each channel that takes an instrument's reading: its element has no setup
-        self._actuator_of = {j: setups.identity_actuator(j) if setups is not None else j
-                             for j, x in enumerate(self.external) if x is not None}
         self.instrument_log: list[tuple] = []  # (trial, iterations, readings)
         # through setups: (trial, strokes sent, commands, strokes, forces) of each actuator, the rows
         # not yet handed to the record (which takes them every step; without one, the latest only)
@@ -71,6 +68,11 @@ class ActuatorSite:
         self.setups = setups
         self.static = list(static)
         self.n_dynamic = len(loop.actuators) - len(self.static)
+        # the actuator strokes that move each channel that takes an instrument's reading by 1 mm (its
+        # element has no setup, or a parallel one), and the actuator that moves it most, named
+        self._strokes_of = {j: setups.external_strokes(j) if setups is not None else np.eye(self.n_dynamic)[j]
+                            for j, x in enumerate(self.external) if x is not None}
+        self._actuator_of = {j: int(np.argmax(np.abs(v))) for j, v in self._strokes_of.items()}
         self.preload_short: list[tuple[str, float, float]] = []  # preloads the ramp-in left short: name, target, measured
         if setups is not None and setups.n_actuators != self.n_dynamic:
             raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {self.n_dynamic} "
@@ -354,7 +356,7 @@ class ActuatorSite:
                 if all(abs(errors[j]) <= src[1].tolerance_mm for j, src in loops):
                     break
                 for j, src in loops:
-                    commands[self._actuator_of[j]] += errors[j]
+                    commands += self._strokes_of[j] * errors[j]
                 fb = self._execute(commands)
                 readings = self.read_instruments()
                 iterations += 1
@@ -405,7 +407,10 @@ class ActuatorSite:
             k = self._actuator_of[j]
             actuator = self.loop.actuators[k].name
             reading = self.readback[name] - self.instrument_zero[name]
-            transducer = self.readback[f"{actuator}.displacement"] - self.zero[k]
+            # the element's displacement by its actuators' transducers (least squares over a parallel setup's)
+            v = self._strokes_of[j]
+            strokes = np.array([self.readback[f"{a.name}.displacement"] for a in self.loop.actuators[: len(v)]])
+            transducer = float(v @ (strokes - self.zero)) / float(v @ v)
             noise, resolution = self.displacement_instruments[j] or (0.0, 0.0)
             limit = self.BEYOND_TOLERANCE * max((outer or OuterLoop()).tolerance_mm, noise) + resolution
             if abs(reading - transducer) > limit:

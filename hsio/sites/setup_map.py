@@ -46,18 +46,25 @@ class SetupMap:
     def of(cls, structure) -> "SetupMap":
         return cls(structure.experimental)
 
-    def identity_actuator(self, channel: int) -> int:
-        """The actuator of ``channel`` where its element has no setup (stroke = displacement);
-        a channel whose strokes come through a geometry has no actuator of its own."""
+    def external_strokes(self, channel: int) -> np.ndarray:
+        """The actuator strokes (one per actuator of the map) that move ``channel`` by 1 mm, for an
+        external displacement's outer loop: the channel's own actuator where its element has no
+        setup (stroke = displacement), every actuator of a ``parallel`` element by its ratio. A
+        channel whose strokes come through a geometry, or scaled by a displacement factor (an
+        instrument reads the lab's mm), takes no external displacement."""
         from hsio.setups.factory import IdentitySetup
+        from hsio.setups.parallel import ParallelSetup
 
         for b in self.blocks:
             if b.channels.start <= channel < b.channels.stop:
                 s = b.setup
-                if not isinstance(s, IdentitySetup) or s.factors.displacement != 1.0:
+                if not isinstance(s, (IdentitySetup, ParallelSetup)) or s.factors.displacement != 1.0:
                     raise ConfigError(f"setups: channel {channel} of element {b.name!r} is loaded through a setup: an "
-                                      "external displacement is taken for elements without setups only")
-                return b.actuators.start + (channel - b.channels.start)
+                                      "external displacement is taken for elements without setups or with a "
+                                      "'parallel' one (displacement factor 1) only")
+                out = np.zeros(self.n_actuators)
+                out[b.actuators] = s.jacobian(np.zeros(s.n_basic))[:, channel - b.channels.start]
+                return out
         raise ConfigError(f"setups: no channel {channel} (the structure has {self.n_channels})")
 
     def strokes(self, d) -> np.ndarray:
