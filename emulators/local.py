@@ -198,14 +198,32 @@ class EmulatedInstruments(DAQ):
         return {inst.name: self.value(inst) for inst in self.instruments}
 
 
+class _RigPoint:
+    """What an instrument on a ``parallel`` rig reads: the one basic DOF's displacement (the pose
+    the rods give after their load trains) and force."""
+
+    def __init__(self, rig):
+        self.rig = rig
+
+    @property
+    def d_spec(self) -> float:
+        return float(self.rig.pose[0])
+
+    @property
+    def force(self) -> float:
+        return float(self.rig.basic_forces[0])
+
+
 def open_instruments(instruments, elements, actuators) -> EmulatedInstruments:
     """The emulated DAQ of ``instruments`` on the controllers behind ``actuators`` (one per element,
-    in the elements' order; elements with setups are not read)."""
+    in the elements' order; elements with other setups than ``parallel`` are not read)."""
     controllers = {}
     k = 0
     for e in elements:
         names = getattr(e, "actuator_names", (e.name,))
         if len(names) == 1 and not getattr(e, "has_setup", False):
             controllers[e.name] = actuators[k].controller
+        elif getattr(e, "is_parallel", False):
+            controllers[e.name] = _RigPoint(actuators[k].controller.specimen.rig)
         k += len(names)
     return EmulatedInstruments(instruments, controllers)

@@ -8,8 +8,9 @@ their rods (docs/setups.md):
   displacements d, follows from the strokes by the setup's exact geometry
   (:meth:`hsio.setups.Setup.basic_displacements`, Newton from the last pose);
 * the specimen model gives the basic forces q(d);
-* the actuator forces are the solution of q = J(d)^T f (square setups), and each controller's
-  load cell reads its own f_i.
+* the actuator forces are the solution of q = J(d)^T f (square setups; with more actuators than
+  basic DOFs, ``parallel``, the least-norm one: each actuator's share in proportion to its
+  ratio, the actuators not fighting each other), and each controller's load cell reads its own f_i.
 
 The rig is evaluated once per controller period, when the first actuator's controller steps; the
 others see the pose of that period with their own strokes of the period before (one controller
@@ -63,9 +64,9 @@ class Rig:
     """A setup, a specimen model over its basic DOFs, and one controller per actuator."""
 
     def __init__(self, setup, model, configs: list[ServoConfig]):
-        if setup.n_actuators != setup.n_basic:
+        if setup.n_actuators < setup.n_basic:
             raise ConfigError(f"rig: {setup.n_actuators} actuators for {setup.n_basic} basic DOFs; "
-                              "the rig solves q = J^T f and needs as many actuators as basic DOFs")
+                              "the rig solves q = J^T f and needs at least as many actuators as basic DOFs")
         if len(configs) != setup.n_actuators:
             raise ConfigError(f"rig: {len(configs)} controller settings for {setup.n_actuators} actuators")
         self.setup = setup
@@ -73,8 +74,9 @@ class Rig:
         self._scale = setup.factors.force * setup.factors.displacement
         J0 = setup.jacobian(np.zeros(setup.n_basic))
         K = np.atleast_2d(np.asarray(self.model.initial_stiffness, dtype=float))
-        J0_inv = np.linalg.inv(J0)
+        J0_inv = np.linalg.pinv(J0)
         # stroke-to-force stiffness of the rig at rest: f = J^-T K J^-1 s / (force x displacement factors)
+        # (pseudo-inverses where several actuators drive one DOF)
         self.leg_stiffness = np.abs(np.diag(J0_inv.T @ K @ J0_inv)) / abs(self._scale)
         self.strokes = np.zeros(setup.n_actuators)
         self.pose = np.zeros(setup.n_basic)
@@ -104,7 +106,7 @@ class Rig:
         d = self.pose.copy()
         for _ in range(8):
             J = setup.jacobian(d)
-            step = np.linalg.solve(J, setup.strokes(d) - s)
+            step = np.linalg.lstsq(J, setup.strokes(d) - s, rcond=None)[0]
             d -= step
             if np.max(np.abs(step)) <= 1e-11 * max(1.0, float(np.max(np.abs(d)))):
                 break
@@ -112,7 +114,7 @@ class Rig:
             raise ConfigError(f"rig: the setup's geometry does not close at strokes {s.tolist()}")
         self.pose = d
         self.basic_forces = np.asarray(self.model.force(d), dtype=float)
-        self.forces = np.linalg.solve(J.T * self._scale, self.basic_forces)
+        self.forces = np.linalg.lstsq(J.T * self._scale, self.basic_forces, rcond=None)[0]
         self.evaluations += 1
 
 

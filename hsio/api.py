@@ -331,14 +331,15 @@ def check_instruments(structure: Structure, hardware: str, options: dict | None 
     the DAQ module. Checked before anything opens (``hsio check`` and ``hsio run`` before the
     run folder too)."""
     emulated = hardware.startswith("emulator://")
-    rigged = {e.name for e in structure.experimental if e.has_setup or e.is_multi_dof}
+    rigged = {e.name for e in structure.experimental if (e.has_setup or e.is_multi_dof) and not e.is_parallel}
     for inst in structure.instruments:
         if emulated and not inst.element:
             raise ConfigError(f"instrument {inst.name!r} names no element: the emulator has nothing for it to read "
                               f"(give its element)")
         if emulated and inst.element in rigged:
             raise ConfigError(f"instrument {inst.name!r} reads element {inst.element!r}, which is loaded through a "
-                              f"setup: the emulator emulates instruments on elements without setups only")
+                              f"setup: the emulator emulates instruments on elements without setups or with a "
+                              f"'parallel' one only")
     if structure.instruments and not emulated and not (options or {}).get("instruments"):
         raise ConfigError(f"structure {structure.name!r} names instruments; give the DAQ module's URL as the "
                           f"driver option 'instruments' (modbus+tcp://HOST:PORT)")

@@ -24,6 +24,9 @@ One file per run (``run.sqlite``), readable by any SQLite tool, pandas or MATLAB
 * ``compensation`` (when the run has a compensation stage): one row per step - per actuator
   ``dc_``, ``da_`` (command and adjusted command, mm), ``v_`` (mm/s), ``er_cc_`` or ``er_ca_`` and
   ``er_aa_`` (execution errors / d_max), ``a_``, ``b_`` (parameters used), see hsio.compensation.
+* ``actuators`` (elements loaded through setups, whose channels are their basic DOFs): one row per
+  step - per actuator ``target_``, ``command_``, ``disp_``, ``force_`` (stroke sent, command,
+  measured stroke and force; docs/setups.md).
 
 Each step is committed durably (WAL journal, ``synchronous=FULL``) before the next begins: a run
 that stops for any reason, a killed process or a power loss included, keeps every step it made.
@@ -297,7 +300,7 @@ class Recorder:
         self._insert_ns = f"INSERT INTO ns VALUES ({', '.join('?' * len(self._ns_cols))})"
         self.steps_written = self.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
         self._checkpointed = time.monotonic()
-        # every extra table the record holds (compensation, implicit, static, instruments) is continued
+        # every extra table the record holds (compensation, implicit, static, instruments, actuators) is continued
         self._extra_tables = {name: cols(name)[1:] for name in sorted(tables - set(CORE_TABLES) - set(UNCOMMITTED_TABLES))
                              if not name.startswith("sqlite_")}
 

@@ -403,6 +403,11 @@ class _Reader:
         actuator = self.string(f"{where}.actuator", entry.get("actuator", name))
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
         K_EI = self.number(f"{where}.K_EI", entry["K_EI"], positive=True) if "K_EI" in entry else None
+        source, outer = self.external_displacement(where, entry)
+        return ExperimentalElement(name, i, spec, actuator, K_EI, displacement_from=source, outer_loop=outer, ref=ref)
+
+    def external_displacement(self, where: str, entry: dict) -> tuple[str, OuterLoop | None]:
+        """An element's ``displacement_from`` and ``outer_loop`` (docs/setups.md)."""
         source = self.string(f"{where}.displacement_from", entry["displacement_from"]) if "displacement_from" in entry else ""
         outer = None
         if "outer_loop" in entry:
@@ -414,7 +419,7 @@ class _Reader:
             if isinstance(n_max, bool) or not isinstance(n_max, int) or not 1 <= n_max <= 50:
                 raise self.error(f"{where}.outer_loop.max_iterations", f"must be a whole number in 1..50, got {n_max!r}")
             outer = OuterLoop(tol, n_max)
-        return ExperimentalElement(name, i, spec, actuator, K_EI, displacement_from=source, outer_loop=outer, ref=ref)
+        return source, outer
 
     def experimental_setup(self, k: int, where: str, entry: dict) -> ExperimentalElement:
         """An element loaded through a setup: dofs, actuators, setup, a multi-DOF model (docs/setups.md)."""
@@ -450,7 +455,8 @@ class _Reader:
             actuators = (self.string(f"{where}.actuator", entry["actuator"]),)
         else:
             actuators = tuple(f"{name}.{getattr(a, 'name', j)}" for j, a in enumerate(getattr(setup, "actuators", ())))
-            actuators = actuators or ((name,) if n == 1 else tuple(f"{name}.{j}" for j in range(n)))
+            m = setup.n_actuators
+            actuators = actuators or ((name,) if m == 1 else tuple(f"{name}.{j}" for j in range(m)))
         if len(actuators) != setup.n_actuators:
             raise self.error(f"{where}.actuators", f"{len(actuators)} actuator(s); setup "
                              f"{table.get('kind', 'none')!r} drives {setup.n_actuators}")
@@ -498,8 +504,9 @@ class _Reader:
                 except np.linalg.LinAlgError:
                     raise self.error(f"{where}.K_EI", "must be positive definite") from None
                 K_EI = tuple(tuple(float(v) for v in r) for r in K)
+        source, outer = self.external_displacement(where, entry)
         return ExperimentalElement(name, dofs[0], spec, actuators[0], K_EI, dofs=dofs, actuators=actuators,
-                                   setup=dict(table))
+                                   setup=dict(table), displacement_from=source, outer_loop=outer)
 
     def check_instruments(self, experimental, instruments) -> None:
         """Instruments have distinct names and known kinds and read existing elements; an element's
@@ -531,9 +538,13 @@ class _Reader:
                 if inst.unit != "mm":
                     raise self.error(f"experimental[{k}].displacement_from",
                                      f"instrument {inst.name!r} is a {inst.kind} ({inst.unit}), not a displacement")
-                if e.has_setup:
+                if e.has_setup and not e.is_parallel:
                     raise self.error(f"experimental[{k}].displacement_from",
-                                     "an external displacement is taken for elements without setups only")
+                                     "an external displacement is taken for elements without setups or with a "
+                                     "'parallel' one only")
+                if e.is_parallel and e.make_setup().factors.displacement != 1.0:
+                    raise self.error(f"experimental[{k}].displacement_from", "an instrument reads the lab's mm: "
+                                     "the parallel setup's displacement factor must be 1")
                 if inst.scale < 0:  # emulation: it would read against the element's direction
                     raise self.error(f"experimental[{k}].displacement_from",
                                      f"instrument {inst.name!r} has scale {inst.scale:g}: it would read the element's "

@@ -137,6 +137,11 @@ class ExperimentalElement:
         return tuple(self.actuators) if self.actuators else (self.actuator,)
 
     @property
+    def is_parallel(self) -> bool:
+        """Loaded by several actuators in parallel on one basic DOF (setup kind ``parallel``)."""
+        return isinstance(self.setup, dict) and self.setup.get("kind") == "parallel"
+
+    @property
     def has_setup(self) -> bool:
         """Loaded through a setup (strokes are not the basic displacements one to one)."""
         return self.setup is not None or len(self.basic_dofs) > 1
@@ -231,6 +236,7 @@ class StaticLoad:
         _check_specimen(f"static load {self.name!r}", self.specimen)
 
     has_setup = False
+    is_parallel = False
     is_multi_dof = False
 
     @property

@@ -223,6 +223,10 @@ def test_a_resume_through_setups_names_the_actuators_where_they_stand(tmp_path):
     assert result.exit_code == 0, result.output
     assert "the actuators stand at: lower " in result.output and "; upper " in result.output
     assert "top_rot" not in result.output
+    # each actuator's own table goes on after the stop, one row a step
+    run = Run(out / "run.sqlite")
+    steps = run.table("actuators")["step"]
+    np.testing.assert_array_equal(steps, np.arange(1, len(run.steps["step"]) + 1))
 
 
 def test_actuators_far_from_where_the_record_stops_are_not_resumed(tmp_path):

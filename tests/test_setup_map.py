@@ -32,15 +32,20 @@ def test_a_channel_without_a_setup_has_its_own_actuator():
     m = _map()
     assert (m.n_channels, m.n_actuators) == (5, 5)
     assert m.actuator_names == ["lower", "upper", "brace", "w1", "w2"]
-    assert [m.identity_actuator(c) for c in (3, 4)] == [3, 4]
+    assert [m.external_strokes(c).tolist() for c in (3, 4)] == [[0, 0, 0, 1, 0], [0, 0, 0, 0, 1]]
     for c in (0, 1, 2):
         with pytest.raises(ConfigError, match="loaded through a setup"):
-            m.identity_actuator(c)
+            m.external_strokes(c)
     with pytest.raises(ConfigError, match="no channel 5"):
-        m.identity_actuator(5)
+        m.external_strokes(5)
     scaled = SetupMap([_element("w", IdentitySetup(1, Factors(displacement=2.0)), ("w",))])
     with pytest.raises(ConfigError, match="loaded through a setup"):  # stroke = displacement / 2: not its own
-        scaled.identity_actuator(0)
+        scaled.external_strokes(0)
+    # several actuators on one DOF: each moves by its ratio
+    from hsio.setups import ParallelSetup
+
+    pair = SetupMap([_element("w", IdentitySetup(1), ("w",)), _element("p", ParallelSetup([1.0, -0.5]), ("e", "f"))])
+    assert pair.external_strokes(1).tolist() == [0.0, 1.0, -0.5]
 
 
 def test_forces_for_carries_the_basic_forces_at_the_pose():

@@ -94,3 +94,26 @@ def test_a_rotation_of_a_whole_turn_is_refused_not_sent_as_the_pose_at_rest():
             with pytest.raises(LimitError, match="element 'column': trial .* refused: a rotation of .* half a turn"):
                 site.set_trial(np.array([1.0, theta]), [ControlMode.DISPLACEMENT] * 2)
             assert [g.command for g in site.loop.generators] == before
+
+
+def test_the_dry_run_refuses_a_record_whose_ns_crosses_a_pose_the_rig_cannot_drive(tmp_path):
+    """The steep rig's NS under 0.3 g goes beyond -86.8 mm, square to the actuator, with strokes
+    and forces well within the limits: the dry run refuses it, naming the element and the step,
+    before anything opens (the site would refuse that trial mid-record). A smaller record passes."""
+    from hsio import config, runner
+
+    (tmp_path / "steep.toml").write_text(STEEP)
+
+    def report(pga_g):
+        cfg = config.from_dict({"structure": {"file": str(tmp_path / "steep.toml")}, "output": {"plots": False},
+                                "record": {"synthetic_duration_s": 3.0, "pga_g": pga_g}, "test": {"rate": 10.0}})
+        structure = runner.load_run_structure(cfg)
+        ns, rep = runner.predict(cfg, structure, runner.build_record(cfg, structure))
+        return ns, rep
+
+    ns, refused = report(0.3)
+    assert np.min(ns.u[:, 0]) < -90.0
+    assert refused.refused and len(refused.exceeded) == 1, refused.exceeded
+    assert refused.exceeded[0].startswith("pose: element 'wall': trial (") and " at step " in refused.exceeded[0]
+    ns, passed = report(0.05)
+    assert np.max(np.abs(ns.u[:, 0])) > 5.0 and not passed.refused, passed.exceeded

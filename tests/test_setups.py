@@ -184,3 +184,56 @@ def test_a_pose_near_or_past_a_singular_one_is_named():
     column = two_actuators(1500.0, 500.0)
     assert column.pose_problem([0.0, 0.3]) == ""
     assert column.pose_problem([0.0, math.pi / 2]) != ""
+
+
+def test_actuators_turned_through_their_reaction_pins_are_refused():
+    """Two actuators 300 mm long with the platen moved 594.6 mm towards them: both have passed
+    through their reaction pins and point the other way, so the Jacobian's sign is as at rest, and
+    their strokes (-5.4 and -1.0 mm) are those of a pose near rest, which the inverse returns. The
+    pose is refused, naming an actuator; so are the three-actuator joint's legs pushed past their
+    pins, and an actuator swung exactly square to its line at rest."""
+    column = two_actuators(300.0, 800.0)
+    far = np.array([-594.642925, 5.42970665e-03])
+    strokes = column.strokes(far)
+    assert np.max(np.abs(strokes)) < 6.0
+    near = column.basic_displacements(strokes)
+    assert abs(near[0]) < 6.0 and np.allclose(column.strokes(near), strokes, atol=1e-9)
+    assert column.pose_problem(near) == ""
+    assert "actuator 'lower' would turn through square" in column.pose_problem(far)
+    joint = three_actuators(1000.0, 400.0)
+    assert "would turn through square" in joint.pose_problem([-987.2, -1016.8, -0.0573])
+    side = one_actuator(1000.0, 0.0)
+    assert "would turn through square" in side.pose_problem([-1000.0 - 1e-9])
+    # a pose turned by less than a quarter turn from the line at rest still stands
+    assert column.pose_problem([-100.0, 0.05]) == ""
+
+
+def test_the_inverse_starts_from_the_commanded_pose():
+    """Far from rest the same strokes can have two poses: the joint at (-58, -690.4 mm, 0.7 rad)
+    has the strokes of one near (-117, -765 mm, 0.84 rad), with an actuator past its pin, where
+    Newton from the linearised guess lands. From the commanded pose (``guess``, as the site
+    gives it) the inverse returns the pose commanded; from a guess that leads nowhere the actuators
+    can drive to, it falls back to the linearised guess."""
+    joint = three_actuators(1000.0, 400.0)
+    d = np.array([-58.0, -690.4, 0.7])
+    assert joint.pose_problem(d) == ""
+    strokes = joint.strokes(d)
+    other = joint.basic_displacements(strokes)
+    assert np.max(np.abs(other - d)) > 50.0
+    np.testing.assert_allclose(joint.strokes(other), strokes, atol=1e-9)
+    near = d + np.array([0.5, -0.5, 1e-3])  # the measured pose is near the commanded one
+    np.testing.assert_allclose(joint.basic_displacements(strokes, guess=near), d, rtol=1e-9, atol=1e-9)
+    # the actuators stayed at rest while the trial asked for d: read back as rest, not a twin of rest
+    np.testing.assert_allclose(joint.basic_displacements(np.zeros(3), guess=d), 0.0, atol=1e-9)
+    # and the map of a structure's setups passes each element's commanded channels on
+    from hsio.sites.setup_map import SetupMap
+
+    class Element:
+        name, actuator_names = "joint", ["h", "l", "r"]
+
+        def make_setup(self):
+            return joint
+
+    smap = SetupMap([Element()])
+    np.testing.assert_allclose(smap.basic(strokes, np.zeros(3), guess=near)[0], d, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(smap.basic(strokes, np.zeros(3))[0], other, rtol=1e-9)

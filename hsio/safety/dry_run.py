@@ -447,7 +447,16 @@ def dry_run(ns, t_d: float, hold_fraction: float, url: str, emulator: dict, driv
     ``lag``: the actuators' (:func:`actuator_lag`)."""
     limits, source = known_limits(url, emulator, driver)
     prediction = predict(ns, t_d, hold_fraction, setups=setups, lag=lag)
-    return check(with_static(prediction, static, t_d, hold_fraction), limits, source, settings)
+    report = check(with_static(prediction, static, t_d, hold_fraction), limits, source, settings)
+    # a pose a setup cannot drive to (near or past a singular one) is refused by the site at that
+    # trial; the stroke limits need not see it (its strokes may be small): refuse it here first
+    pose = setups.first_pose_problem(ns.targets) if setups is not None else None
+    if pose is not None:
+        step, problem = pose
+        when = f" at step {step} (t = {step * float(ns.dt):.3f} s)"
+        report.lines.append(f"  pose: {problem}  EXCEEDS{when}")
+        report.exceeded.append(f"pose: {problem}{when}")
+    return report
 
 
 def enforce(report: DryRunReport) -> None:

@@ -287,9 +287,11 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
                 abs(g) <= max_gap_mm for g in gap.values()) else ""))
             check_gaps(gap, max_gap_mm, hardware["url"])
             restore_interlocks(site, run, state.i, notify)
-            trials = run.table("instruments").get("step")
-            if trials is not None and trials.size:
-                site.continue_trials(int(np.nanmax(trials)))
+            # the per-trial tables (instruments, actuators through setups) go on after their last trial
+            trials = [t for t in (run.table(name).get("step") for name in ("instruments", "actuators"))
+                      if t is not None and t.size]
+            if trials:
+                site.continue_trials(int(max(np.nanmax(t) for t in trials)))
             control.check_stop()
             control.enter("HS")
             try:

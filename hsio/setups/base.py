@@ -62,14 +62,28 @@ class Setup(ABC):
     def jacobian(self, d: np.ndarray) -> np.ndarray:
         """d(strokes)/d(d) at ``d``: n_actuators x n_basic."""
 
-    def basic_displacements(self, strokes: np.ndarray, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
+    def basic_displacements(self, strokes: np.ndarray, tol: float = 1e-12, max_iter: int = 50,
+                            guess=None) -> np.ndarray:
         """The basic displacements at which the actuators have ``strokes``: Newton's method on
-        the exact geometry from the linearised guess (square setups)."""
+        the exact geometry from ``guess`` (the pose commanded: far from rest the same strokes
+        may have another pose nearer rest), else, or where it does not close from there on a
+        pose the actuators can drive to (:meth:`pose_problem`), from the linearised guess."""
         s = np.asarray(strokes, dtype=float)
         if s.shape != (self.n_actuators,):
             raise ConfigError(f"setup: {s.size} strokes for {self.n_actuators} actuators")
+        if guess is not None:
+            start = np.asarray(guess, dtype=float)
+            if start.shape == (self.n_basic,) and np.all(np.isfinite(start)):
+                try:
+                    d = self._newton(s, start.copy(), tol, max_iter)
+                except ConfigError:
+                    d = None
+                if d is not None and not self.pose_problem(d):  # a pose the actuators can drive to
+                    return d
         J0 = self.jacobian(np.zeros(self.n_basic))
-        d = np.linalg.lstsq(J0, s, rcond=None)[0]
+        return self._newton(s, np.linalg.lstsq(J0, s, rcond=None)[0], tol, max_iter)
+
+    def _newton(self, s: np.ndarray, d: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
         for _ in range(max_iter):
             residual = self.strokes(d) - s
             step = np.linalg.lstsq(self.jacobian(d), residual, rcond=None)[0]

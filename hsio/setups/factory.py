@@ -12,6 +12,7 @@ import numpy as np
 
 from hsio.errors import ConfigError
 from hsio.setups.base import Factors, Setup
+from hsio.setups.parallel import ParallelSetup
 from hsio.setups.planar import inverted_v_brace, one_actuator, three_actuators, two_actuators
 
 
@@ -31,7 +32,7 @@ class IdentitySetup(Setup):
     def jacobian(self, d) -> np.ndarray:
         return self._J.copy()
 
-    def basic_displacements(self, strokes, tol: float = 1e-12, max_iter: int = 50) -> np.ndarray:
+    def basic_displacements(self, strokes, tol: float = 1e-12, max_iter: int = 50, guess=None) -> np.ndarray:
         return np.asarray(strokes, dtype=float) * self.factors.displacement
 
 
@@ -42,13 +43,9 @@ SETUP_KINDS = {
     "two_actuators": (two_actuators, ("length_mm", "spacing_mm"), 2),
     "three_actuators": (three_actuators, ("length_mm", "half_span_mm"), 3),
     "inverted_v_brace": (inverted_v_brace, ("leg_length_mm", "angle_deg"), 2),
+    "parallel": (ParallelSetup, ("ratios",), 1),
 }
 OPTIONAL = {"angle_deg"}
-
-
-def setup_actuator_count(table: dict, n_basic: int) -> int:
-    """How many actuators the setup ``table`` drives (every kind is square)."""
-    return n_basic
 
 
 def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
@@ -62,7 +59,7 @@ def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
     factory, keys, n = SETUP_KINDS[kind]
     if factory is not None and n != n_basic:
         raise ConfigError(f"{where}.kind: setup {kind!r} drives {n} basic DOF(s); the element has {n_basic} (dofs)")
-    known = {"kind", "factors", *keys}
+    known = {"kind", "factors", *keys} | ({"mirror"} if factory not in (None, ParallelSetup) else set())
     unknown = sorted(set(table) - known)
     if unknown:
         raise ConfigError(f"{where}.{unknown[0]}: unknown key of setup {kind!r}; known: {', '.join(sorted(known))}")
@@ -75,7 +72,20 @@ def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
         raise ConfigError(f"{where}.factors: {exc}") from None
     if factory is None:
         return IdentitySetup(n_basic, factors)
-    args = {}
+    if kind == "parallel":
+        ratios = table.get("ratios")
+        if not isinstance(ratios, list):
+            raise ConfigError(f"{where}.ratios: {'missing' if ratios is None else f'got {ratios!r}'} (setup 'parallel' "
+                              "needs ratios, an array of each actuator's stroke per unit of the DOF, e.g. [1.0, 1.0])")
+        try:
+            return ParallelSetup(ratios, factors)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.{exc}") from None
+    mirror = table.get("mirror", False)
+    if not isinstance(mirror, bool):
+        raise ConfigError(f"{where}.mirror: must be true or false (the rig mirrored left to right, its actuators "
+                          f"on the other side), got {mirror!r}")
+    args = {"mirror": mirror} if "mirror" in known else {}
     for key in keys:
         if key not in table:
             if key in OPTIONAL:

@@ -11,6 +11,12 @@ the pin from it. Its stroke is its length change, exactly:
 and its row of the Jacobian is e_i . dB_i/dd, with e_i the unit vector from A_i to B_i:
 dB/du_x = (1, 0), dB/du_y = (0, 1), dB/dtheta = R'(theta) r_i. Lengths in the lab's mm,
 rotations in rad (docs/setups.md).
+
+A mirrored rig (``mirror``: the rig as drawn, reflected left to right, its actuators on the
+other side of the specimen) is the reflection x -> -x: the model's pose (u_x, u_y, theta) is the
+drawn rig's (-u_x, u_y, -theta), a reflection turning rotations the other way. A negative
+displacement factor instead flips every translation and leaves rotations: the rig turned half a
+turn in the plane (upside down).
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ class PlanarSetup(Setup):
     basic: tuple[str, ...]
     actuators: tuple[PlanarActuator, ...]
     factors: Factors = field(default_factory=Factors)
+    mirror: bool = False  # the rig as drawn, mirrored left to right: its actuators on the other side
 
     def __post_init__(self):
         if not self.basic or any(b not in POSE for b in self.basic) or len(set(self.basic)) != len(self.basic):
@@ -60,13 +67,16 @@ class PlanarSetup(Setup):
         self._L0 = np.linalg.norm(self._r - self._A, axis=1)
         if np.any(self._L0 <= 0) or not np.all(np.isfinite(self._L0)):
             raise ConfigError("planar setup: an actuator has no length at rest (its two pins coincide)")
-        # model -> lab: translations divide by the displacement factor, rotations do not
-        self._scale = np.array([1.0 / self.factors.displacement if b != "theta" else 1.0 for b in self.basic])
+        # model -> lab: translations divide by the displacement factor, rotations do not; a mirrored
+        # rig (x -> -x) sees the model's x translation and its rotation with the opposite sign
+        flip = {"ux": -1.0 if self.mirror else 1.0, "uy": 1.0, "theta": -1.0 if self.mirror else 1.0}
+        self._scale = np.array([flip[b] * (1.0 / self.factors.displacement if b != "theta" else 1.0)
+                                for b in self.basic])
         # Conditioning at rest in lab units, dimensionless: mm of stroke per mm of translation, and
         # per mm of arc at the farthest pin for a rotation. Below MIN_STROKE_RATIO in some direction
         # an actuator nearly square to its DOF would move it by a stroke's many times.
         size = max(float(np.max(np.linalg.norm(self._r, axis=1))), 1.0)
-        self._lab = self._scale * np.array([size if b == "theta" else 1.0 for b in self.basic])
+        self._lab = np.abs(self._scale) * np.array([size if b == "theta" else 1.0 for b in self.basic])
         J0 = self.jacobian(np.zeros(self.n_basic))
         weakest = self.conditioning(None, J0)
         self._orientation = np.sign(np.linalg.det(J0)) if self.square else 0.0
@@ -95,11 +105,21 @@ class PlanarSetup(Setup):
         of rest), so the geometry holds only on the side of rest, as well conditioned as at rest
         is required (:data:`MIN_STROKE_RATIO`). A rotation of half a turn or more is refused too:
         the strokes repeat with every whole turn (the platen turned by 2 pi stands where it stood),
-        so such a pose is sent, and measured, as the pose a whole turn back."""
+        so such a pose is sent, and measured, as the pose a whole turn back. So is a pose that turns
+        an actuator through square to its line at rest (e_i . e_i(0) <= 0: its platen pin beside
+        or past its reaction pin): two actuators turned so together leave the Jacobian's sign as
+        at rest, and their small strokes would be measured as a pose near rest."""
         theta = self._pose(d)[2]
         if abs(theta) >= math.pi:
             return (f"a rotation of {theta:.6g} rad is half a turn or more: its strokes are those of the pose turned "
                     f"back by a whole turn ({math.remainder(theta, 2 * math.pi):.6g} rad)")
+        pose = self._pose(d)
+        along = self._pins(pose) - self._A
+        turned = np.sum(along * (self._r - self._A), axis=1) <= 0.0  # e_i . e_i(0) <= 0
+        if np.any(turned):
+            name = self.actuators[int(np.argmax(turned))].name
+            return (f"actuator {name!r} would turn through square to its line at rest (its platen pin passes "
+                    f"beside or through its reaction pin), where its stroke no longer tells the pose")
         J = self.jacobian(d)
         weakest = self.conditioning(d, J)
         if not weakest >= MIN_STROKE_RATIO:
@@ -137,7 +157,8 @@ class PlanarSetup(Setup):
         return np.column_stack([columns[b] for b in self.basic]) * self._scale
 
 
-def one_actuator(length_mm: float, angle_deg: float = 0.0, factors: Factors | None = None) -> PlanarSetup:
+def one_actuator(length_mm: float, angle_deg: float = 0.0, factors: Factors | None = None,
+                 mirror: bool = False) -> PlanarSetup:
     """One actuator of length ``length_mm`` at rest, at ``angle_deg`` from the basic DOF's
     direction (x), pushing the control point along x."""
     if not 0 < length_mm <= MAX_LENGTH_MM:
@@ -146,10 +167,11 @@ def one_actuator(length_mm: float, angle_deg: float = 0.0, factors: Factors | No
         raise ConfigError(f"one actuator: angle_deg must be within -360 to 360, got {angle_deg!r}")
     a = math.radians(angle_deg)
     return PlanarSetup(("ux",), (PlanarActuator("actuator", (-length_mm * math.cos(a), -length_mm * math.sin(a))),),
-                       factors or Factors())
+                       factors or Factors(), mirror)
 
 
-def two_actuators(length_mm: float, spacing_mm: float, factors: Factors | None = None) -> PlanarSetup:
+def two_actuators(length_mm: float, spacing_mm: float, factors: Factors | None = None,
+                  mirror: bool = False) -> PlanarSetup:
     """A column top in translation (x) and rotation: two horizontal actuators of length
     ``length_mm``, pinned to the platen at the control point and ``spacing_mm`` above it."""
     if not (0 < length_mm <= MAX_LENGTH_MM and 0 < spacing_mm <= MAX_LENGTH_MM):
@@ -157,10 +179,11 @@ def two_actuators(length_mm: float, spacing_mm: float, factors: Factors | None =
     return PlanarSetup(("ux", "theta"), (
         PlanarActuator("lower", (-length_mm, 0.0), (0.0, 0.0)),
         PlanarActuator("upper", (-length_mm, spacing_mm), (0.0, spacing_mm)),
-    ), factors or Factors())
+    ), factors or Factors(), mirror)
 
 
-def three_actuators(length_mm: float, half_span_mm: float, factors: Factors | None = None) -> PlanarSetup:
+def three_actuators(length_mm: float, half_span_mm: float, factors: Factors | None = None,
+                    mirror: bool = False) -> PlanarSetup:
     """A joint in x, y and rotation: one horizontal actuator at the control point and two
     vertical ones ``half_span_mm`` either side of it, each ``length_mm`` long at rest."""
     if not (0 < length_mm <= MAX_LENGTH_MM and 0 < half_span_mm <= MAX_LENGTH_MM):
@@ -169,10 +192,11 @@ def three_actuators(length_mm: float, half_span_mm: float, factors: Factors | No
         PlanarActuator("horizontal", (-length_mm, 0.0), (0.0, 0.0)),
         PlanarActuator("left", (-half_span_mm, -length_mm), (-half_span_mm, 0.0)),
         PlanarActuator("right", (half_span_mm, -length_mm), (half_span_mm, 0.0)),
-    ), factors or Factors())
+    ), factors or Factors(), mirror)
 
 
-def inverted_v_brace(leg_length_mm: float, angle_deg: float, factors: Factors | None = None) -> PlanarSetup:
+def inverted_v_brace(leg_length_mm: float, angle_deg: float, factors: Factors | None = None,
+                     mirror: bool = False) -> PlanarSetup:
     """An inverted-V brace: two actuators as its legs, from the apex (the control point, moving in
     x and y) down to pins ``leg_length_mm`` away at ``angle_deg`` from the vertical on either side."""
     if not (0 < leg_length_mm <= MAX_LENGTH_MM and 0 < angle_deg < 90):
@@ -182,4 +206,4 @@ def inverted_v_brace(leg_length_mm: float, angle_deg: float, factors: Factors | 
     return PlanarSetup(("ux", "uy"), (
         PlanarActuator("left", (-dx, -dy)),
         PlanarActuator("right", (dx, -dy)),
-    ), factors or Factors())
+    ), factors or Factors(), mirror)

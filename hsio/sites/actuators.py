@@ -17,6 +17,8 @@ against the limits, generated at the controller rate and reached after t_d = TR 
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from hsio.control_loop import ControlLoop, with_hold_report
@@ -44,6 +46,8 @@ class ActuatorSite:
     or several per element through its setup (``setups``); ``static`` preloads
     (:class:`hsio.structures.StaticLoad`) on the actuators after those of the channels."""
 
+    ACTUATOR_LOG_ROWS = 10_000  # trials of the actuators' log kept for the record between its takes
+
     def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None,
                  setups=None, static=(), instruments=None, external=None, relative: bool = False):
         self.loop = loop
@@ -55,15 +59,20 @@ class ActuatorSite:
         self.displacement_instruments = [None] * len(self.external)
         if any(x is not None for x in self.external) and instruments is None:
             raise ConfigError("an element takes its displacement from an external instrument: open the instruments' DAQ")
-        # the actuator of each channel that takes an instrument's reading: its element has no setup
-        self._actuator_of = {j: setups.identity_actuator(j) if setups is not None else j
-                             for j, x in enumerate(self.external) if x is not None}
         self.instrument_log: list[tuple] = []  # (trial, iterations, readings)
+        # through setups: (trial, strokes sent, commands, strokes, forces) of each actuator, the rows
+        # not yet handed to the record (which takes them every step; without one, the latest only)
+        self.actuator_log: deque[tuple] = deque(maxlen=self.ACTUATOR_LOG_ROWS)
         self._tables_taken = {"static": 0, "instruments": 0}  # log rows handed to the record so far
         self._trials = 0
         self.setups = setups
         self.static = list(static)
         self.n_dynamic = len(loop.actuators) - len(self.static)
+        # the actuator strokes that move each channel that takes an instrument's reading by 1 mm (its
+        # element has no setup, or a parallel one), and the actuator that moves it most, named
+        self._strokes_of = {j: setups.external_strokes(j) if setups is not None else np.eye(self.n_dynamic)[j]
+                            for j, x in enumerate(self.external) if x is not None}
+        self._actuator_of = {j: int(np.argmax(np.abs(v))) for j, v in self._strokes_of.items()}
         self.preload_short: list[tuple[str, float, float]] = []  # preloads the ramp-in left short: name, target, measured
         if setups is not None and setups.n_actuators != self.n_dynamic:
             raise ConfigError(f"the setups drive {setups.n_actuators} actuators; the loop has {self.n_dynamic} "
@@ -130,10 +139,10 @@ class ActuatorSite:
                 switched.append(index)
         return switched
 
-    def _to_channels(self, strokes: np.ndarray, forces: np.ndarray):
+    def _to_channels(self, strokes: np.ndarray, forces: np.ndarray, guess=None):
         if self.setups is None:
             return strokes, forces
-        return self.setups.basic(strokes, forces)
+        return self.setups.basic(strokes, forces, guess)
 
     def read_back(self) -> dict[str, float]:
         """One reading of every channel: each actuator's displacement and force, each instrument
@@ -289,6 +298,9 @@ class ActuatorSite:
         else:
             fb = self._execute(actuator_targets)
         fb, readings, iterations = self._outer_loop(targets, actuator_targets, fb)
+        if self.setups is not None:
+            self.actuator_log.append((self._trials, np.array(actuator_targets, dtype=float), fb.commands[:n].copy(),
+                                      fb.displacement[:n].copy(), fb.force[:n].copy()))
         samples = fb.samples[:, :n] if fb.samples is not None else None
         if samples is not None:
             self._keep_samples(samples, fb.sample_time, fb.phases)
@@ -302,11 +314,12 @@ class ActuatorSite:
                     if source is not None:
                         k[j] = k_ext[j] if abs(u[j] - base[j]) > self.estimator.min_increment else np.nan
         else:
-            u, R = self._to_channels(fb.displacement[:n], fb.force[:n])
+            u, R = self._to_channels(fb.displacement[:n], fb.force[:n], targets)
             u = self._external_displacements(u, readings)
             k = secant_stiffness(u, R, *self._committed)
         self._last = (u, R)
-        commands = fb.commands[:n] if self.setups is None else self.setups.basic(fb.commands[:n], fb.force[:n])[0]
+        commands = (fb.commands[:n] if self.setups is None
+                    else self.setups.basic(fb.commands[:n], fb.force[:n], targets)[0])
         self._daq = Daq(u=u, R=R, k=k, targets=targets.copy(), commands=commands, samples=samples)
         self.last_actuator_feedback = fb
 
@@ -343,7 +356,7 @@ class ActuatorSite:
                 if all(abs(errors[j]) <= src[1].tolerance_mm for j, src in loops):
                     break
                 for j, src in loops:
-                    commands[self._actuator_of[j]] += errors[j]
+                    commands += self._strokes_of[j] * errors[j]
                 fb = self._execute(commands)
                 readings = self.read_instruments()
                 iterations += 1
@@ -394,7 +407,10 @@ class ActuatorSite:
             k = self._actuator_of[j]
             actuator = self.loop.actuators[k].name
             reading = self.readback[name] - self.instrument_zero[name]
-            transducer = self.readback[f"{actuator}.displacement"] - self.zero[k]
+            # the element's displacement by its actuators' transducers (least squares over a parallel setup's)
+            v = self._strokes_of[j]
+            strokes = np.array([self.readback[f"{a.name}.displacement"] for a in self.loop.actuators[: len(v)]])
+            transducer = float(v @ (strokes - self.zero)) / float(v @ v)
             noise, resolution = self.displacement_instruments[j] or (0.0, 0.0)
             limit = self.BEYOND_TOLERANCE * max((outer or OuterLoop()).tolerance_mm, noise) + resolution
             if abs(reading - transducer) > limit:
@@ -406,15 +422,27 @@ class ActuatorSite:
                     "nothing moved")
 
     def continue_trials(self, last_trial: int) -> None:
-        """Number the trials from ``last_trial`` + 1: a resumed run's instruments log goes on after
-        the one its record holds."""
+        """Number the trials from ``last_trial`` + 1: a resumed run's instruments and actuators logs
+        go on after the ones its record holds."""
         self._trials = int(last_trial)
 
     def record_tables(self) -> dict[str, list[tuple[int, dict]]]:
         """Extra tables for the record, the rows logged since the last call: ``static`` (the
-        preloads' log) and ``instruments`` (every trial's readings and outer-loop iterations). The
+        preloads' log), ``instruments`` (every trial's readings and outer-loop iterations) and,
+        through setups, ``actuators`` (every trial's target, command, stroke and force of each
+        actuator, where the per-channel columns hold the linearised geometry's view). The
         experiment loop takes them every step, so that they are committed with the step's row."""
         tables = {}
+        if self.setups is not None:
+            rows = []
+            for trial, *values in self.actuator_log:
+                row = {}
+                for j, name in enumerate(self.setups.actuator_names):
+                    row.update({f"{p}_{name}": v[j] for p, v in zip(("target", "command", "disp", "force"), values)})
+                rows.append((trial, row))
+            self.actuator_log.clear()
+            if rows:
+                tables["actuators"] = rows
         if self.static:
             phases = {"ramp_in": 0, "test": 1, "ramp_off": 2}
             first, self._tables_taken["static"] = self._tables_taken["static"], len(self.static_log)
