@@ -29,7 +29,7 @@ from hsio.monitor.decimate import DEFAULT_CAP, Decimation
 from hsio.monitor.feed import RecordFeed
 from hsio.monitor.indicators import error_spectrum, margin
 from hsio.monitor.operator import ACTIONS, Operator
-from hsio.recording import PHASE_CODES, column as col
+from hsio.recording import PHASE_CODES, being_written, column as col, without_journal
 
 UPDATE_MS = 200  # the status: step, state, rate
 PLOT_EVERY_S = 0.4  # the plots (each redraw costs the browser far more than the status)
@@ -242,7 +242,12 @@ class MonitorPage:
         f = self.feed
         f.poll()
         if not f.opened:
-            self.status.text = f"<b>hsio monitor</b>: waiting for {html.escape(str(f.path))} ..."
+            text = f"<b>hsio monitor</b>: waiting for {html.escape(str(f.path))} ..."
+            if f.path.is_file() and being_written(f.path) is False:  # no run is creating it: none will
+                text = (f"<b>hsio monitor</b>: {html.escape(str(f.path))} holds no run and no run is writing it"
+                        f"{html.escape(without_journal(f.path))}")
+            if self.status.text != text:
+                self.status.text = text
             return
         if not self.built:
             self._build()
