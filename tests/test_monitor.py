@@ -487,6 +487,41 @@ def test_a_paused_run_shows_the_hold_as_read_back_never_assumed(tmp_path, messag
     rec.close()
 
 
+def test_the_events_kept_are_bounded_and_the_runs_state_is_still_told_from_them(tmp_path):
+    """Thousands of warnings (a channel at the edge of its warning band) around a pause, a trip
+    and a reopening by `hsio resume`: the feed keeps the newest events only, yet the page still
+    shows the pause's hold as read back, the trip to acknowledge, and the record as open."""
+    from bokeh.document import Document
+
+    from hsio.monitor import feed as feed_mod
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_summary({"steps": 5, "outcome": "stopped"})
+    rec.write_event(None, 5, "resume", "", "resumed after step 5 (hsio test)")
+
+    def warnings(n):
+        for i in range(n):
+            rec.write_event(1.0, 5, "warning", "C1", f"displacement beyond 90 % of the limit ({i})", commit=False)
+
+    warnings(3000)
+    rec.write_event(1.0, 5, "pause", "", "paused after step 5: the actuators hold (confirmed by read-back)", commit=False)
+    warnings(3000)
+    rec.write_event(2.0, 5, "controller_trip", "C1", "C1 tripped: valve", commit=False)
+    warnings(3000)
+    rec.db.commit()
+    feed = RecordFeed(tmp_path)
+    page = page_mod.MonitorPage(Document(), feed, _RunAnswering("ok paused phase HS step 5"))
+    assert len(feed.events) <= feed_mod.EVENTS_KEPT and len(feed.marks) <= feed_mod.MARKS_KEPT
+    assert feed.events[-1]["message"].endswith("(2999)") and not feed.finished
+    state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+    assert "the actuators hold (confirmed by read-back)" in state and "C1 tripped: valve" in state, state
+    rec.write_summary({"steps": 5, "outcome": "finished", "resumed_from": 5})
+    feed.poll(force=True)
+    assert feed.finished
+    rec.close()
+
+
 def test_a_run_over_shows_its_final_hold(tmp_path):
     from bokeh.document import Document
 

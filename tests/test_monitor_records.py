@@ -111,3 +111,36 @@ def test_a_record_a_run_is_creating_is_waited_for(tmp_path):
     assert being_written(rec.path) is True  # a run writing its record
     rec.close()
     assert being_written(rec.path) is False
+
+
+def test_a_run_that_does_not_answer_is_told_apart_by_the_lock_on_its_record(tmp_path):
+    """No summary and no answer on the socket: a run still writing its record (its lock held) is
+    not called killed; with no writer left, the page says the run ended without its summary."""
+    import fcntl
+    import html
+    import os
+    import re
+
+    from bokeh.document import Document
+
+    from hsio.monitor.page import MonitorPage
+
+    class Silent:
+        answers, log = False, []
+
+        def status(self):
+            return ""
+
+    write_record(tmp_path, 20).close()
+
+    def state():
+        page = MonitorPage(Document(), RecordFeed(tmp_path), Silent())
+        return html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+
+    assert "no run writes the record: the run ended without its summary" in state()
+    fd = os.open(tmp_path / "run.sqlite", os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert "though a run still writes the record" in state()
+    finally:
+        os.close(fd)

@@ -33,6 +33,9 @@ from hsio.recording import RUN_FILE, column, connect_read_only
 
 SAMPLES_WINDOW = 4096  # controller samples read for the spectrum (4 s at 1024 Hz)
 META_EVERY_S = 2.0
+EVENTS_KEPT = 64  # the newest events kept (the page lists the last 8)
+MARKS = ("pause", "resume", "acknowledge", "controller_trip")  # the events the run's state is told from
+MARKS_KEPT = 16
 RESUMED = "resumed after step"  # the event `hsio resume` writes as it reopens a record (not a pause's resume)
 
 
@@ -62,7 +65,9 @@ class RecordFeed:
         self.peak: dict[str, float] = {}  # over every step read: |u_| per DOF, |disp_|, |force_| per channel
         self.peak_error: dict[str, tuple[float, float]] = {}  # per channel |error| (in DC steps, in FC steps)
         self.switches: dict[str, int] = {}  # control-mode switches per DOF
-        self.events: list[dict] = []
+        self.events: list[dict] = []  # the newest EVENTS_KEPT
+        self.marks: list[dict] = []  # the newest MARKS_KEPT of the kinds MARKS, however many events came since
+        self._reopened_after: int | None = None  # the step after which `hsio resume` last reopened the record
         self.samples: dict[str, np.ndarray] = {}
         self.seen_at: list[tuple[float, int]] = []  # (monotonic time, steps) at each poll that found steps
         self._last_step = -1
@@ -92,8 +97,7 @@ class RecordFeed:
         control socket answers as a run in progress.)"""
         if not self.summary:
             return False
-        resumed = [e for e in self.events if e["kind"] == "resume" and str(e["message"]).startswith(RESUMED)]
-        return not resumed or self.summary.get("resumed_from") == resumed[-1]["step"]
+        return self._reopened_after is None or self.summary.get("resumed_from") == self._reopened_after
 
     @property
     def total_steps(self) -> int | None:
@@ -178,8 +182,15 @@ class RecordFeed:
         rows = db.execute("SELECT rowid, time_s, step, kind, actuator, message FROM events WHERE rowid > ? "
                           "ORDER BY rowid", (self._last_event,)).fetchall()
         for r in rows:
-            self.events.append(dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:])))
+            event = dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:]))
+            self.events.append(event)
+            if event["kind"] in MARKS:
+                self.marks.append(event)
+            if event["kind"] == "resume" and str(event["message"]).startswith(RESUMED):
+                self._reopened_after = event["step"]
             self._last_event = r[0]
+        del self.events[:-EVENTS_KEPT]
+        del self.marks[:-MARKS_KEPT]
         self._read_summary(db)
         if steps:
             self.seen_at.append((time.monotonic(), self.n))

@@ -387,7 +387,11 @@ class MonitorPage:
             state = ("the run has no control socket ([safety] control_socket = false): this page watches only; "
                      "pause or stop it where it runs")
         else:
-            state = "no answer from the run's control socket (a run killed, or started without one)"
+            writing = being_written(f.path)  # the run's lock on its record: it is still there
+            state = ("no answer from the run's control socket, though a run still writes the record" if writing else
+                     "no answer from the run's control socket and no run writes the record: the run ended "
+                     "without its summary (killed, or failed)" if writing is False else
+                     "no answer from the run's control socket (a run killed, or started without one)")
         # Stop stays available unless no run can hear it: a run that answers, or may be there.
         trip = self._trip_to_acknowledge()
         if running and trip:
@@ -462,7 +466,7 @@ class MonitorPage:
     def _trip_to_acknowledge(self) -> str:
         """The newest controller trip of the record not yet acknowledged nor followed by a resume
         (its message), or ''."""
-        for e in reversed(self.feed.events):
+        for e in reversed(self.feed.marks):
             if e["kind"] in ("acknowledge", "resume"):
                 return ""
             if e["kind"] == "controller_trip":
@@ -473,7 +477,7 @@ class MonitorPage:
         """What the run read back of the actuators' hold when it paused after ``step`` (its
         ``pause`` event), or that it is not in the record yet: the newest pause or resume of the
         record must be that pause (a ramp of the static preloads pauses at the same step again)."""
-        for e in reversed(self.feed.events):
+        for e in reversed(self.feed.marks):
             if e["kind"] in ("pause", "resume"):
                 if e["kind"] == "resume":
                     break
