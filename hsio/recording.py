@@ -89,10 +89,13 @@ def being_written(path: str | Path) -> bool | None:
             table = f.read()
     except OSError:
         return None
-    inode = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
-    for line in table.splitlines():  # "1: FLOCK  ADVISORY  WRITE 16881 fe:00:2155528 0 EOF" ("->": waiting)
+    # "1: FLOCK  ADVISORY  WRITE 16881 fe:00:2155528 0 EOF" ("->": a waiter). Matched on the inode
+    # number alone: the device can read differently there than in stat (overlay file systems), and a
+    # lock on a namesake inode of another device only makes a finished record look written (followed).
+    for line in table.splitlines():
         fields = line.split()
-        if "->" not in fields and len(fields) >= 6 and fields[1] == "FLOCK" and fields[5] == inode:
+        if "->" not in fields and len(fields) >= 6 and fields[1] == "FLOCK" \
+                and fields[5].rpartition(":")[2] == str(st.st_ino):
             return True
     return False
 
