@@ -179,6 +179,10 @@ def make_server(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAUL
         operator.close()
         feed.close()
         raise ConfigError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+    # The record as it stands is read before the URL is given: a long one (a replay, a run followed
+    # late) takes seconds, which the first tab would otherwise wait with the page server unable to
+    # answer any other (the reading runs on its event loop).
+    feed.poll(force=True)
     server.start()
     shown = f"[{host}]" if ":" in host else host
     url = f"http://{shown}:{server.port}/" + (f"?token={token}" if needs_token(host) else "")
