@@ -487,6 +487,23 @@ def test_a_paused_run_shows_the_hold_as_read_back_never_assumed(tmp_path, messag
     rec.close()
 
 
+def test_a_channel_that_read_nan_at_the_newest_step_is_not_said_to_have_no_limit(tmp_path):
+    """A displacement sensor that read NaN at the last step: its stroke margin says there is no
+    reading, with the least margin of the steps before, not that the limit is not known."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_step(6, 0.06, [0, 0], [0, 0], [0, 0], [0, 0], [0, 0], ["displacement"] * 2,
+                   [0, 0], [0, 0], [float("nan"), 0], [0, 0])
+    rec.close()
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), Operator(tmp_path))
+    margins = dict(zip(page.margins.data["label"], page.margins.data["text"]))
+    assert margins["C1 stroke"].startswith("no reading at the newest step (least "), margins
+    assert margins["C2 stroke"].endswith("%)")
+
+
 def test_the_events_kept_are_bounded_and_the_runs_state_is_still_told_from_them(tmp_path):
     """Thousands of warnings (a channel at the edge of its warning band) around a pause, a trip
     and a reopening by `hsio resume`: the feed keeps the newest events only, yet the page still

@@ -353,7 +353,13 @@ class MonitorPage:
                 ok = math.isfinite(m)
                 values.append(100.0 * m if ok else 0.0)
                 colors.append("gray" if not ok else "crimson" if m < warn else "orange" if m < 2 * warn else "seagreen")
-                texts.append(f"{100 * m:.0f} % (least {100 * least:.0f} %)" if ok else "limit not known")
+                if ok:
+                    texts.append(f"{100 * m:.0f} % (least {100 * least:.0f} %)")
+                elif limit is None or not float(limit) > 0:
+                    texts.append("limit not known")
+                else:  # the limit is known, the newest step has no number (a sensor that read NaN)
+                    texts.append("no reading at the newest step" + (f" (least {100 * least:.0f} %)"
+                                                                    if math.isfinite(least) else ""))
         self.margins.data = dict(label=labels, value=values, color=colors, text=texts)
 
     def _status(self, notices_only: bool = False) -> None:
