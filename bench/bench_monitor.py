@@ -8,6 +8,8 @@
 2. The page with 20,000 steps recorded: the server's time to build a new tab's document and its
    size, then per update (ten new steps) the bytes sent and the server's time; with chromium, the
    time for a browser to load the page and draw the record.
+3. The page server's memory for a long run: twelve channels, 100,000 steps read from the record
+   (what the feed holds once it has read them all, and its peak while reading).
 
 Run: .venv/bin/python bench/bench_monitor.py [--repeat 2]
 """
@@ -166,10 +168,69 @@ def page_cost(steps: int, with_browser: bool) -> None:
                 proc.wait(timeout=10)
 
 
+def long_record(folder: Path, channels: int, steps: int):
+    """A record of ``steps`` steps of ``channels`` channels (one DOF each), written in bulk."""
+    from hsio.recording import Recorder
+
+    names = [f"C{j + 1}" for j in range(channels)]
+    meta = {"structure": "bench", "record": "sine", "dt": 0.01, "test_rate": 20.0, "steps_total": steps,
+            "config": {"structure": {"name": "validation", "file": ""}, "safety": {}},
+            "dry_run": {"limits": {"stroke_mm": 254.0, "force_kN": 250.0, "velocity_mm_s": 500.0}}}
+    rec = Recorder(folder / "run.sqlite", names, names, meta)
+    rec.db.execute("PRAGMA synchronous=OFF")
+    cols = rec._step_cols
+    for start in range(1, steps + 1, 10_000):
+        k = np.arange(start, min(start + 10_000, steps + 1))
+        rows = []
+        for i, name in enumerate(cols):
+            if name == "step":
+                rows.append(k.tolist())
+            elif name == "time_s":
+                rows.append((k * 0.01).tolist())
+            elif name.startswith("mode_"):
+                rows.append(["displacement"] * len(k))
+            elif name == "flags":
+                rows.append([""] * len(k))
+            else:
+                rows.append(np.sin(0.001 * k * (1 + i % 7)).tolist())
+        rec.db.executemany(rec._insert_step, list(zip(*rows)))
+        rec.db.commit()
+    return rec
+
+
+def feed_memory(channels: int, steps: int) -> None:
+    import tracemalloc
+
+    from hsio.monitor.feed import RecordFeed
+    from hsio.structures import get_structure
+
+    with tempfile.TemporaryDirectory(dir="/dev/shm" if os.path.isdir("/dev/shm") else None) as tmp:
+        folder = Path(tmp)
+        long_record(folder, channels, steps).close()
+        feed = RecordFeed(folder)
+        get_structure("validation")  # the modules the feed imports to read the structure: not the feed's memory
+        tracemalloc.start()
+        try:
+            t0 = time.perf_counter()
+            while feed.poll(force=True):
+                pass
+            took = time.perf_counter() - t0
+            held, peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+        print(f"page server's feed, {channels} channels x {steps:,} steps read: holds {held / 1e6:.1f} MB "
+              f"(peak {peak / 1e6:.1f} MB while reading, {took:.1f} s with tracemalloc)")
+        feed.close()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=2, help="runs of each kind (default 2)")
+    parser.add_argument("--memory-only", action="store_true", help="only the page server's memory (part 3)")
     args = parser.parse_args()
+    if args.memory_only:
+        feed_memory(12, 100_000)
+        return
     from hsio.monitor import browser
 
     reason = browser.missing()
@@ -178,6 +239,7 @@ def main() -> None:
     print(f"machine load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     loop_cost(args.repeat, not reason)
     page_cost(20_000, not reason)
+    feed_memory(12, 100_000)
 
 
 if __name__ == "__main__":

@@ -82,6 +82,27 @@ def _lock(path: Path, fd: int) -> int:
     return fd
 
 
+def being_written(path: str | Path) -> bool | None:
+    """Whether a process holds the writer's lock of the record ``path`` (:func:`_lock`: a run or a
+    resume writing it), read from the kernel's table of file locks without taking the lock (which
+    would refuse that writer its own); None where it cannot be told (no /proc/locks)."""
+    try:
+        st = os.stat(path)
+        with open("/proc/locks", encoding="ascii", errors="replace") as f:
+            table = f.read()
+    except OSError:
+        return None
+    # "1: FLOCK  ADVISORY  WRITE 16881 fe:00:2155528 0 EOF" ("->": a waiter). Matched on the inode
+    # number alone: the device can read differently there than in stat (overlay file systems), and a
+    # lock on a namesake inode of another device only makes a finished record look written (followed).
+    for line in table.splitlines():
+        fields = line.split()
+        if "->" not in fields and len(fields) >= 6 and fields[1] == "FLOCK" \
+                and fields[5].rpartition(":")[2] == str(st.st_ino):
+            return True
+    return False
+
+
 class RunFileMissingError(RecordError, FileNotFoundError):
     """:class:`Run` was given a path where no file is."""
 
@@ -541,10 +562,28 @@ def without_journal(path: str | Path) -> str:
             f"commits stays in {path.name}-wal until copied into {path.name}: copy both files together")
 
 
+def _numbers_only(db, table: str, columns: dict) -> None:
+    """ValueError naming the first row and column of ``table`` whose value is not a number (nor
+    NULL) where the record keeps numbers (as :meth:`Run._table` would fail to read it)."""
+    numeric = [c for c, v in columns.items() if v.dtype != object]
+    if not numeric:
+        return
+    names = ", ".join('"' + c + '"' for c in numeric)
+    test = " OR ".join("typeof(\"" + c + "\") NOT IN ('integer', 'real', 'null')" for c in numeric)
+    row = db.execute(f"SELECT rowid, {names} FROM {table} WHERE {test} LIMIT 1").fetchone()
+    if row is None:
+        return
+    c, value = next((c, v) for c, v in zip(numeric, row[1:]) if isinstance(v, (str, bytes)))
+    raise ValueError(f"row {row[0]} of its {table} table holds {value[:40]!r} in {c}, not a number")
+
+
 class Run:
     """A recorded run, read back as arrays (for plots, calibration and diagnostics)."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, read: bool = True):
+        """``read`` False: the record is checked as when it is read, without reading its steps and
+        NS into memory (``steps`` and ``ns`` hold their columns, empty); a value that is no number
+        in them is found by SQLite and named."""
         self.path = Path(path)
         if not self.path.exists():
             raise RunFileMissingError(f"{self.path}: no such run file")
@@ -557,8 +596,11 @@ class Run:
             try:
                 self.meta = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
                 self.summary = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM summary")}
-                self.steps = self._table(db, "steps")
-                self.ns = self._table(db, "ns")
+                self.steps = self._table(db, "steps", limit=None if read else 0)
+                self.ns = self._table(db, "ns", limit=None if read else 0)
+                if not read:
+                    _numbers_only(db, "steps", self.steps)
+                    _numbers_only(db, "ns", self.ns)
                 self._db_path = self.path
             finally:
                 db.close()
@@ -581,9 +623,10 @@ class Run:
             raise NotARunError(f"{self.path}: not an hsio run record ({detail}){without_journal(self.path)}") from None
 
     @staticmethod
-    def _table(db, name: str, order: str = "step", text_columns=()) -> dict[str, np.ndarray]:
-        """A table as arrays by column (text columns as objects, the others float, NULL as NaN)."""
-        cur = db.execute(f"SELECT * FROM {name} ORDER BY {order}")
+    def _table(db, name: str, order: str = "step", text_columns=(), limit: int | None = None) -> dict[str, np.ndarray]:
+        """A table as arrays by column (text columns as objects, the others float, NULL as NaN);
+        its first ``limit`` rows only, if given."""
+        cur = db.execute(f"SELECT * FROM {name} ORDER BY {order}" + ("" if limit is None else f" LIMIT {int(limit)}"))
         cols = [c[0] for c in cur.description]
         rows = cur.fetchall()
         out = {}

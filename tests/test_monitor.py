@@ -487,6 +487,58 @@ def test_a_paused_run_shows_the_hold_as_read_back_never_assumed(tmp_path, messag
     rec.close()
 
 
+def test_a_channel_that_read_nan_at_the_newest_step_is_not_said_to_have_no_limit(tmp_path):
+    """A displacement sensor that read NaN at the last step: its stroke margin says there is no
+    reading, with the least margin of the steps before, not that the limit is not known."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_step(6, 0.06, [0, 0], [0, 0], [0, 0], [0, 0], [0, 0], ["displacement"] * 2,
+                   [0, 0], [0, 0], [float("nan"), 0], [0, 0])
+    rec.close()
+    page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path), Operator(tmp_path))
+    margins = dict(zip(page.margins.data["label"], page.margins.data["text"]))
+    assert margins["C1 stroke"].startswith("no reading at the newest step (least "), margins
+    assert margins["C2 stroke"].endswith("%)")
+
+
+def test_the_events_kept_are_bounded_and_the_runs_state_is_still_told_from_them(tmp_path):
+    """Thousands of warnings (a channel at the edge of its warning band) around a pause, a trip
+    and a reopening by `hsio resume`: the feed keeps the newest events only, yet the page still
+    shows the pause's hold as read back, the trip to acknowledge, and the record as open."""
+    from bokeh.document import Document
+
+    from hsio.monitor import feed as feed_mod
+    from hsio.monitor import page as page_mod
+
+    rec = write_record(tmp_path, 5)
+    rec.write_summary({"steps": 5, "outcome": "stopped"})
+    rec.write_event(None, 5, "resume", "", "resumed after step 5 (hsio test)")
+
+    def warnings(n):
+        for i in range(n):
+            rec.write_event(1.0, 5, "warning", "C1", f"displacement beyond 90 % of the limit ({i})", commit=False)
+
+    warnings(3000)
+    rec.write_event(1.0, 5, "pause", "", "paused after step 5: the actuators hold (confirmed by read-back)", commit=False)
+    warnings(3000)
+    rec.write_event(2.0, 5, "controller_trip", "C1", "C1 tripped: valve", commit=False)
+    warnings(3000)
+    rec.db.commit()
+    feed = RecordFeed(tmp_path)
+    page = page_mod.MonitorPage(Document(), feed, _RunAnswering("ok paused phase HS step 5"))
+    assert len(feed.events) <= feed_mod.EVENTS_KEPT and len(feed.marks) <= feed_mod.MARKS_KEPT
+    assert feed.events[-1]["message"].endswith("(2999)") and not feed.finished
+    state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+    assert "the actuators hold (confirmed by read-back)" in state and "C1 tripped: valve" in state, state
+    rec.write_summary({"steps": 5, "outcome": "finished", "resumed_from": 5})
+    feed.poll(force=True)
+    assert feed.finished
+    rec.close()
+
+
 def test_a_run_over_shows_its_final_hold(tmp_path):
     from bokeh.document import Document
 
@@ -622,30 +674,98 @@ def test_a_second_pause_at_the_same_step_is_not_shown_with_the_first_pauses_hold
     rec.close()
 
 
-def test_a_long_record_is_read_in_batches_not_held_whole_as_rows(tmp_path):
+def test_a_long_record_costs_the_feed_a_bounded_memory(tmp_path):
     """A page opened on a long record (late in a run, or a replay) reads it READ_BATCH steps at a
-    time: what the first read holds beside the feed's columns stays a batch, not the whole record
-    as Python rows (several times the columns' memory)."""
+    time and keeps the last `window` steps whole and every stride-th step of all (at most `cap`
+    rows): four times the steps, the same memory. What it keeps is the record's, and the peaks
+    and the tracking indicator are of every step."""
     import tracemalloc
 
-    write_record(tmp_path, 8_000, ns=False).close()
-    feed = RecordFeed(tmp_path)
-    feed.READ_BATCH = 500
-    assert feed._open()  # the record's names and structure, then the steps alone are measured
-    tracemalloc.start()
-    try:
-        before = tracemalloc.get_traced_memory()[0]
-        assert feed.poll(force=True) == 8_000
-        peak = tracemalloc.get_traced_memory()[1] - before
-    finally:
-        tracemalloc.stop()
-    columns = feed.columns._data.nbytes
-    print(f"first read of 8,000 steps: {peak / 1e6:.1f} MB at most, columns {columns / 1e6:.1f} MB")
-    assert peak < 2.5 * columns
-    run = Run(tmp_path / "run.sqlite")
-    np.testing.assert_array_equal(feed["u_C1"], run.steps["u_C1"])
-    np.testing.assert_allclose(feed["ti_C1"], tracking_indicator(run.steps["target_C1"], run.steps["disp_C1"]))
-    feed.close()
+    held = {}
+    for steps in (2_000, 8_000):
+        folder = tmp_path / str(steps)
+        folder.mkdir()
+        write_record(folder, steps, ns=False).close()
+        feed = RecordFeed(folder, window=128, cap=256)
+        feed.READ_BATCH = 500
+        assert feed._open()  # the record's names and structure, then the steps alone are measured
+        tracemalloc.start()
+        try:
+            before = tracemalloc.get_traced_memory()[0]
+            assert feed.poll(force=True) == steps
+            held[steps] = tracemalloc.get_traced_memory()[0] - before
+        finally:
+            tracemalloc.stop()
+        bound = len(feed.columns.names) * (2 * 128 + 256 + 128) * 8
+        assert feed.columns.nbytes <= bound
+        run = Run(folder / "run.sqlite")
+        stride = feed.columns.stride
+        assert -(-steps // stride) <= 256 < -(-steps // (stride // 2))
+        kept = feed.rows(np.arange(0, steps, stride))
+        np.testing.assert_array_equal(kept["u_C1"], run.steps["u_C1"][::stride])
+        ti = tracking_indicator(run.steps["target_C1"], run.steps["disp_C1"])
+        np.testing.assert_allclose(kept["ti_C1"], ti[::stride])
+        np.testing.assert_array_equal(feed["u_C2"], run.steps["u_C2"][-len(feed["u_C2"]):])
+        assert 128 <= len(feed["u_C2"]) and feed.last("step") == steps
+        assert feed.peak["u_C1"] == np.max(np.abs(run.steps["u_C1"]))
+        assert feed.peak_error["C1"][0] == np.max(np.abs(run.steps["target_C1"] - run.steps["disp_C1"]))
+        with pytest.raises(ValueError, match="neither recent nor on the stride"):
+            feed.rows([stride + 1])
+        feed.close()
+    print(f"the feed holds {held[2_000] / 1e3:.0f} kB after 2,000 steps, {held[8_000] / 1e3:.0f} kB after 8,000")
+    assert held[8_000] < 1.1 * held[2_000] + 20_000
+
+
+@pytest.mark.parametrize("record", ["sine", "modes"])
+def test_a_page_over_the_bounded_feed_shows_what_it_shows_over_every_step(tmp_path, record):
+    """The same record through a feed that keeps every step and through one that keeps 64 steps
+    whole and 200 thinned: the same points in every plot, the same newest step, margins (the
+    least so far included), status (switches and peaks of the whole run) and NS curve."""
+    from bokeh.document import Document
+
+    from hsio.monitor import page as page_mod
+
+    if record == "sine":
+        write_record(tmp_path, 3_000).close()
+    else:  # control-mode switches, and the following errors of each mode, all before the window
+        modes = (["displacement"] * 30 + ["force"] * 20) * 8 + ["displacement"] * 100
+        force_controlled_record(tmp_path, modes, 9.5, 1.0)
+    pages = []
+    for window, cap in ((10**6, 10**6), (64, 200)):
+        page = page_mod.MonitorPage(Document(), RecordFeed(tmp_path, window=window, cap=cap), Operator(tmp_path),
+                                    cap=150)
+        pages.append(page)
+    full, bounded = pages
+
+    def same() -> None:
+        assert bounded.feed.columns.stride > 1 and bounded.feed.columns.recent_start > 0
+        for source in ("steps", "last", "ns", "margins"):
+            a, b = getattr(full, source).data, getattr(bounded, source).data
+            assert a.keys() == b.keys()
+            for key in a:
+                np.testing.assert_array_equal(np.asarray(a[key]), np.asarray(b[key]), err_msg=f"{source} {key}")
+        assert len(full.steps.data["t"]) > 50
+        # the socket's answer and the rate measured on the wall clock aside
+        unasked = [re.sub(r"hsio-state'>[^<]*<|<tr><td><b>(test rate|time to finish)</b>.*?</tr>", "", page.status.text)
+                   for page in pages]
+        assert unasked[0] == unasked[1]
+
+    same()
+    if record == "sine":  # the run goes on: the pages stream the new points (a doubling of the stride between)
+        rec = Recorder.append(tmp_path / "run.sqlite")
+        for k in range(3_001, 4_001):
+            v = [np.sin(0.01 * k), np.cos(0.01 * k)]
+            rec.write_step(k, 0.01 * k, v, [0, 0], [0, 0], v, [0, 0], ["displacement"] * 2, v, v, v, v)
+            if k % 250 == 0:
+                for page in pages:
+                    page._plotted = page.feed._last_poll = 0.0
+                    page.update()
+                same()
+        rec.close()
+        assert full.steps.data["step"][-1] == 3_999 // full.decimation.stride * full.decimation.stride + 1  # row 0: step 1
+    if record == "modes":
+        assert "16 switches" in bounded.status.text
+        assert "least 5 %" in dict(zip(bounded.margins.data["label"], bounded.margins.data["text"]))["C1 following"]
 
 
 def test_a_run_that_commits_nothing_for_a_while_has_no_measured_rate_or_time_to_finish(tmp_path):

@@ -5,22 +5,39 @@ from __future__ import annotations
 import contextlib
 import sqlite3
 import sys
+import time
 from pathlib import Path
 
 import click
 
 from hsio.errors import HsioError
-from hsio.recording import RUN_FILE, Run, connect_read_only
+from hsio.recording import RUN_FILE, RecordError, Run, being_written, connect_read_only
+
+CREATION_S = 0.5  # more than a run takes between creating its record's file and locking it
 
 
 def _refuse_foreign_record(path: Path) -> None:
-    """A run.sqlite that SQLite cannot read is refused before the page is served (an empty one is
-    a run being created, and is followed); so is a finished record (one with a summary, to be
-    replayed) that :class:`~hsio.recording.Run` does not read whole: damaged, or of another kind.
-    Nor is one that is not a regular file (a FIFO would block the reader for ever)."""
+    """A record no run is writing is all there will be: it is refused before the page is served
+    if :class:`~hsio.recording.Run` does not read it (damaged, of another kind, or a run killed as
+    it created its record: the page would wait for it for ever), naming the file and what is
+    wrong. A record a run is writing (or being created: it may hold no tables yet) is followed;
+    where it cannot be told whether one is, a file that SQLite cannot read is refused, and a
+    finished record (one with a summary) that Run does not read whole. Nor is a file that is not
+    a regular file (a FIFO would block the reader for ever)."""
     if path.exists() and not path.is_file():
         raise HsioError(f"{path}: not a regular file, so not an hsio recording")
-    if not path.is_file() or path.stat().st_size == 0:
+    if not path.is_file():
+        return
+    writing = being_written(path)
+    if writing is False:
+        try:
+            Run(path, read=False)  # a RecordError names what is wrong (the steps not read into memory)
+        except RecordError:
+            time.sleep(CREATION_S)  # a run that had just made the file and not yet locked it: it has now
+            if being_written(path) is False:
+                raise
+        return
+    if writing or path.stat().st_size == 0:
         return
     try:
         with contextlib.closing(connect_read_only(path)) as db:
@@ -30,7 +47,7 @@ def _refuse_foreign_record(path: Path) -> None:
     except sqlite3.DatabaseError as exc:
         raise HsioError(f"{path}: not an hsio recording ({exc})") from None
     if finished:
-        Run(path)  # a RecordError names what is wrong
+        Run(path, read=False)
 
 
 def _point_to_run_folders(folder: Path) -> None:

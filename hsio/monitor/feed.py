@@ -10,7 +10,12 @@ SQLite's ``data_version`` of the feed's connection moved (another connection com
 own size and mtime cannot tell: in WAL mode a commit goes to ``run.sqlite-wal``.
 
 Derived per channel as the steps arrive: the tracking error and the tracking indicator
-(:mod:`hsio.monitor.indicators`).
+(:mod:`hsio.monitor.indicators`), and over the whole run the peaks the page's status and margins
+show (peak |u| per DOF; peak |d|, |f| and |error| in each control mode per channel) and the
+switches of control mode per DOF. The step columns themselves are kept bounded
+(:class:`hsio.monitor.history.History`: the recent steps whole, the older ones thinned), as is
+the NS prediction (every stride-th point, its peaks from the record), so a long run costs the
+page server no more memory than a short one.
 """
 
 from __future__ import annotations
@@ -22,43 +27,27 @@ from pathlib import Path
 
 import numpy as np
 
+from hsio.monitor.history import CAP, WINDOW, History
 from hsio.monitor.indicators import tracking_indicator
 from hsio.recording import RUN_FILE, column, connect_read_only
 
 SAMPLES_WINDOW = 4096  # controller samples read for the spectrum (4 s at 1024 Hz)
 META_EVERY_S = 2.0
+EVENTS_KEPT = 64  # the newest events kept (the page lists the last 8)
+MARKS = ("pause", "resume", "acknowledge", "controller_trip")  # the events the run's state is told from
+MARKS_KEPT = 16
 RESUMED = "resumed after step"  # the event `hsio resume` writes as it reopens a record (not a pause's resume)
-
-
-class _Columns:
-    """Growing float columns (capacity doubles: appending n rows costs O(n))."""
-
-    def __init__(self, names):
-        self.names = list(names)
-        self.n = 0
-        self._data = np.full((len(self.names), 1024), np.nan)
-
-    def append(self, block: np.ndarray) -> None:
-        m = block.shape[1]
-        if self.n + m > self._data.shape[1]:
-            grown = np.full((len(self.names), max(2 * self._data.shape[1], self.n + m)), np.nan)
-            grown[:, : self.n] = self._data[:, : self.n]
-            self._data = grown
-        self._data[:, self.n: self.n + m] = block
-        self.n += m
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self._data[self.names.index(name), : self.n]
 
 
 class RecordFeed:
     """Reads the record of the run in ``run_dir`` incrementally."""
 
     MIN_POLL_S = 0.1  # polls closer together than this return at once
-    READ_BATCH = 5000  # steps read from the record at a time
+    READ_BATCH = 1000  # steps read from the record at a time
 
-    def __init__(self, run_dir: str | Path):
+    def __init__(self, run_dir: str | Path, window: int = WINDOW, cap: int = CAP):
         self.run_dir = Path(run_dir)
+        self.window, self.cap = window, cap  # of the kept history (hsio.monitor.history)
         self.path = self.run_dir / RUN_FILE
         self.db: sqlite3.Connection | None = None
         self.meta: dict = {}
@@ -68,10 +57,17 @@ class RecordFeed:
         self.channel_dof: dict[str, str | None] = {}
         self.dof_unit: dict[str, str] = {}
         self.channel_unit: dict[str, str] = {}
-        self.columns: _Columns | None = None
-        self.modes: list[np.ndarray] = []  # per DOF, 1 in force control, 0 in displacement control
-        self.ns: dict[str, np.ndarray] = {}
-        self.events: list[dict] = []
+        self.columns: History | None = None
+        self.ns: dict[str, np.ndarray] = {}  # time_s and u_ per DOF, every ns_stride-th point
+        self.ns_stride = 1
+        self.ns_steps = 0  # steps of the NS prediction (its points less the initial one)
+        self.ns_peak: dict[str, float] = {}  # peak |u| per DOF of the whole prediction
+        self.peak: dict[str, float] = {}  # over every step read: |u_| per DOF, |disp_|, |force_| per channel
+        self.peak_error: dict[str, tuple[float, float]] = {}  # per channel |error| (in DC steps, in FC steps)
+        self.switches: dict[str, int] = {}  # control-mode switches per DOF
+        self.events: list[dict] = []  # the newest EVENTS_KEPT
+        self.marks: list[dict] = []  # the newest MARKS_KEPT of the kinds MARKS, however many events came since
+        self._reopened_after: int | None = None  # the step after which `hsio resume` last reopened the record
         self.samples: dict[str, np.ndarray] = {}
         self.seen_at: list[tuple[float, int]] = []  # (monotonic time, steps) at each poll that found steps
         self._last_step = -1
@@ -101,20 +97,35 @@ class RecordFeed:
         control socket answers as a run in progress.)"""
         if not self.summary:
             return False
-        resumed = [e for e in self.events if e["kind"] == "resume" and str(e["message"]).startswith(RESUMED)]
-        return not resumed or self.summary.get("resumed_from") == resumed[-1]["step"]
+        return self._reopened_after is None or self.summary.get("resumed_from") == self._reopened_after
 
     @property
     def total_steps(self) -> int | None:
         """Steps the whole test will take (from the NS prediction, else from the run's ``steps_total``;
         None if neither was recorded)."""
-        if self.ns.get("time_s") is not None and len(self.ns["time_s"]):
-            return len(self.ns["time_s"]) - 1
+        if self.ns:
+            return self.ns_steps
         total = self.meta.get("steps_total")
         return int(total) if isinstance(total, int) and total > 0 else None
 
     def __getitem__(self, name: str) -> np.ndarray:
-        return self.columns[name]
+        """Column ``name`` over the recent steps (the last ``window``, all while there are fewer)."""
+        return self.columns.recent(name)
+
+    def last(self, name: str) -> float:
+        """Column ``name`` at the newest step read."""
+        return self.columns.last(name)
+
+    def rows(self, rows: np.ndarray, names=None) -> dict[str, np.ndarray]:
+        """Columns ``names`` (default: all) at row numbers ``rows``: recent ones, or on the stride of a
+        page whose cap is at most ``self.cap`` (:class:`hsio.monitor.history.History`)."""
+        return self.columns.take(rows, names)
+
+    def ns_points(self, stride: int) -> dict[str, np.ndarray]:
+        """The NS prediction at every ``stride``-th point (a multiple of ``ns_stride``)."""
+        if stride % self.ns_stride:
+            raise ValueError(f"the NS prediction is kept every {self.ns_stride}th point, not every {stride}th")
+        return {k: v[:: stride // self.ns_stride] for k, v in self.ns.items()}
 
     # -- reading -----------------------------------------------------------------------------
     def poll(self, force: bool = False) -> int:
@@ -147,12 +158,15 @@ class RecordFeed:
         # displacement units ("mm", or "rad" for a rotation; records without them: mm)
         self.dof_unit = dict(zip(self.dofs, _units(meta.get("dof_units"), self.dofs)))
         self.channel_unit = dict(zip(self.channels, _units(meta.get("channel_units"), self.channels)))
+        # the columns the page shows (the record's others are not kept)
         names = ["step", "time_s", "late_steps"]
-        names += [column(p, d) for d in self.dofs for p in ("u", "v", "a", "u_pred", "r")]
-        names += [column(p, c) for c in self.channels
-                  for p in ("target", "command", "disp", "force", "error", "ti", "tif")]
-        names += [column("fc", d) for d in self.dofs]
-        self.columns = _Columns(names)
+        names += [column(p, d) for d in self.dofs for p in ("u", "fc")]
+        names += [column(p, c) for c in self.channels for p in ("target", "disp", "force", "error", "ti", "tif")]
+        self.columns = History(names, self.window, self.cap)
+        self.peak = {**{column("u", d): float("nan") for d in self.dofs},
+                     **{column(p, c): float("nan") for c in self.channels for p in ("disp", "force")}}
+        self.peak_error = {c: (float("nan"), float("nan")) for c in self.channels}
+        self.switches = {d: 0 for d in self.dofs}
         self._ti_state = {c: (0.0, None) for c in self.channels}
         self._tif_state = {c: (0.0, None) for c in self.channels}
         return True
@@ -163,18 +177,45 @@ class RecordFeed:
             self._meta_at = time.monotonic()
             self.meta.update({k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")})
         if not self.ns:
-            self.ns = _table(db, "SELECT * FROM ns ORDER BY step")
+            self._read_ns(db)
         steps = self._read_steps(db)
         rows = db.execute("SELECT rowid, time_s, step, kind, actuator, message FROM events WHERE rowid > ? "
                           "ORDER BY rowid", (self._last_event,)).fetchall()
         for r in rows:
-            self.events.append(dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:])))
+            event = dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:]))
+            self.events.append(event)
+            if event["kind"] in MARKS:
+                self.marks.append(event)
+            if event["kind"] == "resume" and str(event["message"]).startswith(RESUMED):
+                self._reopened_after = event["step"]
             self._last_event = r[0]
+        del self.events[:-EVENTS_KEPT]
+        del self.marks[:-MARKS_KEPT]
         self._read_summary(db)
         if steps:
             self.seen_at.append((time.monotonic(), self.n))
             del self.seen_at[:-64]
         return steps
+
+    def _read_ns(self, db) -> None:
+        """The NS prediction (written whole by the dry run before the first step): every
+        ns_stride-th point, the stride that of a history of ``cap`` points, and its peaks."""
+        try:
+            points = db.execute("SELECT COUNT(*) FROM ns").fetchone()[0]
+        except sqlite3.OperationalError:  # no ns table
+            return
+        if points < 1:
+            return
+        stride = 1
+        while -(-points // stride) > self.cap:
+            stride *= 2
+        us = [column("u", d) for d in self.dofs]
+        peaks = db.execute(f"SELECT {', '.join(f'MAX(ABS({u}))' for u in us)} FROM ns").fetchone() if us else ()
+        table = _table(db, f"SELECT time_s, {', '.join(us)} FROM ns WHERE step % ? = 0 ORDER BY step", (stride,))
+        if not table:
+            return
+        self.ns, self.ns_stride, self.ns_steps = table, stride, points - 1
+        self.ns_peak = {d: float("nan") if p is None else float(p) for d, p in zip(self.dofs, peaks)}
 
     def _read_summary(self, db) -> None:
         """The summary, read again only if another connection (the run, a resume) committed since
@@ -208,6 +249,9 @@ class RecordFeed:
         fc = {d: np.array([m == "force" for m in raw.get(column("mode", d), [])], dtype=float) for d in self.dofs}
         for d in self.dofs:
             if len(fc[d]):
+                before = self.columns.last(column("fc", d))
+                modes = fc[d] if np.isnan(before) else np.concatenate([[before], fc[d]])
+                self.switches[d] += int(np.count_nonzero(np.diff(modes)))
                 block[self.columns.names.index(column("fc", d))] = fc[d]
         for c in self.channels:
             target = block[self.columns.names.index(column("target", c))]
@@ -217,6 +261,8 @@ class RecordFeed:
             in_fc = fc[dof] > 0 if dof in fc and len(fc[dof]) else np.zeros(len(rows), bool)
             error = target - np.where(in_fc, force, disp)
             block[self.columns.names.index(column("error", c))] = error
+            dc_peak, fc_peak = self.peak_error[c]
+            self.peak_error[c] = (_peak(dc_peak, error[~in_fc]), _peak(fc_peak, error[in_fc]))
             # Two tracking indicators, one per loop: of displacement control (mm^2) over the DC
             # steps and of force control (kN^2) over the FC steps; in the other mode's steps the
             # command is taken as the measurement, so they add nothing there.
@@ -230,6 +276,8 @@ class RecordFeed:
             tif = tracking_indicator(fc_command, force, start, previous)
             block[self.columns.names.index(column("tif", c))] = tif
             self._tif_state[c] = (float(tif[-1]), (float(fc_command[-1]), float(force[-1])))
+        for name in self.peak:
+            self.peak[name] = _peak(self.peak[name], block[self.columns.names.index(name)])
         self.columns.append(block)
         self._last_step = int(rows[-1][0])
 
@@ -287,6 +335,12 @@ def _table(db, sql: str, args=()) -> dict[str, np.ndarray]:
         return {}
     data = np.array([[np.nan if x is None else x for x in r] for r in rows], dtype=float)
     return {name: data[:, i] for i, name in enumerate(names)}
+
+
+def _peak(peak: float, values: np.ndarray) -> float:
+    """The larger of ``peak`` and max |values|, NaN ignored (NaN while there is no number)."""
+    finite = np.abs(values[np.isfinite(values)])
+    return float(np.fmax(peak, finite.max())) if finite.size else peak
 
 
 def _units(units, names: list[str]) -> list[str]:

@@ -29,7 +29,7 @@ from hsio.monitor.decimate import DEFAULT_CAP, Decimation
 from hsio.monitor.feed import RecordFeed
 from hsio.monitor.indicators import error_spectrum, margin
 from hsio.monitor.operator import ACTIONS, Operator
-from hsio.recording import PHASE_CODES, column as col
+from hsio.recording import PHASE_CODES, being_written, column as col, without_journal
 
 UPDATE_MS = 200  # the status: step, state, rate
 PLOT_EVERY_S = 0.4  # the plots (each redraw costs the browser far more than the status)
@@ -115,6 +115,8 @@ class MonitorPage:
 
     def __init__(self, doc, feed: RecordFeed, operator: Operator, cap: int | None = None):
         self.doc, self.feed, self.operator = doc, feed, operator
+        if cap and cap > feed.cap:  # the feed keeps the rows of caps up to its own (hsio.monitor.history)
+            raise ValueError(f"a page of {cap} points per history needs a feed that keeps as many, not {feed.cap}")
         self._cap_given = bool(cap)
         self.decimation = Decimation(cap) if cap else Decimation()
         self.built = False
@@ -240,19 +242,23 @@ class MonitorPage:
         f = self.feed
         f.poll()
         if not f.opened:
-            self.status.text = f"<b>hsio monitor</b>: waiting for {html.escape(str(f.path))} ..."
+            text = f"<b>hsio monitor</b>: waiting for {html.escape(str(f.path))} ..."
+            if f.path.is_file() and being_written(f.path) is False:  # no run is creating it: none will
+                text = (f"<b>hsio monitor</b>: {html.escape(str(f.path))} holds no run and no run is writing it"
+                        f"{html.escape(without_journal(f.path))}")
+            if self.status.text != text:
+                self.status.text = text
             return
         if not self.built:
             self._build()
         if f.ns and len(self.ns.data["t"]) == 0:
-            n_ns = len(f.ns["time_s"])
-            idx = np.arange(0, n_ns, Decimation(self.decimation.cap).stride_for(n_ns))
-            self.ns.data = {"t": f.ns["time_s"][idx], **{col("u", d): f.ns[col("u", d)][idx] for d in f.dofs}}
+            ns = f.ns_points(Decimation(self.decimation.cap).stride_for(f.ns_steps + 1))
+            self.ns.data = {"t": ns["time_s"], **{col("u", d): ns[col("u", d)] for d in f.dofs}}
         n = f.n
         now = time.monotonic()
         lagging = backlog_bytes(self.doc) > BACKLOG_BYTES
         if n and now - self._plotted >= self.plot_every_s and (
-                len(self.last.data["step"]) == 0 or self.last.data["step"][0] != f["step"][n - 1]):
+                len(self.last.data["step"]) == 0 or self.last.data["step"][0] != f.last("step")):
             self._plotted = now
             if lagging:  # the tab has not read what it was sent: the plots wait, their points kept
                 self.held_back += 1
@@ -271,14 +277,8 @@ class MonitorPage:
         self._status(notices_only=lagging)
 
     def _rows(self, idx: np.ndarray) -> dict:
-        f = self.feed
-        out = {"step": f["step"][idx], "t": f["time_s"][idx], "late": f["late_steps"][idx]}
-        for d in f.dofs:
-            out[col("u", d)] = f[col("u", d)][idx]
-            out[col("fc", d)] = f[col("fc", d)][idx]
-        for c in f.channels:
-            for p in ("target", "disp", "force", "error", "ti", "tif"):
-                out[col(p, c)] = f[col(p, c)][idx]
+        out = self.feed.rows(idx)
+        out["t"], out["late"] = out.pop("time_s"), out.pop("late_steps")
         if len(idx) < 64:  # a few rows travel lighter as JSON numbers than as binary buffers
             out = {k: [None if not math.isfinite(x) else x for x in v.tolist()] for k, v in out.items()}
         return out
@@ -310,7 +310,8 @@ class MonitorPage:
         dof = f.channel_dof.get(channel)
         if dof is None or not f.n:
             return np.zeros(len(steps), bool)
-        at = np.clip(np.searchsorted(f["step"], steps, side="right") - 1, 0, f.n - 1)
+        recent = f["step"]  # the recent steps (the controller samples are of the last few)
+        at = np.clip(np.searchsorted(recent, steps, side="right") - 1, 0, len(recent) - 1)
         return f[col("fc", dof)][at] > 0
 
     def limits(self) -> dict:
@@ -326,28 +327,39 @@ class MonitorPage:
 
     def _margins(self) -> None:
         f, lim = self.feed, self.limits()
-        n = f.n - 1
         warn = 1.0 - lim["warning_fraction"]
         labels, values, colors, texts = [], [], [], []
         for c in f.channels:
             dof = f.channel_dof.get(c)
-            in_fc = f[col("fc", dof)] > 0 if dof is not None else np.zeros(f.n, bool)
+            in_fc = dof is not None and f.last(col("fc", dof)) > 0
             actuator = "." not in c  # an element on a setup records its basic DOFs, not strokes
-            # each step's error against its own mode's threshold (kN in force control, else mm)
-            follow = np.where(in_fc, lim["following_error_kN"], lim["following_error_mm"])
+            stroke = lim["half_stroke_mm"] if actuator else None
+            force = lim["force_kN"] if actuator else None
+            # the least margin so far from the peaks of the whole run; the following error of each
+            # step against its own mode's threshold (kN in force control, else mm)
+            peak_dc, peak_fc = f.peak_error[c]
             if f.channel_unit.get(c) == "rad":  # a rotation: its actuators' strokes carry the interlock's mm
-                follow = None
-            for what, history, limit in (("stroke", f[col("disp", c)], lim["half_stroke_mm"] if actuator else None),
-                                         ("force", f[col("force", c)], lim["force_kN"] if actuator else None),
-                                         ("following", f[col("error", c)], follow)):
-                limits = np.broadcast_to(np.nan if limit is None else np.asarray(limit, dtype=float), history.shape)
-                m = float(margin(history[n], limits[n]))
-                least = float(np.nanmin(margin(history, limits))) if np.any(limits > 0) else float("nan")
+                follow, least_follow = None, float("nan")
+            else:
+                follow = lim["following_error_kN"] if in_fc else lim["following_error_mm"]
+                least_follow = _least(margin(peak_dc, lim["following_error_mm"]), margin(peak_fc, lim["following_error_kN"]))
+            for what, name, limit, least in (
+                    ("stroke", col("disp", c), stroke, margin(f.peak[col("disp", c)], stroke)),
+                    ("force", col("force", c), force, margin(f.peak[col("force", c)], force)),
+                    ("following", col("error", c), follow, least_follow)):
+                m = float(margin(f.last(name), limit))
+                least = float(least)
                 labels.append(f"{c} {what}")
                 ok = math.isfinite(m)
                 values.append(100.0 * m if ok else 0.0)
                 colors.append("gray" if not ok else "crimson" if m < warn else "orange" if m < 2 * warn else "seagreen")
-                texts.append(f"{100 * m:.0f} % (least {100 * least:.0f} %)" if ok else "limit not known")
+                if ok:
+                    texts.append(f"{100 * m:.0f} % (least {100 * least:.0f} %)")
+                elif limit is None or not float(limit) > 0:
+                    texts.append("limit not known")
+                else:  # the limit is known, the newest step has no number (a sensor that read NaN)
+                    texts.append("no reading at the newest step" + (f" (least {100 * least:.0f} %)"
+                                                                    if math.isfinite(least) else ""))
         self.margins.data = dict(label=labels, value=values, color=colors, text=texts)
 
     def _status(self, notices_only: bool = False) -> None:
@@ -381,7 +393,11 @@ class MonitorPage:
             state = ("the run has no control socket ([safety] control_socket = false): this page watches only; "
                      "pause or stop it where it runs")
         else:
-            state = "no answer from the run's control socket (a run killed, or started without one)"
+            writing = being_written(f.path)  # the run's lock on its record: it is still there
+            state = ("no answer from the run's control socket, though a run still writes the record" if writing else
+                     "no answer from the run's control socket and no run writes the record: the run ended "
+                     "without its summary (killed, or failed)" if writing is False else
+                     "no answer from the run's control socket (a run killed, or started without one)")
         # Stop stays available unless no run can hear it: a run that answers, or may be there.
         trip = self._trip_to_acknowledge()
         if running and trip:
@@ -393,8 +409,8 @@ class MonitorPage:
         for action, b in zip(ACTIONS, self.buttons):
             if b.disabled != disabled[action]:
                 b.disabled = disabled[action]
-        last_step = int(f["step"][n - 1]) if n else 0
-        t_now = float(f["time_s"][n - 1]) if n else 0.0
+        last_step = int(f.last("step")) if n else 0
+        t_now = f.last("time_s") if n else 0.0
         dt, tr = float(meta.get("dt", 0.0)), float(meta.get("test_rate", 0.0))
         rate = f.steps_per_second()
         items = [("run", f"{html.escape(str(meta.get('structure', '')))} under {html.escape(str(meta.get('record', '')))}, "
@@ -409,7 +425,7 @@ class MonitorPage:
         else:
             items.append(("test rate", f"TR {tr:g} configured"))
         if n:
-            late = int(f["late_steps"][n - 1]) if np.isfinite(f["late_steps"][n - 1]) else 0
+            late = int(f.last("late_steps")) if np.isfinite(f.last("late_steps")) else 0
             codes = f.phases()
             if not codes and ((meta.get("config") or {}).get("output") or {}).get("samples") is False:
                 phase = "not recorded ([output] samples = false: no controller samples)"
@@ -419,13 +435,12 @@ class MonitorPage:
             items.append(("command generator", f"{late} late steps; phase {phase}"))
             modes = []
             for d in f.dofs:
-                fc = f[col("fc", d)]
-                switches = int(np.count_nonzero(np.diff(fc[np.isfinite(fc)]))) if n > 1 else 0
+                switches = f.switches[d]
                 unit = f.dof_unit.get(d, "mm")
                 shown = (lambda x: f"{x:.2f}") if unit == "mm" else (lambda x: f"{x:.5f}")
-                peak = float(np.nanmax(np.abs(f[col("u", d)])))
-                ns_peak = f" (NS {shown(np.nanmax(np.abs(f.ns[col('u', d)])))})" if f.ns else ""
-                modes.append(f"{html.escape(d)} {'FC' if fc[-1] > 0 else 'DC'}, {switches} switches, "
+                peak = f.peak[col("u", d)]
+                ns_peak = f" (NS {shown(f.ns_peak[d])})" if f.ns else ""
+                modes.append(f"{html.escape(d)} {'FC' if f.last(col('fc', d)) > 0 else 'DC'}, {switches} switches, "
                              f"peak |u| {shown(peak)} {unit}{ns_peak}")
             items.append(("DOFs", "; ".join(modes)))
         every = "every step" if self.decimation.stride == 1 else f"every {self.decimation.stride}th step"
@@ -457,7 +472,7 @@ class MonitorPage:
     def _trip_to_acknowledge(self) -> str:
         """The newest controller trip of the record not yet acknowledged nor followed by a resume
         (its message), or ''."""
-        for e in reversed(self.feed.events):
+        for e in reversed(self.feed.marks):
             if e["kind"] in ("acknowledge", "resume"):
                 return ""
             if e["kind"] == "controller_trip":
@@ -468,7 +483,7 @@ class MonitorPage:
         """What the run read back of the actuators' hold when it paused after ``step`` (its
         ``pause`` event), or that it is not in the record yet: the newest pause or resume of the
         record must be that pause (a ramp of the static preloads pauses at the same step again)."""
-        for e in reversed(self.feed.events):
+        for e in reversed(self.feed.marks):
             if e["kind"] in ("pause", "resume"):
                 if e["kind"] == "resume":
                     break
@@ -494,6 +509,12 @@ class MonitorPage:
                 pass
 
         self.operator.submit(action, who).add_done_callback(answered)
+
+
+def _least(*margins: float) -> float:
+    """The least of ``margins`` that is known (NaN if none is)."""
+    known = [float(m) for m in margins if math.isfinite(m)]
+    return min(known) if known else float("nan")
 
 
 def _has_control_socket(meta: dict) -> bool:

@@ -146,6 +146,7 @@ def make_server(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAUL
     from bokeh.server.server import Server
 
     from hsio.monitor.feed import RecordFeed
+    from hsio.monitor.history import CAP as HISTORY_CAP
     from hsio.monitor.operator import Operator
     from hsio.monitor.page import MonitorPage
 
@@ -160,7 +161,7 @@ def make_server(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAUL
                           f"page's URL and kept in a cookie)")
     if needs_token(host) and not token:
         token = secrets.token_urlsafe(18)
-    feed = RecordFeed(run_dir)
+    feed = RecordFeed(run_dir, cap=max(HISTORY_CAP, cap or 0))  # keeps every row a page of `cap` points shows
     operator = Operator(run_dir, socket_path=lambda: feed.meta.get("control_socket"))
 
     def make_page(doc):
@@ -178,6 +179,10 @@ def make_server(run_dir: str | Path, host: str = "127.0.0.1", port: int = DEFAUL
         operator.close()
         feed.close()
         raise ConfigError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+    # The record as it stands is read before the URL is given: a long one (a replay, a run followed
+    # late) takes seconds, which the first tab would otherwise wait with the page server unable to
+    # answer any other (the reading runs on its event loop).
+    feed.poll(force=True)
     server.start()
     shown = f"[{host}]" if ":" in host else host
     url = f"http://{shown}:{server.port}/" + (f"?token={token}" if needs_token(host) else "")
