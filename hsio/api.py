@@ -261,7 +261,8 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
             # per channel (an element with a setup has one per basic DOF and takes no instrument)
             external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
                         for e in structure.experimental for _ in e.basic_dofs]
-        site = ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
+        site = ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative,
+                            safety)
         if external is not None:
             by_name = {i.name: i for i in structure.instruments}
             site.displacement_instruments = [None if src is None else (float(by_name[src[0]].noise),
@@ -541,6 +542,8 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         _report_preloads_short(site, recorder)
     except BaseException as exc:
         site.hold()
+        if recorder is not None and static:  # the ramp as far as it went (a trip: the period that tripped last)
+            recorder.write_tables(site.record_tables())
         if isinstance(exc, RampStopped):
             raise OperatorStop(f"{control.stop_reason}: {exc}") from None
         raise
@@ -573,5 +576,6 @@ def _site_logs(result: Result, site, static) -> Result:
     if static:
         result.static_log = list(site.static_log)
         result.static_hold_error = site.static_hold_error()
+        result.static_ramps = {phase: dict(peaks) for phase, peaks in site.ramp_peaks.items()}
     result.instrument_log = list(site.instrument_log)
     return result
