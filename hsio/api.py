@@ -38,7 +38,7 @@ from hsio.config import KEYWORDS as config_keywords
 from hsio.config import MIXED_GUARDS as config_guards
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
-from hsio.experiment import ExperimentStopped, excitation, run_steps
+from hsio.experiment import ExperimentStopped, excitation, run_steps, write_events
 from hsio.ground_motion import GroundMotion
 from hsio.hardware import open_hardware
 from hsio.interfaces import ActuatorSpec
@@ -560,6 +560,13 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
             hold = site.hold()
             cause = OperatorStop(control.stop_reason) if isinstance(exc, RampStopped) else exc
             result.stopped = f"the ramp off of the static preloads, after the record: {exc}"
+            if recorder is not None:  # the trip (if any), the hold and the stop, as after a stop in the record
+                try:
+                    write_events(recorder, site, result.steps)
+                    recorder.write_event(site.lab_time_s, result.steps, "hold", "", hold.message, commit=False)
+                    recorder.write_event(site.lab_time_s, result.steps, "stop", "", result.stopped)
+                except Exception:
+                    pass  # the record keeps what it has; the stop is raised below
             raise ExperimentStopped(f"run stopped in {result.stopped}; {hold.message}; {result.steps} steps recorded",
                                     result, cause, hold) from None
     except ExperimentStopped as exc:  # the partial result keeps the logs as far as they go

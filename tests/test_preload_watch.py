@@ -15,6 +15,7 @@ from hsio.errors import ConfigError
 from hsio.interfaces import Limits
 from hsio.recording import Run
 from hsio.safety.ramp_watch import RampWatch
+from hsio.safety.settings import SafetySettings
 from hsio.safety.status import INTERLOCK, InterlockTrip, exit_status
 from hsio.structure_file import parse_structure
 from hsio.structures import StaticLoad
@@ -159,7 +160,7 @@ def test_the_watch_takes_the_run_s_stroke_margin():
     w(0.001, [Feedback(0.0), Feedback(63.4)])
     with pytest.raises(InterlockTrip, match=r"63\.600 mm is beyond the stroke less the margin \(63\.500 mm = 50% of "
                                             r"\+/-127 mm\); likely cause: the rod moved \+63\.600 mm while the measured force "
-                                            r"did not rise with it \(secant 0 kN/mm"):
+                                            r"did not follow it as a spring's would \(secant 0 kN/mm"):
         w(0.002, [Feedback(0.0), Feedback(63.6)])
 
 
@@ -170,3 +171,42 @@ def test_K_EI_of_a_preload_is_read_and_checked():
     text = LIBRARY.read_text().replace("ramp_s = 2.0", "ramp_s = 2.0\nK_EI = -1.0")
     with pytest.raises(ConfigError, match=r"c\.toml: static\[0\]\.K_EI: must be positive"):
         parse_structure(text, "c.toml")
+
+
+def test_a_specimen_that_fails_in_the_record_stops_the_ramp_off_and_the_record_says_so(tmp_path):
+    """The axial member loses its stiffness at the record's last step (0.5 kN/mm left of 50): the
+    force loop runs the rod out after its preload, and the ramp off stops as an interlock; the
+    whole record is kept, with the trip, the hold and the stop."""
+    from hsio.experiment import excitation
+    from hsio.recording import Recorder
+    from hsio.specimens import make_specimen
+    from hsio.structures import channel_names
+
+    structure = hsio.load_structure("preloaded_column")
+    ground = hsio.synthetic_record(duration_s=0.3, dt=structure.dt, pga_g=0.3, seed=2)
+    steps = len(excitation(structure, ground)[0]) - 1
+    recorder = Recorder(tmp_path / "run.sqlite", structure.dof_names, channel_names(structure), {})
+    # the sudden loss of force is not judged a load cell's jump here, and a tenth of the stroke is
+    # allowed: the rod reaches it before the force-loop's following error has lasted 0.5 s
+    safety = SafetySettings(jump_kN=1000.0, stroke_margin=0.9)
+    with hsio.open_site(structure, "emulator://", test_rate=10, safety=safety) as site:
+        axial = site.loop.actuators[1].controller
+        done = []
+
+        def crack(n):
+            done.append(n)
+            if len(done) == steps:
+                axial.specimen = make_specimen({"kind": "linear", "k": 0.5})
+
+        with pytest.raises(hsio.ExperimentStopped, match="ramp off of the static preloads") as info:
+            hsio.simulate(structure, ground, site, recorder=recorder, progress=crack)
+        assert axial.tripped == ""  # stopped before the controller's own stroke interlock
+    recorder.close()
+    stopped = info.value
+    assert exit_status(stopped) == INTERLOCK and isinstance(stopped.cause, InterlockTrip)
+    assert "preload_ramp" in str(stopped.cause) and "ramp off of static preload 'axial'" in str(stopped.cause)
+    partial = stopped.result
+    assert partial.steps == steps and [p for p, *_ in partial.static_log].count("test") == steps
+    assert partial.static_log[-1][0] == "ramp_off" and "ramp_off" in partial.static_ramps
+    events = Run(tmp_path / "run.sqlite").events()
+    assert [e["kind"] for e in events][-3:] == ["trip", "hold", "stop"]

@@ -97,7 +97,7 @@ class RampWatch:
             return f"the rod stood there when the ramp began (declared K^EI = {declared:g} kN/mm)"
         if k <= 0:
             return (f"likely cause: the rod moved {self.last[j][0] - self.start[j][0]:+.3f} mm while the measured force "
-                    f"did not rise with it (secant {k:.4g} kN/mm over the ramp so far, declared K^EI = {declared:g} "
+                    f"did not follow it as a spring's would (secant {k:.4g} kN/mm over the ramp so far, declared K^EI = {declared:g} "
                     f"kN/mm): nothing holds the rod (a failed specimen, a slipped load train) or the load cell does "
                     f"not read")
         if k < declared:
