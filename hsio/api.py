@@ -38,7 +38,7 @@ from hsio.config import KEYWORDS as config_keywords
 from hsio.config import MIXED_GUARDS as config_guards
 from hsio.control_loop import ControlLoop
 from hsio.errors import ConfigError
-from hsio.experiment import ExperimentStopped, excitation, run_steps
+from hsio.experiment import ExperimentStopped, excitation, run_steps, write_events
 from hsio.ground_motion import GroundMotion
 from hsio.hardware import open_hardware
 from hsio.interfaces import ActuatorSpec
@@ -261,7 +261,8 @@ def open_site(structure: Structure, hardware: str = "emulator://", *, clock: str
             # per channel (an element with a setup has one per basic DOF and takes no instrument)
             external = [(e.displacement_from, e.outer_loop) if e.displacement_from else None
                         for e in structure.experimental for _ in e.basic_dofs]
-        site = ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative)
+        site = ActuatorSite(loop, estimator, compensation, setups, structure.static, instruments, external, relative,
+                            safety)
         if external is not None:
             by_name = {i.name: i for i in structure.instruments}
             site.displacement_instruments = [None if src is None else (float(by_name[src[0]].noise),
@@ -541,6 +542,8 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         _report_preloads_short(site, recorder)
     except BaseException as exc:
         site.hold()
+        if recorder is not None and static:  # the ramp as far as it went (a trip: the period that tripped last)
+            recorder.write_tables(site.record_tables())
         if isinstance(exc, RampStopped):
             raise OperatorStop(f"{control.stop_reason}: {exc}") from None
         raise
@@ -557,6 +560,13 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
             hold = site.hold()
             cause = OperatorStop(control.stop_reason) if isinstance(exc, RampStopped) else exc
             result.stopped = f"the ramp off of the static preloads, after the record: {exc}"
+            if recorder is not None:  # the trip (if any), the hold and the stop, as after a stop in the record
+                try:
+                    write_events(recorder, site, result.steps)
+                    recorder.write_event(site.lab_time_s, result.steps, "hold", "", hold.message, commit=False)
+                    recorder.write_event(site.lab_time_s, result.steps, "stop", "", result.stopped)
+                except Exception:
+                    pass  # the record keeps what it has; the stop is raised below
             raise ExperimentStopped(f"run stopped in {result.stopped}; {hold.message}; {result.steps} steps recorded",
                                     result, cause, hold) from None
     except ExperimentStopped as exc:  # the partial result keeps the logs as far as they go
@@ -573,5 +583,6 @@ def _site_logs(result: Result, site, static) -> Result:
     if static:
         result.static_log = list(site.static_log)
         result.static_hold_error = site.static_hold_error()
+        result.static_ramps = {phase: dict(peaks) for phase, peaks in site.ramp_peaks.items()}
     result.instrument_log = list(site.instrument_log)
     return result

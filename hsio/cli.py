@@ -302,6 +302,10 @@ def _print_summary(s: dict) -> None:
                                              for name, x, u in zip(channels, rms, units)))
     for name, error in s.get("static_hold_error_pct", {}).items():
         click.echo(f"preload {name:<6} held within {error:.3f} % through the record")
+    for phase, peaks in s.get("static_ramps", {}).items():
+        for name, p in peaks.items():
+            click.echo(f"preload {name:<6} {phase.replace('_', ' ')}: peak rod speed {p['peak_speed_mm_s']:.2f} mm/s, "
+                       f"peak |stroke| {p['peak_stroke_mm']:.3f} mm (measured)")
     if "outer_loop_iterations" in s:
         loops = s["outer_loop_iterations"]
         click.echo(f"outer loop     {loops['mean']:.2f} corrections a trial on average, at most {loops['max']}")

@@ -83,6 +83,9 @@ class ControlLoop:
             raise held_on_failure(actuators, exc)
         self.generators = [PredictorCorrector(self.t_d, clock.period_s, x0, hold_fraction=hold_fraction) for x0 in initial]
         self.monitor = monitor  # hsio.safety.interlocks.InterlockMonitor or None
+        # called as watch(lab time, feedback) every period after the monitor, when set (the watch over
+        # a ramp of the static preloads, hsio.safety.ramp_watch); what it raises stops the loop as a trip does
+        self.watch = None
         self._samples: list[tuple] = []  # every period since the last step landed
         self._targets = np.full(len(actuators), np.nan)  # the step's targets (none before the first)
         self._unanswered: tuple | None = None  # a period's commands sent, its measurement never read
@@ -220,6 +223,8 @@ class ControlLoop:
         try:
             if self.monitor is not None:
                 self.monitor.check(self.clock.now_s, commands, feedback, [a.mode for a in self.actuators])
+            if self.watch is not None:
+                self.watch(self.clock.now_s, feedback)
         except BaseException as exc:
             self._fail(exc)
         if not all(g.reached for g in self.generators):

@@ -77,6 +77,8 @@ class Result:
     # on actuators with static preloads or external instruments (docs/setups.md)
     static_log: list = field(default_factory=list)  # (phase, lab time s, targets, forces, displacements)
     static_hold_error: np.ndarray | None = None  # per preload: max |measured - preload| / preload in the record
+    # per ramp ("ramp_in", "ramp_off"), per preload: peak measured rod speed (mm/s) and |displacement| (mm)
+    static_ramps: dict = field(default_factory=dict)
     instrument_log: list = field(default_factory=list)  # (trial, outer-loop iterations, readings)
     # per DOF, the unit of its displacement: "rad" for a rotation, "mm" otherwise (all "mm" when not given)
     dof_units: tuple[str, ...] = ()

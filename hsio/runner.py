@@ -745,6 +745,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
                 pass
             summary = {"structure": structure.name, "record": ground.name, "steps": 0, "stopped": reason,
                        "run_file": str(out / RUN_FILE), "end_state": _state(site)}
+            if site is not None and site.static and site.ramp_peaks:  # a ramp in stopped: how far its rods went
+                summary["static_ramps"] = site.ramp_peaks
         status = exit_status(error)
         summary.update(exit_status=status, outcome=outcome_name(status), run_dir=str(out),
                        dry_run_override=safety.override, version=hsio.__version__)
@@ -822,6 +824,8 @@ def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs:
     if structure.static and hs.static_hold_error is not None:  # the largest |measured - preload| / preload
         summary["static_hold_error_pct"] = {load.name: float(100.0 * e)
                                             for load, e in zip(structure.static, hs.static_hold_error)}
+    if structure.static and hs.static_ramps:  # per ramp, per preload: the measured peak rod speed and stroke
+        summary["static_ramps"] = hs.static_ramps
     if hs.instrument_log:
         iterations = np.array([n for _, n, _ in hs.instrument_log], dtype=float)
         summary["outer_loop_iterations"] = {"mean": float(iterations.mean()), "max": int(iterations.max())}

@@ -46,7 +46,7 @@ TABLES = {
     "numerical": {"name", "dof", "to", "model"},
     "experimental": {"name", "dof", "ref", "dofs", "actuator", "actuators", "K_EI", "model", "setup",
                      "displacement_from", "outer_loop"},
-    "static": {"name", "actuator", "force_kN", "ramp_s", "model"},
+    "static": {"name", "actuator", "force_kN", "ramp_s", "model", "K_EI"},
     "instrument": {"name", "kind", "element", "scale", "noise", "resolution"},
 }
 ARRAYS = ("dof", "spring", "numerical", "experimental", "static", "instrument")
@@ -580,7 +580,8 @@ class _Reader:
         if ramp_out_of_bounds(ramp):
             raise self.error(f"{where}.ramp_s", ramp_out_of_bounds(ramp))
         spec = self.model(f"{where}.model", self.required(where, entry, "model"))
-        return StaticLoad(name, force, spec, ramp, actuator)
+        K_EI = self.number(f"{where}.K_EI", entry["K_EI"], positive=True) if "K_EI" in entry else None
+        return StaticLoad(name, force, spec, ramp, actuator, K_EI)
 
     def check_frequencies(self, structure: Structure) -> None:
         """Sanity bounds of the natural frequencies (docs/faults.md): beyond them a mass or a

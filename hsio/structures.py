@@ -215,13 +215,16 @@ class StaticLoad:
     """An actuator tied to no dynamic DOF: it ramps a preload (an axial gravity load, say) in force
     control before the test, holds it while the other DOFs run, and ramps it off at the end
     (docs/setups.md). ``specimen`` is what it loads (the emulator's model of it), ``force_kN`` the
-    preload, ``ramp_s`` the lab time of each ramp."""
+    preload, ``ramp_s`` the lab time of each ramp; ``K_EI_declared`` the stiffness the lab declares
+    for what it loads (None: the model's initial stiffness), over which its ramps' rod velocity and
+    its held displacement are predicted."""
 
     name: str
     force_kN: float
     specimen: dict
     ramp_s: float = 5.0
     actuator: str = ""
+    K_EI_declared: float | None = None
 
     def __post_init__(self):
         if not self.actuator:
@@ -232,8 +235,9 @@ class StaticLoad:
         wrong = ramp_out_of_bounds(check.number("ramp_s", self.ramp_s, positive=True))
         if wrong:
             raise ConfigError(f"static load {self.name!r}: ramp_s: {wrong}")
-        # the preload's displacement and the rod velocity of its ramps are over this stiffness
         _check_specimen(f"static load {self.name!r}", self.specimen)
+        if self.K_EI_declared is not None:
+            check.number("K_EI_declared", self.K_EI_declared, positive=True)
 
     has_setup = False
     is_parallel = False
@@ -245,6 +249,12 @@ class StaticLoad:
 
     def model(self) -> Specimen:
         return make_specimen(self.specimen)
+
+    @property
+    def K_EI(self) -> float:
+        """The stiffness of what the preload loads: the declared one, else the model's initial
+        stiffness. The preload's displacement and the rod velocity of its ramps are predicted over it."""
+        return float(self.K_EI_declared) if self.K_EI_declared is not None else float(self.model().initial_stiffness)
 
 
 INSTRUMENT_KINDS = {"lvdt": "mm", "string_pot": "mm", "load_cell": "kN", "strain_gauge": "microstrain"}

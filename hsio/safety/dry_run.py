@@ -371,15 +371,15 @@ def with_static(prediction: Prediction, static, t_d: float, hold_fraction: float
                 period: float = 1.0 / CONTROLLER_RATE_HZ) -> Prediction:
     """``prediction`` and the static actuators (:class:`hsio.structures.StaticLoad`, docs/setups.md)
     holding their preloads: the force is the preload and the displacement the preload over the
-    initial stiffness K^EI of what it loads, held throughout; the velocity that of the ramps in
-    and off (:func:`hsio.safety.preload_ramp.ramp_velocity`: the command generator's force rate
-    over the loop steps of the longest ``ramp_s``, over K^EI)."""
+    stiffness K^EI of what it loads (:attr:`hsio.structures.StaticLoad.K_EI`), held throughout;
+    the velocity that of the ramps in and off (:func:`hsio.safety.preload_ramp.ramp_velocity`:
+    the command generator's force rate over the loop steps of the longest ``ramp_s``, over K^EI)."""
     if not static:
         return prediction
     from hsio.safety.preload_ramp import ramp_velocity
 
     force = np.array([abs(load.force_kN) for load in static])
-    stiffness = np.array([load.model().initial_stiffness for load in static])
+    stiffness = np.array([load.K_EI for load in static])
     disp = force / np.abs(stiffness)
     _, ramp = ramp_velocity(np.zeros(len(static)), force, stiffness, max(load.ramp_s for load in static), t_d,
                             period, hold_fraction)

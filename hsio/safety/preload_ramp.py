@@ -5,10 +5,12 @@ longest ``ramp_s`` of the preloads, ``steps = max(ceil(ramp_s / t_d), 1)`` targe
 F_k = F_0 + (F - F_0) k / steps, then F held. The command generator (docs/method.md section 1)
 runs between them as between any targets, so the force rate the actuator is sent is that of the
 predictor-corrector over those targets. What the actuator loads answers with its stiffness: the
-rod moves at that force rate over the initial stiffness K^EI of the preload's specimen model,
-and a force rate beyond K^EI times the velocity limit asks the servo-valve for more flow than it
-has (the actuator would then lag its force command, or an actuator without a flow limit move at
-a speed nobody checked). Both the dry run and the ramp itself check it, before anything moves.
+rod moves at that force rate over the stiffness K^EI of what it loads (the declared ``K_EI``,
+else the specimen model's initial stiffness), and a force rate beyond K^EI times the velocity
+limit asks the servo-valve for more flow than it has (the actuator would then lag its force
+command, or an actuator without a flow limit move at a speed nobody checked). Both the dry run
+and the ramp itself check it, before anything moves; while the ramp runs, the measured rod is
+watched (:mod:`hsio.safety.ramp_watch`), for what loads it may be softer than declared.
 """
 
 from __future__ import annotations
@@ -57,10 +59,10 @@ def check_ramp(static, start, end, velocity_limits, t_d: float, period: float, h
                phase: str) -> None:
     """Refuse (LimitError, before anything moves) a ramp of the ``static`` preloads
     (:class:`hsio.structures.StaticLoad`) from ``start`` to ``end`` whose rod velocity, the force
-    rate over what each loads, exceeds its actuator's velocity limit (``velocity_limits``, mm/s),
+    rate over the K^EI of what each loads, exceeds its actuator's velocity limit (``velocity_limits``, mm/s),
     naming the preload, the velocity, the limit and the ``ramp_s`` that would keep within it."""
     ramp_s = max(load.ramp_s for load in static)
-    stiffness = [load.model().initial_stiffness for load in static]
+    stiffness = [load.K_EI for load in static]
     rate, velocity = ramp_velocity(start, end, stiffness, ramp_s, t_d, period, hold_fraction)
     for j, (load, k, r, v, limit) in enumerate(zip(static, stiffness, rate, velocity, velocity_limits)):
         if limit is not None and v > limit:

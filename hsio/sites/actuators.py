@@ -26,6 +26,9 @@ from hsio.errors import ConfigError, HsioError, ImplausibleMeasurementError
 from hsio.interfaces import ControlMode
 from hsio.safety.hold import HoldReport
 from hsio.safety.preload_ramp import check_ramp, ramp_steps, ramp_targets
+from hsio.safety.ramp_watch import RampWatch
+from hsio.safety.settings import SafetySettings
+from hsio.safety.status import InterlockTrip
 from hsio.secant import SecantEstimator, secant_stiffness
 from hsio.sites.base import Daq
 from hsio.structures import OuterLoop
@@ -44,13 +47,16 @@ class RampStopped(HsioError):
 class ActuatorSite:
     """The experimental channels on actuators, driven trial by trial: one actuator per channel,
     or several per element through its setup (``setups``); ``static`` preloads
-    (:class:`hsio.structures.StaticLoad`) on the actuators after those of the channels."""
+    (:class:`hsio.structures.StaticLoad`) on the actuators after those of the channels, their
+    ramps watched against the limits less ``safety``'s stroke and velocity margins."""
 
     ACTUATOR_LOG_ROWS = 10_000  # trials of the actuators' log kept for the record between its takes
 
     def __init__(self, loop: ControlLoop, estimator: SecantEstimator | None = None, compensation=None,
-                 setups=None, static=(), instruments=None, external=None, relative: bool = False):
+                 setups=None, static=(), instruments=None, external=None, relative: bool = False,
+                 safety: SafetySettings | None = None):
         self.loop = loop
+        self.safety = safety or SafetySettings()
         self.instruments = instruments  # a DAQ of external instruments, read every trial
         # per channel: None (the actuator's transducer) or (instrument name, OuterLoop or None)
         self.external = list(external) if external is not None else []
@@ -112,6 +118,9 @@ class ActuatorSite:
         self._daq: Daq | None = None
         self.static_targets = np.zeros(len(self.static))
         self.static_log: list[tuple] = []  # (phase, lab time s, targets, forces, displacements)
+        # per ramp ("ramp_in", "ramp_off"), per preload: its peak measured rod speed and stroke
+        self.ramp_peaks: dict[str, dict[str, dict[str, float]]] = {}
+        self._events: list[dict] = []  # the ramp watch's trips, for take_events
         self._phase = "test"
         self.final_hold: HoldReport | None = None  # set by close()
 
@@ -187,7 +196,11 @@ class ActuatorSite:
         their present targets, and :class:`RampStopped` says where (target and measured force).
         ``pause`` (a callable) is called before every step: an operator's pause holds the ramp
         there (:meth:`hsio.safety.control.RunControl.checkpoint`), for as long as the operator
-        wants, and a stop while paused ends it as ``stop`` does."""
+        wants, and a stop while paused ends it as ``stop`` does. Every controller period the
+        measured rods are watched (:class:`hsio.safety.ramp_watch.RampWatch`): a rod beyond its
+        stroke or velocity limit less the margin stops the ramp with an
+        :class:`~hsio.safety.status.InterlockTrip`, the period that tripped logged last; the
+        ramp's peaks go to :attr:`ramp_peaks`."""
         from hsio.safety.status import OperatorStop
 
         self._phase = phase
@@ -205,6 +218,11 @@ class ActuatorSite:
         settle = steps if phase == "ramp_in" else 0
         if settle:
             self.preload_short = []
+        now = self.loop.feedback()[self.n_dynamic:]
+        watch = RampWatch(self.static, self.loop.actuators, self.n_dynamic,
+                          [(f.displacement_mm, f.force_kN) for f in now], self.lab_time_s, phase,
+                          (self.safety.stroke_margin, self.safety.velocity_margin), self.loop.clock.period_s)
+        self.loop.watch = watch
         try:
             for k in range(1, steps + settle + 1):
                 if pause is not None:
@@ -223,7 +241,16 @@ class ActuatorSite:
                     self.preload_short = [(load.name, float(t), float(f)) for load, t, f
                                           in zip(self.static, end, fb.force[self.n_dynamic:])
                                           if abs(f - t) > self.PRELOAD_REACHED * abs(t)]
+        except InterlockTrip as exc:
+            if exc.kind == RampWatch.KIND:  # the period that tripped: what the rods measured then
+                self.static_log.append((phase, float(watch.last_time), self.static_targets.copy(),
+                                        np.array([f for _, f in watch.last]), np.array([d for d, _ in watch.last])))
+                self._events.append({"time_s": float(watch.last_time), "kind": "trip", "actuator": exc.actuator,
+                                     "message": str(exc)})
+            raise
         finally:
+            self.loop.watch = None
+            self.ramp_peaks[phase] = watch.peaks()
             self._phase = "test"
 
     def preloads_short(self) -> list[tuple[str, str]]:
@@ -528,7 +555,8 @@ class ActuatorSite:
 
     def take_events(self) -> list[dict]:
         """Interlock warnings and trips since the last call (docs/safety.md section 3)."""
-        return self.loop.take_events()
+        events, self._events = self._events, []
+        return sorted(events + self.loop.take_events(), key=lambda e: e["time_s"])  # in the order they happened
 
     def pause(self):
         """Finish nothing more, hold every actuator and read the hold back (a HoldReport)."""
