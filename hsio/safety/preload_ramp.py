@@ -56,11 +56,13 @@ def ramp_velocity(start, end, stiffness, ramp_s: float, t_d: float, period: floa
 
 
 def check_ramp(static, start, end, velocity_limits, t_d: float, period: float, hold_fraction: float,
-               phase: str) -> None:
+               phase: str, share: str = "") -> None:
     """Refuse (LimitError, before anything moves) a ramp of the ``static`` preloads
     (:class:`hsio.structures.StaticLoad`) from ``start`` to ``end`` whose rod velocity, the force
     rate over the K^EI of what each loads, exceeds its actuator's velocity limit (``velocity_limits``, mm/s),
-    naming the preload, the velocity, the limit and the ``ramp_s`` that would keep within it."""
+    naming the preload, the velocity, the limit and the ``ramp_s`` that would keep within it.
+    ``share``: what the limits are of the actuators' own (e.g. "95 % of the actuator's", the run's
+    velocity margin taken off), for the message."""
     ramp_s = max(load.ramp_s for load in static)
     stiffness = [load.K_EI for load in static]
     rate, velocity = ramp_velocity(start, end, stiffness, ramp_s, t_d, period, hold_fraction)
@@ -69,7 +71,8 @@ def check_ramp(static, start, end, velocity_limits, t_d: float, period: float, h
             within = within_limit(start[j], end[j], k, limit, ramp_s, t_d, period, hold_fraction)
             raise LimitError(f"static preload {load.name!r} on actuator {load.actuator!r}: the {phase} over "
                              f"{ramp_s:g} s moves the rod at {v:.1f} mm/s ({r:.1f} kN/s over {k:g} kN/mm), "
-                             f"beyond the velocity limit ({limit:g} mm/s); not sent ({within})")
+                             f"beyond the velocity limit ({limit:g} mm/s{', ' + share + ' limit' if share else ''}); "
+                             f"not sent ({within})")
 
 
 def within_limit(start: float, end: float, stiffness: float, limit: float, ramp_s: float, t_d: float,

@@ -282,10 +282,15 @@ class ActuatorSite:
         self._ramp(present, end, "ramp_in", stop, pause)
 
     def _check_ramp(self, start: np.ndarray, end: np.ndarray, phase: str) -> None:
-        """Refuse a ramp of the preloads that would move a rod beyond its actuator's velocity limit."""
-        limits = [a.limits.velocity_mm_s for a in self.loop.actuators[self.n_dynamic:]]
+        """Refuse a ramp of the preloads that would move a rod beyond its actuator's velocity limit
+        less the run's velocity margin: the limit the dry run and the ramp's watch of the measured
+        rod (:mod:`hsio.safety.ramp_watch`) hold it to."""
+        keep = 1.0 - self.safety.velocity_margin
+        limits = [None if a.limits.velocity_mm_s is None else keep * a.limits.velocity_mm_s
+                  for a in self.loop.actuators[self.n_dynamic:]]
         check_ramp(self.static, start, end, limits, self.loop.t_d, self.loop.clock.period_s,
-                   self.loop.hold_fraction, phase)
+                   self.loop.hold_fraction, phase,
+                   f"{100 * keep:g} % of the actuator's" if self.safety.velocity_margin > 0 else "")
 
     def release(self, stop=None, pause=None) -> None:
         """Ramp the static preloads off, the others holding where they stand. ``stop``,
