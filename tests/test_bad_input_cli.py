@@ -398,7 +398,7 @@ def test_serve_refuses_a_records_folder_it_cannot_create(tmp_path):
 def test_monitor_refuses_a_file_that_is_not_a_record(tmp_path):
     """A file that is not a record is named; the monitor does not serve a page for it."""
     (tmp_path / "run.sqlite").write_text("garbage" * 100)
-    assert_exit_2(hsio("monitor", tmp_path, "--port", "0", timeout=30), "run.sqlite: not an hsio recording")
+    assert_exit_2(hsio("monitor", tmp_path, "--port", "0", timeout=30), "run.sqlite: not an hsio run record")
 
 
 def test_a_second_ctrl_c_ends_with_a_message_not_a_blank_line(tmp_path):
