@@ -187,6 +187,10 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
     from hsio.structures import channel_names
     from hsio.secant import SecantEstimator
 
+    if not isinstance(recipe, Recipe):
+        raise ConfigError(f"recipe must be a Recipe (for a table: Recipe(**table)), got {recipe!r:.80}")
+    if isinstance(methods, str) or not all(isinstance(m, str) and m in METHODS for m in methods):
+        raise ConfigError(f"methods must be a list of {', '.join(METHODS)}, got {methods!r:.80}")
     if ns is None:
         ns = run_numerical(structure, ground, "mixed", recipe.alpha)
     peak = float(np.max(np.abs(ns.u)))

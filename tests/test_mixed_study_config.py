@@ -4,9 +4,11 @@ rate and emulated instruments) run with DC, FC and mixed (docs/force_control.md,
 import json
 import math
 
+import pytest
 from click.testing import CliRunner
 
 from hsio import study_mixed as sm
+from hsio.errors import ConfigError
 from hsio.commands.study import study
 
 # A stiff elastic wall of 50 kN/mm on one DOF (8 Hz: m = k / (2 pi 8)^2), 5 % damping
@@ -127,3 +129,10 @@ def test_cli_refuses_no_grid_with_nothing_else_to_run(tmp_path):
         out = CliRunner().invoke(study, ["mixed", "--no-grid", *extra])
         assert out.exit_code == 2 and "runs nothing" in out.output, out.output
         assert not (tmp_path / "none.png").exists()
+
+
+@pytest.mark.parametrize("kwargs, says", [({"recipe": {"fc_blend": 0.5}}, "recipe must be a Recipe"),
+                                          ({"methods": "mixed"}, "methods must be a list")])
+def test_configured_refuses_a_recipe_or_methods_of_the_wrong_kind_before_anything_runs(tmp_path, kwargs, says):
+    with pytest.raises(ConfigError, match=says):
+        sm.configured(_config(tmp_path), **kwargs)
