@@ -179,7 +179,7 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
 
     ``compensation``: a [compensation] table (docs/compensation.md), e.g. ``{"mode": "online"}``:
     feed-forward compensation of the actuators in displacement control, a new stage per run."""
-    from hsio.api import open_site, run_numerical, simulate
+    from hsio.api import dwell_periods, open_site, run_numerical, simulate
     from hsio.compensation.stage import CompensationSettings, CompensationStage
     from hsio.emulators.servo import ServoConfig
     from hsio.experiment import ExperimentStopped
@@ -187,6 +187,10 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
     from hsio.structures import channel_names
     from hsio.secant import SecantEstimator
 
+    if not isinstance(recipe, Recipe):
+        raise ConfigError(f"recipe must be a Recipe (for a table: Recipe(**table)), got {recipe!r:.80}")
+    if isinstance(methods, str) or not all(isinstance(m, str) and m in METHODS for m in methods):
+        raise ConfigError(f"methods must be a list of {', '.join(METHODS)}, got {methods!r:.80}")
     if ns is None:
         ns = run_numerical(structure, ground, "mixed", recipe.alpha)
     peak = float(np.max(np.abs(ns.u)))
@@ -197,6 +201,9 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
     k0 = float(max(e.K_EI for e in structure.experimental))
     servo = ServoConfig()
     noise = (float(options.get("noise_mm", servo.noise_mm)), float(options["force_noise_kN"]))
+    # the secant averages 16 controller periods, or the whole dwell of a faster test (as hsio run
+    # averages where [integrator] secant_n_avg is left out)
+    n_avg = min(16, dwell_periods(structure.dt, test_rate, hold_fraction))
     rows = []
     for method in methods:
         integrator = make_method(structure, method, resolution_mm, force_resolution_kN, recipe, *noise, ns=ns)
@@ -205,7 +212,7 @@ def run_case(case: str, structure: Structure, ground, methods, resolution_mm: fl
             stage = CompensationStage(channel_names(structure), test_rate * structure.dt,
                                       CompensationSettings.from_table(compensation, "study compensation"))
         with open_site(structure, "emulator://", test_rate=test_rate, hold_fraction=hold_fraction, options=options,
-                       estimator=SecantEstimator("average", 16, 0.1), compensation=stage) as site:
+                       estimator=SecantEstimator("average", n_avg, 0.1), compensation=stage) as site:
             try:
                 hs = simulate(structure, ground, site, integrator=integrator)
             except ExperimentStopped as exc:

@@ -4,9 +4,11 @@ rate and emulated instruments) run with DC, FC and mixed (docs/force_control.md,
 import json
 import math
 
+import pytest
 from click.testing import CliRunner
 
 from hsio import study_mixed as sm
+from hsio.errors import ConfigError
 from hsio.commands.study import study
 
 # A stiff elastic wall of 50 kN/mm on one DOF (8 Hz: m = k / (2 pi 8)^2), 5 % damping
@@ -110,3 +112,27 @@ def test_two_configurations_of_one_file_name_are_told_apart_by_their_paths(tmp_p
     data = json.loads(out.stdout)
     assert [w["case"] for w in data["winners"]] == [str(a), str(b)]
     assert data["winners"][1]["best"] is None  # every run of b stopped on its 0.5 kN actuator
+
+
+def test_a_fast_test_whose_dwell_is_shorter_than_16_periods_runs_as_hsio_run_runs_it(tmp_path):
+    """TR 2 at dt 0.005 s leaves a dwell of 5 controller periods: hsio run averages the secant over
+    them (secant_n_avg left out), and so does the study, rather than refusing the configuration."""
+    path = _config(tmp_path)
+    path.write_text(path.read_text().replace("rate = 10.0", "rate = 2.0"))
+    rows = sm.configured(path)
+    assert [r.method for r in rows] == list(sm.METHODS)
+    assert all(r.stopped == "" and math.isfinite(r.error_pct) for r in rows)
+
+
+def test_cli_refuses_no_grid_with_nothing_else_to_run(tmp_path):
+    for extra in ([], ["--json"], ["--plot", str(tmp_path / "none.png")]):
+        out = CliRunner().invoke(study, ["mixed", "--no-grid", *extra])
+        assert out.exit_code == 2 and "runs nothing" in out.output, out.output
+        assert not (tmp_path / "none.png").exists()
+
+
+@pytest.mark.parametrize("kwargs, says", [({"recipe": {"fc_blend": 0.5}}, "recipe must be a Recipe"),
+                                          ({"methods": "mixed"}, "methods must be a list")])
+def test_configured_refuses_a_recipe_or_methods_of_the_wrong_kind_before_anything_runs(tmp_path, kwargs, says):
+    with pytest.raises(ConfigError, match=says):
+        sm.configured(_config(tmp_path), **kwargs)

@@ -103,6 +103,9 @@ def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, durat
     if not with_grid and grid_options:
         raise click.UsageError(f"{', '.join(grid_options)} set the grid, which does not run here (--no-grid, or "
                                "--config without --grid)")
+    if not (with_grid or structures or configs):
+        raise click.UsageError("--no-grid without --structures or --config runs nothing: give one of them, or "
+                               "leave --no-grid out")
 
     def progress(rows):
         row = rows[0]
