@@ -84,7 +84,7 @@ def test_a_rotation_of_a_whole_turn_is_refused_not_sent_as_the_pose_at_rest():
     """The strokes of two actuators on a column top repeat with every whole turn: a trial of
     2 pi rad (a model in degrees, a garbled message) has the strokes of the pose at rest, and
     would be measured as 0 rad. It is refused, naming the element, and nothing moves; so is
-    1.9 pi, the strokes of -0.1 pi."""
+    1.9 pi, the strokes of -0.1 pi, and a trial that is not a finite number."""
     from hsio.structures import get_structure
 
     with hsio.open_site(get_structure("column_two_actuators"), "emulator://", test_rate=5) as site:
@@ -93,6 +93,12 @@ def test_a_rotation_of_a_whole_turn_is_refused_not_sent_as_the_pose_at_rest():
         for theta in (2 * np.pi, 1.9 * np.pi, -np.pi):
             with pytest.raises(LimitError, match="element 'column': trial .* refused: a rotation of .* half a turn"):
                 site.set_trial(np.array([1.0, theta]), [ControlMode.DISPLACEMENT] * 2)
+            assert [g.command for g in site.loop.generators] == before
+
+        # a trial that is not a number (a garbled message, a diverged model): a limit, named, not a crash
+        for bad in (np.array([np.nan, 0.0]), np.array([1.0, np.inf])):
+            with pytest.raises(LimitError, match=r"element 'column': trial \(.*\) refused: it is not a finite pose"):
+                site.set_trial(bad, [ControlMode.DISPLACEMENT] * 2)
             assert [g.command for g in site.loop.generators] == before
 
 
