@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import hsio
-from hsio.errors import LimitError
+from hsio.errors import ConfigError, LimitError
 from hsio.interfaces import ControlMode
 from hsio.structure_file import parse_structure
 
@@ -71,13 +71,24 @@ def test_opensees_trial_past_the_singular_pose_is_refused_and_the_session_holds(
 
 def test_measured_strokes_that_no_pose_gives_are_implausible_and_name_the_element():
     """Two actuators 500 mm apart cannot differ in stroke by 600 mm: a transducer's spike, not a
-    configuration error; the site stops as for any implausible measurement, naming the element."""
+    configuration error; the site stops as for any implausible measurement, naming the element.
+    So does a stroke that is not a finite number."""
     from hsio.errors import ImplausibleMeasurementError
     from hsio.sites.setup_map import SetupMap
 
     setups = SetupMap.of(hsio.load_structure("column_two_actuators"))
     with pytest.raises(ImplausibleMeasurementError, match=r"element 'column': the measured strokes \(0, -600\) mm"):
         setups.basic(np.array([0.0, -600.0]), np.zeros(2))
+    # a stroke that is not a number (a transducer's dropout), from rest or from the commanded pose;
+    # a parallel rig's least squares would carry it on as its displacement
+    from hsio.setups import ParallelSetup
+
+    for guess in (None, np.array([1.0, 0.0])):
+        with pytest.raises(ImplausibleMeasurementError, match=r"element 'column': the measured strokes \(nan, 0\) mm .* "
+                                                              r"not a finite number"):
+            setups.basic(np.array([np.nan, 0.0]), np.zeros(2), guess)
+    with pytest.raises(ConfigError, match="not a finite number"):
+        ParallelSetup([1.0, 1.0]).basic_displacements(np.array([1.0, np.inf]))
 
 
 def test_a_rotation_of_a_whole_turn_is_refused_not_sent_as_the_pose_at_rest():

@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from hsio.errors import ConfigError
-from hsio.setups.base import MIN_FACTOR, Factors, Setup
+from hsio.setups.base import MIN_FACTOR, Factors, Setup, check_strokes
 
 MAX_ACTUATORS = 16  # actuators on one DOF: a rig, not an array
 
@@ -57,7 +57,6 @@ class ParallelSetup(Setup):
     def basic_displacements(self, strokes, tol: float = 1e-12, max_iter: int = 50, guess=None) -> np.ndarray:
         """Least squares over the actuators: d = lambda_d (a . s) / (a . a)."""
         s = np.asarray(strokes, dtype=float)
-        if s.shape != (self.n_actuators,):
-            raise ConfigError(f"setup: {s.size} strokes for {self.n_actuators} actuators")
+        check_strokes(s, self.n_actuators)
         a = self.ratios
         return np.array([self.factors.displacement * float(a @ s) / float(a @ a)])
