@@ -200,18 +200,20 @@ class EmulatedInstruments(DAQ):
 
 class _RigPoint:
     """What an instrument on a ``parallel`` rig reads: the one basic DOF's displacement (the pose
-    the rods give after their load trains) and force."""
+    the rods give after their load trains) and force, in the lab's units (mm, kN) as a real
+    instrument reads them: d / lambda_d and q / lambda_F (docs/setups.md)."""
 
     def __init__(self, rig):
         self.rig = rig
+        self.factors = rig.setup.factors
 
     @property
     def d_spec(self) -> float:
-        return float(self.rig.pose[0])
+        return float(self.rig.pose[0]) / self.factors.displacement
 
     @property
     def force(self) -> float:
-        return float(self.rig.basic_forces[0])
+        return float(self.rig.basic_forces[0]) / self.factors.force
 
 
 def open_instruments(instruments, elements, actuators) -> EmulatedInstruments:

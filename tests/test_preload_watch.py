@@ -210,3 +210,24 @@ def test_a_specimen_that_fails_in_the_record_stops_the_ramp_off_and_the_record_s
     assert partial.static_log[-1][0] == "ramp_off" and "ramp_off" in partial.static_ramps
     events = Run(tmp_path / "run.sqlite").events()
     assert [e["kind"] for e in events][-3:] == ["trip", "hold", "stop"]
+
+
+def test_a_preload_beyond_the_stroke_on_a_stiff_enough_specimen_is_named_as_such():
+    """125 kN declared over 0.9 kN/mm asks 138.9 mm, beyond the 120.65 mm allowed; what it loads is
+    stiffer (1 kN/mm), so the rod is where the force puts it: the message says the preload asks
+    more stroke than allowed, not that the rod outran the force. A speed trip at that secant is
+    the force loop's (the check before the ramp held the force rate over K^EI within the limit)."""
+    load = StaticLoad("axial", 125.0, {"kind": "linear", "k": 1.0}, 1.0, K_EI_declared=0.9)
+    w = RampWatch([load], [Axis("axial")], 0, [(0.0, 0.0)], 0.0, "ramp_in", (0.05, 0.05), 1 / 1000)
+    w(0.001, [Feedback(120.0, 120.0)])
+    with pytest.raises(InterlockTrip) as info:
+        w(0.002, [Feedback(121.0, 121.0)])
+    message = str(info.value)
+    assert "beyond the stroke less the margin" in message and "not below the declared K^EI = 0.9 kN/mm" in message
+    assert "the rod is where the force puts it; the preload of 125 kN over K^EI asks 138.889 mm" in message
+    assert "force rate" not in message
+    fast = RampWatch([load], [Axis("axial")], 0, [(0.0, 0.0)], 0.0, "ramp_in", (0.05, 0.05), 1 / 1000)
+    with pytest.raises(InterlockTrip) as info:
+        for k in range(1, 20):
+            fast(k / 1000, [Feedback(0.5 * k, 0.5 * k)])  # 500 mm/s at a secant of 1 kN/mm
+    assert "measured rod speed" in str(info.value) and "moves faster than the force rate asks" in str(info.value)

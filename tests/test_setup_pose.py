@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import hsio
-from hsio.errors import LimitError
+from hsio.errors import ConfigError, LimitError
 from hsio.interfaces import ControlMode
 from hsio.structure_file import parse_structure
 
@@ -71,20 +71,31 @@ def test_opensees_trial_past_the_singular_pose_is_refused_and_the_session_holds(
 
 def test_measured_strokes_that_no_pose_gives_are_implausible_and_name_the_element():
     """Two actuators 500 mm apart cannot differ in stroke by 600 mm: a transducer's spike, not a
-    configuration error; the site stops as for any implausible measurement, naming the element."""
+    configuration error; the site stops as for any implausible measurement, naming the element.
+    So does a stroke that is not a finite number."""
     from hsio.errors import ImplausibleMeasurementError
     from hsio.sites.setup_map import SetupMap
 
     setups = SetupMap.of(hsio.load_structure("column_two_actuators"))
     with pytest.raises(ImplausibleMeasurementError, match=r"element 'column': the measured strokes \(0, -600\) mm"):
         setups.basic(np.array([0.0, -600.0]), np.zeros(2))
+    # a stroke that is not a number (a transducer's dropout), from rest or from the commanded pose;
+    # a parallel rig's least squares would carry it on as its displacement
+    from hsio.setups import ParallelSetup
+
+    for guess in (None, np.array([1.0, 0.0])):
+        with pytest.raises(ImplausibleMeasurementError, match=r"element 'column': the measured strokes \(nan, 0\) mm .* "
+                                                              r"not a finite number"):
+            setups.basic(np.array([np.nan, 0.0]), np.zeros(2), guess)
+    with pytest.raises(ConfigError, match="not a finite number"):
+        ParallelSetup([1.0, 1.0]).basic_displacements(np.array([1.0, np.inf]))
 
 
 def test_a_rotation_of_a_whole_turn_is_refused_not_sent_as_the_pose_at_rest():
     """The strokes of two actuators on a column top repeat with every whole turn: a trial of
     2 pi rad (a model in degrees, a garbled message) has the strokes of the pose at rest, and
     would be measured as 0 rad. It is refused, naming the element, and nothing moves; so is
-    1.9 pi, the strokes of -0.1 pi."""
+    1.9 pi, the strokes of -0.1 pi, and a trial that is not a finite number."""
     from hsio.structures import get_structure
 
     with hsio.open_site(get_structure("column_two_actuators"), "emulator://", test_rate=5) as site:
@@ -93,6 +104,12 @@ def test_a_rotation_of_a_whole_turn_is_refused_not_sent_as_the_pose_at_rest():
         for theta in (2 * np.pi, 1.9 * np.pi, -np.pi):
             with pytest.raises(LimitError, match="element 'column': trial .* refused: a rotation of .* half a turn"):
                 site.set_trial(np.array([1.0, theta]), [ControlMode.DISPLACEMENT] * 2)
+            assert [g.command for g in site.loop.generators] == before
+
+        # a trial that is not a number (a garbled message, a diverged model): a limit, named, not a crash
+        for bad in (np.array([np.nan, 0.0]), np.array([1.0, np.inf])):
+            with pytest.raises(LimitError, match=r"element 'column': trial \(.*\) refused: it is not a finite pose"):
+                site.set_trial(bad, [ControlMode.DISPLACEMENT] * 2)
             assert [g.command for g in site.loop.generators] == before
 
 

@@ -102,6 +102,17 @@ def test_setup_sizes_beyond_a_rig_are_refused_by_name(table, words):
         make_setup(table, n, "rig.setup")
 
 
+def test_a_missing_key_is_named_where_the_kind_has_no_default_for_it():
+    """``angle_deg`` defaults to 0 for one actuator (along its DOF); an inverted V has no such
+    default (its legs would stand on top of each other) and without it is refused by name."""
+    from hsio.setups import make_setup
+
+    assert make_setup({"kind": "one_actuator", "length_mm": 1000.0}, 1).strokes([1e-6])[0] == pytest.approx(1e-6)
+    with pytest.raises(ConfigError, match=r"^rig\.setup\.angle_deg: missing \(setup 'inverted_v_brace' needs "
+                                          r"leg_length_mm, angle_deg\)"):
+        make_setup({"kind": "inverted_v_brace", "leg_length_mm": 1000.0}, 2, "rig.setup")
+
+
 def test_bad_geometry_is_refused():
     with pytest.raises(ConfigError, match="singular"):
         PlanarSetup(("ux", "theta"), (PlanarActuator("a", (-1000.0, 0.0)), PlanarActuator("b", (-2000.0, 0.0))))

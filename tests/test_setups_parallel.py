@@ -231,3 +231,31 @@ def test_an_external_displacement_elsewhere_is_refused_not_ignored(tmp_path, set
     with pytest.raises(ConfigError) as info:
         hsio.load_structure(path)
     assert str(info.value).startswith(f"{path}: experimental[0].displacement_from: ") and message in str(info.value)
+
+
+def test_emulated_instruments_on_a_scaled_parallel_rig_read_the_lab_s_units(tmp_path):
+    """An LVDT and a load cell on a wall of displacement factor 2 and force factor 3 read
+    the lab's DOF, d_lab = d / lambda_d (each rod's stroke over its ratio) and Q_lab = sum a_i f_i
+    (= q / lambda_F), as a real instrument on the rig does, not the model's d and q (within the
+    rods' motion between the trial's end and the reading)."""
+    from hsio.interfaces import ControlMode
+
+    setup = '{ kind = "parallel", ratios = [1.0, 0.5], factors = { displacement = 2.0, force = 3.0 } }'
+    text = _wall(tmp_path, setup).read_text() + (
+        '\n[[instrument]]\nname = "lvdt"\nkind = "lvdt"\nelement = "wall"\nnoise = 0.0\nresolution = 0.0\n'
+        '\n[[instrument]]\nname = "cell"\nkind = "load_cell"\nelement = "wall"\nnoise = 0.0\nresolution = 0.0\n')
+    (tmp_path / "scaled.toml").write_text(text)
+    structure = hsio.load_structure(tmp_path / "scaled.toml")
+    with hsio.open_site(structure, "emulator://", test_rate=10, options=QUIET) as site:
+        site.set_trial(np.array([20.0]), [ControlMode.DISPLACEMENT])  # model mm: 10 lab mm
+        readings = site.read_instruments()
+        fb = site.last_actuator_feedback
+        u, R = site.get_daq().u[0], site.get_daq().R[0]
+    a = np.array([1.0, 0.5])
+    assert u > 15.0  # the rods went most of the way
+    # the rods' least-squares stroke and the ratio-weighted load cells: lab mm and kN
+    assert readings["lvdt"] == pytest.approx(float(a @ fb.displacement) / float(a @ a), rel=0.01)
+    assert readings["cell"] == pytest.approx(float(a @ fb.force), rel=0.01)
+    # half the model's displacement and a third of its force
+    assert readings["lvdt"] == pytest.approx(u / 2.0, rel=0.01)
+    assert readings["cell"] == pytest.approx(R / 3.0, rel=0.01)

@@ -78,7 +78,7 @@ class RampWatch:
             if abs(d) > self.allowed_stroke[j]:
                 self._trip(t, j, f"measured rod displacement {d:.3f} mm is beyond the stroke less the margin "
                                  f"({self.allowed_stroke[j]:.3f} mm = {1 - self.margins[0]:.0%} of "
-                                 f"+/-{self.half_stroke[j]:g} mm)")
+                                 f"+/-{self.half_stroke[j]:g} mm)", stroke=True)
             if speed > self.allowed_velocity[j]:
                 self._trip(t, j, f"measured rod speed {speed:.1f} mm/s (over the last {span * 1e3:.1f} ms) is beyond "
                                  f"the velocity limit less the margin ({self.allowed_velocity[j]:.1f} mm/s = "
@@ -89,8 +89,9 @@ class RampWatch:
         (d0, f0), (d, f) = self.start[j], self.last[j]
         return (f - f0) / (d - d0) if abs(d - d0) > 1e-9 else None
 
-    def cause(self, j: int) -> str:
-        """What most likely moved the rod beyond what the check before the ramp predicted."""
+    def cause(self, j: int, stroke: bool = False) -> str:
+        """What most likely moved the rod beyond what the check before the ramp predicted
+        (``stroke``: the stroke tripped, else the speed)."""
         declared = self.static[j].K_EI
         k = self.secant(j)
         if k is None:
@@ -104,15 +105,22 @@ class RampWatch:
             return (f"likely cause: what it loads is softer than its declared K^EI = {declared:g} kN/mm: measured "
                     f"secant {k:.4g} kN/mm over the ramp so far (a cracked specimen, a wrong K^EI, a load train more "
                     f"compliant than thought)")
+        if stroke:  # the rod is no farther than the force asks of K^EI: the preload asks more stroke than allowed
+            load = self.static[j]
+            return (f"measured secant {k:.4g} kN/mm over the ramp so far, not below the declared K^EI = {declared:g} "
+                    f"kN/mm: the rod is where the force puts it; the preload of {load.force_kN:g} kN over K^EI asks "
+                    f"{abs(load.force_kN) / declared:.3f} mm, more than the stroke less the margin allows (the dry "
+                    f"run refuses such a preload)")
         return (f"measured secant {k:.4g} kN/mm over the ramp so far, not below the declared K^EI = {declared:g} kN/mm: "
-                f"the rod moves beyond what the force asks of that stiffness (check the force loop and the load cell)")
+                f"the rod moves faster than the force rate asks of that stiffness (check the force loop and the load "
+                f"cell)")
 
-    def _trip(self, t: float, j: int, what: str) -> None:
+    def _trip(self, t: float, j: int, what: str, stroke: bool = False) -> None:
         load = self.static[j]
         d, f = self.last[j]
         text = (f"interlock ({self.KIND}) on actuator {self.names[j]!r} at t = {t:.4f} s of lab time: the "
                 f"{self.phase.replace('_', ' ')} of static preload {load.name!r} was stopped at {f:.4g} kN "
-                f"measured: {what}; {self.cause(j)}")
+                f"measured: {what}; {self.cause(j, stroke)}")
         raise InterlockTrip(text, self.KIND, self.names[j])
 
     def peaks(self) -> dict[str, dict[str, float]]:

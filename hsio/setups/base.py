@@ -47,6 +47,14 @@ class Factors:
                                   f"{1.0 / MIN_FACTOR:g} (negative flips the sign), got {value!r}")
 
 
+def check_strokes(s: np.ndarray, n_actuators: int) -> None:
+    """Refuse (ConfigError) strokes that are not one finite number per actuator: no pose gives them."""
+    if s.shape != (n_actuators,):
+        raise ConfigError(f"setup: {s.size} strokes for {n_actuators} actuators")
+    if not np.all(np.isfinite(s)):
+        raise ConfigError("setup: a stroke is not a finite number")
+
+
 class Setup(ABC):
     """Basic DOFs of one experimental element <-> its actuators."""
 
@@ -69,8 +77,7 @@ class Setup(ABC):
         may have another pose nearer rest), else, or where it does not close from there on a
         pose the actuators can drive to (:meth:`pose_problem`), from the linearised guess."""
         s = np.asarray(strokes, dtype=float)
-        if s.shape != (self.n_actuators,):
-            raise ConfigError(f"setup: {s.size} strokes for {self.n_actuators} actuators")
+        check_strokes(s, self.n_actuators)
         if guess is not None:
             start = np.asarray(guess, dtype=float)
             if start.shape == (self.n_basic,) and np.all(np.isfinite(start)):

@@ -45,7 +45,7 @@ SETUP_KINDS = {
     "inverted_v_brace": (inverted_v_brace, ("leg_length_mm", "angle_deg"), 2),
     "parallel": (ParallelSetup, ("ratios",), 1),
 }
-OPTIONAL = {"angle_deg"}
+OPTIONAL = {"one_actuator": {"angle_deg"}}  # kind -> keys with a default (0 degrees: along the DOF)
 
 
 def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
@@ -88,7 +88,7 @@ def make_setup(table: dict, n_basic: int, where: str = "setup") -> Setup:
     args = {"mirror": mirror} if "mirror" in known else {}
     for key in keys:
         if key not in table:
-            if key in OPTIONAL:
+            if key in OPTIONAL.get(kind, ()):
                 continue
             raise ConfigError(f"{where}.{key}: missing (setup {kind!r} needs {', '.join(keys)})")
         value = table[key]

@@ -8,7 +8,8 @@ DOF: actuator i moves by its ratio a_i times the basic displacement d (in the la
 so the Jacobian is the column a / lambda_d and virtual work gives the basic force as the
 ratio-weighted sum of the actuator forces, q = lambda_F lambda_d J^T f = lambda_F sum_i a_i f_i.
 The actuators' measured strokes give d by least squares, d = lambda_d (a . s) / (a . a): the
-same d from every actuator when they agree, their ratio-weighted mean when they do not.
+same d from every actuator when they agree; when they do not, the mean of each actuator's
+lambda_d s_i / a_i weighted by a_i^2 (an actuator that moves more for the DOF tells it better).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import math
 import numpy as np
 
 from hsio.errors import ConfigError
-from hsio.setups.base import MIN_FACTOR, Factors, Setup
+from hsio.setups.base import MIN_FACTOR, Factors, Setup, check_strokes
 
 MAX_ACTUATORS = 16  # actuators on one DOF: a rig, not an array
 
@@ -57,7 +58,6 @@ class ParallelSetup(Setup):
     def basic_displacements(self, strokes, tol: float = 1e-12, max_iter: int = 50, guess=None) -> np.ndarray:
         """Least squares over the actuators: d = lambda_d (a . s) / (a . a)."""
         s = np.asarray(strokes, dtype=float)
-        if s.shape != (self.n_actuators,):
-            raise ConfigError(f"setup: {s.size} strokes for {self.n_actuators} actuators")
+        check_strokes(s, self.n_actuators)
         a = self.ratios
         return np.array([self.factors.displacement * float(a @ s) / float(a @ a)])

@@ -109,11 +109,13 @@ class PlanarSetup(Setup):
         an actuator through square to its line at rest (e_i . e_i(0) <= 0: its platen pin beside
         or past its reaction pin): two actuators turned so together leave the Jacobian's sign as
         at rest, and their small strokes would be measured as a pose near rest."""
-        theta = self._pose(d)[2]
+        pose = self._pose(d)
+        if not np.all(np.isfinite(pose)):  # a garbled trial: no geometry to judge
+            return "it is not a finite pose (a displacement or rotation that is not a finite number)"
+        theta = pose[2]
         if abs(theta) >= math.pi:
             return (f"a rotation of {theta:.6g} rad is half a turn or more: its strokes are those of the pose turned "
                     f"back by a whole turn ({math.remainder(theta, 2 * math.pi):.6g} rad)")
-        pose = self._pose(d)
         along = self._pins(pose) - self._A
         turned = np.sum(along * (self._r - self._A), axis=1) <= 0.0  # e_i . e_i(0) <= 0
         if np.any(turned):
