@@ -110,3 +110,23 @@ def test_two_configurations_of_one_file_name_are_told_apart_by_their_paths(tmp_p
     data = json.loads(out.stdout)
     assert [w["case"] for w in data["winners"]] == [str(a), str(b)]
     assert data["winners"][1]["best"] is None  # every run of b stopped on its 0.5 kN actuator
+
+
+def test_cli_refuses_a_duration_without_the_grid_and_a_study_with_nothing_to_run(tmp_path):
+    """--duration sets the grid's record (a configuration's comes from its [record]): without the
+    grid it is refused, not ignored; --no-grid with neither --config nor --structures runs nothing
+    and is refused (exit 2) before a plot of no rows is drawn."""
+    out = CliRunner().invoke(study, ["mixed", "--config", str(_config(tmp_path)), "--duration", "3"])
+    assert out.exit_code == 2 and "--duration" in out.output and "grid" in out.output, out.output
+    png = tmp_path / "none.png"
+    out = CliRunner().invoke(study, ["mixed", "--no-grid", "--plot", str(png)])
+    assert out.exit_code == 2 and "nothing to run" in out.output, out.output
+    assert out.exception is None or isinstance(out.exception, SystemExit)
+    assert not png.exists()
+
+
+def test_plot_of_no_rows_is_refused_naming_it(tmp_path):
+    import pytest
+
+    with pytest.raises(ValueError, match="no rows to plot"):
+        sm.plot([], str(tmp_path / "none.png"))
