@@ -923,3 +923,18 @@ def test_a_record_of_many_events_is_read_a_batch_at_a_time(tmp_path):
     print(f"first read of 40,000 events: {peak / 1e6:.1f} MB at most")
     assert peak < 4e6
     feed.close()
+
+
+def test_an_ns_table_without_a_dofs_column_leaves_the_steps_read(tmp_path):
+    """An NS prediction the feed cannot use (a column of a DOF missing) is left out of the page,
+    not a reason to read no steps at all."""
+    import sqlite3
+
+    write_record(tmp_path, 50).close()
+    with sqlite3.connect(tmp_path / "run.sqlite") as db:
+        db.execute("ALTER TABLE ns RENAME COLUMN u_C1 TO x_C1")
+    db.close()
+    feed = RecordFeed(tmp_path)
+    assert feed.poll(force=True) == 50 and feed.n == 50
+    assert not feed.ns and feed.total_steps is None
+    feed.close()

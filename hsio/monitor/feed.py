@@ -218,10 +218,10 @@ class RecordFeed:
         while -(-points // stride) > self.cap:
             stride *= 2
         us = [column("u", d) for d in self.dofs]
-        peaks = db.execute(f"SELECT {', '.join(f'MAX(ABS({u}))' for u in us)} FROM ns").fetchone() if us else ()
         table = _table(db, f"SELECT time_s, {', '.join(us)} FROM ns WHERE step % ? = 0 ORDER BY step", (stride,))
-        if not table:
+        if not table:  # no such columns: a prediction the page cannot show (the steps are read all the same)
             return
+        peaks = db.execute(f"SELECT {', '.join(f'MAX(ABS({u}))' for u in us)} FROM ns").fetchone()
         self.ns, self.ns_stride, self.ns_steps = table, stride, points - 1
         self.ns_peak = {d: float("nan") if p is None else float(p) for d, p in zip(self.dofs, peaks)}
 
