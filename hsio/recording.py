@@ -85,22 +85,52 @@ def _lock(path: Path, fd: int) -> int:
 def being_written(path: str | Path) -> bool | None:
     """Whether a process holds the writer's lock of the record ``path`` (:func:`_lock`: a run or a
     resume writing it), read from the kernel's table of file locks without taking the lock (which
-    would refuse that writer its own); None where it cannot be told (no /proc/locks)."""
+    would refuse that writer its own); None where it cannot be told: no /proc/locks (not Linux), or
+    one that does not list a lock this process takes (a sandboxed or emulated kernel)."""
     try:
         st = os.stat(path)
-        with open("/proc/locks", encoding="ascii", errors="replace") as f:
-            table = f.read()
+        if _flock_on(st.st_ino, _locks_table()):
+            return True
     except OSError:
         return None
+    return False if _flocks_listed() else None
+
+
+def _locks_table() -> str:
+    with open("/proc/locks", encoding="ascii", errors="replace") as f:
+        return f.read()
+
+
+def _flock_on(inode: int, table: str) -> bool:
+    """Whether ``table`` (/proc/locks) lists a granted flock on ``inode``."""
     # "1: FLOCK  ADVISORY  WRITE 16881 fe:00:2155528 0 EOF" ("->": a waiter). Matched on the inode
     # number alone: the device can read differently there than in stat (overlay file systems), and a
     # lock on a namesake inode of another device only makes a finished record look written (followed).
     for line in table.splitlines():
         fields = line.split()
         if "->" not in fields and len(fields) >= 6 and fields[1] == "FLOCK" \
-                and fields[5].rpartition(":")[2] == str(st.st_ino):
+                and fields[5].rpartition(":")[2] == str(inode):
             return True
     return False
+
+
+_flock_listed = False  # this kernel's /proc/locks was seen to list a flock of this process
+
+
+def _flocks_listed() -> bool:
+    """Whether /proc/locks lists flocks at all: one taken on a temporary file must show there
+    (checked until it first does)."""
+    global _flock_listed
+    if not _flock_listed:
+        import tempfile
+
+        try:
+            with tempfile.TemporaryFile() as f:
+                fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                _flock_listed = _flock_on(os.fstat(f.fileno()).st_ino, _locks_table())
+        except OSError:
+            return False
+    return _flock_listed
 
 
 class RunFileMissingError(RecordError, FileNotFoundError):

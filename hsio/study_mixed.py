@@ -382,6 +382,8 @@ def plot(rows: list[Row], path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if not rows:
+        raise ValueError("no rows to plot: run the grid, the structures or a configuration first")
     grid_rows = [r for r in rows if r.case == "grid"]
     case_rows = [r for r in rows if r.case != "grid"]
     ks = sorted({r.k0_kN_mm for r in grid_rows})

@@ -136,3 +136,21 @@ def test_cli_refuses_no_grid_with_nothing_else_to_run(tmp_path):
 def test_configured_refuses_a_recipe_or_methods_of_the_wrong_kind_before_anything_runs(tmp_path, kwargs, says):
     with pytest.raises(ConfigError, match=says):
         sm.configured(_config(tmp_path), **kwargs)
+
+
+def test_cli_refuses_a_duration_without_the_grid_and_a_study_with_nothing_to_run(tmp_path):
+    """--duration sets the grid's record (a configuration's comes from its [record]): without the
+    grid it is refused, not ignored; --no-grid with neither --config nor --structures runs nothing
+    and is refused (exit 2) before a plot of no rows is drawn."""
+    out = CliRunner().invoke(study, ["mixed", "--config", str(_config(tmp_path)), "--duration", "3"])
+    assert out.exit_code == 2 and "--duration" in out.output and "grid" in out.output, out.output
+    png = tmp_path / "none.png"
+    out = CliRunner().invoke(study, ["mixed", "--no-grid", "--plot", str(png)])
+    assert out.exit_code == 2 and "runs nothing" in out.output, out.output
+    assert out.exception is None or isinstance(out.exception, SystemExit)
+    assert not png.exists()
+
+
+def test_plot_of_no_rows_is_refused_naming_it(tmp_path):
+    with pytest.raises(ValueError, match="no rows to plot"):
+        sm.plot([], str(tmp_path / "none.png"))

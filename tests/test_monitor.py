@@ -893,3 +893,48 @@ def test_the_pause_and_resume_buttons_follow_the_runs_state(tmp_path, line, paus
     assert (disabled["pause_button"], disabled["resume_button"]) == (pause, resume)
     assert disabled["stop_button"] is False
     rec.close()
+
+
+def test_a_record_of_many_events_is_read_a_batch_at_a_time(tmp_path):
+    """A page opened late on a run that wrote 40,000 warnings (a channel chattering at the edge of
+    its warning band) holds no more of them while reading than a batch: not every event at once
+    as Python rows. It keeps the newest, and the pause before them still tells the run's state."""
+    import tracemalloc
+
+    from hsio.monitor import feed as feed_mod
+
+    rec = write_record(tmp_path, 5, ns=False)
+    rec.write_event(1.0, 5, "pause", "", "paused after step 5: the actuators hold (confirmed by read-back)", commit=False)
+    for i in range(40_000):
+        rec.write_event(1.0, 5, "warning", "C1", f"displacement beyond 90 % of the limit, entry number {i:06d}", commit=False)
+    rec.db.commit()
+    rec.close()
+    feed = RecordFeed(tmp_path)
+    assert feed._open()
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        feed.poll(force=True)
+        peak = tracemalloc.get_traced_memory()[1] - before
+    finally:
+        tracemalloc.stop()
+    assert len(feed.events) == feed_mod.EVENTS_KEPT and feed.events[-1]["message"].endswith("039999")
+    assert [e["kind"] for e in feed.marks] == ["pause"]
+    print(f"first read of 40,000 events: {peak / 1e6:.1f} MB at most")
+    assert peak < 4e6
+    feed.close()
+
+
+def test_an_ns_table_without_a_dofs_column_leaves_the_steps_read(tmp_path):
+    """An NS prediction the feed cannot use (a column of a DOF missing) is left out of the page,
+    not a reason to read no steps at all."""
+    import sqlite3
+
+    write_record(tmp_path, 50).close()
+    with sqlite3.connect(tmp_path / "run.sqlite") as db:
+        db.execute("ALTER TABLE ns RENAME COLUMN u_C1 TO x_C1")
+    db.close()
+    feed = RecordFeed(tmp_path)
+    assert feed.poll(force=True) == 50 and feed.n == 50
+    assert not feed.ns and feed.total_steps is None
+    feed.close()

@@ -144,3 +144,39 @@ def test_a_run_that_does_not_answer_is_told_apart_by_the_lock_on_its_record(tmp_
         assert "though a run still writes the record" in state()
     finally:
         os.close(fd)
+
+
+def test_a_kernel_whose_lock_table_lists_no_flock_tells_nothing_of_the_writer(tmp_path, monkeypatch):
+    """Where /proc/locks is there but lists no flock (a sandboxed kernel, an emulation layer), a
+    record missing from it is not taken as one no run writes: that is not known (None), the run is
+    not called ended, and a record being created is not refused."""
+    import builtins
+    import html
+    import re
+
+    from bokeh.document import Document
+
+    from hsio import recording
+    from hsio.monitor.page import MonitorPage
+
+    empty = tmp_path / "locks"
+    empty.write_text("")
+    real_open = builtins.open
+    monkeypatch.setattr(builtins, "open", lambda f, *a, **k: real_open(empty if f == "/proc/locks" else f, *a, **k))
+    monkeypatch.setattr(recording, "_flock_listed", False, raising=False)
+
+    class Silent:
+        answers, log = False, []
+
+        def status(self):
+            return ""
+
+    write_record(tmp_path, 20).close()
+    assert recording.being_written(tmp_path / "run.sqlite") is None
+    page = MonitorPage(Document(), RecordFeed(tmp_path), Silent())
+    state = html.unescape(re.search(r"hsio-state'>([^<]*)<", page.status.text).group(1))
+    assert "no run writes the record" not in state and "no answer from the run's control socket" in state
+    (tmp_path / "new").mkdir()
+    (tmp_path / "new" / "run.sqlite").touch()  # a run creating its record, its lock unseen
+    page = MonitorPage(Document(), RecordFeed(tmp_path / "new"), Silent())
+    assert "waiting for" in page.status.text and "no run is writing it" not in page.status.text

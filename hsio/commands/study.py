@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
 from hsio.commands import PlotFile, output_error
 from hsio.errors import HsioError
@@ -97,8 +98,10 @@ def mixed(as_json, plot_path, stiffnesses, resolutions, force_resolutions, durat
                                          f"{high:g} {unit}", param_hint=option)
     if with_grid is None:
         with_grid = not configs
+    given_duration = click.get_current_context().get_parameter_source("duration") is not ParameterSource.DEFAULT
     grid_options = [name for name, given in (("--stiffness", stiffnesses), ("--resolution", resolutions),
-                                             ("--force-resolution", force_resolutions), ("--seed", seed is not None))
+                                             ("--force-resolution", force_resolutions), ("--duration", given_duration),
+                                             ("--seed", seed is not None))
                     if given]
     if not with_grid and grid_options:
         raise click.UsageError(f"{', '.join(grid_options)} set the grid, which does not run here (--no-grid, or "

@@ -179,23 +179,31 @@ class RecordFeed:
         if not self.ns:
             self._read_ns(db)
         steps = self._read_steps(db)
-        rows = db.execute("SELECT rowid, time_s, step, kind, actuator, message FROM events WHERE rowid > ? "
-                          "ORDER BY rowid", (self._last_event,)).fetchall()
-        for r in rows:
-            event = dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:]))
-            self.events.append(event)
-            if event["kind"] in MARKS:
-                self.marks.append(event)
-            if event["kind"] == "resume" and str(event["message"]).startswith(RESUMED):
-                self._reopened_after = event["step"]
-            self._last_event = r[0]
-        del self.events[:-EVENTS_KEPT]
-        del self.marks[:-MARKS_KEPT]
+        self._read_events(db)
         self._read_summary(db)
         if steps:
             self.seen_at.append((time.monotonic(), self.n))
             del self.seen_at[:-64]
         return steps
+
+    def _read_events(self, db) -> None:
+        """The events committed since the last read, READ_BATCH at a time (a run that wrote many
+        warnings is never held whole as rows); the newest EVENTS_KEPT and MARKS_KEPT are kept."""
+        while True:
+            rows = db.execute("SELECT rowid, time_s, step, kind, actuator, message FROM events WHERE rowid > ? "
+                              "ORDER BY rowid LIMIT ?", (self._last_event, self.READ_BATCH)).fetchall()
+            for r in rows:
+                event = dict(zip(("time_s", "step", "kind", "actuator", "message"), r[1:]))
+                self.events.append(event)
+                if event["kind"] in MARKS:
+                    self.marks.append(event)
+                if event["kind"] == "resume" and str(event["message"]).startswith(RESUMED):
+                    self._reopened_after = event["step"]
+                self._last_event = r[0]
+            del self.events[:-EVENTS_KEPT]
+            del self.marks[:-MARKS_KEPT]
+            if len(rows) < self.READ_BATCH:
+                return
 
     def _read_ns(self, db) -> None:
         """The NS prediction (written whole by the dry run before the first step): every
@@ -210,10 +218,10 @@ class RecordFeed:
         while -(-points // stride) > self.cap:
             stride *= 2
         us = [column("u", d) for d in self.dofs]
-        peaks = db.execute(f"SELECT {', '.join(f'MAX(ABS({u}))' for u in us)} FROM ns").fetchone() if us else ()
         table = _table(db, f"SELECT time_s, {', '.join(us)} FROM ns WHERE step % ? = 0 ORDER BY step", (stride,))
-        if not table:
+        if not table:  # no such columns: a prediction the page cannot show (the steps are read all the same)
             return
+        peaks = db.execute(f"SELECT {', '.join(f'MAX(ABS({u}))' for u in us)} FROM ns").fetchone()
         self.ns, self.ns_stride, self.ns_steps = table, stride, points - 1
         self.ns_peak = {d: float("nan") if p is None else float(p) for d, p in zip(self.dofs, peaks)}
 
