@@ -16,6 +16,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -224,6 +225,9 @@ def read_at2(path: str | Path) -> GroundMotion:
         raise RecordError(f"{path}:4: NPTS = {shown} is out of bounds: within 2..{MAX_SAMPLES}")
     if _WORD.search(data, pos) is None:
         raise RecordError(f"{path}: no values after the 4-line header (NPTS = {npts})")
+    at_once = _values_at_once(data, pos, npts)
+    if at_once is not None:
+        return GroundMotion(name=path.name, dt=dt, accel_g=at_once * factor)
     values: list[float] = []
     for found in _WORD.finditer(data, pos):
         word = found.group().decode("latin-1")
@@ -296,11 +300,84 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
     except OSError as exc:
         raise RecordError(f"{path}: cannot read ground-motion file: {exc.strerror}") from None
     data = data.removeprefix(codecs.BOM_UTF8)  # the mark some editors and spreadsheets write first
+    rows = _rows_at_once(path, data)
+    if rows is None:  # a file numpy cannot read at once: line by line, naming the line of what is refused
+        rows = _rows_by_line(path, data)
+    values, line_of, first_words = rows.values, rows.line_of, rows.first_words
+    if len(values) < 2:
+        raise RecordError(f"{path}: {len(values)} samples; a record needs at least 2")
+    if values.shape[1] == 1:
+        if re.fullmatch(r"\+?\d+", first_words[0]) and int(first_words[0]) == len(values) - 1:
+            raise RecordError(f"{path}:{line_of[0]}: {first_words[0]!r} is the count of the {len(values) - 1} values "
+                              f"below it, not an acceleration ({values[0][0]:g} {units}): remove that line or make "
+                              f"it a comment ('# {first_words[0]}')")
+        if dt_s is None:
+            raise RecordError(f"{path}: one column of accelerations and no time step: give dt_s ([record] dt_s in a "
+                              "run configuration), or a first column of times")
+        return GroundMotion(name=path.name, dt=dt_s, accel_g=values[:, 0] * factor)
+    t, accel = values[:, 0], values[:, 1]
+    steps = np.diff(t)
+    if not np.all(steps > 0):
+        i = int(np.flatnonzero(steps <= 0)[0])
+        raise RecordError(f"{path}:{line_of[i + 1]}: the times of the first column do not increase "
+                          f"({t[i]:g} s, then {t[i + 1]:g} s)")
+    step = float(np.median(steps))
+    dt = float(t[-1] - t[0]) / (len(t) - 1)
+    uneven = np.flatnonzero(np.abs(steps - step) > 1e-3 * step)
+    if uneven.size:
+        # Times printed to fewer decimals than the step has (1/256 s as 0.0039, 0.0078, 0.0117, ...;
+        # 0.0025 s as 0.002, 0.005, 0.007, ...; to six significant digits, 0.00390625 then 11.9961)
+        # are each off the even grid by up to half their own last place: taken where that is at most
+        # a quarter of a step (a missing sample, a step twice as long, is still refused) and every
+        # time lies on one even grid within it.
+        # A time with fewer places than both its neighbours lost trailing zeros (%g writes 1/256 s x
+        # 256 as "1"): it is as exact as the coarser of them.
+        written = np.array(rows.places(), dtype=float)
+        padded = np.concatenate(([np.inf], written, [np.inf]))
+        written = np.maximum(written, np.minimum(padded[:-2], padded[2:]))
+        printed = 0.5 * 10.0 ** -np.minimum(written, 300.0)
+        if printed.max() <= 0.25 * dt:
+            tolerance = np.maximum(1e-3 * step, (printed[:-1] + printed[1:]) * (1 + 1e-9))
+            uneven = np.flatnonzero(np.abs(steps - step) > tolerance)
+            if not uneven.size:
+                index = np.arange(len(t))
+                dt, t0 = (float(v) for v in np.polyfit(index, t, 1))
+                off = np.flatnonzero(np.abs(t - (t0 + index * dt)) > np.maximum(1e-3 * dt, 1.5 * printed))
+                if off.size:
+                    j = int(off[0])
+                    raise RecordError(f"{path}:{line_of[j]}: the times are not evenly spaced: {t[j]:g} s is "
+                                      f"{t[j] - (t0 + j * dt):+.3g} s off the even steps of {dt:g} s, more than the "
+                                      f"rounding of a time written to {int(written[j])} decimals; resample it")
+    if uneven.size:
+        i = int(uneven[0])
+        raise RecordError(f"{path}:{line_of[i + 1]}: the times are not evenly spaced: {t[i]:g} to {t[i + 1]:g} s is a "
+                          f"step of {steps[i]:g} s where the record's step is {step:g} s; resample it")
+    if not DT_MIN_S <= dt <= DT_MAX_S:
+        raise RecordError(f"{path}: time step {dt:g} s is out of bounds: within {DT_MIN_S:g}..{DT_MAX_S:g} s")
+    if dt_s is not None and not math.isclose(dt_s, dt, rel_tol=1e-3):
+        raise RecordError(f"{path}: dt_s = {dt_s:g} s but the times of the first column are {dt:g} s apart")
+    return GroundMotion(name=path.name, dt=dt, accel_g=accel * factor)
+
+
+class _Rows(NamedTuple):
+    """The rows of a column file: ``values`` (one row per sample, one or two columns), the file's
+    line of each row (``line_of``, for the messages), the words of the first row, and ``places()``:
+    the decimal places each time of the first column is written to (two columns only)."""
+
+    values: np.ndarray
+    line_of: Sequence[int]
+    first_words: list[str]
+    places: Callable[[], Sequence[float]]
+
+
+def _rows_by_line(path: Path, data: bytes) -> _Rows:
+    """The rows of a column file read line by line: every refusal names the line."""
     rows: list[tuple[float, ...]] = []
     line_of: list[int] = []  # the file's line of each row, for the messages
     columns = 0
     places = []  # the decimal places each time of the first column is written to
     pos, number, seen_data = 0, 0, False
+    first_words: list[str] = []
     while pos < len(data):
         match = _LINE.match(data, pos)
         pos, number = match.end(), number + 1
@@ -339,60 +416,150 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
         line_of.append(number)
         if columns == 2:
             places.append(_decimals(words[0]))
-    if len(rows) < 2:
-        raise RecordError(f"{path}: {len(rows)} samples; a record needs at least 2")
-    values = np.array(rows, dtype=float)
-    if columns == 1:
-        if re.fullmatch(r"\+?\d+", first_words[0]) and int(first_words[0]) == len(rows) - 1:
-            raise RecordError(f"{path}:{line_of[0]}: {first_words[0]!r} is the count of the {len(rows) - 1} values "
-                              f"below it, not an acceleration ({rows[0][0]:g} {units}): remove that line or make "
-                              f"it a comment ('# {first_words[0]}')")
-        if dt_s is None:
-            raise RecordError(f"{path}: one column of accelerations and no time step: give dt_s ([record] dt_s in a "
-                              "run configuration), or a first column of times")
-        return GroundMotion(name=path.name, dt=dt_s, accel_g=values[:, 0] * factor)
-    t, accel = values[:, 0], values[:, 1]
-    steps = np.diff(t)
-    if not np.all(steps > 0):
-        i = int(np.flatnonzero(steps <= 0)[0])
-        raise RecordError(f"{path}:{line_of[i + 1]}: the times of the first column do not increase "
-                          f"({t[i]:g} s, then {t[i + 1]:g} s)")
-    step = float(np.median(steps))
-    dt = float(t[-1] - t[0]) / (len(t) - 1)
-    uneven = np.flatnonzero(np.abs(steps - step) > 1e-3 * step)
-    if uneven.size:
-        # Times printed to fewer decimals than the step has (1/256 s as 0.0039, 0.0078, 0.0117, ...;
-        # 0.0025 s as 0.002, 0.005, 0.007, ...; to six significant digits, 0.00390625 then 11.9961)
-        # are each off the even grid by up to half their own last place: taken where that is at most
-        # a quarter of a step (a missing sample, a step twice as long, is still refused) and every
-        # time lies on one even grid within it.
-        # A time with fewer places than both its neighbours lost trailing zeros (%g writes 1/256 s x
-        # 256 as "1"): it is as exact as the coarser of them.
-        written = np.array(places, dtype=float)
-        padded = np.concatenate(([np.inf], written, [np.inf]))
-        written = np.maximum(written, np.minimum(padded[:-2], padded[2:]))
-        printed = 0.5 * 10.0 ** -np.minimum(written, 300.0)
-        if printed.max() <= 0.25 * dt:
-            tolerance = np.maximum(1e-3 * step, (printed[:-1] + printed[1:]) * (1 + 1e-9))
-            uneven = np.flatnonzero(np.abs(steps - step) > tolerance)
-            if not uneven.size:
-                index = np.arange(len(t))
-                dt, t0 = (float(v) for v in np.polyfit(index, t, 1))
-                off = np.flatnonzero(np.abs(t - (t0 + index * dt)) > np.maximum(1e-3 * dt, 1.5 * printed))
-                if off.size:
-                    j = int(off[0])
-                    raise RecordError(f"{path}:{line_of[j]}: the times are not evenly spaced: {t[j]:g} s is "
-                                      f"{t[j] - (t0 + j * dt):+.3g} s off the even steps of {dt:g} s, more than the "
-                                      f"rounding of a time written to {int(written[j])} decimals; resample it")
-    if uneven.size:
-        i = int(uneven[0])
-        raise RecordError(f"{path}:{line_of[i + 1]}: the times are not evenly spaced: {t[i]:g} to {t[i + 1]:g} s is a "
-                          f"step of {steps[i]:g} s where the record's step is {step:g} s; resample it")
-    if not DT_MIN_S <= dt <= DT_MAX_S:
-        raise RecordError(f"{path}: time step {dt:g} s is out of bounds: within {DT_MIN_S:g}..{DT_MAX_S:g} s")
-    if dt_s is not None and not math.isclose(dt_s, dt, rel_tol=1e-3):
-        raise RecordError(f"{path}: dt_s = {dt_s:g} s but the times of the first column are {dt:g} s apart")
-    return GroundMotion(name=path.name, dt=dt, accel_g=accel * factor)
+    values = np.array(rows, dtype=float).reshape(len(rows), max(columns, 1))
+    return _Rows(values, line_of, first_words, lambda: places)
+
+
+# A row of the fast path: numbers written in ASCII (sign, digits, point, exponent; never '_', inf or
+# nan) separated by spaces, tabs, commas or semicolons, one line each, no line in between.
+_NUMBER = rb"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?"
+_GAP = b" \t,;"
+_ROW = {n: rb"[ \t,;]*" + rb"[ \t,;]+".join([_NUMBER] * n) for n in (1, 2)}
+_ROWS = {n: re.compile(rb"(?:" + row + rb"[ \t,;]*(?:\r\n|\r|\n))*+" + row) for n, row in _ROW.items()}
+_FIRST_ROW = {n: re.compile(row + rb"[ \t,;]*") for n, row in _ROW.items()}
+_TO_SPACE = bytes.maketrans(b",;", b"  ")
+_SEPARATOR_BYTE = re.compile(rb"[ \t\r\n,;]")
+_IN_A_NUMBER = np.zeros(256, dtype=bool)
+_IN_A_NUMBER[list(b"0123456789+-.eE")] = True
+
+
+def _rows_at_once(path: Path, data: bytes) -> _Rows | None:
+    """The rows of a column file parsed at once (numpy), when every line from the first row to the
+    last is a row of one or two plain numbers, with no comment or blank line among them; else None,
+    and :func:`_rows_by_line` reads the file (and names the line of what it refuses). The lines
+    before the first row (comments, blank lines, a header of column names) are read as
+    :func:`_rows_by_line` reads them."""
+    pos, number, header = 0, 0, False
+    while True:
+        if pos >= len(data):
+            return None
+        match = _LINE.match(data, pos)
+        number += 1
+        text = match.group(1).decode("latin-1").strip()
+        words = [w for w in _SEPARATOR.split(text) if w] if text and not text.startswith(_COMMENT) else []
+        if words:
+            if len(words) <= 2 and _FIRST_ROW[len(words)].fullmatch(match.group(1)):
+                break
+            if header or any(_is_number(w) for w in words):
+                return None
+            header = True  # a header of column names, once, before the first value
+        pos = match.end()
+    columns, start, first_line = len(words), match.start(), number
+    end = _end_of_values(data, start, _GAP + b"\r\n")
+    if not _ROWS[columns].fullmatch(data, start, end):
+        return None
+    n = data.count(b"\n", start, end) + data.count(b"\r", start, end) - data.count(b"\r\n", start, end) + 1
+    values = _numbers_at_once(data, start, end, min(n, MAX_SAMPLES + 1) * columns, more=n > MAX_SAMPLES + 1)
+    if values is None:
+        return None
+    if n > MAX_SAMPLES:
+        raise RecordError(f"{path}:{first_line + MAX_SAMPLES}: more than {MAX_SAMPLES} samples")
+    return _Rows(values.reshape(n, columns), range(first_line, first_line + n), words,
+                 lambda: _first_column_places(data, start, end, columns))
+
+
+def _end_of_values(data: bytes, start: int, blank: bytes) -> int:
+    """The offset just past the last byte of ``data[start:]`` that is not in ``blank``."""
+    end = len(data)
+    while end > start:
+        chunk = data[max(start, end - 65536):end]
+        kept = len(chunk.rstrip(blank))
+        if kept:
+            return end - len(chunk) + kept
+        end -= len(chunk)
+    return start
+
+
+def _first_column_places(data: bytes, start: int, end: int, columns: int) -> np.ndarray:
+    """The decimal places (:func:`_decimals`) of the first number of each row of ``data[start:end]``,
+    whose rows each hold ``columns`` plain numbers (as :func:`_rows_at_once` checked)."""
+    chars = np.frombuffer(data, dtype=np.uint8, count=end - start, offset=start)
+    inside = _IN_A_NUMBER[chars]
+    every_first = np.flatnonzero(inside[1:] & ~inside[:-1]) + 1  # where each number begins
+    if inside[0]:
+        every_first = np.r_[0, every_first]
+    every_last = np.flatnonzero(inside[:-1] & ~inside[1:]) + 1  # and where it ends (one past)
+    if inside[-1]:
+        every_last = np.r_[every_last, chars.size]
+    del inside
+    firsts, lasts = every_first[::columns], every_last[::columns]
+    dot, exp_at = np.full(firsts.size, -1), lasts.copy()
+    for mark, where in ((b".", dot), (b"e", exp_at), (b"E", exp_at)):
+        at = np.flatnonzero(chars == mark[0])
+        owner = np.searchsorted(every_first, at, side="right") - 1  # the number each mark is in
+        mine = owner % columns == 0
+        where[owner[mine] // columns] = at[mine]
+    places = np.where(dot >= 0, exp_at - dot - 1, 0).astype(float)
+    has_exp = np.flatnonzero(exp_at < lasts)
+    if has_exp.size:
+        sign_at = exp_at[has_exp] + 1
+        signed = np.isin(chars[sign_at], np.frombuffer(b"+-", dtype=np.uint8))
+        negative = chars[sign_at] == ord("-")
+        digits_from, digits_to = sign_at + signed, lasts[has_exp]
+        width = digits_to - digits_from
+        if width.max() > 15:  # an exponent past 15 digits: as Python reads it
+            return np.array([_decimals(data[start + a:start + b].decode("ascii")) for a, b in zip(firsts, lasts)],
+                            dtype=float)
+        exponent = np.zeros(has_exp.size)
+        for k in range(int(width.max())):
+            here = k < width
+            digit = chars[np.where(here, digits_from + k, 0)].astype(float) - ord("0")
+            exponent = np.where(here, exponent * 10 + digit, exponent)
+        places[has_exp] = np.maximum(0.0, places[has_exp] - np.where(negative, -exponent, exponent))
+    return places
+
+
+def _values_at_once(data: bytes, pos: int, npts: int) -> np.ndarray | None:
+    """The ``npts`` values of an AT2 file after its header (from ``pos``) parsed at once (numpy),
+    when they are all plain finite numbers separated by spaces, tabs and line ends and there are
+    ``npts`` of them; else None, and :func:`read_at2` reads them word by word (naming the line of
+    what it refuses)."""
+    end = _end_of_values(data, pos, b" \t\r\n\f\v")
+    if not _AT2_VALUES.fullmatch(data, pos, end):
+        return None
+    return _numbers_at_once(data, pos, end, npts)
+
+
+def _numbers_at_once(data: bytes, start: int, end: int, count: int, more: bool = False,
+                     chunk: int = 1 << 22) -> np.ndarray | None:
+    """The ``count`` numbers of ``data[start:end]``, plain numbers (as checked by the caller) separated
+    by spaces, tabs, commas, semicolons or line ends, parsed by numpy a chunk of bytes at a time (the
+    memory it takes is the values' and one chunk's); None when there are not ``count`` of them, or
+    one is not finite. ``more``: the bytes may hold more numbers, not read."""
+    values = np.empty(count)
+    filled, at = 0, start
+    while at < end and filled < count + (not more):
+        cut = _SEPARATOR_BYTE.search(data, min(at + chunk, end), end)
+        cut = cut.start() if cut else end
+        piece = data[at:cut].translate(_TO_SPACE)
+        at = cut
+        if piece.isspace():  # numpy reads a chunk of spaces alone as -1
+            continue
+        try:
+            read = np.fromstring(piece, sep=" ")
+        except ValueError:  # a word numpy does not read: the caller's check let through what it should not
+            return None
+        if filled + read.size > count and not more:
+            return None
+        read = read[:count - filled]
+        values[filled:filled + read.size] = read
+        filled += read.size
+    if filled != count or not np.isfinite(values).all():
+        return None
+    return values
+
+
+_AT2_VALUES = re.compile(rb"[ \t\r\n]*+(?:" + _NUMBER + rb"[ \t\r\n]++)*+" + _NUMBER)
 
 
 def _decimals(word: str) -> int:
