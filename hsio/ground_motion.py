@@ -337,7 +337,9 @@ def read_columns(path: str | Path, dt_s: float | None = None, units: str | None 
         written = np.maximum(written, np.minimum(padded[:-2], padded[2:]))
         printed = 0.5 * 10.0 ** -np.minimum(written, 300.0)
         if printed.max() <= 0.25 * dt:
-            tolerance = np.maximum(1e-3 * step, (printed[:-1] + printed[1:]) * (1 + 1e-9))
+            # and the difference of two times carries their floating-point rounding, which grows with t
+            rounding = 4 * np.finfo(float).eps * np.abs(t[1:])
+            tolerance = np.maximum(1e-3 * step, (printed[:-1] + printed[1:]) * (1 + 1e-9) + rounding)
             uneven = np.flatnonzero(np.abs(steps - step) > tolerance)
             if not uneven.size:
                 index = np.arange(len(t))

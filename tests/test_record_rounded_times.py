@@ -67,3 +67,14 @@ def test_times_written_to_six_significant_digits_give_the_true_step(tmp_path, dt
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(RecordError, match=rf"acc\.csv:{n // 2 + 1}: the times are not evenly spaced"):
         read_columns(path, units="g")
+
+
+def test_a_long_record_with_rounded_times_is_read_past_1024_s(tmp_path):
+    """256 Hz written to 4 decimals over 1100 s: beyond about 1024 s the difference of two times
+    carries their floating-point rounding on top of the print's, and the record is read all the same."""
+    n = 1100 * 256
+    t = np.arange(n) / 256.0
+    path = tmp_path / "long.csv"
+    path.write_text("".join(f"{x:.4f},{0.05 * math.sin(x):.6f}\n" for x in t))
+    g = read_columns(path, units="g")
+    assert g.accel_g.size == n and g.dt == pytest.approx(1 / 256, rel=1e-9)
