@@ -60,6 +60,7 @@ class StepFeedback:
     samples: np.ndarray | None  # n_samples x n_actuators x 3 (command, displacement, force)
     sample_time: np.ndarray | None = None  # lab time of each sample (s)
     phases: list | None = None  # per sample, the command generator's phase of each actuator
+    force_last: np.ndarray | None = None  # measured at the step's last period (an instrument read then pairs with it)
 
 
 class ControlLoop:
@@ -238,6 +239,7 @@ class ControlLoop:
             commands=np.array(commands),
             displacement=tail[:, 1, :].mean(axis=0),
             force=tail[:, 2, :].mean(axis=0),
+            force_last=tail[-1, 2, :].copy(),
             samples=samples,
             sample_time=np.array([m[0] for m in meta]) if self.keep_samples else None,
             phases=[m[1] for m in meta] if self.keep_samples else None,

@@ -340,6 +340,7 @@ class ActuatorSite:
             u, R, k = self.estimator.update(samples[:, :, 1], samples[:, :, 2])
             if any(src is not None for src in self.external):  # eq. (11) on the instrument's reading
                 u = self._external_displacements(u, readings)
+                R = self._external_forces(R, fb)
                 k_ext = secant_stiffness(u, R, *self._committed)
                 base = self._committed[0]
                 for j, source in enumerate(self.external):
@@ -348,6 +349,7 @@ class ActuatorSite:
         else:
             u, R = self._to_channels(fb.displacement[:n], fb.force[:n], targets)
             u = self._external_displacements(u, readings)
+            R = self._external_forces(R, fb, targets)
             k = secant_stiffness(u, R, *self._committed)
         self._last = (u, R)
         commands = (fb.commands[:n] if self.setups is None
@@ -366,6 +368,21 @@ class ActuatorSite:
             if source is not None:
                 u[j] = readings[source[0]] - self.instrument_zero[source[0]]
         return u
+
+    def _external_forces(self, R: np.ndarray, fb, guess=None) -> np.ndarray:
+        """``R`` with each channel that takes its displacement from an instrument set to its force
+        at the trial's last controller period: the instrument is read once, as the trial ends, and
+        its reading pairs with the force measured then, not with an average over the last periods
+        (of a specimen still settling, those forces belong to earlier positions)."""
+        if fb.force_last is None or not any(src is not None for src in self.external):
+            return R
+        n = self.n_dynamic
+        _, at_end = self._to_channels(fb.displacement[:n], fb.force_last[:n], guess)  # a setup's geometry at the mean strokes
+        R = np.array(R, dtype=float)
+        for j, source in enumerate(self.external):
+            if source is not None:
+                R[j] = at_end[j]
+        return R
 
     def _outer_loop(self, targets, actuator_targets, fb):
         """Read the instruments; where an element closes an outer loop on one, correct its
