@@ -543,7 +543,10 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
     except BaseException as exc:
         site.hold()
         if recorder is not None and static:  # the ramp as far as it went (a trip: the period that tripped last)
-            recorder.write_tables(site.record_tables())
+            try:
+                recorder.write_tables(site.record_tables())
+            except Exception as write_error:  # the stop or trip stays what is raised; the failed write joins it
+                exc.add_note(f"the preload ramp's tables could not be written to the record: {write_error}")
         if isinstance(exc, RampStopped):
             raise OperatorStop(f"{control.stop_reason}: {exc}") from None
         raise

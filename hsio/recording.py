@@ -114,14 +114,14 @@ def _flock_on(inode: int, table: str) -> bool:
     return False
 
 
-_flock_listed = False  # this kernel's /proc/locks was seen to list a flock of this process
+_flock_listed: bool | None = None  # whether this kernel's /proc/locks lists a flock of this process
 
 
 def _flocks_listed() -> bool:
     """Whether /proc/locks lists flocks at all: one taken on a temporary file must show there
-    (checked until it first does)."""
+    (checked once per process; a check that could not be made is made again next time)."""
     global _flock_listed
-    if not _flock_listed:
+    if _flock_listed is None:
         import tempfile
 
         try:

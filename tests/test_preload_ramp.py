@@ -146,3 +146,18 @@ def test_the_advised_ramp_s_keeps_within_the_limit_as_printed(t_d, hold, force, 
     ramp_s = float(advice.split("a ramp_s of ")[1].split(" s ")[0])
     _, (velocity,) = ramp_velocity([0.0], [force], [1.0], ramp_s, t_d, 1 / 1024, hold)
     assert velocity <= limit, advice
+
+
+def test_a_preload_whose_rod_would_stand_beyond_the_stroke_less_the_margin_is_refused_before_it_moves():
+    """Without the dry run (the API): 125 kN over 1 kN/mm puts the rod at 125 mm, beyond 95 % of
+    the +/-127 mm stroke; refused naming it before the first force command (the ramp's watch would
+    otherwise stop it there, with the rod at 120.65 mm)."""
+    structure = parse_structure(column(force="125.0", ramp="5.0"), "far.toml")
+    ground = hsio.synthetic_record(duration_s=0.2, dt=structure.dt, pga_g=0.1, seed=2)
+    with hsio.open_site(structure, "emulator://", test_rate=20) as site:
+        with pytest.raises(LimitError, match=r"static preload 'axial' on actuator 'axial': 125 kN over the K\^EI of "
+                                             r"1 kN/mm puts the rod at 125\.\d+ mm, beyond the stroke less the margin "
+                                             r"\(\+/-120\.65 mm, 95 % of \+/-127 mm\); not sent"):
+            hsio.simulate(structure, ground, site)
+        assert site.static_log == []
+        assert abs(site.loop.feedback()[1].displacement_mm) < 0.05

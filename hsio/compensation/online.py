@@ -64,7 +64,7 @@ class OnlineEstimator:
                              f"{s.a_max_mm_s:g} mm/s")
         if not (math.isfinite(lag_s) and 0.0 <= lag_s <= self.lag_limit):
             raise ValueError(f"starting lag b d_max = {lag_s!r} s is out of bounds: 0 to {self.lag_limit:g} s "
-                             "(lag_max_s, and below 0.45 t_d with eq. 2)")
+                             "(lag_max_s, and at most 0.45 t_d with eq. 2)")
         self.a = float(a_mm_s)
         self.lag = float(lag_s)
         self._v: collections.deque = collections.deque(maxlen=s.window)

@@ -22,7 +22,7 @@ from collections import deque
 import numpy as np
 
 from hsio.control_loop import ControlLoop, with_hold_report
-from hsio.errors import ConfigError, HsioError, ImplausibleMeasurementError
+from hsio.errors import ConfigError, HsioError, ImplausibleMeasurementError, LimitError
 from hsio.interfaces import ControlMode
 from hsio.safety.hold import HoldReport
 from hsio.safety.preload_ramp import check_ramp, ramp_steps, ramp_targets
@@ -273,6 +273,7 @@ class ActuatorSite:
             actuator.limits.check(ControlMode.FORCE, load.force_kN, f"static preload {load.name!r} on actuator {actuator.name!r}")
         present = np.array([f.force_kN for f in self.loop.feedback()[self.n_dynamic:]])
         end = np.array([s.force_kN for s in self.static])
+        self._check_preload_stroke(present, end)
         self._check_ramp(present, end, "ramp in")
         self._check_ramp(end, np.zeros(len(self.static)), "ramp off")
         for j in range(len(self.static)):
@@ -280,6 +281,22 @@ class ActuatorSite:
         present = np.array([f.force_kN for f in self.loop.feedback()[self.n_dynamic:]])
         self.static_targets = present
         self._ramp(present, end, "ramp_in", stop, pause)
+
+    def _check_preload_stroke(self, present: np.ndarray, end: np.ndarray) -> None:
+        """Refuse a preload whose rod would stand beyond the stroke less the run's stroke margin:
+        where it stands now, moved by the force still to come over the K^EI of what it loads (the
+        stroke the dry run predicts, and the one the ramp's watch holds the measured rod to)."""
+        keep = 1.0 - self.safety.stroke_margin
+        feedback = self.loop.feedback()[self.n_dynamic:]
+        for j, load in enumerate(self.static):
+            actuator = self.loop.actuators[self.n_dynamic + j]
+            allowed = keep * actuator.limits.half_stroke_mm
+            d = feedback[j].displacement_mm + (end[j] - present[j]) / load.K_EI
+            if not abs(d) <= allowed:
+                raise LimitError(f"static preload {load.name!r} on actuator {actuator.name!r}: {load.force_kN:g} kN "
+                                 f"over the K^EI of {load.K_EI:g} kN/mm puts the rod at {d:.3f} mm, beyond the "
+                                 f"stroke less the margin (+/-{allowed:g} mm, {100 * keep:g} % of "
+                                 f"+/-{actuator.limits.half_stroke_mm:g} mm); not sent")
 
     def _check_ramp(self, start: np.ndarray, end: np.ndarray, phase: str) -> None:
         """Refuse a ramp of the preloads that would move a rod beyond its actuator's velocity limit
