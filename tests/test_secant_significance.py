@@ -306,8 +306,9 @@ def test_a_displacement_read_by_an_external_instrument_counts_one_reading_of_it(
     integ = _quasi_static((NOISE_U, NOISE_F))
     averaged = integ.sigma_k([K0], [0.1], [0.3], 16)[0]
     lvdt = integ.sigma_k([K0], [0.1], [0.3], 16, external=[(0.02, 0.01)])[0]
-    # one reading at each end: 2 (sigma^2 + delta^2 / 12), whatever the estimator averages
-    assert lvdt == pytest.approx(K0 * np.sqrt(2 * (0.02**2 + 0.01**2 / 12) / 0.1**2 + 2 * NOISE_F**2 / 16 / 0.3**2))
+    # one reading at each end: 2 (sigma^2 + delta^2 / 12), whatever the estimator averages; its
+    # force one sample of the load cell at each end, the last period's (the one the reading pairs with)
+    assert lvdt == pytest.approx(K0 * np.sqrt(2 * (0.02**2 + 0.01**2 / 12) / 0.1**2 + 2 * NOISE_F**2 / 0.3**2))
     assert lvdt > 5 * averaged
     # a step: Z + 0.1 sigma_k of the averaged transducer is taken with it, turned away on the instrument's reading
     dR = 0.3
@@ -362,8 +363,20 @@ def test_an_external_instrument_stating_no_noise_counts_as_the_transducer():
     """An [[instrument]] without noise or resolution (on hardware they are not emulation settings
     that were given): its readings are not taken as exact, the transducer's uncertainty stands."""
     integ = _quasi_static((NOISE_U, NOISE_F))
-    plain = integ.sigma_k([K0], [0.1], [0.3], 16)[0]
-    assert integ.sigma_k([K0], [0.1], [0.3], 16, external=[(0.0, 0.0)])[0] == plain
+    stated = integ.sigma_k([K0], [0.1], [0.3], 16, external=[(0.0, 0.0)])[0]
+    # the transducer's averaged uncertainty; the force one sample at each end, as with any instrument
+    assert stated == pytest.approx(K0 * np.sqrt(2 * NOISE_U**2 / 16 / 0.1**2 + 2 * NOISE_F**2 / 0.3**2))
+
+
+def test_the_force_paired_with_an_external_reading_counts_one_sample_at_each_end():
+    """The load cell's noise alone: an element read by an external instrument takes the last
+    period's force at each end, not an average of 16, so its sigma_k is sqrt(16) times as large;
+    the element beside it, on its own transducer, keeps the averaged one."""
+    integ = _quasi_static((0.0, NOISE_F))
+    sigma = integ.sigma_k([K0, K0], [0.1, 0.1], [0.3, 0.3], 16, external=[(0.0, 0.0), None])
+    averaged = K0 * np.sqrt(2 * NOISE_F**2 / 16) / 0.3
+    assert sigma[1] == pytest.approx(averaged)
+    assert sigma[0] == pytest.approx(4 * averaged)
 
 
 def test_fc_on_a_record_with_one_estimate_3_3_sigma_off_keeps_its_secant():

@@ -150,7 +150,8 @@ class ImplicitAlpha:
     du, dR the measured increments from the base, n_end the samples averaged at that end (the
     site's estimator, :func:`samples_averaged`; the base of the first step is the one feedback
     sample the site starts from; a displacement read from an external instrument, the site's
-    ``displacement_instruments``, is one reading of that instrument at each end): the noise
+    ``displacement_instruments``, is one reading of that instrument at each end, and its force
+    the load cell's at the trial's last controller period, one sample at each end): the noise
     averages down, the quantisation of a reading does not. With the same n at both ends and no
     resolution it is |k| sqrt(2/n) sqrt((s_u/du)^2 + (s_F/dR)^2). FC moves the displacement along
     its secant by every change of force (eq. 9), so a secant that follows the transducer's noise
@@ -500,16 +501,21 @@ class ImplicitAlpha:
         increments (du, dR) the difference of an ``n``-sample average and one of ``n_base`` samples
         at the base (default ``n``; eq. 11a). ``external`` (per element, None or (noise,
         resolution)): an element whose displacement an external instrument gives, one reading of
-        it at each end (an instrument that states neither, (0, 0), counts as the transducer)."""
+        it at each end (an instrument that states neither, (0, 0), counts as the transducer), and
+        one force, the load cell's at the trial's last controller period, the one its reading pairs
+        with (docs/setups.md)."""
         (nu, ru), (nF, rF) = self.secant_uncertainty
         n_base = n if n_base is None else n_base
         k_new, du, dR = (np.asarray(x, dtype=float) for x in (k_new, du, dR))
         var_u = np.full(np.shape(du), nu**2 / n + nu**2 / n_base + 2 * ru**2 / 12.0)
+        var_F = np.full(np.shape(dR), nF**2 / n + nF**2 / n_base + 2 * rF**2 / 12.0)
         for e, instrument in enumerate(external or []):
-            if instrument is not None and any(x > 0 for x in instrument):  # (0, 0): not known, the transducer's
+            if instrument is None:
+                continue
+            var_F[e] = 2 * (nF**2 + rF**2 / 12.0)  # the last period's force at each end, not an average
+            if any(x > 0 for x in instrument):  # (0, 0): not known, the transducer's
                 noise, resolution = instrument
                 var_u[e] = 2 * (noise**2 + resolution**2 / 12.0)
-        var_F = nF**2 / n + nF**2 / n_base + 2 * rF**2 / 12.0
         with np.errstate(divide="ignore", invalid="ignore"):
             sigma = np.abs(k_new) * np.sqrt(var_u / du**2 + var_F / dR**2)
         return np.where(np.isnan(sigma), np.inf, sigma)  # no increment: nothing known
