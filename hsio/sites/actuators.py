@@ -8,7 +8,9 @@ against the limits, generated at the controller rate and reached after t_d = TR 
   the integrator's command d^c becomes d^a before it reaches the loop;
 * the measurement of a trial: the loop's average over its last ``n_avg`` periods, or, with a
   :class:`~hsio.secant.SecantEstimator`, the estimator's pair and secant stiffness (eq. 11)
-  from the controller-rate samples (docs/method.md section 5);
+  from the controller-rate samples (docs/method.md section 5); an element whose displacement an
+  external instrument gives takes that instrument's reading, read as the trial ends, and the
+  force of the trial's last period (docs/setups.md);
 * bumpless mode switches (:meth:`hsio.control_loop.ControlLoop.set_mode`);
 * with a :class:`~hsio.sites.setup_map.SetupMap`, the setups between the integrator's channels
   (basic DOFs) and the actuators: exact strokes out, basic displacements and forces back
