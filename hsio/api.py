@@ -542,13 +542,18 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         _report_preloads_short(site, recorder)
     except BaseException as exc:
         site.hold()
+        lost = None
         if recorder is not None and static:  # the ramp as far as it went (a trip: the period that tripped last)
             try:
                 recorder.write_tables(site.record_tables())
             except Exception as write_error:  # the stop or trip stays what is raised; the failed write joins it
-                exc.add_note(f"the preload ramp's tables could not be written to the record: {write_error}")
+                lost = f"the preload ramp's tables could not be written to the record: {write_error}"
+                exc.add_note(lost)
         if isinstance(exc, RampStopped):
-            raise OperatorStop(f"{control.stop_reason}: {exc}") from None
+            stop = OperatorStop(f"{control.stop_reason}: {exc}")
+            if lost:
+                stop.add_note(lost)
+            raise stop from None
         raise
     if control is not None:
         control.phase = phase

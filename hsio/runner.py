@@ -732,6 +732,8 @@ def _run(config, out_dir, progress, ground, control, specimen_dir, notify, check
             hold = site.hold() if site is not None else None
             reason = (str(exc) if isinstance(exc, HsioError) else "interrupted (Ctrl-C)"
                       if isinstance(exc, KeyboardInterrupt) else f"unexpected {exc!r}")
+            for note in getattr(exc, "__notes__", ()):  # what else went wrong on the way (a record not written)
+                reason += f"; {note}"
             if hold is not None:
                 reason += f"; {hold.message}"
                 if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it

@@ -213,3 +213,46 @@ def test_an_interlock_in_the_ramp_in_is_recorded_and_told_with_the_hold(tmp_path
     events = run.events()
     assert [e["kind"] for e in events][-3:] == ["trip", "hold", "stop"]
     assert events[-3]["actuator"] == "axial" and run.summary["steps"] == 0
+
+
+def _tables_not_written(monkeypatch):
+    from hsio.errors import RecordError
+    from hsio.recording import Recorder
+
+    def full(self, tables):
+        raise RecordError(f"{self.path}: the preload tables could not be written (database or disk is full)")
+
+    monkeypatch.setattr(Recorder, "write_tables", full)
+
+
+def test_a_stop_in_the_ramp_in_whose_tables_cannot_be_written_says_so(tmp_path, monkeypatch):
+    """The operator's stop stays what is raised, and it says that the ramp's tables are not in the record."""
+    from hsio.recording import Recorder
+
+    _tables_not_written(monkeypatch)
+    structure = hsio.load_structure("preloaded_column")
+    ground = hsio.synthetic_record(duration_s=0.5, dt=structure.dt, pga_g=0.3, seed=2)
+    recorder = Recorder(tmp_path / "run.sqlite", structure.dof_names, structure.experimental_names)
+    with hsio.open_site(structure, "emulator://", test_rate=10) as site:
+        with pytest.raises(OperatorStop, match="the ramp in of the static preloads was stopped") as info:
+            hsio.simulate(structure, ground, site, control=StopAfter(6), recorder=recorder)
+    recorder.close()
+    assert any("the preload ramp's tables could not be written to the record" in note and "disk is full" in note
+               for note in getattr(info.value, "__notes__", []))
+
+
+def test_hsio_run_tells_a_trip_in_the_ramp_in_whose_tables_cannot_be_written(tmp_path, monkeypatch):
+    """The trip is what `hsio run` reports (exit 4), and its message says the ramp's tables are not in the record."""
+    from click.testing import CliRunner
+
+    from hsio.cli import main
+
+    _tables_not_written(monkeypatch)
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[structure]\nname = "preloaded_column"\n[record]\nduration_s = 1.0\n[test]\nrate = 10.0\n'
+                   '[emulator]\nforce_lag_s = 5.0\n[output]\nplots = false\n'
+                   '[safety]\nkeys = false\nfollowing_error_kN = 2.0\nfollowing_time_s = 0.05\n')
+    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 4, result.output
+    assert "interlock (following) on actuator 'axial'" in result.output
+    assert "the preload ramp's tables could not be written to the record" in result.output
