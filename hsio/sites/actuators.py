@@ -295,8 +295,10 @@ class ActuatorSite:
             allowed = keep * actuator.limits.half_stroke_mm
             d = feedback[j].displacement_mm + (end[j] - present[j]) / load.K_EI
             if not abs(d) <= allowed:
+                start = (f" (from {feedback[j].displacement_mm:.3f} mm under {present[j]:.3f} kN)"
+                         if abs(feedback[j].displacement_mm) > 0.05 or abs(present[j]) > 0.05 else "")
                 raise LimitError(f"static preload {load.name!r} on actuator {actuator.name!r}: {load.force_kN:g} kN "
-                                 f"over the K^EI of {load.K_EI:g} kN/mm puts the rod at {d:.3f} mm, beyond the "
+                                 f"over the K^EI of {load.K_EI:g} kN/mm puts the rod at {d:.3f} mm{start}, beyond the "
                                  f"stroke less the margin (+/-{allowed:g} mm, {100 * keep:g} % of "
                                  f"+/-{actuator.limits.half_stroke_mm:g} mm); not sent")
 
