@@ -540,3 +540,11 @@ def test_a_data_folder_read_again_after_its_record_changed_gives_the_new_record(
                comments="")
     again = benchmark.load(str(tmp_path))
     assert again.record_t.size == t.size and not again.is_table3_record()
+
+
+def test_the_api_refuses_a_folder_without_the_data_with_a_value_error_naming_the_file(tmp_path):
+    """As docs/rths.md says of every refusal of the API's: a ValueError naming the file."""
+    from hsio.rths import benchmark
+
+    with pytest.raises(ValueError, match=r"benchmark\.json: cannot read the benchmark's data"):
+        benchmark.load(tmp_path)

@@ -67,9 +67,14 @@ def load(folder: str | Path) -> Benchmark:
     """Read and check the data folder; anything the benchmark cannot run on is a ValueError
     naming the file and what is wrong there. Kept while neither file changes (size and mtime)."""
     folder = Path(folder)
-    stamps = tuple((st.st_size, st.st_mtime_ns) for st in
-                   ((folder / name).stat() for name in ("benchmark.json", "elcentro_vrths.csv")))
-    return _load(str(folder.resolve()), stamps)
+    stamps = []
+    for name in ("benchmark.json", "elcentro_vrths.csv"):
+        try:
+            st = (folder / name).stat()
+        except OSError as exc:  # missing, or the folder cannot be read: named as the rest of the data
+            raise ValueError(f"{folder / name}: cannot read the benchmark's data: {exc.strerror}") from None
+        stamps.append((st.st_size, st.st_mtime_ns))
+    return _load(str(folder.resolve()), tuple(stamps))
 
 
 @lru_cache(maxsize=4)
