@@ -410,3 +410,30 @@ def test_a_record_killed_in_the_commit_of_its_creation_says_so_when_read(tmp_pat
         Run(out / "run.sqlite")
     assert "interrupted while it created its record, before its first step" in str(info.value)
     assert (out / "run.sqlite-journal").exists()  # a reader changes nothing
+
+
+def test_actuators_through_a_setup_far_from_where_the_record_stops_are_not_resumed(tmp_path):
+    """Through a parallel setup the record's channel is the element's basic DOF, but its
+    ``actuators`` table holds each rod's stroke at every step: a new in-process emulator standing
+    at rest, 1.13 mm from where the strokes stopped, is refused as for elements on one actuator
+    each (exit 2, nothing moved), the strokes named; --max-gap lets it go on."""
+    wall = tmp_path / "wall.toml"
+    wall.write_text('[structure]\nname = "wall_par"\ndt = 0.01\n[[dof]]\nname = "top"\nmass = 0.02\n'
+                    '[damping]\nkind = "mass"\nzeta = 0.02\n[[experimental]]\nname = "wall"\ndofs = ["top"]\n'
+                    'actuators = ["east", "west"]\nsetup = { kind = "parallel", ratios = [1.0, 1.0] }\n'
+                    'model = { kind = "linear", k = 4.0 }\n')
+    cfg = write_config(tmp_path, duration=0.9, rate=5.0, extra=QUIET_SENSORS + f'[structure]\nfile = "{wall}"\n')
+    out = stopped_run(tmp_path, 80, config_path=cfg)
+    stroke = Run(out / "run.sqlite").table("actuators")["disp_east"][-1]
+    assert stroke > 1.0
+    result = _resume(out)
+    assert result.exit_code == 2, result.output
+    assert f"the record's last step measured east {stroke:+.3f} mm; west" in result.output
+    assert f"east stands {-stroke:+.3f} mm from the record's last step" in result.stderr
+    assert "more than 1 mm: not resumed, nothing moved" in result.stderr
+    assert "the actuators hold (confirmed by read-back)" in result.stderr
+    run = Run(out / "run.sqlite")
+    assert len(run.steps["step"]) == 80 and [e["kind"] for e in run.events()][-2:] == ["resume", "stop"]
+    result = CliRunner().invoke(main, ["resume", str(out), "--max-gap", "2"])
+    assert result.exit_code == 0, result.output
+    np.testing.assert_array_equal(Run(out / "run.sqlite").table("actuators")["step"], np.arange(1, 91))

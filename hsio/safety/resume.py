@@ -149,17 +149,31 @@ def restore_interlocks(site, run: Run, step: int, notify) -> None:
 MAX_GAP_MM = 1.0
 
 
-def gaps(standing: dict, run: Run, external=()) -> dict[str, float]:
-    """Per actuator, where it stands less what the record's last step measured (mm); empty where
-    the two cannot be compared (a state that could not be read, channels that are an element's
-    basic DOFs through a setup rather than its actuators). Channels in ``external`` record an
-    instrument's reading (``displacement_from``), which a compliant load train keeps c F short of
-    the rod: they are left out."""
-    if not standing or "error" in standing or set(standing) != set(run.actuator_names):
+def last_measured(standing: dict, run: Run, external=()) -> dict[str, float]:
+    """Per actuator that ``standing`` names, the displacement the record's last committed step
+    measured of it (mm): for elements on one actuator each, the record's channel of that actuator;
+    through setups, where the record's channels are the elements' basic DOFs, the actuator's own
+    stroke in the ``actuators`` table at that step. Empty where the two cannot be compared (a
+    state that could not be read, a record that lacks the actuator). Channels in ``external``
+    record an instrument's reading (``displacement_from``), which a compliant load train keeps
+    c F short of the rod: they are left out (through setups the table holds the rod's stroke)."""
+    if not standing or "error" in standing or not len(run.steps.get("step", ())):
         return {}
-    names = [name for name in run.actuator_names if name not in set(external)]
-    last = {name: float(run.steps[column("disp", name)][-1]) for name in names}
-    return {name: float(standing[name]["displacement_mm"]) - last[name] for name in names}
+    if set(standing) == set(run.actuator_names):
+        return {name: float(run.steps[column("disp", name)][-1]) for name in run.actuator_names
+                if name not in set(external)}
+    table = run.table("actuators")
+    rows = np.flatnonzero(np.asarray(table.get("step", ()), dtype=float) == run.steps["step"][-1])
+    if not rows.size or not all(column("disp", name) in table for name in standing):
+        return {}
+    return {name: float(table[column("disp", name)][rows[-1]]) for name in standing}
+
+
+def gaps(standing: dict, run: Run, external=()) -> dict[str, float]:
+    """Per actuator, where it stands less what the record's last step measured of it (mm;
+    :func:`last_measured`); empty where the two cannot be compared."""
+    last = last_measured(standing, run, external)
+    return {name: float(standing[name]["displacement_mm"]) - value for name, value in last.items()}
 
 
 def check_gaps(gap: dict[str, float], max_gap_mm: float, url: str) -> None:
@@ -278,11 +292,12 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             if ledger is not None:
                 ledger.update(ledger_id, start_state=standing)
             line = format_state("the actuators stand at", standing)
-            gap = gaps(standing, run, [e.name for e in structure.experimental if e.displacement_from])
-            if gap:  # elements on one actuator each: the record's channels are the actuators (through
-                # setups they are the elements' basic DOFs, not comparable)
+            external = [e.name for e in structure.experimental if e.displacement_from]
+            last = last_measured(standing, run, external)
+            gap = gaps(standing, run, external)
+            if last:
                 line += "; the record's last step measured " + "; ".join(
-                    f"{name} {run.steps[column('disp', name)][-1]:+.3f} mm" for name in run.actuator_names)
+                    f"{name} {value:+.3f} mm" for name, value in last.items())
             notify(line + (" (the first step goes on from where they stand)" if all(
                 abs(g) <= max_gap_mm for g in gap.values()) else ""))
             check_gaps(gap, max_gap_mm, hardware["url"])
