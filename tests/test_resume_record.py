@@ -437,3 +437,25 @@ def test_actuators_through_a_setup_far_from_where_the_record_stops_are_not_resum
     result = CliRunner().invoke(main, ["resume", str(out), "--max-gap", "2"])
     assert result.exit_code == 0, result.output
     np.testing.assert_array_equal(Run(out / "run.sqlite").table("actuators")["step"], np.arange(1, 91))
+
+
+def test_an_actuator_of_its_own_beside_a_setup_is_checked_too(tmp_path):
+    """A structure with an element on one actuator (C1) beside one through a parallel setup: each
+    actuator is compared with what the record measured of it, C1 from its channel, east and west
+    from the actuators table."""
+    from hsio.safety.resume import gaps
+
+    wall = tmp_path / "mix.toml"
+    wall.write_text('[structure]\nname = "mix"\ndt = 0.01\n[[dof]]\nname = "top"\nmass = 0.02\n[[dof]]\n'
+                    'name = "mid"\nmass = 0.02\n[damping]\nkind = "mass"\nzeta = 0.02\n[[experimental]]\n'
+                    'name = "wall"\ndofs = ["top"]\nactuators = ["east", "west"]\n'
+                    'setup = { kind = "parallel", ratios = [1.0, 1.0] }\nmodel = { kind = "linear", k = 4.0 }\n'
+                    '[[experimental]]\nname = "C1"\ndof = "mid"\nmodel = { kind = "linear", k = 3.0 }\n')
+    cfg = write_config(tmp_path, duration=0.2, rate=5.0, extra=QUIET_SENSORS + f'[structure]\nfile = "{wall}"\n')
+    run = Run(stopped_run(tmp_path, 15, config_path=cfg) / "run.sqlite")
+    table = run.table("actuators")
+    standing = {name: {"displacement_mm": 0.5, "force_kN": 0.0} for name in ("east", "west", "C1")}
+    assert gaps(standing, run) == pytest.approx({"east": 0.5 - table["disp_east"][-1],
+                                                 "west": 0.5 - table["disp_west"][-1],
+                                                 "C1": 0.5 - run.steps["disp_C1"][-1]})
+    assert table["step"][-1] == run.steps["step"][-1] == 15
