@@ -286,6 +286,35 @@ def test_a_run_with_an_external_instrument_resumes_and_its_instruments_log_goes_
     assert np.array_equal(run.table("instruments")["iterations"][: before["step"].size], before["iterations"])
 
 
+
+def test_a_rod_read_by_an_lvdt_is_compared_by_its_own_transducer(tmp_path):
+    """An element with displacement_from records its LVDT's reading, but the record's samples
+    hold the rod's own transducer: the rod is compared with its last sample of the last committed
+    step, so a rod that moved while the run stood still is refused, its stroke named."""
+    from importlib import resources
+
+    from hsio.safety.resume import gaps
+
+    wall = (resources.files("hsio") / "library" / "structure_I.toml").read_text()
+    text = wall.replace('[[experimental]]\nname = "wall"', '[[experimental]]\nname = "wall"\n'
+                        'displacement_from = "wall_lvdt"\nouter_loop = { tolerance_mm = 0.05, max_iterations = 4 }')
+    text += '\n[[instrument]]\nname = "wall_lvdt"\nkind = "lvdt"\nelement = "wall"\nresolution = 0.005\n'
+    (tmp_path / "wall.toml").write_text(text)
+    cfg = write_config(tmp_path, duration=0.5, rate=5.0, extra=f'[structure]\nfile = "{tmp_path / "wall.toml"}"\n')
+    cfg.write_text(cfg.read_text().replace("samples = false", "samples = true"))
+    out = stopped_run(tmp_path, 20, config_path=cfg)
+    run = Run(out / "run.sqlite")
+    samples = run.samples(first_step=20)
+    rod = samples["disp_wall"][-1]
+    assert samples["step"][-1] == 20 and rod != run.steps["disp_wall"][-1]  # the rod, not the LVDT
+    assert gaps({"wall": {"displacement_mm": rod + 2.5, "force_kN": 0.0}}, run, ["wall"]) == pytest.approx({"wall": 2.5})
+    # a new in-process emulator stands at rest, |rod| from where the record stops
+    result = CliRunner().invoke(main, ["resume", str(out), "--max-gap", f"{abs(rod) / 2:.6f}"])
+    assert result.exit_code == 2, result.output
+    assert f"the record's last step measured wall {rod:+.3f} mm" in result.output
+    assert f"wall stands {-rod:+.3f} mm from the record's last step" in result.stderr
+    assert len(Run(out / "run.sqlite").steps["step"]) == 20
+
 def test_a_stop_recorded_only_as_an_event_is_told_at_the_resume(tmp_path):
     """A record whose summary lost its ``stopped`` (a process killed while writing it) still tells
     why it stopped, from its stop event."""

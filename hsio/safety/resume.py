@@ -156,17 +156,37 @@ def last_measured(standing: dict, run: Run, external=()) -> dict[str, float]:
     stroke in the ``actuators`` table at that step. Empty where the two cannot be compared (a
     state that could not be read, a record that lacks the actuator). Channels in ``external``
     record an instrument's reading (``displacement_from``), which a compliant load train keeps
-    c F short of the rod: they are left out (through setups the table holds the rod's stroke)."""
+    c F short of the rod: for them the rod's own transducer in the last controller sample of that
+    step (:func:`last_rods`; left out in a record without samples). Through setups the table
+    holds the rod's stroke."""
     if not standing or "error" in standing or not len(run.steps.get("step", ())):
         return {}
     if set(standing) == set(run.actuator_names):
-        return {name: float(run.steps[column("disp", name)][-1]) for name in run.actuator_names
-                if name not in set(external)}
+        rods = last_rods(run, [name for name in run.actuator_names if name in set(external)])
+        return {name: rods[name] if name in external else float(run.steps[column("disp", name)][-1])
+                for name in run.actuator_names if name not in set(external) or name in rods}
     table = run.table("actuators")
     rows = np.flatnonzero(np.asarray(table.get("step", ()), dtype=float) == run.steps["step"][-1])
     if not rows.size or not all(column("disp", name) in table for name in standing):
         return {}
     return {name: float(table[column("disp", name)][rows[-1]]) for name in standing}
+
+
+def last_rods(run: Run, names) -> dict[str, float]:
+    """Per actuator in ``names``, its transducer's displacement in the last controller sample of
+    the record's last committed step (mm); an actuator without a finite one there is left out."""
+    if not names:
+        return {}
+    step = float(run.steps["step"][-1])
+    try:
+        samples = run.samples(first_step=int(step))
+    except RecordError:
+        return {}
+    rows = np.flatnonzero(samples.get("step", np.empty(0)) == step)
+    if not rows.size:
+        return {}
+    last = {name: float(samples[column("disp", name)][rows[-1]]) for name in names if column("disp", name) in samples}
+    return {name: value for name, value in last.items() if np.isfinite(value)}
 
 
 def gaps(standing: dict, run: Run, external=()) -> dict[str, float]:
