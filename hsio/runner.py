@@ -801,11 +801,12 @@ def write_summary(out: Path, recorder, summary: dict, notify, replace: bool = Fa
     return not failed
 
 
-def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs: Result, ns: Result | None, out: Path) -> dict:
-    summary = {
+def describe(structure: Structure, config: RunConfig, ground: GroundMotion, out: Path) -> dict:
+    """The summary's description of the run: what ran, on what, in which units (a resume after a
+    kill, which left no summary, writes it again from the record's configuration)."""
+    return {
         "structure": structure.name,
         "record": ground.name,
-        "steps": hs.steps,
         "dt": structure.dt,
         "test_rate": config["test"]["rate"],
         "hardware": config["hardware"]["url"],
@@ -815,12 +816,19 @@ def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs:
         "dof_units": dof_units(structure),
         "channel_units": [u for u, _ in channel_units(structure)],
         "channels": channel_names(structure),  # the actuators, in the order of the per-channel lists
+        "run_file": str(out / "run.sqlite"),
+    }
+
+
+def summarise(structure: Structure, config: RunConfig, ground: GroundMotion, hs: Result, ns: Result | None, out: Path) -> dict:
+    summary = {
+        **describe(structure, config, ground, out),
+        "steps": hs.steps,
         "peak_displacement_mm": [float(x) for x in np.max(np.abs(hs.u), axis=0)],
         "rms_tracking_error_mm": [float(x) for x in np.sqrt(np.mean(hs.tracking_error()[1:] ** 2, axis=0))] if hs.steps else [],
         "late_steps": hs.late_steps,
         "wall_time_s": round(hs.wall_time_s, 3),
         "test_time_s": round(hs.steps * structure.dt * config["test"]["rate"], 3),
-        "run_file": str(out / "run.sqlite"),
         "stopped": hs.stopped,
     }
     if structure.static and hs.static_hold_error is not None:  # the largest |measured - preload| / preload

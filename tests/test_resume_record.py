@@ -488,3 +488,22 @@ def test_an_actuator_of_its_own_beside_a_setup_is_checked_too(tmp_path):
                                                  "west": 0.5 - table["disp_west"][-1],
                                                  "C1": 0.5 - run.steps["disp_C1"][-1]})
     assert table["step"][-1] == run.steps["step"][-1] == 15
+
+
+def test_a_run_killed_before_its_summary_is_described_whole_after_the_resume(tmp_path):
+    """SIGKILL leaves no summary: the resume writes the run's description again from the record
+    (what ran, on what, in which units, where it started), as an uninterrupted run has it."""
+    cfg = write_config(tmp_path, duration=0.3, rate=5.0, extra=QUIET_SENSORS)
+    whole = runner.run(config_mod.load(cfg), tmp_path / "whole")
+    out = stopped_run(tmp_path, 1, config_path=cfg)  # the in-process emulator stands at rest again
+    with sqlite3.connect(out / "run.sqlite") as db:
+        db.execute("DELETE FROM summary")  # as a kill leaves it
+    (out / "summary.json").unlink()
+    result = _resume(out)
+    assert result.exit_code == 0, result.output
+    summary = Run(out / "run.sqlite").summary
+    assert json.loads((out / "summary.json").read_text()) == summary
+    for key in ("structure", "record", "dt", "test_rate", "hardware", "clock", "dof", "dof_units", "channel_units",
+                "channels", "start_state", "dry_run_override", "version", "ns_peak_displacement_mm"):
+        assert summary[key] == whole[key], key
+    assert summary["run_file"] == str(out / "run.sqlite") and summary["steps"] == whole["steps"]

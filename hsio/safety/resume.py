@@ -220,7 +220,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
     last measured displacement (:func:`check_gaps`). ``keys`` (a callable taking ``control``,
     returning an object with ``close()``: the terminal's keys, :class:`hsio.safety.terminal.KeyReader`)
     is started as the run's ``[safety] keys`` says, for the session."""
-    from hsio.runner import (_state, build_record, check_dwell, format_state, integrator_options,
+    from hsio.runner import (_state, build_record, check_dwell, describe, format_state, integrator_options,
                              load_run_structure, write_summary)
 
     run_dir = Path(run_dir)
@@ -357,7 +357,11 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         # what the earlier session measured of itself alone (its wall time, late steps, tracking,
         # plots) would misdescribe the whole record: kept are the run's description and start; the
         # earlier sessions' summaries as they were are under ``earlier_sessions``
-        summary = {k: v for k, v in run.summary.items() if k not in SESSION_KEYS}
+        # a run killed before its summary left none: its description is written again from the
+        # record (the configuration, and the meta of the run's start)
+        summary = {**describe(structure, cfg, ground, run_dir),
+                   **{k: run.meta[k] for k in ("start_state", "dry_run_override", "version") if k in run.meta},
+                   **{k: v for k, v in run.summary.items() if k not in SESSION_KEYS}}
         earlier = {k: v for k, v in run.summary.items() if k != "earlier_sessions"}  # kept whole, in order
         summary["earlier_sessions"] = [*run.summary.get("earlier_sessions", []), earlier] if earlier else \
             list(run.summary.get("earlier_sessions", []))
@@ -371,6 +375,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         if len(u) and len(ns.get("step", ())):
             u_ns = np.column_stack([ns[column("u", d)] for d in structure.dof_names])[1:]  # NS from step 1, as u
             summary["max_error_pct"], summary["max_error_pct_per_dof"] = max_error_pct(u, u_ns)
+            summary.setdefault("ns_peak_displacement_mm", [float(x) for x in np.max(np.abs(u_ns), axis=0)])
         write_summary(run_dir, recorder, summary, notify, replace=True)
         if ledger is not None:
             ledger.finish(ledger_id, summary["outcome"], status, summary["stopped"], end_state)
