@@ -243,7 +243,7 @@ def test_actuators_far_from_where_the_record_stops_are_not_resumed(tmp_path):
     assert "more than 1 mm: not resumed, nothing moved" in result.stderr and "in-process emulator" in result.stderr
     assert "the actuators hold (confirmed by read-back)" in result.stderr  # opened, held, told
     run = Run(out / "run.sqlite")
-    assert len(run.steps["step"]) == steps and [e["kind"] for e in run.events()][-2:] == ["resume", "stop"]
+    assert len(run.steps["step"]) == steps and [e["kind"] for e in run.events()][-3:] == ["resume", "hold", "stop"]
     assert run.summary["exit_status"] == 2
     result = CliRunner().invoke(main, ["resume", str(out), "--max-gap", "2"])
     assert result.exit_code == 0, result.output
@@ -462,7 +462,7 @@ def test_actuators_through_a_setup_far_from_where_the_record_stops_are_not_resum
     assert "more than 1 mm: not resumed, nothing moved" in result.stderr
     assert "the actuators hold (confirmed by read-back)" in result.stderr
     run = Run(out / "run.sqlite")
-    assert len(run.steps["step"]) == 80 and [e["kind"] for e in run.events()][-2:] == ["resume", "stop"]
+    assert len(run.steps["step"]) == 80 and [e["kind"] for e in run.events()][-3:] == ["resume", "hold", "stop"]
     result = CliRunner().invoke(main, ["resume", str(out), "--max-gap", "2"])
     assert result.exit_code == 0, result.output
     np.testing.assert_array_equal(Run(out / "run.sqlite").table("actuators")["step"], np.arange(1, 91))
@@ -507,3 +507,30 @@ def test_a_run_killed_before_its_summary_is_described_whole_after_the_resume(tmp
                 "channels", "start_state", "dry_run_override", "version", "ns_peak_displacement_mm"):
         assert summary[key] == whole[key], key
     assert summary["run_file"] == str(out / "run.sqlite") and summary["steps"] == whole["steps"]
+
+
+def test_a_stop_as_the_resume_opens_says_in_the_summary_and_ledger_how_the_hold_went(tmp_path):
+    """A stop that comes once the hardware opened, before the first resumed step: the record has
+    the hold and the stop, and the summary and the ledger row say how the hold went, as the
+    message does."""
+    from hsio.safety.control import RunControl
+    from hsio.safety.resume import resume
+    from hsio.safety.status import OperatorStop
+
+    specimen = tmp_path / "specimen"
+    cfg = write_config(tmp_path, duration=0.3, rate=5.0, extra=f'[specimen]\nfolder = "{specimen}"\nid = "w1"\n')
+    out = stopped_run(tmp_path, 1, config_path=cfg)
+    control = RunControl()
+
+    def notify(line):
+        if line.startswith("the actuators stand at"):
+            control.request_stop("stopped by the test as the hardware opened")
+
+    with pytest.raises(OperatorStop) as info:
+        resume(out, control=control, notify=notify)
+    assert "the actuators hold (confirmed by read-back)" in info.value.stop_message
+    run = Run(out / "run.sqlite")
+    assert [(e["kind"], e["message"]) for e in run.events()][-2:] == [
+        ("hold", "the actuators hold (confirmed by read-back)"), ("stop", info.value.stop_message)]
+    assert run.summary["stopped"] == info.value.stop_message and run.summary["exit_status"] == 5
+    assert ledger.read(specimen)[-1]["message"] == info.value.stop_message

@@ -298,7 +298,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
         if keys is not None and safety.keys:
             cleanup.callback(keys(control).close)
         notify(f"resuming {path} after step {state.i}" + (f" (the run recorded its stop: {why})" if why else ""))
-        site = end_state = None
+        site = end_state = stopped = None
         hold = {}
         try:
             control.enter("start-up")
@@ -348,9 +348,12 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
                 if not isinstance(exc, ExperimentStopped):  # the operator hears the hold, as the record has it
                     exc.stop_message = reason
             try:
+                if held is not None:  # as the run records a stop before its steps: the hold, then the stop
+                    recorder.write_event(site.lab_time_s, state.i, "hold", "", held.message, commit=False)
                 recorder.write_event(None, state.i, "stop", "", reason)
             except RecordError:  # a full disk took the record's last page: the message carries the stop
                 pass
+            stopped = reason  # the summary and the ledger say how the hold went, as the message does
             end_state = _state(site)
         status = exit_status(error)
         steps = recorder.db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]
@@ -367,7 +370,7 @@ def resume(run_dir: str | Path, progress=None, control: RunControl | None = None
             list(run.summary.get("earlier_sessions", []))
         summary.update(hold)
         summary.update(steps=steps, resumed_from=state.i, exit_status=status, outcome=outcome_name(status),
-                       stopped=str(error) if error else "", run_dir=str(run_dir), end_state=end_state)
+                       stopped=stopped or (str(error) if error else ""), run_dir=str(run_dir), end_state=end_state)
         u = np.array(recorder.db.execute("SELECT " + ", ".join(column("u", d) for d in structure.dof_names)
                                          + " FROM steps ORDER BY step").fetchall(), dtype=float)
         summary["peak_displacement_mm"] = [float(x) for x in np.max(np.abs(u), axis=0)] if len(u) else []
