@@ -13,7 +13,8 @@ answers ``too_few_samples``: such a block is also too short to judge the floor. 
 when no candidate clears the margin, the answer depends on the sensor floor
 (:mod:`~hsio.diagnose.residual`): ``none`` when the baseline's held-out error is within
 ``FLOOR_FACTOR`` floors and holds no line or trend (the lag explains the record as well as
-the sensors allow), otherwise
+the sensors allow), unless the baseline misses the fitting block by more than that
+(:func:`quiet_held_out`: the held-out blocks no longer tell, ``too_few_samples``); otherwise
 ``unexplained``, with what remains in the residual (lines, trend, correlation with the motion).
 """
 
@@ -214,6 +215,22 @@ def still_block(record: ActuatorRecord, n_train: int, n_choose: int) -> str | No
     return None
 
 
+def quiet_held_out(baseline: Fit, floor: residual_mod.Floor) -> str | None:
+    """Why no verdict can be drawn when the baseline misses the fitting block by more than
+    FLOOR_FACTOR sensor floors, or None. The held-out blocks then show less of what the
+    fitting block shows (an earthquake's free-vibration tail, slower than its strong motion):
+    an error at the floor there says the record stops telling the models apart, not that the
+    baseline explains it, so the answer is neither none nor a cause judged there."""
+    limit = residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm
+    if baseline.rms_train_mm <= limit:
+        return None
+    return (f"the baseline misses the fitting block by {baseline.rms_train_mm:.4g} mm RMS, "
+            f"{baseline.rms_train_mm / floor.sensor_floor_mm:.3g} sensor floors of {floor.sensor_floor_mm:.4g} mm, "
+            f"but no candidate clears the margin on the choosing block ({baseline.rms_choose_mm:.4g} mm): "
+            "the held-out blocks hold too little of the motion that shows the error to judge a cause; "
+            "give a record whose last 40 % moves as the rest does (or cut its quiet end off)")
+
+
 def with_controller_rate(record: ActuatorRecord, controller_rate_hz: float | None) -> ActuatorRecord:
     """The record with the servo loop's period, when its rate is given (checked by
     :func:`~hsio.diagnose.loop_rate.checked_controller_dt`); an hsio run's record keeps its own."""
@@ -298,6 +315,9 @@ def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, 
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
         cause = loop_rate.SLOW if slow else TOO_FEW if short else unnamed(s, floor)
+        if cause == NONE:
+            short = quiet_held_out(baseline, floor)
+            cause = TOO_FEW if short else NONE
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
                      n_choose, floor, s, timing, short, tie, slow)
 
