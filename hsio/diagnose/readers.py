@@ -314,7 +314,11 @@ def read_record(path: str | Path, fmt: str | None = None, channels: DaqChannels 
     if fmt == "csv":
         return read_csv(path)
     if fmt == "daq":
-        return read_daq(path, channels)
+        ch = channels or DaqChannels()
+        if ch.command == ch.measured:
+            raise RecordError(f"{path}: the command and the measured displacement are both channel {ch.command!r}: "
+                              "give each its own (--command-channel, --measured-channel)")
+        return read_daq(path, ch)
     if fmt == "run":
         return read_run(path, actuator)
     raise RecordError(f"{path}: unknown format {fmt!r}; known: {', '.join(FORMATS)}")
