@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import re
 import subprocess
 import sys
 
@@ -105,3 +106,43 @@ def test_an_option_the_record_does_not_read_is_refused_not_ignored(tmp_path, arg
     assert result.exit_code == 2 and message in result.stderr, result.stderr
     result = CliRunner().invoke(diagnose, ["--run", str(tmp_path), "--margin", "1.2"])
     assert result.exit_code == 2 and "--margin: not read for --run" in result.stderr, result.stderr
+
+
+def test_channels_swapped_on_a_slow_motion_are_refused(tmp_path):
+    """On a slow chirp (0.2 to 1 Hz) the cross-correlation's peak is too flat to show the 20 ms
+    lead of swapped channels; the lag fitted both ways round shows it: the command, read as the
+    measurement, trails by the lag, and the measurement cannot lead its command."""
+    record = emulate(chirp_command(8.0, 1000.0, amplitude_mm=2.0, f0_hz=0.2, f1_hz=1.0, rest_s=2.0),
+                     ServoConfig(rate_hz=1000.0, seed=3))
+    swapped = dataclasses.replace(record, command_mm=record.measured_mm, measured_mm=record.command_mm)
+    result = CliRunner().invoke(diagnose, [str(write_csv(swapped, tmp_path / "swapped.csv")), "--json"])
+    assert result.exit_code == 2 and "the command follows the measured displacement" in result.stderr, result.stderr
+    assert "channels are swapped" in result.stderr and "Traceback" not in result.stderr
+    result = CliRunner().invoke(diagnose, [str(write_csv(record, tmp_path / "right.csv")), "--json"])
+    assert result.exit_code == 0, result.output  # the right way round is read
+
+
+def test_one_daq_channel_for_command_and_measurement_is_refused(tmp_path):
+    """A command channel given as the measurement too would be diagnosed as an actuator that
+    follows perfectly (a velocity threshold with a gain of hundreds): refused, naming both roles."""
+    path = tmp_path / "daq.txt"
+    rows = [f"{k + 1}, 06/29/2022 04:05:36.674 PM, {0.1 * (k % 50) / 50:.4f}, 0.0, {0.1 * (k % 50) / 50:.4f}"
+            for k in range(200)]
+    path.write_text("Header Size:  7\nVersion:  2\nSampling Interval:  0.001\nSampling Rate:  1000\n"
+                    "Sample Count:  200\nDevice Serial Number:  0\nSample Number, Date/Time, CHANNEL0, CHANNEL1, "
+                    "CHANNEL2, Events\n" + "\n".join(rows) + "\n")
+    result = CliRunner().invoke(diagnose, [str(path), "--measured-channel", "CHANNEL2"])
+    assert result.exit_code == 2, result.output
+    assert "daq.txt: the command and the measured displacement are both channel 'CHANNEL2'" in result.stderr
+
+
+@pytest.mark.parametrize("factor", [0.1, 25.4])
+def test_a_command_in_other_units_is_refused(tmp_path, factor):
+    """A command column in V (at 10 mm/V) or in inches beside a measurement in mm: a scale_error
+    would be named with its gain pinned at the bound of its range; refused, naming the units."""
+    record = emulate(chirp_command(6.0, 500.0, amplitude_mm=4.0, f1_hz=3.0), ServoConfig(rate_hz=500.0, lag_s=0.03))
+    record = dataclasses.replace(record, command_mm=record.command_mm * factor)
+    result = CliRunner().invoke(diagnose, [str(write_csv(record, tmp_path / "units.csv")), "--json"])
+    assert result.exit_code == 2, result.output
+    moves = float(re.search(r"the measured displacement moves (\S+) times its command", result.stderr).group(1))
+    assert moves == pytest.approx(1.0 / factor, rel=0.05) and "different units" in result.stderr

@@ -8,7 +8,7 @@ import pytest
 from hsio.diagnose.model import simulate
 from hsio.diagnose.record import ActuatorRecord
 from hsio.diagnose.selection import NONE, UNEXPLAINED, diagnose
-from hsio.diagnose.synth import emulate, seismic_command
+from hsio.diagnose.synth import chirp_command, emulate, seismic_command
 from hsio.emulators.servo import ServoConfig
 
 RATE_HZ = 1024.0
@@ -86,3 +86,22 @@ def test_a_long_rest_at_the_end_judges_nothing():
     # The motion alone names the delay.
     moving = ActuatorRecord("moving", record.dt, record.command_mm[:5000], record.measured_mm[:5000], record.force_kN[:5000])
     assert diagnose(moving).cause == "transport_delay"
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_quiet_end_that_still_moves_judges_nothing(seed):
+    """An 8 ms delay hidden in a 10 mm chirp that is followed by a slow 0.3 mm sway (an
+    earthquake's free-vibration tail): the held-out blocks move, but too slowly to show the
+    delay, so the baseline meets the floor there while it misses the fitting block by ten floors.
+    The answer is too_few_samples, not none; with nothing hidden the same command answers none."""
+    n = int(6.0 * RATE_HZ)
+    strong = chirp_command(3.6, RATE_HZ, amplitude_mm=10.0, f0_hz=0.5, f1_hz=3.0, rest_s=0.2)
+    sway = 0.3 * np.sin(2 * np.pi * 0.4 * np.arange(n - strong.size) / RATE_HZ)
+    command = np.r_[strong, sway]
+    delayed = diagnose(emulate(command, ServoConfig(rate_hz=RATE_HZ, lag_s=LAG_S, transport_delay_s=0.008, seed=seed)),
+                       effects=("transport_delay",))
+    assert delayed.baseline.rms_train_mm > 5 * delayed.floor.sensor_floor_mm
+    assert delayed.cause == "too_few_samples"
+    assert "misses the fitting block" in delayed.to_json()["too_short"]
+    clean = diagnose(emulate(command, ServoConfig(rate_hz=RATE_HZ, lag_s=LAG_S, seed=seed)), effects=("transport_delay",))
+    assert clean.cause == NONE and clean.too_short is None

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from hsio.diagnose.readers import DaqChannels, read_csv, read_daq, read_record, write_csv
+from hsio.diagnose.readers import DaqChannels, read_csv, read_daq, read_record, read_run, write_csv
 from hsio.diagnose.record import ActuatorRecord
 from hsio.errors import RecordError
 
@@ -188,3 +188,37 @@ def test_an_event_text_of_millions_of_commas_is_not_split(tmp_path):
         tracemalloc.stop()
     assert rec.n == 300
     assert peak < 8 * path.stat().st_size, peak
+
+
+STRUCTURE_WITH_LVDT = """
+[structure]
+name = "lvdt"
+dt = 0.01
+[[dof]]
+name = "top"
+mass = 0.02
+[[experimental]]
+name = "wall"
+dof = "top"
+displacement_from = "wall_lvdt"
+outer_loop = { tolerance_mm = 0.05, max_iterations = 4 }
+model = { kind = "linear", k = 4.0 }
+[[instrument]]
+name = "wall_lvdt"
+kind = "lvdt"
+element = "wall"
+"""
+
+
+def test_a_run_whose_outer_loop_corrected_has_gaps_and_is_refused(tmp_path):
+    """An element driven by an external LVDT's outer loop: the periods of its corrections run in
+    lab time but are not recorded as controller samples, so the samples are not one continuous
+    record (read as one, the fit pins the lag at its least value and a transducer gain at 0.5)."""
+    from hsio import config, runner
+
+    (tmp_path / "lvdt.toml").write_text(STRUCTURE_WITH_LVDT)
+    runner.run(config.from_dict({"structure": {"file": str(tmp_path / "lvdt.toml")}, "record": {"duration_s": 0.3},
+                                 "output": {"plots": False}, "emulator": {"compliance_mm_per_kN": 0.2}}), tmp_path / "run")
+    with pytest.raises(RecordError, match=r"run.sqlite: the controller samples of wall jump in lab time from .* "
+                                          r"periods the loop ran were not recorded \(an outer loop's corrections\)"):
+        read_run(tmp_path / "run" / "run.sqlite")

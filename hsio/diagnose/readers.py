@@ -280,6 +280,15 @@ def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (math.isfinite(rate) and rate > 0):
         raise RecordError(f"{path}: its meta gives no usable controller rate (emulator_settings "
                           f"{json.dumps(settings, default=str)[:60]})")
+    lab = samples.get("lab_time_s")
+    if lab is not None and lab.size > 1:
+        jumps = np.flatnonzero(np.abs(np.diff(lab) - 1.0 / rate) > STEP_TOLERANCE / rate)
+        if jumps.size:
+            i = int(jumps[0])
+            raise RecordError(f"{path}: the controller samples of {name} jump in lab time from {lab[i]:.6g} to "
+                              f"{lab[i + 1]:.6g} s at step {samples['step'][i + 1]:g} ({jumps.size} such gaps): "
+                              "periods the loop ran were not recorded (an outer loop's corrections); "
+                              "diagnose needs every period of a continuous record")
     # The run records every controller period: its rate is the loop's.
     return ActuatorRecord(f"{path}#{name}", 1.0 / rate, samples[column("cmd", name)], samples[column("disp", name)],
                           samples[column("force", name)], controller_dt=1.0 / rate)
@@ -314,7 +323,11 @@ def read_record(path: str | Path, fmt: str | None = None, channels: DaqChannels 
     if fmt == "csv":
         return read_csv(path)
     if fmt == "daq":
-        return read_daq(path, channels)
+        ch = channels or DaqChannels()
+        if ch.command == ch.measured:
+            raise RecordError(f"{path}: the command and the measured displacement are both channel {ch.command!r}: "
+                              "give each its own (--command-channel, --measured-channel)")
+        return read_daq(path, ch)
     if fmt == "run":
         return read_run(path, actuator)
     raise RecordError(f"{path}: unknown format {fmt!r}; known: {', '.join(FORMATS)}")

@@ -13,7 +13,8 @@ answers ``too_few_samples``: such a block is also too short to judge the floor. 
 when no candidate clears the margin, the answer depends on the sensor floor
 (:mod:`~hsio.diagnose.residual`): ``none`` when the baseline's held-out error is within
 ``FLOOR_FACTOR`` floors and holds no line or trend (the lag explains the record as well as
-the sensors allow), otherwise
+the sensors allow), unless the baseline misses the fitting block by more than that
+(:func:`quiet_held_out`: the held-out blocks no longer tell, ``too_few_samples``); otherwise
 ``unexplained``, with what remains in the residual (lines, trend, correlation with the motion).
 """
 
@@ -51,6 +52,10 @@ MIN_BLOCK_SAMPLES = 50
 # cross-correlation or better and lags it, or leads it by no more than this (s).
 FOLLOW_CORRELATION = 0.5
 FOLLOW_LEAD_S = 0.005
+# ... and moves this many times as far: a lag that follows at all, a transducer's gain error; the
+# mistakes of units are factors of 10 (V at 10 mm/V, cm), 25.4 (inches) or 1000 (m).
+FOLLOW_SCALE = (0.2, 5.0)
+REVERSED_FIT = 2.0  # the command predicted from the measurement fits this many times better: channels swapped
 STILL_SHARE = 0.01  # a held-out block whose command moves less than this share of the record's range is at rest
 
 
@@ -183,6 +188,35 @@ def check_following(record: ActuatorRecord, n_train: int) -> None:
                           f"(cross-correlation {r:.2f} on the training part), and an actuator cannot move before it is "
                           "commanded: the command and measured channels are swapped (the columns, or --command-channel / "
                           "--measured-channel of a DAQ export) or the command channel is recorded late")
+    gain = r * math.sqrt(float(np.dot(m, m)) / float(np.dot(c, c))) if r >= FOLLOW_CORRELATION else 1.0
+    if not FOLLOW_SCALE[0] <= gain <= FOLLOW_SCALE[1]:
+        raise RecordError(f"{record.source}: the measured displacement moves {gain:.4g} times its command (least "
+                          "squares at the best shift, on the training part), beyond the "
+                          f"{FOLLOW_SCALE[0]:g}..{FOLLOW_SCALE[1]:g} that a lag or a transducer's gain error gives: the "
+                          "two channels are in different units (--command-scale / --measured-scale of a DAQ export, a "
+                          "column in V, inches or m)")
+
+
+def check_not_reversed(record: ActuatorRecord, n_train: int, baseline: Fit) -> None:
+    """Refuse a record whose command follows its measurement: the baseline's lag sits at its
+    least value (two loop periods: the measurement does not trail the command) while the
+    same lag fitted the other way round, the command predicted from the measurement, trails
+    by more than twice that and fits REVERSED_FIT times better. Cross-correlation cannot tell
+    which channel leads on a slow motion (a 1 Hz swing hides 26 ms of lead in a flat peak, and
+    DAQ noise common to both channels pulls it to zero); the fit of a lag can."""
+    least = 2.0 * record.loop_dt
+    if baseline.params["lag_s"] > 1.01 * least:
+        return
+    flipped = fit_baseline(dataclasses.replace(record, command_mm=record.measured_mm, measured_mm=record.command_mm),
+                           n_train)
+    lag = flipped.params["lag_s"]
+    if lag > 2.0 * least and REVERSED_FIT * flipped.rms_train_mm <= baseline.rms_train_mm:
+        raise RecordError(f"{record.source}: the command follows the measured displacement: read the other way "
+                          f"round, the command trails it by a lag of {1e3 * lag:.4g} ms (RMS "
+                          f"{flipped.rms_train_mm:.4g} mm on the training part, against {baseline.rms_train_mm:.4g} mm "
+                          "with the measurement following the command at the least lag), and an actuator cannot move "
+                          "before it is commanded: the command and measured channels are swapped (the columns, or "
+                          "--command-channel / --measured-channel of a DAQ export) or the command channel is recorded late")
 
 
 def too_short(record: ActuatorRecord, n_train: int, n_choose: int, lag_s: float) -> str | None:
@@ -212,6 +246,23 @@ def still_block(record: ActuatorRecord, n_train: int, n_choose: int) -> str | No
             return (f"the {name} block (samples {a} to {b}) holds no motion: its command moves {moves:.4g} mm, under "
                     f"{100 * STILL_SHARE:g} % of the record's {span:.4g} mm; cut the rest off the record")
     return None
+
+
+def quiet_held_out(baseline: Fit, floor: residual_mod.Floor) -> str | None:
+    """Why no verdict can be drawn when the baseline misses the fitting block by more than
+    FLOOR_FACTOR sensor floors, or None. The held-out blocks then show less of what the
+    fitting block shows (an earthquake's free-vibration tail, slower than its strong motion):
+    an error at the floor there says the record stops telling the models apart, not that the
+    baseline explains it, so the answer is neither none nor a cause judged there."""
+    limit = residual_mod.FLOOR_FACTOR * floor.sensor_floor_mm
+    if baseline.rms_train_mm <= limit:
+        return None
+    return (f"the baseline misses the fitting block by {baseline.rms_train_mm:.4g} mm RMS, "
+            f"{baseline.rms_train_mm / floor.sensor_floor_mm:.3g} sensor floors of {floor.sensor_floor_mm:.4g} mm, "
+            f"but no candidate clears the margin on the choosing block ({baseline.rms_choose_mm:.4g} mm): "
+            "the held-out blocks hold too little of the motion that shows the error to judge a cause; "
+            "move the blocks into the motion (a smaller --train-fraction and --choose-fraction) or cut "
+            "the quiet end off the record")
 
 
 def with_controller_rate(record: ActuatorRecord, controller_rate_hz: float | None) -> ActuatorRecord:
@@ -298,6 +349,9 @@ def _finish(record: ActuatorRecord, n_train: int, n_choose: int, margin: float, 
     s = residual_mod.structure(r, n_choose, record.dt, floor.sensor_floor_mm, record.smoothed_velocity(), record.force_kN)
     if cause is None:
         cause = loop_rate.SLOW if slow else TOO_FEW if short else unnamed(s, floor)
+        if cause == NONE:
+            short = quiet_held_out(baseline, floor)
+            cause = TOO_FEW if short else NONE
     return Diagnosis(record, n_train, margin, baseline, candidates, cause, extended, time.perf_counter() - t0, ctx,
                      n_choose, floor, s, timing, short, tie, slow)
 
@@ -329,6 +383,7 @@ def diagnose(record: ActuatorRecord, train_fraction: float = TRAIN_FRACTION, mar
                           "channel is not the displacement")
     check_following(record, n_train)
     baseline = fit_baseline(record, n_train)
+    check_not_reversed(record, n_train, baseline)
     ctx = context(record, baseline.params["lag_s"], baseline.rms_train_mm, baseline.prediction)
     names = [n for n in (effects or NAMES) if not (EFFECTS[n].needs_force and ctx.force_peak == 0.0)]  # no force, or constant
     slow = loop_rate.slow_record(record)
