@@ -619,6 +619,15 @@ class Structure:
                                       "one column of the record (it keeps the letters, digits and _ of a name and "
                                       "ignores case); give names that differ there")
                 seen[key] = (where, name)
+        # a DOF's columns are u_, v_, a_, u_pred_, R_ (r_) and mode_ + its name: DOF "pred_x"'s u_ column
+        # is DOF "x"'s u_pred_ column
+        dofs = {column("", name)[1:].casefold(): (f"dof[{k}].name", name) for k, name in enumerate(self.dof_names)}
+        for key, (where, name) in dofs.items():
+            if key.startswith("pred_") and key[len("pred_"):] in dofs:
+                first_where, first = dofs[key[len("pred_"):]]
+                raise ConfigError(f"{what}: {where}: DOF {name!r} would make the column {column('u', name)!r} of the "
+                                  f"record, which is the predicted displacement (u_pred_) of DOF {first!r} of "
+                                  f"{first_where}; give another name")
 
     def _actuator_keys(self):
         """Per actuator of the loop (the elements', then the preloads'), the structure file's key
