@@ -115,6 +115,18 @@ class ExperimentalElement:
             if K is None or K.ndim != 2 or K.shape[0] != K.shape[1] or not np.all(np.isfinite(K)):
                 raise ConfigError(f"{what}: K_EI_declared must be a positive number or a square matrix of finite "
                                   f"numbers, got {self.K_EI_declared!r}")
+            n = len(self.dofs) if self.dofs else 1
+            if K.shape != (n, n):
+                raise ConfigError(f"{what}: K_EI_declared must be a {n} x {n} matrix (a row per basic DOF), got "
+                                  f"{K.shape[0]} x {K.shape[1]}")
+            if not np.allclose(K, K.T, rtol=0, atol=1e-12 * np.max(np.abs(K))):
+                raise ConfigError(f"{what}: K_EI_declared must be symmetric")
+            try:
+                np.linalg.cholesky(K)
+            except np.linalg.LinAlgError:
+                raise ConfigError(f"{what}: K_EI_declared must be positive definite") from None
+            if n == 1:  # one basic DOF: K^EI is a number
+                object.__setattr__(self, "K_EI_declared", float(K[0, 0]))
         if not self.actuator:
             object.__setattr__(self, "actuator", self.actuators[0] if self.actuators else self.name)
         if self.dofs and self.dof != self.dofs[0]:
