@@ -406,6 +406,12 @@ class Damping:
     kind: str = "rayleigh"
     modes: tuple[int, ...] = ()
 
+    def __post_init__(self):
+        for key in ("zeta", "modes"):  # numpy arrays (one ratio or mode per entry) as tuples of numbers
+            value = getattr(self, key)
+            if isinstance(value, np.ndarray):
+                object.__setattr__(self, key, tuple(value.tolist()) if value.ndim == 1 else value.tolist())
+
     def mode_numbers(self) -> tuple[int, ...]:
         if self.modes:
             return tuple(self.modes)

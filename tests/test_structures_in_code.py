@@ -46,3 +46,16 @@ def test_a_declared_matrix_of_an_element_on_several_dofs_is_checked(K_EI, messag
     column = hsio.load_structure("column_two_actuators").experimental[0]
     with pytest.raises(ConfigError, match=rf"^experimental element '{column.name}': K_EI_declared {re.escape(message)}"):
         dataclasses.replace(column, K_EI_declared=K_EI)
+
+
+def test_damping_ratios_and_modes_given_as_numpy_arrays_are_those_numbers():
+    from hsio.structures import Spring
+
+    def two_dof(damping: Damping) -> Structure:
+        return Structure(name="c", dof_names=("a", "b"), masses=(0.01, 0.01), springs=(Spring(1, 0, 5.0),),
+                         experimental=(ExperimentalElement("e", 0, {"kind": "linear", "k": 10.0}),), damping=damping)
+
+    from_arrays = two_dof(Damping(np.array([0.02, 0.05]), "rayleigh", np.array([2, 1])))
+    from_tuples = two_dof(Damping((0.02, 0.05), "rayleigh", (2, 1)))
+    assert np.allclose(from_arrays.damping_ratios(), [0.05, 0.02])
+    assert from_arrays == from_tuples
