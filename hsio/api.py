@@ -518,6 +518,9 @@ def simulate(structure: Structure, ground: GroundMotion, site, method: str = "al
         if ignored:
             raise ConfigError(f"simulate: {', '.join(ignored)} given beside a ready integrator, which they would not "
                               f"change; build the integrator with them (make_integrator), or leave them out")
+    if start == "present" and (getattr(integrator, "method", "") != "alpha_os" or not hasattr(integrator, "core")):
+        raise ConfigError(f"simulate: start = 'present' is available for the alpha_os method, not "
+                          f"{getattr(integrator, 'method', integrator)!r} (docs/safety.md section 6); nothing moved")
     if (getattr(integrator, "method", "") in ("force_control", "mixed") and isinstance(site, ActuatorSite)
             and site.estimator is None):
         warnings.warn(f"{integrator.method}: the site has no secant estimator, so eq. (11) is taken on each "

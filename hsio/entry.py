@@ -38,6 +38,9 @@ def main():
     _previous = signal.getsignal(signal.SIGINT)
     if _previous is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, _note)
+    import matplotlib
+
+    matplotlib.use("Agg")  # the command line writes its plots to files, never to a window
     from hsio.cli import main as cli
 
     return cli()

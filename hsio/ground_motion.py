@@ -132,6 +132,9 @@ class GroundMotion:
         over = np.flatnonzero(~np.isfinite(accel))
         if over.size:
             i = over[0]
+            if not np.isfinite(self.accel_g[i]):  # accel_g changed in place after the record was made
+                raise RecordError(f"{self.name}: sample {i} (t = {i * self.dt:.3f} s) is {float(self.accel_g[i])}, "
+                                  "not a finite number")
             raise RecordError(f"{self.name}: sample {i} (t = {i * self.dt:.3f} s) = {float(self.accel_g[i]):g} g "
                               f"is {float(accel[i])} {what}: beyond the largest floating-point number "
                               f"({np.finfo(float).max:.4g})")

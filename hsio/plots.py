@@ -5,13 +5,11 @@ from __future__ import annotations
 import textwrap
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt  # the backend is the user's; the command line chooses Agg (hsio.entry)
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from hsio.recording import column  # noqa: E402
+from hsio.recording import column
 
 
 def displacement_histories(path: Path, t, u_hs, t_ns, u_ns, dof_names, title: str = "", units=None) -> Path:
@@ -182,7 +180,9 @@ def result_figure(result, reference=None, path: str | Path | None = None):
     ``reference``, e.g. NS) and the force-displacement loop of each experimental element."""
     n, m = len(result.dof_names), len(result.element_names)
     rows = max(n, m)
-    fig, axes = plt.subplots(rows, 2, figsize=(11, 2.8 * rows + 0.8), squeeze=False)
+    # a Figure of its own, not kept by pyplot: a notebook's figures and backend are left as they are
+    fig = Figure(figsize=(11, 2.8 * rows + 0.8))
+    axes = fig.subplots(rows, 2, squeeze=False)
     for k, name in enumerate(result.dof_names):
         ax = axes[k, 0]
         if reference is not None:

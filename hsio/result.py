@@ -155,9 +155,6 @@ class Result:
             try:
                 figure.savefig(path, dpi=110)
             except (OSError, ValueError) as exc:
-                import matplotlib.pyplot as plt
-
-                plt.close(figure)
                 raise HsioError(f"plot: cannot write {path}: {getattr(exc, 'strerror', None) or exc}") from None
         return figure
 

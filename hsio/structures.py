@@ -115,6 +115,18 @@ class ExperimentalElement:
             if K is None or K.ndim != 2 or K.shape[0] != K.shape[1] or not np.all(np.isfinite(K)):
                 raise ConfigError(f"{what}: K_EI_declared must be a positive number or a square matrix of finite "
                                   f"numbers, got {self.K_EI_declared!r}")
+            n = len(self.dofs) if self.dofs else 1
+            if K.shape != (n, n):
+                raise ConfigError(f"{what}: K_EI_declared must be a {n} x {n} matrix (a row per basic DOF), got "
+                                  f"{K.shape[0]} x {K.shape[1]}")
+            if not np.allclose(K, K.T, rtol=0, atol=1e-12 * np.max(np.abs(K))):
+                raise ConfigError(f"{what}: K_EI_declared must be symmetric")
+            try:
+                np.linalg.cholesky(K)
+            except np.linalg.LinAlgError:
+                raise ConfigError(f"{what}: K_EI_declared must be positive definite") from None
+            if n == 1:  # one basic DOF: K^EI is a number
+                object.__setattr__(self, "K_EI_declared", float(K[0, 0]))
         if not self.actuator:
             object.__setattr__(self, "actuator", self.actuators[0] if self.actuators else self.name)
         if self.dofs and self.dof != self.dofs[0]:
@@ -394,6 +406,12 @@ class Damping:
     kind: str = "rayleigh"
     modes: tuple[int, ...] = ()
 
+    def __post_init__(self):
+        for key in ("zeta", "modes"):  # numpy arrays (one ratio or mode per entry) as tuples of numbers
+            value = getattr(self, key)
+            if isinstance(value, np.ndarray):
+                object.__setattr__(self, key, tuple(value.tolist()) if value.ndim == 1 else value.tolist())
+
     def mode_numbers(self) -> tuple[int, ...]:
         if self.modes:
             return tuple(self.modes)
@@ -619,6 +637,15 @@ class Structure:
                                       "one column of the record (it keeps the letters, digits and _ of a name and "
                                       "ignores case); give names that differ there")
                 seen[key] = (where, name)
+        # a DOF's columns are u_, v_, a_, u_pred_, R_ (r_) and mode_ + its name: DOF "pred_x"'s u_ column
+        # is DOF "x"'s u_pred_ column
+        dofs = {column("", name)[1:].casefold(): (f"dof[{k}].name", name) for k, name in enumerate(self.dof_names)}
+        for key, (where, name) in dofs.items():
+            if key.startswith("pred_") and key[len("pred_"):] in dofs:
+                first_where, first = dofs[key[len("pred_"):]]
+                raise ConfigError(f"{what}: {where}: DOF {name!r} would make the column {column('u', name)!r} of the "
+                                  f"record, which is the predicted displacement (u_pred_) of DOF {first!r} of "
+                                  f"{first_where}; give another name")
 
     def _actuator_keys(self):
         """Per actuator of the loop (the elements', then the preloads'), the structure file's key

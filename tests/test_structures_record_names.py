@@ -122,3 +122,27 @@ def test_actuators_of_a_setup_that_differ_only_in_case_are_refused():
     with pytest.raises(ConfigError, match=r"^col.toml: experimental\[0\].actuators\[1\]: actuator 'Lower' and "
                                           r"'lower' of experimental\[0\].actuators\[0\] would be one column"):
         parse_structure(text, "col.toml")
+
+
+@pytest.mark.parametrize("second", ["pred_wall", "Pred-Wall"])
+def test_a_dof_named_pred_and_another_dofs_name_is_refused(second):
+    """DOF `pred_wall`'s displacement column u_pred_wall is DOF `wall`'s predicted displacement:
+    the record and `Result.to_dataframe()` would keep one of the two."""
+    text = WALL + (f'\n[[dof]]\nname = "{second}"\nmass = 0.01\n\n[[spring]]\ndof = "{second}"\nto = "wall"\n'
+                   "k = 1.0\n")
+    with pytest.raises(ConfigError) as info:
+        parse_structure(text, "wall.toml")
+    assert str(info.value).startswith(f"wall.toml: dof[1].name: DOF '{second}' would make the column "
+                                      f"'u_{second.replace('-', '_')}' of the record, which is the predicted "
+                                      "displacement (u_pred_) of DOF 'wall' of dof[0].name")
+
+
+def test_every_dof_column_of_a_dataframe_is_its_own():
+    text = WALL + '\n[[dof]]\nname = "pred"\nmass = 0.01\n\n[[spring]]\ndof = "pred"\nto = "wall"\nk = 1.0\n'
+    structure = parse_structure(text, "wall.toml")
+    result = hsio.run_numerical(structure, hsio.synthetic_record(duration_s=0.2, dt=structure.dt, seed=1))
+    pytest.importorskip("pandas")
+    frame = result.to_dataframe()
+    assert len(frame.columns) == 1 + 6 * 2 + 6 * 1
+    assert np.array_equal(frame["u_pred_wall"], result.u_pred[:, 0])
+    assert np.array_equal(frame["u_pred"], result.u[:, 1])
