@@ -146,3 +146,28 @@ def test_a_command_in_other_units_is_refused(tmp_path, factor):
     assert result.exit_code == 2, result.output
     moves = float(re.search(r"the measured displacement moves (\S+) times its command", result.stderr).group(1))
     assert moves == pytest.approx(1.0 / factor, rel=0.05) and "different units" in result.stderr
+
+
+@pytest.mark.parametrize("factor", [1.0, 0.1])
+def test_a_fast_record_behind_a_large_lag_is_not_taken_for_other_units(factor):
+    """A sweep from 4 to 12 Hz through a first-order lag of 120 ms: the actuator moves 0.18 times
+    as far as its command, 0.19 by least squares at the best shift, with no unit mistaken. Its
+    gain is that of the command through the lag that follows it best, 1; the same record with
+    the command in V at 10 mm/V is refused, 10 times."""
+    import numpy as np
+
+    from hsio.diagnose.selection import check_following
+    from hsio.errors import RecordError
+
+    record = emulate(chirp_command(8.0, 1000.0, amplitude_mm=3.0, f0_hz=4.0, f1_hz=12.0),
+                     ServoConfig(rate_hz=1000.0, lag_s=0.12))
+    assert np.std(record.measured_mm) < 0.2 * np.std(record.command_mm)
+    record = dataclasses.replace(record, command_mm=record.command_mm * factor)
+    n_train = record.command_mm.size * 6 // 10
+    if factor == 1.0:
+        check_following(record, n_train)
+    else:
+        with pytest.raises(RecordError, match="different units") as info:
+            check_following(record, n_train)
+        moves = float(re.search(r"moves (\S+) times its command", str(info.value)).group(1))
+        assert moves == pytest.approx(10.0, rel=0.05)
