@@ -222,3 +222,23 @@ def test_a_run_whose_outer_loop_corrected_has_gaps_and_is_refused(tmp_path):
     with pytest.raises(RecordError, match=r"run.sqlite: the controller samples of wall jump in lab time from .* "
                                           r"periods the loop ran were not recorded \(an outer loop's corrections\)"):
         read_run(tmp_path / "run" / "run.sqlite")
+
+
+def test_a_resumed_run_is_refused_naming_the_resume(tmp_path):
+    """A resumed run's samples start again where the new session's controller starts (a new
+    in-process emulator at lab time 0): two records with the actuators standing between them,
+    refused as such, not as an outer loop's corrections."""
+    from click.testing import CliRunner
+    from wire import stopped_run, write_config
+
+    from hsio.cli import main
+
+    cfg = write_config(tmp_path, duration=0.6, rate=5.0)
+    cfg.write_text(cfg.read_text().replace("samples = false", "samples = true"))
+    out = stopped_run(tmp_path, 20, config_path=cfg)
+    read_run(out / "run.sqlite")  # one session: one continuous record
+    assert CliRunner().invoke(main, ["resume", str(out)]).exit_code == 0
+    with pytest.raises(RecordError, match=r"run.sqlite: the run was resumed after step 20: the controller samples of "
+                                          r"C1 start again at lab time .* separate records.*diagnose needs") as info:
+        read_run(out / "run.sqlite")
+    assert "outer loop" not in str(info.value)

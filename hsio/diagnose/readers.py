@@ -285,6 +285,14 @@ def read_run(path: str | Path, actuator: str | None = None) -> ActuatorRecord:
         jumps = np.flatnonzero(np.abs(np.diff(lab) - 1.0 / rate) > STEP_TOLERANCE / rate)
         if jumps.size:
             i = int(jumps[0])
+            step = float(samples["step"][i + 1])
+            resumed = [e["step"] for e in run.events() if e["kind"] == "resume" and e["step"] is not None
+                       and e["step"] + 1 == step]
+            if resumed:  # the actuators stood still between the two sessions, for a time not recorded
+                raise RecordError(f"{path}: the run was resumed after step {resumed[0]}: the controller samples of "
+                                  f"{name} start again at lab time {lab[i + 1]:.6g} s after {lab[i]:.6g} s, the two "
+                                  "sessions separate records with the actuators standing between them; diagnose "
+                                  "needs every period of a continuous record")
             raise RecordError(f"{path}: the controller samples of {name} jump in lab time from {lab[i]:.6g} to "
                               f"{lab[i + 1]:.6g} s at step {samples['step'][i + 1]:g} ({jumps.size} such gaps): "
                               "periods the loop ran were not recorded (an outer loop's corrections); "
