@@ -125,8 +125,8 @@ class ExperimentalElement:
                 np.linalg.cholesky(K)
             except np.linalg.LinAlgError:
                 raise ConfigError(f"{what}: K_EI_declared must be positive definite") from None
-            if n == 1:  # one basic DOF: K^EI is a number
-                object.__setattr__(self, "K_EI_declared", float(K[0, 0]))
+            # one basic DOF: K^EI is a number; several: rows of numbers, as a structure file gives them
+            object.__setattr__(self, "K_EI_declared", float(K[0, 0]) if n == 1 else tuple(tuple(r) for r in K.tolist()))
         if not self.actuator:
             object.__setattr__(self, "actuator", self.actuators[0] if self.actuators else self.name)
         if self.dofs and self.dof != self.dofs[0]:

@@ -59,3 +59,16 @@ def test_damping_ratios_and_modes_given_as_numpy_arrays_are_those_numbers():
     from_tuples = two_dof(Damping((0.02, 0.05), "rayleigh", (2, 1)))
     assert np.allclose(from_arrays.damping_ratios(), [0.05, 0.02])
     assert from_arrays == from_tuples
+
+
+def test_a_declared_matrix_given_as_a_numpy_array_is_those_numbers():
+    """A K^EI matrix given as a numpy array is kept as the structure file keeps it, rows of
+    numbers: two structures built alike from arrays are equal, as two from tuples are."""
+    column = hsio.load_structure("column_two_actuators")
+
+    def built():
+        element = dataclasses.replace(column.experimental[0], K_EI_declared=np.array([[5.0, 1.0], [1.0, 5.0]]))
+        return dataclasses.replace(column, experimental=(element,))
+
+    assert built().experimental[0].K_EI_declared == ((5.0, 1.0), (1.0, 5.0))
+    assert built() == built()
