@@ -205,7 +205,6 @@ def plot(rows: list[Row], path) -> None:
     import matplotlib
     import matplotlib.ticker
 
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     alphas = sorted({r.alpha for r in rows}, reverse=True)

@@ -379,7 +379,6 @@ def plot(rows: list[Row], path: str) -> None:
     stopped run marked)."""
     import matplotlib
 
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     if not rows:

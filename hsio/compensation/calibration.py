@@ -206,7 +206,6 @@ def plot(path: str | Path, calibrations: list[Calibration]) -> Path:
     """Execution error against command velocity with the fitted hockey stick (the paper's Fig. 8)."""
     import matplotlib
 
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     n = len(calibrations)

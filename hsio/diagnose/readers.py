@@ -2,7 +2,7 @@
 
 * CSV: a header row ``time_s,command_mm,measured_mm`` and optionally ``force_kN`` (any order),
   one row per sample, uniform time step.
-* DAQ text export (../shared/data/actuator/SOURCES.md): ``Header Size: n`` header lines, the
+* DAQ text export (as an MTS rig's data acquisition writes it): ``Header Size: n`` header lines, the
   last one the column names ``Sample Number, Date/Time, CHANNEL0, ...``, then rows of sample number,
   date/time, channel values in volts and an optional trailing event text. Channels are mapped
   and scaled to mm and kN by :class:`DaqChannels`.
@@ -152,9 +152,10 @@ def write_csv(record: ActuatorRecord, path: str | Path) -> Path:
 class DaqChannels:
     """Which DAQ channel is which, and its scale (mm per V, kN per V).
 
-    The defaults are the MTS test rig of ../shared/data/actuator: CHANNEL0 measured (10 mm/V),
-    CHANNEL2 command (10 mm/V), CHANNEL1 load cell (1 V = 1 tf = 9.80665 kN; uncertain by a
-    factor of 10, see SOURCES.md). ``force=""`` ignores the force channel.
+    The defaults are those of the MTS test rig whose exports docs/diagnose.md reads: CHANNEL0
+    measured (10 mm/V), CHANNEL2 command (10 mm/V), CHANNEL1 load cell (1 V = 1 tf = 9.80665 kN;
+    the data's own description leaves that scale uncertain by a factor of 10). ``force=""``
+    ignores the force channel.
     """
 
     command: str = "CHANNEL2"
@@ -181,7 +182,8 @@ def daq_header_size(lines: list[str], path) -> int:
 
 
 def read_daq(path: str | Path, channels: DaqChannels | None = None) -> ActuatorRecord:
-    """A DAQ text export (SOURCES.md format): header, column names, sample rows with event text."""
+    """A DAQ text export (the module docstring's format): header, column names, sample rows with
+    event text."""
     path = Path(path)
     ch = channels or DaqChannels()
     text = read_bytes(path).decode("latin-1")
