@@ -318,8 +318,7 @@ def configured(path, methods=METHODS, recipe: Recipe = Recipe(), progress=None, 
     rows' ``case`` is ``case``, else the file's name."""
     from hsio import config as run_config
     from hsio.diagnose.modelfile import merged_emulator_table
-    from hsio.emulators.servo import ServoConfig
-    from hsio.runner import build_record, load_run_structure
+    from hsio.runner import _instrument_values, build_record, load_run_structure
 
     config = run_config.load(path)
     url = config["hardware"]["url"]
@@ -329,9 +328,7 @@ def configured(path, methods=METHODS, recipe: Recipe = Recipe(), progress=None, 
     structure = load_run_structure(config)
     ground = build_record(config, structure)
     emulator = merged_emulator_table(config["hardware"]["actuator_model"], config["emulator"])
-    servo = ServoConfig()
-    du, dF, su, sF = (float(emulator.get(key, getattr(servo, key)))
-                      for key in ("resolution_mm", "force_resolution_kN", "noise_mm", "force_noise_kN"))
+    du, dF, su, sF = _instrument_values(DEFAULTS["integrator"], emulator)  # the emulated controller's, as hsio run reads them
     compensation = config["compensation"] if config["compensation"]["mode"] != "off" else None
     try:
         rows = run_case(case or Path(config.source).name, structure, ground, methods, du, dF, config["test"]["rate"],

@@ -193,13 +193,12 @@ def test_a_pause_asked_before_the_first_step_holds_before_it():
     np.testing.assert_allclose(result.u, reference.u, atol=1e-9)
 
 
-def test_an_interlock_in_the_ramp_in_is_recorded_and_told_with_the_hold(tmp_path):
-    """An axial actuator that does not follow its force ramp trips before the first step: the
-    record has the trip, the hold and the stop, and `hsio run` says the actuators hold."""
+def _run_with_a_lagging_axial(tmp_path):
+    """`hsio run` of preloaded_column whose axial actuator does not follow its force ramp: it trips
+    (following) before the first step, exit 4."""
     from click.testing import CliRunner
 
     from hsio.cli import main
-    from hsio.recording import Run
 
     cfg = tmp_path / "run.toml"
     cfg.write_text('[structure]\nname = "preloaded_column"\n[record]\nduration_s = 1.0\n[test]\nrate = 10.0\n'
@@ -208,6 +207,15 @@ def test_an_interlock_in_the_ramp_in_is_recorded_and_told_with_the_hold(tmp_path
     result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
     assert result.exit_code == 4, result.output
     assert "interlock (following) on actuator 'axial'" in result.output
+    return result
+
+
+def test_an_interlock_in_the_ramp_in_is_recorded_and_told_with_the_hold(tmp_path):
+    """An axial actuator that does not follow its force ramp trips before the first step: the
+    record has the trip, the hold and the stop, and `hsio run` says the actuators hold."""
+    from hsio.recording import Run
+
+    result = _run_with_a_lagging_axial(tmp_path)
     assert "the actuators hold (confirmed by read-back)" in result.output
     run = Run(tmp_path / "o" / "run.sqlite")
     events = run.events()
@@ -243,16 +251,6 @@ def test_a_stop_in_the_ramp_in_whose_tables_cannot_be_written_says_so(tmp_path, 
 
 def test_hsio_run_tells_a_trip_in_the_ramp_in_whose_tables_cannot_be_written(tmp_path, monkeypatch):
     """The trip is what `hsio run` reports (exit 4), and its message says the ramp's tables are not in the record."""
-    from click.testing import CliRunner
-
-    from hsio.cli import main
-
     _tables_not_written(monkeypatch)
-    cfg = tmp_path / "run.toml"
-    cfg.write_text('[structure]\nname = "preloaded_column"\n[record]\nduration_s = 1.0\n[test]\nrate = 10.0\n'
-                   '[emulator]\nforce_lag_s = 5.0\n[output]\nplots = false\n'
-                   '[safety]\nkeys = false\nfollowing_error_kN = 2.0\nfollowing_time_s = 0.05\n')
-    result = CliRunner().invoke(main, ["run", str(cfg), "--out", str(tmp_path / "o")])
-    assert result.exit_code == 4, result.output
-    assert "interlock (following) on actuator 'axial'" in result.output
+    result = _run_with_a_lagging_axial(tmp_path)
     assert "the preload ramp's tables could not be written to the record" in result.output
